@@ -1,0 +1,93 @@
+"""Baseline drivers that act only on what an agent observes: the rule-based driver and random.
+
+They need no simulator: a trainer anywhere can run them against any overtake environment,
+in-process or remote. Both take batches (B, ...) so one call drives a whole vector env.
+
+The rule-based driver is meant as a fair opponent for learned policies:
+
+- it keeps the cruise target at the limit (``cruise_max_kmh``), raising it whenever it is lower;
+  adaptive cruise control and emergency braking beneath it handle the car ahead;
+- when its own lane is blocked (a car within ``blocked_ahead_m``) it changes to a neighbouring
+  lane that offers at least ``better_by_m`` more free distance ahead, if its LIDAR shows that
+  lane empty from ``gap_behind_m`` behind to ``gap_ahead_m`` ahead of the car's centre and the
+  action mask allows the move; with both sides good it takes the one with more room, left on a
+  tie (overtaking on the left).
+
+Free distance in a lane is read from the LIDAR points in that lane's strip (``lane_width_m``
+wide, centred on the lane), in the car's frame: x forward, y left.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+KEEP, CRUISE_UP, CRUISE_DOWN, LANE_LEFT, LANE_RIGHT = range(5)
+_EGO_CRUISE_TARGET = 1  # index of the cruise target (m/s) in the ego vector
+
+
+@dataclass(frozen=True, slots=True)
+class RuleDriverConfig:
+    """Thresholds of the rule-based driver (metres are along the road from the car's centre)."""
+
+    cruise_max_kmh: float = 80.0
+    lane_width_m: float = 3.5
+    blocked_ahead_m: float = 40.0
+    better_by_m: float = 15.0
+    gap_ahead_m: float = 10.0
+    gap_behind_m: float = 15.0
+
+
+class RuleDriver:
+    def __init__(self, config: RuleDriverConfig = RuleDriverConfig(), ray_count: int = 360,
+                 max_range_m: float = 80.0) -> None:
+        self.config = config
+        self.max_range_m = max_range_m
+        angles = np.arange(ray_count) * (2.0 * np.pi / ray_count)
+        self._cos, self._sin = np.cos(angles), np.sin(angles)
+
+    def free_distance(self, lidar: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per lane offset (right, own, left): free metres ahead and whether the side is clear.
+
+        lidar: (B, R). Returns free (B, 3) and clear (B, 3) (beside the car, for a change).
+        """
+        cfg = self.config
+        hit = lidar < self.max_range_m - 1e-3
+        x = lidar * self._cos
+        y = lidar * self._sin
+        offsets = np.array([-1.0, 0.0, 1.0]) * cfg.lane_width_m
+        in_lane = (np.abs(y[:, None, :] - offsets[None, :, None]) < cfg.lane_width_m / 2) \
+            & hit[:, None, :]                                              # (B, 3, R)
+        ahead = in_lane & (x[:, None, :] > 0.0)
+        free = np.where(ahead, x[:, None, :], self.max_range_m).min(axis=-1)
+        beside = in_lane & (x[:, None, :] > -cfg.gap_behind_m) & (x[:, None, :] < cfg.gap_ahead_m)
+        return free, ~beside.any(axis=-1)
+
+    def act(self, lidar: np.ndarray, ego: np.ndarray, action_mask: np.ndarray) -> np.ndarray:
+        """Actions (B,) for observations lidar (B, R), ego (B, 6) and action masks (B, 5)."""
+        cfg = self.config
+        lidar, ego, action_mask = np.atleast_2d(lidar), np.atleast_2d(ego), np.atleast_2d(action_mask)
+        free, clear = self.free_distance(lidar)
+        own = free[:, 1]
+        blocked = own < cfg.blocked_ahead_m
+        room_left = np.where(clear[:, 2] & (action_mask[:, LANE_LEFT] > 0), free[:, 2], -np.inf)
+        room_right = np.where(clear[:, 0] & (action_mask[:, LANE_RIGHT] > 0), free[:, 0], -np.inf)
+        go_left = blocked & (room_left >= own + cfg.better_by_m) & (room_left >= room_right)
+        go_right = blocked & ~go_left & (room_right >= own + cfg.better_by_m)
+        below_limit = ego[:, _EGO_CRUISE_TARGET] < cfg.cruise_max_kmh / 3.6 - 1e-3
+        action = np.where(below_limit, CRUISE_UP, KEEP)
+        action = np.where(go_right, LANE_RIGHT, action)
+        return np.where(go_left, LANE_LEFT, action).astype(np.int64)
+
+
+class RandomDriver:
+    """Uniformly random among the actions the mask allows."""
+
+    def __init__(self, seed: int | None = None) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    def act(self, lidar: np.ndarray, ego: np.ndarray, action_mask: np.ndarray) -> np.ndarray:
+        mask = np.atleast_2d(action_mask).astype(bool)
+        scores = np.where(mask, self.rng.random(mask.shape), -1.0)
+        return scores.argmax(axis=1).astype(np.int64)

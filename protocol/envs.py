@@ -1,0 +1,24 @@
+"""The Gymnasium ids of overtake's environments, registered with string entry points.
+
+Both ``overtake.server`` and ``overtake.client`` call :func:`register_environments` on import;
+the entry points are strings, so registering never imports the simulator into a trainer.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+
+HIGHWAY_ENV_ID = "overtake/Highway-v0"
+
+
+def register_environments() -> None:
+    """Register the environments once (idempotent)."""
+    if HIGHWAY_ENV_ID not in gym.registry:
+        gym.register(
+            id=HIGHWAY_ENV_ID,
+            entry_point="overtake.server.env:HighwayEnv",
+            vector_entry_point="overtake.server.env:HighwayVectorEnv",
+            # The environment truncates itself at its preset's episode length, which a user may
+            # override; a TimeLimit fixed here could not follow it. env.spec reports it.
+            max_episode_steps=None,
+        )

@@ -1,0 +1,227 @@
+"""In-process Gymnasium environments over the simulation core.
+
+``HighwayEnv`` is one agent on one arena; ``HighwayVectorEnv`` steps N arenas in one numpy pass
+with Gymnasium 1.x's default next-step autoreset: the step after an episode ends resets that
+arena (ignoring its action) and returns the first observation of the new episode with reward 0
+and terminated = truncated = False.
+
+Info carries, every step: ``action_mask`` (int8, 1 = the action can be taken now),
+``action_applied`` (the action actually taken: a masked lateral action becomes keep) and
+``reward_terms`` (each term of the reward); at the end of an episode also ``metrics``, the
+papers' episode metrics (:data:`overtake.server.sim.METRIC_FIELDS`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector.utils import batch_space
+
+from .sim import (ACTION_COUNT, METRIC_FIELDS, REWARD_TERMS, HighwaySim, SimConfig,
+                  make_config)
+from .sim.core import KMH, StepResult
+from .sim.render import render_top_down
+
+try:  # Gymnasium >= 1.1 names the autoreset modes; 1.0 only has next-step autoreset.
+    from gymnasium.vector import AutoresetMode
+    _NEXT_STEP: Any = AutoresetMode.NEXT_STEP
+except ImportError:  # pragma: no cover - Gymnasium 1.0
+    _NEXT_STEP = "NextStep"
+
+
+def _resolve_config(preset: str, overrides: Mapping[str, Any] | None,
+                    config: SimConfig | None) -> SimConfig:
+    if config is not None:
+        if overrides:
+            raise ValueError("pass either a config or a preset with overrides, not both")
+        return config
+    return make_config(preset, overrides)
+
+
+def observation_space(config: SimConfig) -> spaces.Dict:
+    """The Dict observation space of one agent under ``config``."""
+    items: dict[str, spaces.Space] = {}
+    if config.lidar.enabled:
+        items["lidar"] = spaces.Box(0.0, config.lidar.max_range_m, (config.lidar.ray_count,),
+                                    np.float32)
+    if config.camera.enabled:
+        cam = config.camera
+        shape = (cam.height_px, cam.width_px, 3) if cam.rgb else (cam.height_px, cam.width_px)
+        items["camera"] = spaces.Box(0, 255, shape, np.uint8)
+    lanes = config.road.lane_count
+    cruise_lo, cruise_hi = config.ego.cruise_min_kmh * KMH, config.ego.cruise_max_kmh * KMH
+    # speed, cruise target, lane index, lane count, lane-change progress and direction.
+    # (The lane count's bounds are the configurable range, so no bound pair is degenerate.)
+    low = np.array([0.0, cruise_lo, 0.0, 1.0, 0.0, -1.0], dtype=np.float32)
+    high = np.array([100.0, cruise_hi, lanes - 1, 12.0, 1.0, 1.0], dtype=np.float32)
+    items["ego"] = spaces.Box(low, high, (6,), np.float32)
+    return spaces.Dict(items)
+
+
+def _check_actions(actions: np.ndarray, expected_shape: tuple[int, ...]) -> np.ndarray:
+    actions = np.asarray(actions)
+    if actions.shape != expected_shape or not np.issubdtype(actions.dtype, np.integer):
+        raise ValueError(f"expected integer action(s) of shape {expected_shape} in "
+                         f"[0, {ACTION_COUNT}), got {actions!r}")
+    if actions.size and (actions.min() < 0 or actions.max() >= ACTION_COUNT):
+        raise ValueError(f"actions must be in [0, {ACTION_COUNT}) (keep, cruise up, cruise down, "
+                         f"lane left, lane right), got {actions.tolist()}")
+    return actions.astype(np.int64)
+
+
+class HighwayEnv(gym.Env):
+    """One agent on a simulated highway (Min et al. 2018 by default)."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+
+    def __init__(self, preset: str = "min2018", overrides: Mapping[str, Any] | None = None,
+                 config: SimConfig | None = None, render_mode: str | None = None) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or "
+                             f"None, got {render_mode!r}")
+        self.config = _resolve_config(preset, overrides, config)
+        self.render_mode = render_mode
+        self.sim = HighwaySim(self.config, num_arenas=1, agents_per_arena=1)
+        self.observation_space = observation_space(self.config)
+        self.action_space = spaces.Discrete(ACTION_COUNT)
+        self.decision_period_s = self.config.episode.decision_period_s
+        self.max_episode_steps = self.config.episode.max_decisions
+        self.metadata = {**self.metadata, "render_fps": 1.0 / self.decision_period_s}
+        self._spec: gym.envs.registration.EnvSpec | None = None
+
+    @property
+    def spec(self) -> gym.envs.registration.EnvSpec | None:  # type: ignore[override]
+        return self._spec
+
+    @spec.setter
+    def spec(self, value: gym.envs.registration.EnvSpec | None) -> None:
+        # gym.make sets the spec after construction; it reports the preset's episode length
+        # (the environment truncates itself there, so no TimeLimit wrapper is added).
+        self._spec = None if value is None else dataclasses.replace(
+            value, max_episode_steps=self.max_episode_steps)
+
+    def _observation(self) -> dict[str, np.ndarray]:
+        return {key: value[0, 0] for key, value in self.sim.observe().items()}
+
+    def _info(self, result: StepResult | None) -> dict[str, Any]:
+        info: dict[str, Any] = {"action_mask": self.sim.action_mask()[0, 0]}
+        if result is None:
+            info["action_applied"] = -1
+            info["reward_terms"] = {name: 0.0 for name in REWARD_TERMS}
+            return info
+        info["action_applied"] = int(result.action_applied[0, 0])
+        info["reward_terms"] = {name: float(v[0, 0]) for name, v in result.reward_terms.items()}
+        if result.terminated[0, 0] or result.truncated[0, 0]:
+            info["metrics"] = {name: float(v[0, 0]) for name, v in self.sim.metrics().items()}
+        return info
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        self.sim.reset(seeds=[seed])
+        return self._observation(), self._info(None)
+
+    def step(self, action):
+        actions = _check_actions(np.asarray(action).reshape(1, 1) if np.ndim(action) == 0
+                                 else np.asarray(action), (1, 1))
+        result = self.sim.step(actions)
+        info = self._info(result)
+        return (self._observation(), float(result.reward[0, 0]), bool(result.terminated[0, 0]),
+                bool(result.truncated[0, 0]), info)
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode == "rgb_array":
+            return render_top_down(self.sim)
+        return None
+
+    def action_masks(self) -> np.ndarray:
+        """The current action mask (the name sb3-contrib's MaskablePPO looks for)."""
+        return self.sim.action_mask()[0, 0]
+
+
+class HighwayVectorEnv(gym.vector.VectorEnv):
+    """``num_envs`` independent arenas stepped together by one simulation core."""
+
+    metadata = {"render_modes": ["rgb_array"], "autoreset_mode": _NEXT_STEP}
+
+    def __init__(self, num_envs: int = 1, preset: str = "min2018",
+                 overrides: Mapping[str, Any] | None = None, config: SimConfig | None = None,
+                 render_mode: str | None = None) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or "
+                             f"None, got {render_mode!r}")
+        self.config = _resolve_config(preset, overrides, config)
+        self.num_envs = num_envs
+        self.render_mode = render_mode
+        self.sim = HighwaySim(self.config, num_arenas=num_envs, agents_per_arena=1)
+        self.single_observation_space = observation_space(self.config)
+        self.single_action_space = spaces.Discrete(ACTION_COUNT)
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.action_space = spaces.MultiDiscrete(np.full(num_envs, ACTION_COUNT))
+        self.decision_period_s = self.config.episode.decision_period_s
+        self.max_episode_steps = self.config.episode.max_decisions
+        self._autoreset = np.zeros(num_envs, dtype=bool)
+
+    def _observations(self) -> dict[str, np.ndarray]:
+        return {key: value[:, 0] for key, value in self.sim.observe().items()}
+
+    def reset(self, *, seed: int | Sequence[int | None] | None = None,
+              options: dict[str, Any] | None = None):
+        if seed is None:
+            seeds: list[int | None] = [None] * self.num_envs
+        elif isinstance(seed, (int, np.integer)):
+            seeds = [int(seed) + i for i in range(self.num_envs)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"expected {self.num_envs} seeds, got {len(seeds)}")
+        if seed is not None:
+            self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seeds[0])
+        self.sim.reset(seeds=seeds)
+        self._autoreset[:] = False
+        n = self.num_envs
+        info = {"action_mask": self.sim.action_mask()[:, 0],
+                "action_applied": np.full(n, -1, dtype=np.int64),
+                "reward_terms": {name: np.zeros(n) for name in REWARD_TERMS}}
+        return self._observations(), info
+
+    def step(self, actions):
+        actions = _check_actions(actions, (self.num_envs,))
+        n = self.num_envs
+        resetting = np.flatnonzero(self._autoreset)
+        stepping = np.flatnonzero(~self._autoreset)
+        if resetting.size:
+            self.sim.reset(resetting)
+        reward = np.zeros(n)
+        terminated = np.zeros(n, dtype=bool)
+        truncated = np.zeros(n, dtype=bool)
+        applied = np.full(n, -1, dtype=np.int64)
+        terms = {name: np.zeros(n) for name in REWARD_TERMS}
+        if stepping.size:
+            result = self.sim.step(actions[stepping][:, None],
+                                   arenas=None if stepping.size == n else stepping)
+            reward[stepping] = result.reward[:, 0]
+            terminated[stepping] = result.terminated[:, 0]
+            truncated[stepping] = result.truncated[:, 0]
+            applied[stepping] = result.action_applied[:, 0]
+            for name, value in result.reward_terms.items():
+                terms[name][stepping] = value[:, 0]
+        info: dict[str, Any] = {"action_mask": self.sim.action_mask()[:, 0],
+                                "action_applied": applied, "reward_terms": terms}
+        ended = terminated | truncated
+        if ended.any():
+            metrics = self.sim.metrics()
+            info["metrics"] = {name: np.where(ended, metrics[name][:, 0], 0.0)
+                               for name in METRIC_FIELDS}
+            info["_metrics"] = ended
+        self._autoreset = ended
+        return self._observations(), reward, terminated, truncated, info
+
+    def render(self) -> tuple[np.ndarray, ...] | None:
+        if self.render_mode == "rgb_array":
+            return tuple(render_top_down(self.sim, arena=i) for i in range(self.num_envs))
+        return None

@@ -1,0 +1,187 @@
+"""A front camera rendered in software: a pinhole view from the driver's seat, in numpy.
+
+The ground is ray-cast per pixel once (the rays are fixed to the car), then shaded per frame by
+where each ray meets the road: asphalt, lane markings (dashed between lanes, solid at the
+edges), shoulder and grass, sky above the horizon. Cars are boxes ``VEHICLE_HEIGHT_M`` tall,
+drawn as the screen rectangle that bounds their eight projected corners, so they grow as they
+come closer. All cars share one colour, so their union is all that is needed: one batched
+matrix product of per-car row and column masks draws every car of every observer at once.
+
+Image rows run top to bottom, columns left to right; (H, W) uint8 for grey, (H, W, 3) for RGB.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .config import CameraConfig, RoadConfig
+
+VEHICLE_HEIGHT_M = 1.5
+LANE_LINE_WIDTH_M = 0.15
+DASH_LENGTH_M = 6.0
+DASH_PERIOD_M = 12.0
+NEAR_PLANE_M = 0.3
+
+# Surface classes and their colours (grey values follow ITU-R BT.601 luma of the RGB ones).
+SKY, GRASS, SHOULDER, ROAD, MARKING, CAR = range(6)
+_RGB = np.array([
+    [150, 190, 235],  # sky
+    [70, 120, 60],    # grass
+    [150, 150, 140],  # shoulder
+    [90, 90, 95],     # asphalt
+    [240, 240, 240],  # lane marking
+    [200, 30, 30],    # car
+], dtype=np.float64)
+_GREY = np.round(_RGB @ np.array([0.299, 0.587, 0.114])).astype(np.uint8)
+_GREY[CAR] = 20  # darker than the road in grey, so cars stand out against asphalt and sky
+
+
+class Camera:
+    def __init__(self, camera: CameraConfig, road: RoadConfig) -> None:
+        self.config = camera
+        self.height = camera.height_px
+        self.width = camera.width_px
+        self.focal_px = (camera.width_px / 2.0) / np.tan(np.radians(camera.horizontal_fov_deg) / 2.0)
+        self.pitch = np.radians(camera.pitch_down_deg)
+        self.lane_count = road.lane_count
+        self.lane_width = road.lane_width_m
+        self.road_right_y = 0.0
+        self.road_left_y = road.lane_count * road.lane_width_m
+        self.barrier_offset = road.barrier_offset_m
+        # Grey images are drawn in grey values directly; RGB ones as classes, then coloured.
+        self._stage_value = np.arange(len(_GREY), dtype=np.uint8) if camera.rgb else _GREY
+        self._rgb_palette = _RGB.astype(np.uint8)
+
+        # Rows below the horizon see the ground at a depth that depends on the row alone (the
+        # camera only pitches): t is the ray length to the ground per unit forward component.
+        # Within a row the ground's lateral position is linear in the column, for any yaw, so
+        # every surface boundary in a row is an interval of columns computed in closed form.
+        v = (np.arange(self.height) + 0.5) - self.height / 2.0
+        up = -v / self.focal_px
+        cos_p, sin_p = np.cos(self.pitch), np.sin(self.pitch)
+        ray_x = cos_p + up * sin_p
+        ray_z = -sin_p + up * cos_p
+        with np.errstate(divide="ignore"):
+            t = np.where(ray_z < 0.0, camera.mount_height_m / -ray_z, np.inf)
+        ahead = ray_x * np.where(np.isfinite(t), t, 0.0)
+        self.ground_rows = np.flatnonzero(np.isfinite(t) & (ahead < camera.max_distance_m))
+        self.first_ground_row = int(self.ground_rows[0]) if self.ground_rows.size else self.height
+        rows = slice(self.first_ground_row, self.height)
+        self.row_t = t[rows]                    # ray length scale of each ground row
+        self.row_forward = ahead[rows]          # metres ahead of the eye where the row meets ground
+        self.row_metres_per_px = self.row_t / self.focal_px  # sideways ground size of a pixel
+        # Lines are widened to about a pixel so that they do not alias away in the distance;
+        # dashes become solid where one row spans more ground than the gap between dashes.
+        self.row_line_half_m = np.maximum(LANE_LINE_WIDTH_M / 2.0, 0.5 * self.row_metres_per_px)
+        along = np.abs(np.diff(self.row_forward, prepend=self.row_forward[0] * 2.0))
+        self.row_dash_solid = along > (DASH_PERIOD_M - DASH_LENGTH_M) / 2.0
+        self.col_centres = (np.arange(self.width) + 0.5) - self.width / 2.0
+        self._col_basis = np.stack([np.ones(self.width), self.col_centres]).astype(np.float32)
+        # Per ground pixel (R, W), so that comparisons broadcast only over observers.
+        self._row_line_half32 = np.repeat(
+            (self.row_line_half_m / self.lane_width).astype(np.float32)[:, None], self.width, axis=1)
+        self._cos_p, self._sin_p = np.cos(self.pitch), np.sin(self.pitch)
+        self._corner_l = np.array([-1.0, 1.0, 1.0, -1.0])
+        self._corner_w = np.array([-1.0, -1.0, 1.0, 1.0])
+        # Height of a box's bottom and top corners relative to the camera.
+        self._corner_drop = np.array([0.0, VEHICLE_HEIGHT_M]) - camera.mount_height_m
+        self._rows = np.arange(self.height, dtype=np.float64)
+        self._cols = np.arange(self.width, dtype=np.float64)
+
+    def _ground(self, eye_x: np.ndarray, eye_y: np.ndarray, cos_h: np.ndarray,
+                sin_h: np.ndarray) -> np.ndarray:
+        """(O, H, W) uint8 sky and ground: grey values, or surface classes for RGB."""
+        value = self._stage_value
+        observers = eye_x.shape[0]
+        image = np.full((observers, self.height, self.width), value[SKY], dtype=np.uint8)
+        if self.first_ground_row >= self.height:
+            return image
+        # Ground position of row r at column centre c, in lane widths from the right road
+        # edge: base + slope * c (linear within a row for any yaw).
+        inv_w = 1.0 / self.lane_width
+        base = ((eye_y[:, None] + sin_h[:, None] * self.row_forward) * inv_w).astype(np.float32)
+        slope = (-cos_h[:, None] * self.row_metres_per_px * inv_w).astype(np.float32)
+        # One small matrix product instead of a broadcast with an 84-long inner loop.
+        lanes = np.matmul(np.stack([base, slope], axis=-1), self._col_basis)     # (O, R, W)
+        # Distance from the road's middle, in lane widths: road within L/2, rails beyond.
+        half_road = 0.5 * self.lane_count
+        from_middle = np.abs(lanes - np.float32(half_road))
+        ground = image[:, self.first_ground_row:, :]
+        ground[...] = value[GRASS]
+        np.copyto(ground, value[SHOULDER],
+                  where=from_middle <= np.float32(half_road + self.barrier_offset * inv_w))
+        np.copyto(ground, value[ROAD], where=from_middle <= np.float32(half_road))
+        # Lane lines: pixels within a line's half width of the nearest line on the road. The
+        # edge lines are solid; inner lines are dashed by where the row meets the road along
+        # the camera's axis (during a lane change far lanes' dashes shift by a metre or two).
+        near_line = np.abs(lanes - np.rint(lanes)) <= self._row_line_half32
+        near_line &= from_middle <= np.float32(half_road + 0.5)
+        world_x = eye_x[:, None] + cos_h[:, None] * self.row_forward
+        gap = ~(self.row_dash_solid | ((world_x % DASH_PERIOD_M) < DASH_LENGTH_M))   # (O, R)
+        if gap.any():
+            inner = from_middle < np.float32(half_road - 0.5)
+            near_line &= ~(inner & gap[..., None])
+        np.copyto(ground, value[MARKING], where=near_line)
+        return image
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return (self.height, self.width, 3) if self.config.rgb else (self.height, self.width)
+
+    def render(self, cam_x: np.ndarray, cam_y: np.ndarray, heading: np.ndarray,
+               car_x: np.ndarray, car_y: np.ndarray, car_half_length: np.ndarray,
+               car_half_width: np.ndarray, car_visible: np.ndarray) -> np.ndarray:
+        """Images (O, H, W[, 3]) uint8 for O observers at the driver's seat of their car.
+
+        cam_x, cam_y, heading: (O,) the car's centre and heading; car_*: (O, V) the cars each
+        observer may see (``car_visible`` False for itself and inactive slots). The x values may
+        be relative to any reference shared by the two.
+        """
+        mount = self.config.mount_forward_m
+        cos_h = np.cos(heading)
+        sin_h = np.sin(heading)
+        eye_x = cam_x + mount * cos_h
+        eye_y = cam_y + mount * sin_h
+
+        surface = self._ground(eye_x, eye_y, cos_h, sin_h)
+
+        # Cars: the screen rectangle bounding each box's eight corners. Corners lead the arrays
+        # (8, O, V) so that the bounds are element-wise minima and maxima over 8 slabs.
+        dx = car_x - eye_x[:, None]
+        dy = car_y - eye_y[:, None]
+        corner_dx = dx + self._corner_l[:, None, None] * car_half_length      # (4, O, V)
+        corner_dy = dy + self._corner_w[:, None, None] * car_half_width
+        rel_fwd = cos_h[:, None] * corner_dx + sin_h[:, None] * corner_dy
+        rel_left = -sin_h[:, None] * corner_dx + cos_h[:, None] * corner_dy
+        drop = self._corner_drop[:, None, None, None]                          # (2, 1, 1, 1)
+        cam_fwd = (rel_fwd * self._cos_p - drop * self._sin_p).reshape((8,) + dx.shape)
+        cam_up = (rel_fwd * self._sin_p + drop * self._cos_p).reshape((8,) + dx.shape)
+        cam_left = np.broadcast_to(rel_left, (2,) + rel_left.shape).reshape((8,) + dx.shape)
+        inv_depth = self.focal_px / np.maximum(cam_fwd, NEAR_PLANE_M)
+        col = self.width / 2.0 - cam_left * inv_depth
+        row = self.height / 2.0 - cam_up * inv_depth
+        col_lo, col_hi = _covered_pixels(np.min(col, axis=0), np.max(col, axis=0))
+        row_lo, row_hi = _covered_pixels(np.min(row, axis=0), np.max(row, axis=0))
+        seen = car_visible & (np.max(cam_fwd, axis=0) > NEAR_PLANE_M) \
+            & (np.min(rel_fwd, axis=0) < self.config.max_distance_m)
+        # Only the cars some observer sees take part: compact them to the front (K <= V).
+        seen_count = int(seen.sum(axis=1).max()) if seen.size else 0
+        if seen_count == 0:
+            return self._rgb_palette[surface] if self.config.rgb else surface
+        order = np.argsort(~seen, axis=1, kind="stable")[:, :seen_count]
+        pick = lambda a: np.take_along_axis(a, order, axis=1)[..., None]  # noqa: E731
+        shown = pick(seen)
+        cols = (self._cols >= pick(col_lo)) & (self._cols <= pick(col_hi)) & shown   # (O, K, W)
+        rows = (self._rows >= pick(row_lo)) & (self._rows <= pick(row_hi))          # (O, K, H)
+        covered = np.matmul(rows.astype(np.float32).transpose(0, 2, 1), cols.astype(np.float32))
+        image = np.where(covered > 0.0, self._stage_value[CAR], surface)
+        return self._rgb_palette[image] if self.config.rgb else image
+
+
+def _covered_pixels(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """First and last pixel whose centre lies in [lo, hi]; a sliver still covers one pixel."""
+    first = np.ceil(lo - 0.5)
+    last = np.floor(hi - 0.5)
+    sliver = last < first
+    middle = np.floor(0.5 * (lo + hi))
+    return np.where(sliver, middle, first), np.where(sliver, middle, last)

@@ -1,0 +1,118 @@
+"""Vectorised car-following (IDM) and lane-neighbour search over many arenas at once.
+
+Every function here works on structure-of-arrays state shaped (arenas, vehicles) and loops over
+neither. Neighbours are found by sorting one key per (arena, lane, position) entry: a vehicle
+that is changing lanes has an entry in both lanes, so the cars in either lane react to it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+# Keys are group * KEY_SPAN + (x relative to the arena's first agent) + KEY_OFFSET, so that one
+# sort orders entries by arena, then lane, then position. Positions stay within +-KEY_OFFSET of
+# the reference agent because traffic is recycled far closer than that.
+KEY_SPAN = 1.0e6
+KEY_OFFSET = 5.0e5
+NO_GAP_M = 1.0e9  # gap reported when there is no vehicle ahead
+
+
+def idm_accel(speed: np.ndarray, desired_speed: np.ndarray, gap: np.ndarray,
+              closing_speed: np.ndarray, time_headway: np.ndarray, min_gap: np.ndarray,
+              max_accel: np.ndarray, two_sqrt_ab: np.ndarray) -> np.ndarray:
+    """Intelligent Driver Model acceleration (m/s^2); arguments broadcast against each other.
+
+    ``closing_speed`` is own speed minus the leader's; ``gap`` is bumper to bumper (m);
+    ``two_sqrt_ab`` is 2 * sqrt(max_accel * comfortable_decel), precomputed per vehicle.
+    """
+    desired_gap = min_gap + np.maximum(0.0, speed * time_headway + speed * closing_speed / two_sqrt_ab)
+    ratio = speed / desired_speed
+    ratio *= ratio
+    interaction = desired_gap / np.maximum(gap, 0.1)
+    return max_accel * (1.0 - ratio * ratio - interaction * interaction)
+
+
+def idm_desired_gap(speed: np.ndarray, closing_speed: np.ndarray, time_headway: np.ndarray,
+                    min_gap: np.ndarray, two_sqrt_ab: np.ndarray) -> np.ndarray:
+    """The IDM's desired bumper-to-bumper gap s* (m)."""
+    return min_gap + np.maximum(0.0, speed * time_headway + speed * closing_speed / two_sqrt_ab)
+
+
+@dataclass(frozen=True, slots=True)
+class LaneIndex:
+    """Entries of all arenas sorted by (arena, lane, position); built once per physics frame."""
+
+    sorted_keys: np.ndarray      # (E,) float64
+    sorted_group: np.ndarray     # (E,) int64: arena * (lanes + 1) + lane; lane == lanes is unused
+    sorted_vehicle: np.ndarray   # (E,) int64: flat index (arena * V + column) of the entry's vehicle
+    entry_position: np.ndarray   # (A, 2V) int64: where each entry landed in the sorted order
+    lanes_plus_one: int
+
+
+def build_lane_index(x_rel: np.ndarray, lane: np.ndarray, target_lane: np.ndarray,
+                     active: np.ndarray, lane_count: int) -> LaneIndex:
+    """Sort the (arena, lane, position) entries: the primary lane, and the target while changing."""
+    arenas, vehicles = x_rel.shape
+    unused = lane_count
+    primary = np.where(active, lane, unused)
+    secondary = np.where(active & (target_lane != lane), target_lane, unused)
+    lanes = np.concatenate([primary, secondary], axis=1).astype(np.int64)
+    group = np.arange(arenas, dtype=np.int64)[:, None] * (lane_count + 1) + lanes
+    keys = group * KEY_SPAN + (np.concatenate([x_rel, x_rel], axis=1) + KEY_OFFSET)
+    flat_keys = keys.ravel()
+    order = np.argsort(flat_keys, kind="stable")
+    position = np.empty_like(order)
+    position[order] = np.arange(order.size)
+    return LaneIndex(
+        sorted_keys=flat_keys[order],
+        sorted_group=group.ravel()[order],
+        sorted_vehicle=order // (2 * vehicles) * vehicles + order % (2 * vehicles) % vehicles,
+        entry_position=position.reshape(arenas, 2 * vehicles),
+        lanes_plus_one=lane_count + 1,
+    )
+
+
+def leaders(index: LaneIndex, unused_lane: int) -> tuple[np.ndarray, np.ndarray]:
+    """For each entry (A, 2V): the flat index of the vehicle next ahead in its lane.
+
+    Returns (leader, valid); where not valid (no leader, or an entry in the unused lane) the
+    leader index is 0, a safe index whose values must be masked.
+    """
+    pos = index.entry_position
+    nxt = np.minimum(pos + 1, index.sorted_keys.size - 1)
+    group = index.sorted_group[pos]
+    valid = (pos + 1 < index.sorted_keys.size) & (index.sorted_group[nxt] == group)
+    valid &= (group % index.lanes_plus_one) != unused_lane
+    return np.where(valid, index.sorted_vehicle[nxt], 0), valid
+
+
+def neighbours_at(index: LaneIndex, arena: np.ndarray, lane: np.ndarray,
+                  x_rel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The vehicles just ahead and just behind position ``x_rel`` in ``lane`` of ``arena``.
+
+    Returns (ahead, behind) flat vehicle indices, -1 where there is none. Inputs broadcast.
+    """
+    group = arena.astype(np.int64) * index.lanes_plus_one + lane
+    query = group * KEY_SPAN + (x_rel + KEY_OFFSET)
+    size = index.sorted_keys.size
+    pos = np.searchsorted(index.sorted_keys, query, side="left")
+    ahead_pos = np.minimum(pos, size - 1)
+    behind_pos = np.maximum(pos - 1, 0)
+    ahead_ok = (pos < size) & (index.sorted_group[ahead_pos] == group)
+    behind_ok = (pos > 0) & (index.sorted_group[behind_pos] == group)
+    return (np.where(ahead_ok, index.sorted_vehicle[ahead_pos], -1),
+            np.where(behind_ok, index.sorted_vehicle[behind_pos], -1))
+
+
+def min_jerk(progress: np.ndarray) -> np.ndarray:
+    """Minimum-jerk lateral profile: 0 -> 1 with zero speed and acceleration at both ends."""
+    p = np.clip(progress, 0.0, 1.0)
+    return p * p * p * (10.0 - 15.0 * p + 6.0 * p * p)
+
+
+def min_jerk_rate(progress: np.ndarray) -> np.ndarray:
+    """d(min_jerk)/d(progress)."""
+    p = np.clip(progress, 0.0, 1.0)
+    return 30.0 * p * p * (1.0 - p) * (1.0 - p)
