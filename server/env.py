@@ -126,8 +126,11 @@ class HighwayEnv(gym.Env):
         return self._observation(), self._info(None)
 
     def step(self, action):
-        actions = _check_actions(np.asarray(action).reshape(1, 1) if np.ndim(action) == 0
-                                 else np.asarray(action), (1, 1))
+        if isinstance(action, (int, np.integer)) and 0 <= action < ACTION_COUNT:
+            actions = np.array([[action]], dtype=np.int64)  # the common case, checked cheaply
+        else:
+            actions = _check_actions(np.asarray(action).reshape(1, 1) if np.ndim(action) == 0
+                                     else np.asarray(action), (1, 1))
         result = self.sim.step(actions)
         info = self._info(result)
         return (self._observation(), float(result.reward[0, 0]), bool(result.terminated[0, 0]),

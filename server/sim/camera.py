@@ -84,7 +84,9 @@ class Camera:
         self._corner_l = np.array([-1.0, 1.0, 1.0, -1.0])
         self._corner_w = np.array([-1.0, -1.0, 1.0, 1.0])
         # Height of a box's bottom and top corners relative to the camera.
-        self._corner_drop = np.array([0.0, VEHICLE_HEIGHT_M]) - camera.mount_height_m
+        drop = (np.array([0.0, VEHICLE_HEIGHT_M]) - camera.mount_height_m)[:, None, None, None]
+        self._drop_sin = drop * self._sin_p                                    # (2, 1, 1, 1)
+        self._drop_cos = drop * self._cos_p
         self._rows = np.arange(self.height, dtype=np.float64)
         self._cols = np.arange(self.width, dtype=np.float64)
 
@@ -102,7 +104,9 @@ class Camera:
         base = ((eye_y[:, None] + sin_h[:, None] * self.row_forward) * inv_w).astype(np.float32)
         slope = (-cos_h[:, None] * self.row_metres_per_px * inv_w).astype(np.float32)
         # One small matrix product instead of a broadcast with an 84-long inner loop.
-        lanes = np.matmul(np.stack([base, slope], axis=-1), self._col_basis)     # (O, R, W)
+        pair = np.empty(base.shape + (2,), dtype=np.float32)
+        pair[..., 0], pair[..., 1] = base, slope
+        lanes = np.matmul(pair, self._col_basis)                               # (O, R, W)
         # Distance from the road's middle, in lane widths: road within L/2, rails beyond.
         half_road = 0.5 * self.lane_count
         from_middle = np.abs(lanes - np.float32(half_road))
@@ -145,43 +149,42 @@ class Camera:
 
         surface = self._ground(eye_x, eye_y, cos_h, sin_h)
 
-        # Cars: the screen rectangle bounding each box's eight corners. Corners lead the arrays
-        # (8, O, V) so that the bounds are element-wise minima and maxima over 8 slabs.
+        # Cars: the screen rectangle bounding each box's eight corners, arrays led by the
+        # corner axes (2 heights, 4 ground corners) so that bounds reduce over leading axes.
         dx = car_x - eye_x[:, None]
         dy = car_y - eye_y[:, None]
         corner_dx = dx + self._corner_l[:, None, None] * car_half_length      # (4, O, V)
         corner_dy = dy + self._corner_w[:, None, None] * car_half_width
         rel_fwd = cos_h[:, None] * corner_dx + sin_h[:, None] * corner_dy
-        rel_left = -sin_h[:, None] * corner_dx + cos_h[:, None] * corner_dy
-        drop = self._corner_drop[:, None, None, None]                          # (2, 1, 1, 1)
-        cam_fwd = (rel_fwd * self._cos_p - drop * self._sin_p).reshape((8,) + dx.shape)
-        cam_up = (rel_fwd * self._sin_p + drop * self._cos_p).reshape((8,) + dx.shape)
-        cam_left = np.broadcast_to(rel_left, (2,) + rel_left.shape).reshape((8,) + dx.shape)
+        rel_left = cos_h[:, None] * corner_dy - sin_h[:, None] * corner_dx
+        cam_fwd = rel_fwd * self._cos_p - self._drop_sin                       # (2, 4, O, V)
+        cam_up = rel_fwd * self._sin_p + self._drop_cos
         inv_depth = self.focal_px / np.maximum(cam_fwd, NEAR_PLANE_M)
-        col = self.width / 2.0 - cam_left * inv_depth
-        row = self.height / 2.0 - cam_up * inv_depth
-        col_lo, col_hi = _covered_pixels(np.min(col, axis=0), np.max(col, axis=0))
-        row_lo, row_hi = _covered_pixels(np.min(row, axis=0), np.max(row, axis=0))
-        seen = car_visible & (np.max(cam_fwd, axis=0) > NEAR_PLANE_M) \
-            & (np.min(rel_fwd, axis=0) < self.config.max_distance_m)
-        # Only the cars some observer sees take part: compact them to the front (K <= V).
+        col = rel_left * inv_depth     # screen offsets left of and above the centre (px)
+        row = cam_up * inv_depth
+        seen = car_visible & (cam_fwd.max(axis=(0, 1)) > NEAR_PLANE_M) \
+            & (rel_fwd.min(axis=0) < self.config.max_distance_m)
+        # Only the cars some observer sees take part: compacted to the front (K <= V).
+        observers, vehicles = seen.shape
         seen_count = int(seen.sum(axis=1).max()) if seen.size else 0
         if seen_count == 0:
             return self._rgb_palette[surface] if self.config.rgb else surface
         order = np.argsort(~seen, axis=1, kind="stable")[:, :seen_count]
-        pick = lambda a: np.take_along_axis(a, order, axis=1)[..., None]  # noqa: E731
-        shown = pick(seen)
-        cols = (self._cols >= pick(col_lo)) & (self._cols <= pick(col_hi)) & shown   # (O, K, W)
-        rows = (self._rows >= pick(row_lo)) & (self._rows <= pick(row_hi))          # (O, K, H)
+        pick = (order + np.arange(observers)[:, None] * vehicles).reshape(-1)
+        def bounds(offsets: np.ndarray, half_size: float) -> tuple[np.ndarray, np.ndarray]:
+            # Pixel p covers [p, p + 1); the first and last pixel centres inside the span,
+            # and a sliver narrower than a pixel still covers one.
+            lo = (half_size - offsets.max(axis=(0, 1))).reshape(-1)[pick]
+            hi = (half_size - offsets.min(axis=(0, 1))).reshape(-1)[pick]
+            first = np.ceil(lo - 0.5)
+            return first.reshape(observers, seen_count, 1), \
+                np.maximum(np.floor(hi - 0.5), first).reshape(observers, seen_count, 1)
+        col_lo, col_hi = bounds(col, self.width / 2.0)
+        row_lo, row_hi = bounds(row, self.height / 2.0)
+        shown = seen.reshape(-1)[pick].reshape(observers, seen_count, 1)
+        cols = (self._cols >= col_lo) & (self._cols <= col_hi) & shown      # (O, K, W)
+        rows = (self._rows >= row_lo) & (self._rows <= row_hi)              # (O, K, H)
         covered = np.matmul(rows.astype(np.float32).transpose(0, 2, 1), cols.astype(np.float32))
         image = np.where(covered > 0.0, self._stage_value[CAR], surface)
         return self._rgb_palette[image] if self.config.rgb else image
 
-
-def _covered_pixels(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """First and last pixel whose centre lies in [lo, hi]; a sliver still covers one pixel."""
-    first = np.ceil(lo - 0.5)
-    last = np.floor(hi - 0.5)
-    sliver = last < first
-    middle = np.floor(0.5 * (lo + hi))
-    return np.where(sliver, middle, first), np.where(sliver, middle, last)

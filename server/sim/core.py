@@ -22,7 +22,7 @@ import numpy as np
 from .camera import Camera
 from .config import BEHAVIOURS, SimConfig
 from .lidar import Lidar
-from .traffic import (NO_GAP_M, build_lane_index, idm_accel, idm_desired_gap, leaders, min_jerk,
+from .traffic import (NO_GAP_M, LaneIndex, LaneSorter, idm_accel, idm_desired_gap, leaders, min_jerk,
                       min_jerk_rate, neighbours_at)
 
 KMH = 1.0 / 3.6  # m/s per km/h
@@ -40,7 +40,6 @@ METRIC_FIELDS: tuple[str, ...] = ("avg_speed_kmh", "lane_changes", "overtakes", 
                                   "emergency_brakes", "distance_m", "return", "decisions")
 
 AGENT_KIND = len(BEHAVIOURS)       # kind index of agents in the per-kind parameter tables
-MOBIL_PERIOD_FRAMES = 8           # each direction every 0.8 s at 0.1 s frames
 RESPAWN_RETRY_DECISIONS = 5       # an empty traffic slot looks for a free spot this often
 SPAWN_CANDIDATES = 5               # positions tried per traffic (re)spawn
 SPAWN_SEPARATION_M = 25.0          # spawns of one decision in one lane keep this far apart
@@ -157,6 +156,7 @@ class HighwaySim:
         shares = np.array([b.share for b in behaviours])
         self.behaviour_cdf = np.cumsum(shares / shares.sum())
 
+        self._lanes = LaneSorter(self.lane_count)
         self.lidar = Lidar(config.lidar.ray_count, config.lidar.max_range_m) \
             if config.lidar.enabled else None
         self.camera = Camera(config.camera, road) if config.camera.enabled else None
@@ -343,7 +343,8 @@ class HighwaySim:
         # Actions: cruise target steps, and lane changes where a lane is free to start one.
         cruise = st.desired_speed_mps[:, :n]
         cruise += kmh_step * (actions == CRUISE_UP) - kmh_step * (actions == CRUISE_DOWN)
-        np.clip(cruise, cfg.ego.cruise_min_kmh * KMH, cfg.ego.cruise_max_kmh * KMH, out=cruise)
+        np.minimum(np.maximum(cruise, cfg.ego.cruise_min_kmh * KMH, out=cruise),
+                   cfg.ego.cruise_max_kmh * KMH, out=cruise)
         agent_lane = st.lane[:, :n]
         idle = st.target_lane[:, :n] == agent_lane
         go_left = (actions == LANE_LEFT) & idle & (agent_lane < lanes - 1)
@@ -365,8 +366,17 @@ class HighwaySim:
         params = self._vehicle_params(st.kind)
         collided = np.zeros((arenas, n), dtype=bool)
         brakes = np.zeros((arenas, n), dtype=np.int64)
-        for _ in range(self.frames):
-            self._frame(st, params, collided, brakes)
+        # Who follows whom is sorted out once per decision. Within a decision lanes only lose
+        # members (changes that finish), so a frame-0 leader is never farther than the true
+        # one: keeping it for the decision's frames is conservative. Traffic that starts a
+        # change at frame 0 is seen in its new lane from the next decision: 0.3 s at most,
+        # less than a driver's reaction time, while it has moved sideways by under 2 cm.
+        x_rel = st.x_m - st.x_m[:, :1]
+        index = self._lanes.build(x_rel, st.lane, st.target_lane, st.active)
+        lead, valid = leaders(index)
+        for frame in range(self.frames):
+            self._frame(st, params, lead, valid, collided, brakes,
+                        mobil_index=index if frame == 0 else None)
 
         gained, undone, passed = self._track_overtakes(st)
         self._recycle(st, uniforms)
@@ -397,25 +407,26 @@ class HighwaySim:
         return StepResult(reward=reward, reward_terms=terms, terminated=collided,
                           truncated=truncated & ~collided, action_applied=applied)
 
-    def _frame(self, st: SimState, p: "_VehicleParams", collided: np.ndarray,
-               brakes: np.ndarray) -> None:
-        """One physics frame for every arena of ``st``; event counters are updated in place."""
+    def _frame(self, st: SimState, p: "_VehicleParams", lead: np.ndarray, valid: np.ndarray,
+               collided: np.ndarray, brakes: np.ndarray, mobil_index: LaneIndex | None) -> None:
+        """One physics frame for every arena of ``st``; event counters are updated in place.
+
+        ``lead``/``valid`` (A, 2V): each lane entry's leader; with ``mobil_index`` traffic also
+        considers lane changes this frame.
+        """
         cfg = self.config
         n, dt = self.agents, self.dt
         arenas, vehicles = st.x_m.shape
         x_rel = st.x_m - st.x_m[:, :1]
         speed = st.speed_mps
 
-        # Leaders: the nearer of the leaders in the vehicle's lane and, while changing, target.
-        index = build_lane_index(x_rel, st.lane, st.target_lane, st.active, self.lane_count)
-        lead, valid = leaders(index, self.lane_count)
-        x_flat, half_flat = x_rel.reshape(-1), p.half_length.reshape(-1)
-        both_x = np.concatenate([x_rel, x_rel], axis=1)
-        both_half = np.concatenate([p.half_length, p.half_length], axis=1)
-        entry_gap = np.where(valid, x_flat[lead] - both_x - half_flat[lead] - both_half, NO_GAP_M)
-        use_second = entry_gap[:, vehicles:] < entry_gap[:, :vehicles]
-        gap = np.where(use_second, entry_gap[:, vehicles:], entry_gap[:, :vehicles])
-        leader = np.where(use_second, lead[:, vehicles:], lead[:, :vehicles])  # flat index
+        # Gaps: the nearer of the leaders in the vehicle's lane and, while changing, target.
+        rear = (x_rel - p.half_length).reshape(-1)
+        front = x_rel + p.half_length
+        entry_gap = np.where(valid, rear[lead] - np.concatenate([front, front], axis=1), NO_GAP_M)
+        first, second = entry_gap[:, :vehicles], entry_gap[:, vehicles:]
+        gap = np.minimum(first, second)
+        leader = np.where(second < first, lead[:, vehicles:], lead[:, :vehicles])  # flat index
         has_leader = gap < NO_GAP_M
         leader_speed = np.where(has_leader, speed.reshape(-1)[leader], speed)
         closing = speed - leader_speed
@@ -430,13 +441,11 @@ class HighwaySim:
                                     accel[:, :n])
         accel = np.maximum(np.minimum(accel, p.max_accel), -cfg.traffic.max_decel_mps2)
 
-        # Traffic considers changing left every MOBIL_PERIOD_FRAMES frames and right half a
-        # period later: cars from both sides never start into the same gap at the same moment.
-        phase = st.frame % MOBIL_PERIOD_FRAMES
-        for when, direction in ((0, 1), (MOBIL_PERIOD_FRAMES // 2, -1)):
-            rows = phase == when
-            if rows.any():
-                self._mobil(st, p, index, direction, x_rel, accel, gap, leader, has_leader, rows)
+        if mobil_index is not None:
+            # Traffic considers changing left on even decisions and right on odd ones: cars
+            # from both sides never start into the same gap at the same moment.
+            direction = np.where(st.decisions % 2 == 0, 1, -1)
+            self._mobil(st, p, mobil_index, direction, x_rel, accel, gap, leader, has_leader)
 
         new_speed = np.maximum(speed + accel * dt, 0.0)
         # Traffic never drives into traffic: a speed cap keeps it behind a traffic leader even
@@ -462,12 +471,17 @@ class HighwaySim:
             st.y_m[:] = (st.lane + 0.5 + shift) * self.lane_width
         st.frame += 1
 
-        # Agents' collisions with any other vehicle (boxes overlap).
-        ax, ay = st.x_m[:, :n, None], st.y_m[:, :n, None]
-        overlap = (np.abs(st.x_m[:, None, :] - ax) < p.half_length[:, :n, None] + p.half_length[:, None, :]) \
-            & (np.abs(st.y_m[:, None, :] - ay) < p.half_width[:, :n, None] + p.half_width[:, None, :])
-        overlap &= st.active[:, None, :] & self._not_self
-        collided |= overlap.any(axis=-1)
+        # Agents' collisions with any other vehicle (boxes overlap). Two boxes can only
+        # overlap if they share a lane, and then some gap in that lane is negative: the exact
+        # test runs only on frames where one is.
+        if (gap < 0.0).any():
+            ax, ay = st.x_m[:, :n, None], st.y_m[:, :n, None]
+            overlap = (np.abs(st.x_m[:, None, :] - ax)
+                       < p.half_length[:, :n, None] + p.half_length[:, None, :]) \
+                & (np.abs(st.y_m[:, None, :] - ay)
+                   < p.half_width[:, :n, None] + p.half_width[:, None, :])
+            overlap &= st.active[:, None, :] & self._not_self
+            collided |= overlap.any(axis=-1)
 
         # Ho's emergency brakes: the onset of hard braking with a big speed difference ahead.
         braking = st.accel_mps2[:, :n] <= -cfg.ego.emergency_decel_mps2
@@ -500,13 +514,13 @@ class HighwaySim:
         st.ahead[:] = ahead_now
         return gained, undone, passed
 
-    def _mobil(self, st: SimState, p: "_VehicleParams", index, direction: int,
+    def _mobil(self, st: SimState, p: "_VehicleParams", index: LaneIndex, direction: np.ndarray,
                x_rel: np.ndarray, accel: np.ndarray, gap: np.ndarray, leader: np.ndarray,
-               has_leader: np.ndarray, rows: np.ndarray) -> None:
-        """MOBIL lane changes towards ``direction`` (+1 left, -1 right) for traffic in ``rows``."""
-        target = st.lane + direction
+               has_leader: np.ndarray) -> None:
+        """MOBIL lane changes for traffic, towards ``direction`` (A,): +1 left, -1 right."""
+        target = st.lane + direction[:, None]
         candidate = p.is_traffic & st.active & (st.target_lane == st.lane) \
-            & (target >= 0) & (target < self.lane_count) & rows[:, None]
+            & (target >= 0) & (target < self.lane_count)
         flat = np.flatnonzero(candidate)
         if flat.size == 0:
             return
@@ -628,12 +642,15 @@ class HighwaySim:
     def ego_vector(self) -> np.ndarray:
         """(A, N, 6) float32: the fields of :data:`EGO_FIELDS`."""
         st, n = self.state, self.agents
-        lane_index = np.clip(np.floor(st.y_m[:, :n] / self.lane_width), 0, self.lane_count - 1)
-        return np.stack([
-            st.speed_mps[:, :n], st.desired_speed_mps[:, :n], lane_index,
-            np.full(lane_index.shape, float(self.lane_count)), st.change_progress[:, :n],
-            (st.target_lane[:, :n] - st.lane[:, :n]).astype(np.float64),
-        ], axis=-1).astype(np.float32)
+        out = np.empty((st.x_m.shape[0], n, len(EGO_FIELDS)), dtype=np.float32)
+        out[..., 0] = st.speed_mps[:, :n]
+        out[..., 1] = st.desired_speed_mps[:, :n]
+        out[..., 2] = np.minimum(np.maximum(np.floor(st.y_m[:, :n] / self.lane_width), 0.0),
+                                 self.lane_count - 1)
+        out[..., 3] = self.lane_count
+        out[..., 4] = st.change_progress[:, :n]
+        out[..., 5] = st.target_lane[:, :n] - st.lane[:, :n]
+        return out
 
     def action_mask(self) -> np.ndarray:
         """(A, N, 5) int8: 1 where the action can be taken now (lateral ones need a free lane)."""

@@ -29,6 +29,8 @@ class Lidar:
         angles = np.arange(ray_count) * self.step_rad
         self._cos = np.cos(angles)
         self._sin = np.sin(angles)
+        self._corner_l = np.array([-1.0, 1.0, 1.0, -1.0])
+        self._corner_w = np.array([-1.0, -1.0, 1.0, 1.0])
 
     def scan(self, origin_x: np.ndarray, origin_y: np.ndarray, heading: np.ndarray,
              car_x: np.ndarray, car_y: np.ndarray, car_half_length: np.ndarray,
@@ -47,31 +49,32 @@ class Lidar:
         ray_dx = cos_h * self._cos - sin_h * self._sin  # (O, R) world direction of each ray
         ray_dy = sin_h * self._cos + cos_h * self._sin
 
-        # Guard rails: the rail on the side the ray points to, if it points sideways at all.
-        with np.errstate(divide="ignore", invalid="ignore"):
-            to_left = (rail_left_y - origin_y)[:, None] / ray_dy
-            to_right = (rail_right_y - origin_y)[:, None] / ray_dy
-        dist = np.where(ray_dy > 1e-9, to_left, np.where(ray_dy < -1e-9, to_right, np.inf))
-        dist = np.minimum(dist, self.max_range_m)
+        # Guard rails: the rail on the side the ray points to (a ray exactly along the road
+        # gets a vanishing sideways component and so an out-of-range distance).
+        safe_dy = np.where(np.abs(ray_dy) < 1e-12, 1e-12, ray_dy)
+        rail_y = np.where(safe_dy > 0.0, rail_left_y, rail_right_y)
+        dist = np.minimum((rail_y - origin_y[:, None]) / safe_dy, self.max_range_m)
 
         # Each car's rectangle relative to its observer, and which rays can reach it.
-        x_lo = car_x - car_half_length - origin_x[:, None]
-        x_hi = car_x + car_half_length - origin_x[:, None]
-        y_lo = car_y - car_half_width - origin_y[:, None]
-        y_hi = car_y + car_half_width - origin_y[:, None]
-        near_x = np.clip(0.0, x_lo, x_hi)
-        near_y = np.clip(0.0, y_lo, y_hi)
+        rel_x = car_x - origin_x[:, None]
+        rel_y = car_y - origin_y[:, None]
+        x_lo, x_hi = rel_x - car_half_length, rel_x + car_half_length
+        y_lo, y_hi = rel_y - car_half_width, rel_y + car_half_width
+        near_x = np.maximum(x_lo, np.minimum(0.0, x_hi))   # nearest point of the box
+        near_y = np.maximum(y_lo, np.minimum(0.0, y_hi))
         inside = (near_x == 0.0) & (near_y == 0.0)
         in_range = car_visible & (near_x * near_x + near_y * near_y <= self.max_range_m ** 2)
 
-        corner_x = np.stack([x_lo, x_hi, x_hi, x_lo], axis=-1)
-        corner_y = np.stack([y_lo, y_lo, y_hi, y_hi], axis=-1)
-        centre = np.arctan2(0.5 * (y_lo + y_hi), 0.5 * (x_lo + x_hi))
+        # Angular extent: the corners' bearings relative to the centre's (wrapped, so a car
+        # behind, across the +-pi seam, is handled like any other).
+        corner_x = rel_x[..., None] + car_half_length[..., None] * self._corner_l
+        corner_y = rel_y[..., None] + car_half_width[..., None] * self._corner_w
+        centre = np.arctan2(rel_y, rel_x)
         offsets = _wrap(np.arctan2(corner_y, corner_x) - centre[..., None])
-        relative = centre - heading[:, None]
-        first = np.ceil((relative + offsets.min(axis=-1)) / self.step_rad).astype(np.int64)
-        last = np.floor((relative + offsets.max(axis=-1)) / self.step_rad).astype(np.int64)
-        count = np.clip(last - first + 1, 0, rays)
+        relative = (centre - heading[:, None]) / self.step_rad
+        first = np.ceil(relative + offsets.min(axis=-1) / self.step_rad).astype(np.int64)
+        last = np.floor(relative + offsets.max(axis=-1) / self.step_rad).astype(np.int64)
+        count = np.minimum(np.maximum(last - first + 1, 0), rays)
         first = np.where(inside, 0, first)
         count = np.where(inside, rays, count)
         count = np.where(in_range, count, 0).ravel()

@@ -45,47 +45,72 @@ class LaneIndex:
     """Entries of all arenas sorted by (arena, lane, position); built once per physics frame."""
 
     sorted_keys: np.ndarray      # (E,) float64
-    sorted_group: np.ndarray     # (E,) int64: arena * (lanes + 1) + lane; lane == lanes is unused
+    sorted_group: np.ndarray     # (E,) float64: arena * (lanes + 1) + lane; lane == lanes is unused
     sorted_vehicle: np.ndarray   # (E,) int64: flat index (arena * V + column) of the entry's vehicle
     entry_position: np.ndarray   # (A, 2V) int64: where each entry landed in the sorted order
     lanes_plus_one: int
 
 
-def build_lane_index(x_rel: np.ndarray, lane: np.ndarray, target_lane: np.ndarray,
-                     active: np.ndarray, lane_count: int) -> LaneIndex:
-    """Sort the (arena, lane, position) entries: the primary lane, and the target while changing."""
-    arenas, vehicles = x_rel.shape
-    unused = lane_count
-    primary = np.where(active, lane, unused)
-    secondary = np.where(active & (target_lane != lane), target_lane, unused)
-    lanes = np.concatenate([primary, secondary], axis=1).astype(np.int64)
-    group = np.arange(arenas, dtype=np.int64)[:, None] * (lane_count + 1) + lanes
-    keys = group * KEY_SPAN + (np.concatenate([x_rel, x_rel], axis=1) + KEY_OFFSET)
-    flat_keys = keys.ravel()
-    order = np.argsort(flat_keys, kind="stable")
-    position = np.empty_like(order)
-    position[order] = np.arange(order.size)
-    return LaneIndex(
-        sorted_keys=flat_keys[order],
-        sorted_group=group.ravel()[order],
-        sorted_vehicle=order // (2 * vehicles) * vehicles + order % (2 * vehicles) % vehicles,
-        entry_position=position.reshape(arenas, 2 * vehicles),
-        lanes_plus_one=lane_count + 1,
-    )
+class LaneSorter:
+    """Builds :class:`LaneIndex` objects, keeping the per-shape constants between frames."""
+
+    def __init__(self, lane_count: int) -> None:
+        self.lane_count = lane_count
+        self._constants: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def _for_shape(self, arenas: int, vehicles: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        key = (arenas, vehicles)
+        if key not in self._constants:
+            entries = arenas * 2 * vehicles
+            flat_entry = np.arange(entries)
+            vehicle_of_entry = flat_entry // (2 * vehicles) * vehicles + flat_entry % (2 * vehicles) % vehicles
+            group_base = (np.arange(arenas, dtype=np.float64) * (self.lane_count + 1))[:, None]
+            self._constants[key] = (flat_entry, vehicle_of_entry, group_base)
+        return self._constants[key]
+
+    def build(self, x_rel: np.ndarray, lane: np.ndarray, target_lane: np.ndarray,
+              active: np.ndarray) -> LaneIndex:
+        """Sort the entries: each vehicle's lane and, while it changes lanes, its target lane."""
+        arenas, vehicles = x_rel.shape
+        flat_entry, vehicle_of_entry, group_base = self._for_shape(arenas, vehicles)
+        unused = self.lane_count
+        group = np.empty((arenas, 2 * vehicles))
+        np.copyto(group[:, :vehicles], np.where(active, lane, unused))
+        np.copyto(group[:, vehicles:], np.where(active & (target_lane != lane), target_lane, unused))
+        group += group_base
+        keys = group * KEY_SPAN
+        shifted = x_rel + KEY_OFFSET
+        keys[:, :vehicles] += shifted
+        keys[:, vehicles:] += shifted
+        flat_keys = keys.reshape(-1)
+        order = np.argsort(flat_keys, kind="stable")
+        position = np.empty_like(order)
+        position[order] = flat_entry
+        return LaneIndex(
+            sorted_keys=flat_keys[order],
+            sorted_group=group.reshape(-1)[order],
+            sorted_vehicle=vehicle_of_entry[order],
+            entry_position=position.reshape(arenas, 2 * vehicles),
+            lanes_plus_one=self.lane_count + 1,
+        )
 
 
-def leaders(index: LaneIndex, unused_lane: int) -> tuple[np.ndarray, np.ndarray]:
+def leaders(index: LaneIndex) -> tuple[np.ndarray, np.ndarray]:
     """For each entry (A, 2V): the flat index of the vehicle next ahead in its lane.
 
     Returns (leader, valid); where not valid (no leader, or an entry in the unused lane) the
-    leader index is 0, a safe index whose values must be masked.
+    leader is some other vehicle's index: safe to index with, its values must be masked.
     """
+    group = index.sorted_group
+    lanes_plus_one = index.lanes_plus_one
+    has_next = np.zeros(group.size, dtype=bool)
+    np.equal(group[1:], group[:-1], out=has_next[:-1])
+    has_next &= (group % lanes_plus_one) != lanes_plus_one - 1
+    next_vehicle = np.empty_like(index.sorted_vehicle)
+    next_vehicle[:-1] = index.sorted_vehicle[1:]
+    next_vehicle[-1:] = index.sorted_vehicle[:1]
     pos = index.entry_position
-    nxt = np.minimum(pos + 1, index.sorted_keys.size - 1)
-    group = index.sorted_group[pos]
-    valid = (pos + 1 < index.sorted_keys.size) & (index.sorted_group[nxt] == group)
-    valid &= (group % index.lanes_plus_one) != unused_lane
-    return np.where(valid, index.sorted_vehicle[nxt], 0), valid
+    return next_vehicle[pos], has_next[pos]
 
 
 def neighbours_at(index: LaneIndex, arena: np.ndarray, lane: np.ndarray,
@@ -94,7 +119,7 @@ def neighbours_at(index: LaneIndex, arena: np.ndarray, lane: np.ndarray,
 
     Returns (ahead, behind) flat vehicle indices, -1 where there is none. Inputs broadcast.
     """
-    group = arena.astype(np.int64) * index.lanes_plus_one + lane
+    group = arena * float(index.lanes_plus_one) + lane
     query = group * KEY_SPAN + (x_rel + KEY_OFFSET)
     size = index.sorted_keys.size
     pos = np.searchsorted(index.sorted_keys, query, side="left")
@@ -108,11 +133,11 @@ def neighbours_at(index: LaneIndex, arena: np.ndarray, lane: np.ndarray,
 
 def min_jerk(progress: np.ndarray) -> np.ndarray:
     """Minimum-jerk lateral profile: 0 -> 1 with zero speed and acceleration at both ends."""
-    p = np.clip(progress, 0.0, 1.0)
+    p = np.minimum(np.maximum(progress, 0.0), 1.0)
     return p * p * p * (10.0 - 15.0 * p + 6.0 * p * p)
 
 
 def min_jerk_rate(progress: np.ndarray) -> np.ndarray:
     """d(min_jerk)/d(progress)."""
-    p = np.clip(progress, 0.0, 1.0)
+    p = np.minimum(np.maximum(progress, 0.0), 1.0)
     return 30.0 * p * p * (1.0 - p) * (1.0 - p)

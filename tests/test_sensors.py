@@ -1,0 +1,384 @@
+"""LIDAR and camera against geometry computed by hand from scripted scenes."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from conftest import (HALF_LENGTH, HALF_WIDTH, LANE_WIDTH, Car, camera_of, lidar_of, place,
+                      scripted_sim)
+from overtake.server.sim.camera import VEHICLE_HEIGHT_M
+
+MAX_RANGE = 80.0
+BARRIER_OFFSET = 1.0
+LANES = 5
+
+
+def rail_distances(ego_lane: int) -> tuple[float, float]:
+    """Lateral distance from the ego's centre to the left and the right guard rail."""
+    y = (ego_lane + 0.5) * LANE_WIDTH
+    return LANES * LANE_WIDTH + BARRIER_OFFSET - y, y + BARRIER_OFFSET
+
+
+# --- LIDAR -----------------------------------------------------------------------------------
+
+def test_empty_road_reads_rails_sideways_and_max_range_along_the_road():
+    lidar = lidar_of(scripted_sim([], ego_lane=2))
+    assert lidar.shape == (360,) and lidar.dtype == np.float32
+    left, right = rail_distances(2)
+    for ray in range(360):
+        a = math.radians(ray)
+        s = math.sin(a)
+        if abs(s) < 1e-9:
+            expected = MAX_RANGE
+        else:
+            expected = min((left if s > 0 else right) / abs(s), MAX_RANGE)
+        assert lidar[ray] == pytest.approx(expected, rel=1e-5), ray
+    # Along the road nothing is in range: exactly the maximum.
+    assert lidar[0] == MAX_RANGE and lidar[180] == MAX_RANGE
+    assert lidar[90] == pytest.approx(left) and lidar[270] == pytest.approx(right)
+
+
+@pytest.mark.parametrize("ego_lane", [0, 4])
+def test_rails_from_an_outer_lane(ego_lane):
+    lidar = lidar_of(scripted_sim([], ego_lane=ego_lane))
+    left, right = rail_distances(ego_lane)
+    assert lidar[90] == pytest.approx(left, rel=1e-6)
+    assert lidar[270] == pytest.approx(right, rel=1e-6)
+    assert lidar[30] == pytest.approx(min(left / math.sin(math.radians(30)), MAX_RANGE), rel=1e-5)
+    assert lidar[330] == pytest.approx(min(right / math.sin(math.radians(30)), MAX_RANGE),
+                                       rel=1e-5)
+    # The outer rail is 1.75 + 1 m away: a shallow ray still reaches it within range.
+    near = right if ego_lane == 0 else left
+    ray = 355 if ego_lane == 0 else 5
+    assert near == pytest.approx(2.75)
+    assert lidar[ray] == pytest.approx(near / math.sin(math.radians(5)), rel=1e-5)
+
+
+def test_car_straight_ahead_is_seen_at_its_rear_bumper():
+    distance = 20.0
+    lidar = lidar_of(scripted_sim([Car(distance, 2, 60)], ego_lane=2))
+    rear = distance - HALF_LENGTH  # the LIDAR sits at the ego's centre
+    assert rear == 17.75
+    assert lidar[0] == pytest.approx(rear, rel=1e-6)
+    # Rays a few degrees either side still hit the rear face: rear / cos(angle) ...
+    for degrees in (1, 2):
+        expected = rear / math.cos(math.radians(degrees))
+        assert abs(rear * math.tan(math.radians(degrees))) < HALF_WIDTH
+        assert lidar[degrees] == pytest.approx(expected, rel=1e-6)
+        assert lidar[360 - degrees] == pytest.approx(expected, rel=1e-6)
+    # ... and the next ray passes beside the car (tan(3 deg) * 17.75 > 0.9) and sees nothing.
+    assert rear * math.tan(math.radians(3)) > HALF_WIDTH
+    assert lidar[3] == MAX_RANGE and lidar[357] == MAX_RANGE
+    # Behind, nothing.
+    assert lidar[180] == MAX_RANGE
+
+
+def test_car_behind_is_seen_at_its_front_bumper():
+    lidar = lidar_of(scripted_sim([Car(-30.0, 2, 60)], ego_lane=2))
+    front = 30.0 - HALF_LENGTH
+    assert lidar[180] == pytest.approx(front, rel=1e-6)
+    assert lidar[181] == pytest.approx(front / math.cos(math.radians(1)), rel=1e-6)
+    assert lidar[0] == MAX_RANGE
+
+
+def test_car_directly_left_is_seen_at_its_near_side():
+    lidar = lidar_of(scripted_sim([Car(0.0, 3, 60)], ego_lane=2))
+    side = LANE_WIDTH - HALF_WIDTH
+    assert lidar[90] == pytest.approx(side, rel=1e-6)
+    for degrees in (85, 95):
+        # The near side spans x in [-2.25, 2.25]: 5 degrees off stays on it.
+        assert abs(side / math.tan(math.radians(degrees))) < HALF_LENGTH
+        assert lidar[degrees] == pytest.approx(side / math.sin(math.radians(degrees)), rel=1e-6)
+    # The right side still sees its rail.
+    assert lidar[270] == pytest.approx(rail_distances(2)[1], rel=1e-6)
+
+
+def test_car_directly_right_is_seen_by_ray_270():
+    lidar = lidar_of(scripted_sim([Car(0.0, 1, 60)], ego_lane=2))
+    assert lidar[270] == pytest.approx(LANE_WIDTH - HALF_WIDTH, rel=1e-6)
+    assert lidar[90] == pytest.approx(rail_distances(2)[0], rel=1e-6)
+
+
+def test_diagonal_car_is_hit_on_the_nearest_face():
+    # Car one lane left, 10 m ahead: its near side is the plane y = 2.6, its rear x = 7.75.
+    lidar = lidar_of(scripted_sim([Car(10.0, 3, 60)], ego_lane=2))
+    side = LANE_WIDTH - HALF_WIDTH
+    rear = 10.0 - HALF_LENGTH
+    for ray in range(360):
+        a = math.radians(ray)
+        c, s = math.cos(a), math.sin(a)
+        hits = []
+        if c > 1e-9:  # rear face x = rear, y in [2.6, 4.4]
+            t = rear / c
+            if side <= t * s <= side + 2 * HALF_WIDTH:
+                hits.append(t)
+        if s > 1e-9:  # right-hand face y = side, x in [7.75, 12.25]
+            t = side / s
+            if rear <= t * c <= rear + 2 * HALF_LENGTH:
+                hits.append(t)
+        if hits:
+            assert lidar[ray] == pytest.approx(min(hits), rel=1e-5), ray
+    empty = lidar_of(scripted_sim([], ego_lane=2))
+    covered = np.flatnonzero(lidar != empty).tolist()
+    expected_lo = math.ceil(math.degrees(math.atan2(side, 12.25)))
+    expected_hi = math.floor(math.degrees(math.atan2(side + 2 * HALF_WIDTH, rear)))
+    assert covered == list(range(expected_lo, expected_hi + 1))
+
+
+def test_nearer_car_hides_a_farther_one():
+    lidar = lidar_of(scripted_sim([Car(40.0, 2, 60), Car(15.0, 2, 60)], ego_lane=2))
+    assert lidar[0] == pytest.approx(15.0 - HALF_LENGTH, rel=1e-6)
+
+
+def test_car_beyond_range_is_not_seen():
+    lidar = lidar_of(scripted_sim([Car(MAX_RANGE + HALF_LENGTH + 1.0, 2, 60)], ego_lane=2))
+    assert lidar[0] == MAX_RANGE
+    lidar = lidar_of(scripted_sim([Car(MAX_RANGE + HALF_LENGTH - 1.0, 2, 60)], ego_lane=2))
+    assert lidar[0] == pytest.approx(MAX_RANGE - 1.0, rel=1e-6)
+
+
+def test_inactive_slots_are_invisible():
+    sim = scripted_sim([Car(20.0, 2, 60)], ego_lane=2)
+    sim.state.active[0, 1] = False
+    assert lidar_of(sim)[0] == MAX_RANGE
+
+
+def test_lidar_turns_with_the_ego_during_a_lane_change():
+    # Mid-change the ego heads left, so ray 0 no longer points along the road: a car far ahead
+    # in the origin lane is missed by ray 0 but found a little clockwise of it.
+    sim = scripted_sim([Car(60.0, 2, 60)], ego_lane=2)
+    straight = lidar_of(sim)
+    sim.step(np.array([[3]]))
+    sim.step(np.array([[3]]))   # ignored: the change is under way
+    heading = float(sim.headings()[0, 0])
+    assert heading > math.radians(1.0)
+    turned = lidar_of(sim)
+    assert straight[0] == pytest.approx(60.0 - HALF_LENGTH, rel=1e-6)
+    # Ray 0 now meets the left rail at (lateral distance) / sin(heading) ...
+    ego_y = float(sim.state.y_m[0, 0])
+    rail_left = LANES * LANE_WIDTH + BARRIER_OFFSET
+    assert turned[0] == pytest.approx((rail_left - ego_y) / math.sin(heading), rel=1e-5)
+    assert turned[0] < 60.0 - HALF_LENGTH
+    # ... and the car's rear is found by the ray pointing at it, clockwise of ray 0.
+    dx = float(sim.state.x_m[0, 1] - sim.state.x_m[0, 0]) - HALF_LENGTH
+    dy = float(sim.state.y_m[0, 1]) - ego_y
+    bearing = math.degrees(math.atan2(dy, dx) - heading) % 360.0
+    ray = round(bearing) % 360
+    assert 340 < ray < 360
+    angle = math.radians(ray) + heading
+    assert turned[ray] == pytest.approx(dx / math.cos(angle), rel=1e-4)
+
+
+def test_lidar_ray_count_and_range_follow_the_config():
+    sim = scripted_sim([Car(20.0, 2, 60)], ego_lane=2,
+                       overrides={"lidar.ray_count": 8, "lidar.max_range_m": 15.0})
+    lidar = lidar_of(sim)
+    assert lidar.shape == (8,)
+    left, right = rail_distances(2)
+    # Ray k of 8 points 45 * k degrees left: 0 ahead (car at 17.75 > 15), 2 left, 6 right.
+    assert lidar[0] == 15.0
+    assert lidar[2] == pytest.approx(left)
+    assert lidar[6] == pytest.approx(right)
+    assert lidar[1] == pytest.approx(min(left / math.sin(math.pi / 4), 15.0), rel=1e-6)
+
+
+# --- camera ----------------------------------------------------------------------------------
+
+CAR_GREY = 20
+MARKING_GREY = 240
+W = H = 84
+FOV_DEG = 70.0
+MOUNT_HEIGHT = 1.2
+MOUNT_FORWARD = 0.3
+PITCH_DEG = 6.0
+
+
+def projected_extent(dx: float, dy: float, width: int = W, height: int = H,
+                     fov_deg: float = FOV_DEG) -> tuple[list[int], list[int]]:
+    """Pixel columns and rows covered by the box of a car centred dx ahead, dy left of the ego.
+
+    Pinhole model: focal length f = (W/2) / tan(fov/2); a point ``left`` metres to the left,
+    ``forward`` metres ahead and ``up`` metres above the eye in the (pitched) camera frame lands
+    at column W/2 - f * left / forward and row H/2 - f * up / forward. A car is drawn as the
+    screen rectangle bounding its eight corners; a pixel is covered when its centre is inside.
+    """
+    f = (width / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
+    pitch = math.radians(PITCH_DEG)
+    cols, rows = [], []
+    for sx in (-1, 1):
+        for sy in (-1, 1):
+            for z in (0.0, VEHICLE_HEIGHT_M):
+                ahead = dx + sx * HALF_LENGTH - MOUNT_FORWARD
+                left = dy + sy * HALF_WIDTH
+                drop = z - MOUNT_HEIGHT
+                forward = ahead * math.cos(pitch) - drop * math.sin(pitch)
+                up = ahead * math.sin(pitch) + drop * math.cos(pitch)
+                cols.append(width / 2.0 - f * left / forward)
+                rows.append(height / 2.0 - f * up / forward)
+    covered_cols = [c for c in range(width) if min(cols) <= c + 0.5 <= max(cols)]
+    covered_rows = [r for r in range(height) if min(rows) <= r + 0.5 <= max(rows)]
+    return covered_cols, covered_rows
+
+
+def car_pixels(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    car = image == CAR_GREY
+    return np.flatnonzero(car.any(axis=0)), np.flatnonzero(car.any(axis=1))
+
+
+def test_empty_road_image_has_sky_road_and_markings_but_no_car():
+    image = camera_of(scripted_sim([], ego_lane=2))
+    assert image.shape == (H, W) and image.dtype == np.uint8
+    assert not (image == CAR_GREY).any()
+    assert (image == MARKING_GREY).any()
+    # Sky on top, road under the car's nose at the bottom middle.
+    top, bottom = image[0], image[-1]
+    assert len(np.unique(top)) == 1 and top[0] != MARKING_GREY
+    assert bottom[W // 2] != top[0]
+
+
+@pytest.mark.parametrize("ego_x", [0.0, 6.0])
+def test_lane_markings_are_where_the_lane_lines_project(ego_x):
+    # The ego is centred in its lane, so the nearest lines are 1.75 m either side of the eye;
+    # they are dashed (6 m dash, 6 m gap), so near rows show them or not by where the ego is.
+    sim = scripted_sim([], ego_lane=2)
+    place(sim, 0, x=ego_x, lane=2, speed_kmh=60.0)
+    image = camera_of(sim)
+    f = (W / 2.0) / math.tan(math.radians(FOV_DEG) / 2.0)
+    pitch = math.radians(PITCH_DEG)
+    checked = 0
+    def ground_ahead(row: int) -> float:
+        """Metres ahead of the eye where the centre ray of ``row`` meets the road (inf: sky)."""
+        up = -((row + 0.5) - H / 2.0) / f          # ray direction in the camera frame
+        ray_x = math.cos(pitch) + up * math.sin(pitch)
+        ray_z = -math.sin(pitch) + up * math.cos(pitch)
+        return math.inf if ray_z >= 0 else ray_x * MOUNT_HEIGHT / -ray_z
+
+    on_dash = off_dash = 0
+    for row in range(1, H):
+        ahead = ground_ahead(row)
+        along = ground_ahead(row - 1) - ahead       # road length one row spans
+        if not math.isfinite(along) or along > 1.0:
+            continue                               # far rows: dashes blur into solid lines
+        phase = (ego_x + MOUNT_FORWARD + ahead) % 12.0   # dashes 6 m long every 12 m
+        if min(phase, abs(phase - 6.0), 12.0 - phase) < 1.0:
+            continue                               # too close to a dash's end to call
+        for side in (-1, 1):
+            # A ground point ``left`` metres to the side lands at column W/2 - f * left / depth;
+            # the ray's depth per metre ahead is fixed per row, so use the ray's own scale.
+            up = -((row + 0.5) - H / 2.0) / f
+            depth = ahead / (math.cos(pitch) + up * math.sin(pitch))
+            col = W / 2.0 - side * (LANE_WIDTH / 2.0) * f / depth
+            c = int(math.floor(col))
+            if not 1 <= c < W - 1:
+                continue
+            window = image[row, c - 1:c + 2]
+            if phase < 6.0:
+                on_dash += 1
+                assert (window == MARKING_GREY).any(), (row, side, col)
+            else:
+                off_dash += 1
+                assert not (window == MARKING_GREY).any(), (row, side, col)
+    assert (on_dash if ego_x == 0.0 else off_dash) >= 20, (on_dash, off_dash)
+    # Markings never appear in the middle of the ego's own lane near the car.
+    assert not (image[H - 10:, W // 2 - 5:W // 2 + 5] == MARKING_GREY).any()
+
+
+@pytest.mark.parametrize("distance", [12.0, 20.0, 35.0])
+def test_car_straight_ahead_is_in_the_centre_columns(distance):
+    image = camera_of(scripted_sim([Car(distance, 2, 60)], ego_lane=2))
+    cols, rows = car_pixels(image)
+    expected_cols, expected_rows = projected_extent(distance, 0.0)
+    assert cols.tolist() == expected_cols
+    assert rows.tolist() == expected_rows
+    # Symmetric about the centre.
+    assert cols.min() + cols.max() == W - 1
+    # Every pixel of the bounding rectangle is the car's grey.
+    assert (image[np.ix_(rows, cols)] == CAR_GREY).all()
+
+
+def test_car_in_the_left_lane_appears_left_of_centre():
+    image = camera_of(scripted_sim([Car(20.0, 3, 60)], ego_lane=2))
+    cols, rows = car_pixels(image)
+    expected_cols, expected_rows = projected_extent(20.0, LANE_WIDTH)
+    assert cols.tolist() == expected_cols
+    assert rows.tolist() == expected_rows
+    assert cols.max() < W / 2
+
+
+def test_car_in_the_right_lane_appears_right_of_centre():
+    image = camera_of(scripted_sim([Car(20.0, 1, 60)], ego_lane=2))
+    cols, _ = car_pixels(image)
+    assert cols.tolist() == projected_extent(20.0, -LANE_WIDTH)[0]
+    assert cols.min() > W / 2
+
+
+def test_nearer_car_covers_more_pixels():
+    counts = []
+    for distance in (10.0, 20.0, 40.0, 80.0):
+        image = camera_of(scripted_sim([Car(distance, 2, 60)], ego_lane=2))
+        counts.append(int((image == CAR_GREY).sum()))
+    assert counts[0] > counts[1] > counts[2] > counts[3] > 0
+
+
+def test_cars_behind_are_not_drawn():
+    image = camera_of(scripted_sim([Car(-20.0, 2, 60), Car(-10.0, 3, 60)], ego_lane=2))
+    assert not (image == CAR_GREY).any()
+
+
+def test_rgb_camera_has_three_channels_and_a_red_car():
+    sim = scripted_sim([Car(20.0, 2, 60)], ego_lane=2, overrides={"camera.rgb": True})
+    image = camera_of(sim)
+    assert image.shape == (84, 84, 3) and image.dtype == np.uint8
+    expected_cols, expected_rows = projected_extent(20.0, 0.0)
+    patch = image[np.ix_(expected_rows, expected_cols)]
+    assert (patch == np.array([200, 30, 30], dtype=np.uint8)).all()
+    # Same scene in grey marks exactly the same pixels as car.
+    grey = camera_of(scripted_sim([Car(20.0, 2, 60)], ego_lane=2))
+    red = (image == np.array([200, 30, 30])).all(axis=-1)
+    assert np.array_equal(red, grey == CAR_GREY)
+
+
+@pytest.mark.parametrize("width, height", [(64, 48), (120, 30)])
+def test_camera_of_another_size(width, height):
+    sim = scripted_sim([Car(20.0, 2, 60)], ego_lane=2,
+                       overrides={"camera.width_px": width, "camera.height_px": height})
+    image = camera_of(sim)
+    assert image.shape == (height, width)
+    cols, rows = car_pixels(image)
+    expected_cols, expected_rows = projected_extent(20.0, 0.0, width, height)
+    assert cols.tolist() == expected_cols
+    assert rows.tolist() == expected_rows
+    rgb = camera_of(scripted_sim([], ego_lane=2, overrides={
+        "camera.width_px": width, "camera.height_px": height, "camera.rgb": True}))
+    assert rgb.shape == (height, width, 3)
+
+
+def test_field_of_view_changes_the_projection():
+    sim = scripted_sim([Car(20.0, 3, 60)], ego_lane=2, overrides={"camera.horizontal_fov_deg": 40.0})
+    cols, _ = car_pixels(camera_of(sim))
+    assert cols.tolist() == projected_extent(20.0, LANE_WIDTH, fov_deg=40.0)[0]
+
+
+def test_observe_shapes_and_sensor_switches():
+    sim = scripted_sim([Car(20.0, 2, 60)], ego_lane=2, overrides={"camera.enabled": False})
+    obs = sim.observe()
+    assert set(obs) == {"lidar", "ego"}
+    assert obs["lidar"].shape == (1, 1, 360) and obs["ego"].shape == (1, 1, 6)
+    sim = scripted_sim([Car(20.0, 2, 60)], ego_lane=2, overrides={"lidar.enabled": False})
+    assert set(sim.observe()) == {"camera", "ego"}
+
+
+def test_ego_vector_fields():
+    sim = scripted_sim([], ego_lane=1, ego_speed_kmh=54.0, cruise_kmh=72.0)
+    ego = sim.observe()["ego"][0, 0]
+    assert ego.dtype == np.float32
+    assert ego.tolist() == pytest.approx([15.0, 20.0, 1.0, 5.0, 0.0, 0.0], abs=1e-5)
+    sim.step(np.array([[4]]))  # start a change to the right
+    ego = sim.observe()["ego"][0, 0]
+    assert ego[5] == -1.0
+    assert 0.0 < ego[4] < 1.0
+    place(sim, 0, x=0.0, lane=3, speed_kmh=54.0)
+    assert sim.observe()["ego"][0, 0][2] == 3.0
