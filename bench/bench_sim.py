@@ -37,6 +37,7 @@ import datetime
 import json
 import os
 import platform
+import subprocess
 import sys
 import time
 from collections.abc import Mapping
@@ -58,6 +59,8 @@ THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"
 # highway-env's.
 BARS: dict[int, float] = {1: 20.0, 64: 100.0}
 QUICK_DIVISOR = 10
+# overtake's code folders, whose uncommitted changes the report flags.
+SOURCE_FOLDERS = ("protocol", "server", "client")
 
 
 @dataclass(frozen=True)
@@ -257,6 +260,22 @@ def _cpu_model() -> str:
     return platform.processor() or "unknown"
 
 
+def _source_revision() -> str:
+    """The git commit of overtake's checkout, marked when its code has uncommitted changes."""
+    root = Path(__file__).resolve().parents[1]
+
+    def git(*args: str) -> str:
+        return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True,
+                              check=True).stdout.strip()
+
+    try:
+        commit = git("rev-parse", "--short", "HEAD")
+        changed = git("status", "--porcelain", "--", *SOURCE_FOLDERS)
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown (not a git checkout)"
+    return f"{commit} + uncommitted changes" if changed else commit
+
+
 def machine_description() -> dict[str, Any]:
     import gymnasium
     import numpy as np
@@ -264,7 +283,7 @@ def machine_description() -> dict[str, Any]:
     return {"cpu_count": os.cpu_count(), "cpu_model": _cpu_model(),
             "platform": platform.platform(), "python": platform.python_version(),
             "numpy": np.__version__, "gymnasium": gymnasium.__version__,
-            "overtake": metadata.version("overtake")}
+            "overtake": metadata.version("overtake"), "overtake_source": _source_revision()}
 
 
 def _format_table(rows: list[Measurement], ratios: Mapping[int, float]) -> str:
@@ -308,7 +327,8 @@ def main(config: BenchConfig) -> dict[str, Any]:
 
     single, scene = measure_overtake_single(config.timed(config.single_decisions),
                                             config.single_warmup, config.seed)
-    print(f"overtake {machine['overtake']} {ENV_ID}: {scene}")
+    print(f"overtake {machine['overtake']} (source {machine['overtake_source']}) {ENV_ID}: "
+          f"{scene}")
     rows = [single]
     for arenas in BATCH_SIZES:
         rows.append(measure_overtake_batch(arenas, config.timed(config.batch_arena_decisions),

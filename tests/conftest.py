@@ -6,7 +6,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import pytest
 
 from overtake.server.sim import HighwaySim, make_config
 from overtake.server.sim.config import BEHAVIOURS
@@ -101,8 +100,3 @@ def lidar_of(sim: HighwaySim) -> np.ndarray:
 
 def camera_of(sim: HighwaySim) -> np.ndarray:
     return sim.observe()["camera"][0, 0]
-
-
-@pytest.fixture
-def make_scene():
-    return scripted_sim

@@ -6,9 +6,12 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
-from conftest import (HALF_LENGTH, HALF_WIDTH, LANE_WIDTH, Car, camera_of, lidar_of, place,
+from conftest import (HALF_LENGTH, HALF_WIDTH, LANE_WIDTH, Car, camera_of, keep, lidar_of, place,
                       scripted_sim)
+from overtake.server.sim import HighwaySim, make_config
 from overtake.server.sim.camera import VEHICLE_HEIGHT_M
 
 MAX_RANGE = 80.0
@@ -196,14 +199,14 @@ MOUNT_FORWARD = 0.3
 PITCH_DEG = 6.0
 
 
-def projected_extent(dx: float, dy: float, width: int = W, height: int = H,
-                     fov_deg: float = FOV_DEG) -> tuple[list[int], list[int]]:
-    """Pixel columns and rows covered by the box of a car centred dx ahead, dy left of the ego.
+def projected_span(dx: float, dy: float, width: int = W, height: int = H,
+                   fov_deg: float = FOV_DEG) -> tuple[float, float, float, float]:
+    """Screen span (col_lo, col_hi, row_lo, row_hi) of a car centred dx ahead, dy left of the ego.
 
     Pinhole model: focal length f = (W/2) / tan(fov/2); a point ``left`` metres to the left,
     ``forward`` metres ahead and ``up`` metres above the eye in the (pitched) camera frame lands
     at column W/2 - f * left / forward and row H/2 - f * up / forward. A car is drawn as the
-    screen rectangle bounding its eight corners; a pixel is covered when its centre is inside.
+    screen rectangle bounding the projections of its eight corners.
     """
     f = (width / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
     pitch = math.radians(PITCH_DEG)
@@ -218,8 +221,15 @@ def projected_extent(dx: float, dy: float, width: int = W, height: int = H,
                 up = ahead * math.sin(pitch) + drop * math.cos(pitch)
                 cols.append(width / 2.0 - f * left / forward)
                 rows.append(height / 2.0 - f * up / forward)
-    covered_cols = [c for c in range(width) if min(cols) <= c + 0.5 <= max(cols)]
-    covered_rows = [r for r in range(height) if min(rows) <= r + 0.5 <= max(rows)]
+    return min(cols), max(cols), min(rows), max(rows)
+
+
+def projected_extent(dx: float, dy: float, width: int = W, height: int = H,
+                     fov_deg: float = FOV_DEG) -> tuple[list[int], list[int]]:
+    """Pixel columns and rows whose centres (p + 0.5) lie inside the car's screen span."""
+    col_lo, col_hi, row_lo, row_hi = projected_span(dx, dy, width, height, fov_deg)
+    covered_cols = [c for c in range(width) if col_lo <= c + 0.5 <= col_hi]
+    covered_rows = [r for r in range(height) if row_lo <= r + 0.5 <= row_hi]
     return covered_cols, covered_rows
 
 
@@ -239,7 +249,8 @@ def test_empty_road_image_has_sky_road_and_markings_but_no_car():
     assert bottom[W // 2] != top[0]
 
 
-@pytest.mark.parametrize("ego_x", [0.0, 6.0])
+@pytest.mark.parametrize("ego_x", [
+    0.0, 6.0])
 def test_lane_markings_are_where_the_lane_lines_project(ego_x):
     # The ego is centred in its lane, so the nearest lines are 1.75 m either side of the eye;
     # they are dashed (6 m dash, 6 m gap), so near rows show them or not by where the ego is.
@@ -286,6 +297,15 @@ def test_lane_markings_are_where_the_lane_lines_project(ego_x):
     assert not (image[H - 10:, W // 2 - 5:W // 2 + 5] == MARKING_GREY).any()
 
 
+def test_dashes_scroll_past_as_the_car_drives():
+    sim = scripted_sim([], ego_lane=2, ego_speed_kmh=54.0)   # 15 m/s: 6 m per decision
+    before = camera_of(sim)
+    keep(sim)
+    assert sim.state.x_m[0, 0] == pytest.approx(6.0)
+    # Half a dash period on, the dashes beside the car and the gaps between them swap.
+    assert not np.array_equal(camera_of(sim), before)
+
+
 @pytest.mark.parametrize("distance", [12.0, 20.0, 35.0])
 def test_car_straight_ahead_is_in_the_centre_columns(distance):
     image = camera_of(scripted_sim([Car(distance, 2, 60)], ego_lane=2))
@@ -297,6 +317,27 @@ def test_car_straight_ahead_is_in_the_centre_columns(distance):
     assert cols.min() + cols.max() == W - 1
     # Every pixel of the bounding rectangle is the car's grey.
     assert (image[np.ix_(rows, cols)] == CAR_GREY).all()
+
+
+def test_a_car_smaller_than_a_pixel_is_drawn_in_a_pixel_it_covers():
+    # On a 32 x 32 image a car 100 m ahead spans less than half a pixel each way. Slide it
+    # sideways in small steps: every pixel drawn as car must overlap the car's screen span
+    # (pixel p covers [p, p + 1)), and exactly one column and one row are drawn.
+    size = 32
+    wrong = []
+    for dy in np.linspace(-0.6, 0.6, 25):
+        sim = scripted_sim([Car(100.0, 2, 60)], ego_lane=2, overrides={
+            "camera.width_px": size, "camera.height_px": size, "lidar.enabled": False})
+        sim.state.y_m[0, 1] += dy
+        cols, rows = car_pixels(camera_of(sim))
+        col_lo, col_hi, row_lo, row_hi = projected_span(100.0, float(dy), size, size)
+        assert col_hi - col_lo < 0.5 and row_hi - row_lo < 0.5
+        assert len(cols) == 1 and len(rows) == 1
+        if not (cols[0] < col_hi and cols[0] + 1 > col_lo):
+            wrong.append(("column", round(float(dy), 2), int(cols[0]), (col_lo, col_hi)))
+        if not (rows[0] < row_hi and rows[0] + 1 > row_lo):
+            wrong.append(("row", round(float(dy), 2), int(rows[0]), (row_lo, row_hi)))
+    assert not wrong, wrong
 
 
 def test_car_in_the_left_lane_appears_left_of_centre():
@@ -382,3 +423,93 @@ def test_ego_vector_fields():
     assert 0.0 < ego[4] < 1.0
     place(sim, 0, x=0.0, lane=3, speed_kmh=54.0)
     assert sim.observe()["ego"][0, 0][2] == 3.0
+
+
+# --- property tests against an independent ray caster ---------------------------------------
+
+def brute_force_scan(car_dx: float, car_dy: float, ego_lane: int,
+                     eps: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """Per ray of 360: expected distance, and whether the ray is clear of any grazing doubt.
+
+    Rays are intersected with each of the car's four faces and with the rails, one ray at a
+    time. A ray that passes within ``eps`` of a corner is marked doubtful (hit or miss are
+    both right).
+    """
+    left, right = rail_distances(ego_lane)
+    x_lo, x_hi = car_dx - HALF_LENGTH, car_dx + HALF_LENGTH
+    y_lo, y_hi = car_dy - HALF_WIDTH, car_dy + HALF_WIDTH
+    expected = np.empty(360)
+    sure = np.ones(360, dtype=bool)
+    for ray in range(360):
+        a = math.radians(ray)
+        c, s = math.cos(a), math.sin(a)
+        best = MAX_RANGE
+        if s > 1e-9:
+            best = min(best, left / s)
+        elif s < -1e-9:
+            best = min(best, right / -s)
+        for plane, speed, other_speed, lo, hi in (
+                (x_lo, c, s, y_lo, y_hi), (x_hi, c, s, y_lo, y_hi),
+                (y_lo, s, c, x_lo, x_hi), (y_hi, s, c, x_lo, x_hi)):
+            if abs(speed) < 1e-12:
+                continue
+            t = plane / speed
+            if t < 0:
+                continue
+            other = t * other_speed
+            if lo + eps < other < hi - eps:
+                best = min(best, t)
+            elif lo - eps <= other <= hi + eps and t < best:
+                sure[ray] = False    # grazing a corner
+        expected[ray] = best
+    return expected, sure
+
+
+@settings(max_examples=60, deadline=None)
+@given(ego_lane=st.integers(0, 4), car_lane=st.integers(0, 4),
+       car_dx=st.floats(-90.0, 90.0, allow_nan=False))
+def test_lidar_matches_an_independent_ray_caster(ego_lane, car_lane, car_dx):
+    assume(car_lane != ego_lane or abs(car_dx) >= 2 * HALF_LENGTH)  # no overlapping boxes
+    sim = scripted_sim([Car(car_dx, car_lane, 60.0)], ego_lane=ego_lane,
+                       overrides={"camera.enabled": False})
+    lidar = lidar_of(sim)
+    expected, sure = brute_force_scan(car_dx, (car_lane - ego_lane) * LANE_WIDTH, ego_lane)
+    np.testing.assert_allclose(lidar[sure], expected[sure].astype(np.float32), rtol=2e-6,
+                               atol=1e-5)
+
+
+@settings(max_examples=40, deadline=None)
+@given(car_lane=st.integers(0, 4), car_dx=st.floats(6.0, 60.0, allow_nan=False))
+def test_camera_matches_the_pinhole_model(car_lane, car_dx):
+    sim = scripted_sim([Car(car_dx, car_lane, 60.0)], ego_lane=2,
+                       overrides={"lidar.enabled": False})
+    cols, rows = car_pixels(camera_of(sim))
+    dy = (car_lane - 2) * LANE_WIDTH
+    expected_cols, expected_rows = projected_extent(car_dx, dy)
+    # Boundaries that fall on a pixel centre could go either way: allow one pixel there.
+    if expected_cols:
+        assert set(cols.tolist()) ^ set(expected_cols) <= {
+            expected_cols[0] - 1, expected_cols[0], expected_cols[-1], expected_cols[-1] + 1}
+        assert abs(len(cols) - len(expected_cols)) <= 1
+        assert set(rows.tolist()) ^ set(expected_rows) <= {
+            expected_rows[0] - 1, expected_rows[0], expected_rows[-1], expected_rows[-1] + 1}
+    else:
+        assert cols.size == 0
+
+
+# --- several agents --------------------------------------------------------------------------
+
+def test_agents_see_each_other():
+    config = make_config(overrides={"traffic.vehicle_count": 0})
+    sim = HighwaySim(config, num_arenas=1, agents_per_arena=2)
+    sim.reset(seeds=[0])
+    place(sim, 0, x=0.0, lane=2, speed_kmh=60.0)
+    place(sim, 1, x=-20.0, lane=2, speed_kmh=60.0)
+    obs = sim.observe()
+    assert obs["lidar"].shape == (1, 2, 360) and obs["camera"].shape == (1, 2, 84, 84)
+    front, back = obs["lidar"][0, 0], obs["lidar"][0, 1]
+    assert front[180] == pytest.approx(20.0 - HALF_LENGTH) and front[0] == MAX_RANGE
+    assert back[0] == pytest.approx(20.0 - HALF_LENGTH) and back[180] == MAX_RANGE
+    # Only the one behind has a car in view.
+    assert not (obs["camera"][0, 0] == CAR_GREY).any()
+    assert (obs["camera"][0, 1] == CAR_GREY).any()

@@ -91,7 +91,7 @@ class Camera:
         self._cols = np.arange(self.width, dtype=np.float64)
 
     def _ground(self, eye_x: np.ndarray, eye_y: np.ndarray, cos_h: np.ndarray,
-                sin_h: np.ndarray) -> np.ndarray:
+                sin_h: np.ndarray, road_x: np.ndarray) -> np.ndarray:
         """(O, H, W) uint8 sky and ground: grey values, or surface classes for RGB."""
         value = self._stage_value
         observers = eye_x.shape[0]
@@ -120,7 +120,7 @@ class Camera:
         # the camera's axis (during a lane change far lanes' dashes shift by a metre or two).
         near_line = np.abs(lanes - np.rint(lanes)) <= self._row_line_half32
         near_line &= from_middle <= np.float32(half_road + 0.5)
-        world_x = eye_x[:, None] + cos_h[:, None] * self.row_forward
+        world_x = (road_x + eye_x)[:, None] + cos_h[:, None] * self.row_forward
         gap = ~(self.row_dash_solid | ((world_x % DASH_PERIOD_M) < DASH_LENGTH_M))   # (O, R)
         if gap.any():
             inner = from_middle < np.float32(half_road - 0.5)
@@ -134,12 +134,13 @@ class Camera:
 
     def render(self, cam_x: np.ndarray, cam_y: np.ndarray, heading: np.ndarray,
                car_x: np.ndarray, car_y: np.ndarray, car_half_length: np.ndarray,
-               car_half_width: np.ndarray, car_visible: np.ndarray) -> np.ndarray:
+               car_half_width: np.ndarray, car_visible: np.ndarray,
+               road_x: np.ndarray) -> np.ndarray:
         """Images (O, H, W[, 3]) uint8 for O observers at the driver's seat of their car.
 
         cam_x, cam_y, heading: (O,) the car's centre and heading; car_*: (O, V) the cars each
-        observer may see (``car_visible`` False for itself and inactive slots). The x values may
-        be relative to any reference shared by the two.
+        observer may see (``car_visible`` False for itself and inactive slots). The x values
+        are relative to a reference at ``road_x`` (O,) along the road, which places the dashes.
         """
         mount = self.config.mount_forward_m
         cos_h = np.cos(heading)
@@ -147,7 +148,7 @@ class Camera:
         eye_x = cam_x + mount * cos_h
         eye_y = cam_y + mount * sin_h
 
-        surface = self._ground(eye_x, eye_y, cos_h, sin_h)
+        surface = self._ground(eye_x, eye_y, cos_h, sin_h, road_x)
 
         # Cars: the screen rectangle bounding each box's eight corners, arrays led by the
         # corner axes (2 heights, 4 ground corners) so that bounds reduce over leading axes.
@@ -176,9 +177,12 @@ class Camera:
             # and a sliver narrower than a pixel still covers one.
             lo = (half_size - offsets.max(axis=(0, 1))).reshape(-1)[pick]
             hi = (half_size - offsets.min(axis=(0, 1))).reshape(-1)[pick]
-            first = np.ceil(lo - 0.5)
-            return first.reshape(observers, seen_count, 1), \
-                np.maximum(np.floor(hi - 0.5), first).reshape(observers, seen_count, 1)
+            first, last = np.ceil(lo - 0.5), np.floor(hi - 0.5)
+            sliver = last < first
+            middle = np.floor(0.5 * (lo + hi))
+            shape = (observers, seen_count, 1)
+            return np.where(sliver, middle, first).reshape(shape), \
+                np.where(sliver, middle, last).reshape(shape)
         col_lo, col_hi = bounds(col, self.width / 2.0)
         row_lo, row_hi = bounds(row, self.height / 2.0)
         shown = seen.reshape(-1)[pick].reshape(observers, seen_count, 1)

@@ -327,12 +327,16 @@ class SimConfig:
 # --- overrides -------------------------------------------------------------------------------
 
 PlainValue = bool | int | float | str | None | list | tuple
+# The preset's name says where the overrides started from; it is not itself a setting.
+NOT_OVERRIDABLE = frozenset({"preset"})
 
 
 def field_names(config: object, prefix: str = "") -> list[str]:
     """Every overridable dotted field name of a config dataclass, leaves only."""
     names: list[str] = []
     for f in dataclasses.fields(config):  # type: ignore[arg-type]
+        if f"{prefix}{f.name}" in NOT_OVERRIDABLE:
+            continue
         value = getattr(config, f.name)
         if dataclasses.is_dataclass(value):
             names.extend(field_names(value, f"{prefix}{f.name}."))
@@ -380,6 +384,9 @@ def _coerce(name: str, annotation: Any, value: object) -> object:
 def apply_overrides(config: SimConfig, overrides: Mapping[str, PlainValue]) -> SimConfig:
     """A copy of ``config`` with dotted fields replaced, every value checked against its type."""
     for dotted, value in overrides.items():
+        if dotted in NOT_OVERRIDABLE:
+            raise ConfigError("'preset' names the preset an override starts from: choose it by "
+                              "name, it cannot be overridden")
         config = _replace_path(config, dotted.split("."), dotted, value)
     return config
 
@@ -389,7 +396,8 @@ def _replace_path(node: Any, path: list[str], dotted: str, value: object) -> Any
     names = [f.name for f in dataclasses.fields(node)]
     head = path[0]
     if head not in names:
-        allowed = field_names(node)
+        parent = dotted[: len(dotted) - len(".".join(path))]
+        allowed = field_names(node, parent)
         raise ConfigError(f"unknown configuration field {dotted!r}: at this level the fields are "
                           f"{', '.join(allowed)}")
     current = getattr(node, head)

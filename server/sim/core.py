@@ -689,7 +689,8 @@ class HighwaySim:
             out["lidar"] = scan.reshape(arenas, n, -1)
         if self.camera is not None:
             assert views is not None
-            image = self.camera.render(*views)
+            road_x = np.repeat(self.state.x_m[:, 0], self.agents)
+            image = self.camera.render(*views, road_x=road_x)
             out["camera"] = image.reshape((arenas, n) + image.shape[1:])
         out["ego"] = self.ego_vector()
         return out

@@ -1,0 +1,223 @@
+"""Baseline drivers: the rule-based driver's decisions on scripted LIDAR scans, and random."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from conftest import LANE_WIDTH, Car, scripted_sim
+from overtake.client import HIGHWAY_ENV_ID, RandomDriver, RuleDriver, RuleDriverConfig
+from overtake.client.drive import DriveConfig, main, parse_overrides
+
+KEEP, CRUISE_UP, CRUISE_DOWN, LANE_LEFT, LANE_RIGHT = range(5)
+RANGE = 80.0
+ALL_ALLOWED = np.ones((1, 5), dtype=np.int8)
+
+
+def scan(*points: tuple[float, float]) -> np.ndarray:
+    """A (1, 360) LIDAR scan with nothing in range except hits at (x ahead, y left) points."""
+    lidar = np.full((1, 360), RANGE, dtype=np.float32)
+    for x, y in points:
+        ray = round(math.degrees(math.atan2(y, x))) % 360
+        lidar[0, ray] = min(lidar[0, ray], math.hypot(x, y))
+    return lidar
+
+
+def ego(cruise_kmh: float = 80.0) -> np.ndarray:
+    return np.array([[cruise_kmh / 3.6, cruise_kmh / 3.6, 2.0, 5.0, 0.0, 0.0]], dtype=np.float32)
+
+
+def mask(left: bool = True, right: bool = True) -> np.ndarray:
+    return np.array([[1, 1, 1, int(left), int(right)]], dtype=np.int8)
+
+
+def act(lidar: np.ndarray, ego_vector: np.ndarray | None = None, action_mask=ALL_ALLOWED) -> int:
+    actions = RuleDriver().act(lidar, ego(80.0) if ego_vector is None else ego_vector, action_mask)
+    assert actions.shape == (1,) and actions.dtype == np.int64
+    return int(actions[0])
+
+
+# --- cruise ----------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("cruise_kmh, expected", [(40.0, CRUISE_UP), (75.0, CRUISE_UP),
+                                                  (79.9, CRUISE_UP), (80.0, KEEP)])
+def test_rule_driver_raises_the_cruise_target_below_the_limit(cruise_kmh, expected):
+    assert act(scan(), ego(cruise_kmh)) == expected
+
+
+def test_rule_driver_limit_follows_its_config():
+    driver = RuleDriver(RuleDriverConfig(cruise_max_kmh=60.0))
+    assert driver.act(scan(), ego(60.0), ALL_ALLOWED).tolist() == [KEEP]
+    assert driver.act(scan(), ego(55.0), ALL_ALLOWED).tolist() == [CRUISE_UP]
+
+
+# --- lane changes ----------------------------------------------------------------------------
+
+def test_free_distance_per_lane():
+    driver = RuleDriver()
+    free, clear = driver.free_distance(scan((20.0, 0.0), (50.0, LANE_WIDTH), (0.0, -2.6)))
+    assert free[0].tolist() == pytest.approx([RANGE, 20.0, 50.0], abs=0.01)
+    assert clear[0].tolist() == [False, True, True]   # the right has a car beside
+
+
+def test_no_lane_change_on_a_free_road():
+    assert act(scan()) == KEEP
+
+
+def test_blocked_lane_with_free_neighbours_goes_left():
+    # A car 20 m ahead in the own lane; both neighbours free: left on a tie.
+    assert act(scan((20.0, 0.0))) == LANE_LEFT
+
+
+def test_blocked_lane_goes_to_the_side_with_more_room():
+    assert act(scan((20.0, 0.0), (40.0, LANE_WIDTH))) == LANE_RIGHT
+    assert act(scan((20.0, 0.0), (40.0, -LANE_WIDTH))) == LANE_LEFT
+
+
+def test_not_blocked_means_no_change():
+    # 45 m ahead is more than blocked_ahead_m (40 m).
+    assert act(scan((45.0, 0.0))) == KEEP
+
+
+def test_a_neighbour_only_slightly_freer_is_not_worth_it():
+    # Own lane free for 20 m; both neighbours free for 30 m < 20 + 15.
+    assert act(scan((20.0, 0.0), (30.0, LANE_WIDTH), (30.0, -LANE_WIDTH))) == KEEP
+    assert act(scan((20.0, 0.0), (36.0, LANE_WIDTH), (30.0, -LANE_WIDTH))) == LANE_LEFT
+
+
+@pytest.mark.parametrize("beside_x", [0.0, 8.0, -12.0])
+def test_no_change_towards_a_car_beside(beside_x):
+    # A car in the left lane within [-15, 10] m of the ego: left is not safe; right is free.
+    lidar = scan((20.0, 0.0), (beside_x, LANE_WIDTH - 0.9))
+    assert act(lidar) == LANE_RIGHT
+    lidar = scan((20.0, 0.0), (beside_x, LANE_WIDTH - 0.9), (beside_x, -(LANE_WIDTH - 0.9)))
+    assert act(lidar) == KEEP
+
+
+def test_car_well_behind_in_the_neighbour_lane_does_not_stop_the_change():
+    assert act(scan((20.0, 0.0), (-25.0, LANE_WIDTH))) == LANE_LEFT
+
+
+def test_masked_lane_changes_are_never_chosen():
+    lidar = scan((20.0, 0.0))
+    assert act(lidar, action_mask=mask(left=False)) == LANE_RIGHT
+    assert act(lidar, action_mask=mask(left=False, right=False)) == KEEP
+    assert act(lidar, ego(60.0), mask(left=False, right=False)) == CRUISE_UP
+
+
+@pytest.mark.parametrize("cruise_kmh", [60.0, 80.0])
+def test_rule_driver_on_sensor_scans_of_scripted_scenes(cruise_kmh):
+    # The same decisions from the simulator's own LIDAR (rails included); a lane change takes
+    # precedence over raising the cruise target.
+    def decide(cars, ego_lane=2):
+        sim = scripted_sim(cars, ego_lane=ego_lane, ego_speed_kmh=cruise_kmh)
+        obs = sim.observe()
+        return int(RuleDriver().act(obs["lidar"][:, 0], obs["ego"][:, 0],
+                                    sim.action_mask()[:, 0])[0])
+    no_change = CRUISE_UP if cruise_kmh < 80.0 else KEEP
+    slow_ahead = Car(20.0, 2, 40.0)
+    assert decide([]) == no_change
+    assert decide([slow_ahead]) == LANE_LEFT
+    assert decide([slow_ahead, Car(0.0, 3, 60.0)]) == LANE_RIGHT
+    assert decide([slow_ahead, Car(0.0, 3, 60.0), Car(-5.0, 1, 60.0)]) == no_change
+    assert decide([slow_ahead, Car(30.0, 3, 60.0), Car(30.0, 1, 60.0)]) == no_change
+    assert decide([slow_ahead, Car(30.0, 3, 60.0), Car(40.0, 1, 60.0)]) == LANE_RIGHT
+    # In the leftmost lane the only way is right; a car far enough ahead blocks nothing.
+    assert decide([Car(20.0, 4, 40.0)], ego_lane=4) == LANE_RIGHT
+    assert decide([Car(20.0, 0, 40.0), Car(0.0, 1, 60.0)], ego_lane=0) == no_change
+    assert decide([Car(60.0, 2, 40.0)]) == no_change
+
+
+def test_rule_driver_takes_batches():
+    lidar = np.concatenate([scan(), scan((20.0, 0.0)), scan((20.0, 0.0))])
+    egos = np.concatenate([ego(50.0), ego(80.0), ego(80.0)])
+    masks = np.concatenate([ALL_ALLOWED, ALL_ALLOWED, mask(left=False)])
+    assert RuleDriver().act(lidar, egos, masks).tolist() == [CRUISE_UP, LANE_LEFT, LANE_RIGHT]
+
+
+# --- random ----------------------------------------------------------------------------------
+
+def test_random_driver_picks_only_allowed_actions_and_all_of_them():
+    driver = RandomDriver(seed=0)
+    rng = np.random.default_rng(1)
+    masks = (rng.random((2000, 5)) < 0.6).astype(np.int8)
+    masks[:, 0] = 1                      # keep is always allowed
+    actions = driver.act(np.zeros((2000, 360)), np.zeros((2000, 6)), masks)
+    assert actions.shape == (2000,)
+    assert masks[np.arange(2000), actions].all()
+    assert set(actions.tolist()) == {0, 1, 2, 3, 4}
+    only_keep = np.array([[1, 0, 0, 0, 0]] * 50, dtype=np.int8)
+    assert (driver.act(np.zeros((50, 360)), np.zeros((50, 6)), only_keep) == 0).all()
+
+
+def test_random_driver_is_reproducible_by_seed():
+    masks = np.ones((100, 5), dtype=np.int8)
+    a = RandomDriver(seed=3).act(None, None, masks)
+    b = RandomDriver(seed=3).act(None, None, masks)
+    c = RandomDriver(seed=4).act(None, None, masks)
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+
+
+# --- the two against each other ----------------------------------------------------------------
+
+def average_speeds(driver, episodes: int = 4, decisions: int = 300) -> np.ndarray:
+    envs = gym.make_vec(HIGHWAY_ENV_ID, num_envs=episodes, vectorization_mode="vector_entry_point",
+                        overrides={"episode.max_decisions": decisions, "traffic.density": "medium",
+                                   "camera.enabled": False})
+    obs, info = envs.reset(seed=0)
+    speeds = np.full(episodes, np.nan)
+    while np.isnan(speeds).any():
+        obs, _, terminated, truncated, info = envs.step(
+            driver.act(obs["lidar"], obs["ego"], info["action_mask"]))
+        for i in np.flatnonzero((terminated | truncated) & np.isnan(speeds)):
+            speeds[i] = info["metrics"]["avg_speed_kmh"][i]
+    return speeds
+
+
+def test_rule_driver_is_faster_than_random():
+    rule = average_speeds(RuleDriver())
+    random = average_speeds(RandomDriver(seed=0))
+    assert rule.mean() > random.mean() + 5.0
+    assert (rule > 40.0).all() and (random >= 0.0).all()
+
+
+# --- overtake-drive ----------------------------------------------------------------------------
+
+@pytest.mark.parametrize("policy", ["rule", "random"])
+def test_drive_cli_writes_the_summary(policy, tmp_path, capsys):
+    out = tmp_path / "runs" / f"{policy}.json"
+    summary = main(DriveConfig(policy=policy, episodes=2, max_decisions=12, traffic="light",
+                               seed=3, set=("camera.width_px=16", "camera.height_px=16"),
+                               json_out=out))
+    data = json.loads(out.read_text())
+    assert data["policy"] == policy and data["seed"] == 3 and data["preset"] == "min2018"
+    assert data["overrides"] == {"camera.width_px": 16, "camera.height_px": 16,
+                                 "traffic.density": "light", "episode.max_decisions": 12}
+    assert len(data["episodes"]) == 2
+    assert data["summary"] == summary
+    metrics = ("avg_speed_kmh", "lane_changes", "overtakes", "collisions", "emergency_brakes",
+               "distance_m", "return", "decisions")
+    assert set(summary) == set(metrics)
+    for name in metrics:
+        values = [episode[name] for episode in data["episodes"]]
+        assert summary[name]["mean"] == pytest.approx(np.mean(values))
+        assert summary[name]["std"] == pytest.approx(np.std(values))
+    for episode in data["episodes"]:
+        assert episode["decisions"] == 12 or episode["collisions"] == 1
+        assert episode["avg_speed_kmh"] == pytest.approx(
+            episode["distance_m"] / (episode["decisions"] * 0.4) * 3.6)
+    printed = capsys.readouterr().out
+    assert f"policy={policy}" in printed and "mean" in printed and "std" in printed
+
+
+def test_drive_cli_refuses_bad_input():
+    with pytest.raises(SystemExit, match="episodes"):
+        main(DriveConfig(episodes=0))
+    with pytest.raises(SystemExit, match="dotted.name=value"):
+        parse_overrides(("no-equals-sign",))
+    assert parse_overrides(("a.b=3", "c.d=heavy", "e.f=[1, 2]", "g=true")) == {
+        "a.b": 3, "c.d": "heavy", "e.f": [1, 2], "g": True}
