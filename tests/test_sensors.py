@@ -259,7 +259,6 @@ def test_lane_markings_are_where_the_lane_lines_project(ego_x):
     image = camera_of(sim)
     f = (W / 2.0) / math.tan(math.radians(FOV_DEG) / 2.0)
     pitch = math.radians(PITCH_DEG)
-    checked = 0
     def ground_ahead(row: int) -> float:
         """Metres ahead of the eye where the centre ray of ``row`` meets the road (inf: sky)."""
         up = -((row + 0.5) - H / 2.0) / f          # ray direction in the camera frame

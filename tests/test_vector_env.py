@@ -89,7 +89,7 @@ def test_vector_env_matches_single_envs_step_by_step_across_episode_ends():
 def test_autoreset_step_ignores_the_action_and_returns_zero_reward():
     envs = make_vec(num_envs=2, **{"traffic.vehicle_count": 0, "episode.max_decisions": 3})
     obs, _ = envs.reset(seed=[1, 2])
-    for k in range(3):
+    for _ in range(3):
         obs, reward, terminated, truncated, info = envs.step(np.array([1, 0]))
     assert truncated.tolist() == [True, True] and not terminated.any()
     assert info["_metrics"].tolist() == [True, True]

@@ -663,7 +663,7 @@ class HighwaySim:
 
     def _observer_views(self) -> tuple[np.ndarray, ...]:
         """Per observer (arena-major, agent-minor): its origin and the cars it can see."""
-        st, n, v = self.state, self.agents, self.vehicles
+        st, n = self.state, self.agents
         arenas = self.num_arenas
         x_rel = st.x_m - st.x_m[:, :1]
         origin_x = x_rel[:, :n].reshape(-1)
