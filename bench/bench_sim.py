@@ -48,6 +48,8 @@ from typing import TYPE_CHECKING, Any
 
 import tyro
 
+from bench.rates import Rates
+
 if TYPE_CHECKING:
     from overtake.server.sim import SimConfig
 
@@ -105,7 +107,7 @@ class BenchConfig:
 
 
 @dataclass(frozen=True)
-class Measurement:
+class Measurement(Rates):
     """One timed run of one simulator on some arenas."""
 
     simulator: str
@@ -122,13 +124,6 @@ class Measurement:
     def decisions_per_wall_second(self) -> float:
         return self.decisions / self.wall_seconds
 
-    @property
-    def sim_seconds_per_wall_second(self) -> float:
-        return self.simulated_seconds / self.wall_seconds
-
-    @property
-    def sim_seconds_per_cpu_second(self) -> float:
-        return self.simulated_seconds / self.cpu_seconds
 
     def as_dict(self) -> dict[str, Any]:
         return {**dataclasses.asdict(self),

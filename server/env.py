@@ -63,8 +63,14 @@ def observation_space(config: SimConfig) -> spaces.Dict:
     return spaces.Dict(items)
 
 
-def _check_actions(actions: np.ndarray, expected_shape: tuple[int, ...]) -> np.ndarray:
+def _check_actions(actions: Any, expected_shape: tuple[int, ...]) -> np.ndarray:
+    """Integer actions in range, as int64 of ``expected_shape`` (a scalar fills a (1, 1) one)."""
+    single = expected_shape == (1, 1)
+    if single and isinstance(actions, (int, np.integer)) and 0 <= actions < ACTION_COUNT:
+        return np.array([[actions]], dtype=np.int64)  # the single env's common case, cheaply
     actions = np.asarray(actions)
+    if single and actions.ndim == 0:
+        actions = actions.reshape(1, 1)
     if actions.shape != expected_shape or not np.issubdtype(actions.dtype, np.integer):
         raise ValueError(f"expected integer action(s) of shape {expected_shape} in "
                          f"[0, {ACTION_COUNT}), got {actions!r}")
@@ -126,12 +132,7 @@ class HighwayEnv(gym.Env):
         return self._observation(), self._info(None)
 
     def step(self, action):
-        if isinstance(action, (int, np.integer)) and 0 <= action < ACTION_COUNT:
-            actions = np.array([[action]], dtype=np.int64)  # the common case, checked cheaply
-        else:
-            actions = _check_actions(np.asarray(action).reshape(1, 1) if np.ndim(action) == 0
-                                     else np.asarray(action), (1, 1))
-        result = self.sim.step(actions)
+        result = self.sim.step(_check_actions(action, (1, 1)))
         info = self._info(result)
         return (self._observation(), float(result.reward[0, 0]), bool(result.terminated[0, 0]),
                 bool(result.truncated[0, 0]), info)

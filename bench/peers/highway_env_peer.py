@@ -25,6 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from bench.rates import Rates
+
 ENV_ID = "highway-fast-v0"
 IMAGE_SHAPE = (84, 84)
 
@@ -66,7 +68,7 @@ REPORTED_CONFIG_KEYS = (
 
 
 @dataclass(frozen=True)
-class HighwayEnvResult:
+class HighwayEnvResult(Rates):
     decisions: int
     simulated_seconds: float
     wall_seconds: float
@@ -75,14 +77,6 @@ class HighwayEnvResult:
     # frozen result hashable.
     config: Mapping[str, Any] = field(hash=False)
     version: str
-
-    @property
-    def sim_seconds_per_wall_second(self) -> float:
-        return self.simulated_seconds / self.wall_seconds
-
-    @property
-    def sim_seconds_per_cpu_second(self) -> float:
-        return self.simulated_seconds / self.cpu_seconds
 
 
 def measure_highway_env(

@@ -64,22 +64,21 @@ class Camera:
         with np.errstate(divide="ignore"):
             t = np.where(ray_z < 0.0, camera.mount_height_m / -ray_z, np.inf)
         ahead = ray_x * np.where(np.isfinite(t), t, 0.0)
-        self.ground_rows = np.flatnonzero(np.isfinite(t) & (ahead < camera.max_distance_m))
-        self.first_ground_row = int(self.ground_rows[0]) if self.ground_rows.size else self.height
+        ground_rows = np.flatnonzero(np.isfinite(t) & (ahead < camera.max_distance_m))
+        self.first_ground_row = int(ground_rows[0]) if ground_rows.size else self.height
         rows = slice(self.first_ground_row, self.height)
-        self.row_t = t[rows]                    # ray length scale of each ground row
         self.row_forward = ahead[rows]          # metres ahead of the eye where the row meets ground
-        self.row_metres_per_px = self.row_t / self.focal_px  # sideways ground size of a pixel
+        self.row_metres_per_px = t[rows] / self.focal_px  # sideways ground size of a pixel
         # Lines are widened to about a pixel so that they do not alias away in the distance;
         # dashes become solid where one row spans more ground than the gap between dashes.
-        self.row_line_half_m = np.maximum(LANE_LINE_WIDTH_M / 2.0, 0.5 * self.row_metres_per_px)
+        row_line_half_m = np.maximum(LANE_LINE_WIDTH_M / 2.0, 0.5 * self.row_metres_per_px)
         along = np.abs(np.diff(self.row_forward, prepend=self.row_forward[0] * 2.0))
         self.row_dash_solid = along > (DASH_PERIOD_M - DASH_LENGTH_M) / 2.0
-        self.col_centres = (np.arange(self.width) + 0.5) - self.width / 2.0
-        self._col_basis = np.stack([np.ones(self.width), self.col_centres]).astype(np.float32)
+        col_centres = (np.arange(self.width) + 0.5) - self.width / 2.0
+        self._col_basis = np.stack([np.ones(self.width), col_centres]).astype(np.float32)
         # Per ground pixel (R, W), so that comparisons broadcast only over observers.
         self._row_line_half32 = np.repeat(
-            (self.row_line_half_m / self.lane_width).astype(np.float32)[:, None], self.width, axis=1)
+            (row_line_half_m / self.lane_width).astype(np.float32)[:, None], self.width, axis=1)
         self._cos_p, self._sin_p = np.cos(self.pitch), np.sin(self.pitch)
         self._corner_l = np.array([-1.0, 1.0, 1.0, -1.0])
         self._corner_w = np.array([-1.0, -1.0, 1.0, 1.0])

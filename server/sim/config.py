@@ -385,8 +385,8 @@ def apply_overrides(config: SimConfig, overrides: Mapping[str, PlainValue]) -> S
     """A copy of ``config`` with dotted fields replaced, every value checked against its type."""
     for dotted, value in overrides.items():
         if dotted in NOT_OVERRIDABLE:
-            raise ConfigError("'preset' names the preset an override starts from: choose it by "
-                              "name, it cannot be overridden")
+            raise ConfigError(f"{dotted!r} names the preset an override starts from: choose it "
+                              "by name, it cannot be overridden")
         config = _replace_path(config, dotted.split("."), dotted, value)
     return config
 

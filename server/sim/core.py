@@ -579,7 +579,6 @@ class HighwaySim:
             return
         dx = st.x_m[:, None, n:] - st.x_m[:, :n, None]  # (A, N, T) traffic relative to agents
         kept = ((dx <= cfg.keep_ahead_m) & (dx >= -cfg.keep_behind_m)).any(axis=1)
-        fell_behind = (dx < 0.0).all(axis=1)
         was_active = st.active[:, n:]
         # Out-of-range cars move at once; empty slots (no free spot found earlier) retry now
         # and then rather than every decision.
@@ -591,7 +590,10 @@ class HighwaySim:
         col = tcol + n
         st.active[arena, col] = False
         u = uniforms[arena, col]
-        ahead_side = np.where(was_active[arena, tcol], fell_behind[arena, tcol], u[:, _U_SIDE] < 0.5)
+        # A car that fell behind every agent comes back ahead, and one left ahead comes back
+        # behind; an empty slot picks a side at random.
+        fell_behind = (dx[arena, :, tcol] < 0.0).all(axis=1)
+        ahead_side = np.where(was_active[arena, tcol], fell_behind, u[:, _U_SIDE] < 0.5)
         anchor = np.minimum((u[:, _U_ANCHOR] * n).astype(np.int64), n - 1)
         lane = np.minimum((u[:, _U_LANE:_U_LANE + SPAWN_CANDIDATES] * self.lane_count)
                           .astype(np.int64), self.lane_count - 1)
@@ -630,10 +632,9 @@ class HighwaySim:
 
     # --- what agents see ----------------------------------------------------------------------
 
-    def headings(self, st: SimState | None = None) -> np.ndarray:
+    def headings(self) -> np.ndarray:
         """Agents' headings (A, N) in radians from the road's direction, left positive."""
-        st = self.state if st is None else st
-        n = self.agents
+        st, n = self.state, self.agents
         kind = st.kind[:, :n]
         lateral_mps = (st.target_lane[:, :n] - st.lane[:, :n]) * self.lane_width \
             * min_jerk_rate(st.change_progress[:, :n]) / self.k_change_duration[kind]

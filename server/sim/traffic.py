@@ -27,7 +27,7 @@ def idm_accel(speed: np.ndarray, desired_speed: np.ndarray, gap: np.ndarray,
     ``closing_speed`` is own speed minus the leader's; ``gap`` is bumper to bumper (m);
     ``two_sqrt_ab`` is 2 * sqrt(max_accel * comfortable_decel), precomputed per vehicle.
     """
-    desired_gap = min_gap + np.maximum(0.0, speed * time_headway + speed * closing_speed / two_sqrt_ab)
+    desired_gap = idm_desired_gap(speed, closing_speed, time_headway, min_gap, two_sqrt_ab)
     ratio = speed / desired_speed
     ratio *= ratio
     interaction = desired_gap / np.maximum(gap, 0.1)
