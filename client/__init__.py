@@ -1,10 +1,16 @@
-"""What a trainer imports: environment registration, baseline drivers, and (soon) the remote
-environment. Importing it registers ``overtake/Highway-v0`` without importing the simulator."""
+"""What a trainer imports: environment registration, the remote environment (ML-Agents'
+low-level API over Zenoh), baseline drivers. Importing it registers ``overtake/Highway-v0``
+and ``overtake/RemoteHighway-v0`` without importing the simulator."""
 
-from overtake.protocol import HIGHWAY_ENV_ID, register_environments
+from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
 
 from .drivers import RandomDriver, RuleDriver, RuleDriverConfig
+from .environment import (ActionTuple, BehaviorSpec, DecisionSteps, RemoteEnvironment,
+                          TerminalSteps)
+from .remote import RemoteConfig
 
 register_environments()
 
-__all__ = ["HIGHWAY_ENV_ID", "RandomDriver", "RuleDriver", "RuleDriverConfig"]
+__all__ = ["HIGHWAY_ENV_ID", "REMOTE_HIGHWAY_ENV_ID", "ActionTuple", "BehaviorSpec",
+           "DecisionSteps", "RandomDriver", "RemoteConfig", "RemoteEnvironment", "RuleDriver",
+           "RuleDriverConfig", "TerminalSteps"]

@@ -9,6 +9,7 @@ from __future__ import annotations
 import gymnasium as gym
 
 HIGHWAY_ENV_ID = "overtake/Highway-v0"
+REMOTE_HIGHWAY_ENV_ID = "overtake/RemoteHighway-v0"
 
 
 def register_environments() -> None:
@@ -20,5 +21,12 @@ def register_environments() -> None:
             vector_entry_point="overtake.server.env:HighwayVectorEnv",
             # The environment truncates itself at its preset's episode length, which a user may
             # override; a TimeLimit fixed here could not follow it. env.spec reports it.
+            max_episode_steps=None,
+        )
+    if REMOTE_HIGHWAY_ENV_ID not in gym.registry:
+        gym.register(
+            id=REMOTE_HIGHWAY_ENV_ID,
+            entry_point="overtake.client.remote_gym:RemoteHighwayEnv",
+            vector_entry_point="overtake.client.remote_gym:RemoteHighwayVectorEnv",
             max_episode_steps=None,
         )

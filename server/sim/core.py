@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from overtake.protocol.messages import ACTION_COUNT, ACTION_NAMES
+
 from .camera import Camera
 from .config import BEHAVIOURS, SimConfig
 from .lidar import Lidar
@@ -27,10 +29,8 @@ from .traffic import (NO_GAP_M, LaneIndex, LaneSorter, idm_accel, idm_desired_ga
 
 KMH = 1.0 / 3.6  # m/s per km/h
 
-# Min et al.'s five DAS-level actions.
-KEEP, CRUISE_UP, CRUISE_DOWN, LANE_LEFT, LANE_RIGHT = range(5)
-ACTION_NAMES: tuple[str, ...] = ("keep", "cruise_up", "cruise_down", "lane_left", "lane_right")
-ACTION_COUNT = len(ACTION_NAMES)
+# Min et al.'s five DAS-level actions (the wire contract names them, in this order).
+KEEP, CRUISE_UP, CRUISE_DOWN, LANE_LEFT, LANE_RIGHT = range(ACTION_COUNT)
 
 # The ego vector: the agent's own state, as Min et al.'s code adds scalars to its LIDAR rays.
 EGO_FIELDS: tuple[str, ...] = ("speed_mps", "cruise_target_mps", "lane_index", "lane_count",
@@ -201,6 +201,54 @@ class HighwaySim:
                 self.rngs[row] = np.random.default_rng(seed)
             self._reset_arena(int(row))
         self._needs_reset[rows] = False
+
+    def agents_present(self) -> np.ndarray:
+        """(A, N) bool: which agent slots have a car on the road."""
+        return self.state.active[:, :self.agents].copy()
+
+    def remove_agents(self, arena: int, slots: list[int] | np.ndarray) -> None:
+        """Take agents' cars off the road of ``arena`` (a shared arena's trainer left).
+
+        A removed car is invisible to sensors and other cars, cannot collide and anchors no
+        traffic; its slot keeps stepping unseen until :meth:`respawn_agents` brings it back.
+        """
+        self.state.active[arena, np.asarray(slots, dtype=np.int64)] = False
+
+    def respawn_agents(self, arena: int, slots: list[int] | np.ndarray) -> None:
+        """Start new episodes for some agents of ``arena`` while the road goes on.
+
+        Each car is placed, at the initial cruise speed, at the first spot (lanes in a random
+        order, then farther back) that keeps IDM-comfortable gaps to everything on the road,
+        behind the agents still present. Its episode counters start from zero.
+        """
+        st, cfg, n = self.state, self.config, self.agents
+        rng = self.rngs[arena]
+        row = np.array([arena])
+        speed = cfg.ego.initial_speed_kmh * KMH
+        for slot in np.asarray(slots, dtype=np.int64):
+            st.active[arena, slot] = False
+            present = np.flatnonzero(st.active[arena, :n])
+            base = st.x_m[arena, present].min() if present.size else st.x_m[arena, slot]
+            lanes = rng.permutation(self.lane_count)
+            offsets = -30.0 * np.arange(1, 9)
+            lane = np.repeat(lanes, offsets.size)[None, :]
+            x = (base + np.tile(offsets, lanes.size))[None, :]
+            ok = self._clearance_ok(st, row, lane, x, np.full(lane.shape, speed),
+                                    np.full(lane.shape, AGENT_KIND), st.active[row])[0]
+            # With no comfortable gap anywhere, the last spot tried (farthest back) is used.
+            pick = int(np.argmax(ok)) if ok.any() else lane.size - 1
+            st.x_m[arena, slot] = x[0, pick]
+            st.lane[arena, slot] = st.target_lane[arena, slot] = lane[0, pick]
+            st.y_m[arena, slot] = (lane[0, pick] + 0.5) * self.lane_width
+            st.change_progress[arena, slot] = 0.0
+            st.speed_mps[arena, slot] = st.desired_speed_mps[arena, slot] = speed
+            st.accel_mps2[arena, slot] = 0.0
+            st.active[arena, slot] = True
+            for name in ("agent_decisions", "braking", "distance_m", "lane_changes", "overtakes",
+                         "collisions", "emergency_brakes", "episode_return"):
+                getattr(st, name)[arena, slot] = 0
+            st.ahead[arena, slot] = st.x_m[arena] > st.x_m[arena, slot]
+            st.credited[arena, slot] = False
 
     def _reset_arena(self, row: int) -> None:
         rng = self.rngs[row]
@@ -480,7 +528,7 @@ class HighwaySim:
                        < p.half_length[:, :n, None] + p.half_length[:, None, :]) \
                 & (np.abs(st.y_m[:, None, :] - ay)
                    < p.half_width[:, :n, None] + p.half_width[:, None, :])
-            overlap &= st.active[:, None, :] & self._not_self
+            overlap &= st.active[:, None, :] & self._not_self & st.active[:, :n, None]
             collided |= overlap.any(axis=-1)
 
         # Ho's emergency brakes: the onset of hard braking with a big speed difference ahead.
@@ -578,7 +626,10 @@ class HighwaySim:
         if vehicles == n:
             return
         dx = st.x_m[:, None, n:] - st.x_m[:, :n, None]  # (A, N, T) traffic relative to agents
-        kept = ((dx <= cfg.keep_ahead_m) & (dx >= -cfg.keep_behind_m)).any(axis=1)
+        # Agents off the road (a shared arena's free slots) anchor nothing, unless none is on.
+        present = st.active[:, :n]
+        anchors = (present | ~present.any(axis=1, keepdims=True))[:, :, None]
+        kept = ((dx <= cfg.keep_ahead_m) & (dx >= -cfg.keep_behind_m) & anchors).any(axis=1)
         was_active = st.active[:, n:]
         # Out-of-range cars move at once; empty slots (no free spot found earlier) retry now
         # and then rather than every decision.
@@ -592,9 +643,10 @@ class HighwaySim:
         u = uniforms[arena, col]
         # A car that fell behind every agent comes back ahead, and one left ahead comes back
         # behind; an empty slot picks a side at random.
-        fell_behind = (dx[arena, :, tcol] < 0.0).all(axis=1)
+        fell_behind = ((dx[arena, :, tcol] < 0.0) | ~anchors[arena, :, 0]).all(axis=1)
         ahead_side = np.where(was_active[arena, tcol], fell_behind, u[:, _U_SIDE] < 0.5)
         anchor = np.minimum((u[:, _U_ANCHOR] * n).astype(np.int64), n - 1)
+        anchor = np.where(anchors[arena, anchor, 0], anchor, np.argmax(anchors[arena, :, 0], axis=1))
         lane = np.minimum((u[:, _U_LANE:_U_LANE + SPAWN_CANDIDATES] * self.lane_count)
                           .astype(np.int64), self.lane_count - 1)
         window = np.where(ahead_side[:, None], np.array(cfg.spawn_ahead_m), np.array(cfg.spawn_behind_m))

@@ -1,0 +1,425 @@
+"""The trainer's side of the wire: a Zenoh connection and the arena groups opened through it.
+
+:class:`Connection` is one Zenoh session with this trainer's liveliness token (the server frees
+our arenas when it disappears) and the subscriber our observations arrive on.
+:class:`ArenaGroup` is a set of arenas opened (or joined) in one request and stepped in lock
+step; it survives a server restart by reopening its arenas and reporting the broken episodes
+as truncated. :class:`~overtake.client.environment.RemoteEnvironment` and the Gymnasium
+environments are built on these two.
+
+Which server serves an open request: the client asks every server on the network for its
+status and picks the one with the most free arenas that can take the whole request (ties: the
+fewest groups, then the name), unless ``server`` names one. A server that turns out full in
+the meantime passes the request on to the next.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import queue
+import secrets
+import socket
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
+
+import numpy as np
+import zenoh
+
+from overtake.protocol import codec, errors, keys
+from overtake.protocol.messages import (Ack, Actions, BehaviourSpec, CloseRequest, ErrorReply,
+                                        JoinRequest, Message, Opened, OpenRequest,
+                                        ResetRequest, Scalar, StatusReply, StatusRequest,
+                                        Steps)
+from overtake.protocol.transport import DEFAULT_ENDPOINT, TransportConfig, open_session
+
+log = logging.getLogger("overtake.client")
+
+M = TypeVar("M", bound=Message)
+
+
+@dataclass(frozen=True)
+class RemoteConfig:
+    """How a trainer reaches simulator servers."""
+
+    connect: tuple[str, ...] = (DEFAULT_ENDPOINT,)
+    """Zenoh endpoints: a server's ``--listen`` address or a router's."""
+    server: str | None = None
+    """Use this server (its ``--name``); by default the least loaded one is picked."""
+    connect_timeout_s: float = 5.0
+    """How long to keep trying to reach the endpoints before failing with ConnectError."""
+    request_timeout_s: float = 10.0
+    """How long an open, reset, close or status request may take."""
+    step_timeout_s: float = 120.0
+    """How long to wait for a step's observations (longer than the server's step deadline)."""
+    reconnect_timeout_s: float = 30.0
+    """After losing the server, how long to wait for one to reopen the arenas on (0: never)."""
+    lease_s: float = 3.0
+    user: str | None = None
+    password: str | None = None
+    trainer_name: str | None = None
+    """A readable prefix for this trainer's id in server logs and status."""
+
+    @classmethod
+    def from_connect(cls, connect: str | tuple[str, ...] | list[str] | None,
+                     **kwargs: Any) -> "RemoteConfig":
+        if connect is None:
+            return cls(**kwargs)
+        endpoints = (connect,) if isinstance(connect, str) else tuple(connect)
+        return cls(connect=endpoints, **kwargs)
+
+    def transport(self) -> TransportConfig:
+        return TransportConfig(mode="client", connect=self.connect,
+                               connect_timeout_s=self.connect_timeout_s, lease_s=self.lease_s,
+                               user=self.user, password=self.password)
+
+
+def _trainer_id(prefix: str | None) -> str:
+    host = "".join(c if c.isalnum() or c in "-_." else "-" for c in socket.gethostname())[:24]
+    head = "".join(c if c.isalnum() or c in "-_." else "-" for c in (prefix or "trainer"))[:16]
+    return f"{head}-{host or 'host'}-{os.getpid()}-{secrets.token_hex(3)}"
+
+
+def _likely_causes(config: RemoteConfig) -> str:
+    return ("Likely causes: no overtake-server (or Zenoh router) is running there; a wrong host "
+            "or port; the server listens on loopback only (start it with --listen "
+            "tcp/0.0.0.0:7447 to let other hosts in); a firewall; wrong or missing Zenoh "
+            "credentials" + (" (user " + repr(config.user) + ")" if config.user else "") + ".")
+
+
+class Connection:
+    """One Zenoh session of one trainer."""
+
+    def __init__(self, config: RemoteConfig) -> None:
+        self.config = config
+        self.trainer = _trainer_id(config.trainer_name)
+        try:
+            self.session = open_session(config.transport())
+        except zenoh.ZError as error:
+            raise errors.ConnectError(
+                f"could not reach {', '.join(config.connect)} within "
+                f"{config.connect_timeout_s:g} s ({error}). {_likely_causes(config)}") from None
+        self._inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+        self._buffered: dict[tuple[str, int], deque[Steps]] = {}
+        self._errors: deque[errors.ProtocolError] = deque()
+        self._servers_alive: set[str] = set()
+        self._servers_lost: set[str] = set()
+        self._lock = threading.Lock()
+        self._token = self.session.liveliness().declare_token(keys.trainer_alive(self.trainer))
+        self._subscriber = self.session.declare_subscriber(
+            keys.trainer_steps_all(self.trainer),
+            lambda sample: self._inbox.put((str(sample.key_expr), sample.payload.to_bytes())))
+        self._alive_sub = self.session.liveliness().declare_subscriber(
+            keys.ALL_SERVERS_ALIVE, self._on_server_alive, history=True)
+        self._publishers: dict[str, zenoh.Publisher] = {}
+        self.closed = False
+
+    def _on_server_alive(self, sample: zenoh.Sample) -> None:
+        try:
+            server = keys.parse_server_alive(str(sample.key_expr))
+        except errors.ProtocolError:
+            return
+        with self._lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._servers_alive.add(server)
+                self._servers_lost.discard(server)
+            else:
+                self._servers_alive.discard(server)
+                self._servers_lost.add(server)
+        self._inbox.put(("", b""))  # wake a waiter
+
+    def server_lost(self, server: str) -> bool:
+        with self._lock:
+            return server in self._servers_lost
+
+    # --- requests --------------------------------------------------------------------------
+
+    def request(self, server: str, message: Message, expect: type[M]) -> M:
+        """Send a request to one server; its reply, or the error it names."""
+        replies = list(self.session.get(
+            keys.server_request(server), payload=codec.encode(message),
+            timeout=self.config.request_timeout_s,
+            target=zenoh.QueryTarget.ALL, congestion_control=zenoh.CongestionControl.BLOCK))
+        for reply in replies:
+            if reply.ok is None:
+                text = reply.err.payload.to_bytes().decode("utf-8", "replace")
+                if self.server_lost(server):
+                    raise errors.ServerLost(f"server {server} went away during a "
+                                            f"{message.TYPE} request")
+                raise errors.StepTimeout(f"server {server} did not answer a {message.TYPE} "
+                                         f"request within {self.config.request_timeout_s:g} s "
+                                         f"({text})")
+            answer = codec.decode(reply.ok.payload.to_bytes(), expect)
+            if isinstance(answer, ErrorReply):
+                raise errors.error_from_code(answer.code, f"server {server}: {answer.message}")
+            return answer  # type: ignore[return-value]
+        raise errors.ServerLost(f"no server named {server!r} answers on "
+                                f"{', '.join(self.config.connect)}")
+
+    def discover(self) -> list[StatusReply]:
+        """Status of every server that answers within the request timeout."""
+        replies = self.session.get(keys.ALL_SERVER_REQUESTS, payload=codec.encode(StatusRequest()),
+                                   timeout=self.config.request_timeout_s,
+                                   target=zenoh.QueryTarget.ALL)
+        found: list[StatusReply] = []
+        for reply in replies:
+            if reply.ok is None:
+                continue
+            try:
+                status = codec.decode(reply.ok.payload.to_bytes(), StatusReply)
+            except errors.VersionMismatch:
+                raise
+            except errors.ProtocolError as error:
+                log.warning("ignored a bad status reply: %s", error)
+                continue
+            if isinstance(status, StatusReply):
+                found.append(status)
+        return found
+
+    def candidates(self, arenas: int) -> list[str]:
+        """Servers to ask, best first, by the rule in this module's docstring."""
+        if self.config.server is not None:
+            return [self.config.server]
+        statuses = self.discover()
+        if not statuses:
+            raise errors.ConnectError(
+                f"connected to {', '.join(self.config.connect)}, but no overtake server "
+                f"answered within {self.config.request_timeout_s:g} s. "
+                + _likely_causes(self.config))
+        roomy = [s for s in statuses if s.arenas_free >= arenas]
+        if not roomy:
+            listing = ", ".join(f"{s.server} ({s.arenas_free} free)" for s in statuses)
+            raise errors.ServerFull(f"no server has {arenas} free arena(s): {listing}")
+        roomy.sort(key=lambda s: (-s.arenas_free, len(s.groups), s.server))
+        return [s.server for s in roomy]
+
+    # --- steps ----------------------------------------------------------------------------
+
+    def send_actions(self, server: str, actions: Actions) -> None:
+        pub = self._publishers.get(server)
+        if pub is None:
+            pub = self._publishers[server] = self.session.declare_publisher(
+                keys.server_actions(server, self.trainer),
+                congestion_control=zenoh.CongestionControl.BLOCK,
+                priority=zenoh.Priority.DATA_HIGH)
+        pub.put(codec.encode(actions))
+
+    def next_steps(self, server: str, group: int, round_: int) -> Steps:
+        """Block until the :class:`Steps` of ``group``'s ``round_`` arrive."""
+        deadline = time.monotonic() + self.config.step_timeout_s
+        slot = self._buffered.setdefault((server, group), deque())
+        while True:
+            while slot:
+                steps = slot.popleft()
+                if steps.round == round_:
+                    return steps
+                log.debug("dropped stale steps of group %d round %d", group, steps.round)
+            if self._errors:
+                raise self._errors.popleft()
+            if self.server_lost(server):
+                raise errors.ServerLost(f"server {server} went away while we waited for "
+                                        f"round {round_} of group {group}")
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise errors.StepTimeout(
+                    f"no observations from server {server} for round {round_} of group {group} "
+                    f"within {self.config.step_timeout_s:g} s (the server's step deadline may "
+                    "be longer; see RemoteConfig.step_timeout_s)")
+            try:
+                key, payload = self._inbox.get(timeout=min(remaining, 0.5))
+            except queue.Empty:
+                continue
+            if key:
+                self._file(key, payload)
+
+    def _file(self, key: str, payload: bytes) -> None:
+        sender = key.rsplit("/", 1)[-1]
+        try:
+            message = codec.decode(payload, Steps)
+        except errors.ProtocolError as error:
+            self._errors.append(error)
+            return
+        if isinstance(message, ErrorReply):
+            self._errors.append(errors.error_from_code(message.code,
+                                                       f"server {sender}: {message.message}"))
+            return
+        self._buffered.setdefault((message.server, message.group), deque()).append(message)
+
+    def forget(self, server: str, group: int) -> None:
+        self._buffered.pop((server, group), None)
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        for obj in (*self._publishers.values(), self._subscriber, self._alive_sub, self._token):
+            try:
+                obj.undeclare()
+            except Exception:  # pragma: no cover - the session may be gone already
+                pass
+        try:
+            self.session.close()
+        except Exception:  # pragma: no cover
+            pass
+
+
+@dataclass
+class OpenParams:
+    """What was asked, kept to reopen the same arenas after a server restart."""
+
+    preset: str
+    overrides: dict[str, Scalar]
+    arenas: int
+    agents_per_arena: int
+    claim: int
+    seed: int | None
+    join_arena: int | None = None
+    join_agents: int = 1
+
+
+@dataclass
+class ArenaGroup:
+    """Arenas opened (or joined) in one request, stepped in lock step."""
+
+    connection: Connection
+    params: OpenParams
+    server: str = ""
+    group: int = -1
+    arena_ids: tuple[int, ...] = ()
+    ticket: bytes = b""
+    spec: BehaviourSpec | None = None
+    round: int = 0
+    last: Steps | None = None
+    _pending_restart: Steps | None = field(default=None, repr=False)
+    restarts: int = 0
+
+    @classmethod
+    def open(cls, connection: Connection, params: OpenParams) -> "ArenaGroup":
+        group = cls(connection=connection, params=params)
+        group._open()
+        return group
+
+    def _open(self) -> None:
+        p, conn = self.params, self.connection
+        if p.join_arena is not None:
+            if conn.config.server is None:
+                raise ValueError("joining an arena needs the server's name (RemoteConfig.server)")
+            opened = conn.request(conn.config.server,
+                                  JoinRequest(trainer=conn.trainer, arena=p.join_arena,
+                                              agents=p.join_agents), Opened)
+        else:
+            request = OpenRequest(trainer=conn.trainer, preset=p.preset,
+                                  overrides=dict(p.overrides), arenas=p.arenas,
+                                  agents_per_arena=p.agents_per_arena, claim=p.claim,
+                                  seed=p.seed)
+            last_error: errors.ProtocolError | None = None
+            for server in conn.candidates(p.arenas):
+                try:
+                    opened = conn.request(server, request, Opened)
+                    break
+                except (errors.ServerFull, errors.ServerLost) as error:
+                    last_error = error
+            else:
+                assert last_error is not None
+                raise last_error
+        self.server, self.group, self.arena_ids = opened.server, opened.group, opened.arenas
+        self.ticket, self.spec = opened.ticket, opened.spec
+        self.round = opened.steps.round
+        self.last = opened.steps
+
+    @property
+    def agents(self) -> np.ndarray:
+        assert self.last is not None
+        return self.last.agents
+
+    def reset(self, arenas: tuple[int, ...], seeds: tuple[int | None, ...]) -> Steps:
+        """New episodes in ``arenas`` (indices in the group); the Steps of all our agents."""
+        conn = self.connection
+        self._pending_restart = None
+        try:
+            steps = conn.request(self.server, ResetRequest(
+                trainer=conn.trainer, ticket=self.ticket, group=self.group, arenas=arenas,
+                seeds=seeds), Steps)
+        except errors.ServerLost:
+            self._reopen()
+            steps = conn.request(self.server, ResetRequest(
+                trainer=conn.trainer, ticket=self.ticket, group=self.group, arenas=arenas,
+                seeds=seeds), Steps)
+        conn.forget(self.server, self.group)
+        self.round = steps.round
+        self.last = steps
+        return steps
+
+    def step(self, agents: np.ndarray, actions: np.ndarray) -> Steps:
+        """Send our actions for this round and wait for the next round's Steps."""
+        if self._pending_restart is not None:
+            # The server was restarted: the step after the broken episodes starts the new ones.
+            steps, self._pending_restart = self._pending_restart, None
+            self.last = steps
+            return steps
+        conn = self.connection
+        try:
+            conn.send_actions(self.server, Actions(
+                trainer=conn.trainer, ticket=self.ticket, group=self.group, round=self.round,
+                agents=np.asarray(agents, dtype=np.int32),
+                actions=np.asarray(actions, dtype=np.int64)))
+            steps = conn.next_steps(self.server, self.group, self.round + 1)
+        except errors.ServerLost as error:
+            return self._survive(error)
+        self.round = steps.round
+        self.last = steps
+        return steps
+
+    def _survive(self, error: errors.ServerLost) -> Steps:
+        """Reopen our arenas elsewhere (or on the restarted server); the episodes broke."""
+        if self.params.join_arena is not None or self.connection.config.reconnect_timeout_s <= 0:
+            raise error
+        broken = self.last
+        assert broken is not None
+        log.warning("%s; reopening %d arena(s)", error, len(self.arena_ids))
+        self._reopen()
+        self.restarts += 1
+        fresh = self.last
+        assert fresh is not None
+        self._pending_restart = fresh
+        truncated = Steps(
+            server=broken.server, group=broken.group, round=broken.round + 1,
+            agents=broken.agents, observations=broken.observations,
+            reward=np.zeros_like(broken.reward), terminated=np.zeros_like(broken.terminated),
+            truncated=np.ones_like(broken.truncated),
+            action_applied=np.full_like(broken.action_applied, -1),
+            late=np.zeros_like(broken.late), action_mask=broken.action_mask,
+            reward_terms=np.zeros_like(broken.reward_terms), metrics=broken.metrics)
+        self.last = truncated
+        return truncated
+
+    def _reopen(self) -> None:
+        conn = self.connection
+        conn.forget(self.server, self.group)
+        deadline = time.monotonic() + conn.config.reconnect_timeout_s
+        while True:
+            try:
+                self._open()
+                return
+            except (errors.ConnectError, errors.ServerLost, errors.StepTimeout) as error:
+                if time.monotonic() >= deadline:
+                    raise errors.ServerLost(
+                        f"lost server {self.server} and found no server to reopen "
+                        f"{len(self.arena_ids)} arena(s) on within "
+                        f"{conn.config.reconnect_timeout_s:g} s ({error})") from None
+                time.sleep(0.2)  # polling for a server to come back; nothing to wait on
+
+    def close(self) -> None:
+        conn = self.connection
+        if conn.closed or self.group < 0:
+            return
+        try:
+            conn.request(self.server, CloseRequest(trainer=conn.trainer, ticket=self.ticket,
+                                                   group=self.group), Ack)
+        except errors.ProtocolError as error:
+            log.debug("close of group %d: %s", self.group, error)
+        conn.forget(self.server, self.group)
+        self.group = -1

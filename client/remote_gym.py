@@ -1,0 +1,222 @@
+"""Gymnasium environments over a remote simulator: ``overtake/RemoteHighway-v0``.
+
+The spaces are rebuilt from the server's behaviour spec, so they equal the in-process
+environment's; observations, rewards, flags and info are the same too, bit for bit for the same
+preset, seed and actions. The vector environment opens its N arenas as one group (one message
+each way per step) with Gymnasium 1.x next-step autoreset, as the in-process vector env does.
+
+A server restart is survived: the step that finds the server gone returns the last observation
+with ``truncated`` set (``info["server_restarted"]``), the arenas are reopened (on the restarted
+server or another one), and the next step (or reset) starts the new episodes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector.utils import batch_space
+
+from overtake.protocol.messages import ACTION_COUNT, BehaviourSpec, Scalar, Steps
+
+from .remote import ArenaGroup, Connection, OpenParams, RemoteConfig
+
+try:  # Gymnasium >= 1.1 names the autoreset modes; 1.0 only has next-step autoreset.
+    from gymnasium.vector import AutoresetMode
+    _NEXT_STEP: Any = AutoresetMode.NEXT_STEP
+except ImportError:  # pragma: no cover - Gymnasium 1.0
+    _NEXT_STEP = "NextStep"
+
+
+def spaces_from_spec(spec: BehaviourSpec) -> spaces.Dict:
+    """The Dict observation space a behaviour spec describes."""
+    return spaces.Dict({o.name: spaces.Box(low=o.low, high=o.high, shape=o.shape,
+                                           dtype=np.dtype(o.dtype)) for o in spec.observations})
+
+
+def _check_actions(actions: Any, count: int) -> np.ndarray:
+    """Integer actions in range, as an int64 array of ``count`` (a scalar when count is 1)."""
+    values = np.asarray(actions)
+    if count == 1 and values.ndim == 0:
+        values = values.reshape(1)
+    if values.shape != (count,) or not np.issubdtype(values.dtype, np.integer):
+        raise ValueError(f"expected {'an integer action' if count == 1 else f'{count} integer actions'} "
+                         f"in [0, {ACTION_COUNT}), got {actions!r}")
+    if values.min() < 0 or values.max() >= ACTION_COUNT:
+        raise ValueError(f"actions must be in [0, {ACTION_COUNT}) (keep, cruise up, cruise down, "
+                         f"lane left, lane right), got {values.tolist()}")
+    return values.astype(np.int64)
+
+
+class _Remote:
+    """The connection and group both Gymnasium environments are built on."""
+
+    def __init__(self, connect: str | Sequence[str] | None, remote: RemoteConfig | None,
+                 preset: str, overrides: Mapping[str, Scalar] | None, arenas: int,
+                 seed: int | None) -> None:
+        if remote is None:
+            remote = RemoteConfig.from_connect(connect if connect is None or isinstance(
+                connect, str) else tuple(connect))
+        elif connect is not None:
+            raise ValueError("pass either connect or remote (a RemoteConfig), not both")
+        self.connection = Connection(remote)
+        try:
+            self.group = ArenaGroup.open(self.connection, OpenParams(
+                preset=preset, overrides=dict(overrides or {}), arenas=arenas,
+                agents_per_arena=1, claim=1, seed=seed))
+        except BaseException:
+            self.connection.close()
+            raise
+        spec = self.group.spec
+        assert spec is not None
+        self.spec = spec
+        self.reward_terms = spec.reward_terms
+        self.metric_fields = spec.metric_fields
+
+    def close(self) -> None:
+        try:
+            self.group.close()
+        finally:
+            self.connection.close()
+
+
+class RemoteHighwayEnv(gym.Env):
+    """One agent on one arena of a remote simulator server."""
+
+    metadata = {"render_modes": [], "render_fps": 10}
+
+    def __init__(self, connect: str | Sequence[str] | None = None, preset: str = "min2018",
+                 overrides: Mapping[str, Scalar] | None = None,
+                 remote: RemoteConfig | None = None, render_mode: str | None = None) -> None:
+        if render_mode is not None:
+            raise ValueError("the remote environment does not render; watch it with a "
+                             f"spectator (render_mode must be None, got {render_mode!r})")
+        self._remote = _Remote(connect, remote, preset, overrides, arenas=1, seed=None)
+        spec = self._remote.spec
+        self.observation_space = spaces_from_spec(spec)
+        self.action_space = spaces.Discrete(ACTION_COUNT)
+        self.decision_period_s = spec.decision_period_s
+        self.max_episode_steps = spec.max_episode_steps
+        self.metadata = {**self.metadata, "render_fps": 1.0 / self.decision_period_s}
+        self._spec: gym.envs.registration.EnvSpec | None = None
+
+    @property
+    def spec(self) -> gym.envs.registration.EnvSpec | None:  # type: ignore[override]
+        return self._spec
+
+    @spec.setter
+    def spec(self, value: gym.envs.registration.EnvSpec | None) -> None:
+        self._spec = None if value is None else dataclasses.replace(
+            value, max_episode_steps=self.max_episode_steps)
+
+    @property
+    def group(self) -> ArenaGroup:
+        return self._remote.group
+
+    def _unpack(self, steps: Steps) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        obs = {name: value[0] for name, value in steps.observations.items()}
+        info: dict[str, Any] = {
+            "action_mask": steps.action_mask[0],
+            "action_applied": int(steps.action_applied[0]),
+            "reward_terms": {name: float(steps.reward_terms[0, i])
+                             for i, name in enumerate(self._remote.reward_terms)}}
+        if steps.ended[0]:
+            info["metrics"] = {name: float(steps.metrics[0, i])
+                               for i, name in enumerate(self._remote.metric_fields)}
+        if steps.late[0]:
+            info["late"] = True
+        return obs, info
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        steps = self.group.reset((0,), (seed,))
+        return self._unpack(steps)
+
+    def step(self, action):
+        actions = _check_actions(action, 1)
+        restarts = self.group.restarts
+        steps = self.group.step(self.group.agents, actions)
+        obs, info = self._unpack(steps)
+        if self.group.restarts != restarts:
+            info["server_restarted"] = True
+        return (obs, float(steps.reward[0]), bool(steps.terminated[0]),
+                bool(steps.truncated[0]), info)
+
+    def action_masks(self) -> np.ndarray:
+        last = self.group.last
+        assert last is not None
+        return last.action_mask[0]
+
+    def close(self) -> None:
+        self._remote.close()
+
+
+class RemoteHighwayVectorEnv(gym.vector.VectorEnv):
+    """``num_envs`` arenas of a remote server, stepped together (one message each way)."""
+
+    metadata = {"render_modes": [], "autoreset_mode": _NEXT_STEP}
+
+    def __init__(self, num_envs: int = 1, connect: str | Sequence[str] | None = None,
+                 preset: str = "min2018", overrides: Mapping[str, Scalar] | None = None,
+                 remote: RemoteConfig | None = None, render_mode: str | None = None) -> None:
+        if render_mode is not None:
+            raise ValueError(f"the remote environment does not render (got {render_mode!r})")
+        self._remote = _Remote(connect, remote, preset, overrides, arenas=num_envs, seed=None)
+        spec = self._remote.spec
+        self.num_envs = num_envs
+        self.render_mode = None
+        self.single_observation_space = spaces_from_spec(spec)
+        self.single_action_space = spaces.Discrete(ACTION_COUNT)
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.action_space = spaces.MultiDiscrete(np.full(num_envs, ACTION_COUNT))
+        self.decision_period_s = spec.decision_period_s
+        self.max_episode_steps = spec.max_episode_steps
+
+    @property
+    def group(self) -> ArenaGroup:
+        return self._remote.group
+
+    def _info(self, steps: Steps) -> dict[str, Any]:
+        info: dict[str, Any] = {
+            "action_mask": steps.action_mask, "action_applied": steps.action_applied,
+            "reward_terms": {name: steps.reward_terms[:, i]
+                             for i, name in enumerate(self._remote.reward_terms)}}
+        ended = steps.ended
+        if ended.any():
+            info["metrics"] = {name: np.where(ended, steps.metrics[:, i], 0.0)
+                               for i, name in enumerate(self._remote.metric_fields)}
+            info["_metrics"] = ended
+        if steps.late.any():
+            info["late"] = steps.late
+        return info
+
+    def reset(self, *, seed: int | Sequence[int | None] | None = None,
+              options: dict[str, Any] | None = None):
+        if seed is None:
+            seeds: list[int | None] = [None] * self.num_envs
+        elif isinstance(seed, (int, np.integer)):
+            seeds = [int(seed) + i for i in range(self.num_envs)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"expected {self.num_envs} seeds, got {len(seeds)}")
+        if seed is not None:
+            self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seeds[0])
+        steps = self.group.reset(tuple(range(self.num_envs)), tuple(seeds))
+        return dict(steps.observations), self._info(steps)
+
+    def step(self, actions):
+        actions = _check_actions(actions, self.num_envs)
+        restarts = self.group.restarts
+        steps = self.group.step(self.group.agents, actions)
+        info = self._info(steps)
+        if self.group.restarts != restarts:
+            info["server_restarted"] = np.ones(self.num_envs, dtype=bool)
+        return (dict(steps.observations), steps.reward, steps.terminated, steps.truncated, info)
+
+    def close_extras(self, **kwargs: Any) -> None:
+        self._remote.close()

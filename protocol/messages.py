@@ -1,0 +1,458 @@
+"""The messages trainers and simulator servers exchange, as small frozen dataclasses.
+
+Each message validates itself on construction (:meth:`Message.check`), so a message that
+exists is well formed, whether it was built here or decoded from the wire. Arrays are numpy
+arrays of a fixed dtype; the first axis of every per-agent array is the agents the message
+is about (``agents``).
+
+Conversations (``T`` a trainer, ``S`` a server; queries are answered, puts are not):
+
+- ``T -> S`` query :class:`StatusRequest`, reply :class:`StatusReply`.
+- ``T -> S`` query :class:`OpenRequest` or :class:`JoinRequest`, reply :class:`Opened`.
+- ``T -> S`` query :class:`ResetRequest`, reply :class:`Steps`.
+- ``T -> S`` put :class:`Actions`; ``S -> T`` put :class:`Steps` when the group has stepped.
+- ``T -> S`` query :class:`CloseRequest`, reply :class:`Ack`.
+- ``S -> anyone`` put :class:`WorldFrame` (spectators; dropped under congestion).
+- Any request may be answered with :class:`ErrorReply`; a bad :class:`Actions` put is
+  answered with an :class:`ErrorReply` put where the trainer's :class:`Steps` would go.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, fields
+from typing import Any, ClassVar
+
+import numpy as np
+
+from .errors import DecodeError
+
+# The wire contract: protocol version (major, minor). A peer of another major version is
+# refused; a newer minor may add optional fields, which an older peer ignores.
+PROTOCOL_VERSION: tuple[int, int] = (1, 0)
+PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
+    ("1.0", "First wire protocol: status, open/join, reset, batched actions and steps, close, "
+            "world frames for spectators, error replies."),
+)
+
+# Min et al.'s five DAS-level actions: the action space every arena speaks.
+ACTION_NAMES: tuple[str, ...] = ("keep", "cruise_up", "cruise_down", "lane_left", "lane_right")
+ACTION_COUNT = len(ACTION_NAMES)
+DEFAULT_ACTION = 0  # keep: what a late agent's car does (adaptive cruise and lane keeping)
+
+# Sizes beyond these are refused before anything is allocated.
+MAX_FRAME_BYTES = 256 * 2**20
+MAX_TEXT_CHARS = 65_536
+MAX_ARRAY_DIMS = 5
+MAX_ARENAS_PER_REQUEST = 4096
+MAX_AGENTS_PER_ARENA = 48
+
+NAME_PATTERN = re.compile(r"[A-Za-z0-9_.-]{1,64}")
+
+# The dtypes arrays may travel in; always little-endian on the wire.
+WIRE_DTYPES: dict[str, np.dtype] = {name: np.dtype(name).newbyteorder("<") for name in
+                                    ("bool", "int8", "uint8", "int32", "int64", "float32",
+                                     "float64")}
+
+Scalar = bool | int | float | str
+
+
+def check_name(what: str, value: str) -> None:
+    """Names end up inside Zenoh key expressions: letters, digits, ``_ . -`` only."""
+    if not NAME_PATTERN.fullmatch(value):
+        raise DecodeError(f"{what} must be 1-64 characters of letters, digits, '_', '.' or '-', "
+                          f"got {value!r}")
+
+
+def check_array(what: str, value: np.ndarray, dtype: str, shape: tuple[int | None, ...]) -> None:
+    """``value`` has ``dtype`` and ``shape`` (None matches any length on that axis)."""
+    if value.dtype != WIRE_DTYPES[dtype]:
+        raise DecodeError(f"{what} must be {dtype}, got {value.dtype}")
+    if value.ndim != len(shape) or any(want is not None and got != want
+                                       for got, want in zip(value.shape, shape)):
+        wanted = "(" + ", ".join("n" if s is None else str(s) for s in shape) + ")"
+        raise DecodeError(f"{what} must have shape {wanted}, got {value.shape}")
+
+
+def check_range(what: str, value: int, low: int, high: int) -> None:
+    if not low <= value <= high:
+        raise DecodeError(f"{what} must be from {low} to {high}, got {value}")
+
+
+def _values_equal(a: Any, b: Any) -> bool:
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return (isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.dtype == b.dtype
+                and a.shape == b.shape and np.array_equal(a, b, equal_nan=a.dtype.kind == "f"))
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_values_equal(a[k], b[k]) for k in a)
+    if isinstance(a, (tuple, list)) and isinstance(b, (tuple, list)):
+        return len(a) == len(b) and all(_values_equal(x, y) for x, y in zip(a, b))
+    if isinstance(a, float) and isinstance(b, float) and a != a and b != b:
+        return True  # NaN
+    return type(a) is type(b) and a == b
+
+
+@dataclass(frozen=True, eq=False)
+class Part:
+    """A frozen record that checks itself; equality compares arrays by value and dtype."""
+
+    def __post_init__(self) -> None:
+        self.check()
+
+    def check(self) -> None:
+        """Raise :class:`DecodeError` naming what is wrong. Subclasses add their rules."""
+
+    def __eq__(self, other: object) -> bool:
+        return type(self) is type(other) and all(
+            _values_equal(getattr(self, f.name), getattr(other, f.name)) for f in fields(self))
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+@dataclass(frozen=True, eq=False)
+class Message(Part):
+    """A top-level message; ``TYPE`` is its tag on the wire."""
+
+    TYPE: ClassVar[str] = ""
+
+
+# --- specs -----------------------------------------------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class ObservationSpec(Part):
+    """One observation of one agent: a Box of ``shape`` and ``dtype`` within [low, high]."""
+
+    name: str
+    shape: tuple[int, ...]
+    dtype: str
+    low: np.ndarray
+    high: np.ndarray
+
+    def check(self) -> None:
+        check_name("observation name", self.name)
+        if self.dtype not in WIRE_DTYPES:
+            raise DecodeError(f"observation {self.name!r} dtype must be one of "
+                              f"{sorted(WIRE_DTYPES)}, got {self.dtype!r}")
+        if not 1 <= len(self.shape) <= MAX_ARRAY_DIMS - 1 or min(self.shape) < 1:
+            raise DecodeError(f"observation {self.name!r} shape must have 1 to "
+                              f"{MAX_ARRAY_DIMS - 1} positive sizes, got {self.shape}")
+        for bound in ("low", "high"):
+            check_array(f"observation {self.name!r} {bound}", getattr(self, bound), self.dtype,
+                        self.shape)
+
+
+@dataclass(frozen=True, eq=False)
+class BehaviourSpec(Part):
+    """Everything a client needs to rebuild the in-process spaces (ML-Agents' BehaviorSpec)."""
+
+    name: str
+    preset: str
+    observations: tuple[ObservationSpec, ...]
+    action_branches: tuple[int, ...]
+    action_names: tuple[str, ...]
+    reward_terms: tuple[str, ...]
+    metric_fields: tuple[str, ...]
+    decision_period_s: float
+    max_episode_steps: int
+    agents_per_arena: int
+    config_json: str
+
+    def check(self) -> None:
+        names = [o.name for o in self.observations]
+        if not names or len(set(names)) != len(names):
+            raise DecodeError(f"observation names must be distinct and at least one, got {names}")
+        if self.action_branches != (ACTION_COUNT,):
+            raise DecodeError(f"action branches must be ({ACTION_COUNT},), got "
+                              f"{self.action_branches}")
+        if len(self.action_names) != ACTION_COUNT:
+            raise DecodeError(f"expected {ACTION_COUNT} action names, got {self.action_names}")
+        check_range("agents per arena", self.agents_per_arena, 1, MAX_AGENTS_PER_ARENA)
+        check_range("max episode steps", self.max_episode_steps, 1, 2**62)
+        if not self.decision_period_s > 0:
+            raise DecodeError(f"decision period must be > 0 s, got {self.decision_period_s}")
+
+    def observation(self, name: str) -> ObservationSpec:
+        for spec in self.observations:
+            if spec.name == name:
+                return spec
+        raise KeyError(name)
+
+
+# --- requests and replies -------------------------------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class StatusRequest(Message):
+    TYPE: ClassVar[str] = "status_request"
+
+
+@dataclass(frozen=True, eq=False)
+class GroupStatus(Part):
+    """One group of arenas: opened by one request, stepped together in one numpy pass."""
+
+    group: int
+    preset: str
+    arenas: tuple[int, ...]
+    agents_per_arena: int
+    trainers: tuple[str, ...]
+    rounds: int
+    rounds_per_s: float
+    agent_steps_per_s: float
+    late_agents: int
+
+
+@dataclass(frozen=True, eq=False)
+class StatusReply(Message):
+    TYPE: ClassVar[str] = "status"
+    server: str
+    package_version: str
+    max_arenas: int
+    arenas_used: int
+    step_deadline_s: float
+    uptime_s: float
+    groups: tuple[GroupStatus, ...]
+
+    def check(self) -> None:
+        check_name("server", self.server)
+
+    @property
+    def arenas_free(self) -> int:
+        return self.max_arenas - self.arenas_used
+
+
+@dataclass(frozen=True, eq=False)
+class OpenRequest(Message):
+    """Open ``arenas`` new arenas of ``preset`` with ``overrides``; claim ``claim`` agents of each.
+
+    Arena ``i`` is reset with seed ``seed + i`` (None: fresh entropy). Agents not claimed stay
+    off the road until a trainer joins them (:class:`JoinRequest`).
+    """
+
+    TYPE: ClassVar[str] = "open"
+    trainer: str
+    preset: str
+    overrides: dict[str, Scalar]
+    arenas: int
+    agents_per_arena: int
+    claim: int
+    seed: int | None
+
+    def check(self) -> None:
+        check_name("trainer", self.trainer)
+        check_name("preset", self.preset)
+        check_range("arenas", self.arenas, 1, MAX_ARENAS_PER_REQUEST)
+        check_range("agents per arena", self.agents_per_arena, 1, MAX_AGENTS_PER_ARENA)
+        check_range("claimed agents per arena", self.claim, 1, self.agents_per_arena)
+        if self.seed is not None:
+            check_range("seed", self.seed, 0, 2**63 - 1)
+
+
+@dataclass(frozen=True, eq=False)
+class JoinRequest(Message):
+    """Claim ``agents`` free agent slots of an existing arena and drive them on its road."""
+
+    TYPE: ClassVar[str] = "join"
+    trainer: str
+    arena: int
+    agents: int
+
+    def check(self) -> None:
+        check_name("trainer", self.trainer)
+        check_range("arena", self.arena, 0, 2**62)
+        check_range("agents", self.agents, 1, MAX_AGENTS_PER_ARENA)
+
+
+@dataclass(frozen=True, eq=False)
+class Steps(Message):
+    """What a group's step (or reset) produced for one trainer's agents.
+
+    ``agents`` are ids within the group (arena index in the group × agents per arena + slot).
+    An agent with ``terminated`` or ``truncated`` (ML-Agents' interrupted) ended its episode
+    here, and ``observations`` are its last; it is reset on the group's next step, whose row
+    for it has the new episode's first observation, reward 0 and both flags false (Gymnasium's
+    next-step autoreset). ``metrics`` are each agent's episode so far. ``late`` marks agents
+    whose action missed the deadline: ``action_applied`` shows what was done instead.
+    """
+
+    TYPE: ClassVar[str] = "steps"
+    server: str
+    group: int
+    round: int
+    agents: np.ndarray                  # int32 (k,)
+    observations: dict[str, np.ndarray]  # name -> (k, ...)
+    reward: np.ndarray                  # float64 (k,)
+    terminated: np.ndarray              # bool (k,)
+    truncated: np.ndarray               # bool (k,)
+    action_applied: np.ndarray          # int64 (k,), -1 where nothing was applied (reset)
+    late: np.ndarray                    # bool (k,)
+    action_mask: np.ndarray             # int8 (k, ACTION_COUNT)
+    reward_terms: np.ndarray            # float64 (k, terms)
+    metrics: np.ndarray                 # float64 (k, metric fields)
+
+    def check(self) -> None:
+        check_name("server", self.server)
+        k = self.agents.shape[0] if self.agents.ndim == 1 else -1
+        check_array("agents", self.agents, "int32", (None,))
+        for name, value in self.observations.items():
+            check_name("observation name", name)
+            if value.ndim < 1 or value.shape[0] != k:
+                raise DecodeError(f"observation {name!r} must have {k} rows (one per agent), "
+                                  f"got shape {value.shape}")
+        check_array("reward", self.reward, "float64", (k,))
+        check_array("terminated", self.terminated, "bool", (k,))
+        check_array("truncated", self.truncated, "bool", (k,))
+        check_array("action_applied", self.action_applied, "int64", (k,))
+        check_array("late", self.late, "bool", (k,))
+        check_array("action_mask", self.action_mask, "int8", (k, ACTION_COUNT))
+        check_array("reward_terms", self.reward_terms, "float64", (k, None))
+        check_array("metrics", self.metrics, "float64", (k, None))
+
+    @property
+    def ended(self) -> np.ndarray:
+        return self.terminated | self.truncated
+
+
+@dataclass(frozen=True, eq=False)
+class Opened(Message):
+    """Reply to open or join: where the agents are, the spec, and the first observations."""
+
+    TYPE: ClassVar[str] = "opened"
+    server: str
+    group: int
+    arenas: tuple[int, ...]   # the group's arena ids (server-wide), by index in the group
+    ticket: bytes             # proves later requests come from this trainer
+    spec: BehaviourSpec
+    steps: Steps              # this trainer's agents and their current observations
+
+    def check(self) -> None:
+        check_name("server", self.server)
+        if not 16 <= len(self.ticket) <= 64:
+            raise DecodeError(f"ticket must be 16-64 bytes, got {len(self.ticket)}")
+        if not self.arenas:
+            raise DecodeError("an opened group has at least one arena, got none")
+
+
+@dataclass(frozen=True, eq=False)
+class ResetRequest(Message):
+    """Start new episodes in ``arenas`` (indices in the group); reply: :class:`Steps`.
+
+    In an arena this trainer shares with others only its own agents restart (the road goes on
+    for the others) and the seed is ignored.
+    """
+
+    TYPE: ClassVar[str] = "reset"
+    trainer: str
+    ticket: bytes
+    group: int
+    arenas: tuple[int, ...]
+    seeds: tuple[int | None, ...]
+
+    def check(self) -> None:
+        check_name("trainer", self.trainer)
+        if len(self.seeds) != len(self.arenas):
+            raise DecodeError(f"expected one seed per arena ({len(self.arenas)}), got "
+                              f"{len(self.seeds)}")
+        if len(set(self.arenas)) != len(self.arenas):
+            raise DecodeError(f"arenas must be distinct, got {list(self.arenas)}")
+        for seed in self.seeds:
+            if seed is not None:
+                check_range("seed", seed, 0, 2**63 - 1)
+
+
+@dataclass(frozen=True, eq=False)
+class Actions(Message):
+    """One trainer's actions for its agents in one group, answering step ``round``."""
+
+    TYPE: ClassVar[str] = "actions"
+    trainer: str
+    ticket: bytes
+    group: int
+    round: int
+    agents: np.ndarray   # int32 (k,), distinct
+    actions: np.ndarray  # int64 (k,) in [0, ACTION_COUNT)
+
+    def check(self) -> None:
+        check_name("trainer", self.trainer)
+        check_array("agents", self.agents, "int32", (None,))
+        check_array("actions", self.actions, "int64", (self.agents.shape[0],))
+        if self.actions.size and (self.actions.min() < 0 or self.actions.max() >= ACTION_COUNT):
+            bad = self.actions[(self.actions < 0) | (self.actions >= ACTION_COUNT)]
+            raise DecodeError(f"actions must be in [0, {ACTION_COUNT}) "
+                              f"({', '.join(ACTION_NAMES)}), got {bad.tolist()}")
+        if np.unique(self.agents).size != self.agents.size:
+            raise DecodeError(f"agents must be distinct, got {self.agents.tolist()}")
+
+
+@dataclass(frozen=True, eq=False)
+class CloseRequest(Message):
+    """Leave a group: its arenas are freed, or this trainer's cars leave the shared ones."""
+
+    TYPE: ClassVar[str] = "close"
+    trainer: str
+    ticket: bytes
+    group: int
+
+
+@dataclass(frozen=True, eq=False)
+class Ack(Message):
+    TYPE: ClassVar[str] = "ack"
+    message: str
+
+
+@dataclass(frozen=True, eq=False)
+class ErrorReply(Message):
+    """A refusal: ``code`` is a :class:`~overtake.protocol.errors.ProtocolError` code."""
+
+    TYPE: ClassVar[str] = "error"
+    code: str
+    message: str
+
+
+@dataclass(frozen=True, eq=False)
+class WorldFrame(Message):
+    """A spectator's view of one arena: every vehicle, and each agent's latest observation.
+
+    Vehicle arrays are (V,) over the arena's slots (agents first); ``kind`` is the traffic
+    behaviour index, or ``agent_kind`` for agents. Positions are metres along the road and
+    from its right edge.
+    """
+
+    TYPE: ClassVar[str] = "world"
+    server: str
+    group: int
+    arena: int
+    round: int
+    sim_time_s: float
+    lane_count: int
+    lane_width_m: float
+    agent_kind: int
+    agent_active: np.ndarray            # bool (N,)
+    x_m: np.ndarray                     # float64 (V,)
+    y_m: np.ndarray                     # float64 (V,)
+    speed_mps: np.ndarray               # float32 (V,)
+    kind: np.ndarray                    # int8 (V,)
+    active: np.ndarray                  # bool (V,)
+    observations: dict[str, np.ndarray]  # name -> (N, ...)
+    reward: np.ndarray                  # float64 (N,)
+    action_applied: np.ndarray          # int64 (N,)
+
+    def check(self) -> None:
+        check_name("server", self.server)
+        v = self.x_m.shape[0] if self.x_m.ndim == 1 else -1
+        n = self.agent_active.shape[0] if self.agent_active.ndim == 1 else -1
+        check_array("agent_active", self.agent_active, "bool", (None,))
+        check_array("x_m", self.x_m, "float64", (None,))
+        check_array("y_m", self.y_m, "float64", (v,))
+        check_array("speed_mps", self.speed_mps, "float32", (v,))
+        check_array("kind", self.kind, "int8", (v,))
+        check_array("active", self.active, "bool", (v,))
+        check_array("reward", self.reward, "float64", (n,))
+        check_array("action_applied", self.action_applied, "int64", (n,))
+        for name, value in self.observations.items():
+            check_name("observation name", name)
+            if value.ndim < 1 or value.shape[0] != n:
+                raise DecodeError(f"observation {name!r} must have {n} rows, got {value.shape}")
+
+
+MESSAGE_TYPES: dict[str, type[Message]] = {cls.TYPE: cls for cls in (
+    StatusRequest, StatusReply, OpenRequest, JoinRequest, Opened, ResetRequest, Steps, Actions,
+    CloseRequest, Ack, ErrorReply, WorldFrame)}

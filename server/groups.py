@@ -1,0 +1,347 @@
+"""Arena groups: the unit the server steps. No Zenoh here, only the simulation and bookkeeping.
+
+The arenas one open request creates form a group, one :class:`HighwaySim` stepped in one
+numpy pass. Each agent slot of each arena is owned by at most one trainer. A group steps
+(a *round*) when every trainer that owns a car in it has sent its actions for the round, or,
+once somebody has, at the deadline, with the default action for whoever is late.
+
+Episodes end per agent and restart on the next round (Gymnasium's next-step autoreset): an
+arena with one agent is reset whole, exactly as the in-process vector environment does, so a
+remote arena reproduces an in-process one bit for bit; in a shared arena only the agent that
+ended restarts (it is taken off the road for the round and placed back afterwards) while the
+road goes on for the others.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import secrets
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from overtake.protocol import errors
+from overtake.protocol.messages import (ACTION_COUNT, ACTION_NAMES, DEFAULT_ACTION, Actions,
+                                        BehaviourSpec, GroupStatus, ObservationSpec, Steps,
+                                        WorldFrame)
+
+from .env import observation_space
+from .sim import METRIC_FIELDS, PRESETS, REWARD_TERMS, ConfigError, HighwaySim, make_config
+from .sim.core import AGENT_KIND
+
+
+def behaviour_spec(config, agents_per_arena: int) -> BehaviourSpec:
+    """The spec a client needs to rebuild exactly the in-process spaces."""
+    space = observation_space(config)
+    observations = tuple(
+        ObservationSpec(name=name, shape=tuple(box.shape), dtype=box.dtype.name,
+                        low=np.asarray(box.low), high=np.asarray(box.high))
+        for name, box in space.spaces.items())
+    return BehaviourSpec(
+        name=f"Highway?preset={config.preset}", preset=config.preset, observations=observations,
+        action_branches=(ACTION_COUNT,), action_names=ACTION_NAMES, reward_terms=REWARD_TERMS,
+        metric_fields=METRIC_FIELDS, decision_period_s=config.episode.decision_period_s,
+        max_episode_steps=config.episode.max_decisions, agents_per_arena=agents_per_arena,
+        config_json=json.dumps(dataclasses.asdict(config)))
+
+
+def resolve_config(preset: str, overrides: dict):
+    if preset not in PRESETS:
+        raise errors.UnknownPreset(f"unknown preset {preset!r}: this server has "
+                                   f"{', '.join(sorted(PRESETS))}")
+    try:
+        return make_config(preset, overrides)
+    except ConfigError as error:
+        raise errors.BadConfig(str(error)) from None
+
+
+@dataclass
+class Member:
+    """A trainer's stake in a group."""
+
+    ticket: bytes
+    slots: np.ndarray                   # (A, N) bool: the agent slots it owns
+    pending: Actions | None = None      # its actions for the current round
+    late_agents: int = 0
+
+
+@dataclass
+class Group:
+    group_id: int
+    server: str
+    arena_ids: list[int]
+    preset: str
+    sim: HighwaySim
+    spec: BehaviourSpec
+    members: dict[str, Member] = field(default_factory=dict)
+    round: int = 0
+    deadline: float | None = None       # monotonic time the current round gives up waiting
+    ended: np.ndarray | None = None     # (A, N) agents whose episode ended last round
+    late_agents: int = 0
+    rounds_done: int = 0
+    rate_rounds_per_s: float = 0.0
+    _last_round_t: float = field(default_factory=time.monotonic)
+    last_reward: np.ndarray | None = None
+    last_applied: np.ndarray | None = None
+
+    @classmethod
+    def open(cls, group_id: int, server: str, arena_ids: list[int], preset: str,
+             overrides: dict, agents_per_arena: int, seed: int | None) -> "Group":
+        config = resolve_config(preset, overrides)
+        try:
+            sim = HighwaySim(config, num_arenas=len(arena_ids), agents_per_arena=agents_per_arena)
+        except ValueError as error:
+            raise errors.BadConfig(str(error)) from None
+        seeds = [None if seed is None else seed + i for i in range(len(arena_ids))]
+        sim.reset(seeds=seeds)
+        group = cls(group_id=group_id, server=server, arena_ids=list(arena_ids), preset=preset,
+                    sim=sim, spec=behaviour_spec(config, agents_per_arena))
+        group.ended = np.zeros((sim.num_arenas, sim.agents), dtype=bool)
+        group.last_reward = np.zeros((sim.num_arenas, sim.agents))
+        group.last_applied = np.full((sim.num_arenas, sim.agents), -1, dtype=np.int64)
+        # Every car starts off the road; claims put them on.
+        for arena in range(sim.num_arenas):
+            sim.remove_agents(arena, np.arange(sim.agents))
+        return group
+
+    # --- membership -----------------------------------------------------------------------
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.sim.num_arenas, self.sim.agents
+
+    def owned(self) -> np.ndarray:
+        taken = np.zeros(self.shape, dtype=bool)
+        for member in self.members.values():
+            taken |= member.slots
+        return taken
+
+    def claim(self, trainer: str, arena_index: int, count: int, *, fresh: bool) -> None:
+        """Give ``trainer`` ``count`` free slots of one arena and put their cars on the road.
+
+        ``fresh``: the arena was just reset, so the cars keep their reset places.
+        """
+        free = np.flatnonzero(~self.owned()[arena_index])
+        if free.size < count:
+            raise errors.ServerFull(
+                f"arena {self.arena_ids[arena_index]} has {free.size} free agent slot(s) of "
+                f"{self.sim.agents}, asked for {count}")
+        slots = free[:count]
+        member = self.members.get(trainer)
+        if member is None:
+            member = self.members[trainer] = Member(ticket=secrets.token_bytes(16),
+                                                    slots=np.zeros(self.shape, dtype=bool))
+        member.slots[arena_index, slots] = True
+        if fresh:
+            self.sim.state.active[arena_index, slots] = True
+        else:
+            self.sim.respawn_agents(arena_index, slots)
+        self.ended[arena_index, slots] = False
+        self.last_reward[arena_index, slots] = 0.0
+        self.last_applied[arena_index, slots] = -1
+
+    def leave(self, trainer: str) -> None:
+        """Take ``trainer``'s cars off the road; its pending actions are dropped."""
+        member = self.members.pop(trainer, None)
+        if member is None:
+            return
+        for arena, slots in zip(*np.nonzero(member.slots)):
+            self.sim.remove_agents(int(arena), [int(slots)])
+        if not any(m.pending is not None for m in self.members.values()):
+            self.deadline = None
+
+    def member(self, trainer: str, ticket: bytes) -> Member:
+        member = self.members.get(trainer)
+        if member is None:
+            raise errors.NotOwner(f"trainer {trainer!r} has no agents in group {self.group_id} "
+                                  f"(arenas {self.arena_ids}); open or join an arena first")
+        if not secrets.compare_digest(member.ticket, ticket):
+            raise errors.NotOwner(f"wrong ticket for trainer {trainer!r} in group "
+                                  f"{self.group_id}: requests must come from the session "
+                                  "that opened or joined it")
+        return member
+
+    # --- rounds -----------------------------------------------------------------------------
+
+    def accept(self, actions: Actions, deadline_s: float) -> None:
+        """Hold a trainer's actions for the current round (checked against what it owns)."""
+        member = self.member(actions.trainer, actions.ticket)
+        if actions.round != self.round:
+            raise errors.BadAction(f"actions answer round {actions.round}, but group "
+                                   f"{self.group_id} is at round {self.round}")
+        agents = actions.agents
+        total = self.sim.num_arenas * self.sim.agents
+        if agents.size and (agents.min() < 0 or agents.max() >= total):
+            raise errors.BadAction(f"agent ids in group {self.group_id} are 0..{total - 1}, got "
+                                   f"{agents[(agents < 0) | (agents >= total)].tolist()}")
+        mine = member.slots.reshape(-1)[agents]
+        if not mine.all():
+            raise errors.NotOwner(f"agents {agents[~mine].tolist()} of group {self.group_id} "
+                                  f"belong to another trainer or to nobody; "
+                                  f"{actions.trainer!r} owns "
+                                  f"{np.flatnonzero(member.slots).tolist()}")
+        member.pending = actions
+        if self.deadline is None:
+            self.deadline = time.monotonic() + deadline_s
+
+    def ready(self, now: float) -> bool:
+        if not self.members:
+            return False
+        if all(m.pending is not None for m in self.members.values()):
+            return True
+        return self.deadline is not None and now >= self.deadline
+
+    def step(self) -> dict[str, Steps]:
+        """Run one round; returns each member's :class:`Steps`."""
+        sim = self.sim
+        arenas, n = self.shape
+        actions = np.full((arenas, n), DEFAULT_ACTION, dtype=np.int64)
+        late = np.zeros((arenas, n), dtype=bool)
+        for member in self.members.values():
+            if member.pending is None:
+                late |= member.slots
+                member.late_agents += int((member.slots & ~self.ended).sum())
+            else:
+                actions.reshape(-1)[member.pending.agents] = member.pending.actions
+                member.pending = None
+        late &= ~self.ended
+        self.late_agents += int(late.sum())
+
+        present = sim.agents_present()
+        reward = np.zeros((arenas, n))
+        terminated = np.zeros((arenas, n), dtype=bool)
+        truncated = np.zeros((arenas, n), dtype=bool)
+        applied = np.full((arenas, n), -1, dtype=np.int64)
+        terms = np.zeros((arenas, n, len(REWARD_TERMS)))
+        ended = self.ended
+        respawn: list[tuple[int, np.ndarray]] = []
+        if n == 1:
+            # One agent per arena: the arena restarts whole, exactly as in-process.
+            resetting = np.flatnonzero(ended[:, 0])
+            if resetting.size:
+                sim.reset(resetting)
+            stepping = np.flatnonzero(~ended[:, 0])
+        else:
+            for arena in np.flatnonzero(ended.any(axis=1)):
+                slots = np.flatnonzero(ended[arena])
+                sim.remove_agents(int(arena), slots)
+                respawn.append((int(arena), slots))
+            stepping = np.arange(arenas)
+        if stepping.size:
+            result = sim.step(actions[stepping], arenas=None if stepping.size == arenas
+                              else stepping)
+            live = present[stepping] & ~ended[stepping]
+            reward[stepping] = np.where(live, result.reward, 0.0)
+            terminated[stepping] = result.terminated & live
+            truncated[stepping] = result.truncated & live
+            applied[stepping] = np.where(live, result.action_applied, -1)
+            for t, name in enumerate(REWARD_TERMS):
+                terms[stepping, :, t] = np.where(live, result.reward_terms[name], 0.0)
+        for arena, slots in respawn:
+            sim.respawn_agents(arena, slots)
+        self.ended = (terminated | truncated)
+        self.last_reward, self.last_applied = reward, applied
+        self.round += 1
+        self.rounds_done += 1
+        self.deadline = None
+        now = time.monotonic()
+        dt = max(now - self._last_round_t, 1e-9)
+        self._last_round_t = now
+        self.rate_rounds_per_s = 1.0 / dt if self.rounds_done == 1 else \
+            0.9 * self.rate_rounds_per_s + 0.1 / dt
+        return self._steps_for_members(reward, terminated, truncated, applied, late, terms)
+
+    def reset(self, trainer: str, ticket: bytes, arena_indices: tuple[int, ...],
+              seeds: tuple[int | None, ...]) -> Steps:
+        """Restart episodes in some arenas for ``trainer``; returns its :class:`Steps`."""
+        member = self.member(trainer, ticket)
+        arenas, n = self.shape
+        bad = [a for a in arena_indices if not 0 <= a < arenas]
+        if bad:
+            raise errors.UnknownArena(f"group {self.group_id} has arenas 0..{arenas - 1} "
+                                      f"(ids {self.arena_ids}), got indices {bad}")
+        owned = self.owned()
+        for arena, seed in zip(arena_indices, seeds):
+            mine = member.slots[arena]
+            if not mine.any():
+                raise errors.NotOwner(f"trainer {trainer!r} has no agents in arena "
+                                      f"{self.arena_ids[arena]}")
+            if (owned[arena] == mine).all():
+                # Alone on this road: a real reset, seeded as asked.
+                self.sim.reset([arena], seeds=[seed])
+                self.sim.remove_agents(arena, np.flatnonzero(~mine))
+            else:
+                self.sim.respawn_agents(arena, np.flatnonzero(mine))
+            self.ended[arena, mine] = False
+            self.last_reward[arena, mine] = 0.0
+            self.last_applied[arena, mine] = -1
+        member.pending = None
+        if not any(m.pending is not None for m in self.members.values()):
+            self.deadline = None
+        zeros = np.zeros(self.shape)
+        flags = np.zeros(self.shape, dtype=bool)
+        return self._steps(member.slots, zeros, flags, flags, np.full(self.shape, -1, np.int64),
+                           flags, np.zeros(self.shape + (len(REWARD_TERMS),)),
+                           self.sim.observe())
+
+    def current_steps(self, trainer: str) -> Steps:
+        """The trainer's agents as they are now (after a claim), reward 0, no flags."""
+        member = self.members[trainer]
+        flags = np.zeros(self.shape, dtype=bool)
+        return self._steps(member.slots, np.zeros(self.shape), flags, flags,
+                           np.full(self.shape, -1, np.int64), flags,
+                           np.zeros(self.shape + (len(REWARD_TERMS),)), self.sim.observe())
+
+    def _steps_for_members(self, reward, terminated, truncated, applied, late, terms
+                           ) -> dict[str, Steps]:
+        observations = self.sim.observe()
+        return {trainer: self._steps(member.slots, reward, terminated, truncated, applied, late,
+                                     terms, observations)
+                for trainer, member in self.members.items()}
+
+    def _steps(self, slots: np.ndarray, reward, terminated, truncated, applied, late, terms,
+               observations: dict[str, np.ndarray]) -> Steps:
+        flat = np.flatnonzero(slots)
+        metrics = self.sim.metrics()
+        n_rows = self.shape[0] * self.shape[1]
+
+        def rows(value: np.ndarray) -> np.ndarray:
+            return value.reshape((n_rows,) + value.shape[2:])[flat]
+
+        return Steps(
+            server=self.server, group=self.group_id, round=self.round,
+            agents=flat.astype(np.int32),
+            observations={name: rows(value) for name, value in observations.items()},
+            reward=rows(reward).astype(np.float64), terminated=rows(terminated),
+            truncated=rows(truncated), action_applied=rows(applied), late=rows(late),
+            action_mask=rows(self.sim.action_mask()),
+            reward_terms=rows(terms),
+            metrics=np.stack([rows(metrics[name]).astype(np.float64) for name in METRIC_FIELDS],
+                             axis=-1))
+
+    # --- views ------------------------------------------------------------------------------
+
+    def status(self) -> GroupStatus:
+        return GroupStatus(
+            group=self.group_id, preset=self.preset, arenas=tuple(self.arena_ids),
+            agents_per_arena=self.sim.agents, trainers=tuple(sorted(self.members)),
+            rounds=self.rounds_done, rounds_per_s=float(self.rate_rounds_per_s),
+            agent_steps_per_s=float(self.rate_rounds_per_s * int(self.owned().sum())),
+            late_agents=self.late_agents)
+
+    def world_frame(self, arena: int, observations: dict[str, np.ndarray]) -> WorldFrame:
+        sim, st = self.sim, self.sim.state
+        n = sim.agents
+        return WorldFrame(
+            server=self.server, group=self.group_id, arena=self.arena_ids[arena],
+            round=self.round, sim_time_s=float(st.frame[arena] * sim.dt),
+            lane_count=sim.lane_count, lane_width_m=float(sim.lane_width),
+            agent_kind=AGENT_KIND, agent_active=st.active[arena, :n].copy(),
+            x_m=st.x_m[arena].astype(np.float64), y_m=st.y_m[arena].astype(np.float64),
+            speed_mps=st.speed_mps[arena].astype(np.float32),
+            kind=st.kind[arena].astype(np.int8), active=st.active[arena].copy(),
+            observations={name: value[arena] for name, value in observations.items()},
+            reward=self.last_reward[arena].astype(np.float64),
+            action_applied=self.last_applied[arena].astype(np.int64))

@@ -1,0 +1,431 @@
+"""The simulator server: arena groups served to trainers over Zenoh.
+
+Zenoh's threads only enqueue what arrives; one loop thread decodes, validates, steps groups and
+publishes, so the simulation needs no locks and a bad message can only ever produce an error
+reply or a log line. Observations and actions travel with blocking congestion control (no
+step is silently lost); world frames for spectators are dropped under congestion, so watching
+never holds the simulation back.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import queue
+import signal
+import socket
+import threading
+import time
+from dataclasses import dataclass, field
+from importlib import metadata
+from typing import Any
+
+import zenoh
+
+from overtake.protocol import codec, errors, keys
+from overtake.protocol.messages import (Ack, Actions, CloseRequest, ErrorReply, JoinRequest,
+                                        Message, Opened, OpenRequest, ResetRequest,
+                                        StatusReply, StatusRequest)
+from overtake.protocol.transport import DEFAULT_ENDPOINT, TransportConfig, open_session
+
+from .groups import Group
+
+log = logging.getLogger("overtake.server")
+
+_WAKE = ("wake",)
+
+
+def default_server_name() -> str:
+    host = "".join(c if c.isalnum() or c in "-_." else "-" for c in socket.gethostname())
+    return f"sim-{host[:40] or 'host'}-{os.getpid()}"
+
+
+@dataclass(frozen=True)
+class ServerConfig:
+    """An ``overtake-server`` process."""
+
+    name: str = field(default_factory=default_server_name)
+    """Unique on the Zenoh network; it is part of every key this server serves."""
+    listen: tuple[str, ...] = (DEFAULT_ENDPOINT,)
+    """Endpoints to listen on. Loopback by default; ``tcp/0.0.0.0:7447`` lets other hosts in."""
+    connect: tuple[str, ...] = ()
+    """Zenoh routers (or peers) to connect to, e.g. ``tcp/router:7447``."""
+    max_arenas: int = 256
+    """Arenas this server holds at once; an open request beyond it is refused as full."""
+    step_deadline_s: float = 30.0
+    """How long a round waits for late trainers once another trainer of the group has acted.
+    Generous, since a learner may pause for network updates; late agents get the default
+    action (keep) and are reported as late."""
+    world_rate_hz: float = 10.0
+    """World frames per second per arena for spectators (0 turns them off)."""
+    lease_s: float = 3.0
+    """A vanished trainer host is noticed, and its arenas freed, within this."""
+    user: str | None = None
+    password: str | None = None
+    credentials_file: str | None = None
+    """Zenoh usrpwd: a file of ``user:password`` lines this server accepts."""
+    log_level: str = "info"
+
+    def transport(self) -> TransportConfig:
+        return TransportConfig(mode="peer", listen=self.listen, connect=self.connect,
+                               lease_s=self.lease_s, user=self.user, password=self.password,
+                               credentials_file=self.credentials_file)
+
+
+def _package_version() -> str:
+    try:
+        return metadata.version("overtake")
+    except metadata.PackageNotFoundError:  # pragma: no cover - running from a bare checkout
+        return "unknown"
+
+
+class SimulatorServer:
+    """Serves arena groups over a Zenoh session. :meth:`serve` runs until :meth:`stop`."""
+
+    def __init__(self, config: ServerConfig, session: zenoh.Session | None = None) -> None:
+        keys.server_request(config.name)  # checks the name
+        if config.max_arenas < 1:
+            raise ValueError(f"max_arenas must be >= 1, got {config.max_arenas}")
+        if config.step_deadline_s <= 0:
+            raise ValueError(f"step_deadline_s must be > 0, got {config.step_deadline_s}")
+        self.config = config
+        self.name = config.name
+        self._events: queue.SimpleQueue[tuple[Any, ...]] = queue.SimpleQueue()
+        self._stopping = threading.Event()
+        self._own_session = session is None
+        self.session = session if session is not None else open_session(config.transport())
+        self.groups: dict[int, Group] = {}
+        self._arena_index: dict[int, tuple[int, int]] = {}   # arena id -> (group, index)
+        self._next_group = 0
+        self._next_arena = 0
+        self._alive_trainers: set[str] = set()
+        self._step_pubs: dict[str, zenoh.Publisher] = {}
+        self._world_pubs: dict[int, zenoh.Publisher] = {}
+        self._last_world: dict[int, float] = {}
+        self._started = time.monotonic()
+        self._declared: list[Any] = []
+        self._declare()
+
+    # --- Zenoh plumbing (callbacks only enqueue) -------------------------------------------
+
+    def _declare(self) -> None:
+        existing = [r for r in self.session.liveliness().get(keys.server_alive(self.name),
+                                                             timeout=1.0) if r.ok]
+        if existing:
+            raise RuntimeError(f"a server named {self.name!r} is already on this Zenoh network; "
+                               "give this one another --name")
+        s = self.session
+        self._declared.append(s.declare_queryable(
+            keys.server_request(self.name),
+            lambda q: self._events.put(("query", q, q.payload.to_bytes() if q.payload else b""))))
+        self._declared.append(s.declare_subscriber(
+            keys.server_actions_all(self.name),
+            lambda sample: self._events.put(("actions", str(sample.key_expr),
+                                             sample.payload.to_bytes()))))
+        self._declared.append(s.liveliness().declare_subscriber(
+            keys.ALL_TRAINERS_ALIVE,
+            lambda sample: self._events.put(("alive", str(sample.key_expr),
+                                             sample.kind == zenoh.SampleKind.PUT)),
+            history=True))
+        self._token = s.liveliness().declare_token(keys.server_alive(self.name))
+
+    # --- main loop ------------------------------------------------------------------------------
+
+    def stop(self) -> None:
+        self._stopping.set()
+        self._events.put(_WAKE)
+
+    def serve(self) -> None:
+        log.info("server %s serving (%s), up to %d arenas, step deadline %.1f s",
+                 self.name, self.config.transport().describe(), self.config.max_arenas,
+                 self.config.step_deadline_s)
+        try:
+            while not self._stopping.is_set():
+                timeout = self._next_timeout()
+                try:
+                    event = self._events.get(timeout=timeout)
+                except queue.Empty:
+                    event = _WAKE
+                self._handle(event)
+                # Drain what else has arrived before stepping: batched arrivals step once.
+                while True:
+                    try:
+                        self._handle(self._events.get_nowait())
+                    except queue.Empty:
+                        break
+                self._step_ready_groups()
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        for obj in self._declared:
+            try:
+                obj.undeclare()
+            except Exception:  # pragma: no cover - already gone with the session
+                pass
+        self._declared.clear()
+        try:
+            self._token.undeclare()
+        except Exception:  # pragma: no cover
+            pass
+        if self._own_session and not self.session.is_closed():
+            self.session.close()
+        log.info("server %s stopped", self.name)
+
+    def _next_timeout(self) -> float:
+        deadlines = [g.deadline for g in self.groups.values() if g.deadline is not None]
+        if not deadlines:
+            return 1.0
+        return min(max(min(deadlines) - time.monotonic(), 0.0), 1.0)
+
+    def _handle(self, event: tuple[Any, ...]) -> None:
+        kind = event[0]
+        try:
+            if kind == "query":
+                self._on_query(event[1], event[2])
+            elif kind == "actions":
+                self._on_actions(event[1], event[2])
+            elif kind == "alive":
+                self._on_alive(event[1], event[2])
+        except Exception:  # the loop must survive anything; a bug shows as a log line
+            log.exception("unexpected error handling %s", kind)
+
+    # --- requests -------------------------------------------------------------------------------
+
+    def _reply(self, query: zenoh.Query, message: Message) -> None:
+        with query:
+            query.reply(keys.server_request(self.name), codec.encode(message))
+
+    def _on_query(self, query: zenoh.Query, payload: bytes) -> None:
+        try:
+            request = codec.decode(payload, (StatusRequest, OpenRequest, JoinRequest,
+                                             ResetRequest, CloseRequest))
+            if isinstance(request, ErrorReply):
+                raise errors.DecodeError("an error reply is not a request")
+            reply = self._dispatch(request)
+        except errors.ProtocolError as error:
+            log.info("refused a request: %s", error)
+            reply = ErrorReply(code=error.code, message=str(error))
+        self._reply(query, reply)
+
+    def _dispatch(self, request: Message) -> Message:
+        if isinstance(request, StatusRequest):
+            return self.status()
+        if isinstance(request, OpenRequest):
+            return self._open(request)
+        if isinstance(request, JoinRequest):
+            return self._join(request)
+        if isinstance(request, ResetRequest):
+            return self._group(request.group).reset(request.trainer, request.ticket,
+                                                    request.arenas, request.seeds)
+        if isinstance(request, CloseRequest):
+            group = self._group(request.group)
+            group.member(request.trainer, request.ticket)
+            self._leave(group, request.trainer, "closed")
+            return Ack(message=f"left group {request.group}")
+        raise errors.DecodeError(f"not a request: {request.TYPE}")  # pragma: no cover
+
+    def status(self) -> StatusReply:
+        return StatusReply(server=self.name, package_version=_package_version(),
+                           max_arenas=self.config.max_arenas, arenas_used=len(self._arena_index),
+                           step_deadline_s=self.config.step_deadline_s,
+                           uptime_s=time.monotonic() - self._started,
+                           groups=tuple(g.status() for g in self.groups.values()))
+
+    def _require_alive(self, trainer: str) -> None:
+        if trainer in self._alive_trainers:
+            return
+        # Its token may not have reached us yet: ask once.
+        replies = self.session.liveliness().get(keys.trainer_alive(trainer), timeout=1.0)
+        if not any(r.ok for r in replies):
+            raise errors.NotOwner(f"trainer {trainer!r} holds no liveliness token "
+                                  f"({keys.trainer_alive(trainer)}); open arenas through "
+                                  "overtake.client, which declares one")
+        self._alive_trainers.add(trainer)
+
+    def _open(self, request: OpenRequest) -> Opened:
+        self._require_alive(request.trainer)
+        free = self.config.max_arenas - len(self._arena_index)
+        if request.arenas > free:
+            raise errors.ServerFull(f"server {self.name} has {free} free arena(s) of "
+                                    f"{self.config.max_arenas}, asked for {request.arenas}")
+        arena_ids = list(range(self._next_arena, self._next_arena + request.arenas))
+        group = Group.open(self._next_group, self.name, arena_ids, request.preset,
+                           dict(request.overrides), request.agents_per_arena, request.seed)
+        for index in range(request.arenas):
+            group.claim(request.trainer, index, request.claim, fresh=True)
+        self._next_arena += request.arenas
+        self._next_group += 1
+        self.groups[group.group_id] = group
+        for index, arena in enumerate(arena_ids):
+            self._arena_index[arena] = (group.group_id, index)
+        log.info("trainer %s opened group %d: %d arena(s) %s of %s, %d agent(s) each",
+                 request.trainer, group.group_id, request.arenas,
+                 _span(arena_ids), request.preset, request.agents_per_arena)
+        return self._opened(group, request.trainer)
+
+    def _join(self, request: JoinRequest) -> Opened:
+        self._require_alive(request.trainer)
+        where = self._arena_index.get(request.arena)
+        if where is None:
+            raise errors.UnknownArena(f"server {self.name} has no arena {request.arena}; its "
+                                      f"arenas are {_span(sorted(self._arena_index))}")
+        group = self.groups[where[0]]
+        group.claim(request.trainer, where[1], request.agents, fresh=False)
+        log.info("trainer %s joined arena %d (group %d) with %d agent(s)", request.trainer,
+                 request.arena, group.group_id, request.agents)
+        return self._opened(group, request.trainer)
+
+    def _opened(self, group: Group, trainer: str) -> Opened:
+        self._publisher_for(trainer)
+        member = group.members[trainer]
+        return Opened(server=self.name, group=group.group_id, arenas=tuple(group.arena_ids),
+                      ticket=member.ticket, spec=group.spec,
+                      steps=group.current_steps(trainer))
+
+    def _group(self, group_id: int) -> Group:
+        group = self.groups.get(group_id)
+        if group is None:
+            raise errors.UnknownArena(f"server {self.name} has no group {group_id} (closed, or "
+                                      "never opened)")
+        return group
+
+    # --- actions and rounds -----------------------------------------------------------------
+
+    def _on_actions(self, key: str, payload: bytes) -> None:
+        try:
+            _, trainer = keys.parse_server_actions(key)
+        except errors.ProtocolError as error:
+            log.warning("dropped actions on a malformed key: %s", error)
+            return
+        try:
+            actions = codec.decode(payload, Actions)
+            if not isinstance(actions, Actions):
+                raise errors.DecodeError(f"expected actions, got {actions.TYPE}")
+            if actions.trainer != trainer:
+                # Someone speaking on another trainer's key: not an answer anybody waits for.
+                log.warning("dropped actions on %s's key that claim to come from %s", trainer,
+                            actions.trainer)
+                return
+            self._group(actions.group).accept(actions, self.config.step_deadline_s)
+        except errors.ProtocolError as error:
+            log.info("refused actions from %s: %s", trainer, error)
+            self._send(trainer, ErrorReply(code=error.code, message=str(error)))
+
+    def _step_ready_groups(self) -> None:
+        now = time.monotonic()
+        for group in list(self.groups.values()):
+            if not group.ready(now):
+                continue
+            steps = group.step()
+            for trainer, message in steps.items():
+                self._send(trainer, message)
+            self._publish_world(group, now)
+
+    def _publisher_for(self, trainer: str) -> zenoh.Publisher:
+        pub = self._step_pubs.get(trainer)
+        if pub is None:
+            pub = self.session.declare_publisher(
+                keys.trainer_steps(trainer, self.name),
+                congestion_control=zenoh.CongestionControl.BLOCK,
+                priority=zenoh.Priority.DATA_HIGH)
+            self._step_pubs[trainer] = pub
+        return pub
+
+    def _send(self, trainer: str, message: Message) -> None:
+        pub = self._step_pubs.get(trainer)
+        if pub is not None:
+            pub.put(codec.encode(message))
+        else:  # a trainer with no arenas here (an error reply): no publisher kept for it
+            self.session.put(keys.trainer_steps(trainer, self.name), codec.encode(message),
+                             congestion_control=zenoh.CongestionControl.BLOCK)
+
+    def _publish_world(self, group: Group, now: float) -> None:
+        rate = self.config.world_rate_hz
+        if rate <= 0 or now - self._last_world.get(group.group_id, 0.0) < 1.0 / rate:
+            return
+        self._last_world[group.group_id] = now
+        observations = None
+        for index, arena in enumerate(group.arena_ids):
+            pub = self._world_pubs.get(arena)
+            if pub is None:
+                pub = self._world_pubs[arena] = self.session.declare_publisher(
+                    keys.world(self.name, arena), congestion_control=zenoh.CongestionControl.DROP,
+                    priority=zenoh.Priority.DATA_LOW)
+            if not pub.matching_status.matching:
+                continue  # nobody watches this arena: no frame is even encoded
+            if observations is None:
+                observations = group.sim.observe()
+            pub.put(codec.encode(group.world_frame(index, observations)))
+
+    # --- trainers leaving ---------------------------------------------------------------------
+
+    def _on_alive(self, key: str, present: bool) -> None:
+        try:
+            trainer = keys.parse_trainer_alive(key)
+        except errors.ProtocolError:
+            return
+        if present:
+            self._alive_trainers.add(trainer)
+            return
+        self._alive_trainers.discard(trainer)
+        for group in list(self.groups.values()):
+            if trainer in group.members:
+                self._leave(group, trainer, "gone (liveliness token lost)")
+        pub = self._step_pubs.pop(trainer, None)
+        if pub is not None:
+            pub.undeclare()
+
+    def _leave(self, group: Group, trainer: str, why: str) -> None:
+        group.leave(trainer)
+        if group.members:
+            log.info("trainer %s left group %d (%s); its cars are off the road", trainer,
+                     group.group_id, why)
+            return
+        self.groups.pop(group.group_id)
+        for arena in group.arena_ids:
+            self._arena_index.pop(arena, None)
+            pub = self._world_pubs.pop(arena, None)
+            if pub is not None:
+                pub.undeclare()
+        self._last_world.pop(group.group_id, None)
+        log.info("trainer %s left group %d (%s); arenas %s freed", trainer, group.group_id, why,
+                 _span(group.arena_ids))
+
+
+def _span(ids: list[int]) -> str:
+    if not ids:
+        return "none"
+    if len(ids) > 1 and ids == list(range(ids[0], ids[-1] + 1)):
+        return f"{ids[0]}-{ids[-1]}"
+    return ", ".join(map(str, ids))
+
+
+def main(config: ServerConfig) -> None:
+    """Run a server until SIGINT or SIGTERM."""
+    logging.basicConfig(level=config.log_level.upper(),
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    zenoh.init_log_from_env_or("error")
+    try:
+        server = SimulatorServer(config)
+    except zenoh.ZError as error:
+        raise SystemExit(f"overtake-server: could not open the Zenoh session "
+                         f"({config.transport().describe()}): {error}. Is the port in use, or "
+                         "the router unreachable?") from None
+    except RuntimeError as error:
+        raise SystemExit(f"overtake-server: {error}") from None
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        log.info("received %s, shutting down", signal.Signals(signum).name)
+        server.stop()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    server.serve()
+
+
+def cli() -> None:
+    import tyro
+
+    main(tyro.cli(ServerConfig, description="overtake-server: the highway simulator, served "
+                                            "to trainers over Zenoh"))
