@@ -1,8 +1,8 @@
 """``overtake-drive``: drive baseline policies through episodes and print the papers' metrics.
 
-Runs the in-process vector environment (one arena per episode, all stepped together) with the
-rule-based or the random driver, and prints one row per episode and the mean and spread of
-each metric. This is the project's short demo until the server and trainers arrive.
+Runs the vector environment (one arena per episode, all stepped together) with the rule-based
+or the random driver, in-process or (``--connect``) on a simulator server over Zenoh, and
+prints one row per episode and the mean and spread of each metric.
 """
 
 from __future__ import annotations
@@ -17,7 +17,8 @@ from typing import Literal
 import gymnasium as gym
 import numpy as np
 
-from overtake.protocol import HIGHWAY_ENV_ID, register_environments
+from overtake.protocol import (HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, ProtocolError,
+                               register_environments)
 
 from .drivers import RandomDriver, RuleDriver, RuleDriverConfig
 
@@ -44,6 +45,9 @@ class DriveConfig:
     """more overrides as dotted.name=value (value read as JSON, else as a string)"""
     json_out: Path | None = None
     """also write the table as JSON here"""
+    connect: str | None = None
+    """a simulator server's (or router's) Zenoh endpoint, e.g. tcp/127.0.0.1:7447; None runs
+    the simulator in this process"""
 
 
 def parse_overrides(items: tuple[str, ...]) -> dict[str, object]:
@@ -69,17 +73,23 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
         overrides["traffic.density"] = config.traffic
     if config.max_decisions is not None:
         overrides["episode.max_decisions"] = config.max_decisions
-    envs = gym.make_vec(HIGHWAY_ENV_ID, num_envs=config.episodes,
-                        vectorization_mode="vector_entry_point", preset=config.preset,
-                        overrides=overrides)
-    sim_config = envs.unwrapped.config
+    if config.connect is None:
+        envs = gym.make_vec(HIGHWAY_ENV_ID, num_envs=config.episodes,
+                            vectorization_mode="vector_entry_point", preset=config.preset,
+                            overrides=overrides)
+    else:
+        envs = gym.make_vec(REMOTE_HIGHWAY_ENV_ID, num_envs=config.episodes,
+                            vectorization_mode="vector_entry_point", preset=config.preset,
+                            overrides=overrides, connect=config.connect)
+    sim_config = envs.unwrapped.sim_config
     if config.policy == "rule":
-        driver: RuleDriver | RandomDriver = RuleDriver(
-            RuleDriverConfig(cruise_max_kmh=sim_config.ego.cruise_max_kmh,
-                             lane_width_m=sim_config.road.lane_width_m),
-            ray_count=sim_config.lidar.ray_count, max_range_m=sim_config.lidar.max_range_m)
-        if not sim_config.lidar.enabled:
+        if not sim_config["lidar"]["enabled"]:
             raise SystemExit("the rule-based driver reads the LIDAR: keep lidar.enabled true")
+        driver: RuleDriver | RandomDriver = RuleDriver(
+            RuleDriverConfig(cruise_max_kmh=sim_config["ego"]["cruise_max_kmh"],
+                             lane_width_m=sim_config["road"]["lane_width_m"]),
+            ray_count=sim_config["lidar"]["ray_count"],
+            max_range_m=sim_config["lidar"]["max_range_m"])
     else:
         driver = RandomDriver(config.seed)
 
@@ -117,8 +127,9 @@ def _print_table(config: DriveConfig, table: np.ndarray, summary: dict[str, dict
                "distance m", "return", "decisions")
     widths = [max(9, len(h)) for h in headers]
     line = "  ".join(h.rjust(w) for h, w in zip(headers, widths))
+    where = "in-process" if config.connect is None else f"on {config.connect}"
     print(f"policy={config.policy} preset={config.preset} episodes={config.episodes} "
-          f"seed={config.seed}")
+          f"seed={config.seed} ({where})")
     print(line)
     print("-" * len(line))
     for i, row in enumerate(table):
@@ -137,7 +148,10 @@ def _print_table(config: DriveConfig, table: np.ndarray, summary: dict[str, dict
 def cli() -> None:
     import tyro
 
-    main(tyro.cli(DriveConfig))
+    try:
+        main(tyro.cli(DriveConfig))
+    except ProtocolError as error:
+        sys.exit(f"overtake-drive: {error}")
 
 
 if __name__ == "__main__":

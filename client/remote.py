@@ -108,6 +108,7 @@ class Connection:
         self._servers_alive: set[str] = set()
         self._servers_lost: set[str] = set()
         self._lock = threading.Lock()
+        self._server_appeared = threading.Event()
         self._token = self.session.liveliness().declare_token(keys.trainer_alive(self.trainer))
         self._subscriber = self.session.declare_subscriber(
             keys.trainer_steps_all(self.trainer),
@@ -126,6 +127,7 @@ class Connection:
             if sample.kind == zenoh.SampleKind.PUT:
                 self._servers_alive.add(server)
                 self._servers_lost.discard(server)
+                self._server_appeared.set()
             else:
                 self._servers_alive.discard(server)
                 self._servers_lost.add(server)
@@ -183,7 +185,16 @@ class Connection:
         """Servers to ask, best first, by the rule in this module's docstring."""
         if self.config.server is not None:
             return [self.config.server]
+        # A trainer may start together with its server (docker compose): keep asking for a
+        # while before concluding that nobody is there.
+        give_up = time.monotonic() + self.config.connect_timeout_s
         statuses = self.discover()
+        while not statuses and time.monotonic() < give_up:
+            # Woken when a server's liveliness token appears; its queryable is declared just
+            # before the token, so it answers from then on.
+            self._server_appeared.wait(timeout=max(give_up - time.monotonic(), 0.0))
+            self._server_appeared.clear()
+            statuses = self.discover()
         if not statuses:
             raise errors.ConnectError(
                 f"connected to {', '.join(self.config.connect)}, but no overtake server "

@@ -13,6 +13,7 @@ server or another one), and the next step (or reset) starts the new episodes.
 from __future__ import annotations
 
 import dataclasses
+import json
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -74,6 +75,7 @@ class _Remote:
         spec = self.group.spec
         assert spec is not None
         self.spec = spec
+        self.sim_config: dict[str, Any] = json.loads(spec.config_json)
         self.reward_terms = spec.reward_terms
         self.metric_fields = spec.metric_fields
 
@@ -116,6 +118,11 @@ class RemoteHighwayEnv(gym.Env):
     @property
     def group(self) -> ArenaGroup:
         return self._remote.group
+
+    @property
+    def sim_config(self) -> dict[str, Any]:
+        """The server's resolved configuration as plain nested data."""
+        return self._remote.sim_config
 
     def _unpack(self, steps: Steps) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         obs = {name: value[0] for name, value in steps.observations.items()}
@@ -179,6 +186,11 @@ class RemoteHighwayVectorEnv(gym.vector.VectorEnv):
     @property
     def group(self) -> ArenaGroup:
         return self._remote.group
+
+    @property
+    def sim_config(self) -> dict[str, Any]:
+        """The server's resolved configuration as plain nested data."""
+        return self._remote.sim_config
 
     def _info(self, steps: Steps) -> dict[str, Any]:
         info: dict[str, Any] = {

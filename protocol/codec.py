@@ -14,6 +14,7 @@ from __future__ import annotations
 import functools
 import types
 import typing
+from collections.abc import Callable
 from dataclasses import fields, is_dataclass
 from typing import Any, TypeVar
 
@@ -36,7 +37,15 @@ def version_text(version: tuple[int, int] = PROTOCOL_VERSION) -> str:
 # --- encoding ---------------------------------------------------------------------------------
 
 def _plain(value: Any) -> Any:
+    if isinstance(value, str):
+        if len(value) > MAX_TEXT_CHARS:
+            raise ValueError(f"text of {len(value)} characters exceeds the limit of "
+                             f"{MAX_TEXT_CHARS}")
+        return value
     if isinstance(value, np.ndarray):
+        if value.ndim > MAX_ARRAY_DIMS:
+            raise ValueError(f"arrays travel with at most {MAX_ARRAY_DIMS} dimensions, got "
+                             f"{value.ndim}")
         dtype = value.dtype.newbyteorder("<") if value.dtype.byteorder == ">" else value.dtype
         name = _DTYPE_NAMES.get(dtype)
         if name is None:
@@ -69,117 +78,179 @@ def _kind(value: Any) -> str:
     return type(value).__name__
 
 
-def _array(value: Any, path: str) -> np.ndarray:
-    if not isinstance(value, dict) or set(value) != {"dtype", "shape", "data"}:
-        raise DecodeError(f"{path}: expected an array {{dtype, shape, data}}, got {_kind(value)}"
+# Decoding is compiled once per field annotation into a converter ``(value, peer_minor)``;
+# converters raise DecodeError with a message relative to their field, and each record
+# prefixes its field's name on the way out, so paths cost nothing unless something is wrong.
+Converter = Callable[[Any, int], Any]
+
+
+def _at(segment: str, error: DecodeError) -> DecodeError:
+    """``error`` one level up: ``.name``/``[i]`` segments join into one path."""
+    text = str(error)
+    return DecodeError(f"{segment}{text}" if text[:1] in ".[" else f"{segment}: {text}")
+
+_ARRAY_KEYS = frozenset(("dtype", "shape", "data"))
+
+
+def _array(value: Any, _minor: int) -> np.ndarray:
+    if type(value) is not dict or len(value) != 3 or not _ARRAY_KEYS.issuperset(value):
+        raise DecodeError(f"expected an array {{dtype, shape, data}}, got {_kind(value)}"
                           + (f" with keys {sorted(map(str, value))}" if isinstance(value, dict)
                              else ""))
     dtype_name, shape, data = value["dtype"], value["shape"], value["data"]
-    if dtype_name not in WIRE_DTYPES:
-        raise DecodeError(f"{path}: dtype must be one of {sorted(WIRE_DTYPES)}, got {dtype_name!r}")
-    if (not isinstance(shape, list) or len(shape) > MAX_ARRAY_DIMS
+    dtype = WIRE_DTYPES.get(dtype_name) if type(dtype_name) is str else None
+    if dtype is None:
+        raise DecodeError(f"dtype must be one of {sorted(WIRE_DTYPES)}, got {dtype_name!r}")
+    if (type(shape) is not list or len(shape) > MAX_ARRAY_DIMS
             or not all(type(s) is int and 0 <= s <= MAX_FRAME_BYTES for s in shape)):
-        raise DecodeError(f"{path}: shape must be a list of at most {MAX_ARRAY_DIMS} sizes, "
+        raise DecodeError(f"shape must be a list of at most {MAX_ARRAY_DIMS} sizes, "
                           f"got {shape!r}")
-    if not isinstance(data, bytes):
-        raise DecodeError(f"{path}: data must be bytes, got {_kind(data)}")
-    dtype = WIRE_DTYPES[dtype_name]
+    if type(data) is not bytes:
+        raise DecodeError(f"data must be bytes, got {_kind(data)}")
     count = 1
     for s in shape:
         count *= s
     if count * dtype.itemsize != len(data):
-        raise DecodeError(f"{path}: {dtype_name} of shape {tuple(shape)} needs "
+        raise DecodeError(f"{dtype_name} of shape {tuple(shape)} needs "
                           f"{count * dtype.itemsize} bytes, got {len(data)}")
-    array = np.frombuffer(data, dtype=dtype).reshape(shape)
     if dtype_name == "bool" and count and data.translate(None, b"\x00\x01"):
-        raise DecodeError(f"{path}: bool array holds bytes other than 0 and 1")
+        raise DecodeError("bool array holds bytes other than 0 and 1")
+    array = np.frombuffer(data, dtype=dtype).reshape(shape)
     # A writable native-order copy: callers may modify what they receive.
-    return array.astype(dtype.newbyteorder("="), copy=True)
+    return array.copy() if dtype.isnative else array.astype(dtype.newbyteorder("="))
 
 
-def _text(value: Any, path: str) -> str:
-    if not isinstance(value, str):
-        raise DecodeError(f"{path}: expected text, got {_kind(value)}")
+def _text(value: Any, _minor: int) -> str:
+    if type(value) is not str:
+        raise DecodeError(f"expected text, got {_kind(value)}")
+    if len(value) > MAX_TEXT_CHARS:
+        raise DecodeError(f"text of {len(value)} characters exceeds the limit of "
+                          f"{MAX_TEXT_CHARS}")
     return value
 
 
-def _convert(value: Any, hint: Any, path: str) -> Any:
-    """``value`` from msgpack as the Python type ``hint`` (a field annotation)."""
+def _bytes(value: Any, _minor: int) -> bytes:
+    if type(value) is not bytes:
+        raise DecodeError(f"expected bytes, got {_kind(value)}")
+    return value
+
+
+def _bool(value: Any, _minor: int) -> bool:
+    if type(value) is not bool:
+        raise DecodeError(f"expected true or false, got {_kind(value)}")
+    return value
+
+
+def _int(value: Any, _minor: int) -> int:
+    if type(value) is not int:
+        raise DecodeError(f"expected an integer, got {_kind(value)}")
+    return value
+
+
+def _float(value: Any, _minor: int) -> float:
+    if type(value) is not int and type(value) is not float:
+        raise DecodeError(f"expected a number, got {_kind(value)}")
+    return float(value)
+
+
+_SIMPLE: dict[Any, Converter] = {np.ndarray: _array, str: _text, bytes: _bytes, bool: _bool,
+                                 int: _int, float: _float}
+
+
+@functools.cache
+def _converter(hint: Any) -> Converter:
+    """The converter of msgpack values into the Python type ``hint`` (a field annotation)."""
+    simple = _SIMPLE.get(hint)
+    if simple is not None:
+        return simple
     origin = typing.get_origin(hint)
     if origin in (types.UnionType, typing.Union):
         options = typing.get_args(hint)
-        if value is None:
-            if type(None) in options:
-                return None
-            raise DecodeError(f"{path}: expected a value, got nil")
-        if all(o in (bool, int, float, str) for o in options):  # a plain scalar
-            if type(value) in options or (type(value) is int and float in options):
-                return value
-            raise DecodeError(f"{path}: expected one of "
-                              f"{', '.join(o.__name__ for o in options)}, got {_kind(value)}")
-        rest = [o for o in options if o is not type(None)]
+        nullable = type(None) in options
+        rest = tuple(o for o in options if o is not type(None))
+        if all(o in (bool, int, float, str) for o in rest) and len(rest) > 1:
+            names = ", ".join(o.__name__ for o in rest)
+
+            def scalar(value: Any, minor: int) -> Any:
+                if value is None and nullable:
+                    return None
+                if type(value) in rest or (type(value) is int and float in rest):
+                    return _text(value, minor) if type(value) is str else value
+                raise DecodeError(f"expected one of {names}, got {_kind(value)}")
+            return scalar
         if len(rest) == 1:
-            return _convert(value, rest[0], path)
-        raise TypeError(f"unsupported annotation {hint}")  # pragma: no cover - schema bug
-    if hint is np.ndarray:
-        return _array(value, path)
-    if hint is str:
-        return _text(value, path)
-    if hint is bytes:
-        if not isinstance(value, bytes):
-            raise DecodeError(f"{path}: expected bytes, got {_kind(value)}")
-        return value
-    if hint is bool:
-        if not isinstance(value, bool):
-            raise DecodeError(f"{path}: expected true or false, got {_kind(value)}")
-        return value
-    if hint is int:
-        if type(value) is not int:
-            raise DecodeError(f"{path}: expected an integer, got {_kind(value)}")
-        return value
-    if hint is float:
-        if type(value) not in (int, float):
-            raise DecodeError(f"{path}: expected a number, got {_kind(value)}")
-        return float(value)
+            inner = _converter(rest[0])
+
+            def optional(value: Any, minor: int) -> Any:
+                if value is None:
+                    if nullable:
+                        return None
+                    raise DecodeError("expected a value, got nil")
+                return inner(value, minor)
+            return optional
     if origin is tuple:
-        item = typing.get_args(hint)[0]
-        if not isinstance(value, list):
-            raise DecodeError(f"{path}: expected a list, got {_kind(value)}")
-        return tuple(_convert(v, item, f"{path}[{i}]") for i, v in enumerate(value))
+        item = _converter(typing.get_args(hint)[0])
+
+        def sequence(value: Any, minor: int) -> tuple:
+            if type(value) is not list:
+                raise DecodeError(f"expected a list, got {_kind(value)}")
+            out = []
+            for i, v in enumerate(value):
+                try:
+                    out.append(item(v, minor))
+                except DecodeError as error:
+                    raise _at(f"[{i}]", error) from None
+            return tuple(out)
+        return sequence
     if origin is dict:
-        key_hint, item = typing.get_args(hint)
-        if not isinstance(value, dict):
-            raise DecodeError(f"{path}: expected a map, got {_kind(value)}")
-        return {_text(k, f"{path} key"): _convert(v, item, f"{path}[{k!r}]")
-                for k, v in value.items()}
+        item = _converter(typing.get_args(hint)[1])
+
+        def mapping(value: Any, minor: int) -> dict:
+            if type(value) is not dict:
+                raise DecodeError(f"expected a map, got {_kind(value)}")
+            out = {}
+            for k, v in value.items():
+                try:
+                    out[_text(k, minor)] = item(v, minor)
+                except DecodeError as error:
+                    raise _at(f"[{k!r}]", error) from None
+            return out
+        return mapping
     if isinstance(hint, type) and is_dataclass(hint):
-        return _build(hint, value, path)
+        return functools.partial(_build, hint)
     raise TypeError(f"unsupported annotation {hint}")  # pragma: no cover - schema bug
 
 
 @functools.cache
-def _hints(cls: type) -> dict[str, Any]:
-    return typing.get_type_hints(cls)
+def _fields(cls: type) -> tuple[tuple[str, Converter], ...]:
+    hints = typing.get_type_hints(cls)
+    return tuple((f.name, _converter(hints[f.name])) for f in fields(cls))
 
 
-def _build(cls: type, body: Any, path: str, peer_minor: int = PROTOCOL_VERSION[1]) -> Any:
-    if not isinstance(body, dict):
-        raise DecodeError(f"{path}: expected a map of {cls.__name__} fields, got {_kind(body)}")
-    hints = _hints(cls)
-    names = [f.name for f in fields(cls)]
-    missing = [n for n in names if n not in body]
-    if missing:
-        raise DecodeError(f"{path}: {cls.__name__} lacks field(s) {missing}")
-    unknown = sorted(map(str, set(body) - set(names)))
-    if unknown and peer_minor <= PROTOCOL_VERSION[1]:
-        # Only a newer minor version may add fields (which this side then ignores).
-        raise DecodeError(f"{path}: {cls.__name__} has unknown field(s) {unknown}; "
-                          f"expected {names}")
-    values = {n: _convert(body[n], hints[n], f"{path}.{n}") for n in names}
-    try:
-        return cls(**values)
-    except DecodeError as error:
-        raise DecodeError(f"{path}: {error}") from None
+def _build(cls: type, body: Any, peer_minor: int) -> Any:
+    """A record of ``cls`` from its msgpack map; a newer minor version may add fields."""
+    if type(body) is not dict:
+        raise DecodeError(f"expected a map of {cls.__name__} fields, got {_kind(body)}")
+    spec = _fields(cls)
+    if len(body) != len(spec) or peer_minor > PROTOCOL_VERSION[1]:
+        names = [name for name, _ in spec]
+        missing = [n for n in names if n not in body]
+        if missing:
+            raise DecodeError(f"{cls.__name__} lacks field(s) {missing}")
+        unknown = sorted(map(str, set(body) - set(names)))
+        if unknown and peer_minor <= PROTOCOL_VERSION[1]:
+            # Only a newer minor version may add fields (which this side then ignores).
+            raise DecodeError(f"{cls.__name__} has unknown field(s) {unknown}; "
+                              f"expected {names}")
+    values = {}
+    for name, convert in spec:
+        if name not in body:
+            raise DecodeError(f"{cls.__name__} lacks field {name!r}")
+        try:
+            values[name] = convert(body[name], peer_minor)
+        except DecodeError as error:
+            raise _at(f".{name}", error) from None
+    return cls(**values)
 
 
 def decode(data: bytes | bytearray | memoryview, expect: type[M] | tuple[type[Message], ...]
@@ -194,7 +265,7 @@ def decode(data: bytes | bytearray | memoryview, expect: type[M] | tuple[type[Me
         raise DecodeError(f"frame of {len(data)} bytes exceeds the limit of {MAX_FRAME_BYTES}")
     try:
         frame = msgpack.unpackb(bytes(data), raw=False, use_list=True, strict_map_key=True,
-                                max_str_len=MAX_TEXT_CHARS, max_bin_len=MAX_FRAME_BYTES,
+                                max_str_len=4 * MAX_TEXT_CHARS, max_bin_len=MAX_FRAME_BYTES,
                                 max_array_len=MAX_FRAME_BYTES, max_map_len=MAX_TEXT_CHARS,
                                 max_ext_len=0)
     except Exception as error:  # msgpack raises many types on garbage; all mean the same
@@ -218,8 +289,10 @@ def decode(data: bytes | bytearray | memoryview, expect: type[M] | tuple[type[Me
         if cls not in wanted and cls is not ErrorReply:
             raise DecodeError(f"expected {' or '.join(w.TYPE for w in wanted)}, got {tag}")
     try:
-        return _build(cls, body, tag, peer_minor=minor)
-    except ProtocolError:
+        return _build(cls, body, minor)
+    except ProtocolError as error:
+        if isinstance(error, DecodeError):
+            raise _at(tag, error) from None
         raise
     except (ValueError, TypeError, OverflowError) as error:  # e.g. an absurd reshape
         raise DecodeError(f"{tag}: {error}") from None

@@ -14,6 +14,7 @@ papers' episode metrics (:data:`overtake.server.sim.METRIC_FIELDS`).
 from __future__ import annotations
 
 import dataclasses
+import json
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -142,6 +143,11 @@ class HighwayEnv(gym.Env):
             return render_top_down(self.sim)
         return None
 
+    @property
+    def sim_config(self) -> dict[str, Any]:
+        """The resolved configuration as plain nested data (as the remote env reports it)."""
+        return json.loads(json.dumps(dataclasses.asdict(self.config)))
+
     def action_masks(self) -> np.ndarray:
         """The current action mask (the name sb3-contrib's MaskablePPO looks for)."""
         return self.sim.action_mask()[0, 0]
@@ -169,6 +175,11 @@ class HighwayVectorEnv(gym.vector.VectorEnv):
         self.decision_period_s = self.config.episode.decision_period_s
         self.max_episode_steps = self.config.episode.max_decisions
         self._autoreset = np.zeros(num_envs, dtype=bool)
+
+    @property
+    def sim_config(self) -> dict[str, Any]:
+        """The resolved configuration as plain nested data (as the remote env reports it)."""
+        return json.loads(json.dumps(dataclasses.asdict(self.config)))
 
     def _observations(self) -> dict[str, np.ndarray]:
         return {key: value[:, 0] for key, value in self.sim.observe().items()}

@@ -210,12 +210,18 @@ class Group:
         self.late_agents += int(late.sum())
 
         present = sim.agents_present()
+        ended = self.ended
+        if not ended.any() and present.all():
+            # The common round: every car on the road, nobody restarting.
+            result = sim.step(actions)
+            terms = np.stack([result.reward_terms[name] for name in REWARD_TERMS], axis=-1)
+            return self._finish_round(result.reward, result.terminated, result.truncated,
+                                      result.action_applied, late, terms, [])
         reward = np.zeros((arenas, n))
         terminated = np.zeros((arenas, n), dtype=bool)
         truncated = np.zeros((arenas, n), dtype=bool)
         applied = np.full((arenas, n), -1, dtype=np.int64)
         terms = np.zeros((arenas, n, len(REWARD_TERMS)))
-        ended = self.ended
         respawn: list[tuple[int, np.ndarray]] = []
         if n == 1:
             # One agent per arena: the arena restarts whole, exactly as in-process.
@@ -239,8 +245,12 @@ class Group:
             applied[stepping] = np.where(live, result.action_applied, -1)
             for t, name in enumerate(REWARD_TERMS):
                 terms[stepping, :, t] = np.where(live, result.reward_terms[name], 0.0)
+        return self._finish_round(reward, terminated, truncated, applied, late, terms, respawn)
+
+    def _finish_round(self, reward, terminated, truncated, applied, late, terms,
+                      respawn: list[tuple[int, np.ndarray]]) -> dict[str, Steps]:
         for arena, slots in respawn:
-            sim.respawn_agents(arena, slots)
+            self.sim.respawn_agents(arena, slots)
         self.ended = (terminated | truncated)
         self.last_reward, self.last_applied = reward, applied
         self.round += 1
@@ -303,23 +313,28 @@ class Group:
 
     def _steps(self, slots: np.ndarray, reward, terminated, truncated, applied, late, terms,
                observations: dict[str, np.ndarray]) -> Steps:
-        flat = np.flatnonzero(slots)
-        metrics = self.sim.metrics()
-        n_rows = self.shape[0] * self.shape[1]
+        arenas, n = self.shape
+        total = arenas * n
+        everyone = bool(slots.all())
+        flat = np.arange(total) if everyone else np.flatnonzero(slots)
 
         def rows(value: np.ndarray) -> np.ndarray:
-            return value.reshape((n_rows,) + value.shape[2:])[flat]
+            value = value.reshape((total,) + value.shape[2:])
+            return value if everyone else value[flat]
 
-        return Steps(
+        metrics = self.sim.metrics()
+        table = np.stack([metrics[name] for name in METRIC_FIELDS], axis=-1).astype(np.float64)
+        # Built from the simulation's own arrays, whose dtypes and shapes the spec fixes: the
+        # per-field checks that guard decoding are skipped on this hot path (a test decodes
+        # these messages and so checks them).
+        return Steps.trusted(
             server=self.server, group=self.group_id, round=self.round,
             agents=flat.astype(np.int32),
             observations={name: rows(value) for name, value in observations.items()},
-            reward=rows(reward).astype(np.float64), terminated=rows(terminated),
-            truncated=rows(truncated), action_applied=rows(applied), late=rows(late),
-            action_mask=rows(self.sim.action_mask()),
-            reward_terms=rows(terms),
-            metrics=np.stack([rows(metrics[name]).astype(np.float64) for name in METRIC_FIELDS],
-                             axis=-1))
+            reward=rows(reward), terminated=rows(terminated), truncated=rows(truncated),
+            action_applied=rows(applied), late=rows(late),
+            action_mask=rows(self.sim.action_mask()), reward_terms=rows(terms),
+            metrics=rows(table))
 
     # --- views ------------------------------------------------------------------------------
 

@@ -1,0 +1,61 @@
+"""``overtake-status``: what every simulator server on the network is doing."""
+
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import asdict, dataclass
+
+from overtake.protocol import errors
+from overtake.protocol.messages import StatusReply
+from overtake.protocol.transport import DEFAULT_ENDPOINT
+
+from .remote import Connection, RemoteConfig
+
+
+@dataclass(frozen=True)
+class StatusConfig:
+    connect: tuple[str, ...] = (DEFAULT_ENDPOINT,)
+    """Zenoh endpoints: a server's --listen address or a router's."""
+    timeout_s: float = 3.0
+    """How long to wait for servers to answer."""
+    json: bool = False
+    """Print the replies as JSON instead of a table."""
+
+
+def format_status(statuses: list[StatusReply]) -> str:
+    lines = []
+    for s in sorted(statuses, key=lambda s: s.server):
+        lines.append(f"{s.server}: {s.arenas_used}/{s.max_arenas} arenas, {len(s.groups)} "
+                     f"group(s), step deadline {s.step_deadline_s:g} s, up {s.uptime_s:.0f} s, "
+                     f"overtake {s.package_version}")
+        for g in s.groups:
+            lines.append(f"  group {g.group}: {g.preset}, arenas {list(g.arenas)}, "
+                         f"{g.agents_per_arena} agent(s) each, trainers {list(g.trainers)}, "
+                         f"{g.rounds} rounds, {g.rounds_per_s:.1f} rounds/s, "
+                         f"{g.agent_steps_per_s:.0f} agent-steps/s, {g.late_agents} late")
+    return "\n".join(lines) if lines else "no overtake server answered"
+
+
+def main(config: StatusConfig) -> list[StatusReply]:
+    connection = Connection(RemoteConfig(connect=config.connect,
+                                         request_timeout_s=config.timeout_s))
+    try:
+        statuses = connection.discover()
+    finally:
+        connection.close()
+    if config.json:
+        print(json.dumps([asdict(s) for s in statuses], default=list, indent=2))
+    else:
+        print(format_status(statuses))
+    return statuses
+
+
+def cli() -> None:
+    import tyro
+
+    try:
+        main(tyro.cli(StatusConfig, description="overtake-status: the simulator servers on "
+                                                "the network and their arenas"))
+    except errors.ProtocolError as error:
+        sys.exit(f"overtake-status: {error}")
