@@ -104,9 +104,12 @@ class Connection:
                 f"{config.connect_timeout_s:g} s ({error}). {_likely_causes(config)}") from None
         self._inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
         self._buffered: dict[tuple[str, int], deque[Steps]] = {}
-        self._errors: deque[errors.ProtocolError] = deque()
+        self._errors: dict[tuple[str, int], deque[errors.ProtocolError]] = {}
         self._servers_alive: set[str] = set()
         self._servers_lost: set[str] = set()
+        # Times each server's token disappeared: a group opened at one count is gone at the
+        # next, even if a restarted server of the same name is back by the time we look.
+        self._server_epoch: dict[str, int] = {}
         self._lock = threading.Lock()
         self._server_appeared = threading.Event()
         self._token = self.session.liveliness().declare_token(keys.trainer_alive(self.trainer))
@@ -131,11 +134,17 @@ class Connection:
             else:
                 self._servers_alive.discard(server)
                 self._servers_lost.add(server)
+                self._server_epoch[server] = self._server_epoch.get(server, 0) + 1
         self._inbox.put(("", b""))  # wake a waiter
 
     def server_lost(self, server: str) -> bool:
         with self._lock:
             return server in self._servers_lost
+
+    def epoch(self, server: str) -> int:
+        """How many times ``server`` has gone away since this connection opened."""
+        with self._lock:
+            return self._server_epoch.get(server, 0)
 
     # --- requests --------------------------------------------------------------------------
 
@@ -218,19 +227,41 @@ class Connection:
                 priority=zenoh.Priority.DATA_HIGH)
         pub.put(codec.encode(actions))
 
-    def next_steps(self, server: str, group: int, round_: int) -> Steps:
+    def _take(self, server: str, group: int, round_: int) -> Steps | None:
+        """Round ``round_`` of ``group`` if it has arrived; older rounds are dropped."""
+        slot = self._buffered.setdefault((server, group), deque())
+        while slot:
+            steps = slot[0]
+            if steps.round > round_:
+                return None  # a later round is all there is: the caller is behind
+            slot.popleft()
+            if steps.round == round_:
+                return steps
+            log.debug("dropped stale steps of group %d round %d", group, steps.round)
+        failures = self._errors.get((server, group))
+        if failures:
+            raise failures.popleft()
+        return None
+
+    def arrived(self, server: str, group: int, round_: int) -> Steps | None:
+        """Without waiting: round ``round_`` of ``group`` if it is already here."""
+        while True:
+            try:
+                key, payload = self._inbox.get_nowait()
+            except queue.Empty:
+                break
+            if key:
+                self._file(key, payload)
+        return self._take(server, group, round_)
+
+    def next_steps(self, server: str, group: int, round_: int, epoch: int) -> Steps:
         """Block until the :class:`Steps` of ``group``'s ``round_`` arrive."""
         deadline = time.monotonic() + self.config.step_timeout_s
-        slot = self._buffered.setdefault((server, group), deque())
         while True:
-            while slot:
-                steps = slot.popleft()
-                if steps.round == round_:
-                    return steps
-                log.debug("dropped stale steps of group %d round %d", group, steps.round)
-            if self._errors:
-                raise self._errors.popleft()
-            if self.server_lost(server):
+            steps = self._take(server, group, round_)
+            if steps is not None:
+                return steps
+            if self.server_lost(server) or self.epoch(server) != epoch:
                 raise errors.ServerLost(f"server {server} went away while we waited for "
                                         f"round {round_} of group {group}")
             remaining = deadline - time.monotonic()
@@ -251,16 +282,22 @@ class Connection:
         try:
             message = codec.decode(payload, Steps)
         except errors.ProtocolError as error:
-            self._errors.append(error)
+            log.warning("dropped an unreadable message from server %s: %s", sender, error)
             return
         if isinstance(message, ErrorReply):
-            self._errors.append(errors.error_from_code(message.code,
-                                                       f"server {sender}: {message.message}"))
+            if message.group is None:
+                # Not about any group we step (perhaps garbage sent in our name): say so only.
+                log.warning("server %s refused a message in our name: %s", sender,
+                            message.message)
+                return
+            self._errors.setdefault((sender, message.group), deque()).append(
+                errors.error_from_code(message.code, f"server {sender}: {message.message}"))
             return
         self._buffered.setdefault((message.server, message.group), deque()).append(message)
 
     def forget(self, server: str, group: int) -> None:
         self._buffered.pop((server, group), None)
+        self._errors.pop((server, group), None)
 
     def close(self) -> None:
         if self.closed:
@@ -306,6 +343,7 @@ class ArenaGroup:
     last: Steps | None = None
     _pending_restart: Steps | None = field(default=None, repr=False)
     restarts: int = 0
+    epoch: int = 0   # the server's epoch (Connection.epoch) when the group was opened
 
     @classmethod
     def open(cls, connection: Connection, params: OpenParams) -> "ArenaGroup":
@@ -336,6 +374,7 @@ class ArenaGroup:
             else:
                 assert last_error is not None
                 raise last_error
+        self.epoch = conn.epoch(opened.server)
         self.server, self.group, self.arena_ids = opened.server, opened.group, opened.arenas
         self.ticket, self.spec = opened.ticket, opened.spec
         self.round = opened.steps.round
@@ -350,6 +389,8 @@ class ArenaGroup:
         """New episodes in ``arenas`` (indices in the group); the Steps of all our agents."""
         conn = self.connection
         self._pending_restart = None
+        if self._server_restarted():
+            self._reopen()
         try:
             steps = conn.request(self.server, ResetRequest(
                 trainer=conn.trainer, ticket=self.ticket, group=self.group, arenas=arenas,
@@ -373,16 +414,26 @@ class ArenaGroup:
             return steps
         conn = self.connection
         try:
-            conn.send_actions(self.server, Actions(
-                trainer=conn.trainer, ticket=self.ticket, group=self.group, round=self.round,
-                agents=np.asarray(agents, dtype=np.int32),
-                actions=np.asarray(actions, dtype=np.int64)))
-            steps = conn.next_steps(self.server, self.group, self.round + 1)
+            if self._server_restarted():
+                raise errors.ServerLost(f"server {self.server} restarted since group "
+                                        f"{self.group} was opened")
+            # Behind (the group played our round at the deadline)? Then that round's Steps are
+            # here already, marked late; our actions would be stale, so they are not sent.
+            steps = conn.arrived(self.server, self.group, self.round + 1)
+            if steps is None:
+                conn.send_actions(self.server, Actions(
+                    trainer=conn.trainer, ticket=self.ticket, group=self.group,
+                    round=self.round, agents=np.asarray(agents, dtype=np.int32),
+                    actions=np.asarray(actions, dtype=np.int64)))
+                steps = conn.next_steps(self.server, self.group, self.round + 1, self.epoch)
         except errors.ServerLost as error:
             return self._survive(error)
         self.round = steps.round
         self.last = steps
         return steps
+
+    def _server_restarted(self) -> bool:
+        return self.connection.epoch(self.server) != self.epoch
 
     def _survive(self, error: errors.ServerLost) -> Steps:
         """Reopen our arenas elsewhere (or on the restarted server); the episodes broke."""

@@ -53,8 +53,21 @@ class NotOwner(ProtocolError):
     code = "not_owner"
 
 
+class WrongTicket(NotOwner):
+    """A request or actions in a trainer's name without the ticket its open or join got."""
+
+    code = "wrong_ticket"
+
+
 class BadAction(ProtocolError):
     code = "bad_action"
+
+
+class StaleActions(ProtocolError):
+    """Actions for a round the group already played without them (at the deadline): the
+    server drops them quietly; the trainer finds that round's Steps marked late."""
+
+    code = "stale_actions"
 
 
 class ConnectError(ProtocolError):
@@ -77,7 +90,8 @@ class StepTimeout(ProtocolError):
 
 ERRORS_BY_CODE: dict[str, type[ProtocolError]] = {
     cls.code: cls for cls in (ProtocolError, DecodeError, VersionMismatch, UnknownPreset,
-                              BadConfig, ServerFull, UnknownArena, NotOwner, BadAction,
+                              BadConfig, ServerFull, UnknownArena, NotOwner, WrongTicket,
+                              BadAction, StaleActions,
                               ConnectError, ServerLost, StepTimeout)
 }
 

@@ -410,11 +410,17 @@ class Ack(Message):
 
 @dataclass(frozen=True, eq=False)
 class ErrorReply(Message):
-    """A refusal: ``code`` is a :class:`~overtake.protocol.errors.ProtocolError` code."""
+    """A refusal: ``code`` is a :class:`~overtake.protocol.errors.ProtocolError` code.
+
+    ``group`` names the group a refused :class:`Actions` put was for (None for a request's
+    reply, or when the put could not be read): a trainer raises only errors about a group it
+    is stepping, so nobody can break its loop by sending garbage in its name.
+    """
 
     TYPE: ClassVar[str] = "error"
     code: str
     message: str
+    group: int | None = None
 
 
 @dataclass(frozen=True, eq=False)

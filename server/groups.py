@@ -158,7 +158,7 @@ class Group:
             raise errors.NotOwner(f"trainer {trainer!r} has no agents in group {self.group_id} "
                                   f"(arenas {self.arena_ids}); open or join an arena first")
         if not secrets.compare_digest(member.ticket, ticket):
-            raise errors.NotOwner(f"wrong ticket for trainer {trainer!r} in group "
+            raise errors.WrongTicket(f"wrong ticket for trainer {trainer!r} in group "
                                   f"{self.group_id}: requests must come from the session "
                                   "that opened or joined it")
         return member
@@ -168,9 +168,13 @@ class Group:
     def accept(self, actions: Actions, deadline_s: float) -> None:
         """Hold a trainer's actions for the current round (checked against what it owns)."""
         member = self.member(actions.trainer, actions.ticket)
-        if actions.round != self.round:
+        if actions.round < self.round:
+            raise errors.StaleActions(f"actions answer round {actions.round}, but group "
+                                      f"{self.group_id} played it at the deadline and is at "
+                                      f"round {self.round}")
+        if actions.round > self.round:
             raise errors.BadAction(f"actions answer round {actions.round}, but group "
-                                   f"{self.group_id} is at round {self.round}")
+                                   f"{self.group_id} is only at round {self.round}")
         agents = actions.agents
         total = self.sim.num_arenas * self.sim.agents
         if agents.size and (agents.min() < 0 or agents.max() >= total):

@@ -298,6 +298,7 @@ class SimulatorServer:
         except errors.ProtocolError as error:
             log.warning("dropped actions on a malformed key: %s", error)
             return
+        actions: Message | None = None
         try:
             actions = codec.decode(payload, Actions)
             if not isinstance(actions, Actions):
@@ -308,9 +309,16 @@ class SimulatorServer:
                             actions.trainer)
                 return
             self._group(actions.group).accept(actions, self.config.step_deadline_s)
+        except errors.StaleActions as error:
+            log.debug("dropped late actions from %s: %s", trainer, error)
+        except errors.WrongTicket as error:
+            # Not from the session that owns these agents: replying on the named trainer's
+            # key would only disturb that trainer.
+            log.warning("dropped actions in %s's name: %s", trainer, error)
         except errors.ProtocolError as error:
             log.info("refused actions from %s: %s", trainer, error)
-            self._send(trainer, ErrorReply(code=error.code, message=str(error)))
+            group = actions.group if isinstance(actions, Actions) else None
+            self._send(trainer, ErrorReply(code=error.code, message=str(error), group=group))
 
     def _step_ready_groups(self) -> None:
         now = time.monotonic()

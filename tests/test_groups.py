@@ -1,0 +1,160 @@
+"""Arena groups without the network: membership, rounds, deadlines, shared roads, resets."""
+
+import numpy as np
+import pytest
+
+from overtake.protocol import errors
+from overtake.protocol.messages import Actions
+from overtake.server.groups import Group
+from overtake.server.sim import HighwaySim, make_config
+
+QUIET = {"traffic.vehicle_count": 0}
+
+
+def _actions(group: Group, trainer: str, agents, actions) -> Actions:
+    return Actions(trainer=trainer, ticket=group.members[trainer].ticket, group=group.group_id,
+                   round=group.round, agents=np.asarray(agents, dtype=np.int32),
+                   actions=np.asarray(actions, dtype=np.int64))
+
+
+def _shared(agents: int = 3, overrides=None) -> Group:
+    group = Group.open(0, "srv", [7], "min2018", dict(overrides or QUIET), agents, seed=1)
+    group.claim("a", 0, 1, fresh=True)
+    return group
+
+
+def test_unclaimed_cars_are_off_the_road_and_unseen():
+    group = _shared()
+    assert group.sim.agents_present()[0].tolist() == [True, False, False]
+    # Agent 0's LIDAR sees only the rails: the free slots' cars are nowhere.
+    lidar = group.sim.observe()["lidar"][0, 0]
+    empty = HighwaySim(make_config(overrides=QUIET), agents_per_arena=1)
+    empty.reset(seeds=[1])
+    empty.state.x_m[0, 0], empty.state.y_m[0, 0] = group.sim.state.x_m[0, 0], group.sim.state.y_m[0, 0]
+    empty.state.lane[0, 0] = empty.state.target_lane[0, 0] = group.sim.state.lane[0, 0]
+    np.testing.assert_array_equal(lidar, empty.observe()["lidar"][0, 0])
+
+
+def test_a_joined_car_is_placed_clear_of_the_others_and_seen_by_them():
+    group = _shared(overrides={})
+    group.claim("b", 0, 1, fresh=False)
+    st = group.sim.state
+    assert group.sim.agents_present()[0].tolist() == [True, True, False]
+    assert (group.members["b"].slots[0] == [False, True, False]).all()
+    # Clear of every other car: no box within an IDM gap in its lane.
+    same_lane = st.active[0] & (st.lane[0] == st.lane[0, 1])
+    same_lane[1] = False
+    gaps = np.abs(st.x_m[0, same_lane] - st.x_m[0, 1])
+    assert gaps.size == 0 or gaps.min() > group.sim.config.traffic.vehicle_length_m + 2.0
+    # Agent 0 now sees a car where agent 1 is (some ray shorter than on an empty road).
+    before = _shared(overrides={}).sim.observe()["lidar"][0, 0]
+    assert not np.array_equal(group.sim.observe()["lidar"][0, 0], before)
+
+
+def test_a_round_waits_for_every_member_then_steps_everyone():
+    group = _shared()
+    group.claim("b", 0, 1, fresh=False)
+    group.accept(_actions(group, "a", [0], [1]), deadline_s=60.0)
+    assert not group.ready(now=0.0)
+    group.accept(_actions(group, "b", [1], [2]), deadline_s=60.0)
+    assert group.ready(now=0.0)
+    steps = group.step()
+    assert set(steps) == {"a", "b"}
+    assert steps["a"].agents.tolist() == [0] and steps["b"].agents.tolist() == [1]
+    assert steps["a"].action_applied.tolist() == [1] and steps["b"].action_applied.tolist() == [2]
+    assert group.round == 1 and steps["a"].round == 1
+
+
+def test_the_deadline_steps_without_the_late_member_with_keep():
+    group = _shared()
+    group.claim("b", 0, 1, fresh=False)
+    group.accept(_actions(group, "a", [0], [1]), deadline_s=5.0)
+    assert group.deadline is not None
+    assert not group.ready(now=group.deadline - 0.01)
+    assert group.ready(now=group.deadline)
+    steps = group.step()
+    assert steps["b"].late.tolist() == [True] and steps["b"].action_applied.tolist() == [0]
+    assert steps["a"].late.tolist() == [False]
+    assert group.late_agents == 1 and group.status().late_agents == 1
+
+
+def test_nobody_acting_means_nobody_waits():
+    group = _shared()
+    assert not group.ready(now=1e12)  # no deadline runs until someone has acted
+
+
+def test_actions_are_checked_against_what_the_trainer_owns():
+    group = _shared()
+    group.claim("b", 0, 1, fresh=False)
+    with pytest.raises(errors.NotOwner, match="belong to another trainer"):
+        group.accept(_actions(group, "a", [1], [0]), deadline_s=1.0)
+    with pytest.raises(errors.BadAction, match="0..2"):
+        group.accept(_actions(group, "a", [5], [0]), deadline_s=1.0)
+    stale = Actions(trainer="a", ticket=group.members["a"].ticket, group=0, round=3,
+                    agents=np.array([0], np.int32), actions=np.array([0]))
+    with pytest.raises(errors.BadAction, match="round 3.*round 0"):
+        group.accept(stale, deadline_s=1.0)
+    forged = Actions(trainer="a", ticket=b"\0" * 16, group=0, round=0,
+                     agents=np.array([0], np.int32), actions=np.array([0]))
+    with pytest.raises(errors.NotOwner, match="wrong ticket"):
+        group.accept(forged, deadline_s=1.0)
+    with pytest.raises(errors.NotOwner, match="no agents"):
+        group.member("c", b"\0" * 16)
+
+
+def test_in_a_shared_arena_only_the_crashed_car_restarts():
+    group = _shared(agents=2, overrides=QUIET)
+    group.claim("b", 0, 1, fresh=False)
+    st = group.sim.state
+    # Put b's car right behind a's, much faster: it rear-ends a.
+    st.lane[0, :2] = st.target_lane[0, :2] = 1
+    st.y_m[0, :2] = 1.5 * group.sim.lane_width
+    st.x_m[0, :2] = [10.0, 5.0]
+    st.speed_mps[0, :2] = [10.0, 30.0]
+    for member in ("a", "b"):
+        group.accept(_actions(group, member, group.members[member].slots.reshape(-1).nonzero()[0],
+                              [0]), deadline_s=1.0)
+    steps = group.step()
+    assert steps["a"].terminated.tolist() == [True] and steps["b"].terminated.tolist() == [True]
+    x_before = st.x_m[0, :2].copy()
+    for member in ("a", "b"):
+        group.accept(_actions(group, member, group.members[member].slots.reshape(-1).nonzero()[0],
+                              [0]), deadline_s=1.0)
+    steps = group.step()
+    # Both restarted: reward 0, no flags, fresh counters, and placed behind where they were.
+    for member in ("a", "b"):
+        assert steps[member].reward.tolist() == [0.0]
+        assert not steps[member].ended.any()
+        assert steps[member].metrics[0].tolist()[-1] == 0  # decisions of the new episode
+    assert (st.x_m[0, :2] < x_before.max()).all()
+    assert group.sim.agents_present()[0].tolist() == [True, True]
+
+
+def test_reset_alone_reseeds_but_shared_only_respawns_the_requester():
+    alone = Group.open(0, "srv", [0, 1], "min2018", {}, 1, seed=5)
+    alone.claim("a", 0, 1, fresh=True)
+    alone.claim("a", 1, 1, fresh=True)
+    ticket = alone.members["a"].ticket
+    first = alone.reset("a", ticket, (0, 1), (11, 12))
+    again = alone.reset("a", ticket, (0, 1), (11, 12))
+    for name in first.observations:
+        np.testing.assert_array_equal(first.observations[name], again.observations[name])
+
+    shared = _shared(overrides={})
+    shared.claim("b", 0, 1, fresh=False)
+    a_x = shared.sim.state.x_m[0, 0]
+    shared.reset("b", shared.members["b"].ticket, (0,), (99,))
+    assert shared.sim.state.x_m[0, 0] == a_x, "a's car did not move when b reset"
+    with pytest.raises(errors.UnknownArena):
+        shared.reset("b", shared.members["b"].ticket, (3,), (None,))
+
+
+def test_leaving_takes_the_cars_off_and_frees_the_slot():
+    group = _shared()
+    group.claim("b", 0, 2, fresh=False)
+    with pytest.raises(errors.ServerFull, match="0 free agent slot"):
+        group.claim("c", 0, 1, fresh=False)
+    group.leave("b")
+    assert group.sim.agents_present()[0].tolist() == [True, False, False]
+    group.claim("c", 0, 2, fresh=False)
+    assert set(group.members) == {"a", "c"}
