@@ -45,8 +45,8 @@ def _check_actions(actions: Any, count: int) -> np.ndarray:
     if count == 1 and values.ndim == 0:
         values = values.reshape(1)
     if values.shape != (count,) or not np.issubdtype(values.dtype, np.integer):
-        raise ValueError(f"expected {'an integer action' if count == 1 else f'{count} integer actions'} "
-                         f"in [0, {ACTION_COUNT}), got {actions!r}")
+        wanted = "an integer action" if count == 1 else f"{count} integer actions"
+        raise ValueError(f"expected {wanted} in [0, {ACTION_COUNT}), got {actions!r}")
     if values.min() < 0 or values.max() >= ACTION_COUNT:
         raise ValueError(f"actions must be in [0, {ACTION_COUNT}) (keep, cruise up, cruise down, "
                          f"lane left, lane right), got {values.tolist()}")

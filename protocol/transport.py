@@ -22,7 +22,7 @@ class TransportConfig:
 
     mode: Literal["peer", "client", "router"] = "client"
     listen: tuple[str, ...] = ()
-    """Endpoints to listen on, e.g. ``tcp/127.0.0.1:7447`` (``tcp/0.0.0.0:7447`` for other hosts)."""
+    """Endpoints to listen on, e.g. ``tcp/127.0.0.1:7447`` (``tcp/0.0.0.0:7447``: all hosts)."""
     connect: tuple[str, ...] = ()
     """Endpoints (a router, or a listening server) to connect to."""
     connect_timeout_s: float = 5.0

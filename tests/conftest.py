@@ -11,6 +11,9 @@ from overtake.server.sim import HighwaySim, make_config
 from overtake.server.sim.config import BEHAVIOURS
 from overtake.server.sim.core import AGENT_KIND, KMH
 
+# The end-to-end fixtures that start (and stop, by PID) servers and trainer processes.
+from remote_support import start_server, start_trainer  # noqa: E402,F401
+
 LANE_WIDTH = 3.5
 HALF_LENGTH = 2.25   # 4.5 m cars and ego
 HALF_WIDTH = 0.9     # 1.8 m cars and ego

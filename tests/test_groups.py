@@ -30,7 +30,8 @@ def test_unclaimed_cars_are_off_the_road_and_unseen():
     lidar = group.sim.observe()["lidar"][0, 0]
     empty = HighwaySim(make_config(overrides=QUIET), agents_per_arena=1)
     empty.reset(seeds=[1])
-    empty.state.x_m[0, 0], empty.state.y_m[0, 0] = group.sim.state.x_m[0, 0], group.sim.state.y_m[0, 0]
+    here = group.sim.state
+    empty.state.x_m[0, 0], empty.state.y_m[0, 0] = here.x_m[0, 0], here.y_m[0, 0]
     empty.state.lane[0, 0] = empty.state.target_lane[0, 0] = group.sim.state.lane[0, 0]
     np.testing.assert_array_equal(lidar, empty.observe()["lidar"][0, 0])
 

@@ -23,13 +23,11 @@ from overtake.protocol.errors import ConnectError, ServerLost
 from overtake.protocol.messages import WorldFrame
 from overtake.server.env import HighwayVectorEnv
 
-from remote_support import (  # noqa: F401
+from remote_support import (
     RawClient,
     endpoint,
     free_port,
     remote_config,
-    start_server,
-    start_trainer,
     trainer_args,
     wait_until,
 )

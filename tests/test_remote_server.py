@@ -33,12 +33,10 @@ from overtake.protocol.messages import (
     WorldFrame,
 )
 
-from remote_support import (  # noqa: F401
+from remote_support import (
     RawClient,
     next_message,
     remote_config,
-    start_server,
-    start_trainer,
     trainer_args,
     wait_until,
 )
@@ -209,6 +207,28 @@ def test_killed_trainer_frees_its_arena_and_never_stalls_another(start_server, s
     assert summary["max_gap_s"] < 1.0, f"the other trainer stalled {summary['max_gap_s']:.2f} s"
     assert summary["late_seen"] == 0
     assert group_of(server.status(), ready_o["trainer"]).rounds == summary["total_steps"]
+
+
+@pytest.mark.timeout(60)
+def test_frozen_trainer_host_is_dropped_within_its_lease(start_server, start_trainer):
+    # SIGSTOP freezes the whole process, Zenoh's threads included: no keep-alives, no FIN, as
+    # when a host drops off the network. Its arenas must go within the lease it announced.
+    server = start_server("e2e-frozen")
+    lease_s = 1.0
+    frozen = start_trainer(trainer_args(server, server.name, lease_s=lease_s), "frozen")
+    ready = frozen.expect("READY")
+    assert group_of(server.status(), ready["trainer"]) is not None
+    frozen_at = time.monotonic()
+    frozen.proc.send_signal(signal.SIGSTOP)
+    try:
+        wait_until(lambda: group_of(server.status(), ready["trainer"]) is None, lease_s + 3.0,
+                   "the frozen trainer's group to be freed")
+        freed_after = time.monotonic() - frozen_at
+        # Not before the lease: a trainer busy for a moment is not thrown out.
+        assert freed_after >= 0.5 * lease_s, f"freed after only {freed_after:.2f} s"
+        assert server.status().arenas_used == 0
+    finally:
+        frozen.proc.send_signal(signal.SIGCONT)
 
 
 # --- 6. a trainer that stops answering in a shared arena ---------------------------------------

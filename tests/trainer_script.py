@@ -59,6 +59,7 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--step-timeout-s", type=float, default=20.0)
     p.add_argument("--reconnect-timeout-s", type=float, default=0.0)
     p.add_argument("--trainer-name", default="e2e")
+    p.add_argument("--lease-s", type=float, default=3.0)
     return p.parse_args(argv)
 
 
@@ -69,7 +70,7 @@ class Trainer:
                               connect_timeout_s=args.connect_timeout_s, request_timeout_s=5.0,
                               step_timeout_s=args.step_timeout_s,
                               reconnect_timeout_s=args.reconnect_timeout_s,
-                              trainer_name=args.trainer_name)
+                              trainer_name=args.trainer_name, lease_s=args.lease_s)
         self.env = RemoteEnvironment(preset=args.preset, overrides=json.loads(args.overrides),
                                      arenas=args.arenas, agents_per_arena=args.agents_per_arena,
                                      claim=args.claim, seed=args.seed, join=args.join,

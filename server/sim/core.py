@@ -646,7 +646,8 @@ class HighwaySim:
         fell_behind = ((dx[arena, :, tcol] < 0.0) | ~anchors[arena, :, 0]).all(axis=1)
         ahead_side = np.where(was_active[arena, tcol], fell_behind, u[:, _U_SIDE] < 0.5)
         anchor = np.minimum((u[:, _U_ANCHOR] * n).astype(np.int64), n - 1)
-        anchor = np.where(anchors[arena, anchor, 0], anchor, np.argmax(anchors[arena, :, 0], axis=1))
+        anchor = np.where(anchors[arena, anchor, 0], anchor,
+                          np.argmax(anchors[arena, :, 0], axis=1))
         lane = np.minimum((u[:, _U_LANE:_U_LANE + SPAWN_CANDIDATES] * self.lane_count)
                           .astype(np.int64), self.lane_count - 1)
         window = np.where(ahead_side[:, None], np.array(cfg.spawn_ahead_m), np.array(cfg.spawn_behind_m))
