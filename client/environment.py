@@ -20,6 +20,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from overtake.protocol.envs import arena_seeds
 from overtake.protocol.messages import ACTION_COUNT, DEFAULT_ACTION, Scalar, Steps
 
 from .remote import ArenaGroup, Connection, OpenParams, RemoteConfig
@@ -85,15 +86,13 @@ class TerminalStep:
     group_reward: float
 
 
-class DecisionSteps(Mapping):
-    """Agents that need an action: ``obs`` is one (agents, ...) array per observation spec."""
+class _AgentSteps(Mapping):
+    """Rows of agents, looked up by agent id (ML-Agents' DecisionSteps / TerminalSteps)."""
 
-    def __init__(self, obs: list[np.ndarray], reward: np.ndarray, agent_id: np.ndarray,
-                 action_mask: list[np.ndarray] | None, group_id: np.ndarray,
-                 group_reward: np.ndarray) -> None:
-        self.obs, self.reward, self.agent_id = obs, reward, agent_id
-        self.action_mask, self.group_id, self.group_reward = action_mask, group_id, group_reward
-        self._index = {int(a): i for i, a in enumerate(agent_id)}
+    agent_id: np.ndarray
+
+    def _index_agents(self) -> None:
+        self._index = {int(a): i for i, a in enumerate(self.agent_id)}
 
     @property
     def agent_id_to_index(self) -> dict[int, int]:
@@ -101,6 +100,20 @@ class DecisionSteps(Mapping):
 
     def __len__(self) -> int:
         return len(self.agent_id)
+
+    def __iter__(self) -> Iterator[int]:
+        yield from (int(a) for a in self.agent_id)
+
+
+class DecisionSteps(_AgentSteps):
+    """Agents that need an action: ``obs`` is one (agents, ...) array per observation spec."""
+
+    def __init__(self, obs: list[np.ndarray], reward: np.ndarray, agent_id: np.ndarray,
+                 action_mask: list[np.ndarray] | None, group_id: np.ndarray,
+                 group_reward: np.ndarray) -> None:
+        self.obs, self.reward, self.agent_id = obs, reward, agent_id
+        self.action_mask, self.group_id, self.group_reward = action_mask, group_id, group_reward
+        self._index_agents()
 
     def __getitem__(self, agent_id: int) -> DecisionStep:
         i = self._index[int(agent_id)]
@@ -110,25 +123,15 @@ class DecisionSteps(Mapping):
                             group_id=int(self.group_id[i]),
                             group_reward=float(self.group_reward[i]))
 
-    def __iter__(self) -> Iterator[int]:
-        yield from (int(a) for a in self.agent_id)
 
-
-class TerminalSteps(Mapping):
+class TerminalSteps(_AgentSteps):
     """Agents whose episode ended; ``interrupted`` marks the time limit."""
 
     def __init__(self, obs: list[np.ndarray], reward: np.ndarray, interrupted: np.ndarray,
                  agent_id: np.ndarray, group_id: np.ndarray, group_reward: np.ndarray) -> None:
         self.obs, self.reward, self.interrupted = obs, reward, interrupted
         self.agent_id, self.group_id, self.group_reward = agent_id, group_id, group_reward
-        self._index = {int(a): i for i, a in enumerate(agent_id)}
-
-    @property
-    def agent_id_to_index(self) -> dict[int, int]:
-        return self._index
-
-    def __len__(self) -> int:
-        return len(self.agent_id)
+        self._index_agents()
 
     def __getitem__(self, agent_id: int) -> TerminalStep:
         i = self._index[int(agent_id)]
@@ -136,9 +139,6 @@ class TerminalSteps(Mapping):
                             interrupted=bool(self.interrupted[i]), agent_id=int(agent_id),
                             group_id=int(self.group_id[i]),
                             group_reward=float(self.group_reward[i]))
-
-    def __iter__(self) -> Iterator[int]:
-        yield from (int(a) for a in self.agent_id)
 
 
 class RemoteEnvironment:
@@ -252,8 +252,7 @@ class RemoteEnvironment:
     def reset(self, seed: int | None = None) -> None:
         """New episodes in every arena (arena ``i`` seeded ``seed + i``)."""
         count = len(self.group.arena_ids)
-        seeds = tuple(None if seed is None else seed + i for i in range(count))
-        self._steps = self.group.reset(tuple(range(count)), seeds)
+        self._steps = self.group.reset(tuple(range(count)), tuple(arena_seeds(seed, count)))
         self._actions = {}
 
     def close(self) -> None:

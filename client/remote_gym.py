@@ -22,6 +22,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector.utils import batch_space
 
+from overtake.protocol.envs import arena_seeds
 from overtake.protocol.messages import ACTION_COUNT, BehaviourSpec, Scalar, Steps
 
 from .remote import ArenaGroup, Connection, OpenParams, RemoteConfig
@@ -86,7 +87,23 @@ class _Remote:
             self.connection.close()
 
 
-class RemoteHighwayEnv(gym.Env):
+class _RemoteHandles:
+    """What both remote environments expose of their connection."""
+
+    _remote: _Remote
+
+    @property
+    def group(self) -> ArenaGroup:
+        """The arenas on the server (ids, server name, restarts survived)."""
+        return self._remote.group
+
+    @property
+    def sim_config(self) -> dict[str, Any]:
+        """The server's resolved configuration as plain nested data."""
+        return self._remote.sim_config
+
+
+class RemoteHighwayEnv(_RemoteHandles, gym.Env):
     """One agent on one arena of a remote simulator server."""
 
     metadata = {"render_modes": [], "render_fps": 10}
@@ -115,14 +132,6 @@ class RemoteHighwayEnv(gym.Env):
         self._spec = None if value is None else dataclasses.replace(
             value, max_episode_steps=self.max_episode_steps)
 
-    @property
-    def group(self) -> ArenaGroup:
-        return self._remote.group
-
-    @property
-    def sim_config(self) -> dict[str, Any]:
-        """The server's resolved configuration as plain nested data."""
-        return self._remote.sim_config
 
     def _unpack(self, steps: Steps) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         obs = {name: value[0] for name, value in steps.observations.items()}
@@ -162,7 +171,7 @@ class RemoteHighwayEnv(gym.Env):
         self._remote.close()
 
 
-class RemoteHighwayVectorEnv(gym.vector.VectorEnv):
+class RemoteHighwayVectorEnv(_RemoteHandles, gym.vector.VectorEnv):
     """``num_envs`` arenas of a remote server, stepped together (one message each way)."""
 
     metadata = {"render_modes": [], "autoreset_mode": _NEXT_STEP}
@@ -183,14 +192,6 @@ class RemoteHighwayVectorEnv(gym.vector.VectorEnv):
         self.decision_period_s = spec.decision_period_s
         self.max_episode_steps = spec.max_episode_steps
 
-    @property
-    def group(self) -> ArenaGroup:
-        return self._remote.group
-
-    @property
-    def sim_config(self) -> dict[str, Any]:
-        """The server's resolved configuration as plain nested data."""
-        return self._remote.sim_config
 
     def _info(self, steps: Steps) -> dict[str, Any]:
         info: dict[str, Any] = {
@@ -208,14 +209,7 @@ class RemoteHighwayVectorEnv(gym.vector.VectorEnv):
 
     def reset(self, *, seed: int | Sequence[int | None] | None = None,
               options: dict[str, Any] | None = None):
-        if seed is None:
-            seeds: list[int | None] = [None] * self.num_envs
-        elif isinstance(seed, (int, np.integer)):
-            seeds = [int(seed) + i for i in range(self.num_envs)]
-        else:
-            seeds = list(seed)
-            if len(seeds) != self.num_envs:
-                raise ValueError(f"expected {self.num_envs} seeds, got {len(seeds)}")
+        seeds = arena_seeds(seed, self.num_envs)
         if seed is not None:
             self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seeds[0])
         steps = self.group.reset(tuple(range(self.num_envs)), tuple(seeds))

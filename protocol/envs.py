@@ -6,7 +6,10 @@ the entry points are strings, so registering never imports the simulator into a 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import gymnasium as gym
+import numpy as np
 
 HIGHWAY_ENV_ID = "overtake/Highway-v0"
 REMOTE_HIGHWAY_ENV_ID = "overtake/RemoteHighway-v0"
@@ -30,3 +33,19 @@ def register_environments() -> None:
             vector_entry_point="overtake.client.remote_gym:RemoteHighwayVectorEnv",
             max_episode_steps=None,
         )
+
+
+def arena_seeds(seed: int | Sequence[int | None] | None, count: int) -> list[int | None]:
+    """One seed per arena, as every overtake vector env and arena group reads ``seed``.
+
+    None: fresh entropy everywhere; an int: arena ``i`` gets ``seed + i``; a sequence: one
+    each (its length must be ``count``).
+    """
+    if seed is None:
+        return [None] * count
+    if isinstance(seed, (int, np.integer)):
+        return [int(seed) + i for i in range(count)]
+    seeds = [None if s is None else int(s) for s in seed]
+    if len(seeds) != count:
+        raise ValueError(f"expected {count} seeds (one per arena), got {len(seeds)}")
+    return seeds

@@ -23,6 +23,8 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector.utils import batch_space
 
+from overtake.protocol.envs import arena_seeds
+
 from .sim import (ACTION_COUNT, METRIC_FIELDS, REWARD_TERMS, HighwaySim, SimConfig,
                   make_config)
 from .sim.core import KMH, StepResult
@@ -186,14 +188,7 @@ class HighwayVectorEnv(gym.vector.VectorEnv):
 
     def reset(self, *, seed: int | Sequence[int | None] | None = None,
               options: dict[str, Any] | None = None):
-        if seed is None:
-            seeds: list[int | None] = [None] * self.num_envs
-        elif isinstance(seed, (int, np.integer)):
-            seeds = [int(seed) + i for i in range(self.num_envs)]
-        else:
-            seeds = list(seed)
-            if len(seeds) != self.num_envs:
-                raise ValueError(f"expected {self.num_envs} seeds, got {len(seeds)}")
+        seeds = arena_seeds(seed, self.num_envs)
         if seed is not None:
             self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seeds[0])
         self.sim.reset(seeds=seeds)

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from overtake.protocol import errors
+from overtake.protocol.envs import arena_seeds
 from overtake.protocol.messages import (ACTION_COUNT, ACTION_NAMES, DEFAULT_ACTION, Actions,
                                         BehaviourSpec, GroupStatus, ObservationSpec, Steps,
                                         WorldFrame)
@@ -94,8 +95,7 @@ class Group:
             sim = HighwaySim(config, num_arenas=len(arena_ids), agents_per_arena=agents_per_arena)
         except ValueError as error:
             raise errors.BadConfig(str(error)) from None
-        seeds = [None if seed is None else seed + i for i in range(len(arena_ids))]
-        sim.reset(seeds=seeds)
+        sim.reset(seeds=arena_seeds(seed, len(arena_ids)))
         group = cls(group_id=group_id, server=server, arena_ids=list(arena_ids), preset=preset,
                     sim=sim, spec=behaviour_spec(config, agents_per_arena))
         group.ended = np.zeros((sim.num_arenas, sim.agents), dtype=bool)
