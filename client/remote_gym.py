@@ -12,7 +12,6 @@ server or another one), and the next step (or reset) starts the new episodes.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -22,7 +21,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector.utils import batch_space
 
-from overtake.protocol.envs import arena_seeds
+from overtake.protocol.envs import ReportsEpisodeLength, arena_seeds
 from overtake.protocol.messages import ACTION_COUNT, BehaviourSpec, Scalar, Steps
 
 from .remote import ArenaGroup, Connection, OpenParams, RemoteConfig
@@ -103,7 +102,7 @@ class _RemoteHandles:
         return self._remote.sim_config
 
 
-class RemoteHighwayEnv(_RemoteHandles, gym.Env):
+class RemoteHighwayEnv(_RemoteHandles, ReportsEpisodeLength, gym.Env):
     """One agent on one arena of a remote simulator server."""
 
     metadata = {"render_modes": [], "render_fps": 10}
@@ -121,16 +120,7 @@ class RemoteHighwayEnv(_RemoteHandles, gym.Env):
         self.decision_period_s = spec.decision_period_s
         self.max_episode_steps = spec.max_episode_steps
         self.metadata = {**self.metadata, "render_fps": 1.0 / self.decision_period_s}
-        self._spec: gym.envs.registration.EnvSpec | None = None
 
-    @property
-    def spec(self) -> gym.envs.registration.EnvSpec | None:  # type: ignore[override]
-        return self._spec
-
-    @spec.setter
-    def spec(self, value: gym.envs.registration.EnvSpec | None) -> None:
-        self._spec = None if value is None else dataclasses.replace(
-            value, max_episode_steps=self.max_episode_steps)
 
 
     def _unpack(self, steps: Steps) -> tuple[dict[str, np.ndarray], dict[str, Any]]:

@@ -6,6 +6,7 @@ the entry points are strings, so registering never imports the simulator into a 
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 
 import gymnasium as gym
@@ -49,3 +50,24 @@ def arena_seeds(seed: int | Sequence[int | None] | None, count: int) -> list[int
     if len(seeds) != count:
         raise ValueError(f"expected {count} seeds (one per arena), got {len(seeds)}")
     return seeds
+
+
+class ReportsEpisodeLength:
+    """Mixed into an environment that truncates itself at ``max_episode_steps``.
+
+    ``gym.make`` sets ``env.spec`` after construction; the spec then reports the preset's own
+    episode length, which a user may override (a TimeLimit fixed at registration could not
+    follow it, so none is added).
+    """
+
+    max_episode_steps: int
+    _spec: gym.envs.registration.EnvSpec | None = None
+
+    @property
+    def spec(self) -> gym.envs.registration.EnvSpec | None:
+        return self._spec
+
+    @spec.setter
+    def spec(self, value: gym.envs.registration.EnvSpec | None) -> None:
+        self._spec = None if value is None else dataclasses.replace(
+            value, max_episode_steps=self.max_episode_steps)

@@ -23,7 +23,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector.utils import batch_space
 
-from overtake.protocol.envs import arena_seeds
+from overtake.protocol.envs import ReportsEpisodeLength, arena_seeds
 
 from .sim import (ACTION_COUNT, METRIC_FIELDS, REWARD_TERMS, HighwaySim, SimConfig,
                   make_config)
@@ -83,7 +83,7 @@ def _check_actions(actions: Any, expected_shape: tuple[int, ...]) -> np.ndarray:
     return actions.astype(np.int64)
 
 
-class HighwayEnv(gym.Env):
+class HighwayEnv(ReportsEpisodeLength, gym.Env):
     """One agent on a simulated highway (Min et al. 2018 by default)."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
@@ -101,18 +101,7 @@ class HighwayEnv(gym.Env):
         self.decision_period_s = self.config.episode.decision_period_s
         self.max_episode_steps = self.config.episode.max_decisions
         self.metadata = {**self.metadata, "render_fps": 1.0 / self.decision_period_s}
-        self._spec: gym.envs.registration.EnvSpec | None = None
 
-    @property
-    def spec(self) -> gym.envs.registration.EnvSpec | None:  # type: ignore[override]
-        return self._spec
-
-    @spec.setter
-    def spec(self, value: gym.envs.registration.EnvSpec | None) -> None:
-        # gym.make sets the spec after construction; it reports the preset's episode length
-        # (the environment truncates itself there, so no TimeLimit wrapper is added).
-        self._spec = None if value is None else dataclasses.replace(
-            value, max_episode_steps=self.max_episode_steps)
 
     def _observation(self) -> dict[str, np.ndarray]:
         return {key: value[0, 0] for key, value in self.sim.observe().items()}
