@@ -482,7 +482,7 @@ def wire_messages(remote_env: Any, arenas: int, seed: int) -> tuple[Any, Any]:
     from overtake.protocol.messages import Actions
 
     group = remote_env.unwrapped.group
-    actions = Actions(trainer=group.connection.trainer, ticket=group.ticket, group=group.group,
+    actions = Actions(trainer=group.connection.trainer, ticket=group.ticket, group=group.group_id,
                       round=group.round, agents=np.asarray(group.agents, dtype=np.int32),
                       actions=np.random.default_rng(seed).integers(5, size=arenas))
     return actions, group.last

@@ -24,7 +24,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any, TypeVar
+from typing import TypeVar
 
 import numpy as np
 import zenoh
@@ -58,18 +58,18 @@ class RemoteConfig:
     reconnect_timeout_s: float = 30.0
     """After losing the server, how long to wait for one to reopen the arenas on (0: never)."""
     lease_s: float = 3.0
+    """If this trainer's host vanishes (or it freezes), servers free its arenas within this."""
     user: str | None = None
     password: str | None = None
     trainer_name: str | None = None
     """A readable prefix for this trainer's id in server logs and status."""
 
     @classmethod
-    def from_connect(cls, connect: str | tuple[str, ...] | list[str] | None,
-                     **kwargs: Any) -> "RemoteConfig":
+    def from_connect(cls, connect: str | tuple[str, ...] | list[str] | None) -> "RemoteConfig":
+        """Defaults, with ``connect`` (one endpoint or several; None: the default)."""
         if connect is None:
-            return cls(**kwargs)
-        endpoints = (connect,) if isinstance(connect, str) else tuple(connect)
-        return cls(connect=endpoints, **kwargs)
+            return cls()
+        return cls(connect=(connect,) if isinstance(connect, str) else tuple(connect))
 
     def transport(self) -> TransportConfig:
         return TransportConfig(mode="client", connect=self.connect,
@@ -83,7 +83,7 @@ def _trainer_id(prefix: str | None) -> str:
     return f"{head}-{host or 'host'}-{os.getpid()}-{secrets.token_hex(3)}"
 
 
-def _likely_causes(config: RemoteConfig) -> str:
+def likely_causes(config: RemoteConfig) -> str:
     return ("Likely causes: no overtake-server (or Zenoh router) is running there; a wrong host "
             "or port; the server listens on loopback only (start it with --listen "
             "tcp/0.0.0.0:7447 to let other hosts in); a firewall; wrong or missing Zenoh "
@@ -101,10 +101,13 @@ class Connection:
         except zenoh.ZError as error:
             raise errors.ConnectError(
                 f"could not reach {', '.join(config.connect)} within "
-                f"{config.connect_timeout_s:g} s ({error}). {_likely_causes(config)}") from None
+                f"{config.connect_timeout_s:g} s ({error}). {likely_causes(config)}") from None
         self._inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
         self._buffered: dict[tuple[str, int], deque[Steps]] = {}
         self._errors: dict[tuple[str, int], deque[errors.ProtocolError]] = {}
+        # The (server, group) pairs this connection steps: anything else that arrives is
+        # stale or foreign and is dropped.
+        self._stepping: set[tuple[str, int]] = set()
         self._servers_alive: set[str] = set()
         self._servers_lost: set[str] = set()
         # Times each server's token disappeared: a group opened at one count is gone at the
@@ -176,18 +179,23 @@ class Connection:
                                    timeout=self.config.request_timeout_s,
                                    target=zenoh.QueryTarget.ALL)
         found: list[StatusReply] = []
+        mismatch: errors.VersionMismatch | None = None
         for reply in replies:
             if reply.ok is None:
                 continue
             try:
                 status = codec.decode(reply.ok.payload.to_bytes(), StatusReply)
-            except errors.VersionMismatch:
-                raise
+            except errors.VersionMismatch as error:
+                mismatch = error  # one old server must not hide the others
+                log.warning("ignored a server of another protocol version: %s", error)
+                continue
             except errors.ProtocolError as error:
                 log.warning("ignored a bad status reply: %s", error)
                 continue
             if isinstance(status, StatusReply):
                 found.append(status)
+        if not found and mismatch is not None:
+            raise mismatch
         return found
 
     def candidates(self, arenas: int) -> list[str]:
@@ -207,8 +215,8 @@ class Connection:
         if not statuses:
             raise errors.ConnectError(
                 f"connected to {', '.join(self.config.connect)}, but no overtake server "
-                f"answered within {self.config.request_timeout_s:g} s. "
-                + _likely_causes(self.config))
+                f"answered within {self.config.connect_timeout_s:g} s. "
+                + likely_causes(self.config))
         roomy = [s for s in statuses if s.arenas_free >= arenas]
         if not roomy:
             listing = ", ".join(f"{s.server} ({s.arenas_free} free)" for s in statuses)
@@ -229,12 +237,12 @@ class Connection:
 
     def _take(self, server: str, group: int, round_: int) -> Steps | None:
         """Round ``round_`` of ``group`` if it has arrived; older rounds are dropped."""
-        slot = self._buffered.setdefault((server, group), deque())
-        while slot:
-            steps = slot[0]
+        arrived = self._buffered.setdefault((server, group), deque())
+        while arrived:
+            steps = arrived[0]
             if steps.round > round_:
                 return None  # a later round is all there is: the caller is behind
-            slot.popleft()
+            arrived.popleft()
             if steps.round == round_:
                 return steps
             log.debug("dropped stale steps of group %d round %d", group, steps.round)
@@ -261,6 +269,11 @@ class Connection:
             steps = self._take(server, group, round_)
             if steps is not None:
                 return steps
+            later = self._buffered.get((server, group))
+            if later:
+                # Rounds come in order: a later one without ours means ours will never come.
+                raise errors.DecodeError(f"expected round {round_} of group {group} from "
+                                         f"server {server}, got round {later[0].round}")
             if self.server_lost(server) or self.epoch(server) != epoch:
                 raise errors.ServerLost(f"server {server} went away while we waited for "
                                         f"round {round_} of group {group}")
@@ -285,17 +298,27 @@ class Connection:
             log.warning("dropped an unreadable message from server %s: %s", sender, error)
             return
         if isinstance(message, ErrorReply):
-            if message.group is None:
-                # Not about any group we step (perhaps garbage sent in our name): say so only.
+            if (sender, message.group) not in self._stepping:
+                # Not about a group we step (perhaps garbage sent in our name): say so only.
                 log.warning("server %s refused a message in our name: %s", sender,
                             message.message)
                 return
             self._errors.setdefault((sender, message.group), deque()).append(
                 errors.error_from_code(message.code, f"server {sender}: {message.message}"))
             return
-        self._buffered.setdefault((message.server, message.group), deque()).append(message)
+        if message.server != sender or (sender, message.group) not in self._stepping:
+            log.warning("dropped steps of group %d from %s on server %s's key", message.group,
+                        message.server, sender)
+            return
+        self._buffered.setdefault((sender, message.group), deque()).append(message)
+
+    def track(self, server: str, group: int) -> None:
+        """Start accepting Steps and errors for ``group`` (after opening or joining it)."""
+        self.forget(server, group)
+        self._stepping.add((server, group))
 
     def forget(self, server: str, group: int) -> None:
+        self._stepping.discard((server, group))
         self._buffered.pop((server, group), None)
         self._errors.pop((server, group), None)
 
@@ -314,7 +337,7 @@ class Connection:
             pass
 
 
-@dataclass
+@dataclass(frozen=True)
 class OpenParams:
     """What was asked, kept to reopen the same arenas after a server restart."""
 
@@ -335,7 +358,7 @@ class ArenaGroup:
     connection: Connection
     params: OpenParams
     server: str = ""
-    group: int = -1
+    group_id: int = -1
     arena_ids: tuple[int, ...] = ()
     ticket: bytes = b""
     spec: BehaviourSpec | None = None
@@ -351,22 +374,25 @@ class ArenaGroup:
         group._open()
         return group
 
-    def _open(self) -> None:
+    def _open(self, reseed: bool = True) -> None:
         p, conn = self.params, self.connection
         if p.join_arena is not None:
             if conn.config.server is None:
                 raise ValueError("joining an arena needs the server's name (RemoteConfig.server)")
+            epoch = conn.epoch(conn.config.server)
             opened = conn.request(conn.config.server,
                                   JoinRequest(trainer=conn.trainer, arena=p.join_arena,
                                               agents=p.join_agents), Opened)
         else:
+            # After a restart the first episodes must not replay: reopen with fresh seeds.
             request = OpenRequest(trainer=conn.trainer, preset=p.preset,
                                   overrides=dict(p.overrides), arenas=p.arenas,
                                   agents_per_arena=p.agents_per_arena, claim=p.claim,
-                                  seed=p.seed)
+                                  seed=p.seed if reseed else None)
             last_error: errors.ProtocolError | None = None
             for server in conn.candidates(p.arenas):
                 try:
+                    epoch = conn.epoch(server)
                     opened = conn.request(server, request, Opened)
                     break
                 except (errors.ServerFull, errors.ServerLost) as error:
@@ -374,8 +400,10 @@ class ArenaGroup:
             else:
                 assert last_error is not None
                 raise last_error
-        self.epoch = conn.epoch(opened.server)
-        self.server, self.group, self.arena_ids = opened.server, opened.group, opened.arenas
+        # The epoch seen before asking: a restart between the reply and now still counts.
+        self.epoch = epoch
+        self.server, self.group_id, self.arena_ids = opened.server, opened.group, opened.arenas
+        conn.track(self.server, self.group_id)
         self.ticket, self.spec = opened.ticket, opened.spec
         self.round = opened.steps.round
         self.last = opened.steps
@@ -391,16 +419,17 @@ class ArenaGroup:
         self._pending_restart = None
         if self._server_restarted():
             self._reopen()
-        try:
-            steps = conn.request(self.server, ResetRequest(
-                trainer=conn.trainer, ticket=self.ticket, group=self.group, arenas=arenas,
-                seeds=seeds), Steps)
-        except errors.ServerLost:
-            self._reopen()
-            steps = conn.request(self.server, ResetRequest(
-                trainer=conn.trainer, ticket=self.ticket, group=self.group, arenas=arenas,
-                seeds=seeds), Steps)
-        conn.forget(self.server, self.group)
+        for attempt in (1, 2):
+            try:
+                steps = conn.request(self.server, ResetRequest(
+                    trainer=conn.trainer, ticket=self.ticket, group=self.group_id,
+                    arenas=arenas, seeds=seeds), Steps)
+                break
+            except errors.ServerLost:
+                if attempt == 2:
+                    raise
+                self._reopen()
+        conn.track(self.server, self.group_id)  # rounds stepped before the reset are stale
         self.round = steps.round
         self.last = steps
         return steps
@@ -416,16 +445,16 @@ class ArenaGroup:
         try:
             if self._server_restarted():
                 raise errors.ServerLost(f"server {self.server} restarted since group "
-                                        f"{self.group} was opened")
+                                        f"{self.group_id} was opened")
             # Behind (the group played our round at the deadline)? Then that round's Steps are
             # here already, marked late; our actions would be stale, so they are not sent.
-            steps = conn.arrived(self.server, self.group, self.round + 1)
+            steps = conn.arrived(self.server, self.group_id, self.round + 1)
             if steps is None:
                 conn.send_actions(self.server, Actions(
-                    trainer=conn.trainer, ticket=self.ticket, group=self.group,
+                    trainer=conn.trainer, ticket=self.ticket, group=self.group_id,
                     round=self.round, agents=np.asarray(agents, dtype=np.int32),
                     actions=np.asarray(actions, dtype=np.int64)))
-                steps = conn.next_steps(self.server, self.group, self.round + 1, self.epoch)
+                steps = conn.next_steps(self.server, self.group_id, self.round + 1, self.epoch)
         except errors.ServerLost as error:
             return self._survive(error)
         self.round = steps.round
@@ -451,7 +480,8 @@ class ArenaGroup:
             server=broken.server, group=broken.group, round=broken.round + 1,
             agents=broken.agents, observations=broken.observations,
             reward=np.zeros_like(broken.reward), terminated=np.zeros_like(broken.terminated),
-            truncated=np.ones_like(broken.truncated),
+            # Agents that had just ended were reported already; the rest are cut short.
+            truncated=~broken.ended,
             action_applied=np.full_like(broken.action_applied, -1),
             late=np.zeros_like(broken.late), action_mask=broken.action_mask,
             reward_terms=np.zeros_like(broken.reward_terms), metrics=broken.metrics)
@@ -460,13 +490,15 @@ class ArenaGroup:
 
     def _reopen(self) -> None:
         conn = self.connection
-        conn.forget(self.server, self.group)
+        conn.forget(self.server, self.group_id)
         deadline = time.monotonic() + conn.config.reconnect_timeout_s
         while True:
             try:
-                self._open()
+                self._open(reseed=False)
                 return
-            except (errors.ConnectError, errors.ServerLost, errors.StepTimeout) as error:
+            # Not on a timeout: the server may have opened the arenas anyway, and asking
+            # again would open them twice.
+            except (errors.ConnectError, errors.ServerLost) as error:
                 if time.monotonic() >= deadline:
                     raise errors.ServerLost(
                         f"lost server {self.server} and found no server to reopen "
@@ -476,12 +508,12 @@ class ArenaGroup:
 
     def close(self) -> None:
         conn = self.connection
-        if conn.closed or self.group < 0:
+        if conn.closed or self.group_id < 0:
             return
         try:
             conn.request(self.server, CloseRequest(trainer=conn.trainer, ticket=self.ticket,
-                                                   group=self.group), Ack)
+                                                   group=self.group_id), Ack)
         except errors.ProtocolError as error:
-            log.debug("close of group %d: %s", self.group, error)
-        conn.forget(self.server, self.group)
-        self.group = -1
+            log.debug("close of group %d: %s", self.group_id, error)
+        conn.forget(self.server, self.group_id)
+        self.group_id = -1

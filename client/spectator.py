@@ -17,7 +17,9 @@ import zenoh
 from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import WorldFrame
 
-from .remote import RemoteConfig, _likely_causes
+from overtake.protocol.transport import open_session
+
+from .remote import RemoteConfig, likely_causes
 
 log = logging.getLogger("overtake.client.spectator")
 
@@ -30,10 +32,10 @@ class Spectator:
         if arena is not None and server is None:
             raise ValueError("watching one arena needs its server's name")
         try:
-            self.session = zenoh.open(config.transport().zenoh_config())
+            self.session = open_session(config.transport())
         except zenoh.ZError as error:
             raise errors.ConnectError(f"could not reach {', '.join(config.connect)} ({error}). "
-                                      + _likely_causes(config)) from None
+                                      + likely_causes(config)) from None
         key = keys.world_all() if server is None else keys.world(server, arena)
         self._latest: dict[tuple[str, int], WorldFrame] = {}
         self._recent: deque[WorldFrame] = deque(maxlen=backlog)  # oldest dropped first

@@ -28,7 +28,8 @@ class TransportConfig:
     connect_timeout_s: float = 5.0
     """How long opening the session keeps retrying ``connect`` before giving up."""
     lease_s: float = 3.0
-    """A silent peer is declared gone after this long (its liveliness tokens vanish)."""
+    """The lease this side announces: if it falls silent (its host vanished, or it froze),
+    its peers declare it gone after this long, and its liveliness tokens vanish."""
     user: str | None = None
     """Zenoh usrpwd authentication: this side's user name (with ``password``)."""
     password: str | None = None

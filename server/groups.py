@@ -18,22 +18,24 @@ import dataclasses
 import json
 import secrets
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from overtake.protocol import errors
 from overtake.protocol.envs import arena_seeds
-from overtake.protocol.messages import (ACTION_COUNT, ACTION_NAMES, DEFAULT_ACTION, Actions,
-                                        BehaviourSpec, GroupStatus, ObservationSpec, Steps,
-                                        WorldFrame)
+from overtake.protocol.messages import (ACTION_COUNT, ACTION_NAMES, DEFAULT_ACTION,
+                                        MAX_FRAME_BYTES, Actions, BehaviourSpec, GroupStatus,
+                                        ObservationSpec, Scalar, Steps, WorldFrame)
 
 from .env import observation_space
-from .sim import METRIC_FIELDS, PRESETS, REWARD_TERMS, ConfigError, HighwaySim, make_config
+from .sim import (METRIC_FIELDS, PRESETS, REWARD_TERMS, ConfigError, HighwaySim, SimConfig,
+                  make_config)
 from .sim.core import AGENT_KIND
 
 
-def behaviour_spec(config, agents_per_arena: int) -> BehaviourSpec:
+def behaviour_spec(config: SimConfig, agents_per_arena: int) -> BehaviourSpec:
     """The spec a client needs to rebuild exactly the in-process spaces."""
     space = observation_space(config)
     observations = tuple(
@@ -48,7 +50,7 @@ def behaviour_spec(config, agents_per_arena: int) -> BehaviourSpec:
         config_json=json.dumps(dataclasses.asdict(config)))
 
 
-def resolve_config(preset: str, overrides: dict):
+def resolve_config(preset: str, overrides: Mapping[str, Scalar]) -> SimConfig:
     if preset not in PRESETS:
         raise errors.UnknownPreset(f"unknown preset {preset!r}: this server has "
                                    f"{', '.join(sorted(PRESETS))}")
@@ -65,7 +67,6 @@ class Member:
     ticket: bytes
     slots: np.ndarray                   # (A, N) bool: the agent slots it owns
     pending: Actions | None = None      # its actions for the current round
-    late_agents: int = 0
 
 
 @dataclass
@@ -86,15 +87,27 @@ class Group:
     _last_round_t: float = field(default_factory=time.monotonic)
     last_reward: np.ndarray | None = None
     last_applied: np.ndarray | None = None
+    last_observations: dict[str, np.ndarray] | None = None   # of the last round, for spectators
 
     @classmethod
     def open(cls, group_id: int, server: str, arena_ids: list[int], preset: str,
-             overrides: dict, agents_per_arena: int, seed: int | None) -> "Group":
+             overrides: Mapping[str, Scalar], agents_per_arena: int,
+             seed: int | None) -> "Group":
         config = resolve_config(preset, overrides)
         try:
             sim = HighwaySim(config, num_arenas=len(arena_ids), agents_per_arena=agents_per_arena)
         except ValueError as error:
             raise errors.BadConfig(str(error)) from None
+        # One trainer's Steps carry all its agents' observations: they must fit in a frame.
+        space = observation_space(config)
+        per_agent = sum(int(np.prod(box.shape)) * box.dtype.itemsize
+                        for box in space.spaces.values())
+        step_bytes = per_agent * sim.num_arenas * sim.agents
+        if step_bytes > MAX_FRAME_BYTES // 2:
+            raise errors.BadConfig(
+                f"{sim.num_arenas} arena(s) x {sim.agents} agent(s) x {per_agent} bytes of "
+                f"observations is {step_bytes} bytes a step, over the limit of "
+                f"{MAX_FRAME_BYTES // 2}: open fewer arenas at once or use smaller images")
         sim.reset(seeds=arena_seeds(seed, len(arena_ids)))
         group = cls(group_id=group_id, server=server, arena_ids=list(arena_ids), preset=preset,
                     sim=sim, spec=behaviour_spec(config, agents_per_arena))
@@ -135,7 +148,7 @@ class Group:
                                                     slots=np.zeros(self.shape, dtype=bool))
         member.slots[arena_index, slots] = True
         if fresh:
-            self.sim.state.active[arena_index, slots] = True
+            self.sim.restore_agents(arena_index, slots)
         else:
             self.sim.respawn_agents(arena_index, slots)
         self.ended[arena_index, slots] = False
@@ -147,8 +160,12 @@ class Group:
         member = self.members.pop(trainer, None)
         if member is None:
             return
-        for arena, slots in zip(*np.nonzero(member.slots)):
-            self.sim.remove_agents(int(arena), [int(slots)])
+        for arena, slot in zip(*np.nonzero(member.slots)):
+            self.sim.remove_agents(int(arena), [int(slot)])
+        # A car that ended its episode just before its trainer left must not come back.
+        self.ended &= ~member.slots
+        self.last_reward[member.slots] = 0.0
+        self.last_applied[member.slots] = -1
         if not any(m.pending is not None for m in self.members.values()):
             self.deadline = None
 
@@ -203,13 +220,14 @@ class Group:
         arenas, n = self.shape
         actions = np.full((arenas, n), DEFAULT_ACTION, dtype=np.int64)
         late = np.zeros((arenas, n), dtype=bool)
+        acted = np.zeros((arenas, n), dtype=bool)
         for member in self.members.values():
-            if member.pending is None:
-                late |= member.slots
-                member.late_agents += int((member.slots & ~self.ended).sum())
-            else:
+            if member.pending is not None:
                 actions.reshape(-1)[member.pending.agents] = member.pending.actions
+                acted.reshape(-1)[member.pending.agents] = True
                 member.pending = None
+            # Whoever has no action (its trainer late, or left it out) keeps its lane.
+            late |= member.slots & ~acted
         late &= ~self.ended
         self.late_agents += int(late.sum())
 
@@ -234,8 +252,9 @@ class Group:
                 sim.reset(resetting)
             stepping = np.flatnonzero(~ended[:, 0])
         else:
-            for arena in np.flatnonzero(ended.any(axis=1)):
-                slots = np.flatnonzero(ended[arena])
+            restarting = ended & self.owned()
+            for arena in np.flatnonzero(restarting.any(axis=1)):
+                slots = np.flatnonzero(restarting[arena])
                 sim.remove_agents(int(arena), slots)
                 respawn.append((int(arena), slots))
             stepping = np.arange(arenas)
@@ -294,11 +313,7 @@ class Group:
         member.pending = None
         if not any(m.pending is not None for m in self.members.values()):
             self.deadline = None
-        zeros = np.zeros(self.shape)
-        flags = np.zeros(self.shape, dtype=bool)
-        return self._steps(member.slots, zeros, flags, flags, np.full(self.shape, -1, np.int64),
-                           flags, np.zeros(self.shape + (len(REWARD_TERMS),)),
-                           self.sim.observe())
+        return self.current_steps(trainer)
 
     def current_steps(self, trainer: str) -> Steps:
         """The trainer's agents as they are now (after a claim), reward 0, no flags."""
@@ -310,7 +325,7 @@ class Group:
 
     def _steps_for_members(self, reward, terminated, truncated, applied, late, terms
                            ) -> dict[str, Steps]:
-        observations = self.sim.observe()
+        observations = self.last_observations = self.sim.observe()
         return {trainer: self._steps(member.slots, reward, terminated, truncated, applied, late,
                                      terms, observations)
                 for trainer, member in self.members.items()}

@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import os
 import queue
+import secrets
 import signal
 import socket
 import threading
@@ -32,7 +33,36 @@ from .groups import Group
 
 log = logging.getLogger("overtake.server")
 
-_WAKE = ("wake",)
+# What Zenoh's threads hand the loop: small records, decoded and checked only by the loop.
+
+
+@dataclass(frozen=True)
+class _Query:
+    query: zenoh.Query
+    payload: bytes
+
+
+@dataclass(frozen=True)
+class _ActionsPut:
+    key: str
+    payload: bytes
+
+
+@dataclass(frozen=True)
+class _Liveliness:
+    key: str
+    present: bool
+
+
+@dataclass(frozen=True)
+class _Wake:
+    """Nothing to do but look at the clock (a stop request, or a deadline)."""
+
+
+_Event = _Query | _ActionsPut | _Liveliness | _Wake
+_WAKE = _Wake()
+# Events handled before the ready groups step: bounds what a flood of messages can delay.
+MAX_EVENTS_PER_PASS = 256
 
 
 def default_server_name() -> str:
@@ -59,7 +89,8 @@ class ServerConfig:
     world_rate_hz: float = 10.0
     """World frames per second per arena for spectators (0 turns them off)."""
     lease_s: float = 3.0
-    """A vanished trainer host is noticed, and its arenas freed, within this."""
+    """Trainers notice within this that this server's host vanished (a trainer's own lease,
+    RemoteConfig.lease_s, bounds how soon its arenas are freed when its host vanishes)."""
     user: str | None = None
     password: str | None = None
     credentials_file: str | None = None
@@ -90,13 +121,12 @@ class SimulatorServer:
             raise ValueError(f"step_deadline_s must be > 0, got {config.step_deadline_s}")
         self.config = config
         self.name = config.name
-        self._events: queue.SimpleQueue[tuple[Any, ...]] = queue.SimpleQueue()
+        self._events: queue.SimpleQueue[_Event] = queue.SimpleQueue()
         self._stopping = threading.Event()
         self._own_session = session is None
         self.session = session if session is not None else open_session(config.transport())
         self.groups: dict[int, Group] = {}
         self._arena_index: dict[int, tuple[int, int]] = {}   # arena id -> (group, index)
-        self._next_group = 0
         self._next_arena = 0
         self._alive_trainers: set[str] = set()
         self._step_pubs: dict[str, zenoh.Publisher] = {}
@@ -117,15 +147,15 @@ class SimulatorServer:
         s = self.session
         self._declared.append(s.declare_queryable(
             keys.server_request(self.name),
-            lambda q: self._events.put(("query", q, q.payload.to_bytes() if q.payload else b""))))
+            lambda q: self._events.put(_Query(q, q.payload.to_bytes() if q.payload else b""))))
         self._declared.append(s.declare_subscriber(
             keys.server_actions_all(self.name),
-            lambda sample: self._events.put(("actions", str(sample.key_expr),
-                                             sample.payload.to_bytes()))))
+            lambda sample: self._events.put(_ActionsPut(str(sample.key_expr),
+                                                        sample.payload.to_bytes()))))
         self._declared.append(s.liveliness().declare_subscriber(
             keys.ALL_TRAINERS_ALIVE,
-            lambda sample: self._events.put(("alive", str(sample.key_expr),
-                                             sample.kind == zenoh.SampleKind.PUT)),
+            lambda sample: self._events.put(_Liveliness(str(sample.key_expr),
+                                                        sample.kind == zenoh.SampleKind.PUT)),
             history=True))
         self._token = s.liveliness().declare_token(keys.server_alive(self.name))
 
@@ -147,8 +177,9 @@ class SimulatorServer:
                 except queue.Empty:
                     event = _WAKE
                 self._handle(event)
-                # Drain what else has arrived before stepping: batched arrivals step once.
-                while True:
+                # Take what else has arrived before stepping (arrivals together step once),
+                # but not without bound: a flood must not keep the groups from stepping.
+                for _ in range(MAX_EVENTS_PER_PASS):
                     try:
                         self._handle(self._events.get_nowait())
                     except queue.Empty:
@@ -178,17 +209,16 @@ class SimulatorServer:
             return 1.0
         return min(max(min(deadlines) - time.monotonic(), 0.0), 1.0)
 
-    def _handle(self, event: tuple[Any, ...]) -> None:
-        kind = event[0]
+    def _handle(self, event: _Event) -> None:
         try:
-            if kind == "query":
-                self._on_query(event[1], event[2])
-            elif kind == "actions":
-                self._on_actions(event[1], event[2])
-            elif kind == "alive":
-                self._on_alive(event[1], event[2])
+            if isinstance(event, _Query):
+                self._on_query(event.query, event.payload)
+            elif isinstance(event, _ActionsPut):
+                self._on_actions(event.key, event.payload)
+            elif isinstance(event, _Liveliness):
+                self._on_alive(event.key, event.present)
         except Exception:  # the loop must survive anything; a bug shows as a log line
-            log.exception("unexpected error handling %s", kind)
+            log.exception("unexpected error handling %s", type(event).__name__)
 
     # --- requests -------------------------------------------------------------------------------
 
@@ -201,11 +231,17 @@ class SimulatorServer:
             request = codec.decode(payload, (StatusRequest, OpenRequest, JoinRequest,
                                              ResetRequest, CloseRequest))
             if isinstance(request, ErrorReply):
-                raise errors.DecodeError("an error reply is not a request")
+                raise errors.DecodeError("expected a request (status_request, open, join, "
+                                         "reset or close), got an error reply")
             reply = self._dispatch(request)
         except errors.ProtocolError as error:
             log.info("refused a request: %s", error)
             reply = ErrorReply(code=error.code, message=str(error))
+        except Exception as error:  # a bug here must still answer, not leave the asker waiting
+            log.exception("failed to serve a request")
+            reply = ErrorReply(code=errors.ProtocolError.code,
+                               message=f"server {self.name} failed: {type(error).__name__}: "
+                                       f"{error}")
         self._reply(query, reply)
 
     def _dispatch(self, request: Message) -> Message:
@@ -250,19 +286,28 @@ class SimulatorServer:
             raise errors.ServerFull(f"server {self.name} has {free} free arena(s) of "
                                     f"{self.config.max_arenas}, asked for {request.arenas}")
         arena_ids = list(range(self._next_arena, self._next_arena + request.arenas))
-        group = Group.open(self._next_group, self.name, arena_ids, request.preset,
+        group = Group.open(self._new_group_id(), self.name, arena_ids, request.preset,
                            dict(request.overrides), request.agents_per_arena, request.seed)
         for index in range(request.arenas):
             group.claim(request.trainer, index, request.claim, fresh=True)
+        opened = self._opened(group, request.trainer)
+        # Registered only once the reply exists: a failure above leaves nothing behind.
         self._next_arena += request.arenas
-        self._next_group += 1
         self.groups[group.group_id] = group
         for index, arena in enumerate(arena_ids):
             self._arena_index[arena] = (group.group_id, index)
         log.info("trainer %s opened group %d: %d arena(s) %s of %s, %d agent(s) each",
                  request.trainer, group.group_id, request.arenas,
                  _span(arena_ids), request.preset, request.agents_per_arena)
-        return self._opened(group, request.trainer)
+        return opened
+
+    def _new_group_id(self) -> int:
+        # Random rather than counted: a restarted server never reuses the id of a group its
+        # previous life served, so late messages about the old one cannot be mistaken.
+        while True:
+            group_id = secrets.randbelow(2**31)
+            if group_id not in self.groups:
+                return group_id
 
     def _join(self, request: JoinRequest) -> Opened:
         self._require_alive(request.trainer)
@@ -325,10 +370,24 @@ class SimulatorServer:
         for group in list(self.groups.values()):
             if not group.ready(now):
                 continue
-            steps = group.step()
-            for trainer, message in steps.items():
-                self._send(trainer, message)
-            self._publish_world(group, now)
+            try:
+                steps = group.step()
+                for trainer, message in steps.items():
+                    self._send(trainer, message)
+                self._publish_world(group, now)
+            except Exception as error:
+                # One group's failure is that group's end, not the server's.
+                log.exception("group %d failed to step; closing it", group.group_id)
+                reply = ErrorReply(code=errors.ProtocolError.code, group=group.group_id,
+                                   message=f"server {self.name} closed group "
+                                           f"{group.group_id} after an internal error: "
+                                           f"{type(error).__name__}: {error}")
+                for trainer in list(group.members):
+                    try:
+                        self._send(trainer, reply)
+                    except Exception:  # pragma: no cover - the session itself is failing
+                        log.exception("could not tell %s", trainer)
+                    self._leave(group, trainer, "internal error")
 
     def _publisher_for(self, trainer: str) -> zenoh.Publisher:
         pub = self._step_pubs.get(trainer)
@@ -363,7 +422,7 @@ class SimulatorServer:
             if not pub.matching_status.matching:
                 continue  # nobody watches this arena: no frame is even encoded
             if observations is None:
-                observations = group.sim.observe()
+                observations = group.last_observations or group.sim.observe()
             pub.put(codec.encode(group.world_frame(index, observations)))
 
     # --- trainers leaving ---------------------------------------------------------------------

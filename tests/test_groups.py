@@ -159,3 +159,55 @@ def test_leaving_takes_the_cars_off_and_frees_the_slot():
     assert group.sim.agents_present()[0].tolist() == [True, False, False]
     group.claim("c", 0, 2, fresh=False)
     assert set(group.members) == {"a", "c"}
+
+
+def _all_act(group: Group) -> None:
+    for name, member in group.members.items():
+        agents = np.flatnonzero(member.slots & ~group.ended)
+        group.accept(_actions(group, name, agents, np.zeros(agents.size, np.int64)), 1.0)
+
+
+def test_a_car_that_ended_as_its_trainer_left_stays_off_the_road():
+    group = _shared(agents=2, overrides=QUIET)
+    group.claim("b", 0, 1, fresh=False)
+    group.ended[0, 1] = True          # b's episode just ended...
+    group.leave("b")                  # ...and b left before its next action
+    for _ in range(3):
+        _all_act(group)
+        group.step()
+        assert group.sim.agents_present()[0].tolist() == [True, False]
+
+
+def test_a_respawned_car_is_not_an_overtake_for_the_others():
+    group = _shared(agents=2, overrides=QUIET)
+    group.claim("b", 0, 1, fresh=False)
+    st = group.sim.state
+    st.x_m[0, 1] = st.x_m[0, 0] + 80.0   # b far ahead of a
+    group.sim._start_tracking(st, np.ones_like(st.active))
+    group.ended[0, 1] = True             # b restarts behind a on the next round
+    for _ in range(2):
+        _all_act(group)
+        steps = group.step()
+        assert steps["a"].reward_terms[0, 3] == 0.0, "a was paid for b's respawn"  # overtake
+        assert steps["a"].metrics[0, 2] == 0  # a's overtakes this episode
+
+
+def test_agents_left_out_of_a_trainers_actions_are_marked_late():
+    group = Group.open(0, "srv", [0, 1], "min2018", dict(QUIET), 1, seed=3)
+    group.claim("a", 0, 1, fresh=True)
+    group.claim("a", 1, 1, fresh=True)
+    group.accept(_actions(group, "a", [0], [1]), deadline_s=1.0)
+    steps = group.step()["a"]
+    assert steps.late.tolist() == [False, True]
+    assert steps.action_applied.tolist() == [1, 0]
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_respawn_takes_the_nearest_free_spot_over_all_lanes(seed):
+    group = Group.open(0, "srv", [7], "min2018", dict(QUIET), 2, seed=seed)
+    group.claim("a", 0, 1, fresh=True)
+    group.claim("b", 0, 1, fresh=False)
+    # On an empty road some lane is free 30 m behind a: whatever lane order the arena's
+    # generator draws, b lands 30 m back rather than farther back in the first lane tried.
+    st = group.sim.state
+    assert st.x_m[0, 1] == st.x_m[0, 0] - 30.0

@@ -360,7 +360,7 @@ def test_world_frames_show_the_arena_and_the_trainers_observations(start_server)
             assert not problems, problems
             matched = 0
             for frame in frames:
-                assert frame.server == server.name and frame.group == group.group
+                assert frame.server == server.name and frame.group == group.group_id
                 assert frame.arena == group.arena_ids[0]
                 v = frame.x_m.shape[0]
                 assert v > 1  # the agent and traffic

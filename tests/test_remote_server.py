@@ -371,19 +371,19 @@ def test_hostile_input_is_refused_and_harms_nobody(start_server):
                 agents=np.array([0], np.int32), actions=np.array([1]))), "unknown_arena")
             refused_actions(rng.bytes(32), "bad_message")
             assert "[7]" in refused_actions(_actions_frame(
-                "hostile", made_up, victim.group.group, victim.group.round, [0], [7]),
+                "hostile", made_up, victim.group.group_id, victim.group.round, [0], [7]),
                 "bad_message")
-            refused_actions(_actions_frame("hostile", made_up, victim.group.group,
+            refused_actions(_actions_frame("hostile", made_up, victim.group.group_id,
                                            victim.group.round, [0, 0], [1, 1]), "bad_message")
             # Actions for another trainer's group, on our own key with a made-up ticket.
             refused_actions(codec.encode(Actions(
-                trainer="hostile", ticket=made_up, group=victim.group.group,
+                trainer="hostile", ticket=made_up, group=victim.group.group_id,
                 round=victim.group.round, agents=np.array([0], np.int32),
                 actions=np.array([3]))), "not_owner")
             # Actions that claim to be the victim's, on our key: dropped, logged.
             raw.put(actions_key, codec.encode(Actions(
                 trainer=victim.group.connection.trainer, ticket=made_up,
-                group=victim.group.group, round=victim.group.round,
+                group=victim.group.group_id, round=victim.group.round,
                 agents=np.array([0], np.int32), actions=np.array([3]))))
             server.wait_log("claim to come from", 5)
             victim_steps()
@@ -412,7 +412,7 @@ def test_spoofed_actions_on_a_trainers_key_do_not_break_its_steps(start_server):
         victim.step()
         with RawClient(server.endpoint) as raw:
             raw.put(keys.server_actions(server.name, trainer), codec.encode(Actions(
-                trainer=trainer, ticket=secrets.token_bytes(16), group=victim.group.group,
+                trainer=trainer, ticket=secrets.token_bytes(16), group=victim.group.group_id,
                 round=victim.group.round, agents=np.array([0], np.int32),
                 actions=np.array([3]))))
             server.wait_log("wrong ticket", 5)

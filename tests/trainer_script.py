@@ -84,7 +84,7 @@ class Trainer:
     def ready(self) -> None:
         group = self.env.group
         steps = self.env.steps
-        emit("READY", trainer=group.connection.trainer, server=group.server, group=group.group,
+        emit("READY", trainer=group.connection.trainer, server=group.server, group=group.group_id,
              arena_ids=list(group.arena_ids), agents=steps.agents, round=group.round,
              observations=[s.name for s in self.env.behavior_specs[self.name].observation_specs])
 

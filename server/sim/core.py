@@ -214,6 +214,10 @@ class HighwaySim:
         """
         self.state.active[arena, np.asarray(slots, dtype=np.int64)] = False
 
+    def restore_agents(self, arena: int, slots: list[int] | np.ndarray) -> None:
+        """Put removed cars back where the arena's last reset placed them (right after it)."""
+        self.state.active[arena, np.asarray(slots, dtype=np.int64)] = True
+
     def respawn_agents(self, arena: int, slots: list[int] | np.ndarray) -> None:
         """Start new episodes for some agents of ``arena`` while the road goes on.
 
@@ -231,8 +235,9 @@ class HighwaySim:
             base = st.x_m[arena, present].min() if present.size else st.x_m[arena, slot]
             lanes = rng.permutation(self.lane_count)
             offsets = -30.0 * np.arange(1, 9)
-            lane = np.repeat(lanes, offsets.size)[None, :]
-            x = (base + np.tile(offsets, lanes.size))[None, :]
+            # Every lane at 30 m back, then every lane at 60 m, ...: the nearest free spot.
+            lane = np.tile(lanes, offsets.size)[None, :]
+            x = (base + np.repeat(offsets, lanes.size))[None, :]
             ok = self._clearance_ok(st, row, lane, x, np.full(lane.shape, speed),
                                     np.full(lane.shape, AGENT_KIND), st.active[row])[0]
             # With no comfortable gap anywhere, the last spot tried (farthest back) is used.
@@ -247,8 +252,12 @@ class HighwaySim:
             for name in ("agent_decisions", "braking", "distance_m", "lane_changes", "overtakes",
                          "collisions", "emergency_brakes", "episode_return"):
                 getattr(st, name)[arena, slot] = 0
+            # Overtake tracking starts afresh both ways: what this car has ahead of it, and
+            # whether it is ahead of each other agent (a respawn is never a pass).
             st.ahead[arena, slot] = st.x_m[arena] > st.x_m[arena, slot]
             st.credited[arena, slot] = False
+            st.ahead[arena, :n, slot] = st.x_m[arena, slot] > st.x_m[arena, :n]
+            st.credited[arena, :n, slot] = False
 
     def _reset_arena(self, row: int) -> None:
         rng = self.rngs[row]
