@@ -21,7 +21,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector.utils import batch_space
 
-from overtake.protocol.envs import ReportsEpisodeLength, arena_seeds
+from overtake.protocol.envs import ReportsEpisodeLength, arena_seeds, check_actions
 from overtake.protocol.messages import ACTION_COUNT, BehaviourSpec, Scalar, Steps
 
 from .remote import ArenaGroup, Connection, OpenParams, RemoteConfig
@@ -37,20 +37,6 @@ def spaces_from_spec(spec: BehaviourSpec) -> spaces.Dict:
     """The Dict observation space a behaviour spec describes."""
     return spaces.Dict({o.name: spaces.Box(low=o.low, high=o.high, shape=o.shape,
                                            dtype=np.dtype(o.dtype)) for o in spec.observations})
-
-
-def _check_actions(actions: Any, count: int) -> np.ndarray:
-    """Integer actions in range, as an int64 array of ``count`` (a scalar when count is 1)."""
-    values = np.asarray(actions)
-    if count == 1 and values.ndim == 0:
-        values = values.reshape(1)
-    if values.shape != (count,) or not np.issubdtype(values.dtype, np.integer):
-        wanted = "an integer action" if count == 1 else f"{count} integer actions"
-        raise ValueError(f"expected {wanted} in [0, {ACTION_COUNT}), got {actions!r}")
-    if values.min() < 0 or values.max() >= ACTION_COUNT:
-        raise ValueError(f"actions must be in [0, {ACTION_COUNT}) (keep, cruise up, cruise down, "
-                         f"lane left, lane right), got {values.tolist()}")
-    return values.astype(np.int64)
 
 
 class _Remote:
@@ -143,7 +129,7 @@ class RemoteHighwayEnv(_RemoteHandles, ReportsEpisodeLength, gym.Env):
         return self._unpack(steps)
 
     def step(self, action):
-        actions = _check_actions(action, 1)
+        actions = check_actions(action, 1, single=True)
         restarts = self.group.restarts
         steps = self.group.step(self.group.agents, actions)
         obs, info = self._unpack(steps)
@@ -206,7 +192,7 @@ class RemoteHighwayVectorEnv(_RemoteHandles, gym.vector.VectorEnv):
         return dict(steps.observations), self._info(steps)
 
     def step(self, actions):
-        actions = _check_actions(actions, self.num_envs)
+        actions = check_actions(actions, self.num_envs, single=False)
         restarts = self.group.restarts
         steps = self.group.step(self.group.agents, actions)
         info = self._info(steps)

@@ -9,8 +9,12 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 
+from typing import Any
+
 import gymnasium as gym
 import numpy as np
+
+from .messages import ACTION_COUNT
 
 HIGHWAY_ENV_ID = "overtake/Highway-v0"
 REMOTE_HIGHWAY_ENV_ID = "overtake/RemoteHighway-v0"
@@ -71,3 +75,22 @@ class ReportsEpisodeLength:
     def spec(self, value: gym.envs.registration.EnvSpec | None) -> None:
         self._spec = None if value is None else dataclasses.replace(
             value, max_episode_steps=self.max_episode_steps)
+
+
+def check_actions(actions: Any, count: int, *, single: bool) -> np.ndarray:
+    """Integer actions in [0, ACTION_COUNT) as an int64 array of ``count``.
+
+    ``single``: a single environment, whose one action may be a plain integer.
+    """
+    if single and isinstance(actions, (int, np.integer)) and 0 <= actions < ACTION_COUNT:
+        return np.array([actions], dtype=np.int64)  # the single env's common case, cheaply
+    values = np.asarray(actions)
+    if single and values.size == 1 and values.ndim <= 2:
+        values = values.reshape(1)  # 3, [3] and [[3]] all mean action 3
+    if values.shape != (count,) or not np.issubdtype(values.dtype, np.integer):
+        wanted = "an integer action" if single else f"integer actions of shape ({count},)"
+        raise ValueError(f"expected {wanted} in [0, {ACTION_COUNT}), got {actions!r}")
+    if values.size and (values.min() < 0 or values.max() >= ACTION_COUNT):
+        raise ValueError(f"actions must be in [0, {ACTION_COUNT}) (keep, cruise up, cruise down, "
+                         f"lane left, lane right), got {values.tolist()}")
+    return values.astype(np.int64)

@@ -23,7 +23,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector.utils import batch_space
 
-from overtake.protocol.envs import ReportsEpisodeLength, arena_seeds
+from overtake.protocol.envs import ReportsEpisodeLength, arena_seeds, check_actions
 
 from .sim import (ACTION_COUNT, METRIC_FIELDS, REWARD_TERMS, HighwaySim, SimConfig,
                   make_config)
@@ -64,23 +64,6 @@ def observation_space(config: SimConfig) -> spaces.Dict:
     high = np.array([100.0, cruise_hi, lanes - 1, 12.0, 1.0, 1.0], dtype=np.float32)
     items["ego"] = spaces.Box(low, high, (6,), np.float32)
     return spaces.Dict(items)
-
-
-def _check_actions(actions: Any, expected_shape: tuple[int, ...]) -> np.ndarray:
-    """Integer actions in range, as int64 of ``expected_shape`` (a scalar fills a (1, 1) one)."""
-    single = expected_shape == (1, 1)
-    if single and isinstance(actions, (int, np.integer)) and 0 <= actions < ACTION_COUNT:
-        return np.array([[actions]], dtype=np.int64)  # the single env's common case, cheaply
-    actions = np.asarray(actions)
-    if single and actions.ndim == 0:
-        actions = actions.reshape(1, 1)
-    if actions.shape != expected_shape or not np.issubdtype(actions.dtype, np.integer):
-        raise ValueError(f"expected integer action(s) of shape {expected_shape} in "
-                         f"[0, {ACTION_COUNT}), got {actions!r}")
-    if actions.size and (actions.min() < 0 or actions.max() >= ACTION_COUNT):
-        raise ValueError(f"actions must be in [0, {ACTION_COUNT}) (keep, cruise up, cruise down, "
-                         f"lane left, lane right), got {actions.tolist()}")
-    return actions.astype(np.int64)
 
 
 class HighwayEnv(ReportsEpisodeLength, gym.Env):
@@ -124,7 +107,7 @@ class HighwayEnv(ReportsEpisodeLength, gym.Env):
         return self._observation(), self._info(None)
 
     def step(self, action):
-        result = self.sim.step(_check_actions(action, (1, 1)))
+        result = self.sim.step(check_actions(action, 1, single=True).reshape(1, 1))
         info = self._info(result)
         return (self._observation(), float(result.reward[0, 0]), bool(result.terminated[0, 0]),
                 bool(result.truncated[0, 0]), info)
@@ -189,7 +172,7 @@ class HighwayVectorEnv(gym.vector.VectorEnv):
         return self._observations(), info
 
     def step(self, actions):
-        actions = _check_actions(actions, (self.num_envs,))
+        actions = check_actions(actions, self.num_envs, single=False)
         n = self.num_envs
         resetting = np.flatnonzero(self._autoreset)
         stepping = np.flatnonzero(~self._autoreset)
