@@ -116,7 +116,8 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
         config.json_out.parent.mkdir(parents=True, exist_ok=True)
         config.json_out.write_text(json.dumps(
             {"policy": config.policy, "preset": config.preset, "seed": config.seed,
-             "overrides": overrides, "episodes": [dict(zip(METRIC_COLUMNS, r)) for r in table.tolist()],
+             "overrides": overrides,
+             "episodes": [dict(zip(METRIC_COLUMNS, r)) for r in table.tolist()],
              "summary": summary}, indent=2))
     return summary
 

@@ -67,7 +67,8 @@ class RuleDriver:
     def act(self, lidar: np.ndarray, ego: np.ndarray, action_mask: np.ndarray) -> np.ndarray:
         """Actions (B,) for observations lidar (B, R), ego (B, 6) and action masks (B, 5)."""
         cfg = self.config
-        lidar, ego, action_mask = np.atleast_2d(lidar), np.atleast_2d(ego), np.atleast_2d(action_mask)
+        lidar, ego = np.atleast_2d(lidar), np.atleast_2d(ego)
+        action_mask = np.atleast_2d(action_mask)
         free, clear = self.free_distance(lidar)
         own = free[:, 1]
         blocked = own < cfg.blocked_ahead_m

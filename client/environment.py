@@ -21,9 +21,10 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from overtake.protocol.envs import arena_seeds
-from overtake.protocol.messages import ACTION_COUNT, DEFAULT_ACTION, Scalar, Steps
+from overtake.protocol.messages import (ACTION_COUNT, DEFAULT_ACTION, JoinRequest,
+                                        OpenRequest, Scalar, Steps)
 
-from .remote import ArenaGroup, Connection, OpenParams, RemoteConfig
+from .remote import ArenaGroup, Connection, RemoteConfig
 
 
 class ObservationSpec(NamedTuple):
@@ -160,11 +161,16 @@ class RemoteEnvironment:
             raise ValueError("pass either connect or a RemoteConfig, not both")
         self._connection = Connection(config)
         try:
-            params = OpenParams(preset=preset, overrides=dict(overrides or {}), arenas=arenas,
-                                agents_per_arena=agents_per_arena,
-                                claim=agents_per_arena if claim is None else claim, seed=seed,
-                                join_arena=join)
-            self.group = ArenaGroup.open(self._connection, params)
+            trainer = self._connection.trainer
+            request: OpenRequest | JoinRequest
+            if join is not None:
+                request = JoinRequest(trainer=trainer, arena=join, agents=1)
+            else:
+                request = OpenRequest(
+                    trainer=trainer, preset=preset, overrides=dict(overrides or {}),
+                    arenas=arenas, agents_per_arena=agents_per_arena,
+                    claim=agents_per_arena if claim is None else claim, seed=seed)
+            self.group = ArenaGroup.open(self._connection, request)
         except BaseException:
             self._connection.close()
             raise

@@ -15,6 +15,7 @@ the meantime passes the request on to the next.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import queue
@@ -32,7 +33,7 @@ import zenoh
 from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import (Ack, Actions, BehaviourSpec, CloseRequest, ErrorReply,
                                         JoinRequest, Message, Opened, OpenRequest,
-                                        ResetRequest, Scalar, StatusReply, StatusRequest,
+                                        ResetRequest, StatusReply, StatusRequest,
                                         Steps)
 from overtake.protocol.transport import DEFAULT_ENDPOINT, TransportConfig, open_session
 
@@ -108,7 +109,6 @@ class Connection:
         # The (server, group) pairs this connection steps: anything else that arrives is
         # stale or foreign and is dropped.
         self._stepping: set[tuple[str, int]] = set()
-        self._servers_alive: set[str] = set()
         self._servers_lost: set[str] = set()
         # Times each server's token disappeared: a group opened at one count is gone at the
         # next, even if a restarted server of the same name is back by the time we look.
@@ -131,11 +131,9 @@ class Connection:
             return
         with self._lock:
             if sample.kind == zenoh.SampleKind.PUT:
-                self._servers_alive.add(server)
                 self._servers_lost.discard(server)
                 self._server_appeared.set()
             else:
-                self._servers_alive.discard(server)
                 self._servers_lost.add(server)
                 self._server_epoch[server] = self._server_epoch.get(server, 0) + 1
         self._inbox.put(("", b""))  # wake a waiter
@@ -337,26 +335,13 @@ class Connection:
             pass
 
 
-@dataclass(frozen=True)
-class OpenParams:
-    """What was asked, kept to reopen the same arenas after a server restart."""
-
-    preset: str
-    overrides: dict[str, Scalar]
-    arenas: int
-    agents_per_arena: int
-    claim: int
-    seed: int | None
-    join_arena: int | None = None
-    join_agents: int = 1
-
-
 @dataclass
 class ArenaGroup:
     """Arenas opened (or joined) in one request, stepped in lock step."""
 
     connection: Connection
-    params: OpenParams
+    request: OpenRequest | JoinRequest
+    """What was asked: kept to reopen the same arenas after a server restart."""
     server: str = ""
     group_id: int = -1
     arena_ids: tuple[int, ...] = ()
@@ -369,28 +354,29 @@ class ArenaGroup:
     epoch: int = 0   # the server's epoch (Connection.epoch) when the group was opened
 
     @classmethod
-    def open(cls, connection: Connection, params: OpenParams) -> "ArenaGroup":
-        group = cls(connection=connection, params=params)
+    def open(cls, connection: Connection, request: OpenRequest | JoinRequest) -> "ArenaGroup":
+        """Open (or join) on the server the module's rule picks; ``request.trainer`` must be
+        ``connection.trainer``."""
+        if request.trainer != connection.trainer:
+            raise ValueError(f"the request names trainer {request.trainer!r}, but this "
+                             f"connection is {connection.trainer!r}")
+        group = cls(connection=connection, request=request)
         group._open()
         return group
 
     def _open(self, reseed: bool = True) -> None:
-        p, conn = self.params, self.connection
-        if p.join_arena is not None:
+        request, conn = self.request, self.connection
+        if isinstance(request, JoinRequest):
             if conn.config.server is None:
                 raise ValueError("joining an arena needs the server's name (RemoteConfig.server)")
             epoch = conn.epoch(conn.config.server)
-            opened = conn.request(conn.config.server,
-                                  JoinRequest(trainer=conn.trainer, arena=p.join_arena,
-                                              agents=p.join_agents), Opened)
+            opened = conn.request(conn.config.server, request, Opened)
         else:
-            # After a restart the first episodes must not replay: reopen with fresh seeds.
-            request = OpenRequest(trainer=conn.trainer, preset=p.preset,
-                                  overrides=dict(p.overrides), arenas=p.arenas,
-                                  agents_per_arena=p.agents_per_arena, claim=p.claim,
-                                  seed=p.seed if reseed else None)
+            if not reseed:
+                # After a restart the first episodes must not replay: fresh seeds.
+                request = dataclasses.replace(request, seed=None)
             last_error: errors.ProtocolError | None = None
-            for server in conn.candidates(p.arenas):
+            for server in conn.candidates(request.arenas):
                 try:
                     epoch = conn.epoch(server)
                     opened = conn.request(server, request, Opened)
@@ -466,7 +452,7 @@ class ArenaGroup:
 
     def _survive(self, error: errors.ServerLost) -> Steps:
         """Reopen our arenas elsewhere (or on the restarted server); the episodes broke."""
-        if self.params.join_arena is not None or self.connection.config.reconnect_timeout_s <= 0:
+        if isinstance(self.request, JoinRequest) or self.connection.config.reconnect_timeout_s <= 0:
             raise error
         broken = self.last
         assert broken is not None

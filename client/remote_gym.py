@@ -22,9 +22,9 @@ from gymnasium import spaces
 from gymnasium.vector.utils import batch_space
 
 from overtake.protocol.envs import ReportsEpisodeLength, arena_seeds, check_actions
-from overtake.protocol.messages import ACTION_COUNT, BehaviourSpec, Scalar, Steps
+from overtake.protocol.messages import ACTION_COUNT, BehaviourSpec, OpenRequest, Scalar, Steps
 
-from .remote import ArenaGroup, Connection, OpenParams, RemoteConfig
+from .remote import ArenaGroup, Connection, RemoteConfig
 
 try:  # Gymnasium >= 1.1 names the autoreset modes; 1.0 only has next-step autoreset.
     from gymnasium.vector import AutoresetMode
@@ -52,9 +52,10 @@ class _Remote:
             raise ValueError("pass either connect or remote (a RemoteConfig), not both")
         self.connection = Connection(remote)
         try:
-            self.group = ArenaGroup.open(self.connection, OpenParams(
-                preset=preset, overrides=dict(overrides or {}), arenas=arenas,
-                agents_per_arena=1, claim=1, seed=seed))
+            self.group = ArenaGroup.open(self.connection, OpenRequest(
+                trainer=self.connection.trainer, preset=preset,
+                overrides=dict(overrides or {}), arenas=arenas, agents_per_arena=1, claim=1,
+                seed=seed))
         except BaseException:
             self.connection.close()
             raise

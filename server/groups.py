@@ -317,21 +317,30 @@ class Group:
 
     def current_steps(self, trainer: str) -> Steps:
         """The trainer's agents as they are now (after a claim), reward 0, no flags."""
-        member = self.members[trainer]
         flags = np.zeros(self.shape, dtype=bool)
-        return self._steps(member.slots, np.zeros(self.shape), flags, flags,
-                           np.full(self.shape, -1, np.int64), flags,
-                           np.zeros(self.shape + (len(REWARD_TERMS),)), self.sim.observe())
+        return self._steps(self.members[trainer].slots, self._arena_view(), np.zeros(self.shape),
+                           flags, flags, np.full(self.shape, -1, np.int64), flags,
+                           np.zeros(self.shape + (len(REWARD_TERMS),)))
 
     def _steps_for_members(self, reward, terminated, truncated, applied, late, terms
                            ) -> dict[str, Steps]:
-        observations = self.last_observations = self.sim.observe()
-        return {trainer: self._steps(member.slots, reward, terminated, truncated, applied, late,
-                                     terms, observations)
+        view = self._arena_view()
+        self.last_observations = view[0]
+        return {trainer: self._steps(member.slots, view, reward, terminated, truncated, applied,
+                                     late, terms)
                 for trainer, member in self.members.items()}
 
-    def _steps(self, slots: np.ndarray, reward, terminated, truncated, applied, late, terms,
-               observations: dict[str, np.ndarray]) -> Steps:
+    def _arena_view(self) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
+        """What every member's Steps share, computed once per round: observations, action
+        masks and the metrics table (A, N, fields)."""
+        metrics = self.sim.metrics()
+        table = np.stack([metrics[name] for name in METRIC_FIELDS], axis=-1).astype(np.float64)
+        return self.sim.observe(), self.sim.action_mask(), table
+
+    def _steps(self, slots: np.ndarray,
+               view: tuple[dict[str, np.ndarray], np.ndarray, np.ndarray],
+               reward, terminated, truncated, applied, late, terms) -> Steps:
+        observations, action_mask, table = view
         arenas, n = self.shape
         total = arenas * n
         everyone = bool(slots.all())
@@ -341,8 +350,6 @@ class Group:
             value = value.reshape((total,) + value.shape[2:])
             return value if everyone else value[flat]
 
-        metrics = self.sim.metrics()
-        table = np.stack([metrics[name] for name in METRIC_FIELDS], axis=-1).astype(np.float64)
         # Built from the simulation's own arrays, whose dtypes and shapes the spec fixes: the
         # per-field checks that guard decoding are skipped on this hot path (a test decodes
         # these messages and so checks them).
@@ -351,9 +358,8 @@ class Group:
             agents=flat.astype(np.int32),
             observations={name: rows(value) for name, value in observations.items()},
             reward=rows(reward), terminated=rows(terminated), truncated=rows(truncated),
-            action_applied=rows(applied), late=rows(late),
-            action_mask=rows(self.sim.action_mask()), reward_terms=rows(terms),
-            metrics=rows(table))
+            action_applied=rows(applied), late=rows(late), action_mask=rows(action_mask),
+            reward_terms=rows(terms), metrics=rows(table))
 
     # --- views ------------------------------------------------------------------------------
 
