@@ -23,7 +23,7 @@ import numpy as np
 
 from .errors import DecodeError, ProtocolError, VersionMismatch
 from .messages import (MAX_ARRAY_DIMS, MAX_FRAME_BYTES, MAX_TEXT_CHARS, MESSAGE_TYPES,
-                       PROTOCOL_VERSION, WIRE_DTYPES, Message, Part)
+                       PROTOCOL_VERSION, WIRE_DTYPES, Message)
 
 M = TypeVar("M", bound=Message)
 
@@ -36,38 +36,80 @@ def version_text(version: tuple[int, int] = PROTOCOL_VERSION) -> str:
 
 # --- encoding ---------------------------------------------------------------------------------
 
-def _plain(value: Any) -> Any:
-    if isinstance(value, str):
-        if len(value) > MAX_TEXT_CHARS:
-            raise ValueError(f"text of {len(value)} characters exceeds the limit of "
-                             f"{MAX_TEXT_CHARS}")
-        return value
-    if isinstance(value, np.ndarray):
-        if value.ndim > MAX_ARRAY_DIMS:
-            raise ValueError(f"arrays travel with at most {MAX_ARRAY_DIMS} dimensions, got "
-                             f"{value.ndim}")
-        dtype = value.dtype.newbyteorder("<") if value.dtype.byteorder == ">" else value.dtype
-        name = _DTYPE_NAMES.get(dtype)
-        if name is None:
-            raise TypeError(f"arrays travel as one of {sorted(WIRE_DTYPES)}, got {value.dtype}")
-        data = np.ascontiguousarray(value, dtype=WIRE_DTYPES[name])
-        return {"dtype": name, "shape": list(data.shape), "data": data.tobytes()}
-    if isinstance(value, Part):
-        return {f.name: _plain(getattr(value, f.name)) for f in fields(value)}
-    if isinstance(value, (tuple, list)):
-        return [_plain(v) for v in value]
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
+# Encoding is compiled once per field annotation too: an encoder turns a field's value into
+# what msgpack packs (arrays into {dtype, shape, data}, numpy scalars into Python ones).
+Encoder = Callable[[Any], Any]
+
+
+def _array_out(value: Any) -> dict[str, Any]:
+    if not isinstance(value, np.ndarray):
+        raise TypeError(f"expected a numpy array, got {type(value).__name__}")
+    if value.ndim > MAX_ARRAY_DIMS:
+        raise ValueError(f"arrays travel with at most {MAX_ARRAY_DIMS} dimensions, got "
+                         f"{value.ndim}")
+    dtype = value.dtype.newbyteorder("<") if value.dtype.byteorder == ">" else value.dtype
+    name = _DTYPE_NAMES.get(dtype)
+    if name is None:
+        raise TypeError(f"arrays travel as one of {sorted(WIRE_DTYPES)}, got {value.dtype}")
+    data = np.ascontiguousarray(value, dtype=WIRE_DTYPES[name])
+    return {"dtype": name, "shape": list(data.shape), "data": data.tobytes()}
+
+
+def _text_out(value: Any) -> Any:
+    if isinstance(value, str) and len(value) > MAX_TEXT_CHARS:
+        raise ValueError(f"text of {len(value)} characters exceeds the limit of "
+                         f"{MAX_TEXT_CHARS}")
+    return value
+
+
+def _scalar_out(value: Any) -> Any:
     if isinstance(value, np.generic):  # msgpack refuses numpy scalars
         return value.item()
-    return value
+    return _text_out(value)
+
+
+@functools.cache
+def _encoder(hint: Any) -> Encoder:
+    """The encoder of values of the Python type ``hint`` (a field annotation)."""
+    if hint is np.ndarray:
+        return _array_out
+    if hint in (str, bytes, bool, int, float):
+        return _scalar_out
+    origin = typing.get_origin(hint)
+    if origin in (types.UnionType, typing.Union):
+        rest = tuple(o for o in typing.get_args(hint) if o is not type(None))
+        if len(rest) == 1:
+            inner = _encoder(rest[0])
+            return lambda value: None if value is None else inner(value)
+        return _scalar_out  # a union of scalars (the schema has no other unions)
+    if origin is tuple:
+        item = _encoder(typing.get_args(hint)[0])
+        return lambda value: [item(v) for v in value]
+    if origin is dict:
+        item = _encoder(typing.get_args(hint)[1])
+        return lambda value: {k: item(v) for k, v in value.items()}
+    if isinstance(hint, type) and is_dataclass(hint):
+        return _record_encoder(hint)
+    raise TypeError(f"unsupported annotation {hint}")  # pragma: no cover - schema bug
+
+
+@functools.cache
+def _record_encoder(cls: type) -> Encoder:
+    hints = typing.get_type_hints(cls)
+    spec = tuple((f.name, _encoder(hints[f.name])) for f in fields(cls))
+
+    def record(value: Any) -> dict[str, Any]:
+        if not isinstance(value, cls):
+            raise TypeError(f"expected {cls.__name__}, got {type(value).__name__}")
+        return {name: encode_field(getattr(value, name)) for name, encode_field in spec}
+    return record
 
 
 def encode(message: Message) -> bytes:
     """The frame of ``message``."""
     if not isinstance(message, Message):
         raise TypeError(f"expected an overtake message, got {type(message).__name__}")
-    body = {f.name: _plain(getattr(message, f.name)) for f in fields(message)}
+    body = _record_encoder(type(message))(message)
     return msgpack.packb([PROTOCOL_VERSION[0], PROTOCOL_VERSION[1], message.TYPE, body],
                          use_bin_type=True)
 
@@ -101,15 +143,20 @@ def _array(value: Any, _minor: int) -> np.ndarray:
     dtype = WIRE_DTYPES.get(dtype_name) if type(dtype_name) is str else None
     if dtype is None:
         raise DecodeError(f"dtype must be one of {sorted(WIRE_DTYPES)}, got {dtype_name!r}")
-    if (type(shape) is not list or len(shape) > MAX_ARRAY_DIMS
-            or not all(type(s) is int and 0 <= s <= MAX_FRAME_BYTES for s in shape)):
+    count = 1
+    if type(shape) is list and len(shape) <= MAX_ARRAY_DIMS:
+        for s in shape:
+            if type(s) is not int or not 0 <= s <= MAX_FRAME_BYTES:
+                count = -1
+                break
+            count *= s
+    else:
+        count = -1
+    if count < 0:
         raise DecodeError(f"shape must be a list of at most {MAX_ARRAY_DIMS} sizes, "
                           f"got {shape!r}")
     if type(data) is not bytes:
         raise DecodeError(f"data must be bytes, got {_kind(data)}")
-    count = 1
-    for s in shape:
-        count *= s
     if count * dtype.itemsize != len(data):
         raise DecodeError(f"{dtype_name} of shape {tuple(shape)} needs "
                           f"{count * dtype.itemsize} bytes, got {len(data)}")

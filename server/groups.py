@@ -333,9 +333,7 @@ class Group:
     def _arena_view(self) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
         """What every member's Steps share, computed once per round: observations, action
         masks and the metrics table (A, N, fields)."""
-        metrics = self.sim.metrics()
-        table = np.stack([metrics[name] for name in METRIC_FIELDS], axis=-1).astype(np.float64)
-        return self.sim.observe(), self.sim.action_mask(), table
+        return self.sim.observe(), self.sim.action_mask(), self.sim.metrics_table()
 
     def _steps(self, slots: np.ndarray,
                view: tuple[dict[str, np.ndarray], np.ndarray, np.ndarray],

@@ -760,20 +760,23 @@ class HighwaySim:
 
     def metrics(self) -> dict[str, np.ndarray]:
         """Each agent's episode so far: the papers' metrics, (A, N) per name in METRIC_FIELDS."""
+        table = self.metrics_table()
+        return {name: table[..., i] for i, name in enumerate(METRIC_FIELDS)}
+
+    def metrics_table(self) -> np.ndarray:
+        """(A, N, len(METRIC_FIELDS)) float64: :meth:`metrics` as one table (what travels)."""
         st = self.state
         elapsed_s = st.agent_decisions * self.decision_period_s
         with np.errstate(divide="ignore", invalid="ignore"):
             avg_speed = np.where(elapsed_s > 0, st.distance_m / elapsed_s / KMH, 0.0)
-        return {
-            "avg_speed_kmh": avg_speed,
-            "lane_changes": st.lane_changes.copy(),
-            "overtakes": st.overtakes.copy(),
-            "collisions": st.collisions.copy(),
-            "emergency_brakes": st.emergency_brakes.copy(),
-            "distance_m": st.distance_m.copy(),
-            "return": st.episode_return.copy(),
-            "decisions": st.agent_decisions.copy(),
-        }
+        columns = {"avg_speed_kmh": avg_speed, "lane_changes": st.lane_changes,
+                   "overtakes": st.overtakes, "collisions": st.collisions,
+                   "emergency_brakes": st.emergency_brakes, "distance_m": st.distance_m,
+                   "return": st.episode_return, "decisions": st.agent_decisions}
+        table = np.empty(elapsed_s.shape + (len(METRIC_FIELDS),))
+        for i, name in enumerate(METRIC_FIELDS):
+            table[..., i] = columns[name]
+        return table
 
     def traffic_overlaps(self) -> np.ndarray:
         """(A,) pairs of traffic cars whose boxes overlap now: zero in normal flow."""
