@@ -10,9 +10,10 @@ from __future__ import annotations
 import json
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import gymnasium as gym
 import numpy as np
@@ -63,6 +64,37 @@ def parse_overrides(items: tuple[str, ...]) -> dict[str, object]:
     return overrides
 
 
+Policy = Callable[[dict[str, np.ndarray], dict[str, Any], np.ndarray], np.ndarray]
+
+
+def run_episodes(envs: Any, act: Policy, episodes: int, seed: int
+                 ) -> tuple[list[dict[str, float]], int, float]:
+    """One episode per environment of ``envs`` (seeds seed, seed + 1, ...), all stepped
+    together; returns each episode's metrics, the decisions taken and the seconds it took.
+
+    ``act(obs, info, starting)`` returns the actions; ``starting`` marks the environments whose
+    observation is the first of an episode (a policy that stacks frames restarts there).
+    """
+    obs, info = envs.reset(seed=seed)
+    starting = np.ones(episodes, dtype=bool)
+    resetting = np.zeros(episodes, dtype=bool)  # ended: the next step is their autoreset
+    rows: list[dict[str, float] | None] = [None] * episodes
+    started = time.perf_counter()
+    decisions = 0
+    while any(row is None for row in rows):
+        actions = act(obs, info, starting)
+        obs, _, terminated, truncated, info = envs.step(actions)
+        decisions += episodes
+        ended = terminated | truncated
+        for i in np.flatnonzero(ended & info.get("_metrics", False)):
+            if rows[i] is None:
+                rows[i] = {name: float(info["metrics"][name][i]) for name in METRIC_COLUMNS}
+        # Gymnasium's next-step autoreset: an env that ended is reset by the following step,
+        # whose observation is then the first of the new episode.
+        starting, resetting = resetting, ended
+    return [row for row in rows if row is not None], decisions, time.perf_counter() - started
+
+
 def main(config: DriveConfig) -> dict[str, dict[str, float]]:
     """Drive the episodes; returns {metric: {"mean": .., "std": ..}} and prints the table."""
     register_environments()
@@ -93,22 +125,14 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
     else:
         driver = RandomDriver(config.seed)
 
-    obs, info = envs.reset(seed=config.seed)
-    rows: list[dict[str, float] | None] = [None] * config.episodes
-    started = time.perf_counter()
-    decisions = 0
-    while any(row is None for row in rows):
+    def act(obs: dict[str, np.ndarray], info: dict, _starting: np.ndarray) -> np.ndarray:
         lidar = obs.get("lidar", np.zeros((config.episodes, 1), dtype=np.float32))
-        actions = driver.act(lidar, obs["ego"], info["action_mask"])
-        obs, _, terminated, truncated, info = envs.step(actions)
-        decisions += config.episodes
-        for i in np.flatnonzero((terminated | truncated) & info.get("_metrics", False)):
-            if rows[i] is None:
-                rows[i] = {name: float(info["metrics"][name][i]) for name in METRIC_COLUMNS}
-    elapsed = time.perf_counter() - started
+        return driver.act(lidar, obs["ego"], info["action_mask"])
+
+    rows, decisions, elapsed = run_episodes(envs, act, config.episodes, config.seed)
     envs.close()
 
-    table = np.array([[row[name] for name in METRIC_COLUMNS] for row in rows if row is not None])
+    table = np.array([[row[name] for name in METRIC_COLUMNS] for row in rows])
     summary = {name: {"mean": float(table[:, j].mean()), "std": float(table[:, j].std())}
                for j, name in enumerate(METRIC_COLUMNS)}
     _print_table(config, table, summary, decisions, elapsed)

@@ -8,6 +8,9 @@ if [[ ! -x .venv/bin/python ]]; then
   "$python_bin" -m venv .venv
 fi
 .venv/bin/python -m pip install --quiet --upgrade pip
+# PyTorch first, pinned: the pin resolves to the CPU wheel, while an unpinned torch (or a
+# range that admits a newer release) would pull gigabytes of CUDA packages.
+.venv/bin/python -m pip install --quiet "torch==2.13.0"
 extras="${1:-}"
 target="."
 [[ -n "$extras" ]] && target=".[${extras}]"

@@ -1,0 +1,474 @@
+"""The learner, its network, the replay and the train / eval commands."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from gymnasium import spaces
+
+from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
+from overtake.trainers.evaluate import EvalConfig
+from overtake.trainers.evaluate import main as evaluate
+from overtake.trainers.learner import DQNConfig, DQNLearner, masked, td_target
+from overtake.trainers.network import NetworkShape, QNetwork, dueling_q
+from overtake.trainers.replay import FrameShapes, FrameStacker, ReplayMemory
+from overtake.trainers.train import TrainConfig
+from overtake.trainers.train import main as train
+
+torch.set_num_threads(1)
+
+# --- targets, dueling, masking -----------------------------------------------------------------
+
+
+def test_dqn_target_takes_the_target_networks_max_over_allowed_actions():
+    reward = torch.tensor([1.0, 0.5, 2.0])
+    terminated = torch.tensor([False, True, False])
+    next_q_target = torch.tensor([[1.0, 3.0, 2.0], [5.0, 0.0, 0.0], [4.0, 9.0, 1.0]])
+    mask = torch.tensor([[1, 1, 1], [1, 1, 1], [1, 0, 1]], dtype=torch.int8)
+    target = td_target(reward, terminated, 0.9, next_q_target, mask)
+    # row 0: 1 + 0.9 * 3; row 1 terminated: 0.5; row 2: action 1 (9) masked, so 1 + 0.9 * ... 2 + 0.9 * 4
+    assert torch.allclose(target, torch.tensor([1.0 + 0.9 * 3.0, 0.5, 2.0 + 0.9 * 4.0]))
+
+
+def test_double_target_lets_the_online_network_choose_and_the_target_network_value():
+    reward = torch.tensor([1.0, 0.0])
+    terminated = torch.tensor([False, False])
+    next_q_target = torch.tensor([[1.0, 3.0, 2.0], [7.0, 6.0, 5.0]])
+    next_q_online = torch.tensor([[3.0, 1.0, 2.0], [0.0, 10.0, 8.0]])
+    mask = torch.tensor([[1, 1, 1], [1, 0, 1]], dtype=torch.int8)
+    target = td_target(reward, terminated, 0.5, next_q_target, mask, next_q_online)
+    # row 0: online picks action 0, valued 1 by the target: 1 + 0.5 * 1 (DQN would take 3)
+    # row 1: online's best (1) is masked, so it picks 2, valued 5: 0 + 0.5 * 5
+    assert torch.allclose(target, torch.tensor([1.5, 2.5]))
+
+
+def test_dueling_aggregation_subtracts_the_mean_advantage():
+    value = torch.tensor([[2.0], [-1.0]])
+    advantage = torch.tensor([[1.0, 2.0, 3.0], [0.0, 0.0, 6.0]])
+    q = dueling_q(value, advantage)
+    assert torch.allclose(q, torch.tensor([[1.0, 2.0, 3.0], [-3.0, -3.0, 3.0]]))
+
+
+def small_shape(**changes: Any) -> NetworkShape:
+    shape = NetworkShape(camera_hw=(36, 36), lidar_rays=8, ego_size=6, actions=5, stack=4,
+                         lidar_max_m=80.0, ego_high=(100.0, 22.2, 4.0, 12.0, 1.0, 1.0))
+    return replace(shape, **changes)
+
+
+def random_obs(shape: NetworkShape, batch: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    return {"camera": rng.integers(0, 256, (batch, shape.stack) + shape.camera_hw, dtype=np.uint8),
+            "lidar": rng.uniform(0, 80, (batch, shape.stack, shape.lidar_rays)).astype(np.float32),
+            "ego": rng.uniform(0, 1, (batch, shape.ego_size)).astype(np.float32)}
+
+
+@pytest.mark.parametrize("inputs", ["camera", "lidar", "both"])
+def test_dueling_network_output_is_value_plus_centred_advantage(inputs):
+    torch.manual_seed(0)
+    shape = small_shape()
+    net = QNetwork(shape, inputs, dueling=True, lstm_cells=16, hidden=32)
+    obs = random_obs(shape, 3, np.random.default_rng(0))
+    seen: dict[str, torch.Tensor] = {}
+    net.value.register_forward_hook(lambda _m, _i, out: seen.__setitem__("v", out))
+    net.advantage.register_forward_hook(lambda _m, _i, out: seen.__setitem__("a", out))
+    q = net(torch.as_tensor(obs["camera"]), torch.as_tensor(obs["lidar"]),
+            torch.as_tensor(obs["ego"]))
+    assert q.shape == (3, 5)
+    expected = seen["v"] + seen["a"] - seen["a"].mean(dim=1, keepdim=True)
+    assert torch.allclose(q, expected)
+    assert torch.allclose(q.mean(dim=1, keepdim=True), seen["v"], atol=1e-6)
+
+
+def test_camera_only_and_lidar_only_networks_ignore_the_other_sensor():
+    torch.manual_seed(0)
+    shape = small_shape()
+    rng = np.random.default_rng(1)
+    obs = random_obs(shape, 2, rng)
+    other = random_obs(shape, 2, rng)
+    for inputs, changed in (("camera", "lidar"), ("lidar", "camera")):
+        net = QNetwork(shape, inputs, lstm_cells=16, hidden=32)
+        mixed = {**obs, changed: other[changed]}
+        a = net(*(torch.as_tensor(obs[k]) for k in ("camera", "lidar", "ego")))
+        b = net(*(torch.as_tensor(mixed[k]) for k in ("camera", "lidar", "ego")))
+        assert torch.equal(a, b)
+        c = net(*(torch.as_tensor({**obs, inputs: other[inputs]}[k])
+                  for k in ("camera", "lidar", "ego")))
+        assert not torch.equal(a, c)
+
+
+def test_paper_network_has_the_table_ii_layers():
+    shape = NetworkShape(camera_hw=(84, 84), lidar_rays=360, ego_size=6, actions=5)
+    net = QNetwork(shape, "both")
+    convs = [m for m in net.conv if isinstance(m, torch.nn.Conv2d)]
+    assert [(c.in_channels, c.out_channels, c.kernel_size, c.stride) for c in convs] == [
+        (4, 32, (8, 8), (4, 4)), (32, 64, (4, 4), (2, 2)), (64, 64, (3, 3), (1, 1))]
+    assert (net.lstm.input_size, net.lstm.hidden_size) == (360, 256)
+    assert net.fuse[0].in_features == 64 * 7 * 7 + 256 + 6 and net.fuse[0].out_features == 512
+    assert net.q.out_features == 5
+
+
+def test_acting_never_picks_a_masked_action():
+    shape = small_shape()
+    learner = DQNLearner(shape, "lidar", DQNConfig(lstm_cells=8, hidden_units=16), double=True,
+                         dueling=False)
+    rng = np.random.default_rng(0)
+    obs = random_obs(shape, 64, rng)
+    q = learner.q_values(obs)
+    mask = np.ones((64, 5), dtype=np.int8)
+    mask[np.arange(64), q.argmax(axis=1)] = 0            # the greedy choice is not allowed
+    mask[:, 4] = 0
+    for epsilon in (0.0, 1.0, 0.5):
+        actions, _ = learner.act(obs, mask, epsilon, rng)
+        assert mask[np.arange(64), actions].all()
+    greedy, _ = learner.act(obs, mask, 0.0, rng)
+    assert np.array_equal(greedy, np.where(mask.astype(bool), q, -np.inf).argmax(axis=1))
+    explored, _ = learner.act(obs, mask, 1.0, rng)
+    assert len(set(explored.tolist())) >= 3              # random among the allowed, not fixed
+
+
+def test_masked_leaves_rows_with_nothing_allowed_unmasked():
+    q = torch.tensor([[1.0, 2.0], [3.0, 4.0]])
+    out = masked(q, torch.tensor([[0, 1], [0, 0]], dtype=torch.int8))
+    assert out[0, 0] == float("-inf") and torch.equal(out[1], q[1])
+
+
+def test_epsilon_falls_linearly_then_stays():
+    config = DQNConfig(epsilon_start=1.0, epsilon_end=0.1, epsilon_decay_steps=100)
+    assert [round(config.epsilon(s), 6) for s in (0, 50, 100, 1000)] == [1.0, 0.55, 0.1, 0.1]
+
+
+def test_update_moves_q_towards_the_target():
+    torch.manual_seed(0)
+    shape = small_shape()
+    config = DQNConfig(lstm_cells=8, hidden_units=16, learning_rate=0.01, gamma=0.0)
+    learner = DQNLearner(shape, "lidar", config, double=False, dueling=False)
+    obs = random_obs(shape, 32, np.random.default_rng(2))
+    batch = {**obs, **{"next_" + k: v for k, v in obs.items()},
+             "action": np.full(32, 2), "reward": np.full(32, 3.0, dtype=np.float32),
+             "terminated": np.zeros(32, dtype=bool), "next_mask": np.ones((32, 5), np.int8)}
+    before = learner.q_values(obs)[:, 2].mean()
+    for _ in range(100):
+        learner.update(batch)
+    after = learner.q_values(obs)[:, 2].mean()
+    assert abs(after - 3.0) < 0.1 < abs(before - 3.0)
+
+
+# --- replay and stacking -------------------------------------------------------------------------
+
+SHAPES = FrameShapes({"lidar": ((3,), np.dtype(np.float32)), "ego": ((2,), np.dtype(np.float32))},
+                     actions=5)
+
+
+def frame(env: int, episode: int, step: int) -> dict[str, np.ndarray]:
+    """A frame that names itself: lidar = (env, episode, step)."""
+    return {"lidar": np.array([[env, episode, step]], dtype=np.float32),
+            "ego": np.array([[episode, step]], dtype=np.float32)}
+
+
+def fill(replay: ReplayMemory, stacker: FrameStacker | None, lengths: dict[int, list[int]],
+         terminate: bool = True) -> dict[tuple[int, int, int], np.ndarray]:
+    """Play episodes of the given lengths per env, interleaved; returns the stacker's lidar
+    stack at each (env, episode, step)."""
+    stacks = {}
+    for env, episode_lengths in lengths.items():
+        for episode, length in enumerate(episode_lengths):
+            e = np.array([env])
+            first = frame(env, episode, 0)
+            replay.start(e, first, np.ones((1, 5), np.int8))
+            if stacker is not None:
+                stacker.reset(e, first)
+                stacks[(env, episode, 0)] = stacker.frames["lidar"][env].copy()
+            for step in range(1, length + 1):
+                nxt = frame(env, episode, step)
+                ended = terminate and step == length
+                replay.add(e, np.array([step % 5]), np.array([float(step)]), np.array([ended]),
+                           nxt, np.ones((1, 5), np.int8))
+                if stacker is not None:
+                    stacker.push(e, nxt)
+                    stacks[(env, episode, step)] = stacker.frames["lidar"][env].copy()
+    return stacks
+
+
+def test_replay_rebuilds_stacks_within_episodes_and_matches_the_stacker():
+    replay = ReplayMemory(400, 2, SHAPES, 4, ("lidar",), seed=0)
+    stacker = FrameStacker(2, SHAPES, 4, ("lidar",))
+    stacks = fill(replay, stacker, {0: [2, 7, 5], 1: [9, 1, 3]})
+    assert len(replay) == 2 + 7 + 5 + 9 + 1 + 3
+    batch = replay.sample(500)
+    for i in range(500):
+        now, nxt = batch["lidar"][i], batch["next_lidar"][i]
+        env, episode, step = (int(v) for v in now[-1])
+        # Every frame of a stack is of the same env and episode; before the episode's start
+        # the first frame repeats.
+        assert (now[:, 0] == env).all() and (now[:, 1] == episode).all()
+        assert now[:, 2].tolist() == [max(step - k, 0) for k in (3, 2, 1, 0)]
+        assert nxt[:, 2].tolist() == [max(step + 1 - k, 0) for k in (3, 2, 1, 0)]
+        assert (nxt[:, :2] == now[:, :2]).all()              # never across a boundary
+        assert np.array_equal(now, stacks[(env, episode, step)])
+        assert np.array_equal(nxt, stacks[(env, episode, step + 1)])
+        assert batch["action"][i] == (step + 1) % 5 and batch["reward"][i] == step + 1
+        assert batch["ego"][i].tolist() == [episode, step]            # unstacked: the latest
+        assert batch["next_ego"][i].tolist() == [episode, step + 1]
+        length = {0: [2, 7, 5], 1: [9, 1, 3]}[env][episode]
+        assert batch["terminated"][i] == (step + 1 == length)
+
+
+def test_truncated_episode_ends_are_not_terminal_and_never_followed_across():
+    replay = ReplayMemory(100, 1, SHAPES, 4, ("lidar",), seed=1)
+    fill(replay, None, {0: [3, 3]}, terminate=False)
+    batch = replay.sample(200)
+    assert not batch["terminated"].any()
+    assert (batch["next_lidar"][:, -1, 1] == batch["lidar"][:, -1, 1]).all()
+
+
+def test_replay_ring_never_samples_overwritten_frames():
+    replay = ReplayMemory(12, 1, SHAPES, 4, ("lidar",), seed=2)
+    fill(replay, None, {0: [30]})   # 31 frames through a ring of 12
+    batch = replay.sample(300)
+    steps = batch["lidar"][:, :, 2]
+    # The ring holds steps 19..30; a stack needs its 3 predecessors, the transition its next.
+    assert steps.min() >= 19 and batch["next_lidar"][:, -1, 2].max() <= 30
+    assert (np.diff(steps, axis=1) == 1).all()
+    assert set(batch["lidar"][:, -1, 2].astype(int).tolist()) == set(range(22, 30))
+
+
+def test_replay_refuses_to_sample_when_empty_and_to_add_before_start():
+    replay = ReplayMemory(50, 1, SHAPES, 4, ("lidar",))
+    with pytest.raises(RuntimeError, match="no transitions"):
+        replay.sample(1)
+    with pytest.raises(RuntimeError, match="before start"):
+        replay.add(np.array([0]), np.array([0]), np.array([0.0]), np.array([False]),
+                   frame(0, 0, 1), np.ones((1, 5), np.int8))
+
+
+def test_replay_of_paper_size_stores_each_frame_once():
+    shapes = FrameShapes({"camera": ((84, 84), np.dtype(np.uint8)),
+                          "lidar": ((360,), np.dtype(np.float32)),
+                          "ego": ((6,), np.dtype(np.float32))}, actions=5)
+    replay = ReplayMemory(100_000, 4, shapes, 4, ("camera", "lidar"))
+    # 100,000 frames of 8,520 bytes plus per-transition fields; a naive replay keeps two stacks
+    # of four frames per transition.
+    assert replay.nbytes < 0.9e9
+    assert replay.naive_nbytes() > 7 * replay.nbytes
+
+
+def test_replay_save_and_load_round_trip(tmp_path):
+    replay = ReplayMemory(60, 2, SHAPES, 4, ("lidar",), seed=3)
+    fill(replay, None, {0: [5, 6], 1: [4]})
+    replay.save(tmp_path / "replay.npz")
+    assert not (tmp_path / "replay.npz.tmp").exists()
+    other = ReplayMemory(60, 2, SHAPES, 4, ("lidar",), seed=3)
+    other.load(tmp_path / "replay.npz")
+    assert len(other) == len(replay)
+    a, b = replay.sample(50), other.sample(50)
+    assert all(np.array_equal(a[k], b[k]) for k in a)
+    with pytest.raises(ValueError, match="same capacity"):
+        ReplayMemory(80, 2, SHAPES, 4, ("lidar",)).load(tmp_path / "replay.npz")
+
+
+# --- a purpose-built tiny environment: the learner learns ----------------------------------------
+
+class PickTheFreeLane(gym.vector.VectorEnv):
+    """Each decision the LIDAR shows five distances; driving towards the largest pays 1.
+
+    Random scores 0.2 a decision; a policy that reads its newest scan scores 1. Episodes of
+    ``length`` decisions, Gymnasium next-step autoreset, overtake's observation keys.
+    """
+
+    metadata = {"autoreset_mode": gym.vector.AutoresetMode.NEXT_STEP}
+
+    def __init__(self, num_envs: int, length: int = 16, seed: int = 0) -> None:
+        self.num_envs, self.length = num_envs, length
+        self.single_observation_space = spaces.Dict({
+            "ego": spaces.Box(-1.0, 1.0, (6,), np.float32),
+            "lidar": spaces.Box(0.0, 80.0, (5,), np.float32)})
+        self.single_action_space = spaces.Discrete(5)
+        self.observation_space = gym.vector.utils.batch_space(self.single_observation_space,
+                                                              num_envs)
+        self.action_space = spaces.MultiDiscrete(np.full(num_envs, 5))
+        self.rng = np.random.default_rng(seed)
+        self.t = np.zeros(num_envs, dtype=int)
+        self.total = np.zeros(num_envs)
+        self.autoreset = np.zeros(num_envs, dtype=bool)
+
+    def _obs(self):
+        self.lidar = self.rng.uniform(0.0, 80.0, (self.num_envs, 5)).astype(np.float32)
+        return {"ego": np.zeros((self.num_envs, 6), np.float32), "lidar": self.lidar.copy()}
+
+    def _info(self):
+        return {"action_mask": np.ones((self.num_envs, 5), np.int8)}
+
+    def reset(self, *, seed=None, options=None):
+        self.t[:] = 0
+        self.total[:] = 0
+        self.autoreset[:] = False
+        return self._obs(), self._info()
+
+    def step(self, actions):
+        reward = (np.asarray(actions) == self.lidar.argmax(axis=1)).astype(float)
+        reward[self.autoreset] = 0.0
+        self.t = np.where(self.autoreset, 0, self.t + 1)
+        self.total = np.where(self.autoreset, 0.0, self.total + reward)
+        truncated = self.t >= self.length
+        info = self._info()
+        if truncated.any():
+            info["metrics"] = {"return": np.where(truncated, self.total, 0.0),
+                               "avg_speed_kmh": np.zeros(self.num_envs)}
+            info["_metrics"] = truncated
+        self.autoreset = truncated
+        return self._obs(), reward, np.zeros(self.num_envs, bool), truncated, info
+
+
+def tiny_dqn(**changes: Any) -> DQNConfig:
+    settings = dict(learning_rate=0.002, batch_size=32, replay_size=4000, learning_starts=300,
+                    gamma=0.5, epsilon_decay_steps=1500, epsilon_end=0.05,
+                    target_update_steps=200, train_every=1, lstm_cells=32, hidden_units=64)
+    settings.update(changes)
+    return DQNConfig(**settings)
+
+
+def greedy_score(checkpoint_path: Path, episodes: int = 200) -> float:
+    checkpoint = load_checkpoint(checkpoint_path)
+    learner = checkpoint.make_learner()
+    env = PickTheFreeLane(episodes, seed=99)
+    obs, info = env.reset()
+    stack = np.repeat(obs["lidar"][:, None], checkpoint.dqn.stack, axis=1)
+    actions, _ = learner.act({"lidar": stack, "ego": obs["ego"]}, info["action_mask"], 0.0,
+                             np.random.default_rng(0))
+    _, reward, *_ = env.step(actions)
+    return float(reward.mean())
+
+
+def test_learner_beats_random_on_a_tiny_environment(tmp_path):
+    config = TrainConfig(algo="ddqn", inputs="lidar", num_envs=4, total_steps=2400, seed=0,
+                         run_dir=tmp_path / "run", progress=False, log_every=400,
+                         checkpoint_every=10_000, dqn=tiny_dqn())
+    env = PickTheFreeLane(4, seed=0)
+    summary = train(config, envs=env)
+    assert summary["steps"] >= 2400 and summary["updates"] > 1500
+    score = greedy_score(tmp_path / "run" / CHECKPOINT_NAME)
+    assert score > 0.6, f"greedy policy scored {score:.2f} a decision; random scores 0.2"
+
+
+# --- checkpoints and resume ----------------------------------------------------------------------
+
+def test_checkpoint_round_trip_and_resume_continue_the_step_count(tmp_path):
+    run_dir = tmp_path / "run"
+    config = TrainConfig(algo="dueling", inputs="lidar", num_envs=2, total_steps=300, seed=4,
+                         run_dir=run_dir, progress=False, log_every=100,
+                         checkpoint_every=10_000, dqn=tiny_dqn(learning_starts=50))
+    first = train(config, envs=PickTheFreeLane(2, seed=1))
+    checkpoint = load_checkpoint(run_dir / CHECKPOINT_NAME)
+    assert (checkpoint.algo, checkpoint.inputs, checkpoint.step) == ("dueling", "lidar", 300)
+    assert checkpoint.space["lidar"]["shape"] == [5] and checkpoint.net_shape.lidar_rays == 5
+    assert checkpoint.episodes == first["episodes"] and checkpoint.dqn == config.dqn
+    # The learner comes back exactly: same Q-values.
+    obs = {"lidar": np.random.default_rng(0).uniform(0, 80, (3, 4, 5)).astype(np.float32),
+           "ego": np.zeros((3, 6), np.float32)}
+    restored = checkpoint.make_learner()
+    assert restored.dueling and restored.double
+    assert restored.updates == first["updates"]
+
+    # Running again without --resume refuses to overwrite the run.
+    with pytest.raises(SystemExit, match="--resume"):
+        train(config, envs=PickTheFreeLane(2, seed=1))
+    resumed = train(replace(config, total_steps=500, resume=True), envs=PickTheFreeLane(2, seed=2))
+    assert resumed["steps"] == 500 and resumed["updates"] > first["updates"]
+    after = load_checkpoint(run_dir / CHECKPOINT_NAME)
+    assert after.step == 500 and after.resumes == 1
+    assert not np.allclose(after.make_learner().q_values(obs), restored.q_values(obs))
+    assert (run_dir / "run.json").exists() and (run_dir / "run-resume-1.json").exists()
+    steps = [json.loads(line)["step"] for line in (run_dir / "metrics.jsonl").read_text()
+             .splitlines() if json.loads(line)["kind"] == "train"]
+    assert steps == sorted(steps) and steps[-1] >= 400 and any(s <= 300 for s in steps)
+    with pytest.raises(SystemExit, match="algo=dueling"):
+        train(replace(config, algo="dqn", total_steps=600, resume=True),
+              envs=PickTheFreeLane(2, seed=2))
+
+
+def test_resume_without_a_checkpoint_and_a_broken_checkpoint_say_what_is_wrong(tmp_path):
+    config = TrainConfig(inputs="lidar", run_dir=tmp_path / "none", resume=True, progress=False,
+                         dqn=tiny_dqn())
+    with pytest.raises(SystemExit, match="no checkpoint"):
+        train(config)
+    broken = tmp_path / "broken.pt"
+    broken.write_bytes(b"not a checkpoint at all")
+    with pytest.raises(SystemExit, match="not a readable overtake checkpoint"):
+        load_checkpoint(broken)
+    torch.save({"header": {"format": "something-else/9"}}, tmp_path / "foreign.pt")
+    with pytest.raises(SystemExit, match="overtake-dqn/1.*something-else/9"):
+        load_checkpoint(tmp_path / "foreign.pt")
+
+
+def test_a_kill_mid_write_leaves_the_previous_checkpoint_whole(tmp_path, monkeypatch):
+    run_dir = tmp_path / "run"
+    config = TrainConfig(inputs="lidar", num_envs=1, total_steps=100, run_dir=run_dir,
+                         progress=False, dqn=tiny_dqn(learning_starts=20))
+    train(config, envs=PickTheFreeLane(1))
+    good = (run_dir / CHECKPOINT_NAME).read_bytes()
+
+    def dies(*_args: Any, **_kwargs: Any) -> None:
+        raise KeyboardInterrupt("killed while writing")
+    monkeypatch.setattr(torch, "save", dies)
+    with pytest.raises(KeyboardInterrupt):
+        train(replace(config, total_steps=200, resume=True), envs=PickTheFreeLane(1))
+    assert (run_dir / CHECKPOINT_NAME).read_bytes() == good
+    assert load_checkpoint(run_dir / CHECKPOINT_NAME).step == 100
+
+
+# --- smoke runs on the real simulator -------------------------------------------------------------
+
+SMOKE_DQN = dict(learning_starts=60, replay_size=2000, target_update_steps=100,
+                 epsilon_decay_steps=200)
+
+
+@pytest.mark.parametrize("algo", ["dqn", "ddqn", "dueling"])
+def test_each_algorithm_trains_in_process_and_its_checkpoint_evaluates(tmp_path, algo):
+    run_dir = tmp_path / algo
+    summary = train(TrainConfig(algo=algo, inputs="both", num_envs=2, total_steps=240,
+                                run_dir=run_dir, progress=False, log_every=80,
+                                set=("episode.max_decisions=60",), dqn=DQNConfig(**SMOKE_DQN)))
+    assert summary["steps"] >= 240 and summary["updates"] >= 40 and summary["episodes"] >= 2
+    records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    episodes = [r for r in records if r["kind"] == "episode"]
+    assert episodes and all(r["decisions"] == 60 or r["terminated"] for r in episodes)
+    assert any(r["kind"] == "train" and r["loss"] is not None for r in records)
+    run = json.loads((run_dir / "run.json").read_text())
+    assert run["algo"]["name"] == algo and run["sim_config"]["episode"]["max_decisions"] == 60
+    assert run["versions"]["torch"].startswith("2.13") and run["commit"]
+    result = evaluate(EvalConfig(checkpoint=run_dir / CHECKPOINT_NAME, episodes=2,
+                                 max_decisions=30, traffic="light",
+                                 json_out=tmp_path / "eval.json"))
+    assert result["summary"]["episodes"] == 2
+    assert result["summary"]["decisions"]["mean"] == 30
+    assert result["overrides"]["traffic.density"] == "light"
+    assert json.loads((tmp_path / "eval.json").read_text())["name"].startswith(f"{algo}/both")
+
+
+@pytest.mark.parametrize("algo", ["dqn", "ddqn", "dueling"])
+def test_each_algorithm_trains_against_a_real_server(tmp_path, start_server, algo):
+    server = start_server(f"train-{algo}")
+    summary = train(TrainConfig(algo=algo, inputs="lidar", num_envs=2, total_steps=200,
+                                connect=server.endpoint, run_dir=tmp_path / algo,
+                                progress=False, set=("episode.max_decisions=50",),
+                                dqn=DQNConfig(**SMOKE_DQN)))
+    assert summary["steps"] >= 200 and summary["updates"] >= 30 and summary["episodes"] >= 2
+    run = json.loads((tmp_path / algo / "run.json").read_text())
+    assert run["overrides"]["camera.enabled"] is False       # lidar-only: no camera rendered
+    assert run["config"]["connect"] == server.endpoint
+
+
+def test_baselines_evaluate_on_the_same_seeds(tmp_path):
+    rule = evaluate(EvalConfig(policy="rule", episodes=2, max_decisions=40, seed=5))
+    again = evaluate(EvalConfig(policy="rule", episodes=2, max_decisions=40, seed=5))
+    assert rule["episodes"] == again["episodes"]
+    random = evaluate(EvalConfig(policy="random", episodes=2, max_decisions=40, seed=5))
+    assert random["summary"]["lane_changes"]["mean"] > rule["summary"]["lane_changes"]["mean"]
+    with pytest.raises(SystemExit, match="exactly one"):
+        evaluate(EvalConfig(policy="rule", checkpoint=tmp_path / "x.pt"))

@@ -1,0 +1,107 @@
+"""Checkpoints that describe themselves and survive a kill.
+
+A checkpoint is one ``torch.save`` file: a header (format, algorithm, inputs, preset and
+overrides, observation spaces, network shape, step, episodes, hyperparameters) and the learner's
+state (online and target networks, optimiser), plus the random generators' states for
+``--resume``. It is written to a temporary file in the same directory, flushed to disk and
+renamed over the old one, so the old checkpoint stays whole until the new one is.
+Loading uses ``weights_only=True``: a checkpoint cannot run code.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from .learner import ALGOS, DQNConfig, DQNLearner
+from .network import NetworkShape
+
+CHECKPOINT_FORMAT = "overtake-dqn/1"
+CHECKPOINT_NAME = "checkpoint.pt"
+REPLAY_NAME = "replay.npz"
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    algo: str
+    inputs: str
+    preset: str
+    overrides: dict[str, Any]
+    space: dict[str, Any]
+    net_shape: NetworkShape
+    dqn: DQNConfig
+    step: int
+    episodes: int
+    resumes: int
+    learner: dict[str, Any]
+    rng_state: dict[str, Any]
+    torch_rng_state: torch.Tensor
+    config: dict[str, Any]
+
+    def check_compatible(self, algo: str, inputs: str, preset: str) -> None:
+        if (algo, inputs, preset) != (self.algo, self.inputs, self.preset):
+            raise SystemExit(f"--resume: the checkpoint is algo={self.algo} inputs={self.inputs} "
+                             f"preset={self.preset}, this run asks for algo={algo} "
+                             f"inputs={inputs} preset={preset}")
+
+    def make_learner(self, device: str = "cpu") -> DQNLearner:
+        double, dueling = ALGOS[self.algo]
+        learner = DQNLearner(self.net_shape, self.inputs, self.dqn,  # type: ignore[arg-type]
+                             double=double, dueling=dueling, device=device)
+        learner.load_state_dict(self.learner)
+        return learner
+
+
+def save_checkpoint(path: Path, *, learner: DQNLearner, config: Any, overrides: dict[str, Any],
+                    space: dict[str, Any], net_shape: NetworkShape, step: int, episodes: int,
+                    rng_state: dict[str, Any], resumes: int) -> None:
+    header = {"format": CHECKPOINT_FORMAT, "algo": config.algo, "inputs": config.inputs,
+              "preset": config.preset, "overrides": overrides, "space": space,
+              "net_shape": dataclasses.asdict(net_shape),
+              "dqn": dataclasses.asdict(config.dqn), "step": step, "episodes": episodes,
+              "resumes": resumes,
+              # Plain JSON: loading with weights_only=True accepts no other objects.
+              "config_json": json.dumps(config, default=_plain)}
+    payload = {"header": header, "learner": learner.state_dict(),
+               "rng_state": json.dumps(rng_state), "torch_rng_state": torch.get_rng_state()}
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as handle:
+        torch.save(payload, handle)
+        handle.flush()
+        os.fsync(handle.fileno())
+    os.replace(tmp, path)
+
+
+def _plain(value: Any) -> Any:
+    if dataclasses.is_dataclass(value):
+        return dataclasses.asdict(value)
+    return str(value)
+
+
+def load_checkpoint(path: Path) -> Checkpoint:
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:  # torch raises many types for a truncated or foreign file
+        raise SystemExit(f"{path} is not a readable overtake checkpoint "
+                         f"({type(error).__name__}: {error})") from None
+    header = payload.get("header") if isinstance(payload, dict) else None
+    if not isinstance(header, dict) or header.get("format") != CHECKPOINT_FORMAT:
+        found = header.get("format") if isinstance(header, dict) else type(payload).__name__
+        raise SystemExit(f"{path}: expected an overtake checkpoint of format "
+                         f"{CHECKPOINT_FORMAT}, got {found!r}")
+    shape = dict(header["net_shape"])
+    shape["camera_hw"] = tuple(shape["camera_hw"])
+    shape["ego_high"] = tuple(shape["ego_high"])
+    return Checkpoint(
+        algo=header["algo"], inputs=header["inputs"], preset=header["preset"],
+        overrides=header["overrides"], space=header["space"], net_shape=NetworkShape(**shape),
+        dqn=DQNConfig(**header["dqn"]), step=int(header["step"]),
+        episodes=int(header["episodes"]), resumes=int(header["resumes"]),
+        learner=payload["learner"], rng_state=json.loads(payload["rng_state"]),
+        torch_rng_state=payload["torch_rng_state"], config=json.loads(header["config_json"]))

@@ -1,0 +1,171 @@
+"""``overtake-eval``: a checkpoint, the rule-based driver or random, over fixed-seed episodes.
+
+Every policy drives the same episodes: episode i uses seed ``seed + i``, at the chosen traffic,
+in-process or on a server. The table has the papers' metrics (mean and spread over episodes):
+average speed, lane changes, overtakes, collisions, emergency brakes and return, plus
+collisions per 1,000 decisions (the issue's bar compares that one).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+
+from overtake.client.drive import METRIC_COLUMNS, parse_overrides, run_episodes
+from overtake.client.drivers import RandomDriver, RuleDriver, RuleDriverConfig
+from overtake.protocol import ProtocolError
+
+from .checkpoint import load_checkpoint
+from .replay import FrameStacker
+from .train import STACKED, frame_shapes, make_envs
+
+TABLE_METRICS = ("avg_speed_kmh", "lane_changes", "overtakes", "collisions",
+                 "emergency_brakes", "return")
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """Evaluate a trained checkpoint or a baseline driver on fixed seeds."""
+
+    checkpoint: Path | None = None
+    """a checkpoint.pt written by overtake-train (evaluated greedily)"""
+    policy: Literal["rule", "random"] | None = None
+    """a baseline instead of a checkpoint"""
+    episodes: int = 10
+    seed: int = 1_000
+    """episode i uses seed + i (training uses other seeds by default)"""
+    traffic: Literal["light", "medium", "heavy"] | None = None
+    """traffic density; None keeps the preset's"""
+    preset: str | None = None
+    """default: the checkpoint's preset (min2018 for a baseline)"""
+    set: tuple[str, ...] = ()
+    """more simulator overrides as dotted.name=value"""
+    max_decisions: int | None = None
+    """episode length in decisions; None keeps the preset's"""
+    connect: str | None = None
+    """a simulator server's Zenoh endpoint; None runs the simulator in-process"""
+    json_out: Path | None = None
+    """also write the table (and every episode) as JSON here"""
+    name: str | None = None
+    """the row's name in the table (default: the algorithm and inputs, or the baseline)"""
+
+
+class GreedyPolicy:
+    """A trained learner acting greedily on stacked frames (restarted at episode starts)."""
+
+    def __init__(self, checkpoint: Any, num_envs: int, space: Any) -> None:
+        self.learner = checkpoint.make_learner()
+        shapes = frame_shapes(space, checkpoint.inputs)
+        stacked = tuple(name for name in STACKED if name in shapes.shapes)
+        self.names = tuple(shapes.shapes)
+        self.stacker = FrameStacker(num_envs, shapes, checkpoint.dqn.stack, stacked)
+
+    def __call__(self, obs: dict[str, np.ndarray], info: dict[str, Any],
+                 starting: np.ndarray) -> np.ndarray:
+        frames = {name: obs[name] for name in self.names}
+        fresh, moving = np.flatnonzero(starting), np.flatnonzero(~starting)
+        if fresh.size:
+            self.stacker.reset(fresh, {k: v[fresh] for k, v in frames.items()})
+        if moving.size:
+            self.stacker.push(moving, {k: v[moving] for k, v in frames.items()})
+        actions, _ = self.learner.act(self.stacker.observation(), info["action_mask"], 0.0,
+                                      np.random.default_rng(0))
+        return actions
+
+
+def summarise(rows: list[dict[str, float]]) -> dict[str, Any]:
+    table = np.array([[row[name] for name in METRIC_COLUMNS] for row in rows])
+    summary: dict[str, Any] = {name: {"mean": float(table[:, j].mean()),
+                                      "std": float(table[:, j].std())}
+                               for j, name in enumerate(METRIC_COLUMNS)}
+    decisions = table[:, METRIC_COLUMNS.index("decisions")].sum()
+    collisions = table[:, METRIC_COLUMNS.index("collisions")].sum()
+    summary["collisions_per_1000_decisions"] = float(1000.0 * collisions / max(decisions, 1.0))
+    summary["episodes"] = len(rows)
+    return summary
+
+
+def format_rows(named: list[tuple[str, dict[str, Any]]]) -> str:
+    headers = ("policy", "speed km/h", "lane changes", "overtakes", "collisions", "e-brakes",
+               "return", "coll./1k dec.")
+    lines = [headers]
+    for name, s in named:
+        cells = [name] + [f"{s[m]['mean']:.1f} ± {s[m]['std']:.1f}" for m in TABLE_METRICS]
+        lines.append(tuple(cells + [f"{s['collisions_per_1000_decisions']:.2f}"]))
+    widths = [max(len(row[i]) for row in lines) for i in range(len(headers))]
+    out = ["  ".join(c.rjust(w) for c, w in zip(row, widths)) for row in lines]
+    out.insert(1, "-" * len(out[0]))
+    return "\n".join(out)
+
+
+def main(config: EvalConfig) -> dict[str, Any]:
+    """Run the episodes; prints the table row and returns the summary."""
+    if (config.checkpoint is None) == (config.policy is None):
+        raise SystemExit("give exactly one of --checkpoint PATH or --policy rule|random")
+    if config.episodes < 1:
+        raise SystemExit(f"--episodes must be >= 1, got {config.episodes}")
+    checkpoint = load_checkpoint(config.checkpoint) if config.checkpoint is not None else None
+    preset = config.preset or (checkpoint.preset if checkpoint else "min2018")
+    overrides: dict[str, Any] = dict(checkpoint.overrides) if checkpoint else {}
+    overrides.pop("traffic.density", None)   # evaluation sets its own traffic
+    overrides.update(parse_overrides(config.set))
+    if config.traffic is not None:
+        overrides["traffic.density"] = config.traffic
+    if config.max_decisions is not None:
+        overrides["episode.max_decisions"] = config.max_decisions
+    if config.policy == "rule":
+        overrides.pop("lidar.enabled", None)  # the rule-based driver reads the LIDAR
+    envs = make_envs({"preset": preset, "overrides": overrides}, config.episodes, config.connect)
+    try:
+        sim = envs.unwrapped.sim_config
+        if checkpoint is not None:
+            policy: Any = GreedyPolicy(checkpoint, config.episodes, envs.single_observation_space)
+            name = config.name or f"{checkpoint.algo}/{checkpoint.inputs}@{checkpoint.step}"
+        else:
+            driver: Any = (RuleDriver(RuleDriverConfig(cruise_max_kmh=sim["ego"]["cruise_max_kmh"],
+                                                       lane_width_m=sim["road"]["lane_width_m"]),
+                                      ray_count=sim["lidar"]["ray_count"],
+                                      max_range_m=sim["lidar"]["max_range_m"])
+                           if config.policy == "rule" else RandomDriver(config.seed))
+            name = config.name or str(config.policy)
+
+            def policy(obs: dict[str, np.ndarray], info: dict[str, Any],
+                       _starting: np.ndarray) -> np.ndarray:
+                return driver.act(obs["lidar"] if "lidar" in obs else
+                                  np.zeros((config.episodes, 1), np.float32), obs["ego"],
+                                  info["action_mask"])
+        with torch.no_grad():
+            rows, decisions, elapsed = run_episodes(envs, policy, config.episodes, config.seed)
+    finally:
+        envs.close()
+    summary = summarise(rows)
+    result = {"name": name, "preset": preset, "overrides": overrides, "seed": config.seed,
+              "checkpoint": str(config.checkpoint) if config.checkpoint else None,
+              "policy": config.policy, "summary": summary, "episodes": rows,
+              "decisions_per_s": decisions / max(elapsed, 1e-9)}
+    print(format_rows([(name, summary)]))
+    if config.json_out is not None:
+        config.json_out.parent.mkdir(parents=True, exist_ok=True)
+        config.json_out.write_text(json.dumps(result, indent=2))
+    return result
+
+
+def cli(argv: list[str] | None = None) -> None:
+    import tyro
+
+    config = tyro.cli(EvalConfig, args=argv, description="overtake-eval: the papers' metrics "
+                      "for a checkpoint or a baseline on fixed seeds")
+    try:
+        main(config)
+    except ProtocolError as error:
+        sys.exit(f"overtake-eval: {error}")
+
+
+if __name__ == "__main__":
+    cli()

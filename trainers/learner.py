@@ -1,0 +1,194 @@
+"""One DQN learner with ``double`` and ``dueling`` switches (Min et al. Section III).
+
+- DQN: target r + gamma * max_a' Q_target(s', a').
+- Double DQN (Eq. 8): the online network chooses a' = argmax Q_online(s', a'), the target
+  network values it.
+- Dueling (Eq. 9): the network's value and advantage streams (see :mod:`.network`).
+
+Invalid actions (the action mask, e.g. a lane change with no lane on that side) are never
+chosen: not when acting (greedy or random) and not in the target's max or argmax.
+Huber loss, gradient norm clipping, a target network copied every ``target_update_steps``
+environment steps, epsilon-greedy with a linear schedule.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+import torch
+from torch import nn
+
+from .network import Inputs, NetworkShape, QNetwork
+
+Algo = Literal["dqn", "ddqn", "dueling"]
+
+# The algorithms as switch settings. Dueling uses the double target as well, as Wang et al.
+# (2016) did and as Min et al.'s code does (Double + Dueling DQN).
+ALGOS: dict[str, tuple[bool, bool]] = {"dqn": (False, False), "ddqn": (True, False),
+                                       "dueling": (True, True)}
+
+
+@dataclass(frozen=True)
+class DQNConfig:
+    """Hyperparameters. Defaults: Min et al.'s paper and code (Adam 2.5e-4, batch 32, replay
+    100,000, 50,000 steps before learning, discount 0.99, epsilon 1 to 0.1 over 1,000,000
+    steps, target copy every 10,000 steps)."""
+
+    learning_rate: float = 0.00025
+    batch_size: int = 32
+    replay_size: int = 100_000
+    """transitions kept (each frame stored once)"""
+    learning_starts: int = 50_000
+    """environment steps of experience before the first update"""
+    gamma: float = 0.99
+    epsilon_start: float = 1.0
+    epsilon_end: float = 0.1
+    epsilon_decay_steps: int = 1_000_000
+    """environment steps over which epsilon falls linearly from start to end"""
+    target_update_steps: int = 10_000
+    """environment steps between copies of the online network into the target network"""
+    train_every: int = 4
+    """environment steps per gradient update (the papers do not say; 4 is Mnih et al.'s)"""
+    grad_clip_norm: float = 10.0
+    huber_delta: float = 1.0
+    stack: int = 4
+    """frames (camera) and scans (LIDAR) stacked per observation"""
+    lstm_cells: int = 256
+    hidden_units: int = 512
+
+    def __post_init__(self) -> None:
+        for name in ("batch_size", "replay_size", "epsilon_decay_steps", "target_update_steps",
+                     "train_every", "stack", "lstm_cells", "hidden_units"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.learning_starts < 0:
+            raise ValueError(f"learning_starts must be >= 0, got {self.learning_starts}")
+        if not 0.0 < self.learning_rate < 1.0:
+            raise ValueError(f"learning_rate must be in (0, 1), got {self.learning_rate}")
+        if not 0.0 <= self.gamma <= 1.0:
+            raise ValueError(f"gamma must be in [0, 1], got {self.gamma}")
+        for name in ("epsilon_start", "epsilon_end"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
+
+    def epsilon(self, step: int) -> float:
+        """The exploration rate after ``step`` environment steps."""
+        fraction = min(max(step, 0) / self.epsilon_decay_steps, 1.0)
+        return self.epsilon_start + fraction * (self.epsilon_end - self.epsilon_start)
+
+
+def masked(q: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """``q`` with masked-out actions (mask 0) at -inf; an all-zero mask row masks nothing."""
+    allowed = mask.bool() | ~mask.bool().any(dim=1, keepdim=True)
+    return q.masked_fill(~allowed, float("-inf"))
+
+
+def td_target(reward: torch.Tensor, terminated: torch.Tensor, gamma: float,
+              next_q_target: torch.Tensor, next_mask: torch.Tensor,
+              next_q_online: torch.Tensor | None = None) -> torch.Tensor:
+    """r + gamma * (1 - terminated) * value of s'. With ``next_q_online`` (Double DQN, Eq. 8)
+    the online network picks the action and the target network values it; without, the target
+    network's max. Both only over the actions ``next_mask`` allows."""
+    if next_q_online is None:
+        next_value = masked(next_q_target, next_mask).max(dim=1).values
+    else:
+        choice = masked(next_q_online, next_mask).argmax(dim=1, keepdim=True)
+        next_value = next_q_target.gather(1, choice).squeeze(1)
+    return reward + gamma * (1.0 - terminated.float()) * next_value
+
+
+class DQNLearner:
+    """The online and target networks, the optimiser, acting and updating.
+
+    ``double``: the Double DQN target (Eq. 8); ``dueling``: value and advantage streams (Eq. 9).
+    """
+
+    def __init__(self, shape: NetworkShape, inputs: Inputs, config: DQNConfig, *,
+                 double: bool, dueling: bool, device: str = "cpu") -> None:
+        self.shape, self.inputs, self.config = shape, inputs, config
+        self.double, self.dueling = double, dueling
+        self.device = torch.device(device)
+        self.online = QNetwork(shape, inputs, dueling=dueling,
+                               lstm_cells=config.lstm_cells,
+                               hidden=config.hidden_units).to(self.device)
+        self.target = copy.deepcopy(self.online).eval()
+        for p in self.target.parameters():
+            p.requires_grad_(False)
+        self.optimizer = torch.optim.Adam(self.online.parameters(), lr=config.learning_rate)
+        self.loss_fn = nn.HuberLoss(delta=config.huber_delta)
+        self.updates = 0
+
+    # --- inputs ---------------------------------------------------------------------------
+
+    def _tensors(self, obs: dict[str, np.ndarray], prefix: str = ""
+                 ) -> tuple[torch.Tensor | None, torch.Tensor | None, torch.Tensor]:
+        def get(name: str) -> torch.Tensor | None:
+            value = obs.get(prefix + name)
+            return None if value is None else torch.as_tensor(value, device=self.device)
+        ego = get("ego")
+        assert ego is not None
+        return (get("camera") if self.online.uses_camera else None,
+                get("lidar") if self.online.uses_lidar else None, ego)
+
+    # --- acting ---------------------------------------------------------------------------
+
+    @torch.no_grad()
+    def q_values(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        """(N, actions) Q-values of stacked observations (see :class:`.replay.FrameStacker`)."""
+        self.online.eval()
+        return self.online(*self._tensors(obs)).cpu().numpy()
+
+    def act(self, obs: dict[str, np.ndarray], mask: np.ndarray, epsilon: float,
+            rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """Epsilon-greedy actions (N,) among the allowed ones, and the Q-values (N, actions)."""
+        q = self.q_values(obs)
+        allowed = mask.astype(bool)
+        allowed |= ~allowed.any(axis=1, keepdims=True)
+        greedy = np.where(allowed, q, -np.inf).argmax(axis=1)
+        random = np.where(allowed, rng.random(allowed.shape), -1.0).argmax(axis=1)
+        explore = rng.random(len(greedy)) < epsilon
+        return np.where(explore, random, greedy).astype(np.int64), q
+
+    # --- learning -------------------------------------------------------------------------
+
+    def update(self, batch: dict[str, np.ndarray]) -> dict[str, float]:
+        """One gradient step on a replay batch; returns the loss and the mean Q of the taken
+        actions."""
+        self.online.train()
+        dev = self.device
+        action = torch.as_tensor(batch["action"], device=dev)
+        reward = torch.as_tensor(batch["reward"], device=dev, dtype=torch.float32)
+        terminated = torch.as_tensor(batch["terminated"], device=dev)
+        next_mask = torch.as_tensor(batch["next_mask"], device=dev)
+        q_taken = self.online(*self._tensors(batch)).gather(1, action[:, None]).squeeze(1)
+        with torch.no_grad():
+            next_inputs = self._tensors(batch, "next_")
+            next_q_target = self.target(*next_inputs)
+            next_q_online = self.online(*next_inputs) if self.double else None
+            target = td_target(reward, terminated, self.config.gamma, next_q_target, next_mask,
+                               next_q_online)
+        loss = self.loss_fn(q_taken, target)
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        nn.utils.clip_grad_norm_(self.online.parameters(), self.config.grad_clip_norm)
+        self.optimizer.step()
+        self.updates += 1
+        return {"loss": float(loss.item()), "q_taken": float(q_taken.mean().item())}
+
+    def sync_target(self) -> None:
+        self.target.load_state_dict(self.online.state_dict())
+
+    # --- persistence ----------------------------------------------------------------------
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"online": self.online.state_dict(), "target": self.target.state_dict(),
+                "optimizer": self.optimizer.state_dict(), "updates": self.updates}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.online.load_state_dict(state["online"])
+        self.target.load_state_dict(state["target"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.updates = int(state["updates"])

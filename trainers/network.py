@@ -1,0 +1,122 @@
+"""The multi-modal Q-network of Min et al. (Table II), with camera-only and LIDAR-only variants.
+
+- camera: the last ``stack`` grey frames, channels first, through the DQN convolutions
+  (8x8 stride 4, 32; 4x4 stride 2, 64; 3x3 stride 1, 64), ReLU after each;
+- LIDAR: the last ``stack`` scans through an LSTM with 256 cells (its last output is the
+  feature);
+- the ego vector of the latest decision (speed, cruise target, lane, lane count, lane-change
+  progress and direction; Min et al.'s code feeds these 6 values beside the LIDAR) is
+  concatenated too, in every variant: it is the car's own state, not a sensor, so the ablation
+  compares camera against LIDAR only;
+- the concatenation goes through a 512-unit layer with ReLU, then either Q-values or, with
+  ``dueling``, a value and an advantage head combined as Q = V + A - mean(A) (Wang et al.,
+  Min et al. Eq. 9).
+
+Inputs arrive as stored (camera uint8, LIDAR metres, ego in its own units) and are scaled here
+by the observation space's bounds, so the replay keeps the compact dtypes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import torch
+from torch import nn
+
+Inputs = Literal["camera", "lidar", "both"]
+INPUTS: tuple[str, ...] = ("camera", "lidar", "both")
+
+
+@dataclass(frozen=True)
+class NetworkShape:
+    """What the network is built for: the single observation's shapes and the action count."""
+
+    camera_hw: tuple[int, int]
+    lidar_rays: int
+    ego_size: int
+    actions: int
+    stack: int = 4
+    lidar_max_m: float = 80.0
+    ego_high: tuple[float, ...] = ()
+
+    @classmethod
+    def from_space(cls, space, actions: int, stack: int) -> "NetworkShape":
+        """From a single environment's Dict observation space."""
+        camera = space["camera"].shape if "camera" in space.spaces else (84, 84)
+        lidar = space["lidar"] if "lidar" in space.spaces else None
+        ego = space["ego"]
+        high = np.maximum(np.abs(ego.high), np.abs(ego.low))
+        return cls(camera_hw=(int(camera[0]), int(camera[1])),
+                   lidar_rays=int(lidar.shape[0]) if lidar is not None else 0,
+                   ego_size=int(ego.shape[0]), actions=actions, stack=stack,
+                   lidar_max_m=float(lidar.high.max()) if lidar is not None else 1.0,
+                   ego_high=tuple(float(h) if h > 0 else 1.0 for h in high))
+
+
+def conv_output_size(height: int, width: int) -> int:
+    """Features out of the three DQN convolutions for a ``height`` x ``width`` image."""
+    for kernel, stride in ((8, 4), (4, 2), (3, 1)):
+        height = (height - kernel) // stride + 1
+        width = (width - kernel) // stride + 1
+    if height < 1 or width < 1:
+        raise ValueError("the camera image is too small for the DQN convolutions (at least "
+                         "36x36 pixels)")
+    return 64 * height * width
+
+
+class QNetwork(nn.Module):
+    """Q-values (B, actions) from stacked camera (B, S, H, W) uint8, LIDAR (B, S, R) and ego
+    (B, E)."""
+
+    def __init__(self, shape: NetworkShape, inputs: Inputs = "both", dueling: bool = False,
+                 lstm_cells: int = 256, hidden: int = 512) -> None:
+        super().__init__()
+        if inputs not in INPUTS:
+            raise ValueError(f"inputs must be one of {INPUTS}, got {inputs!r}")
+        if inputs in ("lidar", "both") and shape.lidar_rays == 0:
+            raise ValueError(f"inputs={inputs!r} needs the LIDAR, but the environment has none")
+        self.shape, self.inputs, self.dueling = shape, inputs, dueling
+        self.uses_camera = inputs in ("camera", "both")
+        self.uses_lidar = inputs in ("lidar", "both")
+        features = shape.ego_size
+        if self.uses_camera:
+            self.conv = nn.Sequential(
+                nn.Conv2d(shape.stack, 32, kernel_size=8, stride=4), nn.ReLU(),
+                nn.Conv2d(32, 64, kernel_size=4, stride=2), nn.ReLU(),
+                nn.Conv2d(64, 64, kernel_size=3, stride=1), nn.ReLU(),
+                nn.Flatten())
+            features += conv_output_size(*shape.camera_hw)
+        if self.uses_lidar:
+            self.lstm = nn.LSTM(shape.lidar_rays, lstm_cells, batch_first=True)
+            features += lstm_cells
+        self.fuse = nn.Sequential(nn.Linear(features, hidden), nn.ReLU())
+        if dueling:
+            self.value = nn.Linear(hidden, 1)
+            self.advantage = nn.Linear(hidden, shape.actions)
+        else:
+            self.q = nn.Linear(hidden, shape.actions)
+        self.register_buffer("ego_scale", torch.tensor(
+            [1.0 / h for h in (shape.ego_high or (1.0,) * shape.ego_size)], dtype=torch.float32))
+
+    def forward(self, camera: torch.Tensor | None, lidar: torch.Tensor | None,
+                ego: torch.Tensor) -> torch.Tensor:
+        parts = [ego.float() * self.ego_scale]
+        if self.uses_camera:
+            assert camera is not None
+            parts.append(self.conv(camera.float() / 255.0))
+        if self.uses_lidar:
+            assert lidar is not None
+            out, _ = self.lstm(lidar.float() / self.shape.lidar_max_m)
+            parts.append(out[:, -1])
+        hidden = self.fuse(torch.cat(parts, dim=1))
+        if self.dueling:
+            return dueling_q(self.value(hidden), self.advantage(hidden))
+        return self.q(hidden)
+
+
+def dueling_q(value: torch.Tensor, advantage: torch.Tensor) -> torch.Tensor:
+    """Eq. 9: Q(s, a) = V(s) + A(s, a) - mean over a' of A(s, a'). value (B, 1), advantage
+    (B, actions)."""
+    return value + advantage - advantage.mean(dim=1, keepdim=True)

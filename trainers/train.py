@@ -1,0 +1,409 @@
+"""``overtake-train``: DQN, Double DQN or Dueling DQN on overtake, in-process or over Zenoh.
+
+The run directory holds:
+
+- ``run.json``: the resolved configuration, the simulator's configuration, package versions,
+  the seed and the code's commit;
+- ``metrics.jsonl``: one JSON object per line, ``{"kind": "episode", ...}`` at every episode
+  end (the papers' metrics) and ``{"kind": "train", ...}`` every ``log_every`` steps (loss,
+  epsilon, Q of the taken actions, steps per second and where the time went);
+- ``checkpoint.pt``: the latest checkpoint, written to a temporary file and renamed, so a kill
+  never leaves a broken one; it describes itself (algorithm, inputs, preset, spaces, step);
+- ``replay.npz`` with ``--save-replay``: the replay memory, saved beside each checkpoint.
+
+``--resume`` continues a run from its checkpoint: the step count, epsilon schedule, target
+network, optimiser state and random generators carry on. The environments start new episodes
+(the ones in flight at the checkpoint are not continued). The replay is restored if it was
+saved; otherwise it refills, and updates wait until it again holds ``learning_starts``
+transitions (the same rule as at the start of a run), so a resumed learner never trains on a
+handful of fresh transitions.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import platform
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from importlib import metadata
+from pathlib import Path
+from typing import Any, Literal
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from overtake.client.drive import parse_overrides
+from overtake.protocol import (ACTION_COUNT, HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID,
+                               ProtocolError, register_environments)
+
+from .checkpoint import CHECKPOINT_NAME, REPLAY_NAME, load_checkpoint, save_checkpoint
+from .learner import ALGOS, Algo, DQNConfig, DQNLearner
+from .network import Inputs, NetworkShape
+from .replay import FrameShapes, FrameStacker, ReplayMemory
+
+STACKED = ("camera", "lidar")   # observations stacked over the last frames; ego is not
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Train a DQN-family learner on an overtake preset."""
+
+    algo: Algo = "ddqn"
+    """dqn, ddqn (Double DQN) or dueling (Dueling network with the Double DQN target)"""
+    inputs: Inputs = "both"
+    """camera, lidar or both (Min et al.'s multi-modal network)"""
+    preset: str = "min2018"
+    traffic: Literal["light", "medium", "heavy"] | None = None
+    """traffic density; None keeps the preset's"""
+    set: tuple[str, ...] = ()
+    """more simulator overrides as dotted.name=value"""
+    connect: str | None = None
+    """a simulator server's (or router's) Zenoh endpoint; None runs the simulator in-process"""
+    num_envs: int = 1
+    """environments (arenas) stepped together"""
+    total_steps: int = 1_000_000
+    """environment steps (transitions, summed over environments) to train for"""
+    seed: int = 0
+    run_dir: Path | None = None
+    """where the run's files go; default runs/<algo>-<inputs>-<seed>"""
+    resume: bool = False
+    """continue the run in run_dir from its checkpoint"""
+    checkpoint_every: int = 50_000
+    """environment steps between checkpoints (one is always written at the end)"""
+    save_replay: bool = False
+    """save the replay memory with each checkpoint (about 0.9 GB at the default size)"""
+    log_every: int = 1_000
+    """environment steps between training log lines"""
+    device: str = "cpu"
+    torch_threads: int | None = None
+    """CPU threads for PyTorch; None keeps PyTorch's default"""
+    progress: bool = True
+    """show a progress bar"""
+    dqn: DQNConfig = field(default_factory=DQNConfig)
+
+    def resolved_run_dir(self) -> Path:
+        return self.run_dir or Path("runs") / f"{self.algo}-{self.inputs}-{self.seed}"
+
+    def overrides(self) -> dict[str, Any]:
+        """Simulator overrides: the user's, the traffic, and no sensor the network ignores
+        (rendering a camera nobody looks at costs a third of a step)."""
+        overrides = parse_overrides(self.set)
+        if self.traffic is not None:
+            overrides["traffic.density"] = self.traffic
+        if self.inputs == "lidar":
+            overrides.setdefault("camera.enabled", False)
+        return overrides
+
+
+def make_envs(env_config: dict[str, Any], num_envs: int, connect: str | None) -> Any:
+    """The vector environment: in-process, or arenas on a server."""
+    register_environments()
+    if connect is None:
+        return gym.make_vec(HIGHWAY_ENV_ID, num_envs=num_envs,
+                            vectorization_mode="vector_entry_point", **env_config)
+    return gym.make_vec(REMOTE_HIGHWAY_ENV_ID, num_envs=num_envs,
+                        vectorization_mode="vector_entry_point", connect=connect, **env_config)
+
+
+def frame_shapes(space: gym.spaces.Dict, inputs: Inputs) -> FrameShapes:
+    """The per-frame observations the learner uses, as the replay stores them."""
+    wanted = {"ego"} | ({"camera"} if inputs in ("camera", "both") else set()) \
+        | ({"lidar"} if inputs in ("lidar", "both") else set())
+    missing = wanted - set(space.spaces)
+    if missing:
+        raise SystemExit(f"--inputs {inputs} needs the observation(s) {sorted(missing)}, which "
+                         "this preset's environment does not send (check camera.enabled / "
+                         "lidar.enabled)")
+    return FrameShapes({name: (tuple(space[name].shape), space[name].dtype)
+                        for name in sorted(wanted)}, actions=ACTION_COUNT)
+
+
+def describe_space(space: gym.spaces.Dict) -> dict[str, Any]:
+    return {name: {"shape": list(box.shape), "dtype": box.dtype.name,
+                   "low": float(np.min(box.low)), "high": float(np.max(box.high))}
+            for name, box in space.spaces.items()}
+
+
+def git_commit() -> str:
+    try:
+        here = Path(__file__).resolve().parent
+        out = subprocess.run(["git", "-C", str(here), "rev-parse", "HEAD"], capture_output=True,
+                             text=True, timeout=5, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(here), "status", "--porcelain"],
+                               capture_output=True, text=True, timeout=5).stdout.strip()
+        return out + ("+uncommitted" if dirty else "")
+    except (OSError, subprocess.SubprocessError):
+        return "unknown (not a git checkout)"
+
+
+def package_versions() -> dict[str, str]:
+    versions = {"python": platform.python_version()}
+    for name in ("overtake", "torch", "numpy", "gymnasium", "eclipse-zenoh", "msgpack"):
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            versions[name] = "not installed"
+    return versions
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, Path):
+        return str(value)
+    if dataclasses.is_dataclass(value):
+        return {f.name: _jsonable(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, (tuple, list)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    return value
+
+
+class MetricsLog:
+    """Appends JSON lines; each line is flushed, so a kill loses at most the line being written."""
+
+    def __init__(self, path: Path) -> None:
+        self.handle = open(path, "a", encoding="utf-8")
+
+    def write(self, record: dict[str, Any]) -> None:
+        self.handle.write(json.dumps(record) + "\n")
+        self.handle.flush()
+
+    def close(self) -> None:
+        self.handle.close()
+
+
+@dataclass
+class Timings:
+    """Wall seconds spent per part of the loop since the last log line."""
+
+    env: float = 0.0
+    act: float = 0.0
+    update: float = 0.0
+    replay: float = 0.0
+
+    def shares(self) -> dict[str, float]:
+        total = self.env + self.act + self.update + self.replay
+        return {f"time_{k}": (v / total if total else 0.0)
+                for k, v in dataclasses.asdict(self).items()}
+
+
+def main(config: TrainConfig, envs: Any = None) -> dict[str, Any]:
+    """Train; returns a summary (steps, episodes, last metrics, run directory).
+
+    ``envs``: a ready Gymnasium vector environment (next-step autoreset, the overtake
+    observation keys and ``info["action_mask"]``) to train on instead of the one the
+    configuration describes; the caller keeps it and closes it.
+    """
+    if config.total_steps < 1 or config.num_envs < 1:
+        raise SystemExit("--total-steps and --num-envs must be >= 1")
+    if config.torch_threads is not None:
+        torch.set_num_threads(config.torch_threads)
+    run_dir = config.resolved_run_dir()
+    checkpoint_path = run_dir / CHECKPOINT_NAME
+    replay_path = run_dir / REPLAY_NAME
+    resumed = None
+    if config.resume:
+        if not checkpoint_path.exists():
+            raise SystemExit(f"--resume: no checkpoint at {checkpoint_path}")
+        resumed = load_checkpoint(checkpoint_path)
+        resumed.check_compatible(config.algo, config.inputs, config.preset)
+    elif checkpoint_path.exists():
+        raise SystemExit(f"{run_dir} already holds a run (checkpoint.pt); pass --resume to "
+                         "continue it or choose another --run-dir")
+    run_dir.mkdir(parents=True, exist_ok=True)
+
+    double, dueling = ALGOS[config.algo]
+    overrides = config.overrides()
+    if envs is not None:
+        if envs.num_envs != config.num_envs:
+            raise ValueError(f"the environment has {envs.num_envs} sub-environments, the "
+                             f"configuration says num_envs={config.num_envs}")
+        return _train(config, envs, run_dir, overrides, double, dueling, resumed,
+                      checkpoint_path, replay_path)
+    envs = make_envs({"preset": config.preset, "overrides": overrides}, config.num_envs,
+                     config.connect)
+    try:
+        return _train(config, envs, run_dir, overrides, double, dueling, resumed,
+                      checkpoint_path, replay_path)
+    finally:
+        envs.close()
+
+
+def _train(config: TrainConfig, envs: Any, run_dir: Path, overrides: dict[str, Any],
+           double: bool, dueling: bool, resumed: Any, checkpoint_path: Path,
+           replay_path: Path) -> dict[str, Any]:
+    dqn, n = config.dqn, config.num_envs
+    space = envs.single_observation_space
+    shapes = frame_shapes(space, config.inputs)
+    stacked = tuple(name for name in STACKED if name in shapes.shapes)
+    net_shape = NetworkShape.from_space(space, ACTION_COUNT, dqn.stack)
+    torch.manual_seed(config.seed)
+    learner = DQNLearner(net_shape, config.inputs, dqn, double=double, dueling=dueling,
+                         device=config.device)
+    replay = ReplayMemory(dqn.replay_size, n, shapes, dqn.stack, stacked, seed=config.seed)
+    stacker = FrameStacker(n, shapes, dqn.stack, stacked)
+    rng = np.random.default_rng(config.seed)
+    step, episodes = 0, 0
+    env_seed = config.seed
+    if resumed is not None:
+        learner.load_state_dict(resumed.learner)
+        step, episodes = resumed.step, resumed.episodes
+        rng.bit_generator.state = resumed.rng_state
+        torch.set_rng_state(resumed.torch_rng_state)
+        # New episodes, not the ones of the first life: different environment seeds.
+        env_seed = config.seed + 1_000_003 * (resumed.resumes + 1)
+        if config.save_replay and replay_path.exists():
+            replay.load(replay_path)
+    resumes = 0 if resumed is None else resumed.resumes + 1
+
+    record = {"config": _jsonable(config), "algo": {"name": config.algo, "double": double,
+                                                    "dueling": dueling},
+              "overrides": overrides, "sim_config": getattr(envs.unwrapped, "sim_config", None),
+              "observation_space": describe_space(space),
+              "network": dataclasses.asdict(net_shape), "versions": package_versions(),
+              "commit": git_commit(), "seed": config.seed, "resumes": resumes,
+              "resumed_at_step": step if resumed is not None else None,
+              "host": platform.node(), "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ",
+                                                                    time.gmtime()),
+              "replay_bytes": replay.nbytes, "replay_naive_bytes": replay.naive_nbytes()}
+    (run_dir / ("run.json" if resumed is None else f"run-resume-{resumes}.json")).write_text(
+        json.dumps(record, indent=2, default=str))
+    log = MetricsLog(run_dir / "metrics.jsonl")
+
+    def checkpoint() -> None:
+        save_checkpoint(checkpoint_path, learner=learner, config=config, overrides=overrides,
+                        space=describe_space(space), net_shape=net_shape, step=step,
+                        episodes=episodes, rng_state=rng.bit_generator.state,
+                        resumes=resumes)
+        if config.save_replay:
+            replay.save(replay_path)
+
+    obs, info = envs.reset(seed=env_seed)
+    everyone = np.arange(n)
+    stacker.reset(everyone, obs)
+    replay.start(everyone, obs, info["action_mask"])
+    mask = info["action_mask"]
+    starting = np.zeros(n, dtype=bool)   # envs whose next step is Gymnasium's autoreset step
+    # Updates wait for this many transitions: at the start of a run, and again after a resume
+    # without a saved replay (capped by what the replay can hold).
+    warm = max(dqn.batch_size, min(dqn.learning_starts, (replay.per_env - 1) * n))
+    next_update = step + dqn.train_every
+    next_sync = step + dqn.target_update_steps
+    next_checkpoint = step + config.checkpoint_every
+    next_log = step + config.log_every
+    last_episode: dict[str, float] = {}
+    losses: list[float] = []
+    q_taken: list[float] = []
+    timings = Timings()
+    log_t, log_step = time.perf_counter(), step
+    bar = _progress(config, step)
+    try:
+        while step < config.total_steps:
+            t0 = time.perf_counter()
+            epsilon = dqn.epsilon(step)
+            actions, _ = learner.act(stacker.observation(), mask, epsilon, rng)
+            t1 = time.perf_counter()
+            obs, reward, terminated, truncated, info = envs.step(actions)
+            t2 = time.perf_counter()
+            mask = info["action_mask"]
+            # Gymnasium next-step autoreset: envs that ended last step were reset by this one
+            # (its action ignored, reward 0); their observation starts a new episode.
+            moving = np.flatnonzero(~starting)
+            fresh = np.flatnonzero(starting)
+            if fresh.size:
+                sub = {k: v[fresh] for k, v in obs.items()}
+                stacker.reset(fresh, sub)
+                replay.start(fresh, sub, mask[fresh])
+            if moving.size:
+                sub = {k: v[moving] for k, v in obs.items()}
+                replay.add(moving, actions[moving], reward[moving], terminated[moving], sub,
+                           mask[moving])
+                stacker.push(moving, sub)
+                step += moving.size
+            ended = (terminated | truncated) & ~starting
+            for i in np.flatnonzero(ended):
+                episodes += 1
+                last_episode = {name: float(values[i])
+                                for name, values in info["metrics"].items()}
+                log.write({"kind": "episode", "step": step, "episode": episodes, "env": int(i),
+                           "terminated": bool(terminated[i]), **last_episode})
+            starting = ended
+            t3 = time.perf_counter()
+            while step >= next_update:
+                next_update += dqn.train_every
+                if len(replay) >= warm:
+                    stats = learner.update(replay.sample(dqn.batch_size))
+                    losses.append(stats["loss"])
+                    q_taken.append(stats["q_taken"])
+            if step >= next_sync:
+                learner.sync_target()
+                next_sync = step + dqn.target_update_steps
+            t4 = time.perf_counter()
+            timings.act += t1 - t0
+            timings.env += t2 - t1
+            timings.replay += t3 - t2
+            timings.update += t4 - t3
+            if bar is not None:
+                bar.update(moving.size)
+            if step >= next_log:
+                now = time.perf_counter()
+                sps = (step - log_step) / max(now - log_t, 1e-9)
+                entry = {"kind": "train", "step": step, "episodes": episodes,
+                         "epsilon": epsilon, "updates": learner.updates,
+                         "loss": float(np.mean(losses)) if losses else None,
+                         "q_taken": float(np.mean(q_taken)) if q_taken else None,
+                         "steps_per_s": sps, "replay": len(replay), **timings.shares()}
+                log.write(entry)
+                if bar is not None:
+                    bar.set_postfix(eps=f"{epsilon:.2f}", loss=entry["loss"] and
+                                    f"{entry['loss']:.3f}",
+                                    speed=last_episode and
+                                    f"{last_episode['avg_speed_kmh']:.1f}",
+                                    ret=last_episode and f"{last_episode['return']:.0f}",
+                                    refresh=False)
+                losses.clear()
+                q_taken.clear()
+                timings = Timings()
+                log_t, log_step = now, step
+                next_log = step + config.log_every
+            if step >= next_checkpoint:
+                checkpoint()
+                next_checkpoint = step + config.checkpoint_every
+        checkpoint()
+    finally:
+        if bar is not None:
+            bar.close()
+        log.close()
+    return {"run_dir": str(run_dir), "steps": step, "episodes": episodes,
+            "updates": learner.updates, "last_episode": last_episode}
+
+
+def _progress(config: TrainConfig, start: int) -> Any:
+    if not config.progress:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=config.total_steps, initial=start, unit="step", dynamic_ncols=True,
+                desc=f"{config.algo}/{config.inputs}", file=sys.stderr)
+
+
+def cli(argv: list[str] | None = None) -> None:
+    import tyro
+
+    config = tyro.cli(TrainConfig, args=argv, config=(tyro.conf.OmitArgPrefixes,),
+                      description="overtake-train: DQN / Double DQN / Dueling DQN on overtake")
+    try:
+        summary = main(config)
+    except ProtocolError as error:
+        sys.exit(f"overtake-train: {error}")
+    except ValueError as error:
+        sys.exit(f"overtake-train: {error}")
+    print(json.dumps(summary, indent=2))
+
+
+if __name__ == "__main__":
+    cli()
