@@ -1,20 +1,46 @@
 #!/usr/bin/env bash
 # The main job: set up, start a simulator server on loopback, drive rule-based and random
-# episodes through it over Zenoh, print the papers' metrics, stop the server.
+# episodes through it over Zenoh, train DQN, Double DQN and Dueling DQN briefly as three
+# separate trainer processes on the same server, evaluate them, and stop the server.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-scripts/setup.sh
+scripts/setup.sh train
 mkdir -p runs/demo
 port="${OVERTAKE_DEMO_PORT:-$(.venv/bin/python -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')}"
 endpoint="tcp/127.0.0.1:${port}"
 .venv/bin/overtake-server --listen "$endpoint" --name demo --log-level warning \
   2> runs/demo/server.log &
 server_pid=$!
-trap 'kill "$server_pid" 2>/dev/null; wait "$server_pid" 2>/dev/null || true' EXIT
-# The drivers wait for the server to come up (RemoteConfig.connect_timeout_s).
+trainer_pids=()
+cleanup() {
+  for pid in "${trainer_pids[@]}"; do kill "$pid" 2>/dev/null || true; done
+  kill "$server_pid" 2>/dev/null || true
+  wait 2>/dev/null || true
+}
+trap cleanup EXIT
+# The drivers and trainers wait for the server to come up (RemoteConfig.connect_timeout_s).
 .venv/bin/overtake-drive --connect "$endpoint" --policy rule --episodes 4 --seed 0 \
   --json-out runs/demo/rule.json "$@"
 .venv/bin/overtake-drive --connect "$endpoint" --policy random --episodes 4 --seed 0 \
   --json-out runs/demo/random.json "$@"
+# A short taste of training (the paper's budget is a million steps; see bench/RESULTS.md).
+for algo in dqn ddqn dueling; do
+  rm -rf "runs/demo/$algo"
+  .venv/bin/overtake-train --connect "$endpoint" --algo "$algo" --inputs both --num-envs 2 \
+    --total-steps "${OVERTAKE_DEMO_STEPS:-600}" --learning-starts 200 \
+    --epsilon-decay-steps 600 --target-update-steps 200 --replay-size 5000 \
+    --torch-threads 1 --no-progress --run-dir "runs/demo/$algo" \
+    > "runs/demo/$algo.log" 2>&1 &
+  trainer_pids+=("$!")
+done
+echo "training dqn, ddqn and dueling on the server (logs: runs/demo/{dqn,ddqn,dueling}.log)"
+for pid in "${trainer_pids[@]}"; do wait "$pid"; done
+trainer_pids=()
 .venv/bin/overtake-status --connect "$endpoint"
-echo "tables written to runs/demo/rule.json and runs/demo/random.json (server log: runs/demo/server.log)"
+for algo in dqn ddqn dueling; do
+  .venv/bin/overtake-eval --connect "$endpoint" --checkpoint "runs/demo/$algo/checkpoint.pt" \
+    --episodes 2 --max-decisions 200 --seed 1000 --json-out "runs/demo/eval-$algo.json"
+done
+.venv/bin/overtake-eval --connect "$endpoint" --policy rule --episodes 2 --max-decisions 200 \
+  --seed 1000 --json-out runs/demo/eval-rule.json
+echo "tables written to runs/demo/*.json; training runs in runs/demo/{dqn,ddqn,dueling} (server log: runs/demo/server.log)"

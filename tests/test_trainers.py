@@ -33,7 +33,7 @@ def test_dqn_target_takes_the_target_networks_max_over_allowed_actions():
     next_q_target = torch.tensor([[1.0, 3.0, 2.0], [5.0, 0.0, 0.0], [4.0, 9.0, 1.0]])
     mask = torch.tensor([[1, 1, 1], [1, 1, 1], [1, 0, 1]], dtype=torch.int8)
     target = td_target(reward, terminated, 0.9, next_q_target, mask)
-    # row 0: 1 + 0.9 * 3; row 1 terminated: 0.5; row 2: action 1 (9) masked, so 1 + 0.9 * ... 2 + 0.9 * 4
+    # row 0: 1 + 0.9 * 3; row 1 terminated: 0.5; row 2: action 1 (9) is masked: 2 + 0.9 * 4
     assert torch.allclose(target, torch.tensor([1.0 + 0.9 * 3.0, 0.5, 2.0 + 0.9 * 4.0]))
 
 
@@ -472,3 +472,52 @@ def test_baselines_evaluate_on_the_same_seeds(tmp_path):
     assert random["summary"]["lane_changes"]["mean"] > rule["summary"]["lane_changes"]["mean"]
     with pytest.raises(SystemExit, match="exactly one"):
         evaluate(EvalConfig(policy="rule", checkpoint=tmp_path / "x.pt"))
+
+
+class CountingEnv(PickTheFreeLane):
+    """Frames that name themselves (LIDAR = env, episode, step, 0, 0); episodes of random
+    length end by termination or truncation, with Gymnasium's next-step autoreset."""
+
+    def __init__(self, num_envs: int, seed: int = 0) -> None:
+        super().__init__(num_envs, seed=seed)
+        self.episode = np.zeros(num_envs, dtype=int)
+
+    def _obs(self):
+        lidar = np.zeros((self.num_envs, 5), np.float32)
+        lidar[:, 0], lidar[:, 1], lidar[:, 2] = np.arange(self.num_envs), self.episode, self.t
+        self.lidar = lidar
+        return {"ego": np.zeros((self.num_envs, 6), np.float32), "lidar": lidar.copy()}
+
+    def step(self, actions):
+        resetting = self.autoreset.copy()
+        self.episode = self.episode + resetting
+        self.t = np.where(resetting, 0, self.t + 1)
+        ended = ~resetting & (self.rng.random(self.num_envs) < 0.15)
+        terminated = ended & (self.rng.random(self.num_envs) < 0.5)
+        truncated = ended & ~terminated
+        info = self._info()
+        if ended.any():
+            info["metrics"] = {"return": np.zeros(self.num_envs),
+                               "avg_speed_kmh": np.zeros(self.num_envs)}
+            info["_metrics"] = ended
+        self.autoreset = ended
+        return self._obs(), np.where(resetting, 0.0, 1.0), terminated, truncated, info
+
+
+def test_training_loop_stores_no_transition_across_an_autoreset(tmp_path):
+    config = TrainConfig(inputs="lidar", num_envs=3, total_steps=400, run_dir=tmp_path,
+                         progress=False, save_replay=True, dqn=tiny_dqn(learning_starts=50))
+    summary = train(config, envs=CountingEnv(3))
+    assert summary["episodes"] > 10
+    with np.load(tmp_path / "replay.npz") as saved:
+        frames, has_next = saved["frame_lidar"], saved["has_next"]
+        ep_step, count = saved["ep_step"], saved["count"]
+    assert has_next.sum() == summary["steps"]
+    for env in range(3):
+        for j in range(int(count[env]) - 1):
+            now, nxt = frames[env, j], frames[env, j + 1]
+            assert now[0] == env and ep_step[env, j] == now[2]
+            if has_next[env, j]:    # a transition: same episode, the next step
+                assert nxt[1] == now[1] and nxt[2] == now[2] + 1
+            else:                   # an episode's end: the next frame starts the next one
+                assert nxt[1] == now[1] + 1 and nxt[2] == 0 and ep_step[env, j + 1] == 0

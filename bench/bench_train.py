@@ -1,0 +1,111 @@
+"""Training throughput: environment steps per second with learning, in-process and remote.
+
+One run measures, for each input configuration asked for, ``overtake-train``'s own loop
+(``overtake.trainers.train.main``) twice on the same settings: with the simulator in this
+process, and with it in an ``overtake.server`` subprocess on 127.0.0.1 (a free port). Only the
+steps after learning has started count (the loop then acts, steps, stores and updates, as in a
+real run). Where the time goes comes from the loop's own clock (``metrics.jsonl``: act =
+network forward for acting, env = the environment's step, replay = storing, update = sampling
+and gradient steps); the remote run's env share is simulation plus transport, and its
+transport part is estimated as remote env time minus in-process env time per step.
+
+    .venv/bin/python -m bench.bench_train [--steps 2000] [--json PATH]
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from bench.bench_remote import free_port, start_server, stop_process
+
+
+@dataclass(frozen=True)
+class TrainBenchConfig:
+    steps: int = 2_000
+    """environment steps timed per run, after learning_starts"""
+    learning_starts: int = 400
+    num_envs: int = 4
+    algo: str = "ddqn"
+    inputs: tuple[str, ...] = ("both", "lidar")
+    torch_threads: int = 2
+    json: Path | None = None
+
+
+def run_once(config: TrainBenchConfig, inputs: str, connect: str | None,
+             run_dir: Path) -> dict[str, Any]:
+    from overtake.trainers.learner import DQNConfig
+    from overtake.trainers.train import TrainConfig, main
+
+    total = config.learning_starts + config.steps
+    started = time.perf_counter()
+    main(TrainConfig(algo=config.algo, inputs=inputs, num_envs=config.num_envs,  # type: ignore
+                     total_steps=total, seed=0, run_dir=run_dir, connect=connect,
+                     progress=False, log_every=config.learning_starts,
+                     checkpoint_every=10 * total, torch_threads=config.torch_threads,
+                     dqn=DQNConfig(learning_starts=config.learning_starts,
+                                   replay_size=max(10_000, 2 * total))))
+    wall = time.perf_counter() - started
+    records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    timed = [r for r in records if r["kind"] == "train" and r["step"] > config.learning_starts
+             and r["updates"] > 0]
+    steps = sum(config.learning_starts for _ in timed)
+    seconds = sum(config.learning_starts / r["steps_per_s"] for r in timed)
+    shares = {key: sum(r[key] * config.learning_starts / r["steps_per_s"] for r in timed)
+              / seconds for key in ("time_env", "time_act", "time_replay", "time_update")}
+    return {"inputs": inputs, "where": "remote" if connect else "in-process",
+            "steps_timed": steps, "steps_per_s": steps / seconds, "wall_s": wall,
+            "shares": shares,
+            "ms_per_step": {k: 1000 * v * seconds / steps for k, v in shares.items()}}
+
+
+def main(config: TrainBenchConfig) -> dict[str, Any]:
+    os.environ.setdefault("OMP_NUM_THREADS", str(config.torch_threads))
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    server = start_server(endpoint, 60.0)
+    results = []
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            for inputs in config.inputs:
+                for connect in (None, endpoint):
+                    where = "remote" if connect else "inproc"
+                    results.append(run_once(config, inputs, connect,
+                                            Path(tmp) / f"{inputs}-{where}"))
+    finally:
+        stop_process(server)
+    print(f"{config.algo}, {config.num_envs} envs, torch threads {config.torch_threads}, "
+          f"{config.steps} timed steps after {config.learning_starts} (one update per 4 steps)")
+    print(f"{'inputs':>6} {'where':>10} {'steps/s':>8}  ms/step: {'env':>6} {'act':>6} "
+          f"{'replay':>6} {'update':>7}")
+    for r in results:
+        ms = r["ms_per_step"]
+        print(f"{r['inputs']:>6} {r['where']:>10} {r['steps_per_s']:8.1f}           "
+              f"{ms['time_env']:6.2f} {ms['time_act']:6.2f} {ms['time_replay']:6.2f} "
+              f"{ms['time_update']:7.2f}")
+    by = {(r["inputs"], r["where"]): r for r in results}
+    for inputs in config.inputs:
+        local, remote = by[(inputs, "in-process")], by[(inputs, "remote")]
+        transport = remote["ms_per_step"]["time_env"] - local["ms_per_step"]["time_env"]
+        print(f"{inputs}: remote / in-process steps/s {remote['steps_per_s'] / local['steps_per_s']:.2f}x; "
+              f"transport and serving ~{transport:.2f} ms per step")
+    report = {"config": {k: str(v) for k, v in vars(config).items()},
+              "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
+                          "python": sys.version.split()[0]},
+              "results": results}
+    if config.json is not None:
+        config.json.parent.mkdir(parents=True, exist_ok=True)
+        config.json.write_text(json.dumps(report, indent=2))
+    return report
+
+
+if __name__ == "__main__":
+    import tyro
+
+    main(tyro.cli(TrainBenchConfig))
