@@ -1,0 +1,13 @@
+"""DQN, Double DQN and Dueling DQN trainers for overtake (Min et al. Section III).
+
+They see the simulator only through Gymnasium (the in-process vector env or remote arenas via
+overtake.client), never through overtake.server. Commands: ``overtake-train``,
+``overtake-eval``.
+"""
+
+from .learner import ALGOS, DQNConfig, DQNLearner
+from .network import NetworkShape, QNetwork
+from .replay import FrameStacker, ReplayMemory
+
+__all__ = ["ALGOS", "DQNConfig", "DQNLearner", "FrameStacker", "NetworkShape", "QNetwork",
+           "ReplayMemory"]

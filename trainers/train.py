@@ -300,6 +300,7 @@ def _train(config: TrainConfig, envs: Any, run_dir: Path, overrides: dict[str, A
     q_taken: list[float] = []
     timings = Timings()
     log_t, log_step = time.perf_counter(), step
+    started = log_t
     bar = _progress(config, step)
     try:
         while step < config.total_steps:
@@ -330,6 +331,7 @@ def _train(config: TrainConfig, envs: Any, run_dir: Path, overrides: dict[str, A
                 last_episode = {name: float(values[i])
                                 for name, values in info["metrics"].items()}
                 log.write({"kind": "episode", "step": step, "episode": episodes, "env": int(i),
+                           "wall_s": round(time.perf_counter() - started, 3),
                            "terminated": bool(terminated[i]), **last_episode})
             starting = ended
             t3 = time.perf_counter()
@@ -353,6 +355,7 @@ def _train(config: TrainConfig, envs: Any, run_dir: Path, overrides: dict[str, A
                 now = time.perf_counter()
                 sps = (step - log_step) / max(now - log_t, 1e-9)
                 entry = {"kind": "train", "step": step, "episodes": episodes,
+                         "wall_s": round(now - started, 3),
                          "epsilon": epsilon, "updates": learner.updates,
                          "loss": float(np.mean(losses)) if losses else None,
                          "q_taken": float(np.mean(q_taken)) if q_taken else None,
