@@ -28,18 +28,19 @@ class TableConfig:
 
 
 def evaluation_table(paths: tuple[Path, ...]) -> str:
-    lines = ["| policy | training steps | avg speed km/h | lane changes | overtakes | collisions "
+    lines = ["| policy | run | training steps | avg speed km/h | lane changes | overtakes | collisions "
              "| emergency brakes | return | collisions / 1,000 decisions |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for path in paths:
         result = json.loads(path.read_text())
         s = result["summary"]
         name = result["name"]
         steps = name.rsplit("@", 1)[1] if "@" in name else "-"
+        run = Path(result["checkpoint"]).parent.name if result["checkpoint"] else "-"
 
         def cell(metric: str) -> str:
             return f"{s[metric]['mean']:.1f} ± {s[metric]['std']:.1f}"
-        lines.append(f"| {name.rsplit('@', 1)[0]} | {steps} | {cell('avg_speed_kmh')} | "
+        lines.append(f"| {name.rsplit('@', 1)[0]} | {run} | {steps} | {cell('avg_speed_kmh')} | "
                      f"{cell('lane_changes')} | {cell('overtakes')} | {cell('collisions')} | "
                      f"{cell('emergency_brakes')} | {cell('return')} | "
                      f"{s['collisions_per_1000_decisions']:.2f} |")
