@@ -43,4 +43,7 @@ for algo in dqn ddqn dueling; do
 done
 .venv/bin/overtake-eval --connect "$endpoint" --policy rule --episodes 2 --max-decisions 200 \
   --seed 1000 --json-out runs/demo/eval-rule.json
+echo
+echo "The three trainers beside the rule-based driver (2 episodes of 200 decisions, seeds 1000-1001):"
+.venv/bin/overtake-eval --table runs/demo/eval-{dqn,ddqn,dueling,rule}.json
 echo "tables written to runs/demo/*.json; training runs in runs/demo/{dqn,ddqn,dueling} (server log: runs/demo/server.log)"

@@ -521,3 +521,16 @@ def test_training_loop_stores_no_transition_across_an_autoreset(tmp_path):
                 assert nxt[1] == now[1] and nxt[2] == now[2] + 1
             else:                   # an episode's end: the next frame starts the next one
                 assert nxt[1] == now[1] + 1 and nxt[2] == 0 and ep_step[env, j + 1] == 0
+
+
+def test_eval_table_joins_earlier_results_and_refuses_other_files(tmp_path, capsys):
+    for seed in (3, 4):
+        evaluate(EvalConfig(policy="random", episodes=1, max_decisions=20, seed=seed,
+                            name=f"random-{seed}", json_out=tmp_path / f"r{seed}.json"))
+    capsys.readouterr()
+    evaluate(EvalConfig(table=(tmp_path / "r3.json", tmp_path / "r4.json")))
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[2].split()[0] == "random-3" and lines[3].split()[0] == "random-4"
+    (tmp_path / "bad.json").write_text("{}")
+    with pytest.raises(SystemExit, match="not an overtake-eval result"):
+        evaluate(EvalConfig(table=(tmp_path / "bad.json",)))

@@ -54,6 +54,8 @@ class EvalConfig:
     """also write the table (and every episode) as JSON here"""
     name: str | None = None
     """the row's name in the table (default: the algorithm and inputs, or the baseline)"""
+    table: tuple[Path, ...] = ()
+    """instead of evaluating: print one table of these --json-out files (rows side by side)"""
 
 
 class GreedyPolicy:
@@ -104,8 +106,24 @@ def format_rows(named: list[tuple[str, dict[str, Any]]]) -> str:
     return "\n".join(out)
 
 
+def print_table(paths: tuple[Path, ...]) -> str:
+    """One table of earlier evaluations (their --json-out files)."""
+    named = []
+    for path in paths:
+        try:
+            result = json.loads(Path(path).read_text())
+            named.append((result["name"], result["summary"]))
+        except (OSError, ValueError, KeyError) as error:
+            raise SystemExit(f"{path} is not an overtake-eval result ({error})") from None
+    text = format_rows(named)
+    print(text)
+    return text
+
+
 def main(config: EvalConfig) -> dict[str, Any]:
     """Run the episodes; prints the table row and returns the summary."""
+    if config.table:
+        return {"table": print_table(config.table)}
     if (config.checkpoint is None) == (config.policy is None):
         raise SystemExit("give exactly one of --checkpoint PATH or --policy rule|random")
     if config.episodes < 1:
