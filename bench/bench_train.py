@@ -93,7 +93,8 @@ def main(config: TrainBenchConfig) -> dict[str, Any]:
     for inputs in config.inputs:
         local, remote = by[(inputs, "in-process")], by[(inputs, "remote")]
         transport = remote["ms_per_step"]["time_env"] - local["ms_per_step"]["time_env"]
-        print(f"{inputs}: remote / in-process steps/s {remote['steps_per_s'] / local['steps_per_s']:.2f}x; "
+        ratio = remote["steps_per_s"] / local["steps_per_s"]
+        print(f"{inputs}: remote / in-process steps/s {ratio:.2f}x; "
               f"transport and serving ~{transport:.2f} ms per step")
     report = {"config": {k: str(v) for k, v in vars(config).items()},
               "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),

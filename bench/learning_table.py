@@ -28,8 +28,8 @@ class TableConfig:
 
 
 def evaluation_table(paths: tuple[Path, ...]) -> str:
-    lines = ["| policy | run | training steps | avg speed km/h | lane changes | overtakes | collisions "
-             "| emergency brakes | return | collisions / 1,000 decisions |",
+    lines = ["| policy | run | training steps | avg speed km/h | lane changes | overtakes "
+             "| collisions | emergency brakes | return | collisions / 1,000 decisions |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for path in paths:
         result = json.loads(path.read_text())
