@@ -534,3 +534,37 @@ def test_eval_table_joins_earlier_results_and_refuses_other_files(tmp_path, caps
     (tmp_path / "bad.json").write_text("{}")
     with pytest.raises(SystemExit, match="not an overtake-eval result"):
         evaluate(EvalConfig(table=(tmp_path / "bad.json",)))
+
+
+def test_training_writes_a_rerun_recording_of_its_episodes_and_learning(tmp_path):
+    import rerun as rr
+
+    config = TrainConfig(inputs="lidar", num_envs=2, total_steps=300, run_dir=tmp_path / "run",
+                         progress=False, log_every=100, dqn=tiny_dqn(learning_starts=50))
+    train(config, envs=PickTheFreeLane(2, length=16))
+    records = [json.loads(line) for line in
+               (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
+    reader = rr.chunk.RrdReader(str(tmp_path / "run" / "trainer.rrd"))
+    assert reader.recordings() and reader.blueprints()
+
+    def series(entity: str) -> tuple[list[int], list[float]]:
+        steps, values = [], []
+        for chunk in reader.stream().to_chunks():
+            if chunk.entity_path != entity or chunk.is_static:
+                continue
+            batch = chunk.to_record_batch()
+            steps += batch.column("step").to_pylist()
+            values += [v[0] for v in batch.column("Scalars:scalars").to_pylist()]
+        order = np.argsort(steps, kind="stable")
+        return [steps[i] for i in order], [values[i] for i in order]
+
+    returns = [r for r in records if r["kind"] == "episode"]
+    steps, values = series("/trainer/run/episode/return")
+    assert steps == [r["step"] for r in returns]
+    assert values == pytest.approx([r["return"] for r in returns])
+    trained = [r for r in records if r["kind"] == "train" and r["loss"] is not None]
+    steps, values = series("/trainer/run/learning/loss")
+    assert steps == [r["step"] for r in trained] and len(steps) >= 2
+    assert values == pytest.approx([r["loss"] for r in trained])
+    _, epsilons = series("/trainer/run/learning/epsilon")
+    assert epsilons == sorted(epsilons, reverse=True) and epsilons[0] <= 1.0

@@ -37,6 +37,7 @@ import numpy as np
 import torch
 
 from overtake.client.drive import parse_overrides
+from overtake.client.recording import RecordingConfig, close_recording, open_recording
 from overtake.protocol import (ACTION_COUNT, HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID,
                                ProtocolError, register_environments)
 
@@ -44,6 +45,7 @@ from .checkpoint import CHECKPOINT_NAME, REPLAY_NAME, load_checkpoint, save_chec
 from .learner import ALGOS, Algo, DQNConfig, DQNLearner
 from .network import Inputs, NetworkShape
 from .replay import FrameShapes, FrameStacker, ReplayMemory
+from .visual import TrainingRecording, training_blueprint
 
 STACKED = ("camera", "lidar")   # observations stacked over the last frames; ego is not
 
@@ -84,6 +86,8 @@ class TrainConfig:
     progress: bool = True
     """show a progress bar"""
     dqn: DQNConfig = field(default_factory=DQNConfig)
+    recording: RecordingConfig = field(default_factory=RecordingConfig)
+    """Rerun: episodes and learning curves (default: trainer.rrd in the run directory)"""
 
     def resolved_run_dir(self) -> Path:
         return self.run_dir or Path("runs") / f"{self.algo}-{self.inputs}-{self.seed}"
@@ -273,6 +277,12 @@ def _train(config: TrainConfig, envs: Any, run_dir: Path, overrides: dict[str, A
     (run_dir / ("run.json" if resumed is None else f"run-resume-{resumes}.json")).write_text(
         json.dumps(record, indent=2, default=str))
     log = MetricsLog(run_dir / "metrics.jsonl")
+    run_name = run_dir.name or "run"
+    stream = open_recording("overtake-train", config.recording,
+                            run_dir / ("trainer.rrd" if resumed is None
+                                       else f"trainer-resume-{resumes}.rrd"),
+                            training_blueprint(run_name))
+    view = TrainingRecording(stream, run_name) if stream is not None else None
 
     def checkpoint() -> None:
         save_checkpoint(checkpoint_path, learner=learner, config=config, overrides=overrides,
@@ -333,6 +343,8 @@ def _train(config: TrainConfig, envs: Any, run_dir: Path, overrides: dict[str, A
                 log.write({"kind": "episode", "step": step, "episode": episodes, "env": int(i),
                            "wall_s": round(time.perf_counter() - started, 3),
                            "terminated": bool(terminated[i]), **last_episode})
+                if view is not None:
+                    view.episode(step, last_episode)
             starting = ended
             t3 = time.perf_counter()
             while step >= next_update:
@@ -361,6 +373,8 @@ def _train(config: TrainConfig, envs: Any, run_dir: Path, overrides: dict[str, A
                          "q_taken": float(np.mean(q_taken)) if q_taken else None,
                          "steps_per_s": sps, "replay": len(replay), **timings.shares()}
                 log.write(entry)
+                if view is not None:
+                    view.learning(step, entry)
                 if bar is not None:
                     bar.set_postfix(eps=f"{epsilon:.2f}", loss=entry["loss"] and
                                     f"{entry['loss']:.3f}",
@@ -381,6 +395,7 @@ def _train(config: TrainConfig, envs: Any, run_dir: Path, overrides: dict[str, A
         if bar is not None:
             bar.close()
         log.close()
+        close_recording(stream)
     return {"run_dir": str(run_dir), "steps": step, "episodes": episodes,
             "updates": learner.updates, "last_episode": last_episode}
 
