@@ -24,12 +24,14 @@ trap cleanup EXIT
 .venv/bin/overtake-drive --connect "$endpoint" --policy random --episodes 4 --seed 0 \
   --json-out runs/demo/random.json "$@"
 # A short taste of training (the paper's budget is a million steps; see bench/RESULTS.md).
+# One Rerun recording id for the three trainers: their .rrd files open as one recording.
+recording_id="overtake-demo-$(date +%Y%m%d-%H%M%S)"
 for algo in dqn ddqn dueling; do
   rm -rf "runs/demo/$algo"
   .venv/bin/overtake-train --connect "$endpoint" --algo "$algo" --inputs both --num-envs 2 \
     --total-steps "${OVERTAKE_DEMO_STEPS:-600}" --learning-starts 200 \
     --epsilon-decay-steps 600 --target-update-steps 200 --replay-size 5000 \
-    --torch-threads 1 --no-progress --run-dir "runs/demo/$algo" \
+    --torch-threads 1 --no-progress --run-dir "runs/demo/$algo" --recording-id "$recording_id" \
     > "runs/demo/$algo.log" 2>&1 &
   trainer_pids+=("$!")
 done
@@ -47,3 +49,4 @@ echo
 echo "The three trainers beside the rule-based driver (2 episodes of 200 decisions, seeds 1000-1001):"
 .venv/bin/overtake-eval --table runs/demo/eval-{dqn,ddqn,dueling,rule}.json
 echo "tables written to runs/demo/*.json; training runs in runs/demo/{dqn,ddqn,dueling} (server log: runs/demo/server.log)"
+echo "open the trainers' Rerun recording: .venv/bin/rerun runs/demo/dqn/trainer.rrd runs/demo/ddqn/trainer.rrd runs/demo/dueling/trainer.rrd"
