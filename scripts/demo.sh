@@ -12,8 +12,9 @@ endpoint="tcp/127.0.0.1:${port}"
   2> runs/demo/server.log &
 server_pid=$!
 trainer_pids=()
+spectator_pid=""
 cleanup() {
-  for pid in "${trainer_pids[@]}"; do kill "$pid" 2>/dev/null || true; done
+  for pid in "${trainer_pids[@]}" $spectator_pid; do kill "$pid" 2>/dev/null || true; done
   kill "$server_pid" 2>/dev/null || true
   wait 2>/dev/null || true
 }
@@ -36,8 +37,14 @@ for algo in dqn ddqn dueling; do
   trainer_pids+=("$!")
 done
 echo "training dqn, ddqn and dueling on the server (logs: runs/demo/{dqn,ddqn,dueling}.log)"
+# A spectator records the arenas while they train (read-only: it never slows the simulation).
+.venv/bin/overtake-spectate --connect "$endpoint" --server demo --no-rays --seconds 600 \
+  --rrd runs/demo/world.rrd --recording-id "$recording_id" 2> runs/demo/spectate.log &
+spectator_pid=$!
 for pid in "${trainer_pids[@]}"; do wait "$pid"; done
 trainer_pids=()
+kill -TERM "$spectator_pid" && wait "$spectator_pid" || true
+spectator_pid=""
 .venv/bin/overtake-status --connect "$endpoint"
 for algo in dqn ddqn dueling; do
   .venv/bin/overtake-eval --connect "$endpoint" --checkpoint "runs/demo/$algo/checkpoint.pt" \
@@ -49,4 +56,4 @@ echo
 echo "The three trainers beside the rule-based driver (2 episodes of 200 decisions, seeds 1000-1001):"
 .venv/bin/overtake-eval --table runs/demo/eval-{dqn,ddqn,dueling,rule}.json
 echo "tables written to runs/demo/*.json; training runs in runs/demo/{dqn,ddqn,dueling} (server log: runs/demo/server.log)"
-echo "open the trainers' Rerun recording: .venv/bin/rerun runs/demo/dqn/trainer.rrd runs/demo/ddqn/trainer.rrd runs/demo/dueling/trainer.rrd"
+echo "open the Rerun recording (the arenas and the three trainers): .venv/bin/rerun runs/demo/world.rrd runs/demo/dqn/trainer.rrd runs/demo/ddqn/trainer.rrd runs/demo/dueling/trainer.rrd"

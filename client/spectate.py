@@ -1,0 +1,100 @@
+"""``overtake-spectate``: watch a running server's arenas in Rerun, read-only.
+
+It subscribes to the servers' world topics (the server publishes them at its world rate, with
+dropping congestion control, and only while somebody watches), so watching never slows or
+touches the simulation. Frames go to an ``.rrd`` file by default, or stream to a viewer.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from overtake.protocol import ProtocolError
+
+from .recording import RecordingConfig, close_recording, open_recording
+from .remote import RemoteConfig
+from .spectator import Spectator
+from .world_view import WorldRecording, world_blueprint
+
+
+@dataclass(frozen=True)
+class SpectateConfig:
+    """Log what a simulator server's arenas look like to Rerun."""
+
+    connect: str = "tcp/127.0.0.1:7447"
+    """the server's (or a router's) Zenoh endpoint"""
+    server: str | None = None
+    """only this server's arenas (default: every server's)"""
+    arena: int | None = None
+    """only this arena (needs --server)"""
+    seconds: float | None = None
+    """stop after this long (default: until SIGINT or SIGTERM)"""
+    frames: int | None = None
+    """stop after this many frames"""
+    rays: bool = True
+    """draw every LIDAR ray, not only the hits"""
+    recording: RecordingConfig = field(default_factory=RecordingConfig)
+    """where the frames go (default: runs/spectate/world.rrd)"""
+
+
+def main(config: SpectateConfig, stop: threading.Event | None = None) -> int:
+    """Log frames until ``stop`` is set, or the time or frame limit; returns frames logged."""
+    stop = stop or threading.Event()
+    remote = RemoteConfig.from_connect(config.connect)
+    # A laid-out view for one arena; for many, Rerun's own layout.
+    blueprint = world_blueprint(config.server, config.arena) \
+        if config.server is not None and config.arena is not None else None
+    with Spectator(remote, server=config.server, arena=config.arena) as spectator:
+        stream = open_recording("overtake-spectate", config.recording,
+                                Path("runs/spectate/world.rrd"), blueprint)
+        view = WorldRecording(stream, rays=config.rays) if stream is not None else None
+        logged = 0
+        deadline = None if config.seconds is None else time.monotonic() + config.seconds
+        try:
+            while not stop.is_set():
+                if config.frames is not None and logged >= config.frames:
+                    break
+                wait = 0.5 if deadline is None else min(0.5, deadline - time.monotonic())
+                if wait <= 0:
+                    break
+                frame = spectator.next_frame(wait)
+                if frame is None:
+                    continue
+                if view is not None:
+                    view.log(frame)
+                logged += 1
+        finally:
+            close_recording(stream)
+    return logged
+
+
+def cli() -> None:
+    import tyro
+
+    config = tyro.cli(SpectateConfig, config=(tyro.conf.OmitArgPrefixes,),
+                      description="overtake-spectate: a running server's arenas in Rerun")
+    stop = threading.Event()
+
+    def on_signal(_signum: int, _frame: Any) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    try:
+        logged = main(config, stop)
+    except (ProtocolError, ValueError) as error:
+        sys.exit(f"overtake-spectate: {error}")
+    where = "nowhere (--sink off)" if config.recording.sink == "off" else (
+        config.recording.viewer_url if config.recording.sink == "grpc"
+        else str(config.recording.rrd or Path("runs/spectate/world.rrd")))
+    print(f"logged {logged} world frame(s) to {where}", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    cli()

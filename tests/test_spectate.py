@@ -1,0 +1,82 @@
+"""overtake-spectate: a running server's arenas logged to Rerun, read back from the .rrd."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import rerun as rr
+
+import overtake.client  # noqa: F401  (registers the environments)
+from overtake.client.recording import RecordingConfig
+from overtake.client.spectate import SpectateConfig
+from overtake.client.spectate import main as spectate
+from overtake.protocol import REMOTE_HIGHWAY_ENV_ID
+
+from remote_support import remote_config, wait_until
+
+
+def rows(reader: rr.chunk.RrdReader, entity: str, column: str) -> dict[int, list]:
+    """round -> the logged value of ``column`` (the last logged in that round)."""
+    out: dict[int, list] = {}
+    for chunk in reader.stream().to_chunks():
+        if chunk.entity_path != entity or chunk.is_static:
+            continue
+        batch = chunk.to_record_batch()
+        for round_, value in zip(batch.column("round").to_pylist(),
+                                 batch.column(column).to_pylist()):
+            out[round_] = value
+    return out
+
+
+@pytest.mark.timeout(90)
+def test_spectate_logs_the_arena_and_the_lidar_the_trainer_received(start_server, tmp_path):
+    server = start_server("spectate", world_rate_hz=50)
+    rrd = tmp_path / "world.rrd"
+    env = gym.make(REMOTE_HIGHWAY_ENV_ID, overrides={"episode.max_decisions": 500},
+                   remote=remote_config(server.endpoint, server.name))
+    logged: list[int] = []
+    watcher = threading.Thread(target=lambda: logged.append(spectate(SpectateConfig(
+        connect=server.endpoint, server=server.name, frames=8, seconds=60,
+        recording=RecordingConfig(rrd=rrd)))))
+    try:
+        group = env.unwrapped.group
+        env.reset(seed=3)
+        seen: dict[int, tuple[np.ndarray, float]] = {}
+        watcher.start()
+        deadline = time.monotonic() + 60
+        while watcher.is_alive() and time.monotonic() < deadline:
+            obs, reward, *_ = env.step(1)
+            seen[group.round] = (obs["lidar"], reward)
+        watcher.join(timeout=30)
+    finally:
+        env.close()
+    assert logged == [8]
+    wait_until(rrd.exists, 5, "the .rrd")
+    reader = rr.chunk.RrdReader(str(rrd))
+    root = f"/world/{server.name}/arena{group.arena_ids[0]}"
+    entities = {chunk.entity_path for chunk in reader.stream().to_chunks()}
+    for name in ("cars", "road/lanes", "agent0/lidar/hits", "agent0/lidar/rays",
+                 "agent0/camera", "agent0/speed_kmh", "agent0/reward", "agent0/action"):
+        assert f"{root}/{name}" in entities, name
+    hits = rows(reader, f"{root}/agent0/lidar/hits", "Points2D:positions")
+    rewards = rows(reader, f"{root}/agent0/reward", "Scalars:scalars")
+    cars = rows(reader, f"{root}/cars", "Boxes2D:centers")
+    angles = np.arange(360) * (2 * np.pi / 360)
+    matched = 0
+    for round_, points in hits.items():
+        if round_ not in seen:
+            continue
+        lidar, reward = seen[round_]
+        points = np.asarray(points, dtype=np.float64)
+        # The hits are the car's position plus the LIDAR distances the trainer received along
+        # each ray: what is left after taking the distances away is one point, the car.
+        origin = points - np.stack([lidar * np.cos(angles), lidar * np.sin(angles)], axis=1)
+        assert np.allclose(origin, origin[0], atol=1e-3)
+        assert np.allclose(origin[0], cars[round_][0], atol=1e-3)   # the agent's box
+        assert rewards[round_][0] == pytest.approx(reward)
+        matched += 1
+    assert matched >= 3, f"only {matched} logged rounds matched what the trainer saw"
