@@ -95,6 +95,30 @@ def run_episodes(envs: Any, act: Policy, episodes: int, seed: int
     return [row for row in rows if row is not None], decisions, time.perf_counter() - started
 
 
+def baseline_policy(policy: str, sim_config: dict[str, Any], seed: int, num_envs: int
+                    ) -> Policy:
+    """The rule-based driver (tuned to the simulator's configuration) or random, as a policy
+    for :func:`run_episodes`."""
+    if policy == "rule":
+        if not sim_config["lidar"]["enabled"]:
+            raise SystemExit("the rule-based driver reads the LIDAR: keep lidar.enabled true")
+        driver: RuleDriver | RandomDriver = RuleDriver(
+            RuleDriverConfig(cruise_max_kmh=sim_config["ego"]["cruise_max_kmh"],
+                             lane_width_m=sim_config["road"]["lane_width_m"]),
+            ray_count=sim_config["lidar"]["ray_count"],
+            max_range_m=sim_config["lidar"]["max_range_m"])
+    elif policy == "random":
+        driver = RandomDriver(seed)
+    else:
+        raise SystemExit(f"unknown baseline policy {policy!r}: rule or random")
+
+    def act(obs: dict[str, np.ndarray], info: dict[str, Any], _starting: np.ndarray
+            ) -> np.ndarray:
+        lidar = obs.get("lidar", np.zeros((num_envs, 1), dtype=np.float32))
+        return driver.act(lidar, obs["ego"], info["action_mask"])
+    return act
+
+
 def main(config: DriveConfig) -> dict[str, dict[str, float]]:
     """Drive the episodes; returns {metric: {"mean": .., "std": ..}} and prints the table."""
     register_environments()
@@ -113,22 +137,8 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
         envs = gym.make_vec(REMOTE_HIGHWAY_ENV_ID, num_envs=config.episodes,
                             vectorization_mode="vector_entry_point", preset=config.preset,
                             overrides=overrides, connect=config.connect)
-    sim_config = envs.unwrapped.sim_config
-    if config.policy == "rule":
-        if not sim_config["lidar"]["enabled"]:
-            raise SystemExit("the rule-based driver reads the LIDAR: keep lidar.enabled true")
-        driver: RuleDriver | RandomDriver = RuleDriver(
-            RuleDriverConfig(cruise_max_kmh=sim_config["ego"]["cruise_max_kmh"],
-                             lane_width_m=sim_config["road"]["lane_width_m"]),
-            ray_count=sim_config["lidar"]["ray_count"],
-            max_range_m=sim_config["lidar"]["max_range_m"])
-    else:
-        driver = RandomDriver(config.seed)
-
-    def act(obs: dict[str, np.ndarray], info: dict, _starting: np.ndarray) -> np.ndarray:
-        lidar = obs.get("lidar", np.zeros((config.episodes, 1), dtype=np.float32))
-        return driver.act(lidar, obs["ego"], info["action_mask"])
-
+    act = baseline_policy(config.policy, envs.unwrapped.sim_config, config.seed,
+                          config.episodes)
     rows, decisions, elapsed = run_episodes(envs, act, config.episodes, config.seed)
     envs.close()
 

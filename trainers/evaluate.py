@@ -17,8 +17,7 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
-from overtake.client.drive import METRIC_COLUMNS, parse_overrides, run_episodes
-from overtake.client.drivers import RandomDriver, RuleDriver, RuleDriverConfig
+from overtake.client.drive import METRIC_COLUMNS, baseline_policy, parse_overrides, run_episodes
 from overtake.protocol import ProtocolError
 
 from .checkpoint import load_checkpoint
@@ -146,18 +145,8 @@ def main(config: EvalConfig) -> dict[str, Any]:
             policy: Any = GreedyPolicy(checkpoint, config.episodes, envs.single_observation_space)
             name = config.name or f"{checkpoint.algo}/{checkpoint.inputs}@{checkpoint.step}"
         else:
-            driver: Any = (RuleDriver(RuleDriverConfig(cruise_max_kmh=sim["ego"]["cruise_max_kmh"],
-                                                       lane_width_m=sim["road"]["lane_width_m"]),
-                                      ray_count=sim["lidar"]["ray_count"],
-                                      max_range_m=sim["lidar"]["max_range_m"])
-                           if config.policy == "rule" else RandomDriver(config.seed))
+            policy = baseline_policy(str(config.policy), sim, config.seed, config.episodes)
             name = config.name or str(config.policy)
-
-            def policy(obs: dict[str, np.ndarray], info: dict[str, Any],
-                       _starting: np.ndarray) -> np.ndarray:
-                return driver.act(obs["lidar"] if "lidar" in obs else
-                                  np.zeros((config.episodes, 1), np.float32), obs["ego"],
-                                  info["action_mask"])
         with torch.no_grad():
             rows, decisions, elapsed = run_episodes(envs, policy, config.episodes, config.seed)
     finally:
