@@ -64,6 +64,27 @@ def parse_overrides(items: tuple[str, ...]) -> dict[str, object]:
     return overrides
 
 
+def make_vector_env(preset: str, overrides: dict[str, Any], num_envs: int,
+                    connect: str | None) -> Any:
+    """``num_envs`` arenas of ``preset`` as one vector environment: in this process, or on a
+    simulator server reached at ``connect``."""
+    register_environments()
+    if connect is None:
+        return gym.make_vec(HIGHWAY_ENV_ID, num_envs=num_envs,
+                            vectorization_mode="vector_entry_point", preset=preset,
+                            overrides=overrides)
+    return gym.make_vec(REMOTE_HIGHWAY_ENV_ID, num_envs=num_envs,
+                        vectorization_mode="vector_entry_point", preset=preset,
+                        overrides=overrides, connect=connect)
+
+
+def metric_summary(rows: list[dict[str, float]]) -> dict[str, dict[str, float]]:
+    """Mean and spread of each metric over the episodes."""
+    table = np.array([[row[name] for name in METRIC_COLUMNS] for row in rows])
+    return {name: {"mean": float(table[:, j].mean()), "std": float(table[:, j].std())}
+            for j, name in enumerate(METRIC_COLUMNS)}
+
+
 Policy = Callable[[dict[str, np.ndarray], dict[str, Any], np.ndarray], np.ndarray]
 
 
@@ -121,7 +142,6 @@ def baseline_policy(policy: str, sim_config: dict[str, Any], seed: int, num_envs
 
 def main(config: DriveConfig) -> dict[str, dict[str, float]]:
     """Drive the episodes; returns {metric: {"mean": .., "std": ..}} and prints the table."""
-    register_environments()
     if config.episodes < 1:
         raise SystemExit(f"--episodes must be >= 1, got {config.episodes}")
     overrides = parse_overrides(config.set)
@@ -129,22 +149,14 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
         overrides["traffic.density"] = config.traffic
     if config.max_decisions is not None:
         overrides["episode.max_decisions"] = config.max_decisions
-    if config.connect is None:
-        envs = gym.make_vec(HIGHWAY_ENV_ID, num_envs=config.episodes,
-                            vectorization_mode="vector_entry_point", preset=config.preset,
-                            overrides=overrides)
-    else:
-        envs = gym.make_vec(REMOTE_HIGHWAY_ENV_ID, num_envs=config.episodes,
-                            vectorization_mode="vector_entry_point", preset=config.preset,
-                            overrides=overrides, connect=config.connect)
+    envs = make_vector_env(config.preset, overrides, config.episodes, config.connect)
     act = baseline_policy(config.policy, envs.unwrapped.sim_config, config.seed,
                           config.episodes)
     rows, decisions, elapsed = run_episodes(envs, act, config.episodes, config.seed)
     envs.close()
 
     table = np.array([[row[name] for name in METRIC_COLUMNS] for row in rows])
-    summary = {name: {"mean": float(table[:, j].mean()), "std": float(table[:, j].std())}
-               for j, name in enumerate(METRIC_COLUMNS)}
+    summary = metric_summary(rows)
     _print_table(config, table, summary, decisions, elapsed)
     if config.json_out is not None:
         config.json_out.parent.mkdir(parents=True, exist_ok=True)

@@ -67,7 +67,7 @@ def save_checkpoint(path: Path, *, learner: DQNLearner, config: Any, overrides: 
               "dqn": dataclasses.asdict(config.dqn), "step": step, "episodes": episodes,
               "resumes": resumes,
               # Plain JSON: loading with weights_only=True accepts no other objects.
-              "config_json": json.dumps(config, default=_plain)}
+              "config_json": json.dumps(plain_data(config))}
     payload = {"header": header, "learner": learner.state_dict(),
                "rng_state": json.dumps(rng_state), "torch_rng_state": torch.get_rng_state()}
     tmp = path.with_name(path.name + ".tmp")
@@ -78,10 +78,17 @@ def save_checkpoint(path: Path, *, learner: DQNLearner, config: Any, overrides: 
     os.replace(tmp, path)
 
 
-def _plain(value: Any) -> Any:
+def plain_data(value: Any) -> Any:
+    """``value`` (a configuration: dataclasses, paths, tuples) as plain JSON-ready data."""
+    if isinstance(value, Path):
+        return str(value)
     if dataclasses.is_dataclass(value):
-        return dataclasses.asdict(value)
-    return str(value)
+        return {f.name: plain_data(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, (tuple, list)):
+        return [plain_data(v) for v in value]
+    if isinstance(value, dict):
+        return {k: plain_data(v) for k, v in value.items()}
+    return value
 
 
 def load_checkpoint(path: Path) -> Checkpoint:

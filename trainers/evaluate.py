@@ -17,12 +17,14 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
-from overtake.client.drive import METRIC_COLUMNS, baseline_policy, parse_overrides, run_episodes
+from overtake.client.drive import (baseline_policy, make_vector_env, metric_summary,
+                                   parse_overrides, run_episodes)
 from overtake.protocol import ProtocolError
 
 from .checkpoint import load_checkpoint
+from .network import INPUT_SENSORS
 from .replay import FrameStacker
-from .train import STACKED, frame_shapes, make_envs
+from .train import frame_shapes
 
 TABLE_METRICS = ("avg_speed_kmh", "lane_changes", "overtakes", "collisions",
                  "emergency_brakes", "return")
@@ -63,9 +65,10 @@ class GreedyPolicy:
     def __init__(self, checkpoint: Any, num_envs: int, space: Any) -> None:
         self.learner = checkpoint.make_learner()
         shapes = frame_shapes(space, checkpoint.inputs)
-        stacked = tuple(name for name in STACKED if name in shapes.shapes)
         self.names = tuple(shapes.shapes)
-        self.stacker = FrameStacker(num_envs, shapes, checkpoint.dqn.stack, stacked)
+        self.stacker = FrameStacker(num_envs, shapes, checkpoint.dqn.stack,
+                                    INPUT_SENSORS[checkpoint.inputs])
+        self.rng = np.random.default_rng(0)   # unused by a greedy policy, which act() needs
 
     def __call__(self, obs: dict[str, np.ndarray], info: dict[str, Any],
                  starting: np.ndarray) -> np.ndarray:
@@ -76,17 +79,15 @@ class GreedyPolicy:
         if moving.size:
             self.stacker.push(moving, {k: v[moving] for k, v in frames.items()})
         actions, _ = self.learner.act(self.stacker.observation(), info["action_mask"], 0.0,
-                                      np.random.default_rng(0))
+                                      self.rng)
         return actions
 
 
 def summarise(rows: list[dict[str, float]]) -> dict[str, Any]:
-    table = np.array([[row[name] for name in METRIC_COLUMNS] for row in rows])
-    summary: dict[str, Any] = {name: {"mean": float(table[:, j].mean()),
-                                      "std": float(table[:, j].std())}
-                               for j, name in enumerate(METRIC_COLUMNS)}
-    decisions = table[:, METRIC_COLUMNS.index("decisions")].sum()
-    collisions = table[:, METRIC_COLUMNS.index("collisions")].sum()
+    """Mean and spread of each metric, collisions per 1,000 decisions and the episode count."""
+    summary: dict[str, Any] = dict(metric_summary(rows))
+    decisions = sum(row["decisions"] for row in rows)
+    collisions = sum(row["collisions"] for row in rows)
     summary["collisions_per_1000_decisions"] = float(1000.0 * collisions / max(decisions, 1.0))
     summary["episodes"] = len(rows)
     return summary
@@ -138,7 +139,7 @@ def main(config: EvalConfig) -> dict[str, Any]:
         overrides["episode.max_decisions"] = config.max_decisions
     if config.policy == "rule":
         overrides.pop("lidar.enabled", None)  # the rule-based driver reads the LIDAR
-    envs = make_envs({"preset": preset, "overrides": overrides}, config.episodes, config.connect)
+    envs = make_vector_env(preset, overrides, config.episodes, config.connect)
     try:
         sim = envs.unwrapped.sim_config
         if checkpoint is not None:

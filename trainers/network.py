@@ -26,7 +26,11 @@ import torch
 from torch import nn
 
 Inputs = Literal["camera", "lidar", "both"]
-INPUTS: tuple[str, ...] = ("camera", "lidar", "both")
+# The sensors each input configuration reads; both are stacked over the last frames (the ego
+# vector, read by every configuration, is not).
+INPUT_SENSORS: dict[str, tuple[str, ...]] = {"camera": ("camera",), "lidar": ("lidar",),
+                                             "both": ("camera", "lidar")}
+INPUTS: tuple[str, ...] = tuple(INPUT_SENSORS)
 
 
 @dataclass(frozen=True)
@@ -78,8 +82,8 @@ class QNetwork(nn.Module):
         if inputs in ("lidar", "both") and shape.lidar_rays == 0:
             raise ValueError(f"inputs={inputs!r} needs the LIDAR, but the environment has none")
         self.shape, self.inputs, self.dueling = shape, inputs, dueling
-        self.uses_camera = inputs in ("camera", "both")
-        self.uses_lidar = inputs in ("lidar", "both")
+        self.uses_camera = "camera" in INPUT_SENSORS[inputs]
+        self.uses_lidar = "lidar" in INPUT_SENSORS[inputs]
         features = shape.ego_size
         if self.uses_camera:
             self.conv = nn.Sequential(

@@ -36,18 +36,16 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from overtake.client.drive import parse_overrides
+from overtake.client.drive import make_vector_env, parse_overrides
 from overtake.client.recording import RecordingConfig, close_recording, open_recording
-from overtake.protocol import (ACTION_COUNT, HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID,
-                               ProtocolError, register_environments)
+from overtake.protocol import ACTION_COUNT, ProtocolError
 
-from .checkpoint import CHECKPOINT_NAME, REPLAY_NAME, load_checkpoint, save_checkpoint
+from .checkpoint import (CHECKPOINT_NAME, REPLAY_NAME, load_checkpoint, plain_data,
+                         save_checkpoint)
 from .learner import ALGOS, Algo, DQNConfig, DQNLearner
-from .network import Inputs, NetworkShape
+from .network import INPUT_SENSORS, Inputs, NetworkShape
 from .replay import FrameShapes, FrameStacker, ReplayMemory
 from .visual import TrainingRecording, training_blueprint
-
-STACKED = ("camera", "lidar")   # observations stacked over the last frames; ego is not
 
 
 @dataclass(frozen=True)
@@ -103,20 +101,9 @@ class TrainConfig:
         return overrides
 
 
-def make_envs(env_config: dict[str, Any], num_envs: int, connect: str | None) -> Any:
-    """The vector environment: in-process, or arenas on a server."""
-    register_environments()
-    if connect is None:
-        return gym.make_vec(HIGHWAY_ENV_ID, num_envs=num_envs,
-                            vectorization_mode="vector_entry_point", **env_config)
-    return gym.make_vec(REMOTE_HIGHWAY_ENV_ID, num_envs=num_envs,
-                        vectorization_mode="vector_entry_point", connect=connect, **env_config)
-
-
 def frame_shapes(space: gym.spaces.Dict, inputs: Inputs) -> FrameShapes:
     """The per-frame observations the learner uses, as the replay stores them."""
-    wanted = {"ego"} | ({"camera"} if inputs in ("camera", "both") else set()) \
-        | ({"lidar"} if inputs in ("lidar", "both") else set())
+    wanted = {"ego", *INPUT_SENSORS[inputs]}
     missing = wanted - set(space.spaces)
     if missing:
         raise SystemExit(f"--inputs {inputs} needs the observation(s) {sorted(missing)}, which "
@@ -152,18 +139,6 @@ def package_versions() -> dict[str, str]:
         except metadata.PackageNotFoundError:
             versions[name] = "not installed"
     return versions
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, Path):
-        return str(value)
-    if dataclasses.is_dataclass(value):
-        return {f.name: _jsonable(getattr(value, f.name)) for f in dataclasses.fields(value)}
-    if isinstance(value, (tuple, list)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, dict):
-        return {k: _jsonable(v) for k, v in value.items()}
-    return value
 
 
 class MetricsLog:
@@ -208,7 +183,6 @@ def main(config: TrainConfig, envs: Any = None) -> dict[str, Any]:
         torch.set_num_threads(config.torch_threads)
     run_dir = config.resolved_run_dir()
     checkpoint_path = run_dir / CHECKPOINT_NAME
-    replay_path = run_dir / REPLAY_NAME
     resumed = None
     if config.resume:
         if not checkpoint_path.exists():
@@ -220,30 +194,29 @@ def main(config: TrainConfig, envs: Any = None) -> dict[str, Any]:
                          "continue it or choose another --run-dir")
     run_dir.mkdir(parents=True, exist_ok=True)
 
-    double, dueling = ALGOS[config.algo]
     overrides = config.overrides()
-    if envs is not None:
-        if envs.num_envs != config.num_envs:
-            raise ValueError(f"the environment has {envs.num_envs} sub-environments, the "
-                             f"configuration says num_envs={config.num_envs}")
-        return _train(config, envs, run_dir, overrides, double, dueling, resumed,
-                      checkpoint_path, replay_path)
-    envs = make_envs({"preset": config.preset, "overrides": overrides}, config.num_envs,
-                     config.connect)
+    own_envs = envs is None
+    if own_envs:
+        envs = make_vector_env(config.preset, overrides, config.num_envs, config.connect)
+    elif envs.num_envs != config.num_envs:
+        raise ValueError(f"the environment has {envs.num_envs} sub-environments, the "
+                         f"configuration says num_envs={config.num_envs}")
     try:
-        return _train(config, envs, run_dir, overrides, double, dueling, resumed,
-                      checkpoint_path, replay_path)
+        return _train(config, envs, run_dir, overrides, resumed)
     finally:
-        envs.close()
+        if own_envs:
+            envs.close()
 
 
 def _train(config: TrainConfig, envs: Any, run_dir: Path, overrides: dict[str, Any],
-           double: bool, dueling: bool, resumed: Any, checkpoint_path: Path,
-           replay_path: Path) -> dict[str, Any]:
+           resumed: Any) -> dict[str, Any]:
     dqn, n = config.dqn, config.num_envs
+    double, dueling = ALGOS[config.algo]
+    checkpoint_path, replay_path = run_dir / CHECKPOINT_NAME, run_dir / REPLAY_NAME
     space = envs.single_observation_space
+    space_description = describe_space(space)
     shapes = frame_shapes(space, config.inputs)
-    stacked = tuple(name for name in STACKED if name in shapes.shapes)
+    stacked = INPUT_SENSORS[config.inputs]
     net_shape = NetworkShape.from_space(space, ACTION_COUNT, dqn.stack)
     torch.manual_seed(config.seed)
     learner = DQNLearner(net_shape, config.inputs, dqn, double=double, dueling=dueling,
@@ -264,10 +237,10 @@ def _train(config: TrainConfig, envs: Any, run_dir: Path, overrides: dict[str, A
             replay.load(replay_path)
     resumes = 0 if resumed is None else resumed.resumes + 1
 
-    record = {"config": _jsonable(config), "algo": {"name": config.algo, "double": double,
+    record = {"config": plain_data(config), "algo": {"name": config.algo, "double": double,
                                                     "dueling": dueling},
               "overrides": overrides, "sim_config": getattr(envs.unwrapped, "sim_config", None),
-              "observation_space": describe_space(space),
+              "observation_space": space_description,
               "network": dataclasses.asdict(net_shape), "versions": package_versions(),
               "commit": git_commit(), "seed": config.seed, "resumes": resumes,
               "resumed_at_step": step if resumed is not None else None,
@@ -286,7 +259,7 @@ def _train(config: TrainConfig, envs: Any, run_dir: Path, overrides: dict[str, A
 
     def checkpoint() -> None:
         save_checkpoint(checkpoint_path, learner=learner, config=config, overrides=overrides,
-                        space=describe_space(space), net_shape=net_shape, step=step,
+                        space=space_description, net_shape=net_shape, step=step,
                         episodes=episodes, rng_state=rng.bit_generator.state,
                         resumes=resumes)
         if config.save_replay:
