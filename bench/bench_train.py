@@ -40,18 +40,20 @@ class TrainBenchConfig:
 
 
 def run_once(config: TrainBenchConfig, inputs: str, connect: str | None,
-             run_dir: Path) -> dict[str, Any]:
+             run_dir: Path, recording: Any = None) -> dict[str, Any]:
+    """One ``overtake-train`` run; ``recording``: its RecordingConfig (None: the default)."""
     from overtake.trainers.learner import DQNConfig
     from overtake.trainers.train import TrainConfig, main
 
     total = config.learning_starts + config.steps
     started = time.perf_counter()
+    extra = {} if recording is None else {"recording": recording}
     main(TrainConfig(algo=config.algo, inputs=inputs, num_envs=config.num_envs,  # type: ignore
                      total_steps=total, seed=0, run_dir=run_dir, connect=connect,
                      progress=False, log_every=config.learning_starts,
                      checkpoint_every=10 * total, torch_threads=config.torch_threads,
                      dqn=DQNConfig(learning_starts=config.learning_starts,
-                                   replay_size=max(10_000, 2 * total))))
+                                   replay_size=max(10_000, 2 * total)), **extra))
     wall = time.perf_counter() - started
     records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
     timed = [r for r in records if r["kind"] == "train" and r["step"] > config.learning_starts

@@ -3,6 +3,7 @@ low-level API over Zenoh), baseline drivers. Importing it registers ``overtake/H
 and ``overtake/RemoteHighway-v0`` without importing the simulator."""
 
 from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
+from overtake.protocol.transport import SecurityConfig
 
 from .drivers import RandomDriver, RuleDriver, RuleDriverConfig
 from .environment import (ActionTuple, BehaviorSpec, DecisionSteps, RemoteEnvironment,
@@ -13,4 +14,4 @@ register_environments()
 
 __all__ = ["HIGHWAY_ENV_ID", "REMOTE_HIGHWAY_ENV_ID", "ActionTuple", "BehaviorSpec",
            "DecisionSteps", "RandomDriver", "RemoteConfig", "RemoteEnvironment", "RuleDriver",
-           "RuleDriverConfig", "TerminalSteps"]
+           "RuleDriverConfig", "SecurityConfig", "TerminalSteps"]

@@ -21,7 +21,10 @@ import numpy as np
 from overtake.protocol import (HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, ProtocolError,
                                register_environments)
 
+from overtake.protocol.transport import SecurityConfig
+
 from .drivers import RandomDriver, RuleDriver, RuleDriverConfig
+from .remote import RemoteConfig
 
 METRIC_COLUMNS = ("avg_speed_kmh", "lane_changes", "overtakes", "collisions", "emergency_brakes",
                   "distance_m", "return", "decisions")
@@ -49,6 +52,8 @@ class DriveConfig:
     connect: str | None = None
     """a simulator server's (or router's) Zenoh endpoint, e.g. tcp/127.0.0.1:7447; None runs
     the simulator in this process"""
+    security: SecurityConfig = field(default_factory=SecurityConfig)
+    """usrpwd credentials and TLS certificates for --connect"""
 
 
 def parse_overrides(items: tuple[str, ...]) -> dict[str, object]:
@@ -65,17 +70,19 @@ def parse_overrides(items: tuple[str, ...]) -> dict[str, object]:
 
 
 def make_vector_env(preset: str, overrides: dict[str, Any], num_envs: int,
-                    connect: str | None) -> Any:
+                    connect: str | None, security: SecurityConfig | None = None) -> Any:
     """``num_envs`` arenas of ``preset`` as one vector environment: in this process, or on a
-    simulator server reached at ``connect``."""
+    simulator server reached at ``connect`` (with ``security``'s credentials and
+    certificates)."""
     register_environments()
     if connect is None:
         return gym.make_vec(HIGHWAY_ENV_ID, num_envs=num_envs,
                             vectorization_mode="vector_entry_point", preset=preset,
                             overrides=overrides)
+    remote = RemoteConfig(connect=(connect,), security=security or SecurityConfig())
     return gym.make_vec(REMOTE_HIGHWAY_ENV_ID, num_envs=num_envs,
                         vectorization_mode="vector_entry_point", preset=preset,
-                        overrides=overrides, connect=connect)
+                        overrides=overrides, remote=remote)
 
 
 def metric_summary(rows: list[dict[str, float]]) -> dict[str, dict[str, float]]:
@@ -149,7 +156,8 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
         overrides["traffic.density"] = config.traffic
     if config.max_decisions is not None:
         overrides["episode.max_decisions"] = config.max_decisions
-    envs = make_vector_env(config.preset, overrides, config.episodes, config.connect)
+    envs = make_vector_env(config.preset, overrides, config.episodes, config.connect,
+                           config.security)
     act = baseline_policy(config.policy, envs.unwrapped.sim_config, config.seed,
                           config.episodes)
     rows, decisions, elapsed = run_episodes(envs, act, config.episodes, config.seed)
@@ -196,7 +204,7 @@ def cli() -> None:
     import tyro
 
     try:
-        main(tyro.cli(DriveConfig))
+        main(tyro.cli(DriveConfig, config=(tyro.conf.OmitArgPrefixes,)))
     except ProtocolError as error:
         sys.exit(f"overtake-drive: {error}")
 

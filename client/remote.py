@@ -35,7 +35,9 @@ from overtake.protocol.messages import (Ack, Actions, BehaviourSpec, CloseReques
                                         JoinRequest, Message, Opened, OpenRequest,
                                         ResetRequest, StatusReply, StatusRequest,
                                         Steps)
-from overtake.protocol.transport import DEFAULT_ENDPOINT, TransportConfig, open_session
+from overtake.protocol.transport import (DEFAULT_ENDPOINT, USER_ENV, SecurityConfig,
+                                         TransportConfig, connect_failure_cause,
+                                         open_session)
 
 log = logging.getLogger("overtake.client")
 
@@ -60,8 +62,8 @@ class RemoteConfig:
     """After losing the server, how long to wait for one to reopen the arenas on (0: never)."""
     lease_s: float = 3.0
     """If this trainer's host vanishes (or it freezes), servers free its arenas within this."""
-    user: str | None = None
-    password: str | None = None
+    security: SecurityConfig = field(default_factory=SecurityConfig)
+    """usrpwd credentials and TLS certificates (the password from a file or the environment)"""
     trainer_name: str | None = None
     """A readable prefix for this trainer's id in server logs and status."""
 
@@ -75,7 +77,7 @@ class RemoteConfig:
     def transport(self) -> TransportConfig:
         return TransportConfig(mode="client", connect=self.connect,
                                connect_timeout_s=self.connect_timeout_s, lease_s=self.lease_s,
-                               user=self.user, password=self.password)
+                               security=self.security)
 
 
 def _trainer_id(prefix: str | None) -> str:
@@ -85,10 +87,22 @@ def _trainer_id(prefix: str | None) -> str:
 
 
 def likely_causes(config: RemoteConfig) -> str:
+    user = config.security.user or os.environ.get(USER_ENV)
     return ("Likely causes: no overtake-server (or Zenoh router) is running there; a wrong host "
             "or port; the server listens on loopback only (start it with --listen "
             "tcp/0.0.0.0:7447 to let other hosts in); a firewall; wrong or missing Zenoh "
-            "credentials" + (" (user " + repr(config.user) + ")" if config.user else "") + ".")
+            "credentials" + (" (user " + repr(user) + ")" if user else "") + "; a TLS "
+            "certificate this side does not trust (--tls-root-ca).")
+
+
+def unreachable_message(config: RemoteConfig, error: Exception) -> str:
+    """Why opening a session failed: the cause found by trying the links by hand (Zenoh only
+    says it could not connect), or the likely causes when none could be tried."""
+    zenoh_text = str(error).split(" at /")[0].strip()   # drop Zenoh's source location
+    cause = connect_failure_cause(config.transport())
+    return (f"could not connect to {', '.join(config.connect)} within "
+            f"{config.connect_timeout_s:g} s ({zenoh_text}). "
+            + (f"{cause[0].upper()}{cause[1:]}." if cause else likely_causes(config)))
 
 
 class Connection:
@@ -100,9 +114,7 @@ class Connection:
         try:
             self.session = open_session(config.transport())
         except zenoh.ZError as error:
-            raise errors.ConnectError(
-                f"could not reach {', '.join(config.connect)} within "
-                f"{config.connect_timeout_s:g} s ({error}). {likely_causes(config)}") from None
+            raise errors.ConnectError(unreachable_message(config, error)) from None
         self._inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
         self._buffered: dict[tuple[str, int], deque[Steps]] = {}
         self._errors: dict[tuple[str, int], deque[errors.ProtocolError]] = {}

@@ -2,7 +2,8 @@
 
 It subscribes to the servers' world topics (the server publishes them at its world rate, with
 dropping congestion control, and only while somebody watches), so watching never slows or
-touches the simulation. Frames go to an ``.rrd`` file by default, or stream to a viewer.
+touches the simulation. Frames go to an ``.rrd`` file by default, stream to a viewer, or to a
+web viewer this command serves; ``--record-every N`` logs one frame in N.
 """
 
 from __future__ import annotations
@@ -17,10 +18,14 @@ from typing import Any
 
 from overtake.protocol import ProtocolError
 
-from .recording import RecordingConfig, close_recording, open_recording
+from overtake.protocol.recording import RecordingConfig, close_recording, open_recording
+from overtake.protocol.transport import SecurityConfig
+from overtake.protocol.world_view import WorldRecording, world_blueprint
+
 from .remote import RemoteConfig
 from .spectator import Spectator
-from .world_view import WorldRecording, world_blueprint
+
+DEFAULT_RRD = Path("runs/spectate/world.rrd")
 
 
 @dataclass(frozen=True)
@@ -29,6 +34,8 @@ class SpectateConfig:
 
     connect: str = "tcp/127.0.0.1:7447"
     """the server's (or a router's) Zenoh endpoint"""
+    security: SecurityConfig = field(default_factory=SecurityConfig)
+    """usrpwd credentials and TLS certificates for --connect"""
     server: str | None = None
     """only this server's arenas (default: every server's)"""
     arena: int | None = None
@@ -36,7 +43,7 @@ class SpectateConfig:
     seconds: float | None = None
     """stop after this long (default: until SIGINT or SIGTERM)"""
     frames: int | None = None
-    """stop after this many frames"""
+    """stop after this many logged frames"""
     rays: bool = True
     """draw every LIDAR ray, not only the hits"""
     recording: RecordingConfig = field(default_factory=RecordingConfig)
@@ -46,15 +53,16 @@ class SpectateConfig:
 def main(config: SpectateConfig, stop: threading.Event | None = None) -> int:
     """Log frames until ``stop`` is set, or the time or frame limit; returns frames logged."""
     stop = stop or threading.Event()
-    remote = RemoteConfig.from_connect(config.connect)
+    remote = RemoteConfig(connect=(config.connect,), security=config.security)
     # A laid-out view for one arena; for many, Rerun's own layout.
     blueprint = world_blueprint(config.server, config.arena) \
         if config.server is not None and config.arena is not None else None
     with Spectator(remote, server=config.server, arena=config.arena) as spectator:
-        stream = open_recording("overtake-spectate", config.recording,
-                                Path("runs/spectate/world.rrd"), blueprint)
-        view = WorldRecording(stream, rays=config.rays) if stream is not None else None
-        logged = 0
+        recording = open_recording("overtake-spectate", config.recording, DEFAULT_RRD,
+                                   blueprint)
+        view = WorldRecording(recording.stream, rays=config.rays) \
+            if recording is not None else None
+        logged = received = 0
         deadline = None if config.seconds is None else time.monotonic() + config.seconds
         try:
             while not stop.is_set():
@@ -66,11 +74,14 @@ def main(config: SpectateConfig, stop: threading.Event | None = None) -> int:
                 frame = spectator.next_frame(wait)
                 if frame is None:
                     continue
+                received += 1
+                if (received - 1) % config.recording.record_every:
+                    continue
                 if view is not None:
                     view.log(frame)
                 logged += 1
         finally:
-            close_recording(stream)
+            close_recording(recording)
     return logged
 
 
@@ -88,12 +99,10 @@ def cli() -> None:
     signal.signal(signal.SIGTERM, on_signal)
     try:
         logged = main(config, stop)
-    except (ProtocolError, ValueError) as error:
+    except (ProtocolError, ValueError, RuntimeError) as error:
         sys.exit(f"overtake-spectate: {error}")
-    where = "nowhere (--sink off)" if config.recording.sink == "off" else (
-        config.recording.viewer_url if config.recording.sink == "grpc"
-        else str(config.recording.rrd or Path("runs/spectate/world.rrd")))
-    print(f"logged {logged} world frame(s) to {where}", file=sys.stderr)
+    print(f"logged {logged} world frame(s) to {config.recording.describe(DEFAULT_RRD)}",
+          file=sys.stderr)
 
 
 if __name__ == "__main__":

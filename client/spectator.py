@@ -19,7 +19,7 @@ from overtake.protocol.messages import WorldFrame
 
 from overtake.protocol.transport import open_session
 
-from .remote import RemoteConfig, likely_causes
+from .remote import RemoteConfig, unreachable_message
 
 log = logging.getLogger("overtake.client.spectator")
 
@@ -34,8 +34,7 @@ class Spectator:
         try:
             self.session = open_session(config.transport())
         except zenoh.ZError as error:
-            raise errors.ConnectError(f"could not reach {', '.join(config.connect)} ({error}). "
-                                      + likely_causes(config)) from None
+            raise errors.ConnectError(unreachable_message(config, error)) from None
         key = keys.world_all() if server is None else keys.world(server, arena)
         self._latest: dict[tuple[str, int], WorldFrame] = {}
         self._recent: deque[WorldFrame] = deque(maxlen=backlog)  # oldest dropped first

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import json
 import sys
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 from overtake.protocol import errors
 from overtake.protocol.messages import StatusReply
-from overtake.protocol.transport import DEFAULT_ENDPOINT
+from overtake.protocol.transport import DEFAULT_ENDPOINT, SecurityConfig
 
 from .remote import Connection, RemoteConfig
 
@@ -18,9 +18,15 @@ class StatusConfig:
     connect: tuple[str, ...] = (DEFAULT_ENDPOINT,)
     """Zenoh endpoints: a server's --listen address or a router's."""
     timeout_s: float = 3.0
-    """How long to wait for servers to answer."""
+    """How long to wait for the network (the router or server at --connect) and then for the
+    servers to answer."""
     json: bool = False
     """Print the replies as JSON instead of a table."""
+    server: str | None = None
+    """Only this server (its --name). The exit status is 1 when no server (or not this one)
+    answers, so the command serves as a health check."""
+    security: SecurityConfig = field(default_factory=SecurityConfig)
+    """usrpwd credentials and TLS certificates"""
 
 
 def format_status(statuses: list[StatusReply]) -> str:
@@ -39,13 +45,19 @@ def format_status(statuses: list[StatusReply]) -> str:
 
 def main(config: StatusConfig) -> list[StatusReply]:
     connection = Connection(RemoteConfig(connect=config.connect,
-                                         request_timeout_s=config.timeout_s))
+                                         connect_timeout_s=config.timeout_s,
+                                         request_timeout_s=config.timeout_s,
+                                         security=config.security))
     try:
         statuses = connection.discover()
     finally:
         connection.close()
+    if config.server is not None:
+        statuses = [s for s in statuses if s.server == config.server]
     if config.json:
         print(json.dumps([asdict(s) for s in statuses], default=list, indent=2))
+    elif config.server is not None and not statuses:
+        print(f"server {config.server!r} did not answer")
     else:
         print(format_status(statuses))
     return statuses
@@ -54,8 +66,16 @@ def main(config: StatusConfig) -> list[StatusReply]:
 def cli() -> None:
     import tyro
 
+    config = tyro.cli(StatusConfig, config=(tyro.conf.OmitArgPrefixes,),
+                      description="overtake-status: the simulator servers on the network and "
+                                  "their arenas")
     try:
-        main(tyro.cli(StatusConfig, description="overtake-status: the simulator servers on "
-                                                "the network and their arenas"))
+        statuses = main(config)
     except errors.ProtocolError as error:
         sys.exit(f"overtake-status: {error}")
+    if not statuses:
+        sys.exit(1)
+
+
+if __name__ == "__main__":
+    cli()

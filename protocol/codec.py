@@ -15,7 +15,7 @@ import functools
 import types
 import typing
 from collections.abc import Callable
-from dataclasses import fields, is_dataclass
+from dataclasses import MISSING, fields, is_dataclass
 from typing import Any, TypeVar
 
 import msgpack
@@ -274,14 +274,29 @@ def _fields(cls: type) -> tuple[tuple[str, Converter], ...]:
     return tuple((f.name, _converter(hints[f.name])) for f in fields(cls))
 
 
+@functools.cache
+def _defaults(cls: type) -> dict[str, Any]:
+    """Fields a later minor version added, with the value a record from an older peer gets."""
+    out: dict[str, Any] = {}
+    for f in fields(cls):
+        if f.default is not MISSING:
+            out[f.name] = f.default
+        elif f.default_factory is not MISSING:
+            out[f.name] = f.default_factory()
+    return out
+
+
 def _build(cls: type, body: Any, peer_minor: int) -> Any:
-    """A record of ``cls`` from its msgpack map; a newer minor version may add fields."""
+    """A record of ``cls`` from its msgpack map; a newer minor version may add fields, and an
+    older one lacks those this side added since (they take their defaults)."""
     if type(body) is not dict:
         raise DecodeError(f"expected a map of {cls.__name__} fields, got {_kind(body)}")
     spec = _fields(cls)
-    if len(body) != len(spec) or peer_minor > PROTOCOL_VERSION[1]:
+    if len(body) != len(spec) or peer_minor != PROTOCOL_VERSION[1]:
         names = [name for name, _ in spec]
         missing = [n for n in names if n not in body]
+        older = _defaults(cls) if peer_minor < PROTOCOL_VERSION[1] else {}
+        missing = [n for n in missing if n not in older]
         if missing:
             raise DecodeError(f"{cls.__name__} lacks field(s) {missing}")
         unknown = sorted(map(str, set(body) - set(names)))
@@ -292,6 +307,9 @@ def _build(cls: type, body: Any, peer_minor: int) -> Any:
     values = {}
     for name, convert in spec:
         if name not in body:
+            if peer_minor < PROTOCOL_VERSION[1] and name in _defaults(cls):
+                values[name] = _defaults(cls)[name]
+                continue
             raise DecodeError(f"{cls.__name__} lacks field {name!r}")
         try:
             values[name] = convert(body[name], peer_minor)

@@ -29,10 +29,12 @@ from .errors import DecodeError
 
 # The wire contract: protocol version (major, minor). A peer of another major version is
 # refused; a newer minor may add optional fields, which an older peer ignores.
-PROTOCOL_VERSION: tuple[int, int] = (1, 0)
+PROTOCOL_VERSION: tuple[int, int] = (1, 1)
 PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
     ("1.0", "First wire protocol: status, open/join, reset, batched actions and steps, close, "
             "world frames for spectators, error replies."),
+    ("1.1", "World frames carry each agent's reward terms (reward_terms, reward_term_names); "
+            "a 1.0 peer's frames decode with none."),
 )
 
 # Min et al.'s five DAS-level actions: the action space every arena speaks.
@@ -450,6 +452,8 @@ class WorldFrame(Message):
     observations: dict[str, np.ndarray]  # name -> (N, ...)
     reward: np.ndarray                  # float64 (N,)
     action_applied: np.ndarray          # int64 (N,)
+    reward_terms: np.ndarray | None = None   # float64 (N, terms); since 1.1
+    reward_term_names: tuple[str, ...] = ()  # the columns of reward_terms; since 1.1
 
     def check(self) -> None:
         check_name("server", self.server)
@@ -463,6 +467,14 @@ class WorldFrame(Message):
         check_array("active", self.active, "bool", (v,))
         check_array("reward", self.reward, "float64", (n,))
         check_array("action_applied", self.action_applied, "int64", (n,))
+        if self.reward_terms is not None:
+            check_array("reward_terms", self.reward_terms, "float64",
+                        (n, len(self.reward_term_names)))
+        elif self.reward_term_names:
+            raise DecodeError(f"reward_term_names {list(self.reward_term_names)} came without "
+                              "reward_terms")
+        for name in self.reward_term_names:
+            check_name("reward term name", name)
         for name, value in self.observations.items():
             check_name("observation name", name)
             if value.ndim < 1 or value.shape[0] != n:

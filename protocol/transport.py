@@ -1,19 +1,137 @@
-"""Zenoh session settings shared by servers, trainers and spectators.
+"""Zenoh session settings shared by servers, routers, trainers and spectators.
 
 Always explicit endpoints and never multicast scouting (the default scouts on 224.0.0.224 and
 listens on every interface). The lease bounds how long a vanished host's liveliness tokens
 survive: a trainer whose machine drops off the network frees its arenas within it.
+
+Links are secured the same way by every command (:class:`SecurityConfig`): Zenoh's usrpwd
+authentication (a listening side with a credentials file admits only the users it lists) and
+TLS (``tls/HOST:PORT`` endpoints; the connecting side checks the listener's certificate against
+a CA, and with mutual TLS the listener checks the connecting side's too). Passwords come from a
+file or the environment, never from the command line: a command line is visible to every user
+of the host, and the configurations are recorded in run directories and checkpoints.
 """
 
 from __future__ import annotations
 
 import json
+import logging
+import os
+import socket
+import ssl
+import threading
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Literal
 
 import zenoh
 
+from .errors import ConnectError
+
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+USER_ENV = "OVERTAKE_ZENOH_USER"
+"""The usrpwd user name when ``--user`` is not given."""
+PASSWORD_ENV = "OVERTAKE_ZENOH_PASSWORD"
+"""The usrpwd password when ``--password-file`` is not given."""
+
+
+@dataclass(frozen=True)
+class SecurityConfig:
+    """Who this process says it is on Zenoh links, and whom it trusts (usrpwd and TLS)."""
+
+    user: str | None = None
+    """usrpwd: the user name this process presents when it connects (default:
+    $OVERTAKE_ZENOH_USER); its password comes from --password-file or $OVERTAKE_ZENOH_PASSWORD"""
+    password_file: Path | None = None
+    """usrpwd: a file whose first line is the password (default: $OVERTAKE_ZENOH_PASSWORD)"""
+    credentials_file: Path | None = None
+    """usrpwd, listening side (router, server): the user:password lines it admits, one a line;
+    without it anyone who reaches the port may connect"""
+    tls_root_ca: Path | None = None
+    """TLS: the PEM certificate of the CA that signed the certificates this process trusts (the
+    router's; with --tls-mtls also the connecting sides')"""
+    tls_certificate: Path | None = None
+    """TLS: this process's own PEM certificate (a listener's, or a client's with --tls-mtls)"""
+    tls_private_key: Path | None = None
+    """TLS: the PEM private key of --tls-certificate"""
+    tls_mtls: bool = False
+    """TLS: mutual authentication; a listener admits only clients with a certificate signed by
+    --tls-root-ca, and a client presents --tls-certificate"""
+    tls_verify_name: bool = True
+    """TLS: check that the router's certificate names the host or address connected to"""
+
+    def usrpwd(self) -> tuple[str, str] | None:
+        """The (user, password) to present, or None; reads the password file or environment."""
+        user = self.user or os.environ.get(USER_ENV) or None
+        if user is None:
+            if self.password_file is not None:
+                raise ConnectError(f"--password-file {self.password_file} is given without a "
+                                   f"user: add --user NAME (or set ${USER_ENV})")
+            return None  # a password in the environment alone names nobody: no usrpwd
+        if self.password_file is not None:
+            try:
+                text = Path(self.password_file).read_text(encoding="utf-8")
+            except OSError as error:
+                raise ConnectError(f"--password-file {self.password_file}: cannot read it "
+                                   f"({error.strerror})") from None
+            password = text.splitlines()[0] if text.strip() else ""
+            where = f"--password-file {self.password_file}"
+        else:
+            password = os.environ.get(PASSWORD_ENV, "")
+            where = f"${PASSWORD_ENV}"
+        if not password:
+            raise ConnectError(f"user {user!r} has no password: {where} is empty or unset "
+                               f"(give --password-file PATH, or set ${PASSWORD_ENV})")
+        return user, password
+
+    def check(self, listen: tuple[str, ...], connect: tuple[str, ...]) -> None:
+        """Refuse, naming the option, a setting Zenoh would fail on later with a vaguer error."""
+        for flag, path in (("--password-file", self.password_file),
+                           ("--credentials-file", self.credentials_file),
+                           ("--tls-root-ca", self.tls_root_ca),
+                           ("--tls-certificate", self.tls_certificate),
+                           ("--tls-private-key", self.tls_private_key)):
+            if path is not None and not Path(path).is_file():
+                raise ConnectError(f"{flag} {path}: no such file")
+        if (self.tls_certificate is None) != (self.tls_private_key is None):
+            raise ConnectError("--tls-certificate and --tls-private-key go together")
+        tls_listen = [e for e in listen if _scheme(e) == "tls"]
+        if tls_listen and self.tls_certificate is None:
+            raise ConnectError(f"listening on {', '.join(tls_listen)} needs this side's "
+                               "certificate: give --tls-certificate and --tls-private-key")
+        if self.tls_mtls and self.tls_root_ca is None:
+            raise ConnectError("--tls-mtls needs --tls-root-ca, the CA that signed the other "
+                               "side's certificate")
+        if self.tls_mtls and self.tls_certificate is None and any(
+                _scheme(e) == "tls" for e in connect):
+            raise ConnectError("--tls-mtls needs this side's certificate: give "
+                               "--tls-certificate and --tls-private-key")
+
+    def zenoh_settings(self) -> list[tuple[str, str]]:
+        """(key, JSON5 value) pairs for a Zenoh configuration; only what is set."""
+        settings: list[tuple[str, str]] = []
+        auth: dict[str, str] = {}
+        credentials = self.usrpwd()
+        if credentials is not None:
+            auth["user"], auth["password"] = credentials
+        if self.credentials_file is not None:
+            auth["dictionary_file"] = str(self.credentials_file)
+        if auth:
+            settings.append(("transport/auth/usrpwd", json.dumps(auth)))
+        tls: dict[str, object] = {}
+        if self.tls_root_ca is not None:
+            tls["root_ca_certificate"] = str(self.tls_root_ca)
+        if self.tls_certificate is not None and self.tls_private_key is not None:
+            # One identity for both roles: a server listens and connects with the same one.
+            tls["listen_certificate"] = tls["connect_certificate"] = str(self.tls_certificate)
+            tls["listen_private_key"] = tls["connect_private_key"] = str(self.tls_private_key)
+        if self.tls_mtls:
+            tls["enable_mtls"] = True
+        if not self.tls_verify_name:
+            tls["verify_name_on_connect"] = False
+        for key, value in tls.items():
+            settings.append((f"transport/link/tls/{key}", json.dumps(value)))
+        return settings
 
 
 @dataclass(frozen=True)
@@ -30,15 +148,13 @@ class TransportConfig:
     lease_s: float = 3.0
     """The lease this side announces: if it falls silent (its host vanished, or it froze),
     its peers declare it gone after this long, and its liveliness tokens vanish."""
-    user: str | None = None
-    """Zenoh usrpwd authentication: this side's user name (with ``password``)."""
-    password: str | None = None
-    credentials_file: str | None = None
-    """A listening side's ``user:password`` lines it accepts (usrpwd authentication)."""
+    security: SecurityConfig = field(default_factory=SecurityConfig)
+    """usrpwd credentials and TLS certificates."""
     extra_json5: tuple[tuple[str, str], ...] = field(default=())
-    """More Zenoh settings as (key, JSON5 value) pairs, e.g. TLS certificates."""
+    """More Zenoh settings as (key, JSON5 value) pairs."""
 
     def zenoh_config(self) -> zenoh.Config:
+        self.security.check(self.listen, self.connect)
         conf = zenoh.Config()
         conf.insert_json5("mode", json.dumps(self.mode))
         conf.insert_json5("scouting/multicast/enabled", "false")
@@ -56,15 +172,7 @@ class TransportConfig:
         lease_ms = max(int(self.lease_s * 1000), 200)
         conf.insert_json5("transport/link/tx/lease", str(lease_ms))
         conf.insert_json5("transport/link/tx/keep_alive", "4")
-        if self.user is not None or self.credentials_file is not None:
-            auth: dict[str, str] = {}
-            if self.user is not None:
-                auth["user"] = self.user
-                auth["password"] = self.password or ""
-            if self.credentials_file is not None:
-                auth["dictionary_file"] = self.credentials_file
-            conf.insert_json5("transport/auth/usrpwd", json.dumps(auth))
-        for key, value in self.extra_json5:
+        for key, value in self.security.zenoh_settings() + list(self.extra_json5):
             conf.insert_json5(key, value)
         return conf
 
@@ -78,5 +186,153 @@ class TransportConfig:
 
 
 def open_session(config: TransportConfig) -> zenoh.Session:
-    """A Zenoh session; raises ``zenoh.ZError`` as Zenoh does (callers add the likely causes)."""
+    """A Zenoh session; raises ``zenoh.ZError`` as Zenoh does (callers add the likely causes),
+    or :class:`ConnectError` for credentials or certificates that cannot be used."""
     return zenoh.open(config.zenoh_config())
+
+
+# --- why a connection failed ----------------------------------------------------------------
+# Zenoh reports every failure to connect as "Unable to connect to any of [...]", whether nobody
+# listens, the certificate is not trusted or the password is wrong. Trying the link by hand
+# (TCP, then the TLS handshake with the same certificates) tells those apart.
+
+PROBE_TIMEOUT_S = 2.0
+
+
+def _scheme(endpoint: str) -> str:
+    return endpoint.partition("/")[0].lower()
+
+
+def _host_port(endpoint: str) -> tuple[str, int] | None:
+    """Host and port of ``proto/host:port[?config][#metadata]``; None if it has none."""
+    address = endpoint.partition("/")[2].split("?")[0].split("#")[0]
+    host, sep, port = address.rpartition(":")
+    if not sep or not port.isdigit():
+        return None
+    return host.strip("[]"), int(port)
+
+
+def _tls_context(security: SecurityConfig) -> ssl.SSLContext:
+    context = ssl.create_default_context(
+        cafile=str(security.tls_root_ca) if security.tls_root_ca is not None else None)
+    context.check_hostname = security.tls_verify_name
+    if security.tls_mtls and security.tls_certificate is not None:
+        context.load_cert_chain(str(security.tls_certificate), str(security.tls_private_key))
+    return context
+
+
+def _speaks_tls(host: str, port: int) -> bool:
+    """Whether the listener answers a TLS handshake (certificates not checked)."""
+    context = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
+    context.check_hostname = False
+    context.verify_mode = ssl.CERT_NONE
+    try:
+        with socket.create_connection((host, port), timeout=1.0) as sock:
+            with context.wrap_socket(sock, server_hostname=host):
+                return True
+    except (OSError, ssl.SSLError):
+        return False
+
+
+def _tls_cause(host: str, port: int, security: SecurityConfig) -> str | None:
+    where = f"{host}:{port}"
+    try:
+        context = _tls_context(security)
+    except (OSError, ssl.SSLError) as error:
+        return f"this side's TLS files cannot be used ({error})"
+    try:
+        with socket.create_connection((host, port), timeout=PROBE_TIMEOUT_S) as sock:
+            with context.wrap_socket(sock, server_hostname=host) as tls:
+                # With TLS 1.3 a listener that wants a client certificate says so only after
+                # the handshake: wait briefly for its alert (a Zenoh router sends nothing).
+                tls.settimeout(0.5)
+                try:
+                    tls.recv(1)
+                except ssl.SSLError as error:
+                    if "CERTIFICATE_REQUIRED" in str(error).upper() or not security.tls_mtls:
+                        return (f"{where} requires a client certificate (mutual TLS): give "
+                                "--tls-mtls with --tls-certificate and --tls-private-key signed "
+                                "by a CA it trusts")
+                    return (f"{where} refused this side's certificate "
+                            f"({error.reason or error}): it is not signed by a CA it trusts")
+                except (TimeoutError, OSError):
+                    pass
+    except ssl.SSLCertVerificationError as error:
+        reason = error.verify_message or str(error)
+        if "mismatch" in reason.lower():
+            return (f"the TLS certificate of {where} does not name {host!r} ({reason}): connect "
+                    "with a name or address its certificate lists (its subjectAltName)")
+        if security.tls_root_ca is None:
+            return (f"the TLS certificate of {where} is not trusted ({reason}): give the CA "
+                    "certificate that signed it with --tls-root-ca")
+        return (f"the TLS certificate of {where} is not trusted ({reason}): it is not signed "
+                f"by the CA in --tls-root-ca {security.tls_root_ca}")
+    except ssl.SSLError as error:
+        return (f"{where} does not complete a TLS handshake ({error.reason or error}): is it a "
+                "tcp/ listener rather than tls/?")
+    except OSError:
+        return None  # reachable a moment ago; the caller reports what it found
+    return None
+
+
+def connect_failure_cause(config: TransportConfig) -> str | None:
+    """The likely cause of a failure to connect to ``config.connect``, found by trying each
+    endpoint's link by hand; None when no endpoint could be tried (e.g. udp or quic)."""
+    causes = []
+    for endpoint in config.connect:
+        scheme, address = _scheme(endpoint), _host_port(endpoint)
+        if scheme not in ("tcp", "tls") or address is None:
+            continue
+        host, port = address
+        where = f"{host}:{port}"
+        try:
+            socket.create_connection((host, port), timeout=PROBE_TIMEOUT_S).close()
+        except OSError as error:
+            causes.append(f"nothing accepts connections at {where} "
+                          f"({error.strerror or error}). Likely causes: no router or server "
+                          "runs there; a wrong host or port; it listens on loopback only (start "
+                          "it with --listen tcp/0.0.0.0:7447 to let other hosts in); a firewall")
+            continue
+        if scheme == "tls":
+            cause = _tls_cause(host, port, config.security)
+            if cause is not None:
+                causes.append(cause)
+                continue
+        elif _speaks_tls(host, port):
+            causes.append(f"{where} is a TLS listener: connect to tls/{where} (with "
+                          "--tls-root-ca)")
+            continue
+        credentials = config.security.user or os.environ.get(USER_ENV)
+        if credentials:
+            causes.append(f"{where} accepted the link but refused the Zenoh session: most "
+                          f"likely a wrong password for user {credentials!r}, or a user its "
+                          "credentials file does not list")
+        else:
+            causes.append(f"{where} accepted the link but refused the Zenoh session: most "
+                          "likely it requires usrpwd credentials (--user, with --password-file "
+                          f"or ${PASSWORD_ENV})")
+    return "; ".join(causes) if causes else None
+
+
+def warn_if_unconnected(session: zenoh.Session, config: TransportConfig, log: logging.Logger,
+                        after_s: float = 10.0) -> threading.Thread | None:
+    """A router or peer keeps retrying its ``connect`` endpoints in the background rather than
+    failing (it may start before them): if none is connected after ``after_s``, say so once,
+    with the likely cause, instead of waiting in silence."""
+    if not config.connect:
+        return None
+
+    def check() -> None:
+        try:
+            if list(session.info.routers_zid()) or list(session.info.peers_zid()):
+                return
+        except Exception:  # the session closed in the meantime
+            return
+        cause = connect_failure_cause(config)
+        log.warning("not connected to %s after %.0f s (still trying)%s", ", ".join(config.connect),
+                    after_s, f": {cause}" if cause else "")
+
+    timer = threading.Timer(after_s, check)
+    timer.daemon = True
+    timer.start()
+    return timer

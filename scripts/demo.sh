@@ -30,8 +30,8 @@ recording_id="overtake-demo-$(date +%Y%m%d-%H%M%S)"
 for algo in dqn ddqn dueling; do
   rm -rf "runs/demo/$algo"
   .venv/bin/overtake-train --connect "$endpoint" --algo "$algo" --inputs both --num-envs 2 \
-    --total-steps "${OVERTAKE_DEMO_STEPS:-600}" --learning-starts 200 \
-    --epsilon-decay-steps 600 --target-update-steps 200 --replay-size 5000 \
+    --total-steps "${OVERTAKE_DEMO_STEPS:-2000}" --learning-starts 500 \
+    --epsilon-decay-steps 1500 --target-update-steps 500 --replay-size 5000 \
     --torch-threads 1 --no-progress --run-dir "runs/demo/$algo" --recording-id "$recording_id" \
     > "runs/demo/$algo.log" 2>&1 &
   trainer_pids+=("$!")

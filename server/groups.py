@@ -87,6 +87,7 @@ class Group:
     _last_round_t: float = field(default_factory=time.monotonic)
     last_reward: np.ndarray | None = None
     last_applied: np.ndarray | None = None
+    last_terms: np.ndarray | None = None      # (A, N, reward terms) of the last round
     last_observations: dict[str, np.ndarray] | None = None   # of the last round, for spectators
 
     @classmethod
@@ -114,6 +115,7 @@ class Group:
         group.ended = np.zeros((sim.num_arenas, sim.agents), dtype=bool)
         group.last_reward = np.zeros((sim.num_arenas, sim.agents))
         group.last_applied = np.full((sim.num_arenas, sim.agents), -1, dtype=np.int64)
+        group.last_terms = np.zeros((sim.num_arenas, sim.agents, len(REWARD_TERMS)))
         # Every car starts off the road; claims put them on.
         for arena in range(sim.num_arenas):
             sim.remove_agents(arena, np.arange(sim.agents))
@@ -154,6 +156,7 @@ class Group:
         self.ended[arena_index, slots] = False
         self.last_reward[arena_index, slots] = 0.0
         self.last_applied[arena_index, slots] = -1
+        self.last_terms[arena_index, slots] = 0.0
 
     def leave(self, trainer: str) -> None:
         """Take ``trainer``'s cars off the road; its pending actions are dropped."""
@@ -166,6 +169,7 @@ class Group:
         self.ended &= ~member.slots
         self.last_reward[member.slots] = 0.0
         self.last_applied[member.slots] = -1
+        self.last_terms[member.slots] = 0.0
         if not any(m.pending is not None for m in self.members.values()):
             self.deadline = None
 
@@ -275,7 +279,7 @@ class Group:
         for arena, slots in respawn:
             self.sim.respawn_agents(arena, slots)
         self.ended = (terminated | truncated)
-        self.last_reward, self.last_applied = reward, applied
+        self.last_reward, self.last_applied, self.last_terms = reward, applied, terms
         self.round += 1
         self.rounds_done += 1
         self.deadline = None
@@ -310,6 +314,7 @@ class Group:
             self.ended[arena, mine] = False
             self.last_reward[arena, mine] = 0.0
             self.last_applied[arena, mine] = -1
+            self.last_terms[arena, mine] = 0.0
         member.pending = None
         if not any(m.pending is not None for m in self.members.values()):
             self.deadline = None
@@ -382,4 +387,6 @@ class Group:
             kind=st.kind[arena].astype(np.int8), active=st.active[arena].copy(),
             observations={name: value[arena] for name, value in observations.items()},
             reward=self.last_reward[arena].astype(np.float64),
-            action_applied=self.last_applied[arena].astype(np.int64))
+            action_applied=self.last_applied[arena].astype(np.int64),
+            reward_terms=self.last_terms[arena].astype(np.float64),
+            reward_term_names=REWARD_TERMS)

@@ -27,9 +27,12 @@ from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import (Ack, Actions, CloseRequest, ErrorReply, JoinRequest,
                                         Message, Opened, OpenRequest, ResetRequest,
                                         StatusReply, StatusRequest)
-from overtake.protocol.transport import DEFAULT_ENDPOINT, TransportConfig, open_session
+from overtake.protocol.recording import RecordingConfig
+from overtake.protocol.transport import (DEFAULT_ENDPOINT, SecurityConfig, TransportConfig,
+                                         open_session, warn_if_unconnected)
 
 from .groups import Group
+from .recorder import ServerRecorder
 
 log = logging.getLogger("overtake.server")
 
@@ -91,16 +94,17 @@ class ServerConfig:
     lease_s: float = 3.0
     """Trainers notice within this that this server's host vanished (a trainer's own lease,
     RemoteConfig.lease_s, bounds how soon its arenas are freed when its host vanishes)."""
-    user: str | None = None
-    password: str | None = None
-    credentials_file: str | None = None
-    """Zenoh usrpwd: a file of ``user:password`` lines this server accepts."""
+    security: SecurityConfig = field(default_factory=SecurityConfig)
+    """usrpwd credentials (when connecting to a router that asks for them, and the users this
+    server admits) and TLS certificates (for tls/ endpoints)"""
     log_level: str = "info"
+    recording: RecordingConfig = field(default_factory=lambda: RecordingConfig(sink="off"))
+    """Rerun: this server logs every arena it steps itself (default off; spectators watch
+    without it). With --sink file the .rrd defaults to runs/server/<name>.rrd."""
 
     def transport(self) -> TransportConfig:
         return TransportConfig(mode="peer", listen=self.listen, connect=self.connect,
-                               lease_s=self.lease_s, user=self.user, password=self.password,
-                               credentials_file=self.credentials_file)
+                               lease_s=self.lease_s, security=self.security)
 
 
 def _package_version() -> str:
@@ -135,6 +139,13 @@ class SimulatorServer:
         self._started = time.monotonic()
         self._declared: list[Any] = []
         self._declare()
+        self.recorder: ServerRecorder | None = None
+        if config.recording.sink != "off":
+            try:
+                self.recorder = ServerRecorder(config.recording, self.name)
+            except BaseException:
+                self.close()
+                raise
 
     # --- Zenoh plumbing (callbacks only enqueue) -------------------------------------------
 
@@ -169,6 +180,9 @@ class SimulatorServer:
         log.info("server %s serving (%s), up to %d arenas, step deadline %.1f s",
                  self.name, self.config.transport().describe(), self.config.max_arenas,
                  self.config.step_deadline_s)
+        if self.recorder is not None:
+            log.info("recording every arena every %d round(s) to %s",
+                     self.config.recording.record_every, self.recorder.where)
         try:
             while not self._stopping.is_set():
                 timeout = self._next_timeout()
@@ -201,6 +215,9 @@ class SimulatorServer:
             pass
         if self._own_session and not self.session.is_closed():
             self.session.close()
+        if getattr(self, "recorder", None) is not None:
+            self.recorder.close()
+            self.recorder = None
         log.info("server %s stopped", self.name)
 
     def _next_timeout(self) -> float:
@@ -375,6 +392,10 @@ class SimulatorServer:
                 for trainer, message in steps.items():
                     self._send(trainer, message)
                 self._publish_world(group, now)
+                if self.recorder is not None and self.recorder.wants(group.round):
+                    observations = group.last_observations or group.sim.observe()
+                    for index in range(len(group.arena_ids)):
+                        self.recorder.offer(group.world_frame(index, observations))
             except Exception as error:
                 # One group's failure is that group's end, not the server's.
                 log.exception("group %d failed to step; closing it", group.group_id)
@@ -479,8 +500,9 @@ def main(config: ServerConfig) -> None:
         raise SystemExit(f"overtake-server: could not open the Zenoh session "
                          f"({config.transport().describe()}): {error}. Is the port in use, or "
                          "the router unreachable?") from None
-    except RuntimeError as error:
+    except (RuntimeError, errors.ProtocolError) as error:
         raise SystemExit(f"overtake-server: {error}") from None
+    warn_if_unconnected(server.session, config.transport(), log)
 
     def on_signal(signum: int, _frame: Any) -> None:
         log.info("received %s, shutting down", signal.Signals(signum).name)
@@ -494,5 +516,6 @@ def main(config: ServerConfig) -> None:
 def cli() -> None:
     import tyro
 
-    main(tyro.cli(ServerConfig, description="overtake-server: the highway simulator, served "
-                                            "to trainers over Zenoh"))
+    main(tyro.cli(ServerConfig, config=(tyro.conf.OmitArgPrefixes,),
+                  description="overtake-server: the highway simulator, served to trainers "
+                              "over Zenoh"))

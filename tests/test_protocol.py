@@ -6,6 +6,7 @@ No Zenoh here: everything is bytes in, bytes out, so the whole file runs in a fe
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 from dataclasses import fields
 
@@ -177,7 +178,16 @@ def world_frames(draw):
         speed_mps=draw(wire_array("float32", (v,))), kind=draw(wire_array("int8", (v,))),
         active=draw(wire_array("bool", (v,))), observations=draw(observation_dicts(n)),
         reward=draw(wire_array("float64", (n,))),
-        action_applied=draw(wire_array("int64", (n,))))
+        action_applied=draw(wire_array("int64", (n,))), **draw(reward_term_fields(n)))
+
+
+@st.composite
+def reward_term_fields(draw, n):
+    terms = draw(st.none() | st.integers(0, 3))
+    if terms is None:
+        return {}
+    return {"reward_term_names": tuple(draw(st.lists(names, min_size=terms, max_size=terms))),
+            "reward_terms": draw(wire_array("float64", (n, terms)))}
 
 
 MESSAGES = {
@@ -463,6 +473,38 @@ def test_newer_minor_version_may_add_fields_the_current_minor_may_not():
         decode(pack([MAJOR, MINOR, "ack", body]))
     assert "added_in_a_later_minor" in str(err.value)  # what came
     assert "'message'" in str(err.value)                # what was expected
+
+
+def test_world_frame_of_a_1_0_peer_decodes_without_reward_terms():
+    # 1.1 added the reward terms to world frames: a spectator of this version still reads an
+    # older server's frames, and gets none...
+    frame = WorldFrame(
+        server="s", group=0, arena=1, round=2, sim_time_s=0.4, lane_count=5, lane_width_m=3.5,
+        agent_kind=9, agent_active=np.ones(1, bool), x_m=np.zeros(2), y_m=np.zeros(2),
+        speed_mps=np.zeros(2, np.float32), kind=np.zeros(2, np.int8), active=np.ones(2, bool),
+        observations={}, reward=np.ones(1), action_applied=np.zeros(1, np.int64),
+        reward_terms=np.array([[0.5, -0.25]]), reward_term_names=("speed", "lane_change"))
+    *_, body = msgpack.unpackb(encode(frame), raw=False)
+    assert body.pop("reward_term_names") == ["speed", "lane_change"]
+    body.pop("reward_terms")
+    old = decode(pack([MAJOR, 0, "world", body]))
+    assert old.reward_terms is None and old.reward_term_names == ()
+    assert old == dataclasses.replace(frame, reward_terms=None, reward_term_names=())
+    # ...while a peer of this minor version must send them.
+    with pytest.raises(DecodeError, match="reward_term"):
+        decode(pack([MAJOR, MINOR, "world", body]))
+
+
+def test_world_frame_reward_terms_must_match_their_names():
+    base = dict(server="s", group=0, arena=1, round=2, sim_time_s=0.4, lane_count=5,
+                lane_width_m=3.5, agent_kind=9, agent_active=np.ones(2, bool), x_m=np.zeros(2),
+                y_m=np.zeros(2), speed_mps=np.zeros(2, np.float32), kind=np.zeros(2, np.int8),
+                active=np.ones(2, bool), observations={}, reward=np.ones(2),
+                action_applied=np.zeros(2, np.int64))
+    with pytest.raises(DecodeError, match=r"reward_terms must have shape \(2, 3\)"):
+        WorldFrame(**base, reward_terms=np.zeros((2, 2)), reward_term_names=("a", "b", "c"))
+    with pytest.raises(DecodeError, match="without reward_terms"):
+        WorldFrame(**base, reward_term_names=("a",))
 
 
 def test_newer_minor_version_still_needs_every_known_field():

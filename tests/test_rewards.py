@@ -56,7 +56,9 @@ def test_speed_term_follows_its_config():
 
 def test_changing_lane_into_a_car_alongside_is_a_collision():
     # The car alongside is a little faster, so braking (it sees the ego cut in) cannot save it.
-    sim = scripted_sim([Car(0.0, 3, 70.0)], ego_lane=2)
+    # Driver assistance would refuse this change; without it the change starts.
+    sim = scripted_sim([Car(0.0, 3, 70.0)], ego_lane=2,
+                       overrides={"ego.lane_change_check": False})
     first = sim.step(np.array([[3]]))
     assert terms_of(first)["lane_change"] == -0.25
     assert not first.terminated[0, 0]

@@ -171,6 +171,42 @@ def test_lateral_action_during_a_change_is_ignored_and_masked():
     assert sim.metrics()["lane_changes"][0, 0] == 1
 
 
+BODY = 2 * HALF_LENGTH   # centre to centre when two cars touch bumper to bumper
+
+
+@pytest.mark.parametrize("dx, clear", [
+    (0.0, False),                       # alongside
+    (BODY + 1.9, False), (BODY + 2.1, True),          # ahead: 2 m bumper to bumper needed
+    (-(BODY + 3.9), False), (-(BODY + 4.1), True),    # behind: 4 m needed
+    (-(BODY - 1.0), False),             # overlapping from behind
+])
+def test_driver_assistance_starts_a_lane_change_only_into_a_clear_lane(dx, clear):
+    sim = scripted_sim([Car(dx, 3, 60.0)], ego_lane=2)
+    mask = sim.action_mask()[0, 0]
+    assert mask[3] == clear
+    assert mask[4] == 1                 # the lane on the right is empty
+    result = sim.step(np.array([[3]]))
+    assert result.action_applied[0, 0] == (3 if clear else 0)
+    assert result.reward_terms["lane_change"][0, 0] == (-0.25 if clear else 0.0)
+    assert sim.state.target_lane[0, 0] == (3 if clear else 2)
+
+
+def test_a_car_moving_into_the_target_lane_blocks_it_and_the_check_can_be_turned_off():
+    for check in (True, False):
+        sim = scripted_sim([Car(0.0, 4, 60.0)], ego_lane=2,
+                           overrides={"ego.lane_change_check": check})
+        sim.state.target_lane[0, 1] = 3   # the car two lanes over is moving into lane 3
+        assert sim.action_mask()[0, 0, 3] == (0 if check else 1)
+        assert sim.step(np.array([[3]])).action_applied[0, 0] == (0 if check else 3)
+
+
+def test_cars_in_the_own_lane_or_two_lanes_over_do_not_block_a_change():
+    sim = scripted_sim([Car(BODY + 0.5, 2, 60.0), Car(0.0, 0, 60.0), Car(0.0, 4, 60.0)],
+                       ego_lane=2)
+    assert sim.action_mask()[0, 0].tolist() == [1, 1, 1, 1, 1]
+    assert sim.side_clear()[0, 0].tolist() == [True, True]
+
+
 @pytest.mark.parametrize("lane, blocked", [(0, 4), (4, 3)])
 def test_lateral_actions_are_masked_and_ignored_at_the_road_edges(lane, blocked):
     sim = scripted_sim([], ego_lane=lane)

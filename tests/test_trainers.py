@@ -13,6 +13,7 @@ import pytest
 import torch
 from gymnasium import spaces
 
+from overtake.protocol.recording import RecordingConfig
 from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.evaluate import EvalConfig
 from overtake.trainers.evaluate import main as evaluate
@@ -325,6 +326,33 @@ class PickTheFreeLane(gym.vector.VectorEnv):
         return self._obs(), reward, np.zeros(self.num_envs, bool), truncated, info
 
 
+class WatchEnvZero(gym.vector.VectorEnv):
+    """Passes everything through, keeping per step environment 0's LIDAR before the step, its
+    action, its reward, and whether the step was its autoreset."""
+
+    def __init__(self, env: gym.vector.VectorEnv) -> None:
+        self.env = env
+        self.metadata = env.metadata
+        self.num_envs = env.num_envs
+        self.single_observation_space = env.single_observation_space
+        self.single_action_space = env.single_action_space
+        self.observation_space, self.action_space = env.observation_space, env.action_space
+        self.log: list[tuple[np.ndarray, int, float, bool]] = []
+        self._last, self._resetting = None, False
+
+    def reset(self, *, seed=None, options=None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        self._last, self._resetting = obs["lidar"][0].copy(), False
+        return obs, info
+
+    def step(self, actions):
+        obs, reward, terminated, truncated, info = self.env.step(actions)
+        self.log.append((self._last, int(actions[0]), float(reward[0]), self._resetting))
+        self._last = obs["lidar"][0].copy()
+        self._resetting = bool(terminated[0] or truncated[0])
+        return obs, reward, terminated, truncated, info
+
+
 def tiny_dqn(**changes: Any) -> DQNConfig:
     settings = dict(learning_rate=0.002, batch_size=32, replay_size=4000, learning_starts=300,
                     gamma=0.5, epsilon_decay_steps=1500, epsilon_end=0.05,
@@ -540,8 +568,10 @@ def test_training_writes_a_rerun_recording_of_its_episodes_and_learning(tmp_path
     import rerun as rr
 
     config = TrainConfig(inputs="lidar", num_envs=2, total_steps=300, run_dir=tmp_path / "run",
-                         progress=False, log_every=100, dqn=tiny_dqn(learning_starts=50))
-    train(config, envs=PickTheFreeLane(2, length=16))
+                         progress=False, log_every=100, dqn=tiny_dqn(learning_starts=50),
+                         recording=RecordingConfig(record_every=3))
+    envs = WatchEnvZero(PickTheFreeLane(2, length=16))
+    train(config, envs=envs)
     records = [json.loads(line) for line in
                (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
     reader = rr.chunk.RrdReader(str(tmp_path / "run" / "trainer.rrd"))
@@ -568,3 +598,26 @@ def test_training_writes_a_rerun_recording_of_its_episodes_and_learning(tmp_path
     assert values == pytest.approx([r["loss"] for r in trained])
     _, epsilons = series("/trainer/run/learning/epsilon")
     assert epsilons == sorted(epsilons, reverse=True) and epsilons[0] <= 1.0
+
+    # Environment 0's view, every 3rd step of the vector env, skipping autoreset steps: the
+    # LIDAR it was shown, the action it took and the reward it got for it.
+    expected = [(seen, action, reward) for i, (seen, action, reward, resetting)
+                in enumerate(envs.log) if i % 3 == 0 and not resetting]
+    _, rewards = series("/trainer/run/env0/reward")
+    _, actions = series("/trainer/run/env0/action")
+    _, chosen_q = series("/trainer/run/env0/q_chosen")
+    hits = []
+    for chunk in reader.stream().to_chunks():
+        if chunk.entity_path == "/trainer/run/env0/lidar/hits" and not chunk.is_static:
+            batch = chunk.to_record_batch()
+            hits += zip(batch.column("step").to_pylist(),
+                        batch.column("Points2D:positions").to_pylist())
+    hits = [np.asarray(points) for _, points in sorted(hits, key=lambda h: h[0])]
+    assert len(expected) == len(rewards) == len(actions) == len(hits) == len(chosen_q) > 30
+    assert rewards == pytest.approx([r for _, _, r in expected])
+    assert actions == [a for _, a, _ in expected]
+    angles = np.arange(5) * (2 * np.pi / 5)
+    for points, (seen, _, _) in zip(hits, expected):
+        assert np.hypot(points[:, 0], points[:, 1]) == pytest.approx(seen, rel=1e-5)
+        assert np.allclose(points, np.stack([seen * np.cos(angles), seen * np.sin(angles)], 1),
+                           atol=1e-4)

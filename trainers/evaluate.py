@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
@@ -20,6 +20,7 @@ import torch
 from overtake.client.drive import (baseline_policy, make_vector_env, metric_summary,
                                    parse_overrides, run_episodes)
 from overtake.protocol import ProtocolError
+from overtake.protocol.transport import SecurityConfig
 
 from .checkpoint import load_checkpoint
 from .network import INPUT_SENSORS
@@ -50,7 +51,9 @@ class EvalConfig:
     max_decisions: int | None = None
     """episode length in decisions; None keeps the preset's"""
     connect: str | None = None
-    """a simulator server's Zenoh endpoint; None runs the simulator in-process"""
+    """a simulator server's (or router's) Zenoh endpoint; None runs the simulator in-process"""
+    security: SecurityConfig = field(default_factory=SecurityConfig)
+    """usrpwd credentials and TLS certificates for --connect"""
     json_out: Path | None = None
     """also write the table (and every episode) as JSON here"""
     name: str | None = None
@@ -139,7 +142,7 @@ def main(config: EvalConfig) -> dict[str, Any]:
         overrides["episode.max_decisions"] = config.max_decisions
     if config.policy == "rule":
         overrides.pop("lidar.enabled", None)  # the rule-based driver reads the LIDAR
-    envs = make_vector_env(preset, overrides, config.episodes, config.connect)
+    envs = make_vector_env(preset, overrides, config.episodes, config.connect, config.security)
     try:
         sim = envs.unwrapped.sim_config
         if checkpoint is not None:
@@ -167,8 +170,9 @@ def main(config: EvalConfig) -> dict[str, Any]:
 def cli(argv: list[str] | None = None) -> None:
     import tyro
 
-    config = tyro.cli(EvalConfig, args=argv, description="overtake-eval: the papers' metrics "
-                      "for a checkpoint or a baseline on fixed seeds")
+    config = tyro.cli(EvalConfig, args=argv, config=(tyro.conf.OmitArgPrefixes,),
+                      description="overtake-eval: the papers' metrics for a checkpoint or a "
+                                  "baseline on fixed seeds")
     try:
         main(config)
     except ProtocolError as error:

@@ -37,8 +37,9 @@ import numpy as np
 import torch
 
 from overtake.client.drive import make_vector_env, parse_overrides
-from overtake.client.recording import RecordingConfig, close_recording, open_recording
 from overtake.protocol import ACTION_COUNT, ProtocolError
+from overtake.protocol.recording import RecordingConfig, close_recording, open_recording
+from overtake.protocol.transport import SecurityConfig
 
 from .checkpoint import (CHECKPOINT_NAME, REPLAY_NAME, load_checkpoint, plain_data,
                          save_checkpoint)
@@ -47,6 +48,10 @@ from .network import INPUT_SENSORS, Inputs, NetworkShape
 from .replay import FrameShapes, FrameStacker, ReplayMemory
 from .visual import TrainingRecording, training_blueprint
 
+# Environment 0's view is logged every this many steps of the vector environment: about 9 MB
+# of .rrd per 10,000 steps with the camera, and a loss of a few per cent in steps per second
+# (bench/RESULTS.md), for runs that last days.
+TRAINER_RECORD_EVERY = 10
 
 @dataclass(frozen=True)
 class TrainConfig:
@@ -63,6 +68,8 @@ class TrainConfig:
     """more simulator overrides as dotted.name=value"""
     connect: str | None = None
     """a simulator server's (or router's) Zenoh endpoint; None runs the simulator in-process"""
+    security: SecurityConfig = field(default_factory=SecurityConfig)
+    """usrpwd credentials and TLS certificates for --connect"""
     num_envs: int = 1
     """environments (arenas) stepped together"""
     total_steps: int = 1_000_000
@@ -84,8 +91,10 @@ class TrainConfig:
     progress: bool = True
     """show a progress bar"""
     dqn: DQNConfig = field(default_factory=DQNConfig)
-    recording: RecordingConfig = field(default_factory=RecordingConfig)
-    """Rerun: episodes and learning curves (default: trainer.rrd in the run directory)"""
+    recording: RecordingConfig = field(
+        default_factory=lambda: RecordingConfig(record_every=TRAINER_RECORD_EVERY))
+    """Rerun: episodes, learning curves and environment 0's view (default: trainer.rrd in the
+    run directory)"""
 
     def resolved_run_dir(self) -> Path:
         return self.run_dir or Path("runs") / f"{self.algo}-{self.inputs}-{self.seed}"
@@ -197,7 +206,8 @@ def main(config: TrainConfig, envs: Any = None) -> dict[str, Any]:
     overrides = config.overrides()
     own_envs = envs is None
     if own_envs:
-        envs = make_vector_env(config.preset, overrides, config.num_envs, config.connect)
+        envs = make_vector_env(config.preset, overrides, config.num_envs, config.connect,
+                               config.security)
     elif envs.num_envs != config.num_envs:
         raise ValueError(f"the environment has {envs.num_envs} sub-environments, the "
                          f"configuration says num_envs={config.num_envs}")
@@ -251,11 +261,11 @@ def _train(config: TrainConfig, envs: Any, run_dir: Path, overrides: dict[str, A
         json.dumps(record, indent=2, default=str))
     log = MetricsLog(run_dir / "metrics.jsonl")
     run_name = run_dir.name or "run"
-    stream = open_recording("overtake-train", config.recording,
-                            run_dir / ("trainer.rrd" if resumed is None
-                                       else f"trainer-resume-{resumes}.rrd"),
-                            training_blueprint(run_name))
-    view = TrainingRecording(stream, run_name) if stream is not None else None
+    recording = open_recording("overtake-train", config.recording,
+                               run_dir / ("trainer.rrd" if resumed is None
+                                          else f"trainer-resume-{resumes}.rrd"),
+                               training_blueprint(run_name))
+    view = TrainingRecording(recording.stream, run_name) if recording is not None else None
 
     def checkpoint() -> None:
         save_checkpoint(checkpoint_path, learner=learner, config=config, overrides=overrides,
@@ -285,14 +295,21 @@ def _train(config: TrainConfig, envs: Any, run_dir: Path, overrides: dict[str, A
     log_t, log_step = time.perf_counter(), step
     started = log_t
     bar = _progress(config, step)
+    iteration, record_every = 0, config.recording.record_every
     try:
         while step < config.total_steps:
             t0 = time.perf_counter()
             epsilon = dqn.epsilon(step)
-            actions, _ = learner.act(stacker.observation(), mask, epsilon, rng)
+            actions, q = learner.act(stacker.observation(), mask, epsilon, rng)
             t1 = time.perf_counter()
+            seen = obs
             obs, reward, terminated, truncated, info = envs.step(actions)
             t2 = time.perf_counter()
+            if view is not None and not starting[0] and iteration % record_every == 0:
+                view.car_view(step, {k: v[0] for k, v in seen.items()}, int(actions[0]), q[0],
+                              float(reward[0]), {name: float(v[0]) for name, v
+                                                 in info.get("reward_terms", {}).items()})
+            iteration += 1
             mask = info["action_mask"]
             # Gymnasium next-step autoreset: envs that ended last step were reset by this one
             # (its action ignored, reward 0); their observation starts a new episode.
@@ -368,7 +385,7 @@ def _train(config: TrainConfig, envs: Any, run_dir: Path, overrides: dict[str, A
         if bar is not None:
             bar.close()
         log.close()
-        close_recording(stream)
+        close_recording(recording)
     return {"run_dir": str(run_dir), "steps": step, "episodes": episodes,
             "updates": learner.updates, "last_episode": last_episode}
 

@@ -188,6 +188,13 @@ class EgoConfig:
     # ... with at least this speed difference to the car ahead (Ho 2018, section 6.2).
     emergency_speed_diff_kmh: float = 20.0
     lane_change_duration_s: float = 2.0
+    # Driver assistance refuses to start a lane change into a lane that is not clear from
+    # lane_change_clear_behind_m behind to lane_change_clear_ahead_m ahead, bumper to bumper,
+    # counting cars already moving into it (the action mask says so): Min et al.'s cars change
+    # lanes only without a side warning. False lets every change start, as cars beside it allow.
+    lane_change_check: bool = True
+    lane_change_clear_ahead_m: float = 2.0
+    lane_change_clear_behind_m: float = 4.0
 
     def __post_init__(self) -> None:
         _check_range("ego.cruise_min_kmh", self.cruise_min_kmh, 0.0, 300.0)
@@ -206,6 +213,9 @@ class EgoConfig:
         _check_range("ego.emergency_decel_mps2", self.emergency_decel_mps2, 0.1, 15.0)
         _check_range("ego.emergency_speed_diff_kmh", self.emergency_speed_diff_kmh, 0.0, 300.0)
         _check_range("ego.lane_change_duration_s", self.lane_change_duration_s, 0.5, 10.0)
+        _check_range("ego.lane_change_clear_ahead_m", self.lane_change_clear_ahead_m, 0.0, 100.0)
+        _check_range("ego.lane_change_clear_behind_m", self.lane_change_clear_behind_m, 0.0,
+                     100.0)
 
 
 @dataclass(frozen=True, slots=True)

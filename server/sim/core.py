@@ -406,6 +406,10 @@ class HighwaySim:
         idle = st.target_lane[:, :n] == agent_lane
         go_left = (actions == LANE_LEFT) & idle & (agent_lane < lanes - 1)
         go_right = (actions == LANE_RIGHT) & idle & (agent_lane > 0)
+        if cfg.ego.lane_change_check and (go_left | go_right).any():
+            clear = self.side_clear()
+            go_left &= clear[..., 1]
+            go_right &= clear[..., 0]
         started = go_left | go_right
         st.target_lane[:, :n] += go_left.astype(np.int64) - go_right
         st.change_progress[:, :n] = np.where(started, 0.0, st.change_progress[:, :n])
@@ -715,13 +719,42 @@ class HighwaySim:
         out[..., 5] = st.target_lane[:, :n] - st.lane[:, :n]
         return out
 
+    def side_clear(self) -> np.ndarray:
+        """(A, N, 2) bool: whether the lane to each agent's right [0] and left [1] is clear for
+        starting a lane change (see ``EgoConfig.lane_change_check``): no other vehicle in it,
+        or moving into it, from ``lane_change_clear_behind_m`` behind the agent's rear bumper
+        to ``lane_change_clear_ahead_m`` ahead of its front bumper. A lane that does not exist
+        counts as clear here; the mask refuses it anyway."""
+        st, n = self.state, self.agents
+        ego = self.config.ego
+        half = self.k_half_length[st.kind]                           # (A, V)
+        dx = st.x_m[:, None, :] - st.x_m[:, :n, None]                 # (A, N, V): other - agent
+        reach = half[:, None, :] + half[:, :n, None]
+        near = (dx - reach < ego.lane_change_clear_ahead_m) \
+            & (-dx - reach < ego.lane_change_clear_behind_m)
+        near &= st.active[:, None, :]
+        near[:, np.arange(n), np.arange(n)] = False                  # not the agent itself
+        clear = np.empty(near.shape[:2] + (2,), dtype=bool)
+        for side, step in enumerate((-1, 1)):
+            lane = (st.lane[:, :n] + step)[:, :, None]
+            there = (st.lane[:, None, :] == lane) | (st.target_lane[:, None, :] == lane)
+            clear[..., side] = ~(near & there).any(axis=2)
+        return clear
+
     def action_mask(self) -> np.ndarray:
-        """(A, N, 5) int8: 1 where the action can be taken now (lateral ones need a free lane)."""
+        """(A, N, 5) int8: 1 where the action can be taken now (a lane change needs a lane
+        there, none under way, and, with ``ego.lane_change_check``, a clear side)."""
         st, n = self.state, self.agents
         idle = st.target_lane[:, :n] == st.lane[:, :n]
         mask = np.ones((self.num_arenas, n, ACTION_COUNT), dtype=np.int8)
-        mask[..., LANE_LEFT] = idle & (st.lane[:, :n] < self.lane_count - 1)
-        mask[..., LANE_RIGHT] = idle & (st.lane[:, :n] > 0)
+        left = idle & (st.lane[:, :n] < self.lane_count - 1)
+        right = idle & (st.lane[:, :n] > 0)
+        if self.config.ego.lane_change_check:
+            clear = self.side_clear()
+            left &= clear[..., 1]
+            right &= clear[..., 0]
+        mask[..., LANE_LEFT] = left
+        mask[..., LANE_RIGHT] = right
         return mask
 
     def _observer_views(self) -> tuple[np.ndarray, ...]:

@@ -1,4 +1,4 @@
-"""World frames in Rerun: what a spectator shows of an arena.
+"""World frames in Rerun: what a spectator, or a server logging directly, shows of an arena.
 
 Per arena, under ``world/<server>/arena<id>``, on the ``round`` (decision) and ``sim_time``
 timelines:
@@ -9,9 +9,12 @@ timelines:
   (rays at angle 2*pi*k/R from the road's direction; a car changing lanes is turned by a few
   degrees, which the drawing ignores);
 - ``agent<i>/camera``: its camera image;
-- ``agent<i>/speed_kmh``, ``agent<i>/reward``, ``agent<i>/action``: scalars.
+- ``agent<i>/speed_kmh``, ``agent<i>/reward``, ``agent<i>/action``: scalars;
+- ``agent<i>/reward_terms/<term>``: each term of the reward (frames of protocol 1.1 on).
 
-The traffic's behaviour names are the simulator's (steady, road_max, lane_changer).
+The traffic's behaviour names are the simulator's (steady, road_max, lane_changer). It lives in
+``protocol`` beside the :class:`WorldFrame` it draws, so that spectators (client) and servers
+draw the same view; it depends on nothing else of the project.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from overtake.protocol.messages import WorldFrame
+from .messages import WorldFrame
 
 KIND_NAMES = ("steady", "road_max", "lane_changer")
 KIND_COLOURS = np.array([[80, 120, 255], [40, 200, 120], [240, 170, 30]], dtype=np.uint8)
@@ -41,7 +44,8 @@ def world_blueprint(server: str, arena: int) -> Any:
                 rrb.Spatial2DView(origin=f"{root}/agent0/camera", name="agent 0 camera"),
                 rrb.TimeSeriesView(origin=f"{root}/agent0", name="agent 0",
                                    contents=[f"{root}/agent0/speed_kmh", f"{root}/agent0/reward",
-                                             f"{root}/agent0/action"]),
+                                             f"{root}/agent0/action",
+                                             f"{root}/agent0/reward_terms/**"]),
                 row_shares=[2, 1]),
             column_shares=[2, 1]),
         rrb.TimePanel(timeline="round"), collapse_panels=True)
@@ -104,3 +108,6 @@ class WorldRecording:
             stream.log(f"{base}/speed_kmh", rr.Scalars(speed_mps * 3.6))
             stream.log(f"{base}/reward", rr.Scalars(float(frame.reward[i])))
             stream.log(f"{base}/action", rr.Scalars(float(frame.action_applied[i])))
+            if frame.reward_terms is not None:
+                for name, value in zip(frame.reward_term_names, frame.reward_terms[i]):
+                    stream.log(f"{base}/reward_terms/{name}", rr.Scalars(float(value)))

@@ -1,0 +1,126 @@
+"""What Rerun recording costs training: steps per second with recording on, against off.
+
+One run trains the same ``overtake-train`` configuration (Double DQN, 4 environments, learning
+on) several ways, interleaved and repeated so that a drift of the machine touches every way
+alike, and compares the median steps per second of each with its baseline measured in the same
+run (only steps after learning started count; see ``bench.bench_train``):
+
+- in-process, the trainer's recording off, against on at the default decimation
+  (``--record-every 10``: summaries plus environment 0's view every 10th step) and at every
+  step (``--record-every 1``);
+- remote, against an ``overtake.server`` subprocess that records every arena every round
+  (``--sink file --record-every 1``, the server's default rate once its sink is on), against
+  one that does not (the trainer's own recording off in both).
+
+It also reports the .rrd bytes written per 1,000 environment steps.
+
+    .venv/bin/python -m bench.bench_recording [--steps 2000] [--repeats 2] [--json PATH]
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import statistics
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from bench.bench_remote import free_port, start_server, stop_process
+from bench.bench_train import TrainBenchConfig, run_once
+
+
+@dataclass(frozen=True)
+class RecordingBenchConfig:
+    steps: int = 2_000
+    """environment steps timed per run, after learning_starts"""
+    learning_starts: int = 400
+    num_envs: int = 4
+    inputs: tuple[str, ...] = ("both", "lidar")
+    repeats: int = 2
+    """runs of each way, interleaved"""
+    torch_threads: int = 2
+    json: Path | None = None
+
+
+def main(config: RecordingBenchConfig) -> dict[str, Any]:
+    from overtake.protocol.recording import RecordingConfig
+    from overtake.trainers.train import TRAINER_RECORD_EVERY
+
+    os.environ.setdefault("OMP_NUM_THREADS", str(config.torch_threads))
+    train = TrainBenchConfig(steps=config.steps, learning_starts=config.learning_starts,
+                             num_envs=config.num_envs, torch_threads=config.torch_threads)
+    results: list[dict[str, Any]] = []
+    with tempfile.TemporaryDirectory() as tmp_name:
+        tmp = Path(tmp_name)
+        plain_ep = f"tcp/127.0.0.1:{free_port()}"
+        recording_ep = f"tcp/127.0.0.1:{free_port()}"
+        server_rrd = tmp / "server.rrd"
+        plain = start_server(plain_ep, 60.0)
+        recording_server = start_server(recording_ep, 60.0, extra=(
+            "--sink", "file", "--rrd", str(server_rrd), "--record-every", "1"))
+        off = RecordingConfig(sink="off")
+        ways = {
+            "in-process, recording off": (None, off),
+            f"in-process, recording every {TRAINER_RECORD_EVERY} (default)":
+                (None, RecordingConfig(record_every=TRAINER_RECORD_EVERY)),
+            "in-process, recording every step": (None, RecordingConfig(record_every=1)),
+            "remote, server not recording": (plain_ep, off),
+            "remote, server recording every round": (recording_ep, off),
+        }
+        try:
+            for inputs in config.inputs:
+                for repeat in range(config.repeats):
+                    for way, (connect, recording) in ways.items():
+                        run_dir = tmp / f"{inputs}-{repeat}-{len(results)}"
+                        result = run_once(train, inputs, connect, run_dir, recording)
+                        rrd = run_dir / "trainer.rrd"
+                        result.update(way=way, repeat=repeat,
+                                      rrd_bytes=rrd.stat().st_size if rrd.exists() else 0)
+                        results.append(result)
+                        print(f"{inputs:>6} {way:<45} {result['steps_per_s']:7.1f} steps/s",
+                              file=sys.stderr)
+        finally:
+            stop_process(plain)
+            stop_process(recording_server)
+        server_rrd_bytes = server_rrd.stat().st_size if server_rrd.exists() else 0
+
+    baselines = {"in-process": "in-process, recording off", "remote": "remote, server not "
+                 "recording"}
+    summary = []
+    print(f"Double DQN, {config.num_envs} envs, torch threads {config.torch_threads}, "
+          f"{config.steps} timed steps after {config.learning_starts}, median of "
+          f"{config.repeats} interleaved runs")
+    print(f"{'inputs':>6} {'way':<45} {'steps/s':>8} {'vs off':>7} {'rrd MB/1k steps':>16}")
+    for inputs in config.inputs:
+        medians = {way: statistics.median(r["steps_per_s"] for r in results
+                                          if r["inputs"] == inputs and r["way"] == way)
+                   for way in ways}
+        for way in ways:
+            base = medians[baselines[way.split(",")[0]]]
+            runs = [r for r in results if r["inputs"] == inputs and r["way"] == way]
+            total_steps = config.learning_starts + config.steps
+            mb = statistics.median(r["rrd_bytes"] for r in runs) / 1e6 / total_steps * 1000
+            row = {"inputs": inputs, "way": way, "steps_per_s": medians[way],
+                   "ratio_to_off": medians[way] / base, "rrd_mb_per_1k_steps": mb}
+            summary.append(row)
+            print(f"{inputs:>6} {way:<45} {medians[way]:8.1f} {row['ratio_to_off']:6.3f}x "
+                  f"{mb:16.2f}")
+    print(f"server recording: {server_rrd_bytes / 1e6:.1f} MB over all its remote runs")
+    report = {"config": {k: str(v) for k, v in vars(config).items()},
+              "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
+                          "python": sys.version.split()[0]},
+              "summary": summary, "results": results, "server_rrd_bytes": server_rrd_bytes}
+    if config.json is not None:
+        config.json.parent.mkdir(parents=True, exist_ok=True)
+        config.json.write_text(json.dumps(report, indent=2, default=str))
+    return report
+
+
+if __name__ == "__main__":
+    import tyro
+
+    main(tyro.cli(RecordingBenchConfig))

@@ -1,0 +1,159 @@
+"""Rerun recordings: where a process's logging goes, chosen by one option.
+
+``file`` saves an ``.rrd`` (a trainer puts it in its run directory), ``grpc`` streams to a
+running viewer (``rerun`` on this host, or ``--viewer-url`` on another), ``web`` starts Rerun's
+web viewer from this process (bound to 127.0.0.1 unless ``--web-bind`` says otherwise; it lives
+as long as the process), ``off`` logs nothing. Processes of one run that pass the same
+``recording_id`` open as one recording. Each process keeps its own
+:class:`rerun.RecordingStream` (never Rerun's global one), so a library user's own Rerun logging
+is left alone.
+
+This lives in ``protocol`` because the server (logging directly) and the client's spectators
+both record, and neither may import the other; it depends on nothing of the project.
+"""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+DEFAULT_VIEWER_URL = "rerun+http://127.0.0.1:9876/proxy"
+WEB_VIEWER_START_TIMEOUT_S = 20.0
+
+
+@dataclass(frozen=True)
+class RecordingConfig:
+    """Where Rerun logging goes, and how often."""
+
+    sink: Literal["file", "grpc", "web", "off"] = "file"
+    """file: an .rrd (--rrd, or the command's default); grpc: stream to a viewer at
+    --viewer-url; web: serve Rerun's web viewer from this process; off: no recording"""
+    rrd: Path | None = None
+    """the .rrd to write with sink=file"""
+    viewer_url: str = DEFAULT_VIEWER_URL
+    """a Rerun viewer's gRPC address, for sink=grpc (start one with `rerun`)"""
+    recording_id: str | None = None
+    """processes that share it open as one recording (default: one per process)"""
+    record_every: int = 1
+    """decimation: log what the cars see every this many steps (episode and learning
+    summaries are always logged)"""
+    web_bind: str = "127.0.0.1"
+    """sink=web: the address the web viewer and its gRPC server listen on (0.0.0.0: every
+    host may watch)"""
+    web_port: int = 9090
+    """sink=web: the web viewer's HTTP port"""
+    web_grpc_port: int = 9876
+    """sink=web: the port of the gRPC server the web viewer reads from"""
+
+    def __post_init__(self) -> None:
+        if self.record_every < 1:
+            raise ValueError(f"record_every must be >= 1, got {self.record_every}")
+
+    def describe(self, default_rrd: Path) -> str:
+        """Where the recording goes, in words, for a closing log line."""
+        if self.sink == "off":
+            return "nowhere (--sink off)"
+        if self.sink == "grpc":
+            return f"the viewer at {self.viewer_url}"
+        if self.sink == "web":
+            return f"the web viewer at http://{self.web_bind}:{self.web_port}"
+        return str(self.rrd or default_rrd)
+
+
+def viewer_binary() -> str:
+    """The Rerun viewer executable shipped in the rerun-sdk wheel.
+
+    Not the ``rerun`` script of the environment's bin: that is a Python wrapper, and stopping
+    its PID would leave the real viewer running."""
+    import rerun_cli
+
+    return str(Path(rerun_cli.__file__).parent / "rerun")
+
+
+def _port_open(host: str, port: int) -> bool:
+    probe = "127.0.0.1" if host in ("0.0.0.0", "") else host
+    try:
+        with socket.create_connection((probe, port), timeout=0.2):
+            return True
+    except OSError:
+        return False
+
+
+class Recording:
+    """An open recording: ``stream`` is the :class:`rerun.RecordingStream` to log to."""
+
+    def __init__(self, stream: Any, viewer: subprocess.Popen | None = None) -> None:
+        self.stream = stream
+        self.viewer = viewer
+
+    def close(self) -> None:
+        """Flush and close: an .rrd gets its footer (a killed process leaves a readable file
+        without one); a web viewer this process started is stopped."""
+        try:
+            self.stream.flush()
+            self.stream.disconnect()
+        finally:
+            if self.viewer is not None and self.viewer.poll() is None:
+                self.viewer.terminate()
+                try:
+                    self.viewer.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    self.viewer.kill()
+                    self.viewer.wait()
+
+
+def _start_web_viewer(config: RecordingConfig) -> subprocess.Popen:
+    if _port_open(config.web_bind, config.web_grpc_port):
+        raise RuntimeError(f"cannot serve the web viewer: port {config.web_grpc_port} on "
+                           f"{config.web_bind} is already taken (another viewer?); choose "
+                           "--web-grpc-port, or stream to that viewer with --sink grpc")
+    viewer = subprocess.Popen(
+        [viewer_binary(), "--serve-web", "--bind", config.web_bind,
+         "--port", str(config.web_grpc_port), "--web-viewer-port", str(config.web_port)],
+        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + WEB_VIEWER_START_TIMEOUT_S
+    while not _port_open(config.web_bind, config.web_grpc_port):
+        if viewer.poll() is not None:
+            error = viewer.stderr.read().decode(errors="replace").strip() if viewer.stderr \
+                else ""
+            raise RuntimeError(f"the Rerun web viewer exited with code {viewer.returncode} "
+                               f"at start: {error[-500:]}")
+        if time.monotonic() > deadline:
+            viewer.kill()
+            viewer.wait()
+            raise RuntimeError(f"the Rerun web viewer did not open port "
+                               f"{config.web_grpc_port} within {WEB_VIEWER_START_TIMEOUT_S} s")
+        time.sleep(0.05)  # polling a port: there is nothing to wait on
+    return viewer
+
+
+def open_recording(application: str, config: RecordingConfig, default_rrd: Path,
+                   blueprint: Any = None) -> Recording | None:
+    """A recording with the configured sink, or None for sink=off."""
+    if config.sink == "off":
+        return None
+    import rerun as rr
+
+    stream = rr.RecordingStream(application, recording_id=config.recording_id)
+    viewer = None
+    if config.sink == "file":
+        path = config.rrd or default_rrd
+        path.parent.mkdir(parents=True, exist_ok=True)
+        stream.save(str(path), default_blueprint=blueprint)
+    elif config.sink == "grpc":
+        stream.set_sinks(rr.GrpcSink(config.viewer_url), default_blueprint=blueprint)
+    else:
+        viewer = _start_web_viewer(config)
+        host = "127.0.0.1" if config.web_bind in ("0.0.0.0", "") else config.web_bind
+        stream.set_sinks(rr.GrpcSink(f"rerun+http://{host}:{config.web_grpc_port}/proxy"),
+                         default_blueprint=blueprint)
+    return Recording(stream, viewer)
+
+
+def close_recording(recording: Recording | None) -> None:
+    if recording is not None:
+        recording.close()

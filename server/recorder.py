@@ -1,0 +1,82 @@
+"""A server logging its arenas to Rerun directly (``overtake-server --sink file|grpc|web``).
+
+The simulation loop only builds each arena's :class:`WorldFrame` (copies of a few arrays) every
+``--record-every`` rounds and hands it to a bounded queue; a thread of its own turns frames into
+Rerun calls. When that thread falls behind, frames are dropped and counted, never waited for:
+like the spectators' world topic, recording must not hold the simulation back.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+from pathlib import Path
+
+from overtake.protocol.messages import WorldFrame
+from overtake.protocol.recording import Recording, RecordingConfig, open_recording
+from overtake.protocol.world_view import WorldRecording
+
+log = logging.getLogger("overtake.server.recorder")
+
+# Frames waiting for the logging thread; beyond this they are dropped (about a second of a
+# 64-arena server at 16 rounds/s).
+QUEUE_FRAMES = 1024
+
+
+def default_rrd(server: str) -> Path:
+    return Path("runs") / "server" / f"{server}.rrd"
+
+
+class ServerRecorder:
+    """Logs world frames to a recording from a background thread; :meth:`offer` never blocks."""
+
+    def __init__(self, config: RecordingConfig, server: str) -> None:
+        self.config = config
+        self.where = config.describe(default_rrd(server))
+        recording = open_recording("overtake-server", config, default_rrd(server))
+        if recording is None:
+            raise ValueError("a ServerRecorder needs a sink other than off")
+        self.recording: Recording = recording
+        self.view = WorldRecording(recording.stream)
+        self.logged = 0
+        self.dropped = 0
+        self._queue: queue.Queue[WorldFrame | None] = queue.Queue(maxsize=QUEUE_FRAMES)
+        self._thread = threading.Thread(target=self._run, name="overtake-recorder", daemon=True)
+        self._thread.start()
+
+    def wants(self, round_: int) -> bool:
+        """Whether a group that has just played round ``round_`` should be recorded."""
+        return round_ % self.config.record_every == 0
+
+    def offer(self, frame: WorldFrame) -> bool:
+        """Queue a frame for logging; False (and counted) if the queue is full."""
+        try:
+            self._queue.put_nowait(frame)
+            return True
+        except queue.Full:
+            self.dropped += 1
+            if self.dropped in (1, 10, 100) or self.dropped % 1000 == 0:
+                log.warning("recording falls behind: %d world frame(s) dropped so far (raise "
+                            "--record-every to record fewer)", self.dropped)
+            return False
+
+    def _run(self) -> None:
+        while True:
+            frame = self._queue.get()
+            if frame is None:
+                return
+            try:
+                self.view.log(frame)
+                self.logged += 1
+            except Exception:
+                # A frame Rerun refuses is that frame's loss, not the recording's.
+                log.exception("could not log a world frame of arena %d", frame.arena)
+
+    def close(self) -> None:
+        """Log what is queued, then close the recording (an .rrd gets its footer)."""
+        self._queue.put(None)
+        self._thread.join()
+        self.recording.close()
+        log.info("recorded %d world frame(s) to %s (%d dropped)", self.logged, self.where,
+                 self.dropped)

@@ -1,0 +1,133 @@
+"""``overtake-router``: a Zenoh router on the Python binding, for hosts without zenohd.
+
+It does what the compose file's router service (zenohd, from the official eclipse/zenoh image)
+does: it relays between simulator servers, trainers and spectators, and holds no overtake logic
+at all. It reads the same Zenoh JSON5 file (``--config docker/zenoh-router.json5``); --listen,
+--connect and the credential and TLS options override what the file says. Multicast scouting
+and gossip are always off, as everywhere in overtake: every endpoint is explicit.
+
+``python -m overtake.server.router`` is the same command. SIGINT or SIGTERM stops it cleanly.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import signal
+import sys
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from overtake.protocol import errors
+from overtake.protocol.transport import (DEFAULT_ENDPOINT, SecurityConfig, TransportConfig,
+                                         warn_if_unconnected)
+
+log = logging.getLogger("overtake.router")
+
+
+@dataclass(frozen=True)
+class RouterConfig:
+    """An ``overtake-router`` process."""
+
+    config: Path | None = None
+    """a Zenoh JSON5 configuration file, e.g. docker/zenoh-router.json5 (zenohd reads the same
+    file); the options below override it"""
+    listen: tuple[str, ...] = ()
+    """endpoints to listen on (default: the file's, else tcp/127.0.0.1:7447, loopback only);
+    tcp/0.0.0.0:7447 or tls/0.0.0.0:7447 lets other hosts in"""
+    connect: tuple[str, ...] = ()
+    """other Zenoh routers to connect to (default: the file's)"""
+    security: SecurityConfig = field(default_factory=SecurityConfig)
+    """usrpwd (--credentials-file: the users it admits) and TLS (--tls-certificate and
+    --tls-private-key for tls/ endpoints; --tls-mtls with --tls-root-ca to check clients')"""
+    log_level: str = "info"
+
+
+def _endpoints(conf: zenoh.Config, key: str) -> tuple[str, ...]:
+    """The file's endpoints under ``key`` (a list, or a list per mode)."""
+    value = json.loads(conf.get_json(key))
+    if isinstance(value, dict):
+        value = value.get("router") or []
+    return tuple(value or ())
+
+
+def zenoh_config(config: RouterConfig) -> tuple[zenoh.Config, TransportConfig]:
+    """The router's Zenoh configuration, and the endpoints and security it ends up with."""
+    if config.config is not None:
+        try:
+            conf = zenoh.Config.from_file(str(config.config))
+        except (zenoh.ZError, OSError, ValueError) as error:
+            raise errors.ConnectError(f"--config {config.config}: {error}") from None
+        mode = json.loads(conf.get_json("mode"))
+        if mode not in (None, "router"):
+            raise errors.ConnectError(f"--config {config.config} says mode {mode!r}; "
+                                      "overtake-router runs a router")
+    else:
+        conf = zenoh.Config()
+    conf.insert_json5("mode", '"router"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("scouting/gossip/enabled", "false")
+    listen = config.listen or _endpoints(conf, "listen/endpoints") or (DEFAULT_ENDPOINT,)
+    connect = config.connect or _endpoints(conf, "connect/endpoints")
+    conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    # A file may carry its own TLS identity; then a tls/ listener needs no --tls-certificate.
+    file_has_identity = json.loads(conf.get_json("transport/link/tls/listen_certificate"))
+    config.security.check(() if file_has_identity else listen, connect)
+    for key, value in config.security.zenoh_settings():
+        conf.insert_json5(key, value)
+    return conf, TransportConfig(mode="router", listen=listen, connect=connect,
+                                 security=config.security)
+
+
+def main(config: RouterConfig, stop: threading.Event | None = None) -> None:
+    """Route until ``stop`` is set (the command: until SIGINT or SIGTERM)."""
+    logging.basicConfig(level=config.log_level.upper(),
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    zenoh.init_log_from_env_or("error")
+    stop = stop or threading.Event()
+    conf, transport = zenoh_config(config)
+    try:
+        session = zenoh.open(conf)
+    except zenoh.ZError as error:
+        raise SystemExit(f"overtake-router: could not start ({transport.describe()}): "
+                         f"{str(error).split(' at /')[0]}. Is the port in use, or the address "
+                         "not one of this host's?") from None
+    try:
+        auth = ("usrpwd" if config.security.credentials_file is not None
+                else "no usrpwd check")
+        log.info("router %s listening on %s (%s)", session.zid(), ", ".join(transport.listen),
+                 auth)
+        warn_if_unconnected(session, transport, log)
+        while not stop.wait(1.0):  # woken each second so the signal handlers run promptly
+            pass
+    finally:
+        session.close()
+        log.info("router stopped")
+
+
+def cli() -> None:
+    import tyro
+
+    config = tyro.cli(RouterConfig, config=(tyro.conf.OmitArgPrefixes,),
+                      description="overtake-router: a Zenoh router (for hosts without zenohd)")
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        log.info("received %s, shutting down", signal.Signals(signum).name)
+        stop.set()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    try:
+        main(config, stop)
+    except errors.ProtocolError as error:
+        sys.exit(f"overtake-router: {error}")
+
+
+if __name__ == "__main__":
+    cli()

