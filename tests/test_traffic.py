@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import (HALF_LENGTH, LANE_WIDTH, ROAD_MAX, STEADY, Car, keep, lane_centre,
+from conftest import (HALF_LENGTH, LANE_WIDTH, ROAD_MAX, STEADY, Car, keep, lane_centre, place,
                       scripted_sim)
 from overtake.server.sim import HighwaySim, make_config
-from overtake.server.sim.core import KMH
+from overtake.server.sim.core import AGENT_KIND, KMH
 from overtake.server.sim.traffic import idm_accel, min_jerk
 
 MIN_GAP = 2.0
@@ -198,6 +198,41 @@ def test_a_car_moving_into_the_target_lane_blocks_it_and_the_check_can_be_turned
         sim.state.target_lane[0, 1] = 3   # the car two lanes over is moving into lane 3
         assert sim.action_mask()[0, 0, 3] == (0 if check else 1)
         assert sim.step(np.array([[3]])).action_applied[0, 0] == (0 if check else 3)
+
+
+@pytest.mark.parametrize("speed_kmh, clear", [(60.0, True), (100.0, False)])
+def test_a_faster_car_behind_needs_a_longer_gap(speed_kmh, clear):
+    # 4.5 m bumper to bumper behind is enough for a car at the ego's speed; one 40 km/h faster
+    # closes 11 m in the second the window grows by (lane_change_closing_time_s).
+    sim = scripted_sim([Car(-(BODY + 4.5), 3, speed_kmh)], ego_lane=2)
+    assert sim.action_mask()[0, 0, 3] == clear
+    assert sim.step(np.array([[3]])).action_applied[0, 0] == (3 if clear else 0)
+
+
+def test_stepping_some_arenas_checks_each_arenas_own_side():
+    # Autoreset steps only the arenas not restarting: the check must read those arenas' state.
+    sim = HighwaySim(make_config(overrides={"traffic.vehicle_count": 1}), num_arenas=3)
+    sim.reset(seeds=[0, 1, 2])
+    for arena in range(3):
+        place(sim, 0, x=0.0, lane=2, speed_kmh=60.0, kind=AGENT_KIND, arena=arena)
+        # A car alongside in the left lane of arena 0 only; far away elsewhere.
+        place(sim, 1, x=0.0 if arena == 0 else 300.0, lane=3, speed_kmh=60.0, arena=arena)
+    before = sim.state.target_lane[1].copy()
+    result = sim.step(np.array([[3], [3]]), arenas=np.array([0, 2]))
+    assert result.action_applied[:, 0].tolist() == [0, 3]
+    assert sim.state.target_lane[:, 0].tolist() == [2, before[0], 3]
+
+
+def test_two_agents_cleared_into_one_gap_at_once_the_first_goes():
+    sim = HighwaySim(make_config(overrides={"traffic.vehicle_count": 0}), num_arenas=1,
+                     agents_per_arena=2)
+    sim.reset(seeds=[0])
+    place(sim, 0, x=0.0, lane=1, speed_kmh=60.0, kind=AGENT_KIND)
+    place(sim, 1, x=1.0, lane=3, speed_kmh=60.0, kind=AGENT_KIND)
+    assert sim.action_mask()[0, :, 3:].tolist() == [[1, 1], [1, 1]]   # each alone is clear
+    result = sim.step(np.array([[3, 4]]))
+    assert result.action_applied[0].tolist() == [3, 0]
+    assert sim.state.target_lane[0, :2].tolist() == [2, 3]
 
 
 def test_cars_in_the_own_lane_or_two_lanes_over_do_not_block_a_change():

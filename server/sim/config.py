@@ -191,10 +191,13 @@ class EgoConfig:
     # Driver assistance refuses to start a lane change into a lane that is not clear from
     # lane_change_clear_behind_m behind to lane_change_clear_ahead_m ahead, bumper to bumper,
     # counting cars already moving into it (the action mask says so): Min et al.'s cars change
-    # lanes only without a side warning. False lets every change start, as cars beside it allow.
+    # lanes only without a side warning. Each window grows by the closing speed of a car there
+    # times lane_change_closing_time_s: a car 10 m/s faster behind needs 10 m more. False lets
+    # every change start, whoever is beside.
     lane_change_check: bool = True
     lane_change_clear_ahead_m: float = 2.0
     lane_change_clear_behind_m: float = 4.0
+    lane_change_closing_time_s: float = 1.0
 
     def __post_init__(self) -> None:
         _check_range("ego.cruise_min_kmh", self.cruise_min_kmh, 0.0, 300.0)
@@ -216,6 +219,8 @@ class EgoConfig:
         _check_range("ego.lane_change_clear_ahead_m", self.lane_change_clear_ahead_m, 0.0, 100.0)
         _check_range("ego.lane_change_clear_behind_m", self.lane_change_clear_behind_m, 0.0,
                      100.0)
+        _check_range("ego.lane_change_closing_time_s", self.lane_change_closing_time_s, 0.0,
+                     10.0)
 
 
 @dataclass(frozen=True, slots=True)

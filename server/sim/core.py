@@ -407,9 +407,11 @@ class HighwaySim:
         go_left = (actions == LANE_LEFT) & idle & (agent_lane < lanes - 1)
         go_right = (actions == LANE_RIGHT) & idle & (agent_lane > 0)
         if cfg.ego.lane_change_check and (go_left | go_right).any():
-            clear = self.side_clear()
+            clear = self.side_clear(st)
             go_left &= clear[..., 1]
             go_right &= clear[..., 0]
+            if n > 1:
+                self._one_agent_per_gap(st, go_left, go_right)
         started = go_left | go_right
         st.target_lane[:, :n] += go_left.astype(np.int64) - go_right
         st.change_progress[:, :n] = np.where(started, 0.0, st.change_progress[:, :n])
@@ -719,19 +721,27 @@ class HighwaySim:
         out[..., 5] = st.target_lane[:, :n] - st.lane[:, :n]
         return out
 
-    def side_clear(self) -> np.ndarray:
+    def side_clear(self, st: SimState | None = None) -> np.ndarray:
         """(A, N, 2) bool: whether the lane to each agent's right [0] and left [1] is clear for
         starting a lane change (see ``EgoConfig.lane_change_check``): no other vehicle in it,
         or moving into it, from ``lane_change_clear_behind_m`` behind the agent's rear bumper
-        to ``lane_change_clear_ahead_m`` ahead of its front bumper. A lane that does not exist
-        counts as clear here; the mask refuses it anyway."""
-        st, n = self.state, self.agents
-        ego = self.config.ego
+        to ``lane_change_clear_ahead_m`` ahead of its front bumper, each window growing by the
+        speed at which a car there closes in times ``lane_change_closing_time_s``. A lane that
+        does not exist counts as clear here; the mask refuses it anyway. ``st``: the state of
+        the arenas being stepped (default: all)."""
+        st = self.state if st is None else st
+        n, ego = self.agents, self.config.ego
         half = self.k_half_length[st.kind]                           # (A, V)
         dx = st.x_m[:, None, :] - st.x_m[:, :n, None]                 # (A, N, V): other - agent
         reach = half[:, None, :] + half[:, :n, None]
-        near = (dx - reach < ego.lane_change_clear_ahead_m) \
-            & (-dx - reach < ego.lane_change_clear_behind_m)
+        # Positive when the other car gains on the agent from behind (or the agent on a car
+        # ahead): the gap it needs grows with that speed.
+        closing_mps = st.speed_mps[:, None, :] - st.speed_mps[:, :n, None]
+        ahead_m = ego.lane_change_clear_ahead_m \
+            + np.maximum(-closing_mps, 0.0) * ego.lane_change_closing_time_s
+        behind_m = ego.lane_change_clear_behind_m \
+            + np.maximum(closing_mps, 0.0) * ego.lane_change_closing_time_s
+        near = (dx - reach < ahead_m) & (-dx - reach < behind_m)
         near &= st.active[:, None, :]
         near[:, np.arange(n), np.arange(n)] = False                  # not the agent itself
         clear = np.empty(near.shape[:2] + (2,), dtype=bool)
@@ -740,6 +750,27 @@ class HighwaySim:
             there = (st.lane[:, None, :] == lane) | (st.target_lane[:, None, :] == lane)
             clear[..., side] = ~(near & there).any(axis=2)
         return clear
+
+    def _one_agent_per_gap(self, st: SimState, go_left: np.ndarray,
+                           go_right: np.ndarray) -> None:
+        """Agents cleared into the same lane at the same decision, near each other (from
+        opposite sides), would meet there: the lower-numbered agent goes, the other keeps its
+        lane. Changes ``go_left``/``go_right`` (A, N) in place."""
+        n, ego = self.agents, self.config.ego
+        started = go_left | go_right
+        if not (started.sum(axis=1) > 1).any():
+            return
+        target = st.lane[:, :n] + go_left.astype(np.int64) - go_right
+        half = self.k_half_length[st.kind[:, :n]]
+        dx = np.abs(st.x_m[:, None, :n] - st.x_m[:, :n, None]) - half[:, None, :] \
+            - half[:, :, None]
+        window = max(ego.lane_change_clear_ahead_m, ego.lane_change_clear_behind_m)
+        lower = np.tri(n, k=-1, dtype=bool)          # [i, j]: j < i
+        conflict = lower & (dx < window) & started[:, None, :] & started[:, :, None] \
+            & (target[:, None, :] == target[:, :, None])
+        yields = conflict.any(axis=2)
+        go_left &= ~yields
+        go_right &= ~yields
 
     def action_mask(self) -> np.ndarray:
         """(A, N, 5) int8: 1 where the action can be taken now (a lane change needs a lane
