@@ -275,15 +275,24 @@ def _fields(cls: type) -> tuple[tuple[str, Converter], ...]:
 
 
 @functools.cache
-def _defaults(cls: type) -> dict[str, Any]:
-    """Fields a later minor version added, with the value a record from an older peer gets."""
-    out: dict[str, Any] = {}
+def _added(cls: type) -> dict[str, tuple[int, Any]]:
+    """Fields a later minor version added (``metadata={"since": minor}``): name -> (that minor,
+    the value a record from an older peer gets)."""
+    out: dict[str, tuple[int, Any]] = {}
     for f in fields(cls):
-        if f.default is not MISSING:
-            out[f.name] = f.default
-        elif f.default_factory is not MISSING:
-            out[f.name] = f.default_factory()
+        since = f.metadata.get("since")
+        if since is None:
+            continue
+        if f.default is MISSING:  # pragma: no cover - a schema bug, caught by the tests
+            raise TypeError(f"{cls.__name__}.{f.name} is marked since {since} without a default")
+        out[f.name] = (since, f.default)
     return out
+
+
+def _older_defaults(cls: type, peer_minor: int) -> dict[str, Any]:
+    """What a peer of ``peer_minor`` does not send, because it predates those fields."""
+    return {name: default for name, (since, default) in _added(cls).items()
+            if peer_minor < since}
 
 
 def _build(cls: type, body: Any, peer_minor: int) -> Any:
@@ -295,7 +304,7 @@ def _build(cls: type, body: Any, peer_minor: int) -> Any:
     if len(body) != len(spec) or peer_minor != PROTOCOL_VERSION[1]:
         names = [name for name, _ in spec]
         missing = [n for n in names if n not in body]
-        older = _defaults(cls) if peer_minor < PROTOCOL_VERSION[1] else {}
+        older = _older_defaults(cls, peer_minor)
         missing = [n for n in missing if n not in older]
         if missing:
             raise DecodeError(f"{cls.__name__} lacks field(s) {missing}")
@@ -307,8 +316,9 @@ def _build(cls: type, body: Any, peer_minor: int) -> Any:
     values = {}
     for name, convert in spec:
         if name not in body:
-            if peer_minor < PROTOCOL_VERSION[1] and name in _defaults(cls):
-                values[name] = _defaults(cls)[name]
+            older = _older_defaults(cls, peer_minor)
+            if name in older:
+                values[name] = older[name]
                 continue
             raise DecodeError(f"{cls.__name__} lacks field {name!r}")
         try:
@@ -339,8 +349,9 @@ def decode(data: bytes | bytearray | memoryview, expect: type[M] | tuple[type[Me
         raise DecodeError(f"expected a frame [major, minor, type, body], got {_kind(frame)}"
                           + (f" of length {len(frame)}" if isinstance(frame, list) else ""))
     major, minor, tag, body = frame
-    if type(major) is not int or type(minor) is not int:
-        raise DecodeError(f"expected integer protocol version numbers, got {major!r}.{minor!r}")
+    if type(major) is not int or type(minor) is not int or major < 0 or minor < 0:
+        raise DecodeError(f"expected non-negative integer protocol version numbers, got "
+                          f"{major!r}.{minor!r}")
     if major != PROTOCOL_VERSION[0]:
         raise VersionMismatch(f"peer speaks overtake protocol {major}.{minor}, this side speaks "
                               f"{version_text()}; major versions must match (upgrade the older "

@@ -20,7 +20,7 @@ Conversations (``T`` a trainer, ``S`` a server; queries are answered, puts are n
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar
 
 import numpy as np
@@ -452,8 +452,9 @@ class WorldFrame(Message):
     observations: dict[str, np.ndarray]  # name -> (N, ...)
     reward: np.ndarray                  # float64 (N,)
     action_applied: np.ndarray          # int64 (N,)
-    reward_terms: np.ndarray | None = None   # float64 (N, terms); since 1.1
-    reward_term_names: tuple[str, ...] = ()  # the columns of reward_terms; since 1.1
+    # Since 1.1 (a 1.0 peer's frames decode with these defaults):
+    reward_terms: np.ndarray | None = field(default=None, metadata={"since": 1})  # (N, terms)
+    reward_term_names: tuple[str, ...] = field(default=(), metadata={"since": 1})
 
     def check(self) -> None:
         check_name("server", self.server)

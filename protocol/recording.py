@@ -14,8 +14,13 @@ both record, and neither may import the other; it depends on nothing of the proj
 
 from __future__ import annotations
 
+import ctypes
+import logging
+import signal
 import socket
 import subprocess
+import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +28,11 @@ from typing import Any, Literal
 
 DEFAULT_VIEWER_URL = "rerun+http://127.0.0.1:9876/proxy"
 WEB_VIEWER_START_TIMEOUT_S = 20.0
+# Closing waits this long for logged data to reach its sink; a viewer that has gone away must
+# not hold up the end of a training run.
+FLUSH_TIMEOUT_S = 10.0
+
+log = logging.getLogger("overtake.recording")
 
 
 @dataclass(frozen=True)
@@ -60,7 +70,9 @@ class RecordingConfig:
         if self.sink == "grpc":
             return f"the viewer at {self.viewer_url}"
         if self.sink == "web":
-            return f"the web viewer at http://{self.web_bind}:{self.web_port}"
+            host = "127.0.0.1" if self.web_bind in ("0.0.0.0", "") else self.web_bind
+            return (f"the web viewer at http://{host}:{self.web_port}/?url=rerun%2Bhttp://"
+                    f"{host}:{self.web_grpc_port}/proxy (while this process runs)")
         return str(self.rrd or default_rrd)
 
 
@@ -86,49 +98,76 @@ def _port_open(host: str, port: int) -> bool:
 class Recording:
     """An open recording: ``stream`` is the :class:`rerun.RecordingStream` to log to."""
 
-    def __init__(self, stream: Any, viewer: subprocess.Popen | None = None) -> None:
+    def __init__(self, stream: Any, viewer: subprocess.Popen | None = None,
+                 viewer_log: Any = None) -> None:
         self.stream = stream
         self.viewer = viewer
+        self._viewer_log = viewer_log
 
     def close(self) -> None:
         """Flush and close: an .rrd gets its footer (a killed process leaves a readable file
-        without one); a web viewer this process started is stopped."""
+        without one); a web viewer this process started is stopped. A sink that has gone away
+        (a viewer closed or restarted) costs a warning, never the caller's run."""
         try:
-            self.stream.flush()
+            self.stream.flush(timeout_sec=FLUSH_TIMEOUT_S)
+        except Exception as error:
+            log.warning("the Rerun recording could not be flushed (%s): the last logged data "
+                        "may be missing from it", error)
+        try:
             self.stream.disconnect()
-        finally:
-            if self.viewer is not None and self.viewer.poll() is None:
+        except Exception as error:  # pragma: no cover - disconnecting a dead gRPC sink
+            log.warning("closing the Rerun recording failed: %s", error)
+        if self.viewer is not None:
+            if self.viewer.poll() is None:
                 self.viewer.terminate()
                 try:
                     self.viewer.wait(timeout=10)
                 except subprocess.TimeoutExpired:
                     self.viewer.kill()
                     self.viewer.wait()
+            self._viewer_log.close()
 
 
-def _start_web_viewer(config: RecordingConfig) -> subprocess.Popen:
+def _die_with_parent() -> None:  # pragma: no cover - runs in the child before exec
+    """Linux: the viewer gets SIGTERM when the process that started it dies, even by SIGKILL,
+    instead of holding its ports as an orphan."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.prctl(1, signal.SIGTERM)   # 1 = PR_SET_PDEATHSIG
+
+
+def _start_web_viewer(config: RecordingConfig) -> tuple[subprocess.Popen, Any]:
     if _port_open(config.web_bind, config.web_grpc_port):
         raise RuntimeError(f"cannot serve the web viewer: port {config.web_grpc_port} on "
                            f"{config.web_bind} is already taken (another viewer?); choose "
                            "--web-grpc-port, or stream to that viewer with --sink grpc")
+    # Its messages go to a file, not a pipe nobody reads (a full pipe would block it), and it
+    # runs in a session of its own: Ctrl-C in a terminal reaches this process, which flushes
+    # the recording and then stops the viewer, rather than the viewer first.
+    viewer_log = tempfile.TemporaryFile()
     viewer = subprocess.Popen(
         [viewer_binary(), "--serve-web", "--bind", config.web_bind,
          "--port", str(config.web_grpc_port), "--web-viewer-port", str(config.web_port)],
-        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        stdin=subprocess.DEVNULL, stdout=viewer_log, stderr=subprocess.STDOUT,
+        start_new_session=True,
+        preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None)
+
+    def failed(why: str) -> RuntimeError:
+        viewer_log.seek(0)
+        said = viewer_log.read().decode(errors="replace").strip()[-500:]
+        viewer_log.close()
+        return RuntimeError(f"the Rerun web viewer {why}: {said}")
+
     deadline = time.monotonic() + WEB_VIEWER_START_TIMEOUT_S
     while not _port_open(config.web_bind, config.web_grpc_port):
         if viewer.poll() is not None:
-            error = viewer.stderr.read().decode(errors="replace").strip() if viewer.stderr \
-                else ""
-            raise RuntimeError(f"the Rerun web viewer exited with code {viewer.returncode} "
-                               f"at start: {error[-500:]}")
+            raise failed(f"exited with code {viewer.returncode} at start")
         if time.monotonic() > deadline:
             viewer.kill()
             viewer.wait()
-            raise RuntimeError(f"the Rerun web viewer did not open port "
-                               f"{config.web_grpc_port} within {WEB_VIEWER_START_TIMEOUT_S} s")
+            raise failed(f"did not open port {config.web_grpc_port} within "
+                         f"{WEB_VIEWER_START_TIMEOUT_S} s")
         time.sleep(0.05)  # polling a port: there is nothing to wait on
-    return viewer
+    return viewer, viewer_log
 
 
 def open_recording(application: str, config: RecordingConfig, default_rrd: Path,
@@ -139,7 +178,7 @@ def open_recording(application: str, config: RecordingConfig, default_rrd: Path,
     import rerun as rr
 
     stream = rr.RecordingStream(application, recording_id=config.recording_id)
-    viewer = None
+    viewer = viewer_log = None
     if config.sink == "file":
         path = config.rrd or default_rrd
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -147,11 +186,12 @@ def open_recording(application: str, config: RecordingConfig, default_rrd: Path,
     elif config.sink == "grpc":
         stream.set_sinks(rr.GrpcSink(config.viewer_url), default_blueprint=blueprint)
     else:
-        viewer = _start_web_viewer(config)
+        viewer, viewer_log = _start_web_viewer(config)
         host = "127.0.0.1" if config.web_bind in ("0.0.0.0", "") else config.web_bind
         stream.set_sinks(rr.GrpcSink(f"rerun+http://{host}:{config.web_grpc_port}/proxy"),
                          default_blueprint=blueprint)
-    return Recording(stream, viewer)
+        log.info("Rerun: %s", config.describe(default_rrd))
+    return Recording(stream, viewer, viewer_log)
 
 
 def close_recording(recording: Recording | None) -> None:

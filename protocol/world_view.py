@@ -19,6 +19,7 @@ draw the same view; it depends on nothing else of the project.
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import numpy as np
@@ -30,6 +31,19 @@ KIND_COLOURS = np.array([[80, 120, 255], [40, 200, 120], [240, 170, 30]], dtype=
 AGENT_COLOUR = np.array([230, 40, 40], dtype=np.uint8)
 HALF_SIZE_M = (2.25, 0.9)   # the default car (4.5 m x 1.8 m); frames do not carry sizes
 LANE_LINE_SPAN_M = 120.0    # lane lines drawn this far either side of the cars
+
+
+@functools.cache
+def _ray_directions(rays: int) -> np.ndarray:
+    angles = np.arange(rays) * (2.0 * np.pi / rays)
+    return np.stack([np.cos(angles), np.sin(angles)], axis=1)
+
+
+def lidar_hits(distances_m: np.ndarray, origin_m: np.ndarray | tuple[float, float] = (0.0, 0.0)
+               ) -> np.ndarray:
+    """(R, 2) points where a LIDAR scan's R rays end: ray k at angle 2*pi*k/R counter-clockwise
+    from the x axis (the road's direction), ``distances_m[k]`` from ``origin_m``."""
+    return np.asarray(origin_m) + distances_m[:, None] * _ray_directions(distances_m.shape[0])
 
 
 def world_blueprint(server: str, arena: int) -> Any:
@@ -58,13 +72,6 @@ class WorldRecording:
         import rerun as rr
 
         self.rr, self.stream, self.rays = rr, stream, rays
-        self._angles: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-
-    def _directions(self, rays: int) -> tuple[np.ndarray, np.ndarray]:
-        if rays not in self._angles:
-            angles = np.arange(rays) * (2.0 * np.pi / rays)
-            self._angles[rays] = (np.cos(angles), np.sin(angles))
-        return self._angles[rays]
 
     def log(self, frame: WorldFrame) -> None:
         rr, stream = self.rr, self.stream
@@ -94,8 +101,7 @@ class WorldRecording:
             base = f"{root}/agent{i}"
             origin = np.array([frame.x_m[i], frame.y_m[i]])
             if lidar is not None:
-                cos, sin = self._directions(lidar.shape[1])
-                hits = origin + np.stack([lidar[i] * cos, lidar[i] * sin], axis=1)
+                hits = lidar_hits(lidar[i], origin)
                 stream.log(f"{base}/lidar/hits", rr.Points2D(hits, radii=[0.25],
                                                              colors=[[255, 128, 0]]))
                 if self.rays:

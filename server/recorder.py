@@ -49,17 +49,25 @@ class ServerRecorder:
         """Whether a group that has just played round ``round_`` should be recorded."""
         return round_ % self.config.record_every == 0
 
+    def has_room(self) -> bool:
+        """Whether a frame offered now would be kept (so none is built only to be dropped)."""
+        return not self._queue.full()
+
     def offer(self, frame: WorldFrame) -> bool:
         """Queue a frame for logging; False (and counted) if the queue is full."""
         try:
             self._queue.put_nowait(frame)
             return True
         except queue.Full:
-            self.dropped += 1
-            if self.dropped in (1, 10, 100) or self.dropped % 1000 == 0:
-                log.warning("recording falls behind: %d world frame(s) dropped so far (raise "
-                            "--record-every to record fewer)", self.dropped)
+            self.count_dropped(1)
             return False
+
+    def count_dropped(self, frames: int) -> None:
+        before, self.dropped = self.dropped, self.dropped + frames
+        # A warning at the first drop and at every power of ten after it: visible, not a flood.
+        if before == 0 or len(str(before)) != len(str(self.dropped)):
+            log.warning("recording falls behind: %d world frame(s) dropped so far (raise "
+                        "--record-every to record fewer)", self.dropped)
 
     def _run(self) -> None:
         while True:
@@ -73,10 +81,17 @@ class ServerRecorder:
                 # A frame Rerun refuses is that frame's loss, not the recording's.
                 log.exception("could not log a world frame of arena %d", frame.arena)
 
-    def close(self) -> None:
-        """Log what is queued, then close the recording (an .rrd gets its footer)."""
-        self._queue.put(None)
-        self._thread.join()
+    def close(self, timeout_s: float = 30.0) -> None:
+        """Log what is queued (for at most ``timeout_s``), then close the recording (an .rrd
+        gets its footer)."""
+        try:
+            self._queue.put(None, timeout=timeout_s)
+        except queue.Full:   # pragma: no cover - the logging thread is stuck
+            pass
+        self._thread.join(timeout=timeout_s)
+        if self._thread.is_alive():   # pragma: no cover
+            log.warning("the recording thread did not finish within %.0f s; closing anyway",
+                        timeout_s)
         self.recording.close()
         log.info("recorded %d world frame(s) to %s (%d dropped)", self.logged, self.where,
                  self.dropped)

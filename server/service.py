@@ -393,9 +393,7 @@ class SimulatorServer:
                     self._send(trainer, message)
                 self._publish_world(group, now)
                 if self.recorder is not None and self.recorder.wants(group.round):
-                    observations = group.last_observations or group.sim.observe()
-                    for index in range(len(group.arena_ids)):
-                        self.recorder.offer(group.world_frame(index, observations))
+                    self._record(group)
             except Exception as error:
                 # One group's failure is that group's end, not the server's.
                 log.exception("group %d failed to step; closing it", group.group_id)
@@ -409,6 +407,20 @@ class SimulatorServer:
                     except Exception:  # pragma: no cover - the session itself is failing
                         log.exception("could not tell %s", trainer)
                     self._leave(group, trainer, "internal error")
+
+    def _record(self, group: Group) -> None:
+        """Hand the recorder this round's frames; a failure here costs the recording a
+        frame and a log line, never the group its trainers."""
+        assert self.recorder is not None
+        try:
+            observations = group.last_observations or group.sim.observe()
+            for index in range(len(group.arena_ids)):
+                if not self.recorder.has_room():
+                    self.recorder.count_dropped(len(group.arena_ids) - index)
+                    break
+                self.recorder.offer(group.world_frame(index, observations))
+        except Exception:
+            log.exception("could not record group %d's round %d", group.group_id, group.round)
 
     def _publisher_for(self, trainer: str) -> zenoh.Publisher:
         pub = self._step_pubs.get(trainer)

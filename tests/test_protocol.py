@@ -893,3 +893,15 @@ def test_every_error_class_has_its_own_code():
     assert sorted(ERRORS_BY_CODE.values(), key=lambda c: c.__name__) == \
         sorted(classes, key=lambda c: c.__name__)
     assert all(issubclass(cls, ProtocolError) for cls in ERRORS_BY_CODE.values())
+
+
+def test_only_fields_added_in_a_later_minor_may_be_missing_from_an_older_peer():
+    # ErrorReply.group has a default but was in 1.0 from the start: a 1.0 peer must send it.
+    with pytest.raises(DecodeError, match="group"):
+        decode(pack([MAJOR, 0, "error", {"code": "x", "message": "m"}]))
+
+
+@pytest.mark.parametrize("version", [(1, -7), (-1, 0)])
+def test_negative_version_numbers_are_refused(version):
+    with pytest.raises(DecodeError, match="non-negative"):
+        decode(pack([*version, "ack", {"message": "m"}]))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+import signal
 import urllib.request
 from pathlib import Path
 
@@ -12,6 +14,7 @@ import rerun as rr
 
 import overtake.client  # noqa: F401  (registers the environments)
 from overtake.protocol import REMOTE_HIGHWAY_ENV_ID
+from overtake.protocol.messages import WorldFrame
 from overtake.protocol.recording import (Recording, RecordingConfig, open_recording,
                                          viewer_binary)
 
@@ -113,6 +116,19 @@ def test_web_sink_serves_the_viewer_on_loopback_and_stops_it(tmp_path):
     assert not (tmp_path / "unused.rrd").exists()
 
 
+@pytest.mark.timeout(60)
+def test_closing_a_recording_whose_viewer_died_does_not_raise(tmp_path, caplog):
+    config = RecordingConfig(sink="web", web_port=free_port(), web_grpc_port=free_port())
+    recording = open_recording("overtake-test", config, tmp_path / "unused.rrd")
+    stop_process(recording.viewer, sig=signal.SIGKILL)   # as a viewer closed under a trainer
+    for step in range(50):
+        recording.stream.set_time("step", sequence=step)
+        recording.stream.log("probe", rr.Scalars(float(step)))
+    with caplog.at_level(logging.WARNING, logger="overtake.recording"):
+        recording.close()      # a warning, not an exception that would end a training run
+    assert recording.viewer.returncode is not None
+
+
 def test_web_sink_refuses_a_taken_port(tmp_path):
     import socket
 
@@ -128,3 +144,44 @@ def test_web_sink_refuses_a_taken_port(tmp_path):
 def test_recording_config_refuses_no_decimation():
     with pytest.raises(ValueError, match="record_every must be >= 1, got 0"):
         RecordingConfig(record_every=0)
+
+
+def small_frame(round_: int) -> WorldFrame:
+    return WorldFrame(
+        server="s", group=0, arena=0, round=round_, sim_time_s=0.4 * round_, lane_count=5,
+        lane_width_m=3.5, agent_kind=3, agent_active=np.ones(1, bool), x_m=np.zeros(2),
+        y_m=np.ones(2), speed_mps=np.zeros(2, np.float32), kind=np.array([3, 0], np.int8),
+        active=np.ones(2, bool), observations={}, reward=np.ones(1),
+        action_applied=np.zeros(1, np.int64))
+
+
+def test_server_recorder_drops_and_counts_what_it_cannot_keep_up_with(tmp_path, caplog):
+    import threading
+
+    from overtake.server import recorder as recorder_module
+
+    recorder = recorder_module.ServerRecorder(RecordingConfig(sink="file",
+                                                              rrd=tmp_path / "s.rrd"), "s")
+    release = threading.Event()
+    logged_rounds: list[int] = []
+    real_log = recorder.view.log
+
+    def slow_log(frame):             # a logging thread that has fallen behind
+        release.wait(30)
+        real_log(frame)
+        logged_rounds.append(frame.round)
+
+    recorder.view.log = slow_log
+    offered = recorder_module.QUEUE_FRAMES + 20
+    with caplog.at_level(logging.WARNING, logger="overtake.server.recorder"):
+        kept = [recorder.offer(small_frame(r)) for r in range(offered)]
+    assert not recorder.has_room()
+    # The thread holds one frame, the queue the next QUEUE_FRAMES; the rest are dropped.
+    assert recorder.dropped == offered - sum(kept) >= 19
+    assert any("dropped" in r.message for r in caplog.records)
+    release.set()
+    recorder.close()
+    assert recorder.logged == sum(kept) == len(logged_rounds)
+    assert logged_rounds == sorted(logged_rounds)            # in order, none twice
+    reader = rr.chunk.RrdReader(str(tmp_path / "s.rrd"))
+    assert {c.entity_path for c in reader.stream().to_chunks()} >= {"/world/s/arena0/cars"}

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from overtake.protocol import ACTION_NAMES
+from overtake.protocol.world_view import lidar_hits
 
 LEARNING_SERIES = ("loss", "epsilon", "q_taken", "steps_per_s")
 
@@ -53,7 +54,6 @@ class TrainingRecording:
         import rerun as rr
 
         self.rr, self.stream, self.root = rr, stream, f"trainer/{run}"
-        self._ray_cos_sin: tuple[np.ndarray, np.ndarray] | None = None
         self._series_named = False
 
     def episode(self, step: int, metrics: dict[str, float]) -> None:
@@ -83,13 +83,8 @@ class TrainingRecording:
         stream.set_time("step", sequence=step)
         lidar = obs.get("lidar")
         if lidar is not None:
-            if self._ray_cos_sin is None or self._ray_cos_sin[0].shape != lidar.shape:
-                angles = np.arange(lidar.shape[0]) * (2.0 * np.pi / lidar.shape[0])
-                self._ray_cos_sin = (np.cos(angles), np.sin(angles))
-            cos, sin = self._ray_cos_sin
-            stream.log(f"{base}/lidar/hits", rr.Points2D(
-                np.stack([lidar * cos, lidar * sin], axis=1), radii=[0.25],
-                colors=[[255, 128, 0]]))
+            stream.log(f"{base}/lidar/hits", rr.Points2D(lidar_hits(lidar), radii=[0.25],
+                                                         colors=[[255, 128, 0]]))
             stream.log(f"{base}/lidar/car", rr.Boxes2D(centers=[[0.0, 0.0]],
                                                        half_sizes=[[2.25, 0.9]],
                                                        colors=[[230, 40, 40]]))
