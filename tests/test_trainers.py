@@ -420,6 +420,28 @@ def test_checkpoint_round_trip_and_resume_continue_the_step_count(tmp_path):
               envs=PickTheFreeLane(2, seed=2))
 
 
+def test_resume_if_found_continues_a_run_and_starts_one_where_there_is_none(tmp_path):
+    """What a restarted compose trainer does: same command, same --run-dir."""
+    run_dir = tmp_path / "run"
+    config = TrainConfig(inputs="lidar", num_envs=1, total_steps=100, seed=3, run_dir=run_dir,
+                         progress=False, log_every=50, resume_if_found=True,
+                         dqn=tiny_dqn(learning_starts=20))
+    # No checkpoint yet: a fresh run, not a refusal.
+    first = train(config, envs=PickTheFreeLane(1, seed=1))
+    assert first["steps"] == 100
+    assert load_checkpoint(run_dir / CHECKPOINT_NAME).resumes == 0
+    assert not (run_dir / "run-resume-1.json").exists()
+    # The same command again, asked for more steps: it continues that run.
+    resumed = train(replace(config, total_steps=160), envs=PickTheFreeLane(1, seed=2))
+    assert resumed["steps"] == 160 and resumed["updates"] > first["updates"]
+    after = load_checkpoint(run_dir / CHECKPOINT_NAME)
+    assert after.step == 160 and after.resumes == 1
+    assert (run_dir / "run-resume-1.json").exists()
+    # Like --resume, it refuses a checkpoint of another algorithm.
+    with pytest.raises(SystemExit, match="algo=ddqn"):
+        train(replace(config, algo="dqn", total_steps=200), envs=PickTheFreeLane(1))
+
+
 def test_resume_without_a_checkpoint_and_a_broken_checkpoint_say_what_is_wrong(tmp_path):
     config = TrainConfig(inputs="lidar", run_dir=tmp_path / "none", resume=True, progress=False,
                          dqn=tiny_dqn())

@@ -11,12 +11,13 @@ The run directory holds:
   never leaves a broken one; it describes itself (algorithm, inputs, preset, spaces, step);
 - ``replay.npz`` with ``--save-replay``: the replay memory, saved beside each checkpoint.
 
-``--resume`` continues a run from its checkpoint: the step count, epsilon schedule, target
-network, optimiser state and random generators carry on. The environments start new episodes
-(the ones in flight at the checkpoint are not continued). The replay is restored if it was
-saved; otherwise it refills, and updates wait until it again holds ``learning_starts``
-transitions (the same rule as at the start of a run), so a resumed learner never trains on a
-handful of fresh transitions.
+``--resume`` continues a run from its checkpoint (``--resume-if-found`` too, and starts a
+fresh run where there is none yet): the step count, epsilon schedule, target network,
+optimiser state and random generators carry on. The environments start new episodes (the ones
+in flight at the checkpoint are not continued). The replay is restored if it was saved;
+otherwise it refills, and updates wait until it again holds ``learning_starts`` transitions
+(the same rule as at the start of a run), so a resumed learner never trains on a handful of
+fresh transitions.
 """
 
 from __future__ import annotations
@@ -79,6 +80,10 @@ class TrainConfig:
     """where the run's files go; default runs/<algo>-<inputs>-<seed>"""
     resume: bool = False
     """continue the run in run_dir from its checkpoint"""
+    resume_if_found: bool = False
+    """continue the run in run_dir if it holds a checkpoint, else start a fresh one there (for
+    a restarted container, whose run_dir is the same; --resume instead refuses a run_dir
+    without a checkpoint)"""
     checkpoint_every: int = 50_000
     """environment steps between checkpoints (one is always written at the end)"""
     save_replay: bool = False
@@ -193,14 +198,14 @@ def main(config: TrainConfig, envs: Any = None) -> dict[str, Any]:
     run_dir = config.resolved_run_dir()
     checkpoint_path = run_dir / CHECKPOINT_NAME
     resumed = None
-    if config.resume:
+    if config.resume or (config.resume_if_found and checkpoint_path.exists()):
         if not checkpoint_path.exists():
             raise SystemExit(f"--resume: no checkpoint at {checkpoint_path}")
         resumed = load_checkpoint(checkpoint_path)
         resumed.check_compatible(config.algo, config.inputs, config.preset)
     elif checkpoint_path.exists():
-        raise SystemExit(f"{run_dir} already holds a run (checkpoint.pt); pass --resume to "
-                         "continue it or choose another --run-dir")
+        raise SystemExit(f"{run_dir} already holds a run (checkpoint.pt); pass --resume (or "
+                         "--resume-if-found) to continue it or choose another --run-dir")
     run_dir.mkdir(parents=True, exist_ok=True)
 
     overrides = config.overrides()
