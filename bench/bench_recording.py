@@ -8,9 +8,9 @@ run (only steps after learning started count; see ``bench.bench_train``):
 - in-process, the trainer's recording off, against on at the default decimation
   (``--record-every 10``: summaries plus environment 0's view every 10th step) and at every
   step (``--record-every 1``);
-- remote, against an ``overtake.server`` subprocess that records every arena every round
-  (``--sink file --record-every 1``, the server's default rate once its sink is on), against
-  one that does not (the trainer's own recording off in both).
+- remote, against ``overtake.server`` subprocesses that record every arena at the server's
+  default rate (``--sink file``: one round in 10) and every round (``--record-every 1``),
+  against one that does not (the trainer's own recording off in all three).
 
 It also reports the .rrd bytes written per 1,000 environment steps.
 
@@ -48,6 +48,7 @@ class RecordingBenchConfig:
 
 def main(config: RecordingBenchConfig) -> dict[str, Any]:
     from overtake.protocol.recording import RecordingConfig
+    from overtake.server.service import SERVER_RECORD_EVERY
     from overtake.trainers.train import TRAINER_RECORD_EVERY
 
     os.environ.setdefault("OMP_NUM_THREADS", str(config.torch_threads))
@@ -57,11 +58,14 @@ def main(config: RecordingBenchConfig) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
         plain_ep = f"tcp/127.0.0.1:{free_port()}"
-        recording_ep = f"tcp/127.0.0.1:{free_port()}"
-        server_rrd = tmp / "server.rrd"
-        plain = start_server(plain_ep, 60.0)
-        recording_server = start_server(recording_ep, 60.0, extra=(
-            "--sink", "file", "--rrd", str(server_rrd), "--record-every", "1"))
+        default_ep = f"tcp/127.0.0.1:{free_port()}"
+        every_ep = f"tcp/127.0.0.1:{free_port()}"
+        default_rrd, every_rrd = tmp / "server-default.rrd", tmp / "server-every.rrd"
+        servers = [start_server(plain_ep, 60.0),
+                   start_server(default_ep, 60.0, extra=("--sink", "file", "--rrd",
+                                                         str(default_rrd))),
+                   start_server(every_ep, 60.0, extra=("--sink", "file", "--rrd",
+                                                       str(every_rrd), "--record-every", "1"))]
         off = RecordingConfig(sink="off")
         ways = {
             "in-process, recording off": (None, off),
@@ -69,7 +73,8 @@ def main(config: RecordingBenchConfig) -> dict[str, Any]:
                 (None, RecordingConfig(record_every=TRAINER_RECORD_EVERY)),
             "in-process, recording every step": (None, RecordingConfig(record_every=1)),
             "remote, server not recording": (plain_ep, off),
-            "remote, server recording every round": (recording_ep, off),
+            f"remote, server recording every {SERVER_RECORD_EVERY} (default)": (default_ep, off),
+            "remote, server recording every round": (every_ep, off),
         }
         try:
             for inputs in config.inputs:
@@ -81,12 +86,13 @@ def main(config: RecordingBenchConfig) -> dict[str, Any]:
                         result.update(way=way, repeat=repeat,
                                       rrd_bytes=rrd.stat().st_size if rrd.exists() else 0)
                         results.append(result)
-                        print(f"{inputs:>6} {way:<45} {result['steps_per_s']:7.1f} steps/s",
+                        print(f"{inputs:>6} {way:<48} {result['steps_per_s']:7.1f} steps/s",
                               file=sys.stderr)
         finally:
-            stop_process(plain)
-            stop_process(recording_server)
-        server_rrd_bytes = server_rrd.stat().st_size if server_rrd.exists() else 0
+            for server in servers:
+                stop_process(server)
+        server_rrd_bytes = {path.name: path.stat().st_size if path.exists() else 0
+                            for path in (default_rrd, every_rrd)}
 
     baselines = {"in-process": "in-process, recording off", "remote": "remote, server not "
                  "recording"}
@@ -94,7 +100,7 @@ def main(config: RecordingBenchConfig) -> dict[str, Any]:
     print(f"Double DQN, {config.num_envs} envs, torch threads {config.torch_threads}, "
           f"{config.steps} timed steps after {config.learning_starts}, median of "
           f"{config.repeats} interleaved runs")
-    print(f"{'inputs':>6} {'way':<45} {'steps/s':>8} {'vs off':>7} {'rrd MB/1k steps':>16}")
+    print(f"{'inputs':>6} {'way':<48} {'steps/s':>8} {'vs off':>7} {'rrd MB/1k steps':>16}")
     for inputs in config.inputs:
         medians = {way: statistics.median(r["steps_per_s"] for r in results
                                           if r["inputs"] == inputs and r["way"] == way)
@@ -107,9 +113,10 @@ def main(config: RecordingBenchConfig) -> dict[str, Any]:
             row = {"inputs": inputs, "way": way, "steps_per_s": medians[way],
                    "ratio_to_off": medians[way] / base, "rrd_mb_per_1k_steps": mb}
             summary.append(row)
-            print(f"{inputs:>6} {way:<45} {medians[way]:8.1f} {row['ratio_to_off']:6.3f}x "
+            print(f"{inputs:>6} {way:<48} {medians[way]:8.1f} {row['ratio_to_off']:6.3f}x "
                   f"{mb:16.2f}")
-    print(f"server recording: {server_rrd_bytes / 1e6:.1f} MB over all its remote runs")
+    for name, size in server_rrd_bytes.items():
+        print(f"{name}: {size / 1e6:.1f} MB over all its remote runs")
     report = {"config": {k: str(v) for k, v in vars(config).items()},
               "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
                           "python": sys.version.split()[0]},

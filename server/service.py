@@ -68,6 +68,11 @@ _WAKE = _Wake()
 MAX_EVENTS_PER_PASS = 256
 
 
+# With its sink on, a server logs every arena one round in this many: logging every round
+# costs trainers 20-30% of their steps per second, one in ten a few per cent (bench/RESULTS.md).
+SERVER_RECORD_EVERY = 10
+
+
 def default_server_name() -> str:
     host = "".join(c if c.isalnum() or c in "-_." else "-" for c in socket.gethostname())
     return f"sim-{host[:40] or 'host'}-{os.getpid()}"
@@ -99,9 +104,11 @@ class ServerConfig:
     """usrpwd credentials (when connecting to a router that asks for them, and the users this
     server admits) and TLS certificates (for tls/ endpoints)"""
     log_level: str = "info"
-    recording: RecordingConfig = field(default_factory=lambda: RecordingConfig(sink="off"))
+    recording: RecordingConfig = field(default_factory=lambda: RecordingConfig(
+        sink="off", record_every=SERVER_RECORD_EVERY))
     """Rerun: this server logs every arena it steps itself (default off; spectators watch
-    without it). With --sink file the .rrd defaults to runs/server/<name>.rrd."""
+    without it), one round in --record-every. With --sink file the .rrd defaults to
+    runs/server/<name>.rrd."""
 
     def transport(self) -> TransportConfig:
         return TransportConfig(mode="peer", listen=self.listen, connect=self.connect,
