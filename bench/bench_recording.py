@@ -14,7 +14,7 @@ run (only steps after learning started count; see ``bench.bench_train``):
 
 It also reports the .rrd bytes written per 1,000 environment steps.
 
-    .venv/bin/python -m bench.bench_recording [--steps 2000] [--repeats 2] [--json PATH]
+    .venv/bin/python -m bench.bench_recording [--steps 2000] [--repeats 3] [--json PATH]
 """
 
 from __future__ import annotations
@@ -40,8 +40,8 @@ class RecordingBenchConfig:
     learning_starts: int = 400
     num_envs: int = 4
     inputs: tuple[str, ...] = ("both", "lidar")
-    repeats: int = 2
-    """runs of each way, interleaved"""
+    repeats: int = 3
+    """runs of each way, interleaved, each repeat starting at another way"""
     torch_threads: int = 2
     json: Path | None = None
 
@@ -79,7 +79,11 @@ def main(config: RecordingBenchConfig) -> dict[str, Any]:
         try:
             for inputs in config.inputs:
                 for repeat in range(config.repeats):
-                    for way, (connect, recording) in ways.items():
+                    # Each repeat starts at another way: no way is always the first (cold) run.
+                    names = list(ways)
+                    order = names[repeat % len(names):] + names[:repeat % len(names)]
+                    for way in order:
+                        connect, recording = ways[way]
                         run_dir = tmp / f"{inputs}-{repeat}-{len(results)}"
                         result = run_once(train, inputs, connect, run_dir, recording)
                         rrd = run_dir / "trainer.rrd"

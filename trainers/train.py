@@ -49,9 +49,9 @@ from .network import INPUT_SENSORS, Inputs, NetworkShape
 from .replay import FrameShapes, FrameStacker, ReplayMemory
 from .visual import TrainingRecording, training_blueprint
 
-# Environment 0's view is logged every this many steps of the vector environment: about 9 MB
-# of .rrd per 10,000 steps with the camera, and a loss of a few per cent in steps per second
-# (bench/RESULTS.md), for runs that last days.
+# Environment 0's view is logged every this many steps of the vector environment: about 6 MB
+# of .rrd per 10,000 steps with the camera, and no loss in steps per second measurable above
+# the machine's noise (bench/RESULTS.md), for runs that last days.
 TRAINER_RECORD_EVERY = 10
 
 @dataclass(frozen=True)
