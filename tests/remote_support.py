@@ -500,3 +500,17 @@ def start_trainer(tmp_path):
     yield start
     for trainer in reversed(started):
         trainer.stop()
+
+
+def logged_by_round(reader: Any, entity: str, column: str) -> dict[int, list]:
+    """From an ``rr.chunk.RrdReader``: round -> the value of ``column`` logged for ``entity``
+    in that round (the last one logged there)."""
+    out: dict[int, list] = {}
+    for chunk in reader.stream().to_chunks():
+        if chunk.entity_path != entity or chunk.is_static:
+            continue
+        batch = chunk.to_record_batch()
+        for round_, value in zip(batch.column("round").to_pylist(),
+                                 batch.column(column).to_pylist()):
+            out[round_] = value
+    return out

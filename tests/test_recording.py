@@ -18,20 +18,8 @@ from overtake.protocol.messages import WorldFrame
 from overtake.protocol.recording import (Recording, RecordingConfig, open_recording,
                                          viewer_binary)
 
-from remote_support import free_port, remote_config, stop_process, wait_until
-
-
-def series(reader: rr.chunk.RrdReader, entity: str, column: str) -> dict[int, list]:
-    """round -> the value of ``column`` logged for ``entity`` in that round."""
-    out: dict[int, list] = {}
-    for chunk in reader.stream().to_chunks():
-        if chunk.entity_path != entity or chunk.is_static:
-            continue
-        batch = chunk.to_record_batch()
-        for round_, value in zip(batch.column("round").to_pylist(),
-                                 batch.column(column).to_pylist()):
-            out[round_] = value
-    return out
+from remote_support import (free_port, logged_by_round, remote_config, stop_process,
+                            wait_until)
 
 
 @pytest.mark.timeout(120)
@@ -61,10 +49,10 @@ def test_server_records_its_arenas_with_reward_terms_decimated(start_server, tmp
 
     reader = rr.chunk.RrdReader(str(rrd))
     root = f"/world/recorder/arena{arena}"
-    hits = series(reader, f"{root}/agent0/lidar/hits", "Points2D:positions")
-    cars = series(reader, f"{root}/cars", "Boxes2D:centers")
-    rewards = series(reader, f"{root}/agent0/reward", "Scalars:scalars")
-    terms = {name: series(reader, f"{root}/agent0/reward_terms/{name}", "Scalars:scalars")
+    hits = logged_by_round(reader, f"{root}/agent0/lidar/hits", "Points2D:positions")
+    cars = logged_by_round(reader, f"{root}/cars", "Boxes2D:centers")
+    rewards = logged_by_round(reader, f"{root}/agent0/reward", "Scalars:scalars")
+    terms = {name: logged_by_round(reader, f"{root}/agent0/reward_terms/{name}", "Scalars:scalars")
              for name in seen[max(seen)][2]}
     # Every third round, and only those.
     assert sorted(hits) == [r for r in sorted(seen) if r % 3 == 0]

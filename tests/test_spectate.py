@@ -16,20 +16,7 @@ from overtake.client.spectate import SpectateConfig
 from overtake.client.spectate import main as spectate
 from overtake.protocol import REMOTE_HIGHWAY_ENV_ID
 
-from remote_support import remote_config, wait_until
-
-
-def rows(reader: rr.chunk.RrdReader, entity: str, column: str) -> dict[int, list]:
-    """round -> the logged value of ``column`` (the last logged in that round)."""
-    out: dict[int, list] = {}
-    for chunk in reader.stream().to_chunks():
-        if chunk.entity_path != entity or chunk.is_static:
-            continue
-        batch = chunk.to_record_batch()
-        for round_, value in zip(batch.column("round").to_pylist(),
-                                 batch.column(column).to_pylist()):
-            out[round_] = value
-    return out
+from remote_support import logged_by_round, remote_config, wait_until
 
 
 @pytest.mark.timeout(90)
@@ -62,9 +49,9 @@ def test_spectate_logs_the_arena_and_the_lidar_the_trainer_received(start_server
     for name in ("cars", "road/lanes", "agent0/lidar/hits", "agent0/lidar/rays",
                  "agent0/camera", "agent0/speed_kmh", "agent0/reward", "agent0/action"):
         assert f"{root}/{name}" in entities, name
-    hits = rows(reader, f"{root}/agent0/lidar/hits", "Points2D:positions")
-    rewards = rows(reader, f"{root}/agent0/reward", "Scalars:scalars")
-    cars = rows(reader, f"{root}/cars", "Boxes2D:centers")
+    hits = logged_by_round(reader, f"{root}/agent0/lidar/hits", "Points2D:positions")
+    rewards = logged_by_round(reader, f"{root}/agent0/reward", "Scalars:scalars")
+    cars = logged_by_round(reader, f"{root}/cars", "Boxes2D:centers")
     angles = np.arange(360) * (2 * np.pi / 360)
     matched = 0
     for round_, points in hits.items():
