@@ -289,6 +289,7 @@ def _added(cls: type) -> dict[str, tuple[int, Any]]:
     return out
 
 
+@functools.cache
 def _older_defaults(cls: type, peer_minor: int) -> dict[str, Any]:
     """What a peer of ``peer_minor`` does not send, because it predates those fields."""
     return {name: default for name, (since, default) in _added(cls).items()
@@ -301,11 +302,10 @@ def _build(cls: type, body: Any, peer_minor: int) -> Any:
     if type(body) is not dict:
         raise DecodeError(f"expected a map of {cls.__name__} fields, got {_kind(body)}")
     spec = _fields(cls)
+    older = _older_defaults(cls, peer_minor) if peer_minor < PROTOCOL_VERSION[1] else {}
     if len(body) != len(spec) or peer_minor != PROTOCOL_VERSION[1]:
         names = [name for name, _ in spec]
-        missing = [n for n in names if n not in body]
-        older = _older_defaults(cls, peer_minor)
-        missing = [n for n in missing if n not in older]
+        missing = [n for n in names if n not in body and n not in older]
         if missing:
             raise DecodeError(f"{cls.__name__} lacks field(s) {missing}")
         unknown = sorted(map(str, set(body) - set(names)))
@@ -316,7 +316,6 @@ def _build(cls: type, body: Any, peer_minor: int) -> Any:
     values = {}
     for name, convert in spec:
         if name not in body:
-            older = _older_defaults(cls, peer_minor)
             if name in older:
                 values[name] = older[name]
                 continue

@@ -59,6 +59,11 @@ class RecordingConfig:
     web_grpc_port: int = 9876
     """sink=web: the port of the gRPC server the web viewer reads from"""
 
+    @property
+    def web_host(self) -> str:
+        """Where this host reaches the web sink (its bind address; loopback for 0.0.0.0)."""
+        return _reachable(self.web_bind)
+
     def __post_init__(self) -> None:
         if self.record_every < 1:
             raise ValueError(f"record_every must be >= 1, got {self.record_every}")
@@ -70,10 +75,15 @@ class RecordingConfig:
         if self.sink == "grpc":
             return f"the viewer at {self.viewer_url}"
         if self.sink == "web":
-            host = "127.0.0.1" if self.web_bind in ("0.0.0.0", "") else self.web_bind
+            host = self.web_host
             return (f"the web viewer at http://{host}:{self.web_port}/?url=rerun%2Bhttp://"
                     f"{host}:{self.web_grpc_port}/proxy (while this process runs)")
         return str(self.rrd or default_rrd)
+
+
+def _reachable(bind: str) -> str:
+    """The address that reaches a server bound to ``bind`` from this host."""
+    return "127.0.0.1" if bind in ("0.0.0.0", "") else bind
 
 
 def viewer_binary() -> str:
@@ -87,9 +97,8 @@ def viewer_binary() -> str:
 
 
 def _port_open(host: str, port: int) -> bool:
-    probe = "127.0.0.1" if host in ("0.0.0.0", "") else host
     try:
-        with socket.create_connection((probe, port), timeout=0.2):
+        with socket.create_connection((_reachable(host), port), timeout=0.2):
             return True
     except OSError:
         return False
@@ -187,8 +196,8 @@ def open_recording(application: str, config: RecordingConfig, default_rrd: Path,
         stream.set_sinks(rr.GrpcSink(config.viewer_url), default_blueprint=blueprint)
     else:
         viewer, viewer_log = _start_web_viewer(config)
-        host = "127.0.0.1" if config.web_bind in ("0.0.0.0", "") else config.web_bind
-        stream.set_sinks(rr.GrpcSink(f"rerun+http://{host}:{config.web_grpc_port}/proxy"),
+        stream.set_sinks(rr.GrpcSink(f"rerun+http://{config.web_host}:{config.web_grpc_port}"
+                                     "/proxy"),
                          default_blueprint=blueprint)
         log.info("Rerun: %s", config.describe(default_rrd))
     return Recording(stream, viewer, viewer_log)

@@ -374,6 +374,10 @@ class Group:
             agent_steps_per_s=float(self.rate_rounds_per_s * int(self.owned().sum())),
             late_agents=self.late_agents)
 
+    def latest_observations(self) -> dict[str, np.ndarray]:
+        """Every agent's observation of the last round (observed now before the first)."""
+        return self.last_observations or self.sim.observe()
+
     def world_frame(self, arena: int, observations: dict[str, np.ndarray]) -> WorldFrame:
         sim, st = self.sim, self.sim.state
         n = sim.agents

@@ -421,7 +421,7 @@ class SimulatorServer:
         frame and a log line, never the group its trainers."""
         assert self.recorder is not None
         try:
-            observations = group.last_observations or group.sim.observe()
+            observations = group.latest_observations()
             for index in range(len(group.arena_ids)):
                 if not self.recorder.has_room():
                     self.recorder.count_dropped(len(group.arena_ids) - index)
@@ -463,7 +463,7 @@ class SimulatorServer:
             if not pub.matching_status.matching:
                 continue  # nobody watches this arena: no frame is even encoded
             if observations is None:
-                observations = group.last_observations or group.sim.observe()
+                observations = group.latest_observations()
             pub.put(codec.encode(group.world_frame(index, observations)))
 
     # --- trainers leaving ---------------------------------------------------------------------
