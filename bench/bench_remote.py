@@ -13,10 +13,10 @@ What is measured, in one run on 127.0.0.1 (free ports), for 1, 8 and 64 arenas (
   exactly as long as the encoded ``Steps`` of N agents (both measured by encoding the remote
   environment's real messages). Both sides use the transport settings overtake uses (client
   connected to a listening peer, no scouting, CongestionControl.BLOCK, priority DATA_HIGH) and
-  wait for matching subscribers before the first put. The echo answers from its Zenoh
-  callback (the server's shape); this process receives either by a callback that puts
-  ``payload.to_bytes()`` on a ``queue.SimpleQueue`` (the client's shape, used for the bar) or
-  from the default FIFO channel with ``sub.recv()`` (the echo then answers from a thread);
+  wait for matching subscribers before the first put. Two receive shapes, used on both
+  sides: a callback that puts ``payload.to_bytes()`` on a ``queue.SimpleQueue`` read by
+  another thread (what the client and server do; used for the bar), and the default FIFO
+  channel read with ``sub.recv()``;
 * the bound: the callback ping-pong again, with the echo stepping an in-process environment
   of N arenas (same preset, seeded random actions) before it replies. A server doing nothing
   but the simulation would step this fast; what the remote step takes beyond it is the
@@ -212,10 +212,10 @@ def echo_main(endpoint: str) -> None:
     """Serve ping-pongs on ``endpoint`` until stdin closes (the parent's end) or SIGTERM.
 
     Listens as a peer, like the server. For each shape, requests on ``<shape>/req`` are
-    answered on ``<shape>/rep`` with a reply as long as the request's header says. The
-    callback shapes answer from Zenoh's receiving thread, as the server does; the simulated one
-    first steps an in-process environment of as many arenas as the header says (what a server
-    doing nothing but the simulation would cost).
+    answered on ``<shape>/rep`` with a reply as long as the request's header says, from a
+    thread of its own as the server's loop does; the simulated shape first steps an in-process
+    environment of as many arenas as the header says (what a server doing nothing but the
+    simulation would cost).
     """
     import zenoh
 
@@ -235,22 +235,32 @@ def echo_main(endpoint: str) -> None:
     publishers = {shape: session.declare_publisher(
         f"{PING_ROOT}/{shape}/rep", congestion_control=zenoh.CongestionControl.BLOCK,
         priority=zenoh.Priority.DATA_HIGH) for shape in PING_SHAPES}
-    keep = [session.declare_subscriber(
-        f"{PING_ROOT}/callback/req",
-        lambda sample: publishers["callback"].put(reply_for(sample.payload.to_bytes())))]
-    simulations: dict[int, Driver] = {}
+    inboxes: dict[str, queue.SimpleQueue[bytes]] = {}
+    keep = []
+    for shape in ("callback", "simulated"):
+        inbox = inboxes[shape] = queue.SimpleQueue()
+        keep.append(session.declare_subscriber(
+            f"{PING_ROOT}/{shape}/req",
+            lambda sample, inbox=inbox: inbox.put(sample.payload.to_bytes())))
 
-    def simulate(sample: Any) -> None:
-        request = sample.payload.to_bytes()
-        arenas = int.from_bytes(request[HEADER_BYTES:2 * HEADER_BYTES], "little")
-        driver = simulations.get(arenas)
-        if driver is None:
-            driver = simulations[arenas] = Driver(make_env(ENV_ID, arenas, preset=PRESET),
-                                                  arenas, seed=0, vector=arenas > 1)
-        driver.step_once()
-        publishers["simulated"].put(reply_for(request))
+    def serve_callback() -> None:
+        pub, inbox = publishers["callback"], inboxes["callback"]
+        while True:
+            pub.put(reply_for(inbox.get()))
 
-    keep.append(session.declare_subscriber(f"{PING_ROOT}/simulated/req", simulate))
+    def serve_simulated() -> None:
+        pub, inbox = publishers["simulated"], inboxes["simulated"]
+        simulations: dict[int, Driver] = {}
+        while True:
+            request = inbox.get()
+            arenas = int.from_bytes(request[HEADER_BYTES:2 * HEADER_BYTES], "little")
+            driver = simulations.get(arenas)
+            if driver is None:
+                driver = simulations[arenas] = Driver(make_env(ENV_ID, arenas, preset=PRESET),
+                                                      arenas, seed=0, vector=arenas > 1)
+            driver.step_once()
+            pub.put(reply_for(request))
+
     channel = session.declare_subscriber(f"{PING_ROOT}/channel/req")
     keep.append(channel)
 
@@ -259,7 +269,8 @@ def echo_main(endpoint: str) -> None:
         while True:
             pub.put(reply_for(channel.recv().payload.to_bytes()))
 
-    threading.Thread(target=serve_channel, daemon=True).start()
+    for target in (serve_callback, serve_simulated, serve_channel):
+        threading.Thread(target=target, daemon=True).start()
     signal.signal(signal.SIGTERM, lambda *_: os._exit(0))
     sys.stdin.read()  # returns when the parent closes our stdin or dies
     os._exit(0)  # the serving threads block in Zenoh; leave without joining them

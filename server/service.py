@@ -1,11 +1,8 @@
 """The simulator server: arena groups served to trainers over Zenoh.
 
-Actions are handled where they arrive, in Zenoh's receiving thread: decoded, checked, and when
-they complete a group's round the group steps and publishes right there, which spares every
-step a hand-off to another thread (waking it costs more than the hand-off itself on small
-VMs; bench/RESULTS.md). Everything else (requests, liveliness, deadlines) is queued for one
-loop thread. One lock keeps the two apart, so the simulation is only ever touched by one
-thread at a time, and a bad message can only ever produce an error reply or a log line. Observations and actions travel with blocking congestion control (no
+Zenoh's threads only enqueue what arrives; one loop thread decodes, validates, steps groups and
+publishes, so the simulation needs no locks and a bad message can only ever produce an error
+reply or a log line. Observations and actions travel with blocking congestion control (no
 step is silently lost); world frames for spectators are dropped under congestion, so watching
 never holds the simulation back.
 """
@@ -49,6 +46,12 @@ class _Query:
 
 
 @dataclass(frozen=True)
+class _ActionsPut:
+    key: str
+    payload: bytes
+
+
+@dataclass(frozen=True)
 class _Liveliness:
     key: str
     present: bool
@@ -59,7 +62,7 @@ class _Wake:
     """Nothing to do but look at the clock (a stop request, or a deadline)."""
 
 
-_Event = _Query | _Liveliness | _Wake
+_Event = _Query | _ActionsPut | _Liveliness | _Wake
 _WAKE = _Wake()
 # Events handled before the ready groups step: bounds what a flood of messages can delay.
 MAX_EVENTS_PER_PASS = 256
@@ -132,8 +135,6 @@ class SimulatorServer:
         self.name = config.name
         self._events: queue.SimpleQueue[_Event] = queue.SimpleQueue()
         self._stopping = threading.Event()
-        # Held by whichever thread touches the groups: the loop, or a Zenoh thread with actions.
-        self._lock = threading.Lock()
         self._own_session = session is None
         self.session = session if session is not None else open_session(config.transport())
         self.groups: dict[int, Group] = {}
@@ -145,8 +146,8 @@ class SimulatorServer:
         self._last_world: dict[int, float] = {}
         self._started = time.monotonic()
         self._declared: list[Any] = []
-        self.recorder: ServerRecorder | None = None
         self._declare()
+        self.recorder: ServerRecorder | None = None
         if config.recording.sink != "off":
             try:
                 self.recorder = ServerRecorder(config.recording, self.name)
@@ -154,7 +155,7 @@ class SimulatorServer:
                 self.close()
                 raise
 
-    # --- Zenoh plumbing (actions are handled in the callback; the rest is queued) -----------
+    # --- Zenoh plumbing (callbacks only enqueue) -------------------------------------------
 
     def _declare(self) -> None:
         existing = [r for r in self.session.liveliness().get(keys.server_alive(self.name),
@@ -166,8 +167,10 @@ class SimulatorServer:
         self._declared.append(s.declare_queryable(
             keys.server_request(self.name),
             lambda q: self._events.put(_Query(q, q.payload.to_bytes() if q.payload else b""))))
-        self._declared.append(s.declare_subscriber(keys.server_actions_all(self.name),
-                                                   self._on_actions_sample))
+        self._declared.append(s.declare_subscriber(
+            keys.server_actions_all(self.name),
+            lambda sample: self._events.put(_ActionsPut(str(sample.key_expr),
+                                                        sample.payload.to_bytes()))))
         self._declared.append(s.liveliness().declare_subscriber(
             keys.ALL_TRAINERS_ALIVE,
             lambda sample: self._events.put(_Liveliness(str(sample.key_expr),
@@ -190,22 +193,20 @@ class SimulatorServer:
                      self.config.recording.record_every, self.recorder.where)
         try:
             while not self._stopping.is_set():
-                with self._lock:
-                    timeout = self._next_timeout()
+                timeout = self._next_timeout()
                 try:
                     event = self._events.get(timeout=timeout)
                 except queue.Empty:
                     event = _WAKE
-                with self._lock:
-                    self._handle(event)
-                    # Take what else has arrived before stepping, but not without bound: a
-                    # flood must not keep the groups from stepping.
-                    for _ in range(MAX_EVENTS_PER_PASS):
-                        try:
-                            self._handle(self._events.get_nowait())
-                        except queue.Empty:
-                            break
-                    self._step_ready_groups()
+                self._handle(event)
+                # Take what else has arrived before stepping (arrivals together step once),
+                # but not without bound: a flood must not keep the groups from stepping.
+                for _ in range(MAX_EVENTS_PER_PASS):
+                    try:
+                        self._handle(self._events.get_nowait())
+                    except queue.Empty:
+                        break
+                self._step_ready_groups()
         finally:
             self.close()
 
@@ -237,6 +238,8 @@ class SimulatorServer:
         try:
             if isinstance(event, _Query):
                 self._on_query(event.query, event.payload)
+            elif isinstance(event, _ActionsPut):
+                self._on_actions(event.key, event.payload)
             elif isinstance(event, _Liveliness):
                 self._on_alive(event.key, event.present)
         except Exception:  # the loop must survive anything; a bug shows as a log line
@@ -293,14 +296,8 @@ class SimulatorServer:
     def _require_alive(self, trainer: str) -> None:
         if trainer in self._alive_trainers:
             return
-        # Its token may not have reached us yet: ask once. Not under the lock: the answer
-        # comes through Zenoh's threads, which may be waiting for the lock with actions.
-        self._lock.release()
-        try:
-            replies = list(self.session.liveliness().get(keys.trainer_alive(trainer),
-                                                         timeout=1.0))
-        finally:
-            self._lock.acquire()
+        # Its token may not have reached us yet: ask once.
+        replies = self.session.liveliness().get(keys.trainer_alive(trainer), timeout=1.0)
         if not any(r.ok for r in replies):
             raise errors.NotOwner(f"trainer {trainer!r} holds no liveliness token "
                                   f"({keys.trainer_alive(trainer)}); open arenas through "
@@ -365,32 +362,12 @@ class SimulatorServer:
 
     # --- actions and rounds -----------------------------------------------------------------
 
-    def _on_actions_sample(self, sample: zenoh.Sample) -> None:
-        """Zenoh's thread: take the actions, and step their group if its round is complete."""
-        key, payload = str(sample.key_expr), sample.payload.to_bytes()
-        with self._lock:
-            if self._stopping.is_set():
-                return
-            try:
-                group = self._on_actions(key, payload)
-                if group is None:
-                    return
-                now = time.monotonic()
-                if group.ready(now):
-                    self._step_group(group, now)
-                elif group.deadline is not None:
-                    # Others of the group have yet to act: the loop must wake at the deadline.
-                    self._events.put(_WAKE)
-            except Exception:  # the server must survive anything; a bug shows as a log line
-                log.exception("unexpected error handling actions on %s", key)
-
-    def _on_actions(self, key: str, payload: bytes) -> Group | None:
-        """Hold the actions for their group's round; returns that group, or None if refused."""
+    def _on_actions(self, key: str, payload: bytes) -> None:
         try:
             _, trainer = keys.parse_server_actions(key)
         except errors.ProtocolError as error:
             log.warning("dropped actions on a malformed key: %s", error)
-            return None
+            return
         actions: Message | None = None
         try:
             actions = codec.decode(payload, Actions)
@@ -401,9 +378,7 @@ class SimulatorServer:
                 log.warning("dropped actions on %s's key that claim to come from %s", trainer,
                             actions.trainer)
                 return
-            group = self._group(actions.group)
-            group.accept(actions, self.config.step_deadline_s)
-            return group
+            self._group(actions.group).accept(actions, self.config.step_deadline_s)
         except errors.StaleActions as error:
             log.debug("dropped late actions from %s: %s", trainer, error)
         except errors.WrongTicket as error:
@@ -412,37 +387,34 @@ class SimulatorServer:
             log.warning("dropped actions in %s's name: %s", trainer, error)
         except errors.ProtocolError as error:
             log.info("refused actions from %s: %s", trainer, error)
-            group_id = actions.group if isinstance(actions, Actions) else None
-            self._send(trainer, ErrorReply(code=error.code, message=str(error), group=group_id))
-        return None
+            group = actions.group if isinstance(actions, Actions) else None
+            self._send(trainer, ErrorReply(code=error.code, message=str(error), group=group))
 
     def _step_ready_groups(self) -> None:
         now = time.monotonic()
         for group in list(self.groups.values()):
-            if group.ready(now):
-                self._step_group(group, now)
-
-    def _step_group(self, group: Group, now: float) -> None:
-        try:
-            steps = group.step()
-            for trainer, message in steps.items():
-                self._send(trainer, message)
-            self._publish_world(group, now)
-            if self.recorder is not None and self.recorder.wants(group.round):
-                self._record(group)
-        except Exception as error:
-            # One group's failure is that group's end, not the server's.
-            log.exception("group %d failed to step; closing it", group.group_id)
-            reply = ErrorReply(code=errors.ProtocolError.code, group=group.group_id,
-                               message=f"server {self.name} closed group "
-                                       f"{group.group_id} after an internal error: "
-                                       f"{type(error).__name__}: {error}")
-            for trainer in list(group.members):
-                try:
-                    self._send(trainer, reply)
-                except Exception:  # pragma: no cover - the session itself is failing
-                    log.exception("could not tell %s", trainer)
-                self._leave(group, trainer, "internal error")
+            if not group.ready(now):
+                continue
+            try:
+                steps = group.step()
+                for trainer, message in steps.items():
+                    self._send(trainer, message)
+                self._publish_world(group, now)
+                if self.recorder is not None and self.recorder.wants(group.round):
+                    self._record(group)
+            except Exception as error:
+                # One group's failure is that group's end, not the server's.
+                log.exception("group %d failed to step; closing it", group.group_id)
+                reply = ErrorReply(code=errors.ProtocolError.code, group=group.group_id,
+                                   message=f"server {self.name} closed group "
+                                           f"{group.group_id} after an internal error: "
+                                           f"{type(error).__name__}: {error}")
+                for trainer in list(group.members):
+                    try:
+                        self._send(trainer, reply)
+                    except Exception:  # pragma: no cover - the session itself is failing
+                        log.exception("could not tell %s", trainer)
+                    self._leave(group, trainer, "internal error")
 
     def _record(self, group: Group) -> None:
         """Hand the recorder this round's frames; a failure here costs the recording a
