@@ -448,9 +448,7 @@ class ArenaGroup:
             # here already, marked late; our actions would be stale, so they are not sent.
             steps = conn.arrived(self.server, self.group_id, self.round + 1)
             if steps is None:
-                # Not checked again here: the environments check actions before they step
-                # (range, shape), and the server checks everything it decodes.
-                conn.send_actions(self.server, Actions.trusted(
+                conn.send_actions(self.server, Actions(
                     trainer=conn.trainer, ticket=self.ticket, group=self.group_id,
                     round=self.round, agents=np.asarray(agents, dtype=np.int32),
                     actions=np.asarray(actions, dtype=np.int64)))

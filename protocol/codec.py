@@ -3,10 +3,7 @@
 A frame is the msgpack array ``[major, minor, type, body]``: the protocol version, the
 message's type tag and a map of its fields. Arrays travel as ``{"dtype", "shape", "data"}``
 with the raw little-endian bytes (never lists of numbers: ``tolist`` is a hundred times
-slower). Since 1.2 a message's per-agent arrays (``ROWS``, the Steps of every round) may
-instead travel row-packed: one ``rows`` entry ``{"count", "layout", "data"}`` holds them all
-in one byte block, described by a layout text checked once and then kept, so decoding a
-round costs a size check and a view per array. Decoding checks the version, the tag, every field's type, every array's dtype, shape
+slower). Decoding checks the version, the tag, every field's type, every array's dtype, shape
 and byte size, and then the message's own rules; anything wrong raises
 :class:`~overtake.protocol.errors.DecodeError` (or :class:`VersionMismatch`) saying what was
 expected and what came. Random bytes never escape as another exception.
@@ -18,7 +15,7 @@ import functools
 import types
 import typing
 from collections.abc import Callable
-from dataclasses import MISSING, dataclass, fields, is_dataclass
+from dataclasses import MISSING, fields, is_dataclass
 from typing import Any, TypeVar
 
 import msgpack
@@ -26,7 +23,7 @@ import numpy as np
 
 from .errors import DecodeError, ProtocolError, VersionMismatch
 from .messages import (MAX_ARRAY_DIMS, MAX_FRAME_BYTES, MAX_TEXT_CHARS, MESSAGE_TYPES,
-                       NAME_PATTERN, PROTOCOL_VERSION, ROWS_SINCE_MINOR, WIRE_DTYPES, Message)
+                       PROTOCOL_VERSION, WIRE_DTYPES, Message)
 
 M = TypeVar("M", bound=Message)
 
@@ -44,8 +41,7 @@ def version_text(version: tuple[int, int] = PROTOCOL_VERSION) -> str:
 Encoder = Callable[[Any], Any]
 
 
-def _wire_array(value: Any) -> tuple[str, np.ndarray]:
-    """``value``'s wire dtype name, and its values contiguous in that (little-endian) dtype."""
+def _array_out(value: Any) -> dict[str, Any]:
     if not isinstance(value, np.ndarray):
         raise TypeError(f"expected a numpy array, got {type(value).__name__}")
     if value.ndim > MAX_ARRAY_DIMS:
@@ -55,11 +51,7 @@ def _wire_array(value: Any) -> tuple[str, np.ndarray]:
     name = _DTYPE_NAMES.get(dtype)
     if name is None:
         raise TypeError(f"arrays travel as one of {sorted(WIRE_DTYPES)}, got {value.dtype}")
-    return name, np.ascontiguousarray(value, dtype=WIRE_DTYPES[name])
-
-
-def _array_out(value: Any) -> dict[str, Any]:
-    name, data = _wire_array(value)
+    data = np.ascontiguousarray(value, dtype=WIRE_DTYPES[name])
     return {"dtype": name, "shape": list(data.shape), "data": data.tobytes()}
 
 
@@ -113,218 +105,13 @@ def _record_encoder(cls: type) -> Encoder:
     return record
 
 
-def encode(message: Message, minor: int = PROTOCOL_VERSION[1]) -> bytes:
-    """The frame of ``message``, in the form a peer of protocol ``minor`` (this major) reads:
-    row-packed from 1.2 on where the message has ``ROWS``, field by field before."""
+def encode(message: Message) -> bytes:
+    """The frame of ``message``."""
     if not isinstance(message, Message):
         raise TypeError(f"expected an overtake message, got {type(message).__name__}")
-    cls = type(message)
-    if cls.ROWS and minor >= ROWS_SINCE_MINOR:
-        body = _packed_record_encoder(cls)(message)
-    else:
-        body = _record_encoder(cls)(message)
+    body = _record_encoder(type(message))(message)
     return msgpack.packb([PROTOCOL_VERSION[0], PROTOCOL_VERSION[1], message.TYPE, body],
                          use_bin_type=True)
-
-
-# --- row-packed records (protocol 1.2) --------------------------------------------------------
-
-# The ``rows`` entry of a row-packed body: ``count`` agents, and each ROWS array's ``count``
-# rows one after another in ``data``, each array starting at a multiple of ROW_ALIGN bytes
-# (so float64 views are aligned). ``layout`` names them in order, one ``name:dtype:shape``
-# entry each, joined by ";": the name is the field, or ``field.key`` for a map's array; the
-# shape is the row's, sizes joined by "x" (empty for one value a row), e.g.
-# ``reward:float64:;observations.camera:uint8:84x84``.
-ROWS_KEY = "rows"
-ROW_ALIGN = 8
-MAX_LAYOUT_CHARS = 8192
-MAX_LAYOUT_ENTRIES = 64
-# Layouts parsed and checked once are kept (a peer sends the same one every round); a peer
-# inventing new ones gets them checked each time once this many are kept, nothing worse.
-MAX_KEPT_LAYOUTS = 256
-
-
-@functools.cache
-def _row_maps(cls: type) -> dict[str, bool]:
-    """``cls``'s ROWS fields, each mapped to whether it is a map of arrays (else an array)."""
-    hints = typing.get_type_hints(cls)
-    return {name: typing.get_origin(hints[name]) is dict for name in cls.ROWS}
-
-
-_ROW_SHAPE_TEXT: dict[tuple[int, ...], str] = {}
-
-
-@functools.cache
-def _packed_record_encoder(cls: type) -> Encoder:
-    rows = _row_maps(cls)
-    others = tuple((name, encode_field) for name, encode_field in
-                   ((f.name, _encoder(typing.get_type_hints(cls)[f.name])) for f in fields(cls))
-                   if name not in rows)
-
-    def record(value: Any) -> dict[str, Any]:
-        if not isinstance(value, cls):
-            raise TypeError(f"expected {cls.__name__}, got {type(value).__name__}")
-        body = {name: encode_field(getattr(value, name)) for name, encode_field in others}
-        entries: list[str] = []
-        parts: list[bytes] = []
-        count: int | None = None
-        for name, is_map in rows.items():
-            field_value = getattr(value, name)
-            for key, array in (field_value.items() if is_map else ((None, field_value),)):
-                # The common case (a native little-endian array of a wire dtype) is looked
-                # up; anything else goes through the checks and conversion of _wire_array.
-                dtype_name = _DTYPE_NAMES.get(array.dtype) if type(array) is np.ndarray \
-                    else None
-                if dtype_name is None or not 1 <= array.ndim <= MAX_ARRAY_DIMS:
-                    dtype_name, array = _wire_array(array)
-                label = name if key is None else f"{name}.{key}"
-                shape = array.shape
-                if not shape or (count is not None and shape[0] != count):
-                    raise ValueError(f"{label} must have {count} rows (one per agent), got "
-                                     f"shape {shape}")
-                count = shape[0]
-                row_shape = _ROW_SHAPE_TEXT.get(shape[1:])
-                if row_shape is None:
-                    row_shape = "x".join(map(str, shape[1:]))
-                    if len(_ROW_SHAPE_TEXT) < MAX_KEPT_LAYOUTS:
-                        _ROW_SHAPE_TEXT[shape[1:]] = row_shape
-                entries.append(f"{label}:{dtype_name}:{row_shape}")
-                raw = array.tobytes()  # C order, whatever the array's strides
-                parts.append(raw)
-                if len(raw) % ROW_ALIGN:
-                    parts.append(bytes(ROW_ALIGN - len(raw) % ROW_ALIGN))
-        if count is None:  # pragma: no cover - every ROWS schema has a plain array
-            raise ValueError(f"{cls.__name__} has no per-agent array to count the rows by")
-        body[ROWS_KEY] = {"count": count, "layout": ";".join(entries), "data": b"".join(parts)}
-        return body
-    return record
-
-
-@dataclass(frozen=True)
-class _RowArray:
-    """One array of a checked layout."""
-
-    field: str
-    key: str | None
-    dtype: np.dtype
-    is_bool: bool
-    native: bool
-    shape: tuple[int, ...]   # of one row
-    items: int               # values in one row
-    row_bytes: int
-
-
-_kept_layouts: dict[tuple[type, str], tuple[_RowArray, ...]] = {}
-
-
-def _layout(cls: type, text: Any) -> tuple[_RowArray, ...]:
-    """The arrays ``text`` lays out for ``cls``, checked (once per distinct text)."""
-    kept = _kept_layouts.get((cls, text)) if type(text) is str else None
-    if kept is not None:
-        return kept
-    if type(text) is not str:
-        raise DecodeError(f"layout must be text, got {_kind(text)}")
-    if len(text) > MAX_LAYOUT_CHARS:
-        raise DecodeError(f"layout of {len(text)} characters exceeds the limit of "
-                          f"{MAX_LAYOUT_CHARS}")
-    maps = _row_maps(cls)
-    entries = text.split(";") if text else []
-    if len(entries) > MAX_LAYOUT_ENTRIES:
-        raise DecodeError(f"layout of {len(entries)} arrays exceeds the limit of "
-                          f"{MAX_LAYOUT_ENTRIES}")
-    arrays: list[_RowArray] = []
-    seen: set[str] = set()
-    for entry in entries:
-        parts = entry.split(":")
-        if len(parts) != 3:
-            raise DecodeError(f"layout entry {entry!r} is not name:dtype:shape")
-        label, dtype_name, shape_text = parts
-        name, dot, key = label.partition(".")
-        if name not in maps:
-            raise DecodeError(f"layout entry {entry!r} names no per-agent field of "
-                              f"{cls.__name__}; expected one of {list(maps)}")
-        if maps[name] != bool(dot):
-            raise DecodeError(f"layout entry {entry!r}: {name} is "
-                              + ("a map: expected field.key" if maps[name] else
-                                 "an array: expected no .key"))
-        if dot and not NAME_PATTERN.fullmatch(key):
-            raise DecodeError(f"layout entry {entry!r}: the key must be 1-64 letters, digits, "
-                              "'_', '.' or '-'")
-        if label in seen:
-            raise DecodeError(f"layout names {label} twice")
-        seen.add(label)
-        dtype = WIRE_DTYPES.get(dtype_name)
-        if dtype is None:
-            raise DecodeError(f"layout entry {entry!r}: dtype must be one of "
-                              f"{sorted(WIRE_DTYPES)}")
-        sizes = shape_text.split("x") if shape_text else []
-        if len(sizes) > MAX_ARRAY_DIMS - 1 or not all(
-                size.isascii() and size.isdigit() and len(size) <= 9 for size in sizes):
-            raise DecodeError(f"layout entry {entry!r}: the row shape must be at most "
-                              f"{MAX_ARRAY_DIMS - 1} sizes joined by 'x'")
-        shape = tuple(int(size) for size in sizes)
-        items = 1
-        for size in shape:
-            items *= size
-        if items * dtype.itemsize > MAX_FRAME_BYTES:
-            raise DecodeError(f"layout entry {entry!r}: a row of {items} values exceeds the "
-                              "frame limit")
-        arrays.append(_RowArray(field=name, key=key if dot else None, dtype=dtype,
-                                is_bool=dtype_name == "bool", native=dtype.isnative,
-                                shape=shape, items=items,
-                                row_bytes=items * dtype.itemsize))
-    missing = [name for name, is_map in maps.items() if not is_map and name not in seen]
-    if missing:
-        raise DecodeError(f"layout lacks {missing}")
-    layout = tuple(arrays)
-    if len(_kept_layouts) < MAX_KEPT_LAYOUTS:
-        _kept_layouts[(cls, text)] = layout
-    return layout
-
-
-_ROWS_KEYS = frozenset(("count", "layout", "data"))
-
-
-def _rows(cls: type, block: Any) -> dict[str, Any]:
-    """The ROWS fields' values from a ``rows`` entry."""
-    if type(block) is not dict or len(block) != 3 or not _ROWS_KEYS.issuperset(block):
-        raise DecodeError("expected {count, layout, data}, got "
-                          + (f"keys {sorted(map(str, block))}" if isinstance(block, dict)
-                             else _kind(block)))
-    count, data = block["count"], block["data"]
-    if type(count) is not int or not 0 <= count <= MAX_FRAME_BYTES:
-        raise DecodeError(f"count must be an integer from 0 to {MAX_FRAME_BYTES}, got "
-                          f"{count!r}")
-    if type(data) is not bytes:
-        raise DecodeError(f"data must be bytes, got {_kind(data)}")
-    layout = _layout(cls, block["layout"])
-    needed = 0
-    for array in layout:
-        needed += -(-count * array.row_bytes // ROW_ALIGN) * ROW_ALIGN
-    if needed != len(data):
-        raise DecodeError(f"{count} row(s) of this layout need {needed} bytes, got {len(data)}")
-    # One writable copy for all the arrays: callers may modify what they receive.
-    buffer = bytearray(data)
-    values: dict[str, Any] = {name: {} for name, is_map in _row_maps(cls).items() if is_map}
-    offset = 0
-    for array in layout:
-        size = count * array.row_bytes
-        if array.is_bool and size and buffer[offset:offset + size].translate(None, b"\x00\x01"):
-            label = array.field if array.key is None else f"{array.field}.{array.key}"
-            raise DecodeError(f"{label}: bool array holds bytes other than 0 and 1")
-        if count:
-            value = np.frombuffer(buffer, array.dtype, count * array.items, offset)
-            value = value.reshape((count, *array.shape))
-        else:
-            value = np.empty((0, *array.shape), array.dtype)
-        if not array.native:
-            value = value.astype(array.dtype.newbyteorder("="))
-        if array.key is None:
-            values[array.field] = value
-        else:
-            values[array.field][array.key] = value
-        offset += -(-size // ROW_ALIGN) * ROW_ALIGN
-    return values
 
 
 # --- decoding ---------------------------------------------------------------------------------
@@ -488,17 +275,6 @@ def _fields(cls: type) -> tuple[tuple[str, Converter], ...]:
 
 
 @functools.cache
-def _packed_fields(cls: type) -> tuple[tuple[str, Converter], ...]:
-    """What a row-packed body of ``cls`` holds: its other fields, then ``rows``."""
-    rows = _row_maps(cls)
-
-    def convert_rows(value: Any, _minor: int) -> dict[str, Any]:
-        return _rows(cls, value)
-    return (*((name, convert) for name, convert in _fields(cls) if name not in rows),
-            (ROWS_KEY, convert_rows))
-
-
-@functools.cache
 def _added(cls: type) -> dict[str, tuple[int, Any]]:
     """Fields a later minor version added (``metadata={"since": minor}``): name -> (that minor,
     the value a record from an older peer gets)."""
@@ -525,8 +301,7 @@ def _build(cls: type, body: Any, peer_minor: int) -> Any:
     older one lacks those this side added since (they take their defaults)."""
     if type(body) is not dict:
         raise DecodeError(f"expected a map of {cls.__name__} fields, got {_kind(body)}")
-    packed = bool(cls.ROWS) and ROWS_KEY in body
-    spec = _packed_fields(cls) if packed else _fields(cls)
+    spec = _fields(cls)
     older = _older_defaults(cls, peer_minor) if peer_minor < PROTOCOL_VERSION[1] else {}
     if len(body) != len(spec) or peer_minor != PROTOCOL_VERSION[1]:
         names = [name for name, _ in spec]
@@ -534,9 +309,6 @@ def _build(cls: type, body: Any, peer_minor: int) -> Any:
         if missing:
             raise DecodeError(f"{cls.__name__} lacks field(s) {missing}")
         unknown = sorted(map(str, set(body) - set(names)))
-        if packed and set(unknown) & set(cls.ROWS):
-            raise DecodeError(f"{cls.__name__} has both rows and the row-packed field(s) "
-                              f"{sorted(set(unknown) & set(cls.ROWS))}")
         if unknown and peer_minor <= PROTOCOL_VERSION[1]:
             # Only a newer minor version may add fields (which this side then ignores).
             raise DecodeError(f"{cls.__name__} has unknown field(s) {unknown}; "
@@ -549,10 +321,7 @@ def _build(cls: type, body: Any, peer_minor: int) -> Any:
                 continue
             raise DecodeError(f"{cls.__name__} lacks field {name!r}")
         try:
-            if name == ROWS_KEY and packed:
-                values.update(convert(body[name], peer_minor))
-            else:
-                values[name] = convert(body[name], peer_minor)
+            values[name] = convert(body[name], peer_minor)
         except DecodeError as error:
             raise _at(f".{name}", error) from None
     return cls(**values)
@@ -564,14 +333,6 @@ def decode(data: bytes | bytearray | memoryview, expect: type[M] | tuple[type[Me
 
     An :class:`ErrorReply` is always accepted (the caller decides what to raise).
     """
-    return decode_with_version(data, expect)[0]
-
-
-def decode_with_version(data: bytes | bytearray | memoryview,
-                        expect: type[M] | tuple[type[Message], ...] | None = None
-                        ) -> tuple[M, tuple[int, int]]:
-    """:func:`decode`, and the protocol version the peer wrote the frame in (what it reads:
-    answer it with ``encode(reply, minor)``)."""
     from .messages import ErrorReply
 
     if len(data) > MAX_FRAME_BYTES:
@@ -603,7 +364,7 @@ def decode_with_version(data: bytes | bytearray | memoryview,
         if cls not in wanted and cls is not ErrorReply:
             raise DecodeError(f"expected {' or '.join(w.TYPE for w in wanted)}, got {tag}")
     try:
-        return _build(cls, body, minor), (major, minor)
+        return _build(cls, body, minor)
     except ProtocolError as error:
         if isinstance(error, DecodeError):
             raise _at(tag, error) from None

@@ -29,18 +29,13 @@ from .errors import DecodeError
 
 # The wire contract: protocol version (major, minor). A peer of another major version is
 # refused; a newer minor may add optional fields, which an older peer ignores.
-PROTOCOL_VERSION: tuple[int, int] = (1, 2)
+PROTOCOL_VERSION: tuple[int, int] = (1, 1)
 PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
     ("1.0", "First wire protocol: status, open/join, reset, batched actions and steps, close, "
             "world frames for spectators, error replies."),
     ("1.1", "World frames carry each agent's reward terms (reward_terms, reward_term_names); "
             "a 1.0 peer's frames decode with none."),
-    ("1.2", "Steps may travel row-packed: the per-agent arrays in one byte block with a "
-            "layout text (codec.encode(minor=2)); servers send it to peers of 1.2 and later, "
-            "the per-field form to older ones, and either form decodes."),
 )
-# The first minor version that reads row-packed records (see Part.ROWS).
-ROWS_SINCE_MINOR = 2
 
 # Min et al.'s five DAS-level actions: the action space every arena speaks.
 ACTION_NAMES: tuple[str, ...] = ("keep", "cruise_up", "cruise_down", "lane_left", "lane_right")
@@ -102,10 +97,6 @@ def _values_equal(a: Any, b: Any) -> bool:
 @dataclass(frozen=True, eq=False)
 class Part:
     """A frozen record that checks itself; equality compares arrays by value and dtype."""
-
-    ROWS: ClassVar[tuple[str, ...]] = ()
-    """Fields that are arrays (or maps of arrays) with one row per agent: a top-level message
-    with some may travel row-packed, all of them in one byte block (protocol 1.2)."""
 
     def __post_init__(self) -> None:
         self.check()
@@ -295,9 +286,6 @@ class Steps(Message):
     """
 
     TYPE: ClassVar[str] = "steps"
-    ROWS: ClassVar[tuple[str, ...]] = ("agents", "observations", "reward", "terminated",
-                                       "truncated", "action_applied", "late", "action_mask",
-                                       "reward_terms", "metrics")
     server: str
     group: int
     round: int

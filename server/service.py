@@ -24,9 +24,9 @@ from typing import Any
 import zenoh
 
 from overtake.protocol import codec, errors, keys
-from overtake.protocol.messages import (PROTOCOL_VERSION, ROWS_SINCE_MINOR, Ack, Actions,
-                                        CloseRequest, ErrorReply, JoinRequest, Message, Opened,
-                                        OpenRequest, ResetRequest, StatusReply, StatusRequest)
+from overtake.protocol.messages import (Ack, Actions, CloseRequest, ErrorReply, JoinRequest,
+                                        Message, Opened, OpenRequest, ResetRequest,
+                                        StatusReply, StatusRequest)
 from overtake.protocol.recording import RecordingConfig
 from overtake.protocol.transport import (DEFAULT_ENDPOINT, SecurityConfig, TransportConfig,
                                          open_session, warn_if_unconnected, warn_if_unguarded)
@@ -142,9 +142,6 @@ class SimulatorServer:
         self._next_arena = 0
         self._alive_trainers: set[str] = set()
         self._step_pubs: dict[str, zenoh.Publisher] = {}
-        # The protocol minor each trainer speaks (from its requests): its Steps are written
-        # in the form it reads (row-packed from 1.2 on).
-        self._trainer_minor: dict[str, int] = {}
         self._world_pubs: dict[int, zenoh.Publisher] = {}
         self._last_world: dict[int, float] = {}
         self._started = time.monotonic()
@@ -250,22 +247,17 @@ class SimulatorServer:
 
     # --- requests -------------------------------------------------------------------------------
 
-    def _reply(self, query: zenoh.Query, message: Message, minor: int) -> None:
+    def _reply(self, query: zenoh.Query, message: Message) -> None:
         with query:
-            query.reply(keys.server_request(self.name), codec.encode(message, minor))
+            query.reply(keys.server_request(self.name), codec.encode(message))
 
     def _on_query(self, query: zenoh.Query, payload: bytes) -> None:
-        # Until the frame is read, answer in the form every 1.x peer reads.
-        minor = ROWS_SINCE_MINOR - 1
         try:
-            request, (_, minor) = codec.decode_with_version(
-                payload, (StatusRequest, OpenRequest, JoinRequest, ResetRequest, CloseRequest))
-            minor = min(minor, PROTOCOL_VERSION[1])
+            request = codec.decode(payload, (StatusRequest, OpenRequest, JoinRequest,
+                                             ResetRequest, CloseRequest))
             if isinstance(request, ErrorReply):
                 raise errors.DecodeError("expected a request (status_request, open, join, "
                                          "reset or close), got an error reply")
-            if isinstance(request, (OpenRequest, JoinRequest)):
-                self._trainer_minor[request.trainer] = minor
             reply = self._dispatch(request)
         except errors.ProtocolError as error:
             log.info("refused a request: %s", error)
@@ -275,7 +267,7 @@ class SimulatorServer:
             reply = ErrorReply(code=errors.ProtocolError.code,
                                message=f"server {self.name} failed: {type(error).__name__}: "
                                        f"{error}")
-        self._reply(query, reply, minor)
+        self._reply(query, reply)
 
     def _dispatch(self, request: Message) -> Message:
         if isinstance(request, StatusRequest):
@@ -449,12 +441,11 @@ class SimulatorServer:
         return pub
 
     def _send(self, trainer: str, message: Message) -> None:
-        frame = codec.encode(message, self._trainer_minor.get(trainer, ROWS_SINCE_MINOR - 1))
         pub = self._step_pubs.get(trainer)
         if pub is not None:
-            pub.put(frame)
+            pub.put(codec.encode(message))
         else:  # a trainer with no arenas here (an error reply): no publisher kept for it
-            self.session.put(keys.trainer_steps(trainer, self.name), frame,
+            self.session.put(keys.trainer_steps(trainer, self.name), codec.encode(message),
                              congestion_control=zenoh.CongestionControl.BLOCK)
 
     def _publish_world(self, group: Group, now: float) -> None:
@@ -486,7 +477,6 @@ class SimulatorServer:
             self._alive_trainers.add(trainer)
             return
         self._alive_trainers.discard(trainer)
-        self._trainer_minor.pop(trainer, None)
         for group in list(self.groups.values()):
             if trainer in group.members:
                 self._leave(group, trainer, "gone (liveliness token lost)")

@@ -226,14 +226,9 @@ def arrays_in(value):
             yield from arrays_in(item)
 
 
-def frame_of(message: Message, minor: int = MINOR) -> list:
-    """The frame of ``message`` (in the form a peer of ``minor`` reads) as plain msgpack
-    values, ready to be tampered with."""
-    return msgpack.unpackb(encode(message, minor), raw=False)
-
-
-# The last minor version before row-packed Steps: its form is field by field.
-FIELD_FORM_MINOR = messages.ROWS_SINCE_MINOR - 1
+def frame_of(message: Message) -> list:
+    """The frame of ``message`` as plain msgpack values, ready to be tampered with."""
+    return msgpack.unpackb(encode(message), raw=False)
 
 
 def pack(frame) -> bytes:
@@ -319,10 +314,6 @@ def test_round_trip_preserves_every_message(tag, data):
     # Zenoh hands payloads over as bytearray or memoryview as often as bytes.
     assert decode(bytearray(frame)) == message
     assert decode(memoryview(frame)) == message
-    # The form an older peer gets (Steps field by field, not row-packed) round-trips too.
-    older = decode(encode(message, FIELD_FORM_MINOR))
-    assert older == message
-    assert encode(older, FIELD_FORM_MINOR) == encode(message, FIELD_FORM_MINOR)
     for array in arrays_in(back):
         # Callers modify what they receive (e.g. in-place normalisation): no read-only views
         # of the frame buffer, and native byte order so numpy math is not slowed down.
@@ -646,123 +637,11 @@ def test_array_shape_that_is_not_a_short_list_of_sizes_is_refused(shape):
 
 
 def test_bool_array_holding_a_byte_other_than_0_or_1_is_refused():
-    frame = frame_of(sample_steps(), FIELD_FORM_MINOR)
+    frame = frame_of(sample_steps())
     frame[3]["terminated"]["data"] = b"\x00\x02\x01"
     with pytest.raises(DecodeError) as err:
         decode(pack(frame))
     assert "steps.terminated" in str(err.value) and "0 and 1" in str(err.value)
-
-
-# --- row-packed Steps (protocol 1.2) -----------------------------------------------------------
-
-def steps_with_every_dtype(k: int = 3) -> Steps:
-    """Steps whose observations need padding between arrays (odd byte sizes) and whose rows
-    hold float64 after uint8: what alignment and the layout must get right."""
-    rng = np.random.default_rng(7)
-    return Steps(server="srv", group=1, round=2, agents=np.arange(k, dtype=np.int32)[::-1].copy(),
-                 observations={"camera": rng.integers(0, 255, (k, 3, 5), dtype=np.uint8),
-                               "lidar": rng.random((k, 7), dtype=np.float32)},
-                 reward=rng.random(k), terminated=np.array([True, False, True][:k], bool),
-                 truncated=np.zeros(k, bool), action_applied=np.arange(k, dtype=np.int64),
-                 late=np.ones(k, bool), action_mask=np.ones((k, ACTION_COUNT), np.int8),
-                 reward_terms=rng.random((k, 5)), metrics=rng.random((k, 7)))
-
-
-def test_steps_travel_row_packed_to_current_peers_and_field_by_field_to_older_ones():
-    steps = steps_with_every_dtype()
-    packed, fielded = frame_of(steps), frame_of(steps, FIELD_FORM_MINOR)
-    assert set(packed[3]) == {"server", "group", "round", "rows"}
-    assert packed[3]["rows"]["count"] == 3
-    assert packed[3]["rows"]["layout"].split(";")[:3] == [
-        "agents:int32:", "observations.camera:uint8:3x5", "observations.lidar:float32:7"]
-    assert "rows" not in fielded[3] and "reward" in fielded[3]
-    for frame in (packed, fielded):
-        back = decode(pack(frame))
-        assert back == steps
-        # Each array starts on an 8-byte boundary of one shared writable buffer.
-        assert back.reward.flags.aligned and back.metrics.flags.aligned
-        back.reward[0] = 99.0
-    # Other messages have no per-agent rows: one form for every peer.
-    assert encode(sample_actions()) == encode(sample_actions(), FIELD_FORM_MINOR)
-
-
-def test_zero_agents_travel_row_packed():
-    steps = steps_with_every_dtype(k=0)
-    assert frame_of(steps)[3]["rows"]["data"] == b""
-    assert decode(encode(steps)) == steps
-
-
-def _tampered_rows(change) -> bytes:
-    frame = frame_of(steps_with_every_dtype())
-    change(frame[3]["rows"], frame[3])
-    return pack(frame)
-
-
-def _set_layout_entry(index: int, text: str):
-    def change(rows, _body):
-        entries = rows["layout"].split(";")
-        entries[index] = text
-        rows["layout"] = ";".join(entries)
-    return change
-
-
-@pytest.mark.parametrize("change, expected", [
-    (lambda rows, _: rows.update(data=rows["data"][:-8]), r"need \d+ bytes, got \d+"),
-    (lambda rows, _: rows.update(count=2), r"2 row\(s\) of this layout need"),
-    (lambda rows, _: rows.update(count=-1), "count must be an integer"),
-    (lambda rows, _: rows.update(data="text"), "data must be bytes, got str"),
-    (lambda rows, _: rows.pop("layout"), r"expected \{count, layout, data\}"),
-    (lambda rows, _: rows.update(layout=7), "layout must be text, got int"),
-    (_set_layout_entry(0, "agents:int32"), "is not name:dtype:shape"),
-    (_set_layout_entry(0, "agent:int32:"), "names no per-agent field of Steps"),
-    (_set_layout_entry(0, "agents:int16:"), "dtype must be one of"),
-    (_set_layout_entry(0, "agents.x:int32:"), "agents is an array: expected no .key"),
-    (_set_layout_entry(1, "observations:uint8:3x5"), "observations is a map: expected field.key"),
-    (_set_layout_entry(1, "observations.a/b:uint8:3x5"), "the key must be"),
-    (_set_layout_entry(1, "observations.camera:uint8:3x-5"), "the row shape must be"),
-    (_set_layout_entry(1, "observations.camera:uint8:1x1x1x1x1"), "the row shape must be"),
-    (_set_layout_entry(1, "observations.lidar:float32:7"), "names observations.lidar twice"),
-    (_set_layout_entry(4, "agents:int32:"), "names agents twice"),
-    (lambda rows, _: rows.update(layout=rows["layout"].rsplit(";", 1)[0]),
-     r"layout lacks \['metrics'\]"),
-    (lambda rows, _: rows.update(layout=";".join([rows["layout"]] * 6)), "exceeds the limit"),
-    (lambda _, body: body.update(reward=body["rows"]), "both rows and the row-packed"),
-    (lambda _, body: body.pop("server"), r"lacks field\(s\) \['server'\]"),
-], ids=["short data", "count", "negative count", "data type", "rows keys", "layout type",
-        "entry form", "field", "dtype", "key on array", "map without key", "bad key",
-        "negative size", "too many dims", "duplicate key", "duplicate field", "missing field",
-        "too many entries", "both forms", "other field"])
-def test_malformed_rows_are_refused_saying_what_was_expected(change, expected):
-    with pytest.raises(DecodeError, match=expected) as err:
-        decode(_tampered_rows(change))
-    assert str(err.value).startswith("steps")
-
-
-def test_row_packed_bool_holding_a_byte_other_than_0_or_1_is_refused():
-    layout = frame_of(steps_with_every_dtype())[3]["rows"]["layout"].split(";")
-    bool_arrays = [entry.split(":")[0] for entry in layout if ":bool:" in entry]
-    assert bool_arrays == ["terminated", "truncated", "late"]
-
-    def corrupt_terminated(rows, _body):
-        # terminated's rows follow agents, the observations and reward, each padded to 8.
-        offset = sum(-(-size // 8) * 8 for size in (3 * 4, 3 * 15, 3 * 7 * 4, 3 * 8))
-        data = bytearray(rows["data"])
-        assert data[offset:offset + 3] == b"\x01\x00\x01"
-        data[offset + 1] = 2
-        rows["data"] = bytes(data)
-    with pytest.raises(DecodeError, match="steps.rows: terminated: bool array holds bytes"):
-        decode(_tampered_rows(corrupt_terminated))
-
-
-def test_layouts_are_checked_once_and_kept_within_a_bound(monkeypatch):
-    monkeypatch.setattr(codec, "_kept_layouts", {})
-    monkeypatch.setattr(codec, "MAX_KEPT_LAYOUTS", 3)
-    for width in range(1, 7):   # six distinct layouts, each decoded twice
-        steps = sample_steps()
-        object.__setattr__(steps, "observations", {"lidar": np.zeros((3, width), np.float32)})
-        for _ in range(2):
-            assert decode(encode(steps)).observations["lidar"].shape == (3, width)
-    assert len(codec._kept_layouts) == 3
 
 
 @pytest.mark.parametrize("bad", [ACTION_COUNT, -1])
@@ -798,7 +677,7 @@ def test_steps_whose_reward_length_differs_from_agents_is_refused():
 
 def test_steps_observation_without_a_row_per_agent_is_refused():
     steps = sample_steps()
-    frame = frame_of(steps, FIELD_FORM_MINOR)
+    frame = frame_of(steps)
     frame[3]["observations"]["lidar"] = wire_array_value(np.zeros((2, 4), np.float32))
     with pytest.raises(DecodeError, match=r"'lidar' must have 3 rows.*\(2, 4\)"):
         decode(pack(frame))

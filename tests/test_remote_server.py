@@ -29,10 +29,8 @@ from overtake.protocol.messages import (
     Actions,
     ErrorReply,
     JoinRequest,
-    Opened,
     OpenRequest,
     StatusReply,
-    Steps,
     WorldFrame,
 )
 
@@ -426,43 +424,6 @@ def test_spoofed_actions_on_a_trainers_key_do_not_break_its_steps(start_server):
             assert victim.steps.round == 4
     finally:
         victim.close()
-
-
-@pytest.mark.timeout(60)
-def test_each_trainer_gets_steps_in_the_form_its_protocol_version_reads(start_server):
-    """Protocol 1.2 row-packs Steps; a 1.1 trainer cannot read that and must get them field
-    by field. The server answers each in the version its requests were written in."""
-    server = start_server("e2e-versions")
-
-    def as_version(payload: bytes, minor: int) -> bytes:
-        frame = msgpack.unpackb(payload, raw=False)
-        frame[1] = minor  # the header a peer of that version writes
-        return msgpack.packb(frame, use_bin_type=True)
-
-    received = {}
-    with RawClient(server.endpoint) as raw:
-        for minor in (1, 2):
-            trainer = f"speaks-1-{minor}"
-            raw.token(keys.trainer_alive(trainer))
-            inbox = raw.collect(keys.trainer_steps(trainer, server.name))
-            opened = raw.request(server.name, as_version(
-                codec.encode(_open(trainer, seed=5), minor), minor))
-            assert isinstance(opened, Opened), opened
-            raw.put(keys.server_actions(server.name, trainer), as_version(codec.encode(Actions(
-                trainer=trainer, ticket=opened.ticket, group=opened.group, round=0,
-                agents=opened.steps.agents, actions=np.array([1]))), minor))
-            _, payload = inbox.get(timeout=5)
-            received[minor] = (msgpack.unpackb(payload, raw=False)[3], codec.decode(payload))
-    old_body, old_steps = received[1]
-    new_body, new_steps = received[2]
-    assert "rows" not in old_body and "reward" in old_body and "observations" in old_body
-    assert "rows" in new_body and "reward" not in new_body and "observations" not in new_body
-    # The same seed and action: the same round, whichever form it came in.
-    assert isinstance(old_steps, Steps) and old_steps.round == new_steps.round == 1
-    for name in old_steps.observations:
-        np.testing.assert_array_equal(old_steps.observations[name], new_steps.observations[name])
-    np.testing.assert_array_equal(old_steps.reward, new_steps.reward)
-    np.testing.assert_array_equal(old_steps.action_mask, new_steps.action_mask)
 
 
 # --- 10. two servers on one Zenoh network ------------------------------------------------------
