@@ -1,0 +1,152 @@
+"""A/B of two versions of the server: remote step latency against each, measured together.
+
+On a shared 2-vCPU VM the remote step's median drifts by 10-20% between runs of the same code,
+so a change worth a few per cent cannot be seen by comparing two runs. Here one process steps
+two single-arena remote environments, one against a server running the working tree's code and
+one against a server running another git revision's (checked out in a temporary worktree and
+put first on that server's PYTHONPATH), in alternating chunks with the order flipped every
+round: both see the same drift. The client is this process's code for both.
+
+    .venv/bin/python -m bench.bench_server_ab --baseline REV [--rounds 30] [--repeats 3]
+
+Each repeat starts both servers afresh and prints both medians and their difference
+(baseline - working tree: positive when the working tree is faster).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import tyro
+
+from bench.bench_remote import ROOT, free_port, start_server, stop_process
+
+# The folders the project maps into overtake.* (pyproject.toml's package-dir).
+PACKAGE_FOLDERS = ("protocol", "server", "client", "trainers")
+SIDES = ("baseline", "working tree")
+
+
+@dataclass(frozen=True)
+class ServerABConfig:
+    baseline: str
+    """The git revision whose server is compared with the working tree's."""
+    rounds: int = 30
+    """Alternating chunks per server and repeat."""
+    chunk: int = 200
+    """Steps per chunk."""
+    warmup_steps: int = 200
+    repeats: int = 3
+    preset: str = "min2018"
+    seed: int = 0
+    json: Path | None = None
+
+
+def checkout(revision: str, where: Path) -> Path:
+    """``revision``'s package folders under ``where``/overtake, for PYTHONPATH=``where``."""
+    tree = where / "tree"
+    subprocess.run(["git", "worktree", "add", "--detach", "--quiet", str(tree), revision],
+                   cwd=ROOT, check=True)
+    package = where / "path" / "overtake"
+    package.mkdir(parents=True)
+    for folder in PACKAGE_FOLDERS:
+        (package / folder).symlink_to(tree / folder, target_is_directory=True)
+    return where / "path"
+
+
+def measure(config: ServerABConfig, baseline_path: Path) -> dict[str, Any]:
+    import gymnasium
+    import numpy as np
+
+    import overtake.client  # noqa: F401  (registers the environments)
+    from overtake.client.remote import RemoteConfig
+
+    endpoints = {side: f"tcp/127.0.0.1:{free_port()}" for side in SIDES}
+    servers: dict[str, Any] = {}
+    envs: dict[str, Any] = {}
+    saved_path = os.environ.get("PYTHONPATH")
+    try:
+        for side in SIDES:
+            if side == "baseline":
+                os.environ["PYTHONPATH"] = os.pathsep.join(
+                    p for p in (str(baseline_path), saved_path) if p)
+            servers[side] = start_server(endpoints[side], 60.0)
+            if saved_path is None:
+                os.environ.pop("PYTHONPATH", None)
+            else:
+                os.environ["PYTHONPATH"] = saved_path
+            envs[side] = gymnasium.make("overtake/RemoteHighway-v0", preset=config.preset,
+                                        remote=RemoteConfig(connect=(endpoints[side],)))
+        rngs = {side: np.random.default_rng(config.seed) for side in SIDES}
+        times: dict[str, list[float]] = {side: [] for side in SIDES}
+        for env in envs.values():
+            env.reset(seed=config.seed)
+
+        def drive(side: str, count: int, timed: bool) -> None:
+            env, rng, clock = envs[side], rngs[side], time.perf_counter
+            for _ in range(count):
+                action = int(rng.integers(5))
+                start = clock()
+                _, _, terminated, truncated, _ = env.step(action)
+                if timed:
+                    times[side].append(clock() - start)
+                if terminated or truncated:
+                    env.reset()
+
+        for side in SIDES:
+            drive(side, config.warmup_steps, timed=False)
+        for index in range(config.rounds):
+            for side in (SIDES if index % 2 == 0 else SIDES[::-1]):
+                drive(side, config.chunk, timed=True)
+    finally:
+        for env in envs.values():
+            env.close()
+        for server in servers.values():
+            stop_process(server)
+    p50 = {side: float(np.median(values) * 1e3) for side, values in times.items()}
+    return {"p50_ms": p50, "steps": len(times["baseline"]),
+            "baseline_minus_working_tree_ms": p50["baseline"] - p50["working tree"]}
+
+
+def main(config: ServerABConfig) -> dict[str, Any]:
+    where = Path(tempfile.mkdtemp(prefix="overtake-ab-"))
+    results = []
+    try:
+        baseline_path = checkout(config.baseline, where)
+        print(f"baseline {config.baseline} from {where / 'tree'}; working tree {ROOT}")
+        for repeat in range(config.repeats):
+            result = measure(config, baseline_path)
+            results.append(result)
+            print(f"repeat {repeat + 1}: baseline {result['p50_ms']['baseline']:.3f} ms, "
+                  f"working tree {result['p50_ms']['working tree']:.3f} ms (p50 of "
+                  f"{result['steps']} steps each): "
+                  f"{1e3 * result['baseline_minus_working_tree_ms']:+.1f} us", flush=True)
+    finally:
+        subprocess.run(["git", "worktree", "remove", "--force", str(where / "tree")], cwd=ROOT,
+                       check=False)
+        shutil.rmtree(where, ignore_errors=True)
+    differences = sorted(r["baseline_minus_working_tree_ms"] for r in results)
+    print(f"median difference {1e3 * differences[len(differences) // 2]:+.1f} us "
+          f"(baseline - working tree; from {1e3 * differences[0]:+.1f} to "
+          f"{1e3 * differences[-1]:+.1f})")
+    report = {"config": {**config.__dict__, "json": None if config.json is None
+                         else str(config.json)}, "results": results}
+    if config.json is not None:
+        config.json.parent.mkdir(parents=True, exist_ok=True)
+        config.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+    return report
+
+
+def cli() -> None:
+    main(tyro.cli(ServerABConfig, description=__doc__))
+
+
+if __name__ == "__main__":
+    cli()
