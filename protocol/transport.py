@@ -156,6 +156,13 @@ class TransportConfig:
 
     def zenoh_config(self) -> zenoh.Config:
         self.security.check(self.listen, self.connect)
+        if self.mode == "client" and self.security.credentials_file is not None:
+            # The commands share one set of security options; on a client this one would be
+            # silently ignored, and its user would believe the link guarded.
+            raise ConnectError(f"--credentials-file {self.security.credentials_file} lists the "
+                               "users a listening server or router admits; this command only "
+                               "connects. To authenticate, give --user NAME with "
+                               f"--password-file PATH (or ${PASSWORD_ENV})")
         conf = zenoh.Config()
         conf.insert_json5("mode", json.dumps(self.mode))
         conf.insert_json5("scouting/multicast/enabled", "false")

@@ -249,6 +249,15 @@ def test_security_options_are_refused_with_the_option_named(tmp_path: Path, monk
     monkeypatch.setenv(USER_ENV, "bob")
     monkeypatch.setenv(PASSWORD_ENV, "from-env")
     assert SecurityConfig().usrpwd() == ("bob", "from-env")
+    # A client has nobody to admit: the listener's option is refused, saying what to use.
+    credentials = tmp_path / "credentials.txt"
+    credentials.write_text("alice:secret\n")
+    with pytest.raises(errors.ConnectError, match="only connects.*--user NAME with "
+                                                  "--password-file"):
+        TransportConfig(mode="client", connect=("tcp/127.0.0.1:1",),
+                        security=SecurityConfig(credentials_file=credentials)).zenoh_config()
+    TransportConfig(mode="peer", listen=("tcp/127.0.0.1:1",),
+                    security=SecurityConfig(credentials_file=credentials)).zenoh_config()
     # The password never sits in a configuration (they are written to run.json and checkpoints).
     assert "password" not in {f for f in SecurityConfig.__dataclass_fields__}
 
