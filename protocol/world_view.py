@@ -46,22 +46,47 @@ def lidar_hits(distances_m: np.ndarray, origin_m: np.ndarray | tuple[float, floa
     return np.asarray(origin_m) + distances_m[:, None] * _ray_directions(distances_m.shape[0])
 
 
-def world_blueprint(server: str, arena: int) -> Any:
+def _top_down(server: str, arena: int, name: str) -> Any:
     import rerun.blueprint as rrb
 
     root = f"/world/{server}/arena{arena}"
+    return rrb.Spatial2DView(origin=root, name=name, contents=[
+        f"{root}/road/**", f"{root}/cars", f"{root}/agent*/lidar/**"])
+
+
+def _arena_layout(server: str, arena: int, name: str | None = None) -> Any:
+    """One arena: the road from above, and agent 0's camera and scalars beside it."""
+    import rerun.blueprint as rrb
+
+    root = f"/world/{server}/arena{arena}"
+    return rrb.Horizontal(
+        _top_down(server, arena, "top-down"),
+        rrb.Vertical(
+            rrb.Spatial2DView(origin=f"{root}/agent0/camera", name="agent 0 camera"),
+            rrb.TimeSeriesView(origin=f"{root}/agent0", name="agent 0",
+                               contents=[f"{root}/agent0/speed_kmh", f"{root}/agent0/reward",
+                                         f"{root}/agent0/action",
+                                         f"{root}/agent0/reward_terms/**"]),
+            row_shares=[2, 1]),
+        column_shares=[2, 1], name=name)
+
+
+def world_blueprint(server: str, arena: int) -> Any:
+    """A spectator's layout of one arena."""
+    import rerun.blueprint as rrb
+
+    return rrb.Blueprint(_arena_layout(server, arena), rrb.TimePanel(timeline="round"),
+                         collapse_panels=True)
+
+
+def server_blueprint(server: str, arenas: list[int]) -> Any:
+    """A server's layout: every arena from above in a grid, then a tab per arena."""
+    import rerun.blueprint as rrb
+
     return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Spatial2DView(origin=root, name="top-down", contents=[
-                f"{root}/road/**", f"{root}/cars", f"{root}/agent*/lidar/**"]),
-            rrb.Vertical(
-                rrb.Spatial2DView(origin=f"{root}/agent0/camera", name="agent 0 camera"),
-                rrb.TimeSeriesView(origin=f"{root}/agent0", name="agent 0",
-                                   contents=[f"{root}/agent0/speed_kmh", f"{root}/agent0/reward",
-                                             f"{root}/agent0/action",
-                                             f"{root}/agent0/reward_terms/**"]),
-                row_shares=[2, 1]),
-            column_shares=[2, 1]),
+        rrb.Tabs(rrb.Grid(*(_top_down(server, arena, f"arena {arena}") for arena in arenas),
+                          name="all arenas"),
+                 *(_arena_layout(server, arena, f"arena {arena}") for arena in arenas)),
         rrb.TimePanel(timeline="round"), collapse_panels=True)
 
 

@@ -15,13 +15,16 @@ from pathlib import Path
 
 from overtake.protocol.messages import WorldFrame
 from overtake.protocol.recording import Recording, RecordingConfig, open_recording
-from overtake.protocol.world_view import WorldRecording
+from overtake.protocol.world_view import WorldRecording, server_blueprint
 
 log = logging.getLogger("overtake.server.recorder")
 
 # Frames waiting for the logging thread; beyond this they are dropped (about a second of a
 # 64-arena server at 16 rounds/s).
 QUEUE_FRAMES = 1024
+# The blueprint lays out this many arenas (the first recorded); Rerun's own layout shows the
+# rest, and a tab per arena beyond a few dozen would be of no use anyway.
+BLUEPRINT_ARENAS = 16
 
 
 def default_rrd(server: str) -> Path:
@@ -41,6 +44,7 @@ class ServerRecorder:
         self.view = WorldRecording(recording.stream)
         self.logged = 0
         self.dropped = 0
+        self.blueprint_arenas: list[int] = []
         self._queue: queue.Queue[WorldFrame | None] = queue.Queue(maxsize=QUEUE_FRAMES)
         self._thread = threading.Thread(target=self._run, name="overtake-recorder", daemon=True)
         self._thread.start()
@@ -75,11 +79,22 @@ class ServerRecorder:
             if frame is None:
                 return
             try:
+                if (frame.arena not in self.blueprint_arenas
+                        and len(self.blueprint_arenas) < BLUEPRINT_ARENAS):
+                    self._lay_out(frame.server, frame.arena)
                 self.view.log(frame)
                 self.logged += 1
             except Exception:
                 # A frame Rerun refuses is that frame's loss, not the recording's.
                 log.exception("could not log a world frame of arena %d", frame.arena)
+
+    def _lay_out(self, server: str, arena: int) -> None:
+        """A blueprint with ``arena`` added (arenas open while the server runs). It becomes
+        the default, not the active one: a viewer's own arrangement is left as it is."""
+        self.blueprint_arenas.append(arena)
+        self.recording.stream.send_blueprint(
+            server_blueprint(server, sorted(self.blueprint_arenas)), make_active=False,
+            make_default=True)
 
     def close(self, timeout_s: float = 30.0) -> None:
         """Log what is queued (for at most ``timeout_s``), then close the recording (an .rrd

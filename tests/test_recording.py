@@ -67,6 +67,9 @@ def test_server_records_its_arenas_with_reward_terms_decimated(start_server, tmp
             assert terms[name][round_][0] == pytest.approx(value), (round_, name)
     assert any(terms["lane_change"][r][0] != 0 for r in hits)   # the lane change was logged
     assert sum(v[0] for v in terms["speed"].values()) > 0
+    # The recording lays its arena out (a tab with the road, agent 0's camera and scalars).
+    stores = reader.blueprints()
+    assert stores and {root, f"{root}/agent0/camera"} <= blueprint_texts(reader, stores[-1])
 
 
 def listening_addresses(port: int) -> set[str]:
@@ -134,9 +137,9 @@ def test_recording_config_refuses_no_decimation():
         RecordingConfig(record_every=0)
 
 
-def small_frame(round_: int) -> WorldFrame:
+def small_frame(round_: int, arena: int = 0) -> WorldFrame:
     return WorldFrame(
-        server="s", group=0, arena=0, round=round_, sim_time_s=0.4 * round_, lane_count=5,
+        server="s", group=0, arena=arena, round=round_, sim_time_s=0.4 * round_, lane_count=5,
         lane_width_m=3.5, agent_kind=3, agent_active=np.ones(1, bool), x_m=np.zeros(2),
         y_m=np.ones(2), speed_mps=np.zeros(2, np.float32), kind=np.array([3, 0], np.int8),
         active=np.ones(2, bool), observations={}, reward=np.ones(1),
@@ -173,3 +176,44 @@ def test_server_recorder_drops_and_counts_what_it_cannot_keep_up_with(tmp_path, 
     assert logged_rounds == sorted(logged_rounds)            # in order, none twice
     reader = rr.chunk.RrdReader(str(tmp_path / "s.rrd"))
     assert {c.entity_path for c in reader.stream().to_chunks()} >= {"/world/s/arena0/cars"}
+
+
+def blueprint_texts(reader, store) -> set[str]:
+    """Every text value in one blueprint store of an .rrd (view names, origins, ...)."""
+    texts: set[str] = set()
+
+    def collect(value) -> None:
+        if isinstance(value, str):
+            texts.add(value)
+        elif isinstance(value, (list, tuple)):
+            for item in value:
+                collect(item)
+        elif isinstance(value, dict):
+            for item in value.values():
+                collect(item)
+    for chunk in reader.stream(store=store).to_chunks():
+        for column in chunk.to_record_batch().columns:
+            collect(column.to_pylist())
+    return texts
+
+
+def test_server_recording_lays_out_each_arena_as_it_appears(tmp_path, monkeypatch):
+    from overtake.server import recorder as recorder_module
+
+    monkeypatch.setattr(recorder_module, "BLUEPRINT_ARENAS", 2)
+    recorder = recorder_module.ServerRecorder(RecordingConfig(sink="file",
+                                                              rrd=tmp_path / "s.rrd"), "s")
+    for round_ in range(3):
+        for arena in (7, 3, 9):   # 9: beyond the blueprint's arenas
+            recorder.offer(small_frame(round_, arena))
+    recorder.close()
+    reader = rr.chunk.RrdReader(str(tmp_path / "s.rrd"))
+    stores = reader.blueprints()
+    assert len(stores) == 2                     # one more each time an arena appeared
+    first, last = (blueprint_texts(reader, store) for store in stores)
+    assert "/world/s/arena7" in first and "/world/s/arena3" not in first
+    assert {"/world/s/arena7", "/world/s/arena3", "arena 3", "arena 7", "all arenas",
+            "/world/s/arena3/agent0/camera"} <= last
+    assert not any("arena9" in text or text == "arena 9" for text in last)
+    # Arena 9 is recorded all the same.
+    assert "/world/s/arena9/cars" in {c.entity_path for c in reader.stream().to_chunks()}
