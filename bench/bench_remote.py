@@ -448,16 +448,17 @@ def make_env(env_id: str, arenas: int, **kwargs: Any) -> Any:
                               **kwargs)
 
 
-def start_server(endpoint: str, timeout_s: float,
-                 extra: tuple[str, ...] = ()) -> subprocess.Popen[bytes]:
-    """An ``overtake.server`` subprocess (``extra``: more flags), returned once it answers a
-    status request."""
+def start_server(endpoint: str, timeout_s: float, extra: tuple[str, ...] = (),
+                 env: dict[str, str] | None = None) -> subprocess.Popen[bytes]:
+    """An ``overtake.server`` subprocess (``extra``: more flags; ``env``: its environment,
+    by default this process's), returned once it answers a status request."""
     from overtake.client.remote import Connection, RemoteConfig
     from overtake.protocol import errors
 
     proc = subprocess.Popen(
         [sys.executable, "-m", "overtake.server", "--listen", endpoint, "--name", SERVER_NAME,
-         "--log-level", "warning", "--max-arenas", "256", *extra], stdout=subprocess.DEVNULL)
+         "--log-level", "warning", "--max-arenas", "256", *extra], stdout=subprocess.DEVNULL,
+        env=env)
     connection = None
     try:
         deadline = time.monotonic() + timeout_s

@@ -20,14 +20,14 @@ import os
 import shutil
 import subprocess
 import tempfile
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import tyro
 
-from bench.bench_remote import ROOT, free_port, start_server, stop_process
+from bench.bench_remote import (REMOTE_ENV_ID, ROOT, Driver, free_port, make_env,
+                                start_server, stop_process)
 
 # The folders the project maps into overtake.* (pyproject.toml's package-dir).
 PACKAGE_FOLDERS = ("protocol", "server", "client", "trainers")
@@ -62,56 +62,34 @@ def checkout(revision: str, where: Path) -> Path:
 
 
 def measure(config: ServerABConfig, baseline_path: Path) -> dict[str, Any]:
-    import gymnasium
     import numpy as np
 
-    import overtake.client  # noqa: F401  (registers the environments)
     from overtake.client.remote import RemoteConfig
 
     endpoints = {side: f"tcp/127.0.0.1:{free_port()}" for side in SIDES}
+    # The baseline's server finds that revision's overtake first on its path.
+    path = os.pathsep.join(p for p in (str(baseline_path), os.environ.get("PYTHONPATH")) if p)
+    environments = {"baseline": {**os.environ, "PYTHONPATH": path}, "working tree": None}
     servers: dict[str, Any] = {}
-    envs: dict[str, Any] = {}
-    saved_path = os.environ.get("PYTHONPATH")
+    drivers: dict[str, Driver] = {}
     try:
         for side in SIDES:
-            if side == "baseline":
-                os.environ["PYTHONPATH"] = os.pathsep.join(
-                    p for p in (str(baseline_path), saved_path) if p)
-            servers[side] = start_server(endpoints[side], 60.0)
-            if saved_path is None:
-                os.environ.pop("PYTHONPATH", None)
-            else:
-                os.environ["PYTHONPATH"] = saved_path
-            envs[side] = gymnasium.make("overtake/RemoteHighway-v0", preset=config.preset,
-                                        remote=RemoteConfig(connect=(endpoints[side],)))
-        rngs = {side: np.random.default_rng(config.seed) for side in SIDES}
-        times: dict[str, list[float]] = {side: [] for side in SIDES}
-        for env in envs.values():
-            env.reset(seed=config.seed)
-
-        def drive(side: str, count: int, timed: bool) -> None:
-            env, rng, clock = envs[side], rngs[side], time.perf_counter
-            for _ in range(count):
-                action = int(rng.integers(5))
-                start = clock()
-                _, _, terminated, truncated, _ = env.step(action)
-                if timed:
-                    times[side].append(clock() - start)
-                if terminated or truncated:
-                    env.reset()
-
-        for side in SIDES:
-            drive(side, config.warmup_steps, timed=False)
+            servers[side] = start_server(endpoints[side], 60.0, env=environments[side])
+            drivers[side] = Driver(make_env(REMOTE_ENV_ID, 1, preset=config.preset,
+                                            remote=RemoteConfig(connect=(endpoints[side],))),
+                                   arenas=1, seed=config.seed, vector=False)
+        for driver in drivers.values():
+            driver.drive(config.warmup_steps, timed=False)
         for index in range(config.rounds):
             for side in (SIDES if index % 2 == 0 else SIDES[::-1]):
-                drive(side, config.chunk, timed=True)
+                drivers[side].drive(config.chunk)
     finally:
-        for env in envs.values():
-            env.close()
+        for driver in drivers.values():
+            driver.env.close()
         for server in servers.values():
             stop_process(server)
-    p50 = {side: float(np.median(values) * 1e3) for side, values in times.items()}
-    return {"p50_ms": p50, "steps": len(times["baseline"]),
+    p50 = {side: float(np.median(d.step_times) * 1e3) for side, d in drivers.items()}
+    return {"p50_ms": p50, "steps": drivers["baseline"].steps,
             "baseline_minus_working_tree_ms": p50["baseline"] - p50["working tree"]}
 
 
