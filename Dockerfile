@@ -21,6 +21,7 @@ WORKDIR /src
 FROM base AS server
 COPY pyproject.toml README.md LICENSE ./
 COPY protocol protocol
+COPY viz viz
 COPY server server
 COPY client client
 COPY trainers trainers
@@ -43,6 +44,7 @@ FROM base AS trainer
 RUN pip install torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu
 COPY pyproject.toml README.md LICENSE ./
 COPY protocol protocol
+COPY viz viz
 COPY server server
 COPY client client
 COPY trainers trainers

@@ -47,7 +47,7 @@ class RecordingBenchConfig:
 
 
 def main(config: RecordingBenchConfig) -> dict[str, Any]:
-    from overtake.protocol.recording import RecordingConfig
+    from overtake.viz.recording import RecordingConfig
     from overtake.server.service import SERVER_RECORD_EVERY
     from overtake.trainers.train import TRAINER_RECORD_EVERY
 

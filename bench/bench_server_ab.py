@@ -30,7 +30,7 @@ from bench.bench_remote import (REMOTE_ENV_ID, ROOT, Driver, free_port, make_env
                                 start_server, stop_process)
 
 # The folders the project maps into overtake.* (pyproject.toml's package-dir).
-PACKAGE_FOLDERS = ("protocol", "server", "client", "trainers")
+PACKAGE_FOLDERS = ("protocol", "viz", "server", "client", "trainers")
 SIDES = ("baseline", "working tree")
 
 

@@ -62,7 +62,7 @@ THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"
 BARS: dict[int, float] = {1: 20.0, 64: 100.0}
 QUICK_DIVISOR = 10
 # overtake's code folders, whose uncommitted changes the report flags.
-SOURCE_FOLDERS = ("protocol", "server", "client")
+SOURCE_FOLDERS = ("protocol", "viz", "server", "client")
 
 
 @dataclass(frozen=True)

@@ -22,12 +22,12 @@ from overtake.protocol import (HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, ProtocolEr
                                register_environments)
 
 from overtake.protocol.transport import SecurityConfig
+from overtake.protocol.vocabulary import METRIC_FIELDS
 
 from .drivers import RandomDriver, RuleDriver, RuleDriverConfig
 from .remote import RemoteConfig
 
-METRIC_COLUMNS = ("avg_speed_kmh", "lane_changes", "overtakes", "collisions", "emergency_brakes",
-                  "distance_m", "return", "decisions")
+METRIC_COLUMNS = METRIC_FIELDS
 
 
 @dataclass(frozen=True)

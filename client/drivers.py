@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-KEEP, CRUISE_UP, CRUISE_DOWN, LANE_LEFT, LANE_RIGHT = range(5)
-_EGO_CRUISE_TARGET = 1  # index of the cruise target (m/s) in the ego vector
+from overtake.protocol.vocabulary import (CRUISE_UP, EGO_CRUISE_TARGET, KEEP, LANE_LEFT,
+                                          LANE_RIGHT)
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,7 +76,7 @@ class RuleDriver:
         room_right = np.where(clear[:, 0] & (action_mask[:, LANE_RIGHT] > 0), free[:, 0], -np.inf)
         go_left = blocked & (room_left >= own + cfg.better_by_m) & (room_left >= room_right)
         go_right = blocked & ~go_left & (room_right >= own + cfg.better_by_m)
-        below_limit = ego[:, _EGO_CRUISE_TARGET] < cfg.cruise_max_kmh / 3.6 - 1e-3
+        below_limit = ego[:, EGO_CRUISE_TARGET] < cfg.cruise_max_kmh / 3.6 - 1e-3
         action = np.where(below_limit, CRUISE_UP, KEEP)
         action = np.where(go_right, LANE_RIGHT, action)
         return np.where(go_left, LANE_LEFT, action).astype(np.int64)

@@ -21,8 +21,8 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from overtake.protocol.envs import arena_seeds
-from overtake.protocol.messages import (ACTION_COUNT, DEFAULT_ACTION, JoinRequest,
-                                        OpenRequest, Scalar, Steps)
+from overtake.protocol.messages import JoinRequest, OpenRequest, Scalar, Steps
+from overtake.protocol.vocabulary import ACTION_COUNT, DEFAULT_ACTION
 
 from .remote import ArenaGroup, Connection, RemoteConfig
 

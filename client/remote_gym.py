@@ -22,7 +22,8 @@ from gymnasium import spaces
 from gymnasium.vector.utils import batch_space
 
 from overtake.protocol.envs import ReportsEpisodeLength, arena_seeds, check_actions
-from overtake.protocol.messages import ACTION_COUNT, BehaviourSpec, OpenRequest, Scalar, Steps
+from overtake.protocol.messages import BehaviourSpec, OpenRequest, Scalar, Steps
+from overtake.protocol.vocabulary import ACTION_COUNT
 
 from .remote import ArenaGroup, Connection, RemoteConfig
 

@@ -18,9 +18,9 @@ from typing import Any
 
 from overtake.protocol import ProtocolError
 
-from overtake.protocol.recording import RecordingConfig, close_recording, open_recording
+from overtake.viz.recording import RecordingConfig, close_recording, open_recording
 from overtake.protocol.transport import SecurityConfig
-from overtake.protocol.world_view import WorldRecording, world_blueprint
+from overtake.viz.world_view import WorldRecording, world_blueprint
 
 from .remote import RemoteConfig
 from .spectator import Spectator

@@ -1,7 +1,10 @@
 """The Gymnasium ids of overtake's environments, registered with string entry points.
 
-Both ``overtake.server`` and ``overtake.client`` call :func:`register_environments` on import;
-the entry points are strings, so registering never imports the simulator into a trainer.
+``import overtake.client`` calls :func:`register_environments` (and so does
+``gym.make("overtake.client:overtake/Highway-v0")``); the entry points are strings, so
+registering never imports the simulator into a trainer. The helpers below are what the
+in-process and the remote environments share: how a seed spreads over arenas, how actions are
+checked, and how the episode length is reported.
 """
 
 from __future__ import annotations
@@ -14,7 +17,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from .messages import ACTION_COUNT
+from .vocabulary import ACTION_COUNT, ACTION_NAMES
 
 HIGHWAY_ENV_ID = "overtake/Highway-v0"
 REMOTE_HIGHWAY_ENV_ID = "overtake/RemoteHighway-v0"
@@ -91,6 +94,6 @@ def check_actions(actions: Any, count: int, *, single: bool) -> np.ndarray:
         wanted = "an integer action" if single else f"integer actions of shape ({count},)"
         raise ValueError(f"expected {wanted} in [0, {ACTION_COUNT}), got {actions!r}")
     if values.size and (values.min() < 0 or values.max() >= ACTION_COUNT):
-        raise ValueError(f"actions must be in [0, {ACTION_COUNT}) (keep, cruise up, cruise down, "
-                         f"lane left, lane right), got {values.tolist()}")
+        raise ValueError(f"actions must be in [0, {ACTION_COUNT}) ({', '.join(ACTION_NAMES)}), "
+                         f"got {values.tolist()}")
     return values.astype(np.int64)

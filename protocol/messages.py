@@ -26,6 +26,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from .errors import DecodeError
+from .vocabulary import ACTION_COUNT, ACTION_NAMES
 
 # The wire contract: protocol version (major, minor). A peer of another major version is
 # refused; a newer minor may add optional fields, which an older peer ignores.
@@ -36,11 +37,6 @@ PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
     ("1.1", "World frames carry each agent's reward terms (reward_terms, reward_term_names); "
             "a 1.0 peer's frames decode with none."),
 )
-
-# Min et al.'s five DAS-level actions: the action space every arena speaks.
-ACTION_NAMES: tuple[str, ...] = ("keep", "cruise_up", "cruise_down", "lane_left", "lane_right")
-ACTION_COUNT = len(ACTION_NAMES)
-DEFAULT_ACTION = 0  # keep: what a late agent's car does (adaptive cruise and lane keeping)
 
 # Sizes beyond these are refused before anything is allocated.
 MAX_FRAME_BYTES = 256 * 2**20

@@ -1,5 +1,6 @@
-"""The overtake simulator: the numpy core (``overtake.server.sim``) and what serves it."""
+"""The overtake simulator: the numpy core (``overtake.server.sim``), the in-process Gymnasium
+environments (``overtake.server.env``) and the Zenoh service around them (``overtake-server``).
 
-from overtake.protocol import register_environments
-
-register_environments()
+Importing it registers nothing and loads nothing but this docstring; ``import overtake.client``
+registers the Gymnasium ids.
+"""

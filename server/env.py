@@ -24,10 +24,9 @@ from gymnasium import spaces
 from gymnasium.vector.utils import batch_space
 
 from overtake.protocol.envs import ReportsEpisodeLength, arena_seeds, check_actions
+from overtake.protocol.vocabulary import ACTION_COUNT, METRIC_FIELDS
 
-from .sim import (ACTION_COUNT, METRIC_FIELDS, REWARD_TERMS, HighwaySim, SimConfig,
-                  make_config)
-from .sim.core import KMH, StepResult
+from .sim import HighwaySim, SimConfig, StepResult, autoreset_round, make_config
 from .sim.render import render_top_down
 
 try:  # Gymnasium >= 1.1 names the autoreset modes; 1.0 only has next-step autoreset.
@@ -46,24 +45,11 @@ def _resolve_config(preset: str, overrides: Mapping[str, Any] | None,
     return make_config(preset, overrides)
 
 
-def observation_space(config: SimConfig) -> spaces.Dict:
-    """The Dict observation space of one agent under ``config``."""
-    items: dict[str, spaces.Space] = {}
-    if config.lidar.enabled:
-        items["lidar"] = spaces.Box(0.0, config.lidar.max_range_m, (config.lidar.ray_count,),
-                                    np.float32)
-    if config.camera.enabled:
-        cam = config.camera
-        shape = (cam.height_px, cam.width_px, 3) if cam.rgb else (cam.height_px, cam.width_px)
-        items["camera"] = spaces.Box(0, 255, shape, np.uint8)
-    lanes = config.road.lane_count
-    cruise_lo, cruise_hi = config.ego.cruise_min_kmh * KMH, config.ego.cruise_max_kmh * KMH
-    # speed, cruise target, lane index, lane count, lane-change progress and direction.
-    # (The lane count's bounds are the configurable range, so no bound pair is degenerate.)
-    low = np.array([0.0, cruise_lo, 0.0, 1.0, 0.0, -1.0], dtype=np.float32)
-    high = np.array([100.0, cruise_hi, lanes - 1, 12.0, 1.0, 1.0], dtype=np.float32)
-    items["ego"] = spaces.Box(low, high, (6,), np.float32)
-    return spaces.Dict(items)
+def observation_space(sim: HighwaySim) -> spaces.Dict:
+    """The Dict observation space of one agent of ``sim``: one Box per sensor."""
+    return spaces.Dict({key: spaces.Box(low=box.low, high=box.high, shape=box.shape,
+                                        dtype=box.dtype)
+                        for key, box in sim.observation_spaces().items()})
 
 
 class HighwayEnv(ReportsEpisodeLength, gym.Env):
@@ -79,7 +65,7 @@ class HighwayEnv(ReportsEpisodeLength, gym.Env):
         self.config = _resolve_config(preset, overrides, config)
         self.render_mode = render_mode
         self.sim = HighwaySim(self.config, num_arenas=1, agents_per_arena=1)
-        self.observation_space = observation_space(self.config)
+        self.observation_space = observation_space(self.sim)
         self.action_space = spaces.Discrete(ACTION_COUNT)
         self.decision_period_s = self.config.episode.decision_period_s
         self.max_episode_steps = self.config.episode.max_decisions
@@ -93,7 +79,7 @@ class HighwayEnv(ReportsEpisodeLength, gym.Env):
         info: dict[str, Any] = {"action_mask": self.sim.action_mask()[0, 0]}
         if result is None:
             info["action_applied"] = -1
-            info["reward_terms"] = {name: 0.0 for name in REWARD_TERMS}
+            info["reward_terms"] = {name: 0.0 for name in self.sim.reward_terms}
             return info
         info["action_applied"] = int(result.action_applied[0, 0])
         info["reward_terms"] = {name: float(v[0, 0]) for name, v in result.reward_terms.items()}
@@ -142,7 +128,7 @@ class HighwayVectorEnv(gym.vector.VectorEnv):
         self.num_envs = num_envs
         self.render_mode = render_mode
         self.sim = HighwaySim(self.config, num_arenas=num_envs, agents_per_arena=1)
-        self.single_observation_space = observation_space(self.config)
+        self.single_observation_space = observation_space(self.sim)
         self.single_action_space = spaces.Discrete(ACTION_COUNT)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.action_space = spaces.MultiDiscrete(np.full(num_envs, ACTION_COUNT))
@@ -168,40 +154,25 @@ class HighwayVectorEnv(gym.vector.VectorEnv):
         n = self.num_envs
         info = {"action_mask": self.sim.action_mask()[:, 0],
                 "action_applied": np.full(n, -1, dtype=np.int64),
-                "reward_terms": {name: np.zeros(n) for name in REWARD_TERMS}}
+                "reward_terms": {name: np.zeros(n) for name in self.sim.reward_terms}}
         return self._observations(), info
 
     def step(self, actions):
         actions = check_actions(actions, self.num_envs, single=False)
-        n = self.num_envs
-        resetting = np.flatnonzero(self._autoreset)
-        stepping = np.flatnonzero(~self._autoreset)
-        if resetting.size:
-            self.sim.reset(resetting)
-        reward = np.zeros(n)
-        terminated = np.zeros(n, dtype=bool)
-        truncated = np.zeros(n, dtype=bool)
-        applied = np.full(n, -1, dtype=np.int64)
-        terms = {name: np.zeros(n) for name in REWARD_TERMS}
-        if stepping.size:
-            result = self.sim.step(actions[stepping][:, None],
-                                   arenas=None if stepping.size == n else stepping)
-            reward[stepping] = result.reward[:, 0]
-            terminated[stepping] = result.terminated[:, 0]
-            truncated[stepping] = result.truncated[:, 0]
-            applied[stepping] = result.action_applied[:, 0]
-            for name, value in result.reward_terms.items():
-                terms[name][stepping] = value[:, 0]
-        info: dict[str, Any] = {"action_mask": self.sim.action_mask()[:, 0],
-                                "action_applied": applied, "reward_terms": terms}
-        ended = terminated | truncated
+        result = autoreset_round(self.sim, actions[:, None], self._autoreset[:, None])
+        info: dict[str, Any] = {
+            "action_mask": self.sim.action_mask()[:, 0],
+            "action_applied": result.action_applied[:, 0],
+            "reward_terms": {name: value[:, 0] for name, value in result.reward_terms.items()}}
+        ended = result.ended[:, 0]
         if ended.any():
             metrics = self.sim.metrics()
             info["metrics"] = {name: np.where(ended, metrics[name][:, 0], 0.0)
                                for name in METRIC_FIELDS}
             info["_metrics"] = ended
         self._autoreset = ended
-        return self._observations(), reward, terminated, truncated, info
+        return (self._observations(), result.reward[:, 0], result.terminated[:, 0],
+                result.truncated[:, 0], info)
 
     def render(self) -> tuple[np.ndarray, ...] | None:
         if self.render_mode == "rgb_array":

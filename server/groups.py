@@ -25,28 +25,29 @@ import numpy as np
 
 from overtake.protocol import errors
 from overtake.protocol.envs import arena_seeds
-from overtake.protocol.messages import (ACTION_COUNT, ACTION_NAMES, DEFAULT_ACTION,
-                                        MAX_FRAME_BYTES, Actions, BehaviourSpec, GroupStatus,
+from overtake.protocol.messages import (MAX_FRAME_BYTES, Actions, BehaviourSpec, GroupStatus,
                                         ObservationSpec, Scalar, Steps, WorldFrame)
+from overtake.protocol.vocabulary import (ACTION_COUNT, ACTION_NAMES, AGENT_KIND,
+                                          DEFAULT_ACTION, METRIC_FIELDS)
 
-from .env import observation_space
-from .sim import (METRIC_FIELDS, PRESETS, REWARD_TERMS, ConfigError, HighwaySim, SimConfig,
+from .sim import (PRESETS, ConfigError, HighwaySim, SimConfig, autoreset_round,
                   make_config)
-from .sim.core import AGENT_KIND
 
 
-def behaviour_spec(config: SimConfig, agents_per_arena: int) -> BehaviourSpec:
+def behaviour_spec(sim: HighwaySim) -> BehaviourSpec:
     """The spec a client needs to rebuild exactly the in-process spaces."""
-    space = observation_space(config)
+    config = sim.config
+    # In the order of the in-process Dict space, which Gymnasium sorts by name.
     observations = tuple(
-        ObservationSpec(name=name, shape=tuple(box.shape), dtype=box.dtype.name,
-                        low=np.asarray(box.low), high=np.asarray(box.high))
-        for name, box in space.spaces.items())
+        ObservationSpec(name=name, shape=box.shape, dtype=box.dtype.name, low=box.low,
+                        high=box.high)
+        for name, box in sorted(sim.observation_spaces().items()))
     return BehaviourSpec(
         name=f"Highway?preset={config.preset}", preset=config.preset, observations=observations,
-        action_branches=(ACTION_COUNT,), action_names=ACTION_NAMES, reward_terms=REWARD_TERMS,
-        metric_fields=METRIC_FIELDS, decision_period_s=config.episode.decision_period_s,
-        max_episode_steps=config.episode.max_decisions, agents_per_arena=agents_per_arena,
+        action_branches=(ACTION_COUNT,), action_names=ACTION_NAMES,
+        reward_terms=sim.reward_terms, metric_fields=METRIC_FIELDS,
+        decision_period_s=config.episode.decision_period_s,
+        max_episode_steps=config.episode.max_decisions, agents_per_arena=sim.agents,
         config_json=json.dumps(dataclasses.asdict(config)))
 
 
@@ -100,9 +101,8 @@ class Group:
         except ValueError as error:
             raise errors.BadConfig(str(error)) from None
         # One trainer's Steps carry all its agents' observations: they must fit in a frame.
-        space = observation_space(config)
         per_agent = sum(int(np.prod(box.shape)) * box.dtype.itemsize
-                        for box in space.spaces.values())
+                        for box in sim.observation_spaces().values())
         step_bytes = per_agent * sim.num_arenas * sim.agents
         if step_bytes > MAX_FRAME_BYTES // 2:
             raise errors.BadConfig(
@@ -111,11 +111,11 @@ class Group:
                 f"{MAX_FRAME_BYTES // 2}: open fewer arenas at once or use smaller images")
         sim.reset(seeds=arena_seeds(seed, len(arena_ids)))
         group = cls(group_id=group_id, server=server, arena_ids=list(arena_ids), preset=preset,
-                    sim=sim, spec=behaviour_spec(config, agents_per_arena))
+                    sim=sim, spec=behaviour_spec(sim))
         group.ended = np.zeros((sim.num_arenas, sim.agents), dtype=bool)
         group.last_reward = np.zeros((sim.num_arenas, sim.agents))
         group.last_applied = np.full((sim.num_arenas, sim.agents), -1, dtype=np.int64)
-        group.last_terms = np.zeros((sim.num_arenas, sim.agents, len(REWARD_TERMS)))
+        group.last_terms = np.zeros((sim.num_arenas, sim.agents, len(sim.reward_terms)))
         # Every car starts off the road; claims put them on.
         for arena in range(sim.num_arenas):
             sim.remove_agents(arena, np.arange(sim.agents))
@@ -235,51 +235,12 @@ class Group:
         late &= ~self.ended
         self.late_agents += int(late.sum())
 
-        present = sim.agents_present()
-        ended = self.ended
-        if not ended.any() and present.all():
-            # The common round: every car on the road, nobody restarting.
-            result = sim.step(actions)
-            terms = np.stack([result.reward_terms[name] for name in REWARD_TERMS], axis=-1)
-            return self._finish_round(result.reward, result.terminated, result.truncated,
-                                      result.action_applied, late, terms, [])
-        reward = np.zeros((arenas, n))
-        terminated = np.zeros((arenas, n), dtype=bool)
-        truncated = np.zeros((arenas, n), dtype=bool)
-        applied = np.full((arenas, n), -1, dtype=np.int64)
-        terms = np.zeros((arenas, n, len(REWARD_TERMS)))
-        respawn: list[tuple[int, np.ndarray]] = []
-        if n == 1:
-            # One agent per arena: the arena restarts whole, exactly as in-process.
-            resetting = np.flatnonzero(ended[:, 0])
-            if resetting.size:
-                sim.reset(resetting)
-            stepping = np.flatnonzero(~ended[:, 0])
-        else:
-            restarting = ended & self.owned()
-            for arena in np.flatnonzero(restarting.any(axis=1)):
-                slots = np.flatnonzero(restarting[arena])
-                sim.remove_agents(int(arena), slots)
-                respawn.append((int(arena), slots))
-            stepping = np.arange(arenas)
-        if stepping.size:
-            result = sim.step(actions[stepping], arenas=None if stepping.size == arenas
-                              else stepping)
-            live = present[stepping] & ~ended[stepping]
-            reward[stepping] = np.where(live, result.reward, 0.0)
-            terminated[stepping] = result.terminated & live
-            truncated[stepping] = result.truncated & live
-            applied[stepping] = np.where(live, result.action_applied, -1)
-            for t, name in enumerate(REWARD_TERMS):
-                terms[stepping, :, t] = np.where(live, result.reward_terms[name], 0.0)
-        return self._finish_round(reward, terminated, truncated, applied, late, terms, respawn)
-
-    def _finish_round(self, reward, terminated, truncated, applied, late, terms,
-                      respawn: list[tuple[int, np.ndarray]]) -> dict[str, Steps]:
-        for arena, slots in respawn:
-            self.sim.respawn_agents(arena, slots)
-        self.ended = (terminated | truncated)
-        self.last_reward, self.last_applied, self.last_terms = reward, applied, terms
+        result = autoreset_round(sim, actions, self.ended & self.owned(),
+                                 sim.agents_present())
+        terms = np.stack([result.reward_terms[name] for name in sim.reward_terms], axis=-1)
+        self.ended = result.ended
+        self.last_reward, self.last_applied, self.last_terms = \
+            result.reward, result.action_applied, terms
         self.round += 1
         self.rounds_done += 1
         self.deadline = None
@@ -288,7 +249,8 @@ class Group:
         self._last_round_t = now
         self.rate_rounds_per_s = 1.0 / dt if self.rounds_done == 1 else \
             0.9 * self.rate_rounds_per_s + 0.1 / dt
-        return self._steps_for_members(reward, terminated, truncated, applied, late, terms)
+        return self._steps_for_members(result.reward, result.terminated, result.truncated,
+                                       result.action_applied, late, terms)
 
     def reset(self, trainer: str, ticket: bytes, arena_indices: tuple[int, ...],
               seeds: tuple[int | None, ...]) -> Steps:
@@ -325,7 +287,7 @@ class Group:
         flags = np.zeros(self.shape, dtype=bool)
         return self._steps(self.members[trainer].slots, self._arena_view(), np.zeros(self.shape),
                            flags, flags, np.full(self.shape, -1, np.int64), flags,
-                           np.zeros(self.shape + (len(REWARD_TERMS),)))
+                           np.zeros(self.shape + (len(self.sim.reward_terms),)))
 
     def _steps_for_members(self, reward, terminated, truncated, applied, late, terms
                            ) -> dict[str, Steps]:
@@ -384,7 +346,7 @@ class Group:
         return WorldFrame(
             server=self.server, group=self.group_id, arena=self.arena_ids[arena],
             round=self.round, sim_time_s=float(st.frame[arena] * sim.dt),
-            lane_count=sim.lane_count, lane_width_m=float(sim.lane_width),
+            lane_count=sim.road.lane_count, lane_width_m=float(sim.road.lane_width_m),
             agent_kind=AGENT_KIND, agent_active=st.active[arena, :n].copy(),
             x_m=st.x_m[arena].astype(np.float64), y_m=st.y_m[arena].astype(np.float64),
             speed_mps=st.speed_mps[arena].astype(np.float32),
@@ -393,4 +355,4 @@ class Group:
             reward=self.last_reward[arena].astype(np.float64),
             action_applied=self.last_applied[arena].astype(np.int64),
             reward_terms=self.last_terms[arena].astype(np.float64),
-            reward_term_names=REWARD_TERMS)
+            reward_term_names=sim.reward_terms)

@@ -14,8 +14,8 @@ import threading
 from pathlib import Path
 
 from overtake.protocol.messages import WorldFrame
-from overtake.protocol.recording import Recording, RecordingConfig, open_recording
-from overtake.protocol.world_view import WorldRecording, server_blueprint
+from overtake.viz.recording import Recording, RecordingConfig, open_recording
+from overtake.viz.world_view import WorldRecording, server_blueprint
 
 log = logging.getLogger("overtake.server.recorder")
 

@@ -27,7 +27,7 @@ from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import (Ack, Actions, CloseRequest, ErrorReply, JoinRequest,
                                         Message, Opened, OpenRequest, ResetRequest,
                                         StatusReply, StatusRequest)
-from overtake.protocol.recording import RecordingConfig
+from overtake.viz.recording import RecordingConfig
 from overtake.protocol.transport import (DEFAULT_ENDPOINT, SecurityConfig, TransportConfig,
                                          open_session, warn_if_unconnected, warn_if_unguarded)
 

@@ -8,8 +8,8 @@ from typing import Any
 import numpy as np
 
 from overtake.server.sim import HighwaySim, make_config
-from overtake.server.sim.config import BEHAVIOURS
-from overtake.server.sim.core import AGENT_KIND, KMH
+from overtake.protocol.vocabulary import AGENT_KIND, BEHAVIOUR_NAMES
+from overtake.server.sim.units import KMH
 
 # The end-to-end fixtures that start (and stop, by PID) servers and trainer processes.
 from remote_support import start_server, start_trainer  # noqa: E402,F401
@@ -22,7 +22,7 @@ STEADY, ROAD_MAX, LANE_CHANGER = range(3)
 # Scripted traffic keeps to its lane and its speed: MOBIL never finds a change worth it and
 # nobody picks a new desired speed, so a scene only moves the way the test says.
 CALM_TRAFFIC: dict[str, Any] = {}
-for _name in BEHAVIOURS:
+for _name in BEHAVIOUR_NAMES:
     CALM_TRAFFIC[f"traffic.{_name}.lane_change_threshold_mps2"] = 10.0
     CALM_TRAFFIC[f"traffic.{_name}.politeness"] = 0.0
     CALM_TRAFFIC[f"traffic.{_name}.speed_change_rate_per_s"] = 0.0

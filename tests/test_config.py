@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
 import pytest
 
-from overtake.server.sim import PRESETS, ConfigError, SimConfig, apply_overrides, make_config
+from overtake.server.sim import (PRESETS, ConfigError, HighwaySim, SimConfig, apply_overrides,
+                                 make_config)
 from overtake.server.sim.config import field_names
 
 
@@ -86,9 +88,32 @@ def test_bad_value_is_refused_naming_the_field_and_what_is_allowed(dotted, value
     assert "expected" in message
 
 
-def test_disabling_both_sensors_is_refused():
-    with pytest.raises(ConfigError, match="at least one sensor"):
-        make_config(overrides={"lidar.enabled": False, "camera.enabled": False})
+def test_disabling_every_sensor_is_refused_naming_them():
+    with pytest.raises(ConfigError, match="at least one sensor") as err:
+        make_config(overrides={"lidar.enabled": False, "camera.enabled": False,
+                               "ego_vector.enabled": False})
+    assert "lidar.enabled / camera.enabled / ego_vector.enabled" in str(err.value)
+
+
+def test_the_observation_holds_the_enabled_sensors_in_order():
+    config = make_config(overrides={"camera.enabled": False})
+    assert [key for key, section in config.sensor_sections().items() if section.enabled] == \
+        ["lidar", "ego_vector"]
+    sim = HighwaySim(make_config(overrides={"lidar.enabled": False}))
+    assert list(sim.observation_spaces()) == ["camera", "ego"]
+
+
+def test_reward_terms_are_the_presets_list_in_its_order():
+    config = make_config(overrides={"reward.terms": ["overtake", "speed"]})
+    sim = HighwaySim(config)
+    sim.reset(seeds=[0])
+    result = sim.step(np.zeros((1, 1), dtype=np.int64))
+    assert list(result.reward_terms) == ["overtake", "speed"]
+    assert float(result.reward[0, 0]) == float(result.reward_terms["overtake"][0, 0]
+                                               + result.reward_terms["speed"][0, 0])
+    for bad in (["speed", "speed"], [], ["speed", "comfort"]):
+        with pytest.raises(ConfigError, match="reward.terms"):
+            make_config(overrides={"reward.terms": bad})
 
 
 def test_nested_overrides_apply_and_leave_everything_else():

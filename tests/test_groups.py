@@ -109,7 +109,7 @@ def test_in_a_shared_arena_only_the_crashed_car_restarts():
     st = group.sim.state
     # Put b's car right behind a's, much faster: it rear-ends a.
     st.lane[0, :2] = st.target_lane[0, :2] = 1
-    st.y_m[0, :2] = 1.5 * group.sim.lane_width
+    st.y_m[0, :2] = 1.5 * group.sim.road.lane_width_m
     st.x_m[0, :2] = [10.0, 5.0]
     st.speed_mps[0, :2] = [10.0, 30.0]
     for member in ("a", "b"):
@@ -183,7 +183,7 @@ def test_a_respawned_car_is_not_an_overtake_for_the_others():
     group.claim("b", 0, 1, fresh=False)
     st = group.sim.state
     st.x_m[0, 1] = st.x_m[0, 0] + 80.0   # b far ahead of a
-    group.sim._start_tracking(st, np.ones_like(st.active))
+    group.sim.tracker.start(st, np.ones_like(st.active))
     group.ended[0, 1] = True             # b restarts behind a on the next round
     for _ in range(2):
         _all_act(group)

@@ -16,7 +16,7 @@ import rerun as rr
 import overtake.client  # noqa: F401  (registers the environments)
 from overtake.protocol import REMOTE_HIGHWAY_ENV_ID
 from overtake.protocol.messages import WorldFrame
-from overtake.protocol.recording import (Recording, RecordingConfig, open_recording,
+from overtake.viz.recording import (Recording, RecordingConfig, open_recording,
                                          viewer_binary)
 
 from remote_support import (free_port, logged_by_round, remote_config, stop_process,

@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 from conftest import (HALF_LENGTH, HALF_WIDTH, LANE_WIDTH, Car, camera_of, keep, lidar_of, place,
                       scripted_sim)
 from overtake.server.sim import HighwaySim, make_config
-from overtake.server.sim.camera import VEHICLE_HEIGHT_M
+from overtake.server.sim.physics import headings
+from overtake.server.sim.sensors.camera import VEHICLE_HEIGHT_M
 
 MAX_RANGE = 80.0
 BARRIER_OFFSET = 1.0
@@ -156,7 +157,7 @@ def test_lidar_turns_with_the_ego_during_a_lane_change():
     straight = lidar_of(sim)
     sim.step(np.array([[3]]))
     sim.step(np.array([[3]]))   # ignored: the change is under way
-    heading = float(sim.headings()[0, 0])
+    heading = float(headings(sim.state, sim.kinds, sim.road.lane_width_m, sim.agents)[0, 0])
     assert heading > math.radians(1.0)
     turned = lidar_of(sim)
     assert straight[0] == pytest.approx(60.0 - HALF_LENGTH, rel=1e-6)

@@ -10,7 +10,7 @@ def _two_agents_in_lane_one(gap_m: float) -> HighwaySim:
     sim.reset(seeds=[0])
     st = sim.state
     st.lane[0, :2] = st.target_lane[0, :2] = 1
-    st.y_m[0, :2] = 1.5 * sim.lane_width
+    st.y_m[0, :2] = 1.5 * sim.road.lane_width_m
     st.x_m[0, :2] = [0.0, gap_m]
     st.speed_mps[0, :2] = 20.0
     return sim

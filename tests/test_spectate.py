@@ -11,7 +11,7 @@ import pytest
 import rerun as rr
 
 import overtake.client  # noqa: F401  (registers the environments)
-from overtake.protocol.recording import RecordingConfig
+from overtake.viz.recording import RecordingConfig
 from overtake.client.spectate import SpectateConfig
 from overtake.client.spectate import main as spectate
 from overtake.protocol import REMOTE_HIGHWAY_ENV_ID

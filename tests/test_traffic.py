@@ -8,8 +8,10 @@ import pytest
 from conftest import (HALF_LENGTH, LANE_WIDTH, ROAD_MAX, STEADY, Car, keep, lane_centre, place,
                       scripted_sim)
 from overtake.server.sim import HighwaySim, make_config
-from overtake.server.sim.core import AGENT_KIND, KMH
-from overtake.server.sim.traffic import idm_accel, min_jerk
+from overtake.protocol.vocabulary import AGENT_KIND
+from overtake.server.sim.units import KMH
+from overtake.server.sim.physics import min_jerk, traffic_overlaps
+from overtake.server.sim.traffic.car_following import idm_accel
 
 MIN_GAP = 2.0
 DECISION_S = 0.4
@@ -93,7 +95,7 @@ def test_heavy_traffic_never_overlaps(overrides):
         before = sim.state.lane.copy()
         result = sim.step(actions)
         moved += int((sim.state.lane[:, 1:] != before[:, 1:]).sum())
-        overlaps = sim.traffic_overlaps()
+        overlaps = traffic_overlaps(sim.state, sim.kinds, sim.agents)
         assert overlaps.shape == (arenas,)
         assert not overlaps.any(), f"traffic overlaps {overlaps.tolist()} at decision {step}"
         ended = np.flatnonzero(result.terminated[:, 0] | result.truncated[:, 0])
@@ -119,9 +121,9 @@ def test_a_passive_agent_is_never_hit():
 
 def test_traffic_overlaps_counts_overlapping_pairs():
     sim = scripted_sim([Car(30.0, 1, 60), Car(32.0, 1, 60), Car(33.0, 1, 60)])
-    assert sim.traffic_overlaps().tolist() == [3]
+    assert traffic_overlaps(sim.state, sim.kinds, sim.agents).tolist() == [3]
     sim.state.active[0, 3] = False
-    assert sim.traffic_overlaps().tolist() == [1]
+    assert traffic_overlaps(sim.state, sim.kinds, sim.agents).tolist() == [1]
 
 
 # --- lane changes, masks and cruise ------------------------------------------------------------
@@ -239,7 +241,7 @@ def test_cars_in_the_own_lane_or_two_lanes_over_do_not_block_a_change():
     sim = scripted_sim([Car(BODY + 0.5, 2, 60.0), Car(0.0, 0, 60.0), Car(0.0, 4, 60.0)],
                        ego_lane=2)
     assert sim.action_mask()[0, 0].tolist() == [1, 1, 1, 1, 1]
-    assert sim.side_clear()[0, 0].tolist() == [True, True]
+    assert sim.lane_changes.side_clear(sim.state)[0, 0].tolist() == [True, True]
 
 
 @pytest.mark.parametrize("lane, blocked", [(0, 4), (4, 3)])

@@ -13,7 +13,7 @@ import pytest
 import torch
 from gymnasium import spaces
 
-from overtake.protocol.recording import RecordingConfig
+from overtake.viz.recording import RecordingConfig
 from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.evaluate import EvalConfig
 from overtake.trainers.evaluate import main as evaluate

@@ -9,7 +9,7 @@ import pytest
 import overtake.client  # noqa: F401
 from overtake.protocol import HIGHWAY_ENV_ID
 from overtake.server.env import HighwayEnv, HighwayVectorEnv
-from overtake.server.sim import METRIC_FIELDS
+from overtake.protocol.vocabulary import METRIC_FIELDS
 
 NUM = 4
 OVERRIDES = {"episode.max_decisions": 15, "traffic.density": "heavy"}

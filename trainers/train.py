@@ -39,7 +39,7 @@ import torch
 
 from overtake.client.drive import make_vector_env, parse_overrides
 from overtake.protocol import ACTION_COUNT, ProtocolError
-from overtake.protocol.recording import RecordingConfig, close_recording, open_recording
+from overtake.viz.recording import RecordingConfig, close_recording, open_recording
 from overtake.protocol.transport import SecurityConfig
 
 from .checkpoint import (CHECKPOINT_NAME, REPLAY_NAME, load_checkpoint, plain_data,

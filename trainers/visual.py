@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from overtake.protocol import ACTION_NAMES
-from overtake.protocol.world_view import lidar_hits
+from overtake.viz.world_view import lidar_hits
 
 LEARNING_SERIES = ("loss", "epsilon", "q_taken", "steps_per_s")
 

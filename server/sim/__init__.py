@@ -1,9 +1,26 @@
-"""The highway simulation core: pure numpy, no network, arrays in and arrays out."""
+"""The highway simulation core: pure numpy, no network, arrays in and arrays out.
 
+Importing it loads numpy and the standard library only. The rooms, each one idea on one
+structure-of-arrays state:
+
+- ``state``: the state every part reads and writes; ``randomness``: each decision's uniforms;
+- ``road``: lanes and rails; ``lane_index``: who is where on the lanes;
+- ``vehicles``: per-kind parameters; ``traffic``: IDM, MOBIL and random manoeuvres;
+- ``assist``: the controlled car's cruise control, emergency braking and lane changes;
+- ``actions``: what each discrete action asks; ``physics``: one frame of motion;
+- ``spawning``: where vehicles appear; ``overtakes``: who passed whom;
+- ``rewards``: the preset's reward terms; ``episodes``: episode length and metrics;
+- ``sensors``: LIDAR, camera, ego vector behind one interface;
+- ``config`` and ``presets``: the data that chooses all of the above;
+- ``core``: :class:`HighwaySim`, which steps the parts in order; ``autoreset``: rounds with
+  Gymnasium's next-step autoreset; ``render``: a top-down picture for people.
+"""
+
+from .autoreset import RoundResult, autoreset_round
 from .config import ConfigError, SimConfig, apply_overrides
-from .core import ACTION_COUNT, ACTION_NAMES, EGO_FIELDS, METRIC_FIELDS, REWARD_TERMS, HighwaySim
-from .presets import PRESETS, make_config
+from .core import HighwaySim, StepResult
+from .presets import DEFAULT_PRESET, PRESETS, make_config
+from .sensors.base import SensorSpace
 
-__all__ = ["ACTION_COUNT", "ACTION_NAMES", "EGO_FIELDS", "METRIC_FIELDS", "PRESETS",
-           "REWARD_TERMS", "ConfigError", "HighwaySim", "SimConfig", "apply_overrides",
-           "make_config"]
+__all__ = ["DEFAULT_PRESET", "PRESETS", "ConfigError", "HighwaySim", "RoundResult", "SensorSpace",
+           "SimConfig", "StepResult", "apply_overrides", "autoreset_round", "make_config"]

@@ -1,4 +1,8 @@
-"""Named presets, one per source paper, each a complete :class:`SimConfig`."""
+"""Named presets: each a complete :class:`SimConfig`, the data that picks the simulation's parts
+and their parameters.
+
+Only Min et al. (2018) exists so far; Ho (2018) and Fayjie et al. (2018) are still to come.
+"""
 
 from __future__ import annotations
 

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .core import AGENT_KIND, HighwaySim
+from overtake.protocol.vocabulary import AGENT_KIND
+
+from .core import HighwaySim
 
 PIXELS_PER_M = 4.0
 VIEW_BEHIND_M = 40.0
@@ -27,7 +29,7 @@ def render_top_down(sim: HighwaySim, arena: int = 0, agent: int = 0) -> np.ndarr
     """(H, W, 3) uint8: the road from above, the road running left to right, centred on
     ``agent``; traffic coloured by behaviour, the watched agent red, other agents yellow."""
     st = sim.state
-    road_width = sim.lane_count * sim.lane_width
+    road_width = sim.road.lane_count * sim.road.lane_width_m
     rail = sim.config.road.barrier_offset_m
     width = int((VIEW_BEHIND_M + VIEW_AHEAD_M) * PIXELS_PER_M)
     height = int((road_width + 2 * (rail + MARGIN_M)) * PIXELS_PER_M)
@@ -41,7 +43,8 @@ def render_top_down(sim: HighwaySim, arena: int = 0, agent: int = 0) -> np.ndarr
     img[on_road] = _ROAD
     rail_rows = (np.abs(wy - (road_width + rail)) < 0.3) | (np.abs(wy + rail) < 0.3)
     img[rail_rows] = _RAIL
-    line_rows = np.abs(wy / sim.lane_width - np.rint(wy / sim.lane_width)) * sim.lane_width < 0.15
+    lane_width = sim.road.lane_width_m
+    line_rows = np.abs(wy / lane_width - np.rint(wy / lane_width)) * lane_width < 0.15
     line_rows &= (wy >= -0.2) & (wy <= road_width + 0.2)
     edge_rows = line_rows & ((np.abs(wy) < 0.3) | (np.abs(wy - road_width) < 0.3))
     dashes = (wx % 12.0) < 6.0
@@ -53,8 +56,8 @@ def render_top_down(sim: HighwaySim, arena: int = 0, agent: int = 0) -> np.ndarr
     kind = st.kind[arena][active].copy()
     column = np.flatnonzero(active)
     kind[column == agent] = _WATCHED_AGENT
-    half_l = sim.k_half_length[np.minimum(kind, AGENT_KIND)]
-    half_w = sim.k_half_width[np.minimum(kind, AGENT_KIND)]
+    half_l = sim.kinds.half_length[np.minimum(kind, AGENT_KIND)]
+    half_w = sim.kinds.half_width[np.minimum(kind, AGENT_KIND)]
     # Per pixel, the last car (in slot order) whose box covers it; the watched agent on top.
     order = np.argsort(kind == _WATCHED_AGENT, kind="stable")
     x, y, kind, half_l, half_w = x[order], y[order], kind[order], half_l[order], half_w[order]

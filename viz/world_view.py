@@ -12,9 +12,8 @@ timelines:
 - ``agent<i>/speed_kmh``, ``agent<i>/reward``, ``agent<i>/action``: scalars;
 - ``agent<i>/reward_terms/<term>``: each term of the reward (frames of protocol 1.1 on).
 
-The traffic's behaviour names are the simulator's (steady, road_max, lane_changer). It lives in
-``protocol`` beside the :class:`WorldFrame` it draws, so that spectators (client) and servers
-draw the same view; it depends on nothing else of the project.
+Traffic is coloured by its behaviour (:data:`~overtake.protocol.vocabulary.BEHAVIOUR_NAMES`).
+Spectators (client) and servers draw the same view of the :class:`WorldFrame` s they share.
 """
 
 from __future__ import annotations
@@ -24,10 +23,13 @@ from typing import Any
 
 import numpy as np
 
-from .messages import WorldFrame
+from overtake.protocol.messages import WorldFrame
+from overtake.protocol.vocabulary import BEHAVIOUR_NAMES, EGO_SPEED
 
-KIND_NAMES = ("steady", "road_max", "lane_changer")
+# One colour per behaviour, in the order of BEHAVIOUR_NAMES: steady blue, road-max green,
+# lane-changer orange.
 KIND_COLOURS = np.array([[80, 120, 255], [40, 200, 120], [240, 170, 30]], dtype=np.uint8)
+assert len(KIND_COLOURS) == len(BEHAVIOUR_NAMES)
 AGENT_COLOUR = np.array([230, 40, 40], dtype=np.uint8)
 HALF_SIZE_M = (2.25, 0.9)   # the default car (4.5 m x 1.8 m); frames do not carry sizes
 LANE_LINE_SPAN_M = 120.0    # lane lines drawn this far either side of the cars
@@ -135,7 +137,7 @@ class WorldRecording:
                         strips, radii=[0.02], colors=[[255, 200, 120]]))
             if camera is not None:
                 stream.log(f"{base}/camera", rr.Image(camera[i]))
-            speed_mps = float(ego[i, 0]) if ego is not None else float(frame.speed_mps[i])
+            speed_mps = float(ego[i, EGO_SPEED]) if ego is not None else float(frame.speed_mps[i])
             stream.log(f"{base}/speed_kmh", rr.Scalars(speed_mps * 3.6))
             stream.log(f"{base}/reward", rr.Scalars(float(frame.reward[i])))
             stream.log(f"{base}/action", rr.Scalars(float(frame.action_applied[i])))

@@ -11,9 +11,43 @@ few degrees of the scan, so each car's angular extent is computed first and only
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
 import numpy as np
 
+from ..road import Road
+from ..validation import check, check_range
+from .base import Scene, SensorConfig, SensorSpace
+
+if TYPE_CHECKING:
+    from ..config import SimConfig
+
 TWO_PI = 2.0 * np.pi
+
+
+@dataclass(frozen=True, slots=True)
+class LidarConfig(SensorConfig):
+    """A 360-degree LIDAR at the car's centre.
+
+    Ray i points i * (360 / ray_count) degrees counter-clockwise (to the left, seen from above)
+    from straight ahead: with 360 rays, index 0 is straight ahead, 90 is left, 180 is behind and
+    270 is right. Values are metres, clipped at ``max_range_m``.
+    """
+
+    enabled: bool = True
+    ray_count: int = 360
+    max_range_m: float = 80.0
+
+    def __post_init__(self) -> None:
+        check(isinstance(self.enabled, bool), "lidar.enabled", self.enabled, "true or false")
+        check(isinstance(self.ray_count, int) and 4 <= self.ray_count <= 3600,
+               "lidar.ray_count", self.ray_count, "an integer from 4 to 3600")
+        check_range("lidar.max_range_m", self.max_range_m, 1.0, 1000.0)
+
+    def build(self, config: SimConfig) -> Lidar:
+        road = Road(config.road)
+        return Lidar(self.ray_count, self.max_range_m, road.rail_left_y_m, road.rail_right_y_m)
 
 
 def _wrap(angle: np.ndarray) -> np.ndarray:
@@ -22,15 +56,32 @@ def _wrap(angle: np.ndarray) -> np.ndarray:
 
 
 class Lidar:
-    def __init__(self, ray_count: int, max_range_m: float) -> None:
+    """The ``lidar`` observation: (rays,) float32 distances (m) per agent."""
+
+    key = "lidar"
+
+    def __init__(self, ray_count: int, max_range_m: float, rail_left_y_m: float,
+                 rail_right_y_m: float) -> None:
         self.ray_count = ray_count
         self.max_range_m = max_range_m
+        self.rail_left_y_m = rail_left_y_m
+        self.rail_right_y_m = rail_right_y_m
         self.step_rad = TWO_PI / ray_count
         angles = np.arange(ray_count) * self.step_rad
         self._cos = np.cos(angles)
         self._sin = np.sin(angles)
         self._corner_l = np.array([-1.0, 1.0, 1.0, -1.0])
         self._corner_w = np.array([-1.0, -1.0, 1.0, 1.0])
+
+    def space(self) -> SensorSpace:
+        return SensorSpace.uniform((self.ray_count,), np.float32, 0.0, self.max_range_m)
+
+    def observe(self, scene: Scene) -> np.ndarray:
+        v = scene.views
+        scan = self.scan(v.origin_x, v.origin_y, v.heading, v.car_x, v.car_y, v.car_half_length,
+                         v.car_half_width, v.car_visible, rail_left_y=self.rail_left_y_m,
+                         rail_right_y=self.rail_right_y_m)
+        return scan.reshape(scene.arenas, scene.agents, -1)
 
     def scan(self, origin_x: np.ndarray, origin_y: np.ndarray, heading: np.ndarray,
              car_x: np.ndarray, car_y: np.ndarray, car_half_length: np.ndarray,

@@ -8,8 +8,8 @@ as long as the process), ``off`` logs nothing. Processes of one run that pass th
 :class:`rerun.RecordingStream` (never Rerun's global one), so a library user's own Rerun logging
 is left alone.
 
-This lives in ``protocol`` because the server (logging directly) and the client's spectators
-both record, and neither may import the other; it depends on nothing of the project.
+The server (logging directly), the client's spectators and the trainers all record through
+this module; it depends on nothing of the project.
 """
 
 from __future__ import annotations

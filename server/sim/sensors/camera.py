@@ -12,9 +12,17 @@ Image rows run top to bottom, columns left to right; (H, W) uint8 for grey, (H, 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from .config import CameraConfig, RoadConfig
+from ..road import RoadConfig
+from ..validation import check, check_range
+from .base import Scene, SensorConfig, SensorSpace
+
+if TYPE_CHECKING:
+    from ..config import SimConfig
 
 VEHICLE_HEIGHT_M = 1.5
 LANE_LINE_WIDTH_M = 0.15
@@ -36,7 +44,43 @@ _GREY = np.round(_RGB @ np.array([0.299, 0.587, 0.114])).astype(np.uint8)
 _GREY[CAR] = 20  # darker than the road in grey, so cars stand out against asphalt and sky
 
 
+@dataclass(frozen=True, slots=True)
+class CameraConfig(SensorConfig):
+    """A front camera at the driver's seat, rendered in software (a pinhole perspective view)."""
+
+    enabled: bool = True
+    width_px: int = 84
+    height_px: int = 84
+    horizontal_fov_deg: float = 70.0
+    rgb: bool = False
+    mount_height_m: float = 1.2
+    # Pitched down so that more of the image shows road than sky.
+    pitch_down_deg: float = 6.0
+    mount_forward_m: float = 0.3
+    max_distance_m: float = 200.0
+
+    def __post_init__(self) -> None:
+        check(isinstance(self.enabled, bool), "camera.enabled", self.enabled, "true or false")
+        check(isinstance(self.rgb, bool), "camera.rgb", self.rgb, "true or false")
+        for name in ("width_px", "height_px"):
+            value = getattr(self, name)
+            check(isinstance(value, int) and 8 <= value <= 1024, f"camera.{name}", value,
+                   "an integer from 8 to 1024")
+        check_range("camera.horizontal_fov_deg", self.horizontal_fov_deg, 10.0, 160.0)
+        check_range("camera.mount_height_m", self.mount_height_m, 0.3, 5.0)
+        check_range("camera.pitch_down_deg", self.pitch_down_deg, -30.0, 45.0)
+        check_range("camera.mount_forward_m", self.mount_forward_m, -5.0, 5.0)
+        check_range("camera.max_distance_m", self.max_distance_m, 10.0, 2000.0)
+
+    def build(self, config: SimConfig) -> Camera:
+        return Camera(self, config.road)
+
+
 class Camera:
+    """The ``camera`` observation: (H, W) grey or (H, W, 3) RGB uint8 per agent."""
+
+    key = "camera"
+
     def __init__(self, camera: CameraConfig, road: RoadConfig) -> None:
         self.config = camera
         self.height = camera.height_px
@@ -130,6 +174,16 @@ class Camera:
     @property
     def shape(self) -> tuple[int, ...]:
         return (self.height, self.width, 3) if self.config.rgb else (self.height, self.width)
+
+    def space(self) -> SensorSpace:
+        return SensorSpace.uniform(self.shape, np.uint8, 0, 255)
+
+    def observe(self, scene: Scene) -> np.ndarray:
+        v = scene.views
+        road_x = np.repeat(scene.state.x_m[:, 0], scene.agents)
+        image = self.render(v.origin_x, v.origin_y, v.heading, v.car_x, v.car_y,
+                            v.car_half_length, v.car_half_width, v.car_visible, road_x=road_x)
+        return image.reshape((scene.arenas, scene.agents) + image.shape[1:])
 
     def render(self, cam_x: np.ndarray, cam_y: np.ndarray, heading: np.ndarray,
                car_x: np.ndarray, car_y: np.ndarray, car_half_length: np.ndarray,

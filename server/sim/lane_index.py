@@ -1,8 +1,11 @@
-"""Vectorised car-following (IDM) and lane-neighbour search over many arenas at once.
+"""Who is where on the lanes: every arena's vehicles sorted by (arena, lane, position).
 
-Every function here works on structure-of-arrays state shaped (arenas, vehicles) and loops over
-neither. Neighbours are found by sorting one key per (arena, lane, position) entry: a vehicle
-that is changing lanes has an entry in both lanes, so the cars in either lane react to it.
+The index answers the two questions car-following and lane changes ask, vectorised over every
+arena and vehicle, with no loop over either: the vehicle next ahead of each one in its lane
+(:func:`leaders`), and the vehicles just ahead and behind any position of any lane
+(:func:`neighbours_at`). Neighbours are found by sorting one key per (arena, lane, position)
+entry: a vehicle that is changing lanes has an entry in both lanes, so the cars in either lane
+react to it.
 """
 
 from __future__ import annotations
@@ -19,30 +22,9 @@ KEY_OFFSET = 5.0e5
 NO_GAP_M = 1.0e9  # gap reported when there is no vehicle ahead
 
 
-def idm_accel(speed: np.ndarray, desired_speed: np.ndarray, gap: np.ndarray,
-              closing_speed: np.ndarray, time_headway: np.ndarray, min_gap: np.ndarray,
-              max_accel: np.ndarray, two_sqrt_ab: np.ndarray) -> np.ndarray:
-    """Intelligent Driver Model acceleration (m/s^2); arguments broadcast against each other.
-
-    ``closing_speed`` is own speed minus the leader's; ``gap`` is bumper to bumper (m);
-    ``two_sqrt_ab`` is 2 * sqrt(max_accel * comfortable_decel), precomputed per vehicle.
-    """
-    desired_gap = idm_desired_gap(speed, closing_speed, time_headway, min_gap, two_sqrt_ab)
-    ratio = speed / desired_speed
-    ratio *= ratio
-    interaction = desired_gap / np.maximum(gap, 0.1)
-    return max_accel * (1.0 - ratio * ratio - interaction * interaction)
-
-
-def idm_desired_gap(speed: np.ndarray, closing_speed: np.ndarray, time_headway: np.ndarray,
-                    min_gap: np.ndarray, two_sqrt_ab: np.ndarray) -> np.ndarray:
-    """The IDM's desired bumper-to-bumper gap s* (m)."""
-    return min_gap + np.maximum(0.0, speed * time_headway + speed * closing_speed / two_sqrt_ab)
-
-
 @dataclass(frozen=True, slots=True)
 class LaneIndex:
-    """Entries of all arenas sorted by (arena, lane, position); built once per physics frame."""
+    """Entries of all arenas sorted by (arena, lane, position); built once per decision."""
 
     sorted_keys: np.ndarray      # (E,) float64
     sorted_group: np.ndarray     # (E,) float64: arena * (lanes + 1) + lane; lane == lanes is unused
@@ -129,15 +111,3 @@ def neighbours_at(index: LaneIndex, arena: np.ndarray, lane: np.ndarray,
     behind_ok = (pos > 0) & (index.sorted_group[behind_pos] == group)
     return (np.where(ahead_ok, index.sorted_vehicle[ahead_pos], -1),
             np.where(behind_ok, index.sorted_vehicle[behind_pos], -1))
-
-
-def min_jerk(progress: np.ndarray) -> np.ndarray:
-    """Minimum-jerk lateral profile: 0 -> 1 with zero speed and acceleration at both ends."""
-    p = np.minimum(np.maximum(progress, 0.0), 1.0)
-    return p * p * p * (10.0 - 15.0 * p + 6.0 * p * p)
-
-
-def min_jerk_rate(progress: np.ndarray) -> np.ndarray:
-    """d(min_jerk)/d(progress)."""
-    p = np.minimum(np.maximum(progress, 0.0), 1.0)
-    return 30.0 * p * p * (1.0 - p) * (1.0 - p)

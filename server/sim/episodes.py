@@ -1,0 +1,107 @@
+"""Episodes: their length, and each agent's bookkeeping of the papers' metrics.
+
+Per agent and episode: decisions, distance, lane changes started, overtakes, collisions,
+emergency brakes (Ho 2018, §6.2: the onset of braking at least ``ego.emergency_decel_mps2``
+hard with at least ``ego.emergency_speed_diff_kmh`` of speed difference to the car ahead) and
+the return. :meth:`EpisodeBook.metrics_table` reports them as
+:data:`~overtake.protocol.vocabulary.METRIC_FIELDS`, with the average speed derived from
+distance and time. An episode is truncated after ``episode.max_decisions``; it terminates on a
+collision (the caller's ``terminated``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from overtake.protocol.vocabulary import METRIC_FIELDS
+
+from .units import KMH
+from .validation import check, check_range
+
+if TYPE_CHECKING:
+    from .assist import EgoConfig
+    from .state import SimState
+    from .traffic.car_following import Following
+
+# The per-agent accumulators an episode starts from zero.
+EPISODE_COUNTERS = ("agent_decisions", "braking", "distance_m", "lane_changes", "overtakes",
+                    "collisions", "emergency_brakes", "episode_return")
+
+
+@dataclass(frozen=True, slots=True)
+class EpisodeConfig:
+    """Time: one decision spans ``frames_per_decision`` physics frames of ``physics_dt_s``."""
+
+    max_decisions: int = 1000
+    frames_per_decision: int = 4
+    physics_dt_s: float = 0.1
+
+    def __post_init__(self) -> None:
+        check(isinstance(self.max_decisions, int) and self.max_decisions >= 1,
+               "episode.max_decisions", self.max_decisions, "an integer >= 1")
+        check(isinstance(self.frames_per_decision, int) and 1 <= self.frames_per_decision <= 100,
+               "episode.frames_per_decision", self.frames_per_decision, "an integer from 1 to 100")
+        check_range("episode.physics_dt_s", self.physics_dt_s, 0.0, 0.1, low_open=True)
+
+    @property
+    def decision_period_s(self) -> float:
+        """Simulated seconds per decision."""
+        return self.frames_per_decision * self.physics_dt_s
+
+
+class EpisodeBook:
+    """Each agent's episode so far, kept in the state's per-agent arrays."""
+
+    def __init__(self, episode: EpisodeConfig, ego: EgoConfig, agents: int) -> None:
+        self.max_decisions = episode.max_decisions
+        self.decision_period_s = episode.decision_period_s
+        self.brake_decel_mps2 = ego.emergency_decel_mps2
+        self.brake_speed_diff_kmh = ego.emergency_speed_diff_kmh
+        self.agents = agents
+
+    def restart(self, st: SimState, arena: int, slot: int) -> None:
+        """Start an agent's episode counters from zero."""
+        for name in EPISODE_COUNTERS:
+            getattr(st, name)[arena, slot] = 0
+
+    def count_emergency_brakes(self, st: SimState, following: Following,
+                               brakes: np.ndarray) -> None:
+        """After a frame: add to ``brakes`` (A, N) the agents whose hard braking began now with
+        a big speed difference to the car ahead."""
+        n = self.agents
+        braking = st.accel_mps2[:, :n] <= -self.brake_decel_mps2
+        onset = braking & ~st.braking
+        if onset.any():
+            big_difference = following.has_leader[:, :n] & (
+                following.closing_mps[:, :n] >= self.brake_speed_diff_kmh * KMH)
+            brakes += onset & big_difference
+        st.braking[:] = braking
+
+    def close_decision(self, st: SimState, reward: np.ndarray, lane_changes: np.ndarray,
+                       collided: np.ndarray, overtakes: np.ndarray,
+                       emergency_brakes: np.ndarray) -> np.ndarray:
+        """Add one decision's events (A, N) to the episodes; returns which reached their
+        decision limit (truncated)."""
+        st.episode_return += reward
+        st.lane_changes += lane_changes
+        st.collisions += collided
+        st.overtakes += overtakes
+        st.emergency_brakes += emergency_brakes
+        return st.agent_decisions >= self.max_decisions
+
+    def metrics_table(self, st: SimState) -> np.ndarray:
+        """(A, N, len(METRIC_FIELDS)) float64: each agent's episode so far."""
+        elapsed_s = st.agent_decisions * self.decision_period_s
+        with np.errstate(divide="ignore", invalid="ignore"):
+            avg_speed = np.where(elapsed_s > 0, st.distance_m / elapsed_s / KMH, 0.0)
+        columns = {"avg_speed_kmh": avg_speed, "lane_changes": st.lane_changes,
+                   "overtakes": st.overtakes, "collisions": st.collisions,
+                   "emergency_brakes": st.emergency_brakes, "distance_m": st.distance_m,
+                   "return": st.episode_return, "decisions": st.agent_decisions}
+        table = np.empty(elapsed_s.shape + (len(METRIC_FIELDS),))
+        for i, name in enumerate(METRIC_FIELDS):
+            table[..., i] = columns[name]
+        return table

@@ -1,0 +1,139 @@
+"""Vehicle dynamics: one physics frame of every vehicle of every arena.
+
+Longitudinally every car follows its leader (:mod:`.traffic.car_following`; agents through
+their cruise control, under emergency braking), within its acceleration limits; traffic also
+never drives into traffic (a speed cap keeps it behind a traffic leader that brakes as hard as
+it can, the safety rule of Ho's simulator), while an agent ahead gets no such courtesy.
+Laterally a lane change is a minimum-jerk move between lane centres. A collision is an agent's
+box overlapping another vehicle's. The frame's events go to the episode bookkeeping.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .traffic.car_following import follow, idm_accel
+
+if TYPE_CHECKING:
+    from .assist import EmergencyBraking
+    from .episodes import EpisodeBook
+    from .lane_index import LaneIndex
+    from .state import SimState
+    from .traffic.lane_changes import Mobil
+    from .vehicles import VehicleKinds, VehicleParams
+
+
+def min_jerk(progress: np.ndarray) -> np.ndarray:
+    """Minimum-jerk lateral profile: 0 -> 1 with zero speed and acceleration at both ends."""
+    p = np.minimum(np.maximum(progress, 0.0), 1.0)
+    return p * p * p * (10.0 - 15.0 * p + 6.0 * p * p)
+
+
+def min_jerk_rate(progress: np.ndarray) -> np.ndarray:
+    """d(min_jerk)/d(progress)."""
+    p = np.minimum(np.maximum(progress, 0.0), 1.0)
+    return 30.0 * p * p * (1.0 - p) * (1.0 - p)
+
+
+def headings(st: SimState, kinds: VehicleKinds, lane_width_m: float, agents: int) -> np.ndarray:
+    """Agents' headings (A, N) in radians from the road's direction, left positive."""
+    n = agents
+    kind = st.kind[:, :n]
+    lateral_mps = (st.target_lane[:, :n] - st.lane[:, :n]) * lane_width_m \
+        * min_jerk_rate(st.change_progress[:, :n]) / kinds.change_duration[kind]
+    return np.arctan2(lateral_mps, np.maximum(st.speed_mps[:, :n], 1e-3))
+
+
+class Physics:
+    """Advances every vehicle by one frame of ``physics_dt_s``."""
+
+    def __init__(self, dt_s: float, max_decel_mps2: float, lane_width_m: float, agents: int,
+                 vehicles: int, emergency_braking: EmergencyBraking, mobil: Mobil,
+                 episodes: EpisodeBook) -> None:
+        self.dt = dt_s
+        self.max_decel_mps2 = max_decel_mps2
+        self.lane_width_m = lane_width_m
+        self.agents = agents
+        self.emergency_braking = emergency_braking
+        self.mobil = mobil
+        self.episodes = episodes
+        # (1, N, V): False where an agent would be compared with itself.
+        self._not_self = np.ones((1, agents, vehicles), dtype=bool)
+        self._not_self[0, np.arange(agents), np.arange(agents)] = False
+
+    def frame(self, st: SimState, p: VehicleParams, lead: np.ndarray, valid: np.ndarray,
+              collided: np.ndarray, brakes: np.ndarray, mobil_index: LaneIndex | None) -> None:
+        """One frame for every arena of ``st``; collisions and emergency brakes (A, N) are
+        added to ``collided`` and ``brakes`` in place.
+
+        ``lead``/``valid`` (A, 2V): each lane entry's leader; with ``mobil_index`` traffic also
+        considers lane changes this frame.
+        """
+        n, dt = self.agents, self.dt
+        x_rel = st.x_m - st.x_m[:, :1]
+        speed = st.speed_mps
+        following = follow(x_rel, p.half_length, speed, lead, valid)
+        accel = idm_accel(speed, st.desired_speed_mps, following.gap_m, following.closing_mps,
+                          p.headway, p.min_gap, p.max_accel, p.two_sqrt_ab)
+        self.emergency_braking.apply(accel, following)
+        accel = np.maximum(np.minimum(accel, p.max_accel), -self.max_decel_mps2)
+        if mobil_index is not None:
+            self.mobil.decide(st, p, mobil_index, x_rel, accel, following)
+
+        new_speed = np.maximum(speed + accel * dt, 0.0)
+        # Traffic never drives into traffic: a speed cap keeps it behind a traffic leader even
+        # if that leader brakes as hard as it can (Ho's simulator has the same safety rule).
+        # An agent ahead gets no such courtesy: a reckless cut-in can be rear-ended.
+        gap, leader = following.gap_m, following.leader
+        capped = p.is_traffic & following.has_leader & p.is_traffic.reshape(-1)[leader]
+        cap = np.maximum(following.leader_speed_mps - self.max_decel_mps2 * dt
+                         + (gap - 0.2) / dt, 0.0)
+        new_speed = np.where(capped, np.minimum(new_speed, cap), new_speed)
+        travelled = np.where(st.active, 0.5 * (speed + new_speed) * dt, 0.0)
+        st.accel_mps2[:] = (new_speed - speed) / dt
+        st.x_m += travelled
+        st.speed_mps[:] = new_speed
+        st.distance_m += travelled[:, :n]
+
+        # Lateral: minimum-jerk moves between lane centres.
+        changing = st.target_lane != st.lane
+        if changing.any():
+            progress = np.where(changing, st.change_progress + p.change_rate, 0.0)
+            finished = progress >= 1.0
+            st.lane[:] = np.where(finished, st.target_lane, st.lane)
+            st.change_progress[:] = np.where(finished, 0.0, progress)
+            shift = (st.target_lane - st.lane) * min_jerk(st.change_progress)
+            st.y_m[:] = (st.lane + 0.5 + shift) * self.lane_width_m
+        st.frame += 1
+
+        # Two boxes can only overlap if they share a lane, and then some gap in that lane is
+        # negative: the exact test runs only on frames where one is.
+        if (gap < 0.0).any():
+            collided |= self._collisions(st, p)
+        self.episodes.count_emergency_brakes(st, following, brakes)
+
+    def _collisions(self, st: SimState, p: VehicleParams) -> np.ndarray:
+        """(A, N) bool: agents whose box overlaps another vehicle's."""
+        n = self.agents
+        ax, ay = st.x_m[:, :n, None], st.y_m[:, :n, None]
+        overlap = (np.abs(st.x_m[:, None, :] - ax)
+                   < p.half_length[:, :n, None] + p.half_length[:, None, :]) \
+            & (np.abs(st.y_m[:, None, :] - ay)
+               < p.half_width[:, :n, None] + p.half_width[:, None, :])
+        overlap &= st.active[:, None, :] & self._not_self & st.active[:, :n, None]
+        return overlap.any(axis=-1)
+
+
+def traffic_overlaps(st: SimState, kinds: VehicleKinds, agents: int) -> np.ndarray:
+    """(A,) pairs of traffic cars whose boxes overlap now: zero in normal flow (a diagnostic;
+    only agents can collide)."""
+    n = agents
+    x, y = st.x_m[:, n:], st.y_m[:, n:]
+    kind, active = st.kind[:, n:], st.active[:, n:]
+    half_l, half_w = kinds.half_length[kind], kinds.half_width[kind]
+    overlap = (np.abs(x[:, :, None] - x[:, None, :]) < half_l[:, :, None] + half_l[:, None, :]) \
+        & (np.abs(y[:, :, None] - y[:, None, :]) < half_w[:, :, None] + half_w[:, None, :]) \
+        & active[:, :, None] & active[:, None, :]
+    return np.triu(overlap, k=1).sum(axis=(1, 2))

@@ -1,0 +1,110 @@
+"""The sensor interface: what every sensor of the simulation offers, and what it looks at.
+
+A sensor has a ``key`` (its observation's name), a :class:`SensorSpace` (the box one agent's
+observation lies in) and ``observe(scene)``, which returns every agent's observation at once,
+(arenas, agents, *shape). Its configuration section (a :class:`SensorConfig`) says whether it
+is on and builds it. The :class:`Scene` is computed once per observation and shared by all
+sensors: what each observer sees is worked out only if some sensor asks for it.
+"""
+
+from __future__ import annotations
+
+import abc
+import functools
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Protocol
+
+import numpy as np
+
+from ..physics import headings
+
+if TYPE_CHECKING:
+    from ..config import SimConfig
+    from ..road import Road
+    from ..state import SimState
+    from ..vehicles import VehicleKinds
+
+
+@dataclass(frozen=True, eq=False)
+class SensorSpace:
+    """One agent's observation: a box of ``shape`` and ``dtype`` within [low, high]."""
+
+    shape: tuple[int, ...]
+    dtype: np.dtype
+    low: np.ndarray     # of shape and dtype
+    high: np.ndarray
+
+    @classmethod
+    def uniform(cls, shape: tuple[int, ...], dtype: Any, low: float, high: float) -> SensorSpace:
+        """A box with the same bounds everywhere."""
+        dtype = np.dtype(dtype)
+        return cls(shape, dtype, np.full(shape, low, dtype=dtype), np.full(shape, high, dtype=dtype))
+
+
+@dataclass(frozen=True, slots=True)
+class ObserverViews:
+    """Per observer (arena-major, agent-minor; O = arenas * agents): where it is and the
+    vehicles it can see, (O,) and (O, V). x is relative to each arena's first agent."""
+
+    origin_x: np.ndarray
+    origin_y: np.ndarray
+    heading: np.ndarray
+    car_x: np.ndarray
+    car_y: np.ndarray
+    car_half_length: np.ndarray
+    car_half_width: np.ndarray
+    car_visible: np.ndarray       # False for itself, inactive slots and cars off the road
+
+
+class Scene:
+    """What the sensors of one observation look at: the state, the road and vehicle kinds."""
+
+    def __init__(self, state: SimState, kinds: VehicleKinds, road: Road, agents: int) -> None:
+        self.state = state
+        self.kinds = kinds
+        self.road = road
+        self.agents = agents
+        self.arenas = state.x_m.shape[0]
+
+    @functools.cached_property
+    def views(self) -> ObserverViews:
+        st, n, arenas = self.state, self.agents, self.arenas
+        x_rel = st.x_m - st.x_m[:, :1]
+        kind = np.repeat(st.kind, n, axis=0)
+        visible = np.repeat(st.active, n, axis=0)
+        visible[np.arange(arenas * n), np.tile(np.arange(n), arenas)] = False
+        return ObserverViews(
+            origin_x=x_rel[:, :n].reshape(-1), origin_y=st.y_m[:, :n].reshape(-1),
+            heading=headings(st, self.kinds, self.road.lane_width_m, n).reshape(-1),
+            car_x=np.repeat(x_rel, n, axis=0), car_y=np.repeat(st.y_m, n, axis=0),
+            car_half_length=self.kinds.half_length[kind],
+            car_half_width=self.kinds.half_width[kind], car_visible=visible)
+
+
+class Sensor(Protocol):
+    """One observation of every agent."""
+
+    key: str
+
+    def space(self) -> SensorSpace:
+        """The box one agent's observation lies in."""
+        ...
+
+    def observe(self, scene: Scene) -> np.ndarray:
+        """Every agent's observation, (arenas, agents, *space.shape) of space.dtype."""
+        ...
+
+
+class SensorConfig(abc.ABC):
+    """A sensor's configuration section: whether it is on, and how to build it.
+
+    Every section of :class:`~overtake.server.sim.config.SimConfig` that is a SensorConfig is
+    a sensor of the simulation; the observation holds the enabled ones, in the order of
+    SimConfig's fields.
+    """
+
+    enabled: bool
+
+    @abc.abstractmethod
+    def build(self, config: SimConfig) -> Sensor:
+        """The sensor, for a simulation of ``config``."""

@@ -1,0 +1,239 @@
+"""Where vehicles appear: the start of an episode, traffic's treadmill, agents joining a road.
+
+- At reset the agents stand 30 m apart in distinct lanes (where there are enough) at the
+  initial cruise speed, and traffic is spread over the kept window around them with a minimum
+  spacing per lane; cars that would crowd an agent wait to spawn later.
+- Each decision traffic that fell out of every agent's range (``traffic.keep_ahead_m`` /
+  ``keep_behind_m``) is recycled: a car left behind comes back ahead, in the spawn window
+  ``traffic.spawn_ahead_m``, and one left ahead comes back behind, so episodes can run
+  indefinitely. A spot is taken only if it keeps IDM-comfortable gaps to everyone in its lane;
+  a slot that finds none waits and tries again every few decisions.
+- An agent joining or restarting on a shared road is placed behind the agents still on it, at
+  the first spot with comfortable gaps.
+
+Every random number comes from the arena's own generator, at reset directly and while stepping
+from the decision's block of uniforms (:mod:`.randomness`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from overtake.protocol.vocabulary import AGENT_KIND
+
+from .config import SimConfig
+from .overtakes import OvertakeTracker
+from .randomness import SPAWN_CANDIDATES, U_ANCHOR, U_BEHAVIOUR, U_LANE, U_OFFSET, U_SIDE, U_SPEED
+from .road import Road
+from .state import SimState
+from .traffic.car_following import idm_desired_gap
+from .units import KMH
+from .vehicles import VehicleKinds
+
+RESPAWN_RETRY_DECISIONS = 5       # an empty traffic slot looks for a free spot this often
+SPAWN_SEPARATION_M = 25.0          # spawns of one decision in one lane keep this far apart
+AGENT_SPACING_M = 30.0             # agents start this far apart; a joining car tries steps of it
+JOIN_STEPS_BACK = 8                # ... this many steps behind the agents on the road
+
+
+class Spawner:
+    """Places vehicles for :class:`~overtake.server.sim.core.HighwaySim`."""
+
+    def __init__(self, config: SimConfig, kinds: VehicleKinds, road: Road, agents: int,
+                 tracker: OvertakeTracker) -> None:
+        self.config = config
+        self.traffic = config.traffic
+        self.kinds = kinds
+        self.road = road
+        self.agents = agents
+        self.traffic_slots = config.traffic.resolved_vehicle_count
+        self.vehicles = agents + self.traffic_slots
+        self.tracker = tracker
+        self.initial_speed_mps = config.ego.initial_speed_kmh * KMH
+
+    def reset_arena(self, rng: np.random.Generator) -> SimState:
+        """A new episode's state of one arena, drawn from ``rng``."""
+        traffic = self.traffic
+        fresh = SimState.empty(1, self.agents, self.vehicles)
+        n, lanes = self.agents, self.road.lane_count
+        # Agents: distinct lanes where possible, 30 m apart, at the initial cruise speed.
+        agent_lanes = rng.permutation(np.resize(np.arange(lanes), max(n, lanes)))[:n]
+        fresh.x_m[0, :n] = -AGENT_SPACING_M * np.arange(n)
+        fresh.lane[0, :n] = agent_lanes
+        fresh.speed_mps[0, :n] = self.initial_speed_mps
+        fresh.desired_speed_mps[0, :n] = self.initial_speed_mps
+        fresh.kind[0, :n] = AGENT_KIND
+        fresh.active[0, :n] = True
+
+        # Traffic: spread over the kept window with a minimum spacing per lane: the k-th
+        # smallest uniform of a lane is shifted by k spacings, so neighbours are at least that
+        # far apart. Cars that would crowd an agent are left to spawn later.
+        count = self.traffic_slots
+        if count:
+            lo = fresh.x_m[0, :n].min() - traffic.keep_behind_m
+            hi = fresh.x_m[0, :n].max() + traffic.keep_ahead_m
+            spacing = traffic.vehicle_length_m + 20.0
+            lane = rng.integers(0, lanes, size=count)
+            u = rng.random(count)
+            kind = self.kinds.behaviour_of(rng.random(count))
+            speed = self.kinds.desired_speed(kind, rng.random(count))
+            order = np.lexsort((u, lane))
+            per_lane = np.bincount(lane, minlength=lanes)
+            rank = np.empty(count, dtype=np.int64)
+            rank[order] = np.arange(count) - np.repeat(np.cumsum(per_lane) - per_lane, per_lane)
+            free_length = (hi - lo) - per_lane[lane] * spacing
+            x = lo + u * np.maximum(free_length, 0.0) + rank * spacing
+            cols = slice(n, n + count)
+            fresh.x_m[0, cols] = x
+            fresh.lane[0, cols] = lane
+            fresh.kind[0, cols] = kind
+            fresh.speed_mps[0, cols] = speed
+            fresh.desired_speed_mps[0, cols] = speed
+            fresh.active[0, cols] = x <= hi
+        fresh.target_lane[:] = fresh.lane
+        fresh.y_m[:] = self.road.centre_y(fresh.lane)
+        self._clear_agent_zones(fresh)
+        self.tracker.start(fresh, np.ones((1, self.vehicles), dtype=bool))
+        return fresh
+
+    def place_agents(self, st: SimState, arena: int, slots: np.ndarray,
+                     rng: np.random.Generator) -> None:
+        """Put agents' cars back on the road of ``arena`` while it goes on.
+
+        Each car is placed, at the initial cruise speed, at the first spot (lanes in a random
+        order, then farther back) that keeps IDM-comfortable gaps to everything on the road,
+        behind the agents still present. Its tracking starts afresh; its episode counters are
+        the caller's.
+        """
+        n = self.agents
+        row = np.array([arena])
+        speed = self.initial_speed_mps
+        for slot in np.asarray(slots, dtype=np.int64):
+            st.active[arena, slot] = False
+            present = np.flatnonzero(st.active[arena, :n])
+            base = st.x_m[arena, present].min() if present.size else st.x_m[arena, slot]
+            lanes = rng.permutation(self.road.lane_count)
+            offsets = -AGENT_SPACING_M * np.arange(1, JOIN_STEPS_BACK + 1)
+            # Every lane at 30 m back, then every lane at 60 m, ...: the nearest free spot.
+            lane = np.tile(lanes, offsets.size)[None, :]
+            x = (base + np.repeat(offsets, lanes.size))[None, :]
+            ok = self.clearance_ok(st, row, lane, x, np.full(lane.shape, speed),
+                                   np.full(lane.shape, AGENT_KIND), st.active[row])[0]
+            # With no comfortable gap anywhere, the last spot tried (farthest back) is used.
+            pick = int(np.argmax(ok)) if ok.any() else lane.size - 1
+            st.x_m[arena, slot] = x[0, pick]
+            st.lane[arena, slot] = st.target_lane[arena, slot] = lane[0, pick]
+            st.y_m[arena, slot] = self.road.centre_y(lane[0, pick])
+            st.change_progress[arena, slot] = 0.0
+            st.speed_mps[arena, slot] = st.desired_speed_mps[arena, slot] = speed
+            st.accel_mps2[arena, slot] = 0.0
+            st.active[arena, slot] = True
+            self.tracker.start_agent(st, arena, int(slot))
+
+    def recycle(self, st: SimState, uniforms: np.ndarray) -> None:
+        """Respawn traffic that is out of every agent's range, and fill empty slots."""
+        cfg = self.traffic
+        n, lanes = self.agents, self.road.lane_count
+        arenas, vehicles = st.x_m.shape
+        if vehicles == n:
+            return
+        dx = st.x_m[:, None, n:] - st.x_m[:, :n, None]  # (A, N, T) traffic relative to agents
+        # Agents off the road (a shared arena's free slots) anchor nothing, unless none is on.
+        present = st.active[:, :n]
+        anchors = (present | ~present.any(axis=1, keepdims=True))[:, :, None]
+        kept = ((dx <= cfg.keep_ahead_m) & (dx >= -cfg.keep_behind_m) & anchors).any(axis=1)
+        was_active = st.active[:, n:]
+        # Out-of-range cars move at once; empty slots (no free spot found earlier) retry now
+        # and then rather than every decision.
+        retry = (st.decisions % RESPAWN_RETRY_DECISIONS == 0)[:, None]
+        need = (was_active & ~kept) | (~was_active & retry)
+        arena, tcol = np.nonzero(need)
+        if arena.size == 0:
+            return
+        col = tcol + n
+        st.active[arena, col] = False
+        u = uniforms[arena, col]
+        # A car that fell behind every agent comes back ahead, and one left ahead comes back
+        # behind; an empty slot picks a side at random.
+        fell_behind = ((dx[arena, :, tcol] < 0.0) | ~anchors[arena, :, 0]).all(axis=1)
+        ahead_side = np.where(was_active[arena, tcol], fell_behind, u[:, U_SIDE] < 0.5)
+        anchor = np.minimum((u[:, U_ANCHOR] * n).astype(np.int64), n - 1)
+        anchor = np.where(anchors[arena, anchor, 0], anchor,
+                          np.argmax(anchors[arena, :, 0], axis=1))
+        lane = np.minimum((u[:, U_LANE:U_LANE + SPAWN_CANDIDATES] * lanes).astype(np.int64),
+                          lanes - 1)
+        window = np.where(ahead_side[:, None], np.array(cfg.spawn_ahead_m),
+                          np.array(cfg.spawn_behind_m))
+        distance = window[:, :1] + u[:, U_OFFSET:U_OFFSET + SPAWN_CANDIDATES] \
+            * (window[:, 1:] - window[:, :1])
+        x = st.x_m[arena, anchor][:, None] + np.where(ahead_side[:, None], distance, -distance)
+        kind = self.kinds.behaviour_of(u[:, U_BEHAVIOUR])
+        speed = self.kinds.desired_speed(kind, u[:, U_SPEED])
+        shape = lane.shape
+        ok = self.clearance_ok(st, arena, lane, x, np.broadcast_to(speed[:, None], shape),
+                               np.broadcast_to(kind[:, None], shape), st.active[arena])
+        found = ok.any(axis=1)
+        pick = np.argmax(ok, axis=1)
+        pick_lane = lane[np.arange(arena.size), pick]
+        pick_x = x[np.arange(arena.size), pick]
+        # Two spawns of this decision may not land on each other: the later one waits.
+        same_place = (arena[:, None] == arena[None, :]) \
+            & (pick_lane[:, None] == pick_lane[None, :]) \
+            & (np.abs(pick_x[:, None] - pick_x[None, :]) < SPAWN_SEPARATION_M) \
+            & found[:, None] & found[None, :]
+        found &= ~np.tril(same_place, k=-1).any(axis=1)
+        a, c = arena[found], col[found]
+        st.x_m[a, c] = pick_x[found]
+        st.lane[a, c] = pick_lane[found]
+        st.target_lane[a, c] = pick_lane[found]
+        st.change_progress[a, c] = 0.0
+        st.y_m[a, c] = self.road.centre_y(pick_lane[found])
+        st.speed_mps[a, c] = speed[found]
+        st.desired_speed_mps[a, c] = speed[found]
+        st.accel_mps2[a, c] = 0.0
+        st.kind[a, c] = kind[found]
+        st.active[a, c] = True
+        spawned = np.zeros((arenas, vehicles), dtype=bool)
+        spawned[a, c] = True
+        self.tracker.start(st, spawned)
+
+    def clearance_ok(self, st: SimState, arena: np.ndarray, lane: np.ndarray, x: np.ndarray,
+                     speed: np.ndarray, kind: np.ndarray, others: np.ndarray) -> np.ndarray:
+        """Whether candidate spots (K, M) keep an IDM-comfortable gap to every other vehicle.
+
+        ``arena`` (K,) rows of ``st``; lane, x, speed, kind (K, M) the candidates; ``others``
+        (K, V) the vehicles to keep clear of. A candidate must leave its new leader at least
+        its own desired gap, and its new follower at least the follower's desired gap.
+        """
+        k = self.kinds
+        o_x = st.x_m[arena][:, None, :]
+        o_lane = st.lane[arena][:, None, :]
+        o_target = st.target_lane[arena][:, None, :]
+        o_speed = st.speed_mps[arena][:, None, :]
+        o_kind = st.kind[arena][:, None, :]
+        c_lane, c_x, c_speed, c_kind = (a[..., None] for a in (lane, x, speed, kind))
+        shares_lane = ((o_lane == c_lane) | (o_target == c_lane)) & others[:, None, :]
+        dx = o_x - c_x
+        bodies = k.half_length[o_kind] + k.half_length[c_kind]
+        need_ahead = idm_desired_gap(c_speed, c_speed - o_speed, k.headway[c_kind],
+                                     k.min_gap[c_kind], k.two_sqrt_ab[c_kind])
+        need_behind = idm_desired_gap(o_speed, o_speed - c_speed, k.headway[o_kind],
+                                      k.min_gap[o_kind], k.two_sqrt_ab[o_kind])
+        clear = np.where(dx >= 0.0, dx - bodies >= need_ahead, -dx - bodies >= need_behind)
+        return np.all(clear | ~shares_lane, axis=-1)
+
+    def _clear_agent_zones(self, st: SimState) -> None:
+        """Deactivate traffic placed where it would crowd an agent (it spawns again later)."""
+        n = self.agents
+        arenas, vehicles = st.x_m.shape
+        traffic = np.arange(n, vehicles)
+        if traffic.size == 0:
+            return
+        rows = np.repeat(np.arange(arenas), traffic.size)
+        cols = np.tile(traffic, arenas)
+        others = np.zeros((rows.size, vehicles), dtype=bool)
+        others[:, :n] = True
+        ok = self.clearance_ok(st, rows, st.lane[rows, cols][:, None],
+                               st.x_m[rows, cols][:, None], st.speed_mps[rows, cols][:, None],
+                               st.kind[rows, cols][:, None], others)[:, 0]
+        st.active[rows, cols] &= ok

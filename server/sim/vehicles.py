@@ -1,0 +1,86 @@
+"""The vehicles' parameters, by kind: each traffic behaviour, then the agents' cars.
+
+A vehicle's ``kind`` (in the state) indexes these tables; it changes only when a slot is
+(re)spawned, so a decision gathers each vehicle's parameters once (:meth:`VehicleKinds.params`)
+and every frame of it reads them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from overtake.protocol.vocabulary import AGENT_KIND
+
+from .units import KMH
+
+if TYPE_CHECKING:
+    from .assist import EgoConfig
+    from .traffic.config import TrafficConfig
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleParams:
+    """Per-vehicle (A, V) parameters of one decision, gathered from the per-kind tables."""
+
+    headway: np.ndarray
+    min_gap: np.ndarray
+    max_accel: np.ndarray
+    two_sqrt_ab: np.ndarray
+    half_length: np.ndarray
+    half_width: np.ndarray
+    change_rate: np.ndarray   # lane-change progress per frame
+    is_traffic: np.ndarray
+
+
+class VehicleKinds:
+    """Per-kind tables (one entry per traffic behaviour, then one for agents)."""
+
+    def __init__(self, traffic: TrafficConfig, ego: EgoConfig, decision_period_s: float,
+                 physics_dt_s: float) -> None:
+        behaviours = traffic.behaviours
+        self.dt = physics_dt_s
+
+        def table(traffic_value: float, agent_value: float) -> np.ndarray:
+            return np.array([traffic_value] * len(behaviours) + [agent_value])
+
+        # Car-following (IDM): traffic's behaviours share one set, agents have their ACC's.
+        self.headway = table(traffic.time_headway_s, ego.time_headway_s)
+        self.min_gap = table(traffic.min_gap_m, ego.min_gap_m)
+        self.accel = table(traffic.max_accel_mps2, ego.max_accel_mps2)
+        self.decel = table(traffic.comfort_decel_mps2, ego.comfort_decel_mps2)
+        self.two_sqrt_ab = 2.0 * np.sqrt(self.accel * self.decel)
+        # Bodies and lane changes.
+        self.half_length = table(traffic.vehicle_length_m / 2, ego.length_m / 2)
+        self.half_width = table(traffic.vehicle_width_m / 2, ego.width_m / 2)
+        self.change_duration = table(traffic.lane_change_duration_s, ego.lane_change_duration_s)
+        # Traffic's manners (agents decide for themselves: zeros).
+        self.politeness = np.array([b.politeness for b in behaviours] + [0.0])
+        self.threshold = np.array([b.lane_change_threshold_mps2 for b in behaviours] + [0.0])
+        self.speed_lo = np.array([b.desired_speed_kmh[0] * KMH for b in behaviours] + [0.0])
+        self.speed_hi = np.array([b.desired_speed_kmh[1] * KMH for b in behaviours] + [0.0])
+        rates = np.array([b.speed_change_rate_per_s for b in behaviours] + [0.0])
+        self.change_prob = 1.0 - np.exp(-rates * decision_period_s)   # per decision
+        shares = np.array([b.share for b in behaviours])
+        self.behaviour_cdf = np.cumsum(shares / shares.sum())
+        self.behaviour_count = len(behaviours)
+        assert self.behaviour_count == AGENT_KIND
+
+    def behaviour_of(self, uniform: np.ndarray) -> np.ndarray:
+        """The traffic behaviour a uniform draw in [0, 1) picks, by the behaviours' shares."""
+        return np.minimum(np.searchsorted(self.behaviour_cdf, uniform, side="right"),
+                          self.behaviour_count - 1)
+
+    def desired_speed(self, kind: np.ndarray, uniform: np.ndarray) -> np.ndarray:
+        """A desired speed (m/s) in each kind's range, placed by a uniform draw."""
+        return self.speed_lo[kind] + uniform * (self.speed_hi[kind] - self.speed_lo[kind])
+
+    def params(self, kind: np.ndarray) -> VehicleParams:
+        """Per-vehicle parameters looked up once per decision (kinds change only on spawn)."""
+        return VehicleParams(
+            headway=self.headway[kind], min_gap=self.min_gap[kind],
+            max_accel=self.accel[kind], two_sqrt_ab=self.two_sqrt_ab[kind],
+            half_length=self.half_length[kind], half_width=self.half_width[kind],
+            change_rate=self.dt / self.change_duration[kind], is_traffic=kind < AGENT_KIND)
