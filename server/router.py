@@ -26,6 +26,8 @@ from overtake.protocol import errors
 from overtake.protocol.transport import (DEFAULT_ENDPOINT, SecurityConfig, TransportConfig,
                                          warn_if_unconnected, warn_if_unguarded)
 
+from .errors import StartError
+
 log = logging.getLogger("overtake.router")
 
 
@@ -118,7 +120,7 @@ def main(config: RouterConfig, stop: threading.Event | None = None) -> None:
     try:
         session = zenoh.open(conf)
     except zenoh.ZError as error:
-        raise SystemExit(f"overtake-router: could not start ({transport.describe()}): "
+        raise StartError(f"could not start ({transport.describe()}): "
                          f"{str(error).split(' at /')[0]}. Is the port in use, or the address "
                          "not one of this host's?") from None
     try:
@@ -146,7 +148,7 @@ def cli() -> None:
     signal.signal(signal.SIGTERM, on_signal)
     try:
         main(config, stop)
-    except errors.ProtocolError as error:
+    except (StartError, errors.ProtocolError) as error:
         sys.exit(f"overtake-router: {error}")
 
 

@@ -15,6 +15,7 @@ import queue
 import secrets
 import signal
 import socket
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -31,6 +32,7 @@ from overtake.viz.recording import RecordingConfig
 from overtake.protocol.transport import (DEFAULT_ENDPOINT, SecurityConfig, TransportConfig,
                                          open_session, warn_if_unconnected, warn_if_unguarded)
 
+from .errors import StartError
 from .groups import Group
 from .recorder import ServerRecorder
 
@@ -517,11 +519,10 @@ def main(config: ServerConfig) -> None:
     try:
         server = SimulatorServer(config)
     except zenoh.ZError as error:
-        raise SystemExit(f"overtake-server: could not open the Zenoh session "
-                         f"({config.transport().describe()}): {error}. Is the port in use, or "
-                         "the router unreachable?") from None
+        raise StartError(f"could not open the Zenoh session ({config.transport().describe()}): "
+                         f"{error}. Is the port in use, or the router unreachable?") from None
     except (RuntimeError, errors.ProtocolError) as error:
-        raise SystemExit(f"overtake-server: {error}") from None
+        raise StartError(str(error)) from None
     warn_if_unconnected(server.session, config.transport(), log)
     warn_if_unguarded(config.transport(), log)
 
@@ -537,6 +538,10 @@ def main(config: ServerConfig) -> None:
 def cli() -> None:
     import tyro
 
-    main(tyro.cli(ServerConfig, config=(tyro.conf.OmitArgPrefixes,),
-                  description="overtake-server: the highway simulator, served to trainers "
-                              "over Zenoh"))
+    config = tyro.cli(ServerConfig, config=(tyro.conf.OmitArgPrefixes,),
+                      description="overtake-server: the highway simulator, served to trainers "
+                                  "over Zenoh")
+    try:
+        main(config)
+    except StartError as error:
+        sys.exit(f"overtake-server: {error}")

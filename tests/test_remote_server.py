@@ -10,6 +10,8 @@ from __future__ import annotations
 import math
 import secrets
 import signal
+import subprocess
+import sys
 import threading
 import time
 
@@ -24,6 +26,8 @@ from overtake.client.remote import Connection
 from overtake.protocol import REMOTE_HIGHWAY_ENV_ID, codec, keys
 from overtake.protocol.codec import version_text
 from overtake.protocol.errors import ServerLost
+from overtake.server.errors import StartError
+from overtake.server.service import ServerConfig, main
 from overtake.protocol.messages import (
     Ack,
     Actions,
@@ -36,6 +40,7 @@ from overtake.protocol.messages import (
 
 from remote_support import (
     RawClient,
+    child_env,
     next_message,
     remote_config,
     trainer_args,
@@ -488,3 +493,17 @@ def test_server_shuts_down_cleanly_on_signal(start_server, sig):
         assert time.monotonic() - start < 3.0
     finally:
         env.close()
+
+
+@pytest.mark.timeout(90)
+def test_a_server_that_cannot_listen_says_why_and_exits(start_server):
+    """A taken port: main(config) raises a typed error, the command exits with its message."""
+    owner = start_server("port-owner")
+    with pytest.raises(StartError, match="could not open the Zenoh session"):
+        main(ServerConfig(name="second", listen=(owner.endpoint,), log_level="error"))
+    done = subprocess.run([sys.executable, "-m", "overtake.server", "--listen", owner.endpoint,
+                           "--name", "third", "--log-level", "error"], capture_output=True,
+                          text=True, timeout=60, env=child_env())
+    assert done.returncode == 1
+    assert "overtake-server: could not open the Zenoh session" in done.stderr
+    assert "Traceback" not in done.stderr

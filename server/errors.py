@@ -1,0 +1,6 @@
+"""Why a server or router could not start (its command turns this into an exit message)."""
+
+
+class StartError(RuntimeError):
+    """The process cannot serve: the port is taken, the address is not this host's, the router
+    is unreachable or refuses us. The message says which, and what to check."""

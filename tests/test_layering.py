@@ -1,0 +1,162 @@
+"""The layering of the packages, read from their imports and checked in fresh interpreters.
+
+- protocol imports nothing of the project; viz only protocol;
+- server never imports client or trainers; client never imports server or trainers; trainers
+  never import server (a trainer must work against a simulator on another machine);
+- the simulation core (overtake.server.sim) imports numpy and the standard library only, and of
+  the project only the contract's vocabulary: importing it loads no msgpack, Zenoh, Gymnasium,
+  Rerun or PyTorch;
+- importing overtake.protocol loads neither Zenoh nor Rerun (nor msgpack nor Gymnasium, which
+  load on first use), importing overtake.viz no Rerun;
+- the Gymnasium ids are registered by ``import overtake.client`` and by nothing else.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+FOLDERS = {"protocol": "protocol", "viz": "viz", "server": "server", "client": "client",
+           "trainers": "trainers"}
+# The parts of the project each package may import (besides itself).
+ALLOWED = {
+    "protocol": set(),
+    "viz": {"protocol"},
+    "server": {"protocol", "viz"},
+    "client": {"protocol", "viz"},
+    "trainers": {"protocol", "viz", "client"},
+}
+HEAVY = ("msgpack", "zenoh", "gymnasium", "rerun", "torch")
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(["overtake", *parts])
+
+
+def _imports(path: Path) -> list[tuple[str, int]]:
+    """Every module ``path`` imports (absolute names), anywhere in the file, with line numbers."""
+    module = _module_name(path)
+    package = module if path.name == "__init__.py" else module.rsplit(".", 1)[0]
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+        if isinstance(node, ast.Import):
+            found += [(alias.name, node.lineno) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[:len(base) - node.level + 1]
+                name = ".".join(base + ([node.module] if node.module else []))
+            else:
+                name = node.module or ""
+            found.append((name, node.lineno))
+            # `from . import x` and `from pkg import submodule` name modules too.
+            found += [(f"{name}.{alias.name}", node.lineno) for alias in node.names]
+    return found
+
+
+def _sources(folder: str) -> list[Path]:
+    return sorted((ROOT / folder).rglob("*.py"))
+
+
+def test_the_package_folders_exist_and_hold_code():
+    for folder in FOLDERS:
+        assert _sources(folder), f"no Python files under {folder}/"
+
+
+@pytest.mark.parametrize("package", sorted(ALLOWED))
+def test_each_package_imports_only_the_parts_below_it(package):
+    wrong = []
+    for path in _sources(FOLDERS[package]):
+        for name, line in _imports(path):
+            parts = name.split(".")
+            if parts[0] != "overtake" or len(parts) < 2:
+                continue
+            target = parts[1]
+            if target != package and target not in ALLOWED[package]:
+                wrong.append(f"{path.relative_to(ROOT)}:{line} imports {name}")
+    assert not wrong, f"{package} may import only {sorted(ALLOWED[package])}:\n" + "\n".join(wrong)
+
+
+def test_the_simulation_core_imports_numpy_the_standard_library_and_the_vocabulary_only():
+    wrong = []
+    for path in _sources("server/sim"):
+        for name, line in _imports(path):
+            top = name.split(".")[0]
+            if name.startswith("overtake.server.sim") or top == "numpy" \
+                    or top in sys.stdlib_module_names or name == "__future__":
+                continue
+            if name == "overtake.protocol.vocabulary" or name.startswith(
+                    "overtake.protocol.vocabulary."):
+                continue
+            wrong.append(f"{path.relative_to(ROOT)}:{line} imports {name}")
+    assert not wrong, "server/sim may import numpy, the standard library and " \
+        "overtake.protocol.vocabulary only:\n" + "\n".join(wrong)
+
+
+def _loaded_after(statement: str) -> dict:
+    """What a fresh interpreter has loaded after ``statement``: top-level module names, and
+    which overtake Gymnasium ids are registered if Gymnasium is loaded at all."""
+    probe = (f"{statement}\n"
+             "import json, sys\n"
+             "ids = []\n"
+             "if 'gymnasium' in sys.modules:\n"
+             "    ids = sorted(i for i in sys.modules['gymnasium'].registry "
+             "if i.startswith('overtake/'))\n"
+             "print(json.dumps({'modules': sorted({m.split('.')[0] for m in sys.modules}), "
+             "'ids': ids}))\n")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         timeout=120, check=True, cwd=ROOT).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def test_importing_the_simulation_core_loads_numpy_and_the_standard_library_only():
+    baseline = set(_loaded_after("import numpy")["modules"])
+    loaded = set(_loaded_after("import overtake.server.sim")["modules"])
+    extra = loaded - baseline - set(sys.stdlib_module_names) - {"overtake"}
+    assert not extra, f"import overtake.server.sim loaded {sorted(extra)}"
+    assert not loaded & set(HEAVY)
+
+
+def test_importing_the_protocol_loads_neither_zenoh_nor_rerun():
+    loaded = set(_loaded_after("import overtake.protocol")["modules"])
+    assert not loaded & set(HEAVY), sorted(loaded & set(HEAVY))
+    # The lazily served names still work, and load what they need when used.
+    after = _loaded_after("import overtake.protocol as p; p.encode; p.HIGHWAY_ENV_ID")
+    assert {"msgpack", "gymnasium"} <= set(after["modules"])
+
+
+def test_importing_viz_loads_no_rerun():
+    assert "rerun" not in _loaded_after("import overtake.viz")["modules"]
+
+
+def test_environments_are_registered_by_the_client_and_by_nothing_else():
+    for statement in ("import overtake.server", "import overtake.server.sim",
+                      "import overtake.server.env", "import overtake.protocol"):
+        assert _loaded_after(statement)["ids"] == [], f"{statement} registered environments"
+    assert _loaded_after("import overtake.client")["ids"] == [
+        "overtake/Highway-v0", "overtake/RemoteHighway-v0"]
+    # The entry-point string imports the client first, so it works without an import.
+    made = _loaded_after("import gymnasium as gym\n"
+                         "gym.make('overtake.client:overtake/Highway-v0').close()")
+    assert made["ids"] == ["overtake/Highway-v0", "overtake/RemoteHighway-v0"]
+
+
+def test_every_package_folder_is_listed_in_pyproject():
+    """A package left out of pyproject's list works in an editable install and is missing
+    from a built one (the Docker images)."""
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
+    listed = set(project["tool"]["setuptools"]["packages"])
+    present = {_module_name(init) for folder in FOLDERS
+               for init in (ROOT / folder).rglob("__init__.py")}
+    assert present == listed, f"missing: {sorted(present - listed)}, " \
+        f"stale: {sorted(listed - present)}"
