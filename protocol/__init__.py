@@ -11,9 +11,21 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from .errors import (BadAction, BadConfig, ConnectError, DecodeError, NotOwner, ProtocolError,
-                     ServerFull, ServerLost, StepTimeout, UnknownArena, UnknownPreset,
-                     VersionMismatch, error_from_code)
+from .errors import (
+    BadAction,
+    BadConfig,
+    ConnectError,
+    DecodeError,
+    NotOwner,
+    ProtocolError,
+    ServerFull,
+    ServerLost,
+    StepTimeout,
+    UnknownArena,
+    UnknownPreset,
+    VersionMismatch,
+    error_from_code,
+)
 from .messages import PROTOCOL_HISTORY, PROTOCOL_VERSION
 from .vocabulary import ACTION_COUNT, ACTION_NAMES, METRIC_FIELDS
 
@@ -22,9 +34,14 @@ if TYPE_CHECKING:
     from .envs import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
 
 # Names served on first use, and the module each comes from.
-_LAZY = {"decode": "codec", "encode": "codec", "version_text": "codec",
-         "HIGHWAY_ENV_ID": "envs", "REMOTE_HIGHWAY_ENV_ID": "envs",
-         "register_environments": "envs"}
+_LAZY = {
+    "decode": "codec",
+    "encode": "codec",
+    "version_text": "codec",
+    "HIGHWAY_ENV_ID": "envs",
+    "REMOTE_HIGHWAY_ENV_ID": "envs",
+    "register_environments": "envs",
+}
 
 
 def __getattr__(name: str) -> Any:
@@ -34,8 +51,29 @@ def __getattr__(name: str) -> Any:
     return getattr(importlib.import_module(f"{__name__}.{module}"), name)
 
 
-__all__ = ["ACTION_COUNT", "ACTION_NAMES", "HIGHWAY_ENV_ID", "METRIC_FIELDS", "PROTOCOL_HISTORY",
-           "PROTOCOL_VERSION", "REMOTE_HIGHWAY_ENV_ID", "BadAction", "BadConfig", "ConnectError",
-           "DecodeError", "NotOwner", "ProtocolError", "ServerFull", "ServerLost", "StepTimeout",
-           "UnknownArena", "UnknownPreset", "VersionMismatch", "decode", "encode",
-           "error_from_code", "register_environments", "version_text"]
+__all__ = [
+    "ACTION_COUNT",
+    "ACTION_NAMES",
+    "HIGHWAY_ENV_ID",
+    "METRIC_FIELDS",
+    "PROTOCOL_HISTORY",
+    "PROTOCOL_VERSION",
+    "REMOTE_HIGHWAY_ENV_ID",
+    "BadAction",
+    "BadConfig",
+    "ConnectError",
+    "DecodeError",
+    "NotOwner",
+    "ProtocolError",
+    "ServerFull",
+    "ServerLost",
+    "StepTimeout",
+    "UnknownArena",
+    "UnknownPreset",
+    "VersionMismatch",
+    "decode",
+    "encode",
+    "error_from_code",
+    "register_environments",
+    "version_text",
+]

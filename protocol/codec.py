@@ -22,8 +22,15 @@ import msgpack
 import numpy as np
 
 from .errors import DecodeError, ProtocolError, VersionMismatch
-from .messages import (MAX_ARRAY_DIMS, MAX_FRAME_BYTES, MAX_TEXT_CHARS, MESSAGE_TYPES,
-                       PROTOCOL_VERSION, WIRE_DTYPES, Message)
+from .messages import (
+    MAX_ARRAY_DIMS,
+    MAX_FRAME_BYTES,
+    MAX_TEXT_CHARS,
+    MESSAGE_TYPES,
+    PROTOCOL_VERSION,
+    WIRE_DTYPES,
+    Message,
+)
 
 M = TypeVar("M", bound=Message)
 
@@ -45,8 +52,9 @@ def _array_out(value: Any) -> dict[str, Any]:
     if not isinstance(value, np.ndarray):
         raise TypeError(f"expected a numpy array, got {type(value).__name__}")
     if value.ndim > MAX_ARRAY_DIMS:
-        raise ValueError(f"arrays travel with at most {MAX_ARRAY_DIMS} dimensions, got "
-                         f"{value.ndim}")
+        raise ValueError(
+            f"arrays travel with at most {MAX_ARRAY_DIMS} dimensions, got {value.ndim}"
+        )
     dtype = value.dtype.newbyteorder("<") if value.dtype.byteorder == ">" else value.dtype
     name = _DTYPE_NAMES.get(dtype)
     if name is None:
@@ -57,8 +65,7 @@ def _array_out(value: Any) -> dict[str, Any]:
 
 def _text_out(value: Any) -> Any:
     if isinstance(value, str) and len(value) > MAX_TEXT_CHARS:
-        raise ValueError(f"text of {len(value)} characters exceeds the limit of "
-                         f"{MAX_TEXT_CHARS}")
+        raise ValueError(f"text of {len(value)} characters exceeds the limit of {MAX_TEXT_CHARS}")
     return value
 
 
@@ -102,6 +109,7 @@ def _record_encoder(cls: type) -> Encoder:
         if not isinstance(value, cls):
             raise TypeError(f"expected {cls.__name__}, got {type(value).__name__}")
         return {name: encode_field(getattr(value, name)) for name, encode_field in spec}
+
     return record
 
 
@@ -109,12 +117,15 @@ def encode(message: Message) -> bytes:
     """The frame of ``message``."""
     if not isinstance(message, Message):
         raise TypeError(f"expected an overtake message, got {type(message).__name__}")
-    body = _record_encoder(type(message))(message)
-    return msgpack.packb([PROTOCOL_VERSION[0], PROTOCOL_VERSION[1], message.TYPE, body],
-                         use_bin_type=True)
+    # Classes are hashable; mypy reads Part's `__hash__ = None` (for instances) as theirs.
+    body = _record_encoder(type(message))(message)  # type: ignore[arg-type]
+    return msgpack.packb(
+        [PROTOCOL_VERSION[0], PROTOCOL_VERSION[1], message.TYPE, body], use_bin_type=True
+    )
 
 
 # --- decoding ---------------------------------------------------------------------------------
+
 
 def _kind(value: Any) -> str:
     return type(value).__name__
@@ -131,14 +142,16 @@ def _at(segment: str, error: DecodeError) -> DecodeError:
     text = str(error)
     return DecodeError(f"{segment}{text}" if text[:1] in ".[" else f"{segment}: {text}")
 
+
 _ARRAY_KEYS = frozenset(("dtype", "shape", "data"))
 
 
 def _array(value: Any, _minor: int) -> np.ndarray:
     if type(value) is not dict or len(value) != 3 or not _ARRAY_KEYS.issuperset(value):
-        raise DecodeError(f"expected an array {{dtype, shape, data}}, got {_kind(value)}"
-                          + (f" with keys {sorted(map(str, value))}" if isinstance(value, dict)
-                             else ""))
+        raise DecodeError(
+            f"expected an array {{dtype, shape, data}}, got {_kind(value)}"
+            + (f" with keys {sorted(map(str, value))}" if isinstance(value, dict) else "")
+        )
     dtype_name, shape, data = value["dtype"], value["shape"], value["data"]
     dtype = WIRE_DTYPES.get(dtype_name) if type(dtype_name) is str else None
     if dtype is None:
@@ -153,13 +166,14 @@ def _array(value: Any, _minor: int) -> np.ndarray:
     else:
         count = -1
     if count < 0:
-        raise DecodeError(f"shape must be a list of at most {MAX_ARRAY_DIMS} sizes, "
-                          f"got {shape!r}")
+        raise DecodeError(f"shape must be a list of at most {MAX_ARRAY_DIMS} sizes, got {shape!r}")
     if type(data) is not bytes:
         raise DecodeError(f"data must be bytes, got {_kind(data)}")
     if count * dtype.itemsize != len(data):
-        raise DecodeError(f"{dtype_name} of shape {tuple(shape)} needs "
-                          f"{count * dtype.itemsize} bytes, got {len(data)}")
+        raise DecodeError(
+            f"{dtype_name} of shape {tuple(shape)} needs "
+            f"{count * dtype.itemsize} bytes, got {len(data)}"
+        )
     if dtype_name == "bool" and count and data.translate(None, b"\x00\x01"):
         raise DecodeError("bool array holds bytes other than 0 and 1")
     array = np.frombuffer(data, dtype=dtype).reshape(shape)
@@ -171,8 +185,7 @@ def _text(value: Any, _minor: int) -> str:
     if type(value) is not str:
         raise DecodeError(f"expected text, got {_kind(value)}")
     if len(value) > MAX_TEXT_CHARS:
-        raise DecodeError(f"text of {len(value)} characters exceeds the limit of "
-                          f"{MAX_TEXT_CHARS}")
+        raise DecodeError(f"text of {len(value)} characters exceeds the limit of {MAX_TEXT_CHARS}")
     return value
 
 
@@ -200,8 +213,14 @@ def _float(value: Any, _minor: int) -> float:
     return float(value)
 
 
-_SIMPLE: dict[Any, Converter] = {np.ndarray: _array, str: _text, bytes: _bytes, bool: _bool,
-                                 int: _int, float: _float}
+_SIMPLE: dict[Any, Converter] = {
+    np.ndarray: _array,
+    str: _text,
+    bytes: _bytes,
+    bool: _bool,
+    int: _int,
+    float: _float,
+}
 
 
 @functools.cache
@@ -224,6 +243,7 @@ def _converter(hint: Any) -> Converter:
                 if type(value) in rest or (type(value) is int and float in rest):
                     return _text(value, minor) if type(value) is str else value
                 raise DecodeError(f"expected one of {names}, got {_kind(value)}")
+
             return scalar
         if len(rest) == 1:
             inner = _converter(rest[0])
@@ -234,6 +254,7 @@ def _converter(hint: Any) -> Converter:
                         return None
                     raise DecodeError("expected a value, got nil")
                 return inner(value, minor)
+
             return optional
     if origin is tuple:
         item = _converter(typing.get_args(hint)[0])
@@ -248,6 +269,7 @@ def _converter(hint: Any) -> Converter:
                 except DecodeError as error:
                     raise _at(f"[{i}]", error) from None
             return tuple(out)
+
         return sequence
     if origin is dict:
         item = _converter(typing.get_args(hint)[1])
@@ -262,6 +284,7 @@ def _converter(hint: Any) -> Converter:
                 except DecodeError as error:
                     raise _at(f"[{k!r}]", error) from None
             return out
+
         return mapping
     if isinstance(hint, type) and is_dataclass(hint):
         return functools.partial(_build, hint)
@@ -292,8 +315,7 @@ def _added(cls: type) -> dict[str, tuple[int, Any]]:
 @functools.cache
 def _older_defaults(cls: type, peer_minor: int) -> dict[str, Any]:
     """What a peer of ``peer_minor`` does not send, because it predates those fields."""
-    return {name: default for name, (since, default) in _added(cls).items()
-            if peer_minor < since}
+    return {name: default for name, (since, default) in _added(cls).items() if peer_minor < since}
 
 
 def _build(cls: type, body: Any, peer_minor: int) -> Any:
@@ -311,8 +333,7 @@ def _build(cls: type, body: Any, peer_minor: int) -> Any:
         unknown = sorted(map(str, set(body) - set(names)))
         if unknown and peer_minor <= PROTOCOL_VERSION[1]:
             # Only a newer minor version may add fields (which this side then ignores).
-            raise DecodeError(f"{cls.__name__} has unknown field(s) {unknown}; "
-                              f"expected {names}")
+            raise DecodeError(f"{cls.__name__} has unknown field(s) {unknown}; expected {names}")
     values = {}
     for name, convert in spec:
         if name not in body:
@@ -327,8 +348,9 @@ def _build(cls: type, body: Any, peer_minor: int) -> Any:
     return cls(**values)
 
 
-def decode(data: bytes | bytearray | memoryview, expect: type[M] | tuple[type[Message], ...]
-           | None = None) -> M:
+def decode(
+    data: bytes | bytearray | memoryview, expect: type[M] | tuple[type[Message], ...] | None = None
+) -> M:
     """The message in ``data``; with ``expect``, it must be one of those types.
 
     An :class:`ErrorReply` is always accepted (the caller decides what to raise).
@@ -338,27 +360,38 @@ def decode(data: bytes | bytearray | memoryview, expect: type[M] | tuple[type[Me
     if len(data) > MAX_FRAME_BYTES:
         raise DecodeError(f"frame of {len(data)} bytes exceeds the limit of {MAX_FRAME_BYTES}")
     try:
-        frame = msgpack.unpackb(bytes(data), raw=False, use_list=True, strict_map_key=True,
-                                max_str_len=4 * MAX_TEXT_CHARS, max_bin_len=MAX_FRAME_BYTES,
-                                max_array_len=MAX_FRAME_BYTES, max_map_len=MAX_TEXT_CHARS,
-                                max_ext_len=0)
+        frame = msgpack.unpackb(
+            bytes(data),
+            raw=False,
+            use_list=True,
+            strict_map_key=True,
+            max_str_len=4 * MAX_TEXT_CHARS,
+            max_bin_len=MAX_FRAME_BYTES,
+            max_array_len=MAX_FRAME_BYTES,
+            max_map_len=MAX_TEXT_CHARS,
+            max_ext_len=0,
+        )
     except Exception as error:  # msgpack raises many types on garbage; all mean the same
         raise DecodeError(f"not a msgpack frame ({type(error).__name__}: {error})") from None
     if not (isinstance(frame, list) and len(frame) == 4):
-        raise DecodeError(f"expected a frame [major, minor, type, body], got {_kind(frame)}"
-                          + (f" of length {len(frame)}" if isinstance(frame, list) else ""))
+        raise DecodeError(
+            f"expected a frame [major, minor, type, body], got {_kind(frame)}"
+            + (f" of length {len(frame)}" if isinstance(frame, list) else "")
+        )
     major, minor, tag, body = frame
     if type(major) is not int or type(minor) is not int or major < 0 or minor < 0:
-        raise DecodeError(f"expected non-negative integer protocol version numbers, got "
-                          f"{major!r}.{minor!r}")
+        raise DecodeError(
+            f"expected non-negative integer protocol version numbers, got {major!r}.{minor!r}"
+        )
     if major != PROTOCOL_VERSION[0]:
-        raise VersionMismatch(f"peer speaks overtake protocol {major}.{minor}, this side speaks "
-                              f"{version_text()}; major versions must match (upgrade the older "
-                              "side)")
+        raise VersionMismatch(
+            f"peer speaks overtake protocol {major}.{minor}, this side speaks "
+            f"{version_text()}; major versions must match (upgrade the older "
+            "side)"
+        )
     cls = MESSAGE_TYPES.get(tag) if isinstance(tag, str) else None
     if cls is None:
-        raise DecodeError(f"unknown message type {tag!r}; expected one of "
-                          f"{sorted(MESSAGE_TYPES)}")
+        raise DecodeError(f"unknown message type {tag!r}; expected one of {sorted(MESSAGE_TYPES)}")
     if expect is not None:
         wanted = expect if isinstance(expect, tuple) else (expect,)
         if cls not in wanted and cls is not ErrorReply:

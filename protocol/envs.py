@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
-
 from typing import Any
 
 import gymnasium as gym
@@ -76,8 +75,11 @@ class ReportsEpisodeLength:
 
     @spec.setter
     def spec(self, value: gym.envs.registration.EnvSpec | None) -> None:
-        self._spec = None if value is None else dataclasses.replace(
-            value, max_episode_steps=self.max_episode_steps)
+        self._spec = (
+            None
+            if value is None
+            else dataclasses.replace(value, max_episode_steps=self.max_episode_steps)
+        )
 
 
 def check_actions(actions: Any, count: int, *, single: bool) -> np.ndarray:
@@ -94,6 +96,8 @@ def check_actions(actions: Any, count: int, *, single: bool) -> np.ndarray:
         wanted = "an integer action" if single else f"integer actions of shape ({count},)"
         raise ValueError(f"expected {wanted} in [0, {ACTION_COUNT}), got {actions!r}")
     if values.size and (values.min() < 0 or values.max() >= ACTION_COUNT):
-        raise ValueError(f"actions must be in [0, {ACTION_COUNT}) ({', '.join(ACTION_NAMES)}), "
-                         f"got {values.tolist()}")
+        raise ValueError(
+            f"actions must be in [0, {ACTION_COUNT}) ({', '.join(ACTION_NAMES)}), "
+            f"got {values.tolist()}"
+        )
     return values.astype(np.int64)

@@ -3,7 +3,7 @@
 Every error says what was expected and what came. :class:`ProtocolError` is the base; the
 server turns any of them into an :class:`~overtake.protocol.messages.ErrorReply` carrying the
 error's ``code``, and the client raises the matching class again from that reply
-(:func:`error_from_reply`), so a trainer sees the server's own words.
+(:func:`error_from_code`), so a trainer sees the server's own words.
 """
 
 from __future__ import annotations
@@ -89,10 +89,23 @@ class StepTimeout(ProtocolError):
 
 
 ERRORS_BY_CODE: dict[str, type[ProtocolError]] = {
-    cls.code: cls for cls in (ProtocolError, DecodeError, VersionMismatch, UnknownPreset,
-                              BadConfig, ServerFull, UnknownArena, NotOwner, WrongTicket,
-                              BadAction, StaleActions,
-                              ConnectError, ServerLost, StepTimeout)
+    cls.code: cls
+    for cls in (
+        ProtocolError,
+        DecodeError,
+        VersionMismatch,
+        UnknownPreset,
+        BadConfig,
+        ServerFull,
+        UnknownArena,
+        NotOwner,
+        WrongTicket,
+        BadAction,
+        StaleActions,
+        ConnectError,
+        ServerLost,
+        StepTimeout,
+    )
 }
 
 

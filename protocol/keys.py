@@ -75,11 +75,12 @@ def trainer_alive(trainer: str) -> str:
 def _parts(key: str, shape: tuple[str | None, ...]) -> list[str]:
     """The segments of ``key`` where ``shape`` has None; the others must match literally."""
     segments = str(key).split("/")
-    if len(segments) != len(shape) or any(want is not None and got != want
-                                          for got, want in zip(segments, shape)):
+    if len(segments) != len(shape) or any(
+        want is not None and got != want for got, want in zip(segments, shape, strict=True)
+    ):
         pattern = "/".join("<name>" if s is None else s for s in shape)
         raise DecodeError(f"expected a key like {pattern}, got {key!r}")
-    names = [got for got, want in zip(segments, shape) if want is None]
+    names = [got for got, want in zip(segments, shape, strict=True) if want is None]
     for name in names:
         check_name("key segment", name)
     return names

@@ -32,10 +32,16 @@ from .vocabulary import ACTION_COUNT, ACTION_NAMES
 # refused; a newer minor may add optional fields, which an older peer ignores.
 PROTOCOL_VERSION: tuple[int, int] = (1, 1)
 PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
-    ("1.0", "First wire protocol: status, open/join, reset, batched actions and steps, close, "
-            "world frames for spectators, error replies."),
-    ("1.1", "World frames carry each agent's reward terms (reward_terms, reward_term_names); "
-            "a 1.0 peer's frames decode with none."),
+    (
+        "1.0",
+        "First wire protocol: status, open/join, reset, batched actions and steps, close, "
+        "world frames for spectators, error replies.",
+    ),
+    (
+        "1.1",
+        "World frames carry each agent's reward terms (reward_terms, reward_term_names); "
+        "a 1.0 peer's frames decode with none.",
+    ),
 )
 
 # Sizes beyond these are refused before anything is allocated.
@@ -48,9 +54,10 @@ MAX_AGENTS_PER_ARENA = 48
 NAME_PATTERN = re.compile(r"[A-Za-z0-9_.-]{1,64}")
 
 # The dtypes arrays may travel in; always little-endian on the wire.
-WIRE_DTYPES: dict[str, np.dtype] = {name: np.dtype(name).newbyteorder("<") for name in
-                                    ("bool", "int8", "uint8", "int32", "int64", "float32",
-                                     "float64")}
+WIRE_DTYPES: dict[str, np.dtype] = {
+    name: np.dtype(name).newbyteorder("<")
+    for name in ("bool", "int8", "uint8", "int32", "int64", "float32", "float64")
+}
 
 Scalar = bool | int | float | str
 
@@ -58,16 +65,18 @@ Scalar = bool | int | float | str
 def check_name(what: str, value: str) -> None:
     """Names end up inside Zenoh key expressions: letters, digits, ``_ . -`` only."""
     if not NAME_PATTERN.fullmatch(value):
-        raise DecodeError(f"{what} must be 1-64 characters of letters, digits, '_', '.' or '-', "
-                          f"got {value!r}")
+        raise DecodeError(
+            f"{what} must be 1-64 characters of letters, digits, '_', '.' or '-', got {value!r}"
+        )
 
 
 def check_array(what: str, value: np.ndarray, dtype: str, shape: tuple[int | None, ...]) -> None:
     """``value`` has ``dtype`` and ``shape`` (None matches any length on that axis)."""
     if value.dtype != WIRE_DTYPES[dtype]:
         raise DecodeError(f"{what} must be {dtype}, got {value.dtype}")
-    if value.ndim != len(shape) or any(want is not None and got != want
-                                       for got, want in zip(value.shape, shape)):
+    if value.ndim != len(shape) or any(
+        want is not None and got != want for got, want in zip(value.shape, shape, strict=True)
+    ):
         wanted = "(" + ", ".join("n" if s is None else str(s) for s in shape) + ")"
         raise DecodeError(f"{what} must have shape {wanted}, got {value.shape}")
 
@@ -79,12 +88,17 @@ def check_range(what: str, value: int, low: int, high: int) -> None:
 
 def _values_equal(a: Any, b: Any) -> bool:
     if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
-        return (isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.dtype == b.dtype
-                and a.shape == b.shape and np.array_equal(a, b, equal_nan=a.dtype.kind == "f"))
+        return (
+            isinstance(a, np.ndarray)
+            and isinstance(b, np.ndarray)
+            and a.dtype == b.dtype
+            and a.shape == b.shape
+            and np.array_equal(a, b, equal_nan=a.dtype.kind == "f")
+        )
     if isinstance(a, dict) and isinstance(b, dict):
         return a.keys() == b.keys() and all(_values_equal(a[k], b[k]) for k in a)
     if isinstance(a, (tuple, list)) and isinstance(b, (tuple, list)):
-        return len(a) == len(b) and all(_values_equal(x, y) for x, y in zip(a, b))
+        return len(a) == len(b) and all(_values_equal(x, y) for x, y in zip(a, b, strict=True))
     if isinstance(a, float) and isinstance(b, float) and a != a and b != b:
         return True  # NaN
     return type(a) is type(b) and a == b
@@ -112,7 +126,8 @@ class Part:
 
     def __eq__(self, other: object) -> bool:
         return type(self) is type(other) and all(
-            _values_equal(getattr(self, f.name), getattr(other, f.name)) for f in fields(self))
+            _values_equal(getattr(self, f.name), getattr(other, f.name)) for f in fields(self)
+        )
 
     __hash__ = None  # type: ignore[assignment]
 
@@ -125,6 +140,7 @@ class Message(Part):
 
 
 # --- specs -----------------------------------------------------------------------------------
+
 
 @dataclass(frozen=True, eq=False)
 class ObservationSpec(Part):
@@ -139,14 +155,19 @@ class ObservationSpec(Part):
     def check(self) -> None:
         check_name("observation name", self.name)
         if self.dtype not in WIRE_DTYPES:
-            raise DecodeError(f"observation {self.name!r} dtype must be one of "
-                              f"{sorted(WIRE_DTYPES)}, got {self.dtype!r}")
+            raise DecodeError(
+                f"observation {self.name!r} dtype must be one of "
+                f"{sorted(WIRE_DTYPES)}, got {self.dtype!r}"
+            )
         if not 1 <= len(self.shape) <= MAX_ARRAY_DIMS - 1 or min(self.shape) < 1:
-            raise DecodeError(f"observation {self.name!r} shape must have 1 to "
-                              f"{MAX_ARRAY_DIMS - 1} positive sizes, got {self.shape}")
+            raise DecodeError(
+                f"observation {self.name!r} shape must have 1 to "
+                f"{MAX_ARRAY_DIMS - 1} positive sizes, got {self.shape}"
+            )
         for bound in ("low", "high"):
-            check_array(f"observation {self.name!r} {bound}", getattr(self, bound), self.dtype,
-                        self.shape)
+            check_array(
+                f"observation {self.name!r} {bound}", getattr(self, bound), self.dtype, self.shape
+            )
 
 
 @dataclass(frozen=True, eq=False)
@@ -170,8 +191,9 @@ class BehaviourSpec(Part):
         if not names or len(set(names)) != len(names):
             raise DecodeError(f"observation names must be distinct and at least one, got {names}")
         if self.action_branches != (ACTION_COUNT,):
-            raise DecodeError(f"action branches must be ({ACTION_COUNT},), got "
-                              f"{self.action_branches}")
+            raise DecodeError(
+                f"action branches must be ({ACTION_COUNT},), got {self.action_branches}"
+            )
         if len(self.action_names) != ACTION_COUNT:
             raise DecodeError(f"expected {ACTION_COUNT} action names, got {self.action_names}")
         check_range("agents per arena", self.agents_per_arena, 1, MAX_AGENTS_PER_ARENA)
@@ -187,6 +209,7 @@ class BehaviourSpec(Part):
 
 
 # --- requests and replies -------------------------------------------------------------------
+
 
 @dataclass(frozen=True, eq=False)
 class StatusRequest(Message):
@@ -285,16 +308,16 @@ class Steps(Message):
     server: str
     group: int
     round: int
-    agents: np.ndarray                  # int32 (k,)
+    agents: np.ndarray  # int32 (k,)
     observations: dict[str, np.ndarray]  # name -> (k, ...)
-    reward: np.ndarray                  # float64 (k,)
-    terminated: np.ndarray              # bool (k,)
-    truncated: np.ndarray               # bool (k,)
-    action_applied: np.ndarray          # int64 (k,), -1 where nothing was applied (reset)
-    late: np.ndarray                    # bool (k,)
-    action_mask: np.ndarray             # int8 (k, ACTION_COUNT)
-    reward_terms: np.ndarray            # float64 (k, terms)
-    metrics: np.ndarray                 # float64 (k, metric fields)
+    reward: np.ndarray  # float64 (k,)
+    terminated: np.ndarray  # bool (k,)
+    truncated: np.ndarray  # bool (k,)
+    action_applied: np.ndarray  # int64 (k,), -1 where nothing was applied (reset)
+    late: np.ndarray  # bool (k,)
+    action_mask: np.ndarray  # int8 (k, ACTION_COUNT)
+    reward_terms: np.ndarray  # float64 (k, terms)
+    metrics: np.ndarray  # float64 (k, metric fields)
 
     def check(self) -> None:
         check_name("server", self.server)
@@ -303,8 +326,10 @@ class Steps(Message):
         for name, value in self.observations.items():
             check_name("observation name", name)
             if value.ndim < 1 or value.shape[0] != k:
-                raise DecodeError(f"observation {name!r} must have {k} rows (one per agent), "
-                                  f"got shape {value.shape}")
+                raise DecodeError(
+                    f"observation {name!r} must have {k} rows (one per agent), "
+                    f"got shape {value.shape}"
+                )
         check_array("reward", self.reward, "float64", (k,))
         check_array("terminated", self.terminated, "bool", (k,))
         check_array("truncated", self.truncated, "bool", (k,))
@@ -326,10 +351,10 @@ class Opened(Message):
     TYPE: ClassVar[str] = "opened"
     server: str
     group: int
-    arenas: tuple[int, ...]   # the group's arena ids (server-wide), by index in the group
-    ticket: bytes             # proves later requests come from this trainer
+    arenas: tuple[int, ...]  # the group's arena ids (server-wide), by index in the group
+    ticket: bytes  # proves later requests come from this trainer
     spec: BehaviourSpec
-    steps: Steps              # this trainer's agents and their current observations
+    steps: Steps  # this trainer's agents and their current observations
 
     def check(self) -> None:
         check_name("server", self.server)
@@ -357,8 +382,9 @@ class ResetRequest(Message):
     def check(self) -> None:
         check_name("trainer", self.trainer)
         if len(self.seeds) != len(self.arenas):
-            raise DecodeError(f"expected one seed per arena ({len(self.arenas)}), got "
-                              f"{len(self.seeds)}")
+            raise DecodeError(
+                f"expected one seed per arena ({len(self.arenas)}), got {len(self.seeds)}"
+            )
         if len(set(self.arenas)) != len(self.arenas):
             raise DecodeError(f"arenas must be distinct, got {list(self.arenas)}")
         for seed in self.seeds:
@@ -375,7 +401,7 @@ class Actions(Message):
     ticket: bytes
     group: int
     round: int
-    agents: np.ndarray   # int32 (k,), distinct
+    agents: np.ndarray  # int32 (k,), distinct
     actions: np.ndarray  # int64 (k,) in [0, ACTION_COUNT)
 
     def check(self) -> None:
@@ -384,8 +410,10 @@ class Actions(Message):
         check_array("actions", self.actions, "int64", (self.agents.shape[0],))
         if self.actions.size and (self.actions.min() < 0 or self.actions.max() >= ACTION_COUNT):
             bad = self.actions[(self.actions < 0) | (self.actions >= ACTION_COUNT)]
-            raise DecodeError(f"actions must be in [0, {ACTION_COUNT}) "
-                              f"({', '.join(ACTION_NAMES)}), got {bad.tolist()}")
+            raise DecodeError(
+                f"actions must be in [0, {ACTION_COUNT}) "
+                f"({', '.join(ACTION_NAMES)}), got {bad.tolist()}"
+            )
         if np.unique(self.agents).size != self.agents.size:
             raise DecodeError(f"agents must be distinct, got {self.agents.tolist()}")
 
@@ -439,15 +467,15 @@ class WorldFrame(Message):
     lane_count: int
     lane_width_m: float
     agent_kind: int
-    agent_active: np.ndarray            # bool (N,)
-    x_m: np.ndarray                     # float64 (V,)
-    y_m: np.ndarray                     # float64 (V,)
-    speed_mps: np.ndarray               # float32 (V,)
-    kind: np.ndarray                    # int8 (V,)
-    active: np.ndarray                  # bool (V,)
+    agent_active: np.ndarray  # bool (N,)
+    x_m: np.ndarray  # float64 (V,)
+    y_m: np.ndarray  # float64 (V,)
+    speed_mps: np.ndarray  # float32 (V,)
+    kind: np.ndarray  # int8 (V,)
+    active: np.ndarray  # bool (V,)
     observations: dict[str, np.ndarray]  # name -> (N, ...)
-    reward: np.ndarray                  # float64 (N,)
-    action_applied: np.ndarray          # int64 (N,)
+    reward: np.ndarray  # float64 (N,)
+    action_applied: np.ndarray  # int64 (N,)
     # Since 1.1 (a 1.0 peer's frames decode with these defaults):
     reward_terms: np.ndarray | None = field(default=None, metadata={"since": 1})  # (N, terms)
     reward_term_names: tuple[str, ...] = field(default=(), metadata={"since": 1})
@@ -465,11 +493,13 @@ class WorldFrame(Message):
         check_array("reward", self.reward, "float64", (n,))
         check_array("action_applied", self.action_applied, "int64", (n,))
         if self.reward_terms is not None:
-            check_array("reward_terms", self.reward_terms, "float64",
-                        (n, len(self.reward_term_names)))
+            check_array(
+                "reward_terms", self.reward_terms, "float64", (n, len(self.reward_term_names))
+            )
         elif self.reward_term_names:
-            raise DecodeError(f"reward_term_names {list(self.reward_term_names)} came without "
-                              "reward_terms")
+            raise DecodeError(
+                f"reward_term_names {list(self.reward_term_names)} came without reward_terms"
+            )
         for name in self.reward_term_names:
             check_name("reward term name", name)
         for name, value in self.observations.items():
@@ -478,6 +508,20 @@ class WorldFrame(Message):
                 raise DecodeError(f"observation {name!r} must have {n} rows, got {value.shape}")
 
 
-MESSAGE_TYPES: dict[str, type[Message]] = {cls.TYPE: cls for cls in (
-    StatusRequest, StatusReply, OpenRequest, JoinRequest, Opened, ResetRequest, Steps, Actions,
-    CloseRequest, Ack, ErrorReply, WorldFrame)}
+MESSAGE_TYPES: dict[str, type[Message]] = {
+    cls.TYPE: cls
+    for cls in (
+        StatusRequest,
+        StatusReply,
+        OpenRequest,
+        JoinRequest,
+        Opened,
+        ResetRequest,
+        Steps,
+        Actions,
+        CloseRequest,
+        Ack,
+        ErrorReply,
+        WorldFrame,
+    )
+}

@@ -66,47 +66,62 @@ class SecurityConfig:
         user = self.user or os.environ.get(USER_ENV) or None
         if user is None:
             if self.password_file is not None:
-                raise ConnectError(f"--password-file {self.password_file} is given without a "
-                                   f"user: add --user NAME (or set ${USER_ENV})")
+                raise ConnectError(
+                    f"--password-file {self.password_file} is given without a "
+                    f"user: add --user NAME (or set ${USER_ENV})"
+                )
             return None  # a password in the environment alone names nobody: no usrpwd
         if self.password_file is not None:
             try:
                 text = Path(self.password_file).read_text(encoding="utf-8")
             except OSError as error:
-                raise ConnectError(f"--password-file {self.password_file}: cannot read it "
-                                   f"({error.strerror})") from None
+                raise ConnectError(
+                    f"--password-file {self.password_file}: cannot read it ({error.strerror})"
+                ) from None
             password = text.splitlines()[0] if text.strip() else ""
             where = f"--password-file {self.password_file}"
         else:
             password = os.environ.get(PASSWORD_ENV, "")
             where = f"${PASSWORD_ENV}"
         if not password:
-            raise ConnectError(f"user {user!r} has no password: {where} is empty or unset "
-                               f"(give --password-file PATH, or set ${PASSWORD_ENV})")
+            raise ConnectError(
+                f"user {user!r} has no password: {where} is empty or unset "
+                f"(give --password-file PATH, or set ${PASSWORD_ENV})"
+            )
         return user, password
 
     def check(self, listen: tuple[str, ...], connect: tuple[str, ...]) -> None:
         """Refuse, naming the option, a setting Zenoh would fail on later with a vaguer error."""
-        for flag, path in (("--password-file", self.password_file),
-                           ("--credentials-file", self.credentials_file),
-                           ("--tls-root-ca", self.tls_root_ca),
-                           ("--tls-certificate", self.tls_certificate),
-                           ("--tls-private-key", self.tls_private_key)):
+        for flag, path in (
+            ("--password-file", self.password_file),
+            ("--credentials-file", self.credentials_file),
+            ("--tls-root-ca", self.tls_root_ca),
+            ("--tls-certificate", self.tls_certificate),
+            ("--tls-private-key", self.tls_private_key),
+        ):
             if path is not None and not Path(path).is_file():
                 raise ConnectError(f"{flag} {path}: no such file")
         if (self.tls_certificate is None) != (self.tls_private_key is None):
             raise ConnectError("--tls-certificate and --tls-private-key go together")
         tls_listen = [e for e in listen if _scheme(e) == "tls"]
         if tls_listen and self.tls_certificate is None:
-            raise ConnectError(f"listening on {', '.join(tls_listen)} needs this side's "
-                               "certificate: give --tls-certificate and --tls-private-key")
+            raise ConnectError(
+                f"listening on {', '.join(tls_listen)} needs this side's "
+                "certificate: give --tls-certificate and --tls-private-key"
+            )
         if self.tls_mtls and self.tls_root_ca is None:
-            raise ConnectError("--tls-mtls needs --tls-root-ca, the CA that signed the other "
-                               "side's certificate")
-        if self.tls_mtls and self.tls_certificate is None and any(
-                _scheme(e) == "tls" for e in connect):
-            raise ConnectError("--tls-mtls needs this side's certificate: give "
-                               "--tls-certificate and --tls-private-key")
+            raise ConnectError(
+                "--tls-mtls needs --tls-root-ca, the CA that signed the other side's certificate"
+            )
+        if (
+            self.tls_mtls
+            and self.tls_certificate is None
+            and any(_scheme(e) == "tls" for e in connect)
+        ):
+            raise ConnectError(
+                "--tls-mtls needs this side's certificate: give "
+                "--tls-certificate and --tls-private-key"
+            )
 
     def zenoh_settings(self) -> list[tuple[str, str]]:
         """(key, JSON5 value) pairs for a Zenoh configuration; only what is set."""
@@ -159,10 +174,12 @@ class TransportConfig:
         if self.mode == "client" and self.security.credentials_file is not None:
             # The commands share one set of security options; on a client this one would be
             # silently ignored, and its user would believe the link guarded.
-            raise ConnectError(f"--credentials-file {self.security.credentials_file} lists the "
-                               "users a listening server or router admits; this command only "
-                               "connects. To authenticate, give --user NAME with "
-                               f"--password-file PATH (or ${PASSWORD_ENV})")
+            raise ConnectError(
+                f"--credentials-file {self.security.credentials_file} lists the "
+                "users a listening server or router admits; this command only "
+                "connects. To authenticate, give --user NAME with "
+                f"--password-file PATH (or ${PASSWORD_ENV})"
+            )
         conf = zenoh.Config()
         conf.insert_json5("mode", json.dumps(self.mode))
         conf.insert_json5("scouting/multicast/enabled", "false")
@@ -172,8 +189,10 @@ class TransportConfig:
         if self.connect:
             timeout_ms = max(int(self.connect_timeout_s * 1000), 0)
             conf.insert_json5("connect/timeout_ms", str(timeout_ms))
-            conf.insert_json5("connect/retry", "{ period_init_ms: 100, period_max_ms: 1000, "
-                                               "period_increase_factor: 2 }")
+            conf.insert_json5(
+                "connect/retry",
+                "{ period_init_ms: 100, period_max_ms: 1000, period_increase_factor: 2 }",
+            )
             if self.mode != "client":
                 # Peers and routers must not fail to start when the other side is not up yet.
                 conf.insert_json5("connect/exit_on_failure", "false")
@@ -185,7 +204,7 @@ class TransportConfig:
         return conf
 
     def describe(self) -> str:
-        parts = [self.mode]
+        parts: list[str] = [self.mode]
         if self.listen:
             parts.append("listening on " + ", ".join(self.listen))
         if self.connect:
@@ -222,7 +241,8 @@ def _host_port(endpoint: str) -> tuple[str, int] | None:
 
 def _tls_context(security: SecurityConfig) -> ssl.SSLContext:
     context = ssl.create_default_context(
-        cafile=str(security.tls_root_ca) if security.tls_root_ca is not None else None)
+        cafile=str(security.tls_root_ca) if security.tls_root_ca is not None else None
+    )
     context.check_hostname = security.tls_verify_name
     if security.tls_mtls and security.tls_certificate is not None:
         context.load_cert_chain(str(security.tls_certificate), str(security.tls_private_key))
@@ -235,9 +255,11 @@ def _speaks_tls(host: str, port: int) -> bool:
     context.check_hostname = False
     context.verify_mode = ssl.CERT_NONE
     try:
-        with socket.create_connection((host, port), timeout=1.0) as sock:
-            with context.wrap_socket(sock, server_hostname=host):
-                return True
+        with (
+            socket.create_connection((host, port), timeout=1.0) as sock,
+            context.wrap_socket(sock, server_hostname=host),
+        ):
+            return True
     except (OSError, ssl.SSLError):
         return False
 
@@ -249,35 +271,49 @@ def _tls_cause(host: str, port: int, security: SecurityConfig) -> str | None:
     except (OSError, ssl.SSLError) as error:
         return f"this side's TLS files cannot be used ({error})"
     try:
-        with socket.create_connection((host, port), timeout=PROBE_TIMEOUT_S) as sock:
-            with context.wrap_socket(sock, server_hostname=host) as tls:
-                # With TLS 1.3 a listener that wants a client certificate says so only after
-                # the handshake: wait briefly for its alert (a Zenoh router sends nothing).
-                tls.settimeout(0.5)
-                try:
-                    tls.recv(1)
-                except ssl.SSLError as error:
-                    if "CERTIFICATE_REQUIRED" in str(error).upper() or not security.tls_mtls:
-                        return (f"{where} requires a client certificate (mutual TLS): give "
-                                "--tls-mtls with --tls-certificate and --tls-private-key signed "
-                                "by a CA it trusts")
-                    return (f"{where} refused this side's certificate "
-                            f"({error.reason or error}): it is not signed by a CA it trusts")
-                except (TimeoutError, OSError):
-                    pass
+        with (
+            socket.create_connection((host, port), timeout=PROBE_TIMEOUT_S) as sock,
+            context.wrap_socket(sock, server_hostname=host) as tls,
+        ):
+            # With TLS 1.3 a listener that wants a client certificate says so only after
+            # the handshake: wait briefly for its alert (a Zenoh router sends nothing).
+            tls.settimeout(0.5)
+            try:
+                tls.recv(1)
+            except ssl.SSLError as error:
+                if "CERTIFICATE_REQUIRED" in str(error).upper() or not security.tls_mtls:
+                    return (
+                        f"{where} requires a client certificate (mutual TLS): give "
+                        "--tls-mtls with --tls-certificate and --tls-private-key signed "
+                        "by a CA it trusts"
+                    )
+                return (
+                    f"{where} refused this side's certificate "
+                    f"({error.reason or error}): it is not signed by a CA it trusts"
+                )
+            except (TimeoutError, OSError):
+                pass
     except ssl.SSLCertVerificationError as error:
         reason = error.verify_message or str(error)
         if "mismatch" in reason.lower():
-            return (f"the TLS certificate of {where} does not name {host!r} ({reason}): connect "
-                    "with a name or address its certificate lists (its subjectAltName)")
+            return (
+                f"the TLS certificate of {where} does not name {host!r} ({reason}): connect "
+                "with a name or address its certificate lists (its subjectAltName)"
+            )
         if security.tls_root_ca is None:
-            return (f"the TLS certificate of {where} is not trusted ({reason}): give the CA "
-                    "certificate that signed it with --tls-root-ca")
-        return (f"the TLS certificate of {where} is not trusted ({reason}): it is not signed "
-                f"by the CA in --tls-root-ca {security.tls_root_ca}")
+            return (
+                f"the TLS certificate of {where} is not trusted ({reason}): give the CA "
+                "certificate that signed it with --tls-root-ca"
+            )
+        return (
+            f"the TLS certificate of {where} is not trusted ({reason}): it is not signed "
+            f"by the CA in --tls-root-ca {security.tls_root_ca}"
+        )
     except ssl.SSLError as error:
-        return (f"{where} does not complete a TLS handshake ({error.reason or error}): is it a "
-                "tcp/ listener rather than tls/?")
+        return (
+            f"{where} does not complete a TLS handshake ({error.reason or error}): is it a "
+            "tcp/ listener rather than tls/?"
+        )
     except OSError:
         return None  # reachable a moment ago; the caller reports what it found
     return None
@@ -296,10 +332,12 @@ def connect_failure_cause(config: TransportConfig) -> str | None:
         try:
             socket.create_connection((host, port), timeout=PROBE_TIMEOUT_S).close()
         except OSError as error:
-            causes.append(f"nothing accepts connections at {where} "
-                          f"({error.strerror or error}). Likely causes: no router or server "
-                          "runs there; a wrong host or port; it listens on loopback only (start "
-                          "it with --listen tcp/0.0.0.0:7447 to let other hosts in); a firewall")
+            causes.append(
+                f"nothing accepts connections at {where} "
+                f"({error.strerror or error}). Likely causes: no router or server "
+                "runs there; a wrong host or port; it listens on loopback only (start "
+                "it with --listen tcp/0.0.0.0:7447 to let other hosts in); a firewall"
+            )
             continue
         if scheme == "tls":
             cause = _tls_cause(host, port, config.security)
@@ -307,18 +345,21 @@ def connect_failure_cause(config: TransportConfig) -> str | None:
                 causes.append(cause)
                 continue
         elif _speaks_tls(host, port):
-            causes.append(f"{where} is a TLS listener: connect to tls/{where} (with "
-                          "--tls-root-ca)")
+            causes.append(f"{where} is a TLS listener: connect to tls/{where} (with --tls-root-ca)")
             continue
         credentials = config.security.user or os.environ.get(USER_ENV)
         if credentials:
-            causes.append(f"{where} accepted the link but refused the Zenoh session: most "
-                          f"likely a wrong password for user {credentials!r}, or a user its "
-                          "credentials file does not list")
+            causes.append(
+                f"{where} accepted the link but refused the Zenoh session: most "
+                f"likely a wrong password for user {credentials!r}, or a user its "
+                "credentials file does not list"
+            )
         else:
-            causes.append(f"{where} accepted the link but refused the Zenoh session: most "
-                          "likely it requires usrpwd credentials (--user, with --password-file "
-                          f"or ${PASSWORD_ENV})")
+            causes.append(
+                f"{where} accepted the link but refused the Zenoh session: most "
+                "likely it requires usrpwd credentials (--user, with --password-file "
+                f"or ${PASSWORD_ENV})"
+            )
     return "; ".join(causes) if causes else None
 
 
@@ -344,38 +385,48 @@ def is_loopback_endpoint(endpoint: str) -> bool:
         return False  # a host name: other hosts may reach it
 
 
-def unguarded_listeners(listen: tuple[str, ...], *, usrpwd: bool,
-                        mtls: bool) -> tuple[str, ...]:
+def unguarded_listeners(listen: tuple[str, ...], *, usrpwd: bool, mtls: bool) -> tuple[str, ...]:
     """The network endpoints in ``listen`` that anyone who reaches them may use: not loopback,
     and guarded neither by usrpwd (a credentials file, checked on every link) nor, for tls/ and
     quic/ endpoints, by mutual TLS."""
     if usrpwd:
         return ()
-    return tuple(endpoint for endpoint in listen
-                 if _scheme(endpoint) in _NETWORK_SCHEMES and not is_loopback_endpoint(endpoint)
-                 and not (mtls and _scheme(endpoint) in _TLS_SCHEMES))
+    return tuple(
+        endpoint
+        for endpoint in listen
+        if _scheme(endpoint) in _NETWORK_SCHEMES
+        and not is_loopback_endpoint(endpoint)
+        and not (mtls and _scheme(endpoint) in _TLS_SCHEMES)
+    )
 
 
-def warn_if_unguarded(config: TransportConfig, log: logging.Logger, *, usrpwd: bool = False,
-                      mtls: bool = False) -> tuple[str, ...]:
+def warn_if_unguarded(
+    config: TransportConfig, log: logging.Logger, *, usrpwd: bool = False, mtls: bool = False
+) -> tuple[str, ...]:
     """Log one warning naming the listeners anyone may use (see
     :func:`unguarded_listeners`); returns them. usrpwd and mutual TLS count when
     ``config.security`` sets them or the caller says another source does (a router's file)."""
     security = config.security
-    unguarded = unguarded_listeners(config.listen,
-                                    usrpwd=usrpwd or security.credentials_file is not None,
-                                    mtls=mtls or security.tls_mtls)
+    unguarded = unguarded_listeners(
+        config.listen,
+        usrpwd=usrpwd or security.credentials_file is not None,
+        mtls=mtls or security.tls_mtls,
+    )
     if unguarded:
-        log.warning("listening on %s with neither usrpwd nor mutual TLS: anyone who reaches that "
-                    "address can join this Zenoh network, drive the simulator and read "
-                    "everything on it. Listen on loopback only (tcp/127.0.0.1:PORT), or admit "
-                    "only known users (--credentials-file) or certificates (tls/ endpoints with "
-                    "--tls-mtls); README, \"Trainers on other hosts\"", ", ".join(unguarded))
+        log.warning(
+            "listening on %s with neither usrpwd nor mutual TLS: anyone who reaches that "
+            "address can join this Zenoh network, drive the simulator and read "
+            "everything on it. Listen on loopback only (tcp/127.0.0.1:PORT), or admit "
+            "only known users (--credentials-file) or certificates (tls/ endpoints with "
+            '--tls-mtls); README, "Trainers on other hosts"',
+            ", ".join(unguarded),
+        )
     return unguarded
 
 
-def warn_if_unconnected(session: zenoh.Session, config: TransportConfig, log: logging.Logger,
-                        after_s: float = 10.0) -> threading.Thread | None:
+def warn_if_unconnected(
+    session: zenoh.Session, config: TransportConfig, log: logging.Logger, after_s: float = 10.0
+) -> threading.Thread | None:
     """A router or peer keeps retrying its ``connect`` endpoints in the background rather than
     failing (it may start before them): if none is connected after ``after_s``, say so once,
     with the likely cause, instead of waiting in silence."""
@@ -389,8 +440,12 @@ def warn_if_unconnected(session: zenoh.Session, config: TransportConfig, log: lo
         except Exception:  # the session closed in the meantime
             return
         cause = connect_failure_cause(config)
-        log.warning("not connected to %s after %.0f s (still trying)%s", ", ".join(config.connect),
-                    after_s, f": {cause}" if cause else "")
+        log.warning(
+            "not connected to %s after %.0f s (still trying)%s",
+            ", ".join(config.connect),
+            after_s,
+            f": {cause}" if cause else "",
+        )
 
     timer = threading.Timer(after_s, check)
     timer.daemon = True

@@ -19,14 +19,28 @@ KEEP, CRUISE_UP, CRUISE_DOWN, LANE_LEFT, LANE_RIGHT = range(ACTION_COUNT)
 DEFAULT_ACTION = KEEP
 
 # The ego vector observation ("ego"), field by field: the agent's own state (m/s, lanes).
-EGO_FIELDS: tuple[str, ...] = ("speed_mps", "cruise_target_mps", "lane_index", "lane_count",
-                               "lane_change_progress", "lane_change_direction")
+EGO_FIELDS: tuple[str, ...] = (
+    "speed_mps",
+    "cruise_target_mps",
+    "lane_index",
+    "lane_count",
+    "lane_change_progress",
+    "lane_change_direction",
+)
 EGO_SPEED = EGO_FIELDS.index("speed_mps")
 EGO_CRUISE_TARGET = EGO_FIELDS.index("cruise_target_mps")
 
 # The papers' episode metrics, the columns of every Steps' ``metrics`` and of info["metrics"].
-METRIC_FIELDS: tuple[str, ...] = ("avg_speed_kmh", "lane_changes", "overtakes", "collisions",
-                                  "emergency_brakes", "distance_m", "return", "decisions")
+METRIC_FIELDS: tuple[str, ...] = (
+    "avg_speed_kmh",
+    "lane_changes",
+    "overtakes",
+    "collisions",
+    "emergency_brakes",
+    "distance_m",
+    "return",
+    "decisions",
+)
 
 # Traffic driver types (Ho 2018, Table 5); a vehicle's ``kind`` in world frames indexes this
 # tuple, and a kind equal to its length marks an agent's car.

@@ -8,7 +8,7 @@ and terminated = truncated = False.
 Info carries, every step: ``action_mask`` (int8, 1 = the action can be taken now),
 ``action_applied`` (the action actually taken: a masked lateral action becomes keep) and
 ``reward_terms`` (each term of the reward); at the end of an episode also ``metrics``, the
-papers' episode metrics (:data:`overtake.server.sim.METRIC_FIELDS`).
+papers' episode metrics (:data:`overtake.protocol.vocabulary.METRIC_FIELDS`).
 """
 
 from __future__ import annotations
@@ -31,13 +31,15 @@ from .sim.render import render_top_down
 
 try:  # Gymnasium >= 1.1 names the autoreset modes; 1.0 only has next-step autoreset.
     from gymnasium.vector import AutoresetMode
+
     _NEXT_STEP: Any = AutoresetMode.NEXT_STEP
 except ImportError:  # pragma: no cover - Gymnasium 1.0
     _NEXT_STEP = "NextStep"
 
 
-def _resolve_config(preset: str, overrides: Mapping[str, Any] | None,
-                    config: SimConfig | None) -> SimConfig:
+def _resolve_config(
+    preset: str, overrides: Mapping[str, Any] | None, config: SimConfig | None
+) -> SimConfig:
     if config is not None:
         if overrides:
             raise ValueError("pass either a config or a preset with overrides, not both")
@@ -47,21 +49,32 @@ def _resolve_config(preset: str, overrides: Mapping[str, Any] | None,
 
 def observation_space(sim: HighwaySim) -> spaces.Dict:
     """The Dict observation space of one agent of ``sim``: one Box per sensor."""
-    return spaces.Dict({key: spaces.Box(low=box.low, high=box.high, shape=box.shape,
-                                        dtype=box.dtype)
-                        for key, box in sim.observation_spaces().items()})
+    return spaces.Dict(
+        {
+            key: spaces.Box(low=box.low, high=box.high, shape=box.shape, dtype=box.dtype)
+            for key, box in sim.observation_spaces().items()
+        }
+    )
 
 
 class HighwayEnv(ReportsEpisodeLength, gym.Env):
     """One agent on a simulated highway (Min et al. 2018 by default)."""
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+    # Gymnasium's convention: a class attribute, replaced per instance with its frame rate.
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}  # noqa: RUF012
 
-    def __init__(self, preset: str = "min2018", overrides: Mapping[str, Any] | None = None,
-                 config: SimConfig | None = None, render_mode: str | None = None) -> None:
+    def __init__(
+        self,
+        preset: str = "min2018",
+        overrides: Mapping[str, Any] | None = None,
+        config: SimConfig | None = None,
+        render_mode: str | None = None,
+    ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or "
-                             f"None, got {render_mode!r}")
+            raise ValueError(
+                f"render_mode must be one of {self.metadata['render_modes']} or "
+                f"None, got {render_mode!r}"
+            )
         self.config = _resolve_config(preset, overrides, config)
         self.render_mode = render_mode
         self.sim = HighwaySim(self.config, num_arenas=1, agents_per_arena=1)
@@ -70,7 +83,6 @@ class HighwayEnv(ReportsEpisodeLength, gym.Env):
         self.decision_period_s = self.config.episode.decision_period_s
         self.max_episode_steps = self.config.episode.max_decisions
         self.metadata = {**self.metadata, "render_fps": 1.0 / self.decision_period_s}
-
 
     def _observation(self) -> dict[str, np.ndarray]:
         return {key: value[0, 0] for key, value in self.sim.observe().items()}
@@ -95,8 +107,13 @@ class HighwayEnv(ReportsEpisodeLength, gym.Env):
     def step(self, action):
         result = self.sim.step(check_actions(action, 1, single=True).reshape(1, 1))
         info = self._info(result)
-        return (self._observation(), float(result.reward[0, 0]), bool(result.terminated[0, 0]),
-                bool(result.truncated[0, 0]), info)
+        return (
+            self._observation(),
+            float(result.reward[0, 0]),
+            bool(result.terminated[0, 0]),
+            bool(result.truncated[0, 0]),
+            info,
+        )
 
     def render(self) -> np.ndarray | None:
         if self.render_mode == "rgb_array":
@@ -116,14 +133,21 @@ class HighwayEnv(ReportsEpisodeLength, gym.Env):
 class HighwayVectorEnv(gym.vector.VectorEnv):
     """``num_envs`` independent arenas stepped together by one simulation core."""
 
-    metadata = {"render_modes": ["rgb_array"], "autoreset_mode": _NEXT_STEP}
+    metadata = {"render_modes": ["rgb_array"], "autoreset_mode": _NEXT_STEP}  # noqa: RUF012
 
-    def __init__(self, num_envs: int = 1, preset: str = "min2018",
-                 overrides: Mapping[str, Any] | None = None, config: SimConfig | None = None,
-                 render_mode: str | None = None) -> None:
+    def __init__(
+        self,
+        num_envs: int = 1,
+        preset: str = "min2018",
+        overrides: Mapping[str, Any] | None = None,
+        config: SimConfig | None = None,
+        render_mode: str | None = None,
+    ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or "
-                             f"None, got {render_mode!r}")
+            raise ValueError(
+                f"render_mode must be one of {self.metadata['render_modes']} or "
+                f"None, got {render_mode!r}"
+            )
         self.config = _resolve_config(preset, overrides, config)
         self.num_envs = num_envs
         self.render_mode = render_mode
@@ -144,17 +168,23 @@ class HighwayVectorEnv(gym.vector.VectorEnv):
     def _observations(self) -> dict[str, np.ndarray]:
         return {key: value[:, 0] for key, value in self.sim.observe().items()}
 
-    def reset(self, *, seed: int | Sequence[int | None] | None = None,
-              options: dict[str, Any] | None = None):
+    def reset(
+        self,
+        *,
+        seed: int | Sequence[int | None] | None = None,
+        options: dict[str, Any] | None = None,
+    ):
         seeds = arena_seeds(seed, self.num_envs)
         if seed is not None:
             self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seeds[0])
         self.sim.reset(seeds=seeds)
         self._autoreset[:] = False
         n = self.num_envs
-        info = {"action_mask": self.sim.action_mask()[:, 0],
-                "action_applied": np.full(n, -1, dtype=np.int64),
-                "reward_terms": {name: np.zeros(n) for name in self.sim.reward_terms}}
+        info = {
+            "action_mask": self.sim.action_mask()[:, 0],
+            "action_applied": np.full(n, -1, dtype=np.int64),
+            "reward_terms": {name: np.zeros(n) for name in self.sim.reward_terms},
+        }
         return self._observations(), info
 
     def step(self, actions):
@@ -163,16 +193,23 @@ class HighwayVectorEnv(gym.vector.VectorEnv):
         info: dict[str, Any] = {
             "action_mask": self.sim.action_mask()[:, 0],
             "action_applied": result.action_applied[:, 0],
-            "reward_terms": {name: value[:, 0] for name, value in result.reward_terms.items()}}
+            "reward_terms": {name: value[:, 0] for name, value in result.reward_terms.items()},
+        }
         ended = result.ended[:, 0]
         if ended.any():
             metrics = self.sim.metrics()
-            info["metrics"] = {name: np.where(ended, metrics[name][:, 0], 0.0)
-                               for name in METRIC_FIELDS}
+            info["metrics"] = {
+                name: np.where(ended, metrics[name][:, 0], 0.0) for name in METRIC_FIELDS
+            }
             info["_metrics"] = ended
         self._autoreset = ended
-        return (self._observations(), result.reward[:, 0], result.terminated[:, 0],
-                result.truncated[:, 0], info)
+        return (
+            self._observations(),
+            result.reward[:, 0],
+            result.terminated[:, 0],
+            result.truncated[:, 0],
+            info,
+        )
 
     def render(self) -> tuple[np.ndarray, ...] | None:
         if self.render_mode == "rgb_array":

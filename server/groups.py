@@ -5,11 +5,11 @@ numpy pass. Each agent slot of each arena is owned by at most one trainer. A gro
 (a *round*) when every trainer that owns a car in it has sent its actions for the round, or,
 once somebody has, at the deadline, with the default action for whoever is late.
 
-Episodes end per agent and restart on the next round (Gymnasium's next-step autoreset): an
-arena with one agent is reset whole, exactly as the in-process vector environment does, so a
-remote arena reproduces an in-process one bit for bit; in a shared arena only the agent that
-ended restarts (it is taken off the road for the round and placed back afterwards) while the
-road goes on for the others.
+Episodes end per agent and restart on the next round (Gymnasium's next-step autoreset), in
+:func:`~overtake.server.sim.autoreset_round`, the round the in-process vector environment
+steps too: an arena with one agent is reset whole, so a remote arena reproduces an in-process
+one bit for bit; in a shared arena only the agent that ended restarts (it is taken off the road
+for the round and placed back afterwards) while the road goes on for the others.
 """
 
 from __future__ import annotations
@@ -25,13 +25,25 @@ import numpy as np
 
 from overtake.protocol import errors
 from overtake.protocol.envs import arena_seeds
-from overtake.protocol.messages import (MAX_FRAME_BYTES, Actions, BehaviourSpec, GroupStatus,
-                                        ObservationSpec, Scalar, Steps, WorldFrame)
-from overtake.protocol.vocabulary import (ACTION_COUNT, ACTION_NAMES, AGENT_KIND,
-                                          DEFAULT_ACTION, METRIC_FIELDS)
+from overtake.protocol.messages import (
+    MAX_FRAME_BYTES,
+    Actions,
+    BehaviourSpec,
+    GroupStatus,
+    ObservationSpec,
+    Scalar,
+    Steps,
+    WorldFrame,
+)
+from overtake.protocol.vocabulary import (
+    ACTION_COUNT,
+    ACTION_NAMES,
+    AGENT_KIND,
+    DEFAULT_ACTION,
+    METRIC_FIELDS,
+)
 
-from .sim import (PRESETS, ConfigError, HighwaySim, SimConfig, autoreset_round,
-                  make_config)
+from .sim import PRESETS, ConfigError, HighwaySim, SimConfig, autoreset_round, make_config
 
 
 def behaviour_spec(sim: HighwaySim) -> BehaviourSpec:
@@ -39,22 +51,31 @@ def behaviour_spec(sim: HighwaySim) -> BehaviourSpec:
     config = sim.config
     # In the order of the in-process Dict space, which Gymnasium sorts by name.
     observations = tuple(
-        ObservationSpec(name=name, shape=box.shape, dtype=box.dtype.name, low=box.low,
-                        high=box.high)
-        for name, box in sorted(sim.observation_spaces().items()))
+        ObservationSpec(
+            name=name, shape=box.shape, dtype=box.dtype.name, low=box.low, high=box.high
+        )
+        for name, box in sorted(sim.observation_spaces().items())
+    )
     return BehaviourSpec(
-        name=f"Highway?preset={config.preset}", preset=config.preset, observations=observations,
-        action_branches=(ACTION_COUNT,), action_names=ACTION_NAMES,
-        reward_terms=sim.reward_terms, metric_fields=METRIC_FIELDS,
+        name=f"Highway?preset={config.preset}",
+        preset=config.preset,
+        observations=observations,
+        action_branches=(ACTION_COUNT,),
+        action_names=ACTION_NAMES,
+        reward_terms=sim.reward_terms,
+        metric_fields=METRIC_FIELDS,
         decision_period_s=config.episode.decision_period_s,
-        max_episode_steps=config.episode.max_decisions, agents_per_arena=sim.agents,
-        config_json=json.dumps(dataclasses.asdict(config)))
+        max_episode_steps=config.episode.max_decisions,
+        agents_per_arena=sim.agents,
+        config_json=json.dumps(dataclasses.asdict(config)),
+    )
 
 
 def resolve_config(preset: str, overrides: Mapping[str, Scalar]) -> SimConfig:
     if preset not in PRESETS:
-        raise errors.UnknownPreset(f"unknown preset {preset!r}: this server has "
-                                   f"{', '.join(sorted(PRESETS))}")
+        raise errors.UnknownPreset(
+            f"unknown preset {preset!r}: this server has {', '.join(sorted(PRESETS))}"
+        )
     try:
         return make_config(preset, overrides)
     except ConfigError as error:
@@ -66,8 +87,8 @@ class Member:
     """A trainer's stake in a group."""
 
     ticket: bytes
-    slots: np.ndarray                   # (A, N) bool: the agent slots it owns
-    pending: Actions | None = None      # its actions for the current round
+    slots: np.ndarray  # (A, N) bool: the agent slots it owns
+    pending: Actions | None = None  # its actions for the current round
 
 
 @dataclass
@@ -80,42 +101,62 @@ class Group:
     spec: BehaviourSpec
     members: dict[str, Member] = field(default_factory=dict)
     round: int = 0
-    deadline: float | None = None       # monotonic time the current round gives up waiting
-    ended: np.ndarray | None = None     # (A, N) agents whose episode ended last round
+    deadline: float | None = None  # monotonic time the current round gives up waiting
     late_agents: int = 0
     rounds_done: int = 0
     rate_rounds_per_s: float = 0.0
     _last_round_t: float = field(default_factory=time.monotonic)
-    last_reward: np.ndarray | None = None
-    last_applied: np.ndarray | None = None
-    last_terms: np.ndarray | None = None      # (A, N, reward terms) of the last round
-    last_observations: dict[str, np.ndarray] | None = None   # of the last round, for spectators
+    last_observations: dict[str, np.ndarray] | None = None  # of the last round, for spectators
+    # (A, N) per agent slot: whose episode ended last round, and what it got then.
+    ended: np.ndarray = field(init=False)
+    last_reward: np.ndarray = field(init=False)
+    last_applied: np.ndarray = field(init=False)
+    last_terms: np.ndarray = field(init=False)  # (A, N, reward terms)
+
+    def __post_init__(self) -> None:
+        shape = (self.sim.num_arenas, self.sim.agents)
+        self.ended = np.zeros(shape, dtype=bool)
+        self.last_reward = np.zeros(shape)
+        self.last_applied = np.full(shape, -1, dtype=np.int64)
+        self.last_terms = np.zeros(shape + (len(self.sim.reward_terms),))
 
     @classmethod
-    def open(cls, group_id: int, server: str, arena_ids: list[int], preset: str,
-             overrides: Mapping[str, Scalar], agents_per_arena: int,
-             seed: int | None) -> "Group":
+    def open(
+        cls,
+        group_id: int,
+        server: str,
+        arena_ids: list[int],
+        preset: str,
+        overrides: Mapping[str, Scalar],
+        agents_per_arena: int,
+        seed: int | None,
+    ) -> Group:
         config = resolve_config(preset, overrides)
         try:
             sim = HighwaySim(config, num_arenas=len(arena_ids), agents_per_arena=agents_per_arena)
         except ValueError as error:
             raise errors.BadConfig(str(error)) from None
         # One trainer's Steps carry all its agents' observations: they must fit in a frame.
-        per_agent = sum(int(np.prod(box.shape)) * box.dtype.itemsize
-                        for box in sim.observation_spaces().values())
+        per_agent = sum(
+            int(np.prod(box.shape)) * box.dtype.itemsize
+            for box in sim.observation_spaces().values()
+        )
         step_bytes = per_agent * sim.num_arenas * sim.agents
         if step_bytes > MAX_FRAME_BYTES // 2:
             raise errors.BadConfig(
                 f"{sim.num_arenas} arena(s) x {sim.agents} agent(s) x {per_agent} bytes of "
                 f"observations is {step_bytes} bytes a step, over the limit of "
-                f"{MAX_FRAME_BYTES // 2}: open fewer arenas at once or use smaller images")
+                f"{MAX_FRAME_BYTES // 2}: open fewer arenas at once or use smaller images"
+            )
         sim.reset(seeds=arena_seeds(seed, len(arena_ids)))
-        group = cls(group_id=group_id, server=server, arena_ids=list(arena_ids), preset=preset,
-                    sim=sim, spec=behaviour_spec(sim))
-        group.ended = np.zeros((sim.num_arenas, sim.agents), dtype=bool)
-        group.last_reward = np.zeros((sim.num_arenas, sim.agents))
-        group.last_applied = np.full((sim.num_arenas, sim.agents), -1, dtype=np.int64)
-        group.last_terms = np.zeros((sim.num_arenas, sim.agents, len(sim.reward_terms)))
+        group = cls(
+            group_id=group_id,
+            server=server,
+            arena_ids=list(arena_ids),
+            preset=preset,
+            sim=sim,
+            spec=behaviour_spec(sim),
+        )
         # Every car starts off the road; claims put them on.
         for arena in range(sim.num_arenas):
             sim.remove_agents(arena, np.arange(sim.agents))
@@ -142,12 +183,14 @@ class Group:
         if free.size < count:
             raise errors.ServerFull(
                 f"arena {self.arena_ids[arena_index]} has {free.size} free agent slot(s) of "
-                f"{self.sim.agents}, asked for {count}")
+                f"{self.sim.agents}, asked for {count}"
+            )
         slots = free[:count]
         member = self.members.get(trainer)
         if member is None:
-            member = self.members[trainer] = Member(ticket=secrets.token_bytes(16),
-                                                    slots=np.zeros(self.shape, dtype=bool))
+            member = self.members[trainer] = Member(
+                ticket=secrets.token_bytes(16), slots=np.zeros(self.shape, dtype=bool)
+            )
         member.slots[arena_index, slots] = True
         if fresh:
             self.sim.restore_agents(arena_index, slots)
@@ -163,7 +206,7 @@ class Group:
         member = self.members.pop(trainer, None)
         if member is None:
             return
-        for arena, slot in zip(*np.nonzero(member.slots)):
+        for arena, slot in zip(*np.nonzero(member.slots), strict=True):
             self.sim.remove_agents(int(arena), [int(slot)])
         # A car that ended its episode just before its trainer left must not come back.
         self.ended &= ~member.slots
@@ -176,12 +219,16 @@ class Group:
     def member(self, trainer: str, ticket: bytes) -> Member:
         member = self.members.get(trainer)
         if member is None:
-            raise errors.NotOwner(f"trainer {trainer!r} has no agents in group {self.group_id} "
-                                  f"(arenas {self.arena_ids}); open or join an arena first")
+            raise errors.NotOwner(
+                f"trainer {trainer!r} has no agents in group {self.group_id} "
+                f"(arenas {self.arena_ids}); open or join an arena first"
+            )
         if not secrets.compare_digest(member.ticket, ticket):
-            raise errors.WrongTicket(f"wrong ticket for trainer {trainer!r} in group "
-                                  f"{self.group_id}: requests must come from the session "
-                                  "that opened or joined it")
+            raise errors.WrongTicket(
+                f"wrong ticket for trainer {trainer!r} in group "
+                f"{self.group_id}: requests must come from the session "
+                "that opened or joined it"
+            )
         return member
 
     # --- rounds -----------------------------------------------------------------------------
@@ -190,23 +237,31 @@ class Group:
         """Hold a trainer's actions for the current round (checked against what it owns)."""
         member = self.member(actions.trainer, actions.ticket)
         if actions.round < self.round:
-            raise errors.StaleActions(f"actions answer round {actions.round}, but group "
-                                      f"{self.group_id} played it at the deadline and is at "
-                                      f"round {self.round}")
+            raise errors.StaleActions(
+                f"actions answer round {actions.round}, but group "
+                f"{self.group_id} played it at the deadline and is at "
+                f"round {self.round}"
+            )
         if actions.round > self.round:
-            raise errors.BadAction(f"actions answer round {actions.round}, but group "
-                                   f"{self.group_id} is only at round {self.round}")
+            raise errors.BadAction(
+                f"actions answer round {actions.round}, but group "
+                f"{self.group_id} is only at round {self.round}"
+            )
         agents = actions.agents
         total = self.sim.num_arenas * self.sim.agents
         if agents.size and (agents.min() < 0 or agents.max() >= total):
-            raise errors.BadAction(f"agent ids in group {self.group_id} are 0..{total - 1}, got "
-                                   f"{agents[(agents < 0) | (agents >= total)].tolist()}")
+            raise errors.BadAction(
+                f"agent ids in group {self.group_id} are 0..{total - 1}, got "
+                f"{agents[(agents < 0) | (agents >= total)].tolist()}"
+            )
         mine = member.slots.reshape(-1)[agents]
         if not mine.all():
-            raise errors.NotOwner(f"agents {agents[~mine].tolist()} of group {self.group_id} "
-                                  f"belong to another trainer or to nobody; "
-                                  f"{actions.trainer!r} owns "
-                                  f"{np.flatnonzero(member.slots).tolist()}")
+            raise errors.NotOwner(
+                f"agents {agents[~mine].tolist()} of group {self.group_id} "
+                f"belong to another trainer or to nobody; "
+                f"{actions.trainer!r} owns "
+                f"{np.flatnonzero(member.slots).tolist()}"
+            )
         member.pending = actions
         if self.deadline is None:
             self.deadline = time.monotonic() + deadline_s
@@ -235,38 +290,50 @@ class Group:
         late &= ~self.ended
         self.late_agents += int(late.sum())
 
-        result = autoreset_round(sim, actions, self.ended & self.owned(),
-                                 sim.agents_present())
+        result = autoreset_round(sim, actions, self.ended & self.owned(), sim.agents_present())
         terms = np.stack([result.reward_terms[name] for name in sim.reward_terms], axis=-1)
         self.ended = result.ended
-        self.last_reward, self.last_applied, self.last_terms = \
-            result.reward, result.action_applied, terms
+        self.last_reward, self.last_applied, self.last_terms = (
+            result.reward,
+            result.action_applied,
+            terms,
+        )
         self.round += 1
         self.rounds_done += 1
         self.deadline = None
         now = time.monotonic()
         dt = max(now - self._last_round_t, 1e-9)
         self._last_round_t = now
-        self.rate_rounds_per_s = 1.0 / dt if self.rounds_done == 1 else \
-            0.9 * self.rate_rounds_per_s + 0.1 / dt
-        return self._steps_for_members(result.reward, result.terminated, result.truncated,
-                                       result.action_applied, late, terms)
+        self.rate_rounds_per_s = (
+            1.0 / dt if self.rounds_done == 1 else 0.9 * self.rate_rounds_per_s + 0.1 / dt
+        )
+        return self._steps_for_members(
+            result.reward, result.terminated, result.truncated, result.action_applied, late, terms
+        )
 
-    def reset(self, trainer: str, ticket: bytes, arena_indices: tuple[int, ...],
-              seeds: tuple[int | None, ...]) -> Steps:
+    def reset(
+        self,
+        trainer: str,
+        ticket: bytes,
+        arena_indices: tuple[int, ...],
+        seeds: tuple[int | None, ...],
+    ) -> Steps:
         """Restart episodes in some arenas for ``trainer``; returns its :class:`Steps`."""
         member = self.member(trainer, ticket)
-        arenas, n = self.shape
+        arenas = self.shape[0]
         bad = [a for a in arena_indices if not 0 <= a < arenas]
         if bad:
-            raise errors.UnknownArena(f"group {self.group_id} has arenas 0..{arenas - 1} "
-                                      f"(ids {self.arena_ids}), got indices {bad}")
+            raise errors.UnknownArena(
+                f"group {self.group_id} has arenas 0..{arenas - 1} "
+                f"(ids {self.arena_ids}), got indices {bad}"
+            )
         owned = self.owned()
-        for arena, seed in zip(arena_indices, seeds):
+        for arena, seed in zip(arena_indices, seeds, strict=True):
             mine = member.slots[arena]
             if not mine.any():
-                raise errors.NotOwner(f"trainer {trainer!r} has no agents in arena "
-                                      f"{self.arena_ids[arena]}")
+                raise errors.NotOwner(
+                    f"trainer {trainer!r} has no agents in arena {self.arena_ids[arena]}"
+                )
             if (owned[arena] == mine).all():
                 # Alone on this road: a real reset, seeded as asked.
                 self.sim.reset([arena], seeds=[seed])
@@ -285,26 +352,45 @@ class Group:
     def current_steps(self, trainer: str) -> Steps:
         """The trainer's agents as they are now (after a claim), reward 0, no flags."""
         flags = np.zeros(self.shape, dtype=bool)
-        return self._steps(self.members[trainer].slots, self._arena_view(), np.zeros(self.shape),
-                           flags, flags, np.full(self.shape, -1, np.int64), flags,
-                           np.zeros(self.shape + (len(self.sim.reward_terms),)))
+        return self._steps(
+            self.members[trainer].slots,
+            self._arena_view(),
+            np.zeros(self.shape),
+            flags,
+            flags,
+            np.full(self.shape, -1, np.int64),
+            flags,
+            np.zeros(self.shape + (len(self.sim.reward_terms),)),
+        )
 
-    def _steps_for_members(self, reward, terminated, truncated, applied, late, terms
-                           ) -> dict[str, Steps]:
+    def _steps_for_members(
+        self, reward, terminated, truncated, applied, late, terms
+    ) -> dict[str, Steps]:
         view = self._arena_view()
         self.last_observations = view[0]
-        return {trainer: self._steps(member.slots, view, reward, terminated, truncated, applied,
-                                     late, terms)
-                for trainer, member in self.members.items()}
+        return {
+            trainer: self._steps(
+                member.slots, view, reward, terminated, truncated, applied, late, terms
+            )
+            for trainer, member in self.members.items()
+        }
 
     def _arena_view(self) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
         """What every member's Steps share, computed once per round: observations, action
         masks and the metrics table (A, N, fields)."""
         return self.sim.observe(), self.sim.action_mask(), self.sim.metrics_table()
 
-    def _steps(self, slots: np.ndarray,
-               view: tuple[dict[str, np.ndarray], np.ndarray, np.ndarray],
-               reward, terminated, truncated, applied, late, terms) -> Steps:
+    def _steps(
+        self,
+        slots: np.ndarray,
+        view: tuple[dict[str, np.ndarray], np.ndarray, np.ndarray],
+        reward,
+        terminated,
+        truncated,
+        applied,
+        late,
+        terms,
+    ) -> Steps:
         observations, action_mask, table = view
         arenas, n = self.shape
         total = arenas * n
@@ -319,22 +405,35 @@ class Group:
         # per-field checks that guard decoding are skipped on this hot path (a test decodes
         # these messages and so checks them).
         return Steps.trusted(
-            server=self.server, group=self.group_id, round=self.round,
+            server=self.server,
+            group=self.group_id,
+            round=self.round,
             agents=flat.astype(np.int32),
             observations={name: rows(value) for name, value in observations.items()},
-            reward=rows(reward), terminated=rows(terminated), truncated=rows(truncated),
-            action_applied=rows(applied), late=rows(late), action_mask=rows(action_mask),
-            reward_terms=rows(terms), metrics=rows(table))
+            reward=rows(reward),
+            terminated=rows(terminated),
+            truncated=rows(truncated),
+            action_applied=rows(applied),
+            late=rows(late),
+            action_mask=rows(action_mask),
+            reward_terms=rows(terms),
+            metrics=rows(table),
+        )
 
     # --- views ------------------------------------------------------------------------------
 
     def status(self) -> GroupStatus:
         return GroupStatus(
-            group=self.group_id, preset=self.preset, arenas=tuple(self.arena_ids),
-            agents_per_arena=self.sim.agents, trainers=tuple(sorted(self.members)),
-            rounds=self.rounds_done, rounds_per_s=float(self.rate_rounds_per_s),
+            group=self.group_id,
+            preset=self.preset,
+            arenas=tuple(self.arena_ids),
+            agents_per_arena=self.sim.agents,
+            trainers=tuple(sorted(self.members)),
+            rounds=self.rounds_done,
+            rounds_per_s=float(self.rate_rounds_per_s),
             agent_steps_per_s=float(self.rate_rounds_per_s * int(self.owned().sum())),
-            late_agents=self.late_agents)
+            late_agents=self.late_agents,
+        )
 
     def latest_observations(self) -> dict[str, np.ndarray]:
         """Every agent's observation of the last round (observed now before the first)."""
@@ -344,15 +443,23 @@ class Group:
         sim, st = self.sim, self.sim.state
         n = sim.agents
         return WorldFrame(
-            server=self.server, group=self.group_id, arena=self.arena_ids[arena],
-            round=self.round, sim_time_s=float(st.frame[arena] * sim.dt),
-            lane_count=sim.road.lane_count, lane_width_m=float(sim.road.lane_width_m),
-            agent_kind=AGENT_KIND, agent_active=st.active[arena, :n].copy(),
-            x_m=st.x_m[arena].astype(np.float64), y_m=st.y_m[arena].astype(np.float64),
+            server=self.server,
+            group=self.group_id,
+            arena=self.arena_ids[arena],
+            round=self.round,
+            sim_time_s=float(st.frame[arena] * sim.dt),
+            lane_count=sim.road.lane_count,
+            lane_width_m=float(sim.road.lane_width_m),
+            agent_kind=AGENT_KIND,
+            agent_active=st.active[arena, :n].copy(),
+            x_m=st.x_m[arena].astype(np.float64),
+            y_m=st.y_m[arena].astype(np.float64),
             speed_mps=st.speed_mps[arena].astype(np.float32),
-            kind=st.kind[arena].astype(np.int8), active=st.active[arena].copy(),
+            kind=st.kind[arena].astype(np.int8),
+            active=st.active[arena].copy(),
             observations={name: value[arena] for name, value in observations.items()},
             reward=self.last_reward[arena].astype(np.float64),
             action_applied=self.last_applied[arena].astype(np.int64),
             reward_terms=self.last_terms[arena].astype(np.float64),
-            reward_term_names=sim.reward_terms)
+            reward_term_names=sim.reward_terms,
+        )

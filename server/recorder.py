@@ -8,6 +8,7 @@ like the spectators' world topic, recording must not hold the simulation back.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import queue
 import threading
@@ -45,7 +46,7 @@ class ServerRecorder:
         self.logged = 0
         self.dropped = 0
         self.blueprint_arenas: list[int] = []
-        self._arenas_seen: set[int] = set()   # a layout is sent once per arena, when it is new
+        self._arenas_seen: set[int] = set()  # a layout is sent once per arena, when it is new
         self._queue: queue.Queue[WorldFrame | None] = queue.Queue(maxsize=QUEUE_FRAMES)
         self._thread = threading.Thread(target=self._run, name="overtake-recorder", daemon=True)
         self._thread.start()
@@ -71,8 +72,11 @@ class ServerRecorder:
         before, self.dropped = self.dropped, self.dropped + frames
         # A warning at the first drop and at every power of ten after it: visible, not a flood.
         if before == 0 or len(str(before)) != len(str(self.dropped)):
-            log.warning("recording falls behind: %d world frame(s) dropped so far (raise "
-                        "--record-every to record fewer)", self.dropped)
+            log.warning(
+                "recording falls behind: %d world frame(s) dropped so far (raise "
+                "--record-every to record fewer)",
+                self.dropped,
+            )
 
     def _run(self) -> None:
         while True:
@@ -96,8 +100,10 @@ class ServerRecorder:
         self.blueprint_arenas = (self.blueprint_arenas + [arena])[-BLUEPRINT_ARENAS:]
         try:
             self.recording.stream.send_blueprint(
-                server_blueprint(server, sorted(self.blueprint_arenas)), make_active=False,
-                make_default=True)
+                server_blueprint(server, sorted(self.blueprint_arenas)),
+                make_active=False,
+                make_default=True,
+            )
         except Exception:
             # Without it the viewer falls back to its own layout; the frames still go in.
             log.exception("could not send the recording's layout")
@@ -105,14 +111,14 @@ class ServerRecorder:
     def close(self, timeout_s: float = 30.0) -> None:
         """Log what is queued (for at most ``timeout_s``), then close the recording (an .rrd
         gets its footer)."""
-        try:
+        with contextlib.suppress(queue.Full):  # the logging thread is stuck
             self._queue.put(None, timeout=timeout_s)
-        except queue.Full:   # pragma: no cover - the logging thread is stuck
-            pass
         self._thread.join(timeout=timeout_s)
-        if self._thread.is_alive():   # pragma: no cover
-            log.warning("the recording thread did not finish within %.0f s; closing anyway",
-                        timeout_s)
+        if self._thread.is_alive():  # pragma: no cover
+            log.warning(
+                "the recording thread did not finish within %.0f s; closing anyway", timeout_s
+            )
         self.recording.close()
-        log.info("recorded %d world frame(s) to %s (%d dropped)", self.logged, self.where,
-                 self.dropped)
+        log.info(
+            "recorded %d world frame(s) to %s (%d dropped)", self.logged, self.where, self.dropped
+        )

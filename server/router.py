@@ -23,8 +23,13 @@ from typing import Any
 import zenoh
 
 from overtake.protocol import errors
-from overtake.protocol.transport import (DEFAULT_ENDPOINT, SecurityConfig, TransportConfig,
-                                         warn_if_unconnected, warn_if_unguarded)
+from overtake.protocol.transport import (
+    DEFAULT_ENDPOINT,
+    SecurityConfig,
+    TransportConfig,
+    warn_if_unconnected,
+    warn_if_unguarded,
+)
 
 from .errors import StartError
 
@@ -66,8 +71,9 @@ def zenoh_config(config: RouterConfig) -> tuple[zenoh.Config, TransportConfig]:
             raise errors.ConnectError(f"--config {config.config}: {error}") from None
         mode = json.loads(conf.get_json("mode"))
         if mode not in (None, "router"):
-            raise errors.ConnectError(f"--config {config.config} says mode {mode!r}; "
-                                      "overtake-router runs a router")
+            raise errors.ConnectError(
+                f"--config {config.config} says mode {mode!r}; overtake-router runs a router"
+            )
     else:
         conf = zenoh.Config()
     conf.insert_json5("mode", '"router"')
@@ -82,8 +88,9 @@ def zenoh_config(config: RouterConfig) -> tuple[zenoh.Config, TransportConfig]:
     config.security.check(() if file_has_identity else listen, connect)
     for key, value in config.security.zenoh_settings():
         conf.insert_json5(key, value)
-    return conf, TransportConfig(mode="router", listen=listen, connect=connect,
-                                 security=config.security)
+    return conf, TransportConfig(
+        mode="router", listen=listen, connect=connect, security=config.security
+    )
 
 
 def usrpwd_source(config: RouterConfig, conf: zenoh.Config) -> str | None:
@@ -97,8 +104,9 @@ def usrpwd_source(config: RouterConfig, conf: zenoh.Config) -> str | None:
     return None
 
 
-def log_start(zid: object, config: RouterConfig, conf: zenoh.Config,
-              transport: TransportConfig) -> None:
+def log_start(
+    zid: object, config: RouterConfig, conf: zenoh.Config, transport: TransportConfig
+) -> None:
     """The start line (endpoints and who is admitted), and a warning for listeners anyone who
     reaches them may use."""
     source = usrpwd_source(config, conf)
@@ -112,17 +120,20 @@ def log_start(zid: object, config: RouterConfig, conf: zenoh.Config,
 
 def main(config: RouterConfig, stop: threading.Event | None = None) -> None:
     """Route until ``stop`` is set (the command: until SIGINT or SIGTERM)."""
-    logging.basicConfig(level=config.log_level.upper(),
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(
+        level=config.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
     zenoh.init_log_from_env_or("error")
     stop = stop or threading.Event()
     conf, transport = zenoh_config(config)
     try:
         session = zenoh.open(conf)
     except zenoh.ZError as error:
-        raise StartError(f"could not start ({transport.describe()}): "
-                         f"{str(error).split(' at /')[0]}. Is the port in use, or the address "
-                         "not one of this host's?") from None
+        raise StartError(
+            f"could not start ({transport.describe()}): "
+            f"{str(error).split(' at /')[0]}. Is the port in use, or the address "
+            "not one of this host's?"
+        ) from None
     try:
         log_start(session.zid(), config, conf, transport)
         warn_if_unconnected(session, transport, log)
@@ -136,8 +147,11 @@ def main(config: RouterConfig, stop: threading.Event | None = None) -> None:
 def cli() -> None:
     import tyro
 
-    config = tyro.cli(RouterConfig, config=(tyro.conf.OmitArgPrefixes,),
-                      description="overtake-router: a Zenoh router (for hosts without zenohd)")
+    config = tyro.cli(
+        RouterConfig,
+        config=(tyro.conf.OmitArgPrefixes,),
+        description="overtake-router: a Zenoh router (for hosts without zenohd)",
+    )
     stop = threading.Event()
 
     def on_signal(signum: int, _frame: Any) -> None:

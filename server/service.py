@@ -9,6 +9,7 @@ never holds the simulation back.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import queue
@@ -25,12 +26,28 @@ from typing import Any
 import zenoh
 
 from overtake.protocol import codec, errors, keys
-from overtake.protocol.messages import (Ack, Actions, CloseRequest, ErrorReply, JoinRequest,
-                                        Message, Opened, OpenRequest, ResetRequest,
-                                        StatusReply, StatusRequest)
+from overtake.protocol.messages import (
+    Ack,
+    Actions,
+    CloseRequest,
+    ErrorReply,
+    JoinRequest,
+    Message,
+    Opened,
+    OpenRequest,
+    ResetRequest,
+    StatusReply,
+    StatusRequest,
+)
+from overtake.protocol.transport import (
+    DEFAULT_ENDPOINT,
+    SecurityConfig,
+    TransportConfig,
+    open_session,
+    warn_if_unconnected,
+    warn_if_unguarded,
+)
 from overtake.viz.recording import RecordingConfig
-from overtake.protocol.transport import (DEFAULT_ENDPOINT, SecurityConfig, TransportConfig,
-                                         open_session, warn_if_unconnected, warn_if_unguarded)
 
 from .errors import StartError
 from .groups import Group
@@ -106,15 +123,21 @@ class ServerConfig:
     """usrpwd credentials (when connecting to a router that asks for them, and the users this
     server admits) and TLS certificates (for tls/ endpoints)"""
     log_level: str = "info"
-    recording: RecordingConfig = field(default_factory=lambda: RecordingConfig(
-        sink="off", record_every=SERVER_RECORD_EVERY))
+    recording: RecordingConfig = field(
+        default_factory=lambda: RecordingConfig(sink="off", record_every=SERVER_RECORD_EVERY)
+    )
     """Rerun: this server logs every arena it steps itself (default off; spectators watch
     without it), one round in --record-every. With --sink file the .rrd defaults to
     runs/server/<name>.rrd."""
 
     def transport(self) -> TransportConfig:
-        return TransportConfig(mode="peer", listen=self.listen, connect=self.connect,
-                               lease_s=self.lease_s, security=self.security)
+        return TransportConfig(
+            mode="peer",
+            listen=self.listen,
+            connect=self.connect,
+            lease_s=self.lease_s,
+            security=self.security,
+        )
 
 
 def _package_version() -> str:
@@ -140,7 +163,7 @@ class SimulatorServer:
         self._own_session = session is None
         self.session = session if session is not None else open_session(config.transport())
         self.groups: dict[int, Group] = {}
-        self._arena_index: dict[int, tuple[int, int]] = {}   # arena id -> (group, index)
+        self._arena_index: dict[int, tuple[int, int]] = {}  # arena id -> (group, index)
         self._next_arena = 0
         self._alive_trainers: set[str] = set()
         self._step_pubs: dict[str, zenoh.Publisher] = {}
@@ -160,24 +183,40 @@ class SimulatorServer:
     # --- Zenoh plumbing (callbacks only enqueue) -------------------------------------------
 
     def _declare(self) -> None:
-        existing = [r for r in self.session.liveliness().get(keys.server_alive(self.name),
-                                                             timeout=1.0) if r.ok]
+        existing = [
+            r
+            for r in self.session.liveliness().get(keys.server_alive(self.name), timeout=1.0)
+            if r.ok
+        ]
         if existing:
-            raise RuntimeError(f"a server named {self.name!r} is already on this Zenoh network; "
-                               "give this one another --name")
+            raise RuntimeError(
+                f"a server named {self.name!r} is already on this Zenoh network; "
+                "give this one another --name"
+            )
         s = self.session
-        self._declared.append(s.declare_queryable(
-            keys.server_request(self.name),
-            lambda q: self._events.put(_Query(q, q.payload.to_bytes() if q.payload else b""))))
-        self._declared.append(s.declare_subscriber(
-            keys.server_actions_all(self.name),
-            lambda sample: self._events.put(_ActionsPut(str(sample.key_expr),
-                                                        sample.payload.to_bytes()))))
-        self._declared.append(s.liveliness().declare_subscriber(
-            keys.ALL_TRAINERS_ALIVE,
-            lambda sample: self._events.put(_Liveliness(str(sample.key_expr),
-                                                        sample.kind == zenoh.SampleKind.PUT)),
-            history=True))
+        self._declared.append(
+            s.declare_queryable(
+                keys.server_request(self.name),
+                lambda q: self._events.put(_Query(q, q.payload.to_bytes() if q.payload else b"")),
+            )
+        )
+        self._declared.append(
+            s.declare_subscriber(
+                keys.server_actions_all(self.name),
+                lambda sample: self._events.put(
+                    _ActionsPut(str(sample.key_expr), sample.payload.to_bytes())
+                ),
+            )
+        )
+        self._declared.append(
+            s.liveliness().declare_subscriber(
+                keys.ALL_TRAINERS_ALIVE,
+                lambda sample: self._events.put(
+                    _Liveliness(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+                ),
+                history=True,
+            )
+        )
         self._token = s.liveliness().declare_token(keys.server_alive(self.name))
 
     # --- main loop ------------------------------------------------------------------------------
@@ -187,12 +226,19 @@ class SimulatorServer:
         self._events.put(_WAKE)
 
     def serve(self) -> None:
-        log.info("server %s serving (%s), up to %d arenas, step deadline %.1f s",
-                 self.name, self.config.transport().describe(), self.config.max_arenas,
-                 self.config.step_deadline_s)
+        log.info(
+            "server %s serving (%s), up to %d arenas, step deadline %.1f s",
+            self.name,
+            self.config.transport().describe(),
+            self.config.max_arenas,
+            self.config.step_deadline_s,
+        )
         if self.recorder is not None:
-            log.info("recording every arena every %d round(s) to %s",
-                     self.config.recording.record_every, self.recorder.where)
+            log.info(
+                "recording every arena every %d round(s) to %s",
+                self.config.recording.record_every,
+                self.recorder.where,
+            )
         try:
             while not self._stopping.is_set():
                 timeout = self._next_timeout()
@@ -213,20 +259,18 @@ class SimulatorServer:
             self.close()
 
     def close(self) -> None:
+        # Whatever is already gone with the session needs no undeclaring.
         for obj in self._declared:
-            try:
+            with contextlib.suppress(Exception):
                 obj.undeclare()
-            except Exception:  # pragma: no cover - already gone with the session
-                pass
         self._declared.clear()
-        try:
+        with contextlib.suppress(Exception):
             self._token.undeclare()
-        except Exception:  # pragma: no cover
-            pass
         if self._own_session and not self.session.is_closed():
             self.session.close()
-        if getattr(self, "recorder", None) is not None:
-            self.recorder.close()
+        recorder = getattr(self, "recorder", None)
+        if recorder is not None:
+            recorder.close()
             self.recorder = None
         log.info("server %s stopped", self.name)
 
@@ -255,20 +299,24 @@ class SimulatorServer:
 
     def _on_query(self, query: zenoh.Query, payload: bytes) -> None:
         try:
-            request = codec.decode(payload, (StatusRequest, OpenRequest, JoinRequest,
-                                             ResetRequest, CloseRequest))
+            request: Message = codec.decode(
+                payload, (StatusRequest, OpenRequest, JoinRequest, ResetRequest, CloseRequest)
+            )
             if isinstance(request, ErrorReply):
-                raise errors.DecodeError("expected a request (status_request, open, join, "
-                                         "reset or close), got an error reply")
+                raise errors.DecodeError(
+                    "expected a request (status_request, open, join, "
+                    "reset or close), got an error reply"
+                )
             reply = self._dispatch(request)
         except errors.ProtocolError as error:
             log.info("refused a request: %s", error)
             reply = ErrorReply(code=error.code, message=str(error))
         except Exception as error:  # a bug here must still answer, not leave the asker waiting
             log.exception("failed to serve a request")
-            reply = ErrorReply(code=errors.ProtocolError.code,
-                               message=f"server {self.name} failed: {type(error).__name__}: "
-                                       f"{error}")
+            reply = ErrorReply(
+                code=errors.ProtocolError.code,
+                message=f"server {self.name} failed: {type(error).__name__}: {error}",
+            )
         self._reply(query, reply)
 
     def _dispatch(self, request: Message) -> Message:
@@ -279,8 +327,9 @@ class SimulatorServer:
         if isinstance(request, JoinRequest):
             return self._join(request)
         if isinstance(request, ResetRequest):
-            return self._group(request.group).reset(request.trainer, request.ticket,
-                                                    request.arenas, request.seeds)
+            return self._group(request.group).reset(
+                request.trainer, request.ticket, request.arenas, request.seeds
+            )
         if isinstance(request, CloseRequest):
             group = self._group(request.group)
             group.member(request.trainer, request.ticket)
@@ -289,11 +338,15 @@ class SimulatorServer:
         raise errors.DecodeError(f"not a request: {request.TYPE}")  # pragma: no cover
 
     def status(self) -> StatusReply:
-        return StatusReply(server=self.name, package_version=_package_version(),
-                           max_arenas=self.config.max_arenas, arenas_used=len(self._arena_index),
-                           step_deadline_s=self.config.step_deadline_s,
-                           uptime_s=time.monotonic() - self._started,
-                           groups=tuple(g.status() for g in self.groups.values()))
+        return StatusReply(
+            server=self.name,
+            package_version=_package_version(),
+            max_arenas=self.config.max_arenas,
+            arenas_used=len(self._arena_index),
+            step_deadline_s=self.config.step_deadline_s,
+            uptime_s=time.monotonic() - self._started,
+            groups=tuple(g.status() for g in self.groups.values()),
+        )
 
     def _require_alive(self, trainer: str) -> None:
         if trainer in self._alive_trainers:
@@ -301,20 +354,31 @@ class SimulatorServer:
         # Its token may not have reached us yet: ask once.
         replies = self.session.liveliness().get(keys.trainer_alive(trainer), timeout=1.0)
         if not any(r.ok for r in replies):
-            raise errors.NotOwner(f"trainer {trainer!r} holds no liveliness token "
-                                  f"({keys.trainer_alive(trainer)}); open arenas through "
-                                  "overtake.client, which declares one")
+            raise errors.NotOwner(
+                f"trainer {trainer!r} holds no liveliness token "
+                f"({keys.trainer_alive(trainer)}); open arenas through "
+                "overtake.client, which declares one"
+            )
         self._alive_trainers.add(trainer)
 
     def _open(self, request: OpenRequest) -> Opened:
         self._require_alive(request.trainer)
         free = self.config.max_arenas - len(self._arena_index)
         if request.arenas > free:
-            raise errors.ServerFull(f"server {self.name} has {free} free arena(s) of "
-                                    f"{self.config.max_arenas}, asked for {request.arenas}")
+            raise errors.ServerFull(
+                f"server {self.name} has {free} free arena(s) of "
+                f"{self.config.max_arenas}, asked for {request.arenas}"
+            )
         arena_ids = list(range(self._next_arena, self._next_arena + request.arenas))
-        group = Group.open(self._new_group_id(), self.name, arena_ids, request.preset,
-                           dict(request.overrides), request.agents_per_arena, request.seed)
+        group = Group.open(
+            self._new_group_id(),
+            self.name,
+            arena_ids,
+            request.preset,
+            dict(request.overrides),
+            request.agents_per_arena,
+            request.seed,
+        )
         for index in range(request.arenas):
             group.claim(request.trainer, index, request.claim, fresh=True)
         opened = self._opened(group, request.trainer)
@@ -323,9 +387,15 @@ class SimulatorServer:
         self.groups[group.group_id] = group
         for index, arena in enumerate(arena_ids):
             self._arena_index[arena] = (group.group_id, index)
-        log.info("trainer %s opened group %d: %d arena(s) %s of %s, %d agent(s) each",
-                 request.trainer, group.group_id, request.arenas,
-                 _span(arena_ids), request.preset, request.agents_per_arena)
+        log.info(
+            "trainer %s opened group %d: %d arena(s) %s of %s, %d agent(s) each",
+            request.trainer,
+            group.group_id,
+            request.arenas,
+            _span(arena_ids),
+            request.preset,
+            request.agents_per_arena,
+        )
         return opened
 
     def _new_group_id(self) -> int:
@@ -340,26 +410,39 @@ class SimulatorServer:
         self._require_alive(request.trainer)
         where = self._arena_index.get(request.arena)
         if where is None:
-            raise errors.UnknownArena(f"server {self.name} has no arena {request.arena}; its "
-                                      f"arenas are {_span(sorted(self._arena_index))}")
+            raise errors.UnknownArena(
+                f"server {self.name} has no arena {request.arena}; its "
+                f"arenas are {_span(sorted(self._arena_index))}"
+            )
         group = self.groups[where[0]]
         group.claim(request.trainer, where[1], request.agents, fresh=False)
-        log.info("trainer %s joined arena %d (group %d) with %d agent(s)", request.trainer,
-                 request.arena, group.group_id, request.agents)
+        log.info(
+            "trainer %s joined arena %d (group %d) with %d agent(s)",
+            request.trainer,
+            request.arena,
+            group.group_id,
+            request.agents,
+        )
         return self._opened(group, request.trainer)
 
     def _opened(self, group: Group, trainer: str) -> Opened:
         self._publisher_for(trainer)
         member = group.members[trainer]
-        return Opened(server=self.name, group=group.group_id, arenas=tuple(group.arena_ids),
-                      ticket=member.ticket, spec=group.spec,
-                      steps=group.current_steps(trainer))
+        return Opened(
+            server=self.name,
+            group=group.group_id,
+            arenas=tuple(group.arena_ids),
+            ticket=member.ticket,
+            spec=group.spec,
+            steps=group.current_steps(trainer),
+        )
 
     def _group(self, group_id: int) -> Group:
         group = self.groups.get(group_id)
         if group is None:
-            raise errors.UnknownArena(f"server {self.name} has no group {group_id} (closed, or "
-                                      "never opened)")
+            raise errors.UnknownArena(
+                f"server {self.name} has no group {group_id} (closed, or never opened)"
+            )
         return group
 
     # --- actions and rounds -----------------------------------------------------------------
@@ -377,8 +460,11 @@ class SimulatorServer:
                 raise errors.DecodeError(f"expected actions, got {actions.TYPE}")
             if actions.trainer != trainer:
                 # Someone speaking on another trainer's key: not an answer anybody waits for.
-                log.warning("dropped actions on %s's key that claim to come from %s", trainer,
-                            actions.trainer)
+                log.warning(
+                    "dropped actions on %s's key that claim to come from %s",
+                    trainer,
+                    actions.trainer,
+                )
                 return
             self._group(actions.group).accept(actions, self.config.step_deadline_s)
         except errors.StaleActions as error:
@@ -407,10 +493,13 @@ class SimulatorServer:
             except Exception as error:
                 # One group's failure is that group's end, not the server's.
                 log.exception("group %d failed to step; closing it", group.group_id)
-                reply = ErrorReply(code=errors.ProtocolError.code, group=group.group_id,
-                                   message=f"server {self.name} closed group "
-                                           f"{group.group_id} after an internal error: "
-                                           f"{type(error).__name__}: {error}")
+                reply = ErrorReply(
+                    code=errors.ProtocolError.code,
+                    group=group.group_id,
+                    message=f"server {self.name} closed group "
+                    f"{group.group_id} after an internal error: "
+                    f"{type(error).__name__}: {error}",
+                )
                 for trainer in list(group.members):
                     try:
                         self._send(trainer, reply)
@@ -438,7 +527,8 @@ class SimulatorServer:
             pub = self.session.declare_publisher(
                 keys.trainer_steps(trainer, self.name),
                 congestion_control=zenoh.CongestionControl.BLOCK,
-                priority=zenoh.Priority.DATA_HIGH)
+                priority=zenoh.Priority.DATA_HIGH,
+            )
             self._step_pubs[trainer] = pub
         return pub
 
@@ -447,8 +537,11 @@ class SimulatorServer:
         if pub is not None:
             pub.put(codec.encode(message))
         else:  # a trainer with no arenas here (an error reply): no publisher kept for it
-            self.session.put(keys.trainer_steps(trainer, self.name), codec.encode(message),
-                             congestion_control=zenoh.CongestionControl.BLOCK)
+            self.session.put(
+                keys.trainer_steps(trainer, self.name),
+                codec.encode(message),
+                congestion_control=zenoh.CongestionControl.BLOCK,
+            )
 
     def _publish_world(self, group: Group, now: float) -> None:
         rate = self.config.world_rate_hz
@@ -460,9 +553,12 @@ class SimulatorServer:
             pub = self._world_pubs.get(arena)
             if pub is None:
                 pub = self._world_pubs[arena] = self.session.declare_publisher(
-                    keys.world(self.name, arena), congestion_control=zenoh.CongestionControl.DROP,
-                    priority=zenoh.Priority.DATA_LOW)
-            if not pub.matching_status.matching:
+                    keys.world(self.name, arena),
+                    congestion_control=zenoh.CongestionControl.DROP,
+                    priority=zenoh.Priority.DATA_LOW,
+                )
+            # zenoh 1.10's stubs say bool; it is a MatchingStatus.
+            if not pub.matching_status.matching:  # type: ignore[attr-defined]
                 continue  # nobody watches this arena: no frame is even encoded
             if observations is None:
                 observations = group.latest_observations()
@@ -489,8 +585,12 @@ class SimulatorServer:
     def _leave(self, group: Group, trainer: str, why: str) -> None:
         group.leave(trainer)
         if group.members:
-            log.info("trainer %s left group %d (%s); its cars are off the road", trainer,
-                     group.group_id, why)
+            log.info(
+                "trainer %s left group %d (%s); its cars are off the road",
+                trainer,
+                group.group_id,
+                why,
+            )
             return
         self.groups.pop(group.group_id)
         for arena in group.arena_ids:
@@ -499,8 +599,13 @@ class SimulatorServer:
             if pub is not None:
                 pub.undeclare()
         self._last_world.pop(group.group_id, None)
-        log.info("trainer %s left group %d (%s); arenas %s freed", trainer, group.group_id, why,
-                 _span(group.arena_ids))
+        log.info(
+            "trainer %s left group %d (%s); arenas %s freed",
+            trainer,
+            group.group_id,
+            why,
+            _span(group.arena_ids),
+        )
 
 
 def _span(ids: list[int]) -> str:
@@ -513,14 +618,17 @@ def _span(ids: list[int]) -> str:
 
 def main(config: ServerConfig) -> None:
     """Run a server until SIGINT or SIGTERM."""
-    logging.basicConfig(level=config.log_level.upper(),
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(
+        level=config.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
     zenoh.init_log_from_env_or("error")
     try:
         server = SimulatorServer(config)
     except zenoh.ZError as error:
-        raise StartError(f"could not open the Zenoh session ({config.transport().describe()}): "
-                         f"{error}. Is the port in use, or the router unreachable?") from None
+        raise StartError(
+            f"could not open the Zenoh session ({config.transport().describe()}): "
+            f"{error}. Is the port in use, or the router unreachable?"
+        ) from None
     except (RuntimeError, errors.ProtocolError) as error:
         raise StartError(str(error)) from None
     warn_if_unconnected(server.session, config.transport(), log)
@@ -538,9 +646,11 @@ def main(config: ServerConfig) -> None:
 def cli() -> None:
     import tyro
 
-    config = tyro.cli(ServerConfig, config=(tyro.conf.OmitArgPrefixes,),
-                      description="overtake-server: the highway simulator, served to trainers "
-                                  "over Zenoh")
+    config = tyro.cli(
+        ServerConfig,
+        config=(tyro.conf.OmitArgPrefixes,),
+        description="overtake-server: the highway simulator, served to trainers over Zenoh",
+    )
     try:
         main(config)
     except StartError as error:

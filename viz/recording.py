@@ -76,8 +76,10 @@ class RecordingConfig:
             return f"the viewer at {self.viewer_url}"
         if self.sink == "web":
             host = self.web_host
-            return (f"the web viewer at http://{host}:{self.web_port}/?url=rerun%2Bhttp://"
-                    f"{host}:{self.web_grpc_port}/proxy (while this process runs)")
+            return (
+                f"the web viewer at http://{host}:{self.web_port}/?url=rerun%2Bhttp://"
+                f"{host}:{self.web_grpc_port}/proxy (while this process runs)"
+            )
         return str(self.rrd or default_rrd)
 
 
@@ -107,8 +109,9 @@ def _port_open(host: str, port: int) -> bool:
 class Recording:
     """An open recording: ``stream`` is the :class:`rerun.RecordingStream` to log to."""
 
-    def __init__(self, stream: Any, viewer: subprocess.Popen | None = None,
-                 viewer_log: Any = None) -> None:
+    def __init__(
+        self, stream: Any, viewer: subprocess.Popen | None = None, viewer_log: Any = None
+    ) -> None:
         self.stream = stream
         self.viewer = viewer
         self._viewer_log = viewer_log
@@ -120,8 +123,11 @@ class Recording:
         try:
             self.stream.flush(timeout_sec=FLUSH_TIMEOUT_S)
         except Exception as error:
-            log.warning("the Rerun recording could not be flushed (%s): the last logged data "
-                        "may be missing from it", error)
+            log.warning(
+                "the Rerun recording could not be flushed (%s): the last logged data "
+                "may be missing from it",
+                error,
+            )
         try:
             self.stream.disconnect()
         except Exception as error:  # pragma: no cover - disconnecting a dead gRPC sink
@@ -141,24 +147,38 @@ def _die_with_parent() -> None:  # pragma: no cover - runs in the child before e
     """Linux: the viewer gets SIGTERM when the process that started it dies, even by SIGKILL,
     instead of holding its ports as an orphan."""
     libc = ctypes.CDLL(None, use_errno=True)
-    libc.prctl(1, signal.SIGTERM)   # 1 = PR_SET_PDEATHSIG
+    libc.prctl(1, signal.SIGTERM)  # 1 = PR_SET_PDEATHSIG
 
 
 def _start_web_viewer(config: RecordingConfig) -> tuple[subprocess.Popen, Any]:
     if _port_open(config.web_bind, config.web_grpc_port):
-        raise RuntimeError(f"cannot serve the web viewer: port {config.web_grpc_port} on "
-                           f"{config.web_bind} is already taken (another viewer?); choose "
-                           "--web-grpc-port, or stream to that viewer with --sink grpc")
+        raise RuntimeError(
+            f"cannot serve the web viewer: port {config.web_grpc_port} on "
+            f"{config.web_bind} is already taken (another viewer?); choose "
+            "--web-grpc-port, or stream to that viewer with --sink grpc"
+        )
     # Its messages go to a file, not a pipe nobody reads (a full pipe would block it), and it
     # runs in a session of its own: Ctrl-C in a terminal reaches this process, which flushes
     # the recording and then stops the viewer, rather than the viewer first.
-    viewer_log = tempfile.TemporaryFile()
+    # It lives as long as the viewer, which outlives this function.
+    viewer_log = tempfile.TemporaryFile()  # noqa: SIM115
     viewer = subprocess.Popen(
-        [viewer_binary(), "--serve-web", "--bind", config.web_bind,
-         "--port", str(config.web_grpc_port), "--web-viewer-port", str(config.web_port)],
-        stdin=subprocess.DEVNULL, stdout=viewer_log, stderr=subprocess.STDOUT,
+        [
+            viewer_binary(),
+            "--serve-web",
+            "--bind",
+            config.web_bind,
+            "--port",
+            str(config.web_grpc_port),
+            "--web-viewer-port",
+            str(config.web_port),
+        ],
+        stdin=subprocess.DEVNULL,
+        stdout=viewer_log,
+        stderr=subprocess.STDOUT,
         start_new_session=True,
-        preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None)
+        preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None,
+    )
 
     def failed(why: str) -> RuntimeError:
         viewer_log.seek(0)
@@ -173,14 +193,16 @@ def _start_web_viewer(config: RecordingConfig) -> tuple[subprocess.Popen, Any]:
         if time.monotonic() > deadline:
             viewer.kill()
             viewer.wait()
-            raise failed(f"did not open port {config.web_grpc_port} within "
-                         f"{WEB_VIEWER_START_TIMEOUT_S} s")
+            raise failed(
+                f"did not open port {config.web_grpc_port} within {WEB_VIEWER_START_TIMEOUT_S} s"
+            )
         time.sleep(0.05)  # polling a port: there is nothing to wait on
     return viewer, viewer_log
 
 
-def open_recording(application: str, config: RecordingConfig, default_rrd: Path,
-                   blueprint: Any = None) -> Recording | None:
+def open_recording(
+    application: str, config: RecordingConfig, default_rrd: Path, blueprint: Any = None
+) -> Recording | None:
     """A recording with the configured sink, or None for sink=off."""
     if config.sink == "off":
         return None
@@ -196,9 +218,10 @@ def open_recording(application: str, config: RecordingConfig, default_rrd: Path,
         stream.set_sinks(rr.GrpcSink(config.viewer_url), default_blueprint=blueprint)
     else:
         viewer, viewer_log = _start_web_viewer(config)
-        stream.set_sinks(rr.GrpcSink(f"rerun+http://{config.web_host}:{config.web_grpc_port}"
-                                     "/proxy"),
-                         default_blueprint=blueprint)
+        stream.set_sinks(
+            rr.GrpcSink(f"rerun+http://{config.web_host}:{config.web_grpc_port}/proxy"),
+            default_blueprint=blueprint,
+        )
         log.info("Rerun: %s", config.describe(default_rrd))
     return Recording(stream, viewer, viewer_log)
 

@@ -31,8 +31,8 @@ from overtake.protocol.vocabulary import BEHAVIOUR_NAMES, EGO_SPEED
 KIND_COLOURS = np.array([[80, 120, 255], [40, 200, 120], [240, 170, 30]], dtype=np.uint8)
 assert len(KIND_COLOURS) == len(BEHAVIOUR_NAMES)
 AGENT_COLOUR = np.array([230, 40, 40], dtype=np.uint8)
-HALF_SIZE_M = (2.25, 0.9)   # the default car (4.5 m x 1.8 m); frames do not carry sizes
-LANE_LINE_SPAN_M = 120.0    # lane lines drawn this far either side of the cars
+HALF_SIZE_M = (2.25, 0.9)  # the default car (4.5 m x 1.8 m); frames do not carry sizes
+LANE_LINE_SPAN_M = 120.0  # lane lines drawn this far either side of the cars
 
 
 @functools.cache
@@ -41,8 +41,9 @@ def _ray_directions(rays: int) -> np.ndarray:
     return np.stack([np.cos(angles), np.sin(angles)], axis=1)
 
 
-def lidar_hits(distances_m: np.ndarray, origin_m: np.ndarray | tuple[float, float] = (0.0, 0.0)
-               ) -> np.ndarray:
+def lidar_hits(
+    distances_m: np.ndarray, origin_m: np.ndarray | tuple[float, float] = (0.0, 0.0)
+) -> np.ndarray:
     """(R, 2) points where a LIDAR scan's R rays end: ray k at angle 2*pi*k/R counter-clockwise
     from the x axis (the road's direction), ``distances_m[k]`` from ``origin_m``."""
     return np.asarray(origin_m) + distances_m[:, None] * _ray_directions(distances_m.shape[0])
@@ -52,8 +53,11 @@ def _top_down(server: str, arena: int, name: str) -> Any:
     import rerun.blueprint as rrb
 
     root = f"/world/{server}/arena{arena}"
-    return rrb.Spatial2DView(origin=root, name=name, contents=[
-        f"{root}/road/**", f"{root}/cars", f"{root}/agent*/lidar/**"])
+    return rrb.Spatial2DView(
+        origin=root,
+        name=name,
+        contents=[f"{root}/road/**", f"{root}/cars", f"{root}/agent*/lidar/**"],
+    )
 
 
 def _arena_layout(server: str, arena: int, name: str | None = None) -> Any:
@@ -65,20 +69,30 @@ def _arena_layout(server: str, arena: int, name: str | None = None) -> Any:
         _top_down(server, arena, "top-down"),
         rrb.Vertical(
             rrb.Spatial2DView(origin=f"{root}/agent0/camera", name="agent 0 camera"),
-            rrb.TimeSeriesView(origin=f"{root}/agent0", name="agent 0",
-                               contents=[f"{root}/agent0/speed_kmh", f"{root}/agent0/reward",
-                                         f"{root}/agent0/action",
-                                         f"{root}/agent0/reward_terms/**"]),
-            row_shares=[2, 1]),
-        column_shares=[2, 1], name=name)
+            rrb.TimeSeriesView(
+                origin=f"{root}/agent0",
+                name="agent 0",
+                contents=[
+                    f"{root}/agent0/speed_kmh",
+                    f"{root}/agent0/reward",
+                    f"{root}/agent0/action",
+                    f"{root}/agent0/reward_terms/**",
+                ],
+            ),
+            row_shares=[2, 1],
+        ),
+        column_shares=[2, 1],
+        name=name,
+    )
 
 
 def world_blueprint(server: str, arena: int) -> Any:
     """A spectator's layout of one arena."""
     import rerun.blueprint as rrb
 
-    return rrb.Blueprint(_arena_layout(server, arena), rrb.TimePanel(timeline="round"),
-                         collapse_panels=True)
+    return rrb.Blueprint(
+        _arena_layout(server, arena), rrb.TimePanel(timeline="round"), collapse_panels=True
+    )
 
 
 def server_blueprint(server: str, arenas: list[int]) -> Any:
@@ -86,10 +100,15 @@ def server_blueprint(server: str, arenas: list[int]) -> Any:
     import rerun.blueprint as rrb
 
     return rrb.Blueprint(
-        rrb.Tabs(rrb.Grid(*(_top_down(server, arena, f"arena {arena}") for arena in arenas),
-                          name="all arenas"),
-                 *(_arena_layout(server, arena, f"arena {arena}") for arena in arenas)),
-        rrb.TimePanel(timeline="round"), collapse_panels=True)
+        rrb.Tabs(
+            rrb.Grid(
+                *(_top_down(server, arena, f"arena {arena}") for arena in arenas), name="all arenas"
+            ),
+            *(_arena_layout(server, arena, f"arena {arena}") for arena in arenas),
+        ),
+        rrb.TimePanel(timeline="round"),
+        collapse_panels=True,
+    )
 
 
 class WorldRecording:
@@ -110,17 +129,33 @@ class WorldRecording:
         agents = active[active < n]
         x, y = frame.x_m[active], frame.y_m[active]
         is_agent = frame.kind[active] == frame.agent_kind
-        colours = np.where(is_agent[:, None], AGENT_COLOUR,
-                           KIND_COLOURS[np.clip(frame.kind[active], 0, len(KIND_COLOURS) - 1)])
+        colours = np.where(
+            is_agent[:, None],
+            AGENT_COLOUR,
+            KIND_COLOURS[np.clip(frame.kind[active], 0, len(KIND_COLOURS) - 1)],
+        )
         labels = [f"agent {i}" if i < n else "" for i in active]
-        stream.log(f"{root}/cars", rr.Boxes2D(
-            centers=np.stack([x, y], axis=1), half_sizes=[HALF_SIZE_M], colors=colours,
-            labels=labels))
-        low, high = (x.min() - LANE_LINE_SPAN_M, x.max() + LANE_LINE_SPAN_M) if x.size \
+        stream.log(
+            f"{root}/cars",
+            rr.Boxes2D(
+                centers=np.stack([x, y], axis=1),
+                half_sizes=[HALF_SIZE_M],
+                colors=colours,
+                labels=labels,
+            ),
+        )
+        low, high = (
+            (x.min() - LANE_LINE_SPAN_M, x.max() + LANE_LINE_SPAN_M)
+            if x.size
             else (-LANE_LINE_SPAN_M, LANE_LINE_SPAN_M)
+        )
         edges = np.arange(frame.lane_count + 1) * frame.lane_width_m
-        stream.log(f"{root}/road/lanes", rr.LineStrips2D(
-            [[[low, e], [high, e]] for e in edges], colors=[[200, 200, 200]], radii=[0.05]))
+        stream.log(
+            f"{root}/road/lanes",
+            rr.LineStrips2D(
+                [[[low, e], [high, e]] for e in edges], colors=[[200, 200, 200]], radii=[0.05]
+            ),
+        )
         lidar = frame.observations.get("lidar")
         camera = frame.observations.get("camera")
         ego = frame.observations.get("ego")
@@ -129,12 +164,15 @@ class WorldRecording:
             origin = np.array([frame.x_m[i], frame.y_m[i]])
             if lidar is not None:
                 hits = lidar_hits(lidar[i], origin)
-                stream.log(f"{base}/lidar/hits", rr.Points2D(hits, radii=[0.25],
-                                                             colors=[[255, 128, 0]]))
+                stream.log(
+                    f"{base}/lidar/hits", rr.Points2D(hits, radii=[0.25], colors=[[255, 128, 0]])
+                )
                 if self.rays:
                     strips = np.stack([np.broadcast_to(origin, hits.shape), hits], axis=1)
-                    stream.log(f"{base}/lidar/rays", rr.LineStrips2D(
-                        strips, radii=[0.02], colors=[[255, 200, 120]]))
+                    stream.log(
+                        f"{base}/lidar/rays",
+                        rr.LineStrips2D(strips, radii=[0.02], colors=[[255, 200, 120]]),
+                    )
             if camera is not None:
                 stream.log(f"{base}/camera", rr.Image(camera[i]))
             speed_mps = float(ego[i, EGO_SPEED]) if ego is not None else float(frame.speed_mps[i])
@@ -142,5 +180,5 @@ class WorldRecording:
             stream.log(f"{base}/reward", rr.Scalars(float(frame.reward[i])))
             stream.log(f"{base}/action", rr.Scalars(float(frame.action_applied[i])))
             if frame.reward_terms is not None:
-                for name, value in zip(frame.reward_term_names, frame.reward_terms[i]):
+                for name, value in zip(frame.reward_term_names, frame.reward_terms[i], strict=True):
                     stream.log(f"{base}/reward_terms/{name}", rr.Scalars(float(value)))

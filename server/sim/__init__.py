@@ -22,5 +22,16 @@ from .core import HighwaySim, StepResult
 from .presets import DEFAULT_PRESET, PRESETS, make_config
 from .sensors.base import SensorSpace
 
-__all__ = ["DEFAULT_PRESET", "PRESETS", "ConfigError", "HighwaySim", "RoundResult", "SensorSpace",
-           "SimConfig", "StepResult", "apply_overrides", "autoreset_round", "make_config"]
+__all__ = [
+    "DEFAULT_PRESET",
+    "PRESETS",
+    "ConfigError",
+    "HighwaySim",
+    "RoundResult",
+    "SensorSpace",
+    "SimConfig",
+    "StepResult",
+    "apply_overrides",
+    "autoreset_round",
+    "make_config",
+]

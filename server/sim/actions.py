@@ -11,8 +11,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from overtake.protocol.vocabulary import (ACTION_COUNT, ACTION_NAMES, CRUISE_DOWN, CRUISE_UP,
-                                          KEEP, LANE_LEFT, LANE_RIGHT)
+from overtake.protocol.vocabulary import (
+    ACTION_COUNT,
+    ACTION_NAMES,
+    CRUISE_DOWN,
+    CRUISE_UP,
+    KEEP,
+    LANE_LEFT,
+    LANE_RIGHT,
+)
 
 from .assist import CruiseControl, EgoConfig, LaneChangeAssist
 from .state import SimState
@@ -25,8 +32,9 @@ class DasActions:
     names = ACTION_NAMES
     count = ACTION_COUNT
 
-    def __init__(self, ego: EgoConfig, cruise: CruiseControl,
-                 lane_changes: LaneChangeAssist) -> None:
+    def __init__(
+        self, ego: EgoConfig, cruise: CruiseControl, lane_changes: LaneChangeAssist
+    ) -> None:
         self.cruise_step_mps = ego.cruise_step_kmh * KMH
         self.cruise = cruise
         self.lane_changes = lane_changes
@@ -36,12 +44,15 @@ class DasActions:
         ValueError saying what came."""
         actions = np.asarray(actions)
         if actions.shape != expected or not np.issubdtype(actions.dtype, np.integer):
-            raise ValueError(f"expected integer actions of shape {expected}, got "
-                             f"{actions.dtype} {actions.shape}")
+            raise ValueError(
+                f"expected integer actions of shape {expected}, got {actions.dtype} {actions.shape}"
+            )
         if actions.size and (actions.min() < 0 or actions.max() >= self.count):
             bad = actions[(actions < 0) | (actions >= self.count)]
-            raise ValueError(f"actions must be in [0, {self.count}) "
-                             f"({', '.join(self.names)}), got {bad.tolist()}")
+            raise ValueError(
+                f"actions must be in [0, {self.count}) "
+                f"({', '.join(self.names)}), got {bad.tolist()}"
+            )
         return actions.astype(np.int64)
 
     def apply(self, st: SimState, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

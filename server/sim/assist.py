@@ -62,8 +62,12 @@ class EgoConfig:
         check_range("ego.cruise_min_kmh", self.cruise_min_kmh, 0.0, 300.0)
         check_range("ego.cruise_max_kmh", self.cruise_max_kmh, self.cruise_min_kmh, 300.0)
         check_range("ego.cruise_step_kmh", self.cruise_step_kmh, 0.0, 50.0, low_open=True)
-        check_range("ego.initial_speed_kmh", self.initial_speed_kmh,
-                     self.cruise_min_kmh, self.cruise_max_kmh)
+        check_range(
+            "ego.initial_speed_kmh",
+            self.initial_speed_kmh,
+            self.cruise_min_kmh,
+            self.cruise_max_kmh,
+        )
         check_range("ego.length_m", self.length_m, 2.0, 20.0)
         check_range("ego.width_m", self.width_m, 1.0, 3.0)
         check_range("ego.time_headway_s", self.time_headway_s, 0.1, 5.0)
@@ -76,10 +80,8 @@ class EgoConfig:
         check_range("ego.emergency_speed_diff_kmh", self.emergency_speed_diff_kmh, 0.0, 300.0)
         check_range("ego.lane_change_duration_s", self.lane_change_duration_s, 0.5, 10.0)
         check_range("ego.lane_change_clear_ahead_m", self.lane_change_clear_ahead_m, 0.0, 100.0)
-        check_range("ego.lane_change_clear_behind_m", self.lane_change_clear_behind_m, 0.0,
-                     100.0)
-        check_range("ego.lane_change_closing_time_s", self.lane_change_closing_time_s, 0.0,
-                     10.0)
+        check_range("ego.lane_change_clear_behind_m", self.lane_change_clear_behind_m, 0.0, 100.0)
+        check_range("ego.lane_change_closing_time_s", self.lane_change_closing_time_s, 0.0, 10.0)
 
 
 class CruiseControl:
@@ -92,7 +94,7 @@ class CruiseControl:
 
     def adjust(self, st: SimState, change_mps: np.ndarray) -> None:
         """Move each agent's target by ``change_mps`` (A, N), clipped to the cruise range."""
-        cruise = st.desired_speed_mps[:, :self.agents]
+        cruise = st.desired_speed_mps[:, : self.agents]
         cruise += change_mps
         np.minimum(np.maximum(cruise, self.min_mps, out=cruise), self.max_mps, out=cruise)
 
@@ -109,11 +111,11 @@ class EmergencyBraking:
         """Brake the agents that close in on their leader too fast (``accel`` in place)."""
         n = self.agents
         agent_closing = following.closing_mps[:, :n]
-        aeb = (agent_closing > 0.0) \
-            & (following.gap_m[:, :n] < agent_closing * self.time_to_collision_s)
+        aeb = (agent_closing > 0.0) & (
+            following.gap_m[:, :n] < agent_closing * self.time_to_collision_s
+        )
         if aeb.any():
-            accel[:, :n] = np.where(aeb, np.minimum(accel[:, :n], -self.decel_mps2),
-                                    accel[:, :n])
+            accel[:, :n] = np.where(aeb, np.minimum(accel[:, :n], -self.decel_mps2), accel[:, :n])
 
 
 class LaneChangeAssist:
@@ -171,19 +173,23 @@ class LaneChangeAssist:
         speed at which a car there closes in times ``lane_change_closing_time_s``. A lane that
         does not exist counts as clear here; :meth:`possible` refuses it anyway."""
         n, ego = self.agents, self.ego
-        half = self.kinds.half_length[st.kind]                       # (A, V)
-        dx = st.x_m[:, None, :] - st.x_m[:, :n, None]                 # (A, N, V): other - agent
+        half = self.kinds.half_length[st.kind]  # (A, V)
+        dx = st.x_m[:, None, :] - st.x_m[:, :n, None]  # (A, N, V): other - agent
         reach = half[:, None, :] + half[:, :n, None]
         # Positive when the other car gains on the agent from behind (or the agent on a car
         # ahead): the gap it needs grows with that speed.
         closing_mps = st.speed_mps[:, None, :] - st.speed_mps[:, :n, None]
-        ahead_m = ego.lane_change_clear_ahead_m \
+        ahead_m = (
+            ego.lane_change_clear_ahead_m
             + np.maximum(-closing_mps, 0.0) * ego.lane_change_closing_time_s
-        behind_m = ego.lane_change_clear_behind_m \
+        )
+        behind_m = (
+            ego.lane_change_clear_behind_m
             + np.maximum(closing_mps, 0.0) * ego.lane_change_closing_time_s
+        )
         near = (dx - reach < ahead_m) & (-dx - reach < behind_m)
         near &= st.active[:, None, :]
-        near[:, np.arange(n), np.arange(n)] = False                  # not the agent itself
+        near[:, np.arange(n), np.arange(n)] = False  # not the agent itself
         clear = np.empty(near.shape[:2] + (2,), dtype=bool)
         for side, step in enumerate((-1, 1)):
             lane = (st.lane[:, :n] + step)[:, :, None]
@@ -191,8 +197,7 @@ class LaneChangeAssist:
             clear[..., side] = ~(near & there).any(axis=2)
         return clear
 
-    def _one_agent_per_gap(self, st: SimState, go_left: np.ndarray,
-                           go_right: np.ndarray) -> None:
+    def _one_agent_per_gap(self, st: SimState, go_left: np.ndarray, go_right: np.ndarray) -> None:
         """Agents cleared into the same lane at the same decision, near each other (from
         opposite sides), would meet there: the lower-numbered agent goes, the other keeps its
         lane. Changes ``go_left``/``go_right`` (A, N) in place."""
@@ -202,12 +207,16 @@ class LaneChangeAssist:
             return
         target = st.lane[:, :n] + go_left.astype(np.int64) - go_right
         half = self.kinds.half_length[st.kind[:, :n]]
-        dx = np.abs(st.x_m[:, None, :n] - st.x_m[:, :n, None]) - half[:, None, :] \
-            - half[:, :, None]
+        dx = np.abs(st.x_m[:, None, :n] - st.x_m[:, :n, None]) - half[:, None, :] - half[:, :, None]
         window = max(ego.lane_change_clear_ahead_m, ego.lane_change_clear_behind_m)
-        lower = np.tri(n, k=-1, dtype=bool)          # [i, j]: j < i
-        conflict = lower & (dx < window) & started[:, None, :] & started[:, :, None] \
+        lower = np.tri(n, k=-1, dtype=bool)  # [i, j]: j < i
+        conflict = (
+            lower
+            & (dx < window)
+            & started[:, None, :]
+            & started[:, :, None]
             & (target[:, None, :] == target[:, :, None])
+        )
         yields = conflict.any(axis=2)
         go_left &= ~yields
         go_right &= ~yields

@@ -24,11 +24,11 @@ class RoundResult:
     """What one round gave every agent slot, (A, N) unless noted; slots that restarted or
     have no car on the road have reward 0, no flags, and action -1."""
 
-    reward: np.ndarray                   # float64
+    reward: np.ndarray  # float64
     reward_terms: dict[str, np.ndarray]  # name -> (A, N) float64, in the preset's order
-    terminated: np.ndarray               # bool
-    truncated: np.ndarray                # bool
-    action_applied: np.ndarray           # int64
+    terminated: np.ndarray  # bool
+    truncated: np.ndarray  # bool
+    action_applied: np.ndarray  # int64
 
     @property
     def ended(self) -> np.ndarray:
@@ -36,8 +36,9 @@ class RoundResult:
         return self.terminated | self.truncated
 
 
-def autoreset_round(sim: HighwaySim, actions: np.ndarray, restarting: np.ndarray,
-                    present: np.ndarray | None = None) -> RoundResult:
+def autoreset_round(
+    sim: HighwaySim, actions: np.ndarray, restarting: np.ndarray, present: np.ndarray | None = None
+) -> RoundResult:
     """Step every arena of ``sim`` one round with (A, N) ``actions``.
 
     ``restarting`` (A, N): the agents whose episode ended last round; they restart now.
@@ -49,9 +50,13 @@ def autoreset_round(sim: HighwaySim, actions: np.ndarray, restarting: np.ndarray
     if not restarting.any() and on_road.all():
         # The common round: every car on the road, nobody restarting.
         result = sim.step(actions)
-        return RoundResult(reward=result.reward, reward_terms=result.reward_terms,
-                           terminated=result.terminated, truncated=result.truncated,
-                           action_applied=result.action_applied)
+        return RoundResult(
+            reward=result.reward,
+            reward_terms=result.reward_terms,
+            terminated=result.terminated,
+            truncated=result.truncated,
+            action_applied=result.action_applied,
+        )
     reward = np.zeros((arenas, n))
     terminated = np.zeros((arenas, n), dtype=bool)
     truncated = np.zeros((arenas, n), dtype=bool)
@@ -71,8 +76,7 @@ def autoreset_round(sim: HighwaySim, actions: np.ndarray, restarting: np.ndarray
             respawn.append((int(arena), slots))
         stepping = np.arange(arenas)
     if stepping.size:
-        result = sim.step(actions[stepping], arenas=None if stepping.size == arenas
-                          else stepping)
+        result = sim.step(actions[stepping], arenas=None if stepping.size == arenas else stepping)
         live = on_road[stepping] & ~restarting[stepping]
         reward[stepping] = np.where(live, result.reward, 0.0)
         terminated[stepping] = result.terminated & live
@@ -80,7 +84,12 @@ def autoreset_round(sim: HighwaySim, actions: np.ndarray, restarting: np.ndarray
         applied[stepping] = np.where(live, result.action_applied, -1)
         for name, value in result.reward_terms.items():
             terms[name][stepping] = np.where(live, value, 0.0)
-    for arena, slots in respawn:
-        sim.respawn_agents(arena, slots)
-    return RoundResult(reward=reward, reward_terms=terms, terminated=terminated,
-                       truncated=truncated, action_applied=applied)
+    for row, slots in respawn:
+        sim.respawn_agents(row, slots)
+    return RoundResult(
+        reward=reward,
+        reward_terms=terms,
+        terminated=terminated,
+        truncated=truncated,
+        action_applied=applied,
+    )

@@ -56,15 +56,20 @@ class SimConfig:
 
     def __post_init__(self) -> None:
         sensors = self.sensor_sections()
-        check(any(section.enabled for section in sensors.values()),
-              " / ".join(f"{name}.enabled" for name in sensors),
-              tuple(section.enabled for section in sensors.values()),
-              "at least one sensor enabled")
+        check(
+            any(section.enabled for section in sensors.values()),
+            " / ".join(f"{name}.enabled" for name in sensors),
+            tuple(section.enabled for section in sensors.values()),
+            "at least one sensor enabled",
+        )
 
     def sensor_sections(self) -> dict[str, SensorConfig]:
         """The sensor sections, by field name, in order."""
-        return {f.name: value for f in dataclasses.fields(self)
-                if isinstance(value := getattr(self, f.name), SensorConfig)}
+        return {
+            f.name: value
+            for f in dataclasses.fields(self)
+            if isinstance(value := getattr(self, f.name), SensorConfig)
+        }
 
 
 # --- overrides -------------------------------------------------------------------------------
@@ -103,15 +108,15 @@ def _coerce(name: str, annotation: Any, value: object) -> object:
         for option in options:
             if option is not type(None):
                 return _coerce(name, option, value)
-    if origin is tuple and get_args(annotation)[1:] == (Ellipsis,):
-        item_type = get_args(annotation)[0]
-        check(isinstance(value, (list, tuple)), name, value, "a list of values")
-        return tuple(_coerce(name, item_type, v) for v in value)  # type: ignore[union-attr]
     if origin is tuple:
         item_types = get_args(annotation)
-        check(isinstance(value, (list, tuple)) and len(value) == len(item_types), name, value,
-               f"a list of {len(item_types)} values")
-        return tuple(_coerce(name, t, v) for t, v in zip(item_types, value))  # type: ignore[arg-type]
+        variadic = item_types[1:] == (Ellipsis,)
+        wanted = "a list of values" if variadic else f"a list of {len(item_types)} values"
+        if not isinstance(value, (list, tuple)) or not (variadic or len(value) == len(item_types)):
+            raise ConfigError(f"{name} = {value!r} is not allowed: expected {wanted}")
+        if variadic:
+            return tuple(_coerce(name, item_types[0], v) for v in value)
+        return tuple(_coerce(name, t, v) for t, v in zip(item_types, value, strict=True))
     if annotation is bool:
         check(isinstance(value, bool), name, value, "true or false")
         return value
@@ -119,8 +124,9 @@ def _coerce(name: str, annotation: Any, value: object) -> object:
         check(isinstance(value, int) and not isinstance(value, bool), name, value, "an integer")
         return value
     if annotation is float:
-        check(isinstance(value, (int, float)) and not isinstance(value, bool), name, value,
-               "a number")
+        check(
+            isinstance(value, (int, float)) and not isinstance(value, bool), name, value, "a number"
+        )
         return float(value)  # type: ignore[arg-type]
     if annotation is str:
         check(isinstance(value, str), name, value, "a string")
@@ -132,8 +138,10 @@ def apply_overrides(config: SimConfig, overrides: Mapping[str, PlainValue]) -> S
     """A copy of ``config`` with dotted fields replaced, every value checked against its type."""
     for dotted, value in overrides.items():
         if dotted in NOT_OVERRIDABLE:
-            raise ConfigError(f"{dotted!r} names the preset an override starts from: choose it "
-                              "by name, it cannot be overridden")
+            raise ConfigError(
+                f"{dotted!r} names the preset an override starts from: choose it "
+                "by name, it cannot be overridden"
+            )
         config = _replace_path(config, dotted.split("."), dotted, value)
     return config
 
@@ -145,17 +153,22 @@ def _replace_path(node: Any, path: list[str], dotted: str, value: object) -> Any
     if head not in names:
         parent = dotted[: len(dotted) - len(".".join(path))]
         allowed = field_names(node, parent)
-        raise ConfigError(f"unknown configuration field {dotted!r}: at this level the fields are "
-                          f"{', '.join(allowed)}")
+        raise ConfigError(
+            f"unknown configuration field {dotted!r}: at this level the fields are "
+            f"{', '.join(allowed)}"
+        )
     current = getattr(node, head)
     if len(path) == 1:
         if dataclasses.is_dataclass(current):
-            raise ConfigError(f"{dotted!r} is a group of fields, not a value: set one of "
-                              f"{', '.join(dotted + '.' + n for n in field_names(current))}")
+            raise ConfigError(
+                f"{dotted!r} is a group of fields, not a value: set one of "
+                f"{', '.join(dotted + '.' + n for n in field_names(current))}"
+            )
         new_value = _coerce(dotted, hints[head], value)
     else:
         if not dataclasses.is_dataclass(current):
-            raise ConfigError(f"unknown configuration field {dotted!r}: {'.'.join(path[:1])} "
-                              "has no sub-fields")
+            raise ConfigError(
+                f"unknown configuration field {dotted!r}: {'.'.join(path[:1])} has no sub-fields"
+            )
         new_value = _replace_path(current, path[1:], dotted, value)
     return dataclasses.replace(node, **{head: new_value})

@@ -52,11 +52,11 @@ MAX_AGENTS_PER_LANE = 4
 class StepResult:
     """What one decision produced, per arena and agent: (A, N) unless noted."""
 
-    reward: np.ndarray                   # float64
+    reward: np.ndarray  # float64
     reward_terms: dict[str, np.ndarray]  # name -> float64, in the preset's order
-    terminated: np.ndarray               # bool: collided
-    truncated: np.ndarray                # bool: the episode reached its decision limit
-    action_applied: np.ndarray           # int64: the action actually taken (refused -> keep)
+    terminated: np.ndarray  # bool: collided
+    truncated: np.ndarray  # bool: the episode reached its decision limit
+    action_applied: np.ndarray  # int64: the action actually taken (refused -> keep)
 
 
 class HighwaySim:
@@ -67,8 +67,10 @@ class HighwaySim:
         if num_arenas < 1:
             raise ValueError(f"num_arenas must be >= 1, got {num_arenas}")
         if not 1 <= agents_per_arena <= most:
-            raise ValueError(f"agents_per_arena must be from 1 to {most} "
-                             f"({MAX_AGENTS_PER_LANE} per lane), got {agents_per_arena}")
+            raise ValueError(
+                f"agents_per_arena must be from 1 to {most} "
+                f"({MAX_AGENTS_PER_LANE} per lane), got {agents_per_arena}"
+            )
         self.config = config
         self.num_arenas = num_arenas
         self.agents = n = agents_per_arena
@@ -79,21 +81,33 @@ class HighwaySim:
         self.decision_period_s = config.episode.decision_period_s
 
         self.road = road = Road(config.road)
-        self.kinds = kinds = VehicleKinds(config.traffic, config.ego, self.decision_period_s,
-                                          self.dt)
-        self.tracker = OvertakeTracker(n, self.vehicles,
-                                       config.reward.undo_overtake_when_passed_back)
+        self.kinds = kinds = VehicleKinds(
+            config.traffic, config.ego, self.decision_period_s, self.dt
+        )
+        self.tracker = OvertakeTracker(
+            n, self.vehicles, config.reward.undo_overtake_when_passed_back
+        )
         self.spawner = Spawner(config, kinds, road, n, self.tracker)
         self.episodes = EpisodeBook(config.episode, config.ego, n)
         self.lane_changes = LaneChangeAssist(config.ego, kinds, road.lane_count, n)
         self.actions = DasActions(config.ego, CruiseControl(config.ego, n), self.lane_changes)
         self.speed_changes = SpeedChanges(kinds)
-        self.physics = Physics(self.dt, config.traffic.max_decel_mps2, road.lane_width_m, n,
-                               self.vehicles, EmergencyBraking(config.ego, n),
-                               Mobil(config.traffic, kinds, road.lane_count), self.episodes)
+        self.physics = Physics(
+            self.dt,
+            config.traffic.max_decel_mps2,
+            road.lane_width_m,
+            n,
+            self.vehicles,
+            EmergencyBraking(config.ego, n),
+            Mobil(config.traffic, kinds, road.lane_count),
+            self.episodes,
+        )
         self.rewards = Rewards(config.reward)
-        self.sensors: list[Sensor] = [section.build(config) for section
-                                      in config.sensor_sections().values() if section.enabled]
+        self.sensors: list[Sensor] = [
+            section.build(config)
+            for section in config.sensor_sections().values()
+            if section.enabled
+        ]
         self._lanes = LaneSorter(road.lane_count)
         self.rngs = [np.random.default_rng() for _ in range(num_arenas)]
         self.state = SimState.empty(num_arenas, n, self.vehicles)
@@ -110,8 +124,9 @@ class HighwaySim:
 
     # --- episodes and cars ----------------------------------------------------------------------
 
-    def reset(self, arenas: np.ndarray | list[int] | None = None,
-              seeds: list[int | None] | None = None) -> None:
+    def reset(
+        self, arenas: np.ndarray | list[int] | None = None, seeds: list[int | None] | None = None
+    ) -> None:
         """Start new episodes in ``arenas`` (all by default).
 
         A seed re-creates that arena's generator; None continues its stream, so that a
@@ -129,7 +144,7 @@ class HighwaySim:
 
     def agents_present(self) -> np.ndarray:
         """(A, N) bool: which agent slots have a car on the road."""
-        return self.state.active[:, :self.agents].copy()
+        return self.state.active[:, : self.agents].copy()
 
     def remove_agents(self, arena: int, slots: list[int] | np.ndarray) -> None:
         """Take agents' cars off the road of ``arena`` (a shared arena's trainer left).
@@ -162,8 +177,10 @@ class HighwaySim:
         rows = np.arange(self.num_arenas) if arenas is None else np.asarray(arenas, dtype=np.int64)
         actions = self.actions.check(actions, (rows.size, self.agents))
         if self._needs_reset[rows].any():
-            raise RuntimeError(f"arenas {rows[self._needs_reset[rows]].tolist()} must be reset "
-                               "before they can step")
+            raise RuntimeError(
+                f"arenas {rows[self._needs_reset[rows]].tolist()} must be reset "
+                "before they can step"
+            )
         st = self.state if arenas is None else self.state.select(rows)
         result = self._advance(st, actions, draw_uniforms(self.rngs, rows, self.vehicles))
         if arenas is not None:
@@ -185,19 +202,33 @@ class HighwaySim:
         index = self._lanes.build(st.x_m - st.x_m[:, :1], st.lane, st.target_lane, st.active)
         lead, valid = leaders(index)
         for frame in range(self.frames):
-            self.physics.frame(st, params, lead, valid, collided, brakes,
-                               mobil_index=index if frame == 0 else None)
+            self.physics.frame(
+                st, params, lead, valid, collided, brakes, mobil_index=index if frame == 0 else None
+            )
         gained, undone, passed = self.tracker.track(st)
         self.spawner.recycle(st, uniforms)
         st.decisions += 1
         st.agent_decisions += 1
-        reward, terms = self.rewards.compute(StepFacts(
-            speed_mps=st.speed_mps[:, :n], collided=collided, lane_change_started=started,
-            overtakes=gained, overtakes_undone=undone, passed_by=passed))
-        truncated = self.episodes.close_decision(st, reward, started, collided, gained - undone,
-                                                 brakes)
-        return StepResult(reward=reward, reward_terms=terms, terminated=collided,
-                          truncated=truncated & ~collided, action_applied=applied)
+        reward, terms = self.rewards.compute(
+            StepFacts(
+                speed_mps=st.speed_mps[:, :n],
+                collided=collided,
+                lane_change_started=started,
+                overtakes=gained,
+                overtakes_undone=undone,
+                passed_by=passed,
+            )
+        )
+        truncated = self.episodes.close_decision(
+            st, reward, started, collided, gained - undone, brakes
+        )
+        return StepResult(
+            reward=reward,
+            reward_terms=terms,
+            terminated=collided,
+            truncated=truncated & ~collided,
+            action_applied=applied,
+        )
 
     # --- what agents see ------------------------------------------------------------------------
 

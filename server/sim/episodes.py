@@ -27,8 +27,16 @@ if TYPE_CHECKING:
     from .traffic.car_following import Following
 
 # The per-agent accumulators an episode starts from zero.
-EPISODE_COUNTERS = ("agent_decisions", "braking", "distance_m", "lane_changes", "overtakes",
-                    "collisions", "emergency_brakes", "episode_return")
+EPISODE_COUNTERS = (
+    "agent_decisions",
+    "braking",
+    "distance_m",
+    "lane_changes",
+    "overtakes",
+    "collisions",
+    "emergency_brakes",
+    "episode_return",
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -40,10 +48,18 @@ class EpisodeConfig:
     physics_dt_s: float = 0.1
 
     def __post_init__(self) -> None:
-        check(isinstance(self.max_decisions, int) and self.max_decisions >= 1,
-               "episode.max_decisions", self.max_decisions, "an integer >= 1")
-        check(isinstance(self.frames_per_decision, int) and 1 <= self.frames_per_decision <= 100,
-               "episode.frames_per_decision", self.frames_per_decision, "an integer from 1 to 100")
+        check(
+            isinstance(self.max_decisions, int) and self.max_decisions >= 1,
+            "episode.max_decisions",
+            self.max_decisions,
+            "an integer >= 1",
+        )
+        check(
+            isinstance(self.frames_per_decision, int) and 1 <= self.frames_per_decision <= 100,
+            "episode.frames_per_decision",
+            self.frames_per_decision,
+            "an integer from 1 to 100",
+        )
         check_range("episode.physics_dt_s", self.physics_dt_s, 0.0, 0.1, low_open=True)
 
     @property
@@ -67,8 +83,9 @@ class EpisodeBook:
         for name in EPISODE_COUNTERS:
             getattr(st, name)[arena, slot] = 0
 
-    def count_emergency_brakes(self, st: SimState, following: Following,
-                               brakes: np.ndarray) -> None:
+    def count_emergency_brakes(
+        self, st: SimState, following: Following, brakes: np.ndarray
+    ) -> None:
         """After a frame: add to ``brakes`` (A, N) the agents whose hard braking began now with
         a big speed difference to the car ahead."""
         n = self.agents
@@ -76,13 +93,20 @@ class EpisodeBook:
         onset = braking & ~st.braking
         if onset.any():
             big_difference = following.has_leader[:, :n] & (
-                following.closing_mps[:, :n] >= self.brake_speed_diff_kmh * KMH)
+                following.closing_mps[:, :n] >= self.brake_speed_diff_kmh * KMH
+            )
             brakes += onset & big_difference
         st.braking[:] = braking
 
-    def close_decision(self, st: SimState, reward: np.ndarray, lane_changes: np.ndarray,
-                       collided: np.ndarray, overtakes: np.ndarray,
-                       emergency_brakes: np.ndarray) -> np.ndarray:
+    def close_decision(
+        self,
+        st: SimState,
+        reward: np.ndarray,
+        lane_changes: np.ndarray,
+        collided: np.ndarray,
+        overtakes: np.ndarray,
+        emergency_brakes: np.ndarray,
+    ) -> np.ndarray:
         """Add one decision's events (A, N) to the episodes; returns which reached their
         decision limit (truncated)."""
         st.episode_return += reward
@@ -97,10 +121,16 @@ class EpisodeBook:
         elapsed_s = st.agent_decisions * self.decision_period_s
         with np.errstate(divide="ignore", invalid="ignore"):
             avg_speed = np.where(elapsed_s > 0, st.distance_m / elapsed_s / KMH, 0.0)
-        columns = {"avg_speed_kmh": avg_speed, "lane_changes": st.lane_changes,
-                   "overtakes": st.overtakes, "collisions": st.collisions,
-                   "emergency_brakes": st.emergency_brakes, "distance_m": st.distance_m,
-                   "return": st.episode_return, "decisions": st.agent_decisions}
+        columns = {
+            "avg_speed_kmh": avg_speed,
+            "lane_changes": st.lane_changes,
+            "overtakes": st.overtakes,
+            "collisions": st.collisions,
+            "emergency_brakes": st.emergency_brakes,
+            "distance_m": st.distance_m,
+            "return": st.episode_return,
+            "decisions": st.agent_decisions,
+        }
         table = np.empty(elapsed_s.shape + (len(METRIC_FIELDS),))
         for i, name in enumerate(METRIC_FIELDS):
             table[..., i] = columns[name]

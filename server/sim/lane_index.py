@@ -26,10 +26,10 @@ NO_GAP_M = 1.0e9  # gap reported when there is no vehicle ahead
 class LaneIndex:
     """Entries of all arenas sorted by (arena, lane, position); built once per decision."""
 
-    sorted_keys: np.ndarray      # (E,) float64
-    sorted_group: np.ndarray     # (E,) float64: arena * (lanes + 1) + lane; lane == lanes is unused
-    sorted_vehicle: np.ndarray   # (E,) int64: flat index (arena * V + column) of the entry's vehicle
-    entry_position: np.ndarray   # (A, 2V) int64: where each entry landed in the sorted order
+    sorted_keys: np.ndarray  # (E,) float64
+    sorted_group: np.ndarray  # (E,) float64: arena * (lanes + 1) + lane; lane == lanes is unused
+    sorted_vehicle: np.ndarray  # (E,) int64: flat index (arena * V + column) of the entry's vehicle
+    entry_position: np.ndarray  # (A, 2V) int64: where each entry landed in the sorted order
     lanes_plus_one: int
 
 
@@ -45,20 +45,25 @@ class LaneSorter:
         if key not in self._constants:
             entries = arenas * 2 * vehicles
             flat_entry = np.arange(entries)
-            vehicle_of_entry = flat_entry // (2 * vehicles) * vehicles + flat_entry % (2 * vehicles) % vehicles
+            vehicle_of_entry = (
+                flat_entry // (2 * vehicles) * vehicles + flat_entry % (2 * vehicles) % vehicles
+            )
             group_base = (np.arange(arenas, dtype=np.float64) * (self.lane_count + 1))[:, None]
             self._constants[key] = (flat_entry, vehicle_of_entry, group_base)
         return self._constants[key]
 
-    def build(self, x_rel: np.ndarray, lane: np.ndarray, target_lane: np.ndarray,
-              active: np.ndarray) -> LaneIndex:
+    def build(
+        self, x_rel: np.ndarray, lane: np.ndarray, target_lane: np.ndarray, active: np.ndarray
+    ) -> LaneIndex:
         """Sort the entries: each vehicle's lane and, while it changes lanes, its target lane."""
         arenas, vehicles = x_rel.shape
         flat_entry, vehicle_of_entry, group_base = self._for_shape(arenas, vehicles)
         unused = self.lane_count
         group = np.empty((arenas, 2 * vehicles))
         np.copyto(group[:, :vehicles], np.where(active, lane, unused))
-        np.copyto(group[:, vehicles:], np.where(active & (target_lane != lane), target_lane, unused))
+        np.copyto(
+            group[:, vehicles:], np.where(active & (target_lane != lane), target_lane, unused)
+        )
         group += group_base
         keys = group * KEY_SPAN
         shifted = x_rel + KEY_OFFSET
@@ -95,8 +100,9 @@ def leaders(index: LaneIndex) -> tuple[np.ndarray, np.ndarray]:
     return next_vehicle[pos], has_next[pos]
 
 
-def neighbours_at(index: LaneIndex, arena: np.ndarray, lane: np.ndarray,
-                  x_rel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def neighbours_at(
+    index: LaneIndex, arena: np.ndarray, lane: np.ndarray, x_rel: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """The vehicles just ahead and just behind position ``x_rel`` in ``lane`` of ``arena``.
 
     Returns (ahead, behind) flat vehicle indices, -1 where there is none. Inputs broadcast.
@@ -109,5 +115,7 @@ def neighbours_at(index: LaneIndex, arena: np.ndarray, lane: np.ndarray,
     behind_pos = np.maximum(pos - 1, 0)
     ahead_ok = (pos < size) & (index.sorted_group[ahead_pos] == group)
     behind_ok = (pos > 0) & (index.sorted_group[behind_pos] == group)
-    return (np.where(ahead_ok, index.sorted_vehicle[ahead_pos], -1),
-            np.where(behind_ok, index.sorted_vehicle[behind_pos], -1))
+    return (
+        np.where(ahead_ok, index.sorted_vehicle[ahead_pos], -1),
+        np.where(behind_ok, index.sorted_vehicle[behind_pos], -1),
+    )

@@ -27,7 +27,7 @@ class OvertakeTracker:
 
     def start(self, st: SimState, vehicles: np.ndarray) -> None:
         """Reset the tracking of the (A, V) ``vehicles`` that just appeared."""
-        ahead_now = st.x_m[:, None, :] > st.x_m[:, :self.agents, None]
+        ahead_now = st.x_m[:, None, :] > st.x_m[:, : self.agents, None]
         mask = vehicles[:, None, :]
         st.ahead[:] = np.where(mask, ahead_now, st.ahead)
         st.credited[:] = st.credited & ~mask

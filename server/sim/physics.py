@@ -41,17 +41,29 @@ def headings(st: SimState, kinds: VehicleKinds, lane_width_m: float, agents: int
     """Agents' headings (A, N) in radians from the road's direction, left positive."""
     n = agents
     kind = st.kind[:, :n]
-    lateral_mps = (st.target_lane[:, :n] - st.lane[:, :n]) * lane_width_m \
-        * min_jerk_rate(st.change_progress[:, :n]) / kinds.change_duration[kind]
+    lateral_mps = (
+        (st.target_lane[:, :n] - st.lane[:, :n])
+        * lane_width_m
+        * min_jerk_rate(st.change_progress[:, :n])
+        / kinds.change_duration[kind]
+    )
     return np.arctan2(lateral_mps, np.maximum(st.speed_mps[:, :n], 1e-3))
 
 
 class Physics:
     """Advances every vehicle by one frame of ``physics_dt_s``."""
 
-    def __init__(self, dt_s: float, max_decel_mps2: float, lane_width_m: float, agents: int,
-                 vehicles: int, emergency_braking: EmergencyBraking, mobil: Mobil,
-                 episodes: EpisodeBook) -> None:
+    def __init__(
+        self,
+        dt_s: float,
+        max_decel_mps2: float,
+        lane_width_m: float,
+        agents: int,
+        vehicles: int,
+        emergency_braking: EmergencyBraking,
+        mobil: Mobil,
+        episodes: EpisodeBook,
+    ) -> None:
         self.dt = dt_s
         self.max_decel_mps2 = max_decel_mps2
         self.lane_width_m = lane_width_m
@@ -63,8 +75,16 @@ class Physics:
         self._not_self = np.ones((1, agents, vehicles), dtype=bool)
         self._not_self[0, np.arange(agents), np.arange(agents)] = False
 
-    def frame(self, st: SimState, p: VehicleParams, lead: np.ndarray, valid: np.ndarray,
-              collided: np.ndarray, brakes: np.ndarray, mobil_index: LaneIndex | None) -> None:
+    def frame(
+        self,
+        st: SimState,
+        p: VehicleParams,
+        lead: np.ndarray,
+        valid: np.ndarray,
+        collided: np.ndarray,
+        brakes: np.ndarray,
+        mobil_index: LaneIndex | None,
+    ) -> None:
         """One frame for every arena of ``st``; collisions and emergency brakes (A, N) are
         added to ``collided`` and ``brakes`` in place.
 
@@ -75,8 +95,16 @@ class Physics:
         x_rel = st.x_m - st.x_m[:, :1]
         speed = st.speed_mps
         following = follow(x_rel, p.half_length, speed, lead, valid)
-        accel = idm_accel(speed, st.desired_speed_mps, following.gap_m, following.closing_mps,
-                          p.headway, p.min_gap, p.max_accel, p.two_sqrt_ab)
+        accel = idm_accel(
+            speed,
+            st.desired_speed_mps,
+            following.gap_m,
+            following.closing_mps,
+            p.headway,
+            p.min_gap,
+            p.max_accel,
+            p.two_sqrt_ab,
+        )
         self.emergency_braking.apply(accel, following)
         accel = np.maximum(np.minimum(accel, p.max_accel), -self.max_decel_mps2)
         if mobil_index is not None:
@@ -88,8 +116,9 @@ class Physics:
         # An agent ahead gets no such courtesy: a reckless cut-in can be rear-ended.
         gap, leader = following.gap_m, following.leader
         capped = p.is_traffic & following.has_leader & p.is_traffic.reshape(-1)[leader]
-        cap = np.maximum(following.leader_speed_mps - self.max_decel_mps2 * dt
-                         + (gap - 0.2) / dt, 0.0)
+        cap = np.maximum(
+            following.leader_speed_mps - self.max_decel_mps2 * dt + (gap - 0.2) / dt, 0.0
+        )
         new_speed = np.where(capped, np.minimum(new_speed, cap), new_speed)
         travelled = np.where(st.active, 0.5 * (speed + new_speed) * dt, 0.0)
         st.accel_mps2[:] = (new_speed - speed) / dt
@@ -118,10 +147,9 @@ class Physics:
         """(A, N) bool: agents whose box overlaps another vehicle's."""
         n = self.agents
         ax, ay = st.x_m[:, :n, None], st.y_m[:, :n, None]
-        overlap = (np.abs(st.x_m[:, None, :] - ax)
-                   < p.half_length[:, :n, None] + p.half_length[:, None, :]) \
-            & (np.abs(st.y_m[:, None, :] - ay)
-               < p.half_width[:, :n, None] + p.half_width[:, None, :])
+        overlap = (
+            np.abs(st.x_m[:, None, :] - ax) < p.half_length[:, :n, None] + p.half_length[:, None, :]
+        ) & (np.abs(st.y_m[:, None, :] - ay) < p.half_width[:, :n, None] + p.half_width[:, None, :])
         overlap &= st.active[:, None, :] & self._not_self & st.active[:, :n, None]
         return overlap.any(axis=-1)
 
@@ -133,7 +161,10 @@ def traffic_overlaps(st: SimState, kinds: VehicleKinds, agents: int) -> np.ndarr
     x, y = st.x_m[:, n:], st.y_m[:, n:]
     kind, active = st.kind[:, n:], st.active[:, n:]
     half_l, half_w = kinds.half_length[kind], kinds.half_width[kind]
-    overlap = (np.abs(x[:, :, None] - x[:, None, :]) < half_l[:, :, None] + half_l[:, None, :]) \
-        & (np.abs(y[:, :, None] - y[:, None, :]) < half_w[:, :, None] + half_w[:, None, :]) \
-        & active[:, :, None] & active[:, None, :]
+    overlap = (
+        (np.abs(x[:, :, None] - x[:, None, :]) < half_l[:, :, None] + half_l[:, None, :])
+        & (np.abs(y[:, :, None] - y[:, None, :]) < half_w[:, :, None] + half_w[:, None, :])
+        & active[:, :, None]
+        & active[:, None, :]
+    )
     return np.triu(overlap, k=1).sum(axis=(1, 2))

@@ -24,9 +24,12 @@ PRESETS: dict[str, Callable[[], SimConfig]] = {"min2018": min2018}
 DEFAULT_PRESET = "min2018"
 
 
-def make_config(preset: str = DEFAULT_PRESET,
-                overrides: Mapping[str, PlainValue] | None = None) -> SimConfig:
+def make_config(
+    preset: str = DEFAULT_PRESET, overrides: Mapping[str, PlainValue] | None = None
+) -> SimConfig:
     """The named preset with ``overrides`` (dotted field names) applied and checked."""
     if preset not in PRESETS:
-        raise ConfigError(f"unknown preset {preset!r}: the presets are {', '.join(sorted(PRESETS))}")
+        raise ConfigError(
+            f"unknown preset {preset!r}: the presets are {', '.join(sorted(PRESETS))}"
+        )
     return apply_overrides(PRESETS[preset](), overrides or {})

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-SPAWN_CANDIDATES = 5               # positions tried per traffic (re)spawn
+SPAWN_CANDIDATES = 5  # positions tried per traffic (re)spawn
 # Columns of a vehicle's row: side, anchor agent, candidate lanes and offsets, behaviour,
 # desired speed, speed-change event and value.
 U_SIDE, U_ANCHOR = 0, 1

@@ -18,9 +18,16 @@ _ROAD = np.array([90, 90, 95], dtype=np.uint8)
 _MARK = np.array([240, 240, 240], dtype=np.uint8)
 _RAIL = np.array([180, 180, 170], dtype=np.uint8)
 # Traffic by behaviour (steady, road maximum, lane changer), the watched agent, other agents.
-_KIND_COLOURS = np.array([
-    [60, 110, 220], [240, 150, 40], [170, 70, 200], [250, 250, 60], [230, 40, 40],
-], dtype=np.uint8)
+_KIND_COLOURS = np.array(
+    [
+        [60, 110, 220],
+        [240, 150, 40],
+        [170, 70, 200],
+        [250, 250, 60],
+        [230, 40, 40],
+    ],
+    dtype=np.uint8,
+)
 _OTHER_AGENT = AGENT_KIND
 _WATCHED_AGENT = AGENT_KIND + 1
 
@@ -61,9 +68,9 @@ def render_top_down(sim: HighwaySim, arena: int = 0, agent: int = 0) -> np.ndarr
     # Per pixel, the last car (in slot order) whose box covers it; the watched agent on top.
     order = np.argsort(kind == _WATCHED_AGENT, kind="stable")
     x, y, kind, half_l, half_w = x[order], y[order], kind[order], half_l[order], half_w[order]
-    in_x = np.abs(wx[None, :] - x[:, None]) <= half_l[:, None]   # (C, W)
-    in_y = np.abs(wy[None, :] - y[:, None]) <= half_w[:, None]   # (C, H)
-    cover = in_y[:, :, None] & in_x[:, None, :]                   # (C, H, W)
+    in_x = np.abs(wx[None, :] - x[:, None]) <= half_l[:, None]  # (C, W)
+    in_y = np.abs(wy[None, :] - y[:, None]) <= half_w[:, None]  # (C, H)
+    cover = in_y[:, :, None] & in_x[:, None, :]  # (C, H, W)
     if cover.shape[0]:
         any_car = cover.any(axis=0)
         top = cover.shape[0] - 1 - np.argmax(cover[::-1], axis=0)

@@ -25,12 +25,12 @@ from .validation import check, check_flag, check_range
 class StepFacts:
     """What one decision did, per agent (A, N): what reward terms are computed from."""
 
-    speed_mps: np.ndarray            # float64, after the decision
-    collided: np.ndarray             # bool
+    speed_mps: np.ndarray  # float64, after the decision
+    collided: np.ndarray  # bool
     lane_change_started: np.ndarray  # bool
-    overtakes: np.ndarray            # int64: cars passed (each counted once)
-    overtakes_undone: np.ndarray     # int64: earlier overtakes taken back
-    passed_by: np.ndarray            # int64: cars that passed the agent
+    overtakes: np.ndarray  # int64: cars passed (each counted once)
+    overtakes_undone: np.ndarray  # int64: earlier overtakes taken back
+    passed_by: np.ndarray  # int64: cars that passed the agent
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,12 +53,18 @@ class RewardConfig:
     undo_overtake_when_passed_back: bool = False
 
     def __post_init__(self) -> None:
-        check(len(self.terms) >= 1 and len(set(self.terms)) == len(self.terms)
-              and all(term in TERMS for term in self.terms), "reward.terms", self.terms,
-              f"distinct names from {sorted(TERMS)}, at least one")
+        check(
+            len(self.terms) >= 1
+            and len(set(self.terms)) == len(self.terms)
+            and all(term in TERMS for term in self.terms),
+            "reward.terms",
+            self.terms,
+            f"distinct names from {sorted(TERMS)}, at least one",
+        )
         check_range("reward.speed_min_kmh", self.speed_min_kmh, 0.0, 300.0)
-        check_range("reward.speed_max_kmh", self.speed_max_kmh, self.speed_min_kmh, 300.0,
-                    low_open=True)
+        check_range(
+            "reward.speed_max_kmh", self.speed_max_kmh, self.speed_min_kmh, 300.0, low_open=True
+        )
         for name in ("speed_reward_max", "collision", "lane_change", "overtake", "passed"):
             check_range(f"reward.{name}", getattr(self, name), -1000.0, 1000.0)
         for name in ("clip_speed_term", "undo_overtake_when_passed_back"):
@@ -92,8 +98,11 @@ def _passed(facts: StepFacts, rc: RewardConfig) -> np.ndarray:
 
 # Every term the simulator can reward, by name.
 TERMS: dict[str, Callable[[StepFacts, RewardConfig], np.ndarray]] = {
-    "speed": _speed, "collision": _collision, "lane_change": _lane_change,
-    "overtake": _overtake, "passed": _passed,
+    "speed": _speed,
+    "collision": _collision,
+    "lane_change": _lane_change,
+    "overtake": _overtake,
+    "passed": _passed,
 }
 
 
@@ -107,7 +116,10 @@ class Rewards:
 
     def compute(self, facts: StepFacts) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """The reward (A, N) float64 and each term's weighted value, by name."""
-        values = {name: term(facts, self.config) for name, term in zip(self.names, self._terms)}
+        values = {
+            name: term(facts, self.config)
+            for name, term in zip(self.names, self._terms, strict=True)
+        }
         parts = iter(values.values())
         reward = np.array(next(parts), dtype=np.float64)
         for part in parts:

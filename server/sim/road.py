@@ -24,8 +24,12 @@ class RoadConfig:
     barrier_offset_m: float = 1.0
 
     def __post_init__(self) -> None:
-        check(isinstance(self.lane_count, int) and 1 <= self.lane_count <= 12,
-              "road.lane_count", self.lane_count, "an integer from 1 to 12")
+        check(
+            isinstance(self.lane_count, int) and 1 <= self.lane_count <= 12,
+            "road.lane_count",
+            self.lane_count,
+            "an integer from 1 to 12",
+        )
         check_range("road.lane_width_m", self.lane_width_m, 2.5, 6.0)
         check_range("road.barrier_offset_m", self.barrier_offset_m, 0.0, 10.0)
 
@@ -46,5 +50,4 @@ class Road:
 
     def lane_at(self, y_m: np.ndarray) -> np.ndarray:
         """The lane (as float64) whose strip holds ``y_m``, clipped to the road's lanes."""
-        return np.minimum(np.maximum(np.floor(y_m / self.lane_width_m), 0.0),
-                          self.lane_count - 1)
+        return np.minimum(np.maximum(np.floor(y_m / self.lane_width_m), 0.0), self.lane_count - 1)

@@ -30,17 +30,23 @@ from .traffic.car_following import idm_desired_gap
 from .units import KMH
 from .vehicles import VehicleKinds
 
-RESPAWN_RETRY_DECISIONS = 5       # an empty traffic slot looks for a free spot this often
-SPAWN_SEPARATION_M = 25.0          # spawns of one decision in one lane keep this far apart
-AGENT_SPACING_M = 30.0             # agents start this far apart; a joining car tries steps of it
-JOIN_STEPS_BACK = 8                # ... this many steps behind the agents on the road
+RESPAWN_RETRY_DECISIONS = 5  # an empty traffic slot looks for a free spot this often
+SPAWN_SEPARATION_M = 25.0  # spawns of one decision in one lane keep this far apart
+AGENT_SPACING_M = 30.0  # agents start this far apart; a joining car tries steps of it
+JOIN_STEPS_BACK = 8  # ... this many steps behind the agents on the road
 
 
 class Spawner:
     """Places vehicles for :class:`~overtake.server.sim.core.HighwaySim`."""
 
-    def __init__(self, config: SimConfig, kinds: VehicleKinds, road: Road, agents: int,
-                 tracker: OvertakeTracker) -> None:
+    def __init__(
+        self,
+        config: SimConfig,
+        kinds: VehicleKinds,
+        road: Road,
+        agents: int,
+        tracker: OvertakeTracker,
+    ) -> None:
         self.config = config
         self.traffic = config.traffic
         self.kinds = kinds
@@ -96,8 +102,9 @@ class Spawner:
         self.tracker.start(fresh, np.ones((1, self.vehicles), dtype=bool))
         return fresh
 
-    def place_agents(self, st: SimState, arena: int, slots: np.ndarray,
-                     rng: np.random.Generator) -> None:
+    def place_agents(
+        self, st: SimState, arena: int, slots: np.ndarray, rng: np.random.Generator
+    ) -> None:
         """Put agents' cars back on the road of ``arena`` while it goes on.
 
         Each car is placed, at the initial cruise speed, at the first spot (lanes in a random
@@ -117,8 +124,15 @@ class Spawner:
             # Every lane at 30 m back, then every lane at 60 m, ...: the nearest free spot.
             lane = np.tile(lanes, offsets.size)[None, :]
             x = (base + np.repeat(offsets, lanes.size))[None, :]
-            ok = self.clearance_ok(st, row, lane, x, np.full(lane.shape, speed),
-                                   np.full(lane.shape, AGENT_KIND), st.active[row])[0]
+            ok = self.clearance_ok(
+                st,
+                row,
+                lane,
+                x,
+                np.full(lane.shape, speed),
+                np.full(lane.shape, AGENT_KIND),
+                st.active[row],
+            )[0]
             # With no comfortable gap anywhere, the last spot tried (farthest back) is used.
             pick = int(np.argmax(ok)) if ok.any() else lane.size - 1
             st.x_m[arena, slot] = x[0, pick]
@@ -158,29 +172,43 @@ class Spawner:
         fell_behind = ((dx[arena, :, tcol] < 0.0) | ~anchors[arena, :, 0]).all(axis=1)
         ahead_side = np.where(was_active[arena, tcol], fell_behind, u[:, U_SIDE] < 0.5)
         anchor = np.minimum((u[:, U_ANCHOR] * n).astype(np.int64), n - 1)
-        anchor = np.where(anchors[arena, anchor, 0], anchor,
-                          np.argmax(anchors[arena, :, 0], axis=1))
-        lane = np.minimum((u[:, U_LANE:U_LANE + SPAWN_CANDIDATES] * lanes).astype(np.int64),
-                          lanes - 1)
-        window = np.where(ahead_side[:, None], np.array(cfg.spawn_ahead_m),
-                          np.array(cfg.spawn_behind_m))
-        distance = window[:, :1] + u[:, U_OFFSET:U_OFFSET + SPAWN_CANDIDATES] \
-            * (window[:, 1:] - window[:, :1])
+        anchor = np.where(
+            anchors[arena, anchor, 0], anchor, np.argmax(anchors[arena, :, 0], axis=1)
+        )
+        lane = np.minimum(
+            (u[:, U_LANE : U_LANE + SPAWN_CANDIDATES] * lanes).astype(np.int64), lanes - 1
+        )
+        window = np.where(
+            ahead_side[:, None], np.array(cfg.spawn_ahead_m), np.array(cfg.spawn_behind_m)
+        )
+        distance = window[:, :1] + u[:, U_OFFSET : U_OFFSET + SPAWN_CANDIDATES] * (
+            window[:, 1:] - window[:, :1]
+        )
         x = st.x_m[arena, anchor][:, None] + np.where(ahead_side[:, None], distance, -distance)
         kind = self.kinds.behaviour_of(u[:, U_BEHAVIOUR])
         speed = self.kinds.desired_speed(kind, u[:, U_SPEED])
         shape = lane.shape
-        ok = self.clearance_ok(st, arena, lane, x, np.broadcast_to(speed[:, None], shape),
-                               np.broadcast_to(kind[:, None], shape), st.active[arena])
-        found = ok.any(axis=1)
+        ok = self.clearance_ok(
+            st,
+            arena,
+            lane,
+            x,
+            np.broadcast_to(speed[:, None], shape),
+            np.broadcast_to(kind[:, None], shape),
+            st.active[arena],
+        )
+        found = np.asarray(ok.any(axis=1))
         pick = np.argmax(ok, axis=1)
         pick_lane = lane[np.arange(arena.size), pick]
         pick_x = x[np.arange(arena.size), pick]
         # Two spawns of this decision may not land on each other: the later one waits.
-        same_place = (arena[:, None] == arena[None, :]) \
-            & (pick_lane[:, None] == pick_lane[None, :]) \
-            & (np.abs(pick_x[:, None] - pick_x[None, :]) < SPAWN_SEPARATION_M) \
-            & found[:, None] & found[None, :]
+        same_place = (
+            (arena[:, None] == arena[None, :])
+            & (pick_lane[:, None] == pick_lane[None, :])
+            & (np.abs(pick_x[:, None] - pick_x[None, :]) < SPAWN_SEPARATION_M)
+            & found[:, None]
+            & found[None, :]
+        )
         found &= ~np.tril(same_place, k=-1).any(axis=1)
         a, c = arena[found], col[found]
         st.x_m[a, c] = pick_x[found]
@@ -197,8 +225,16 @@ class Spawner:
         spawned[a, c] = True
         self.tracker.start(st, spawned)
 
-    def clearance_ok(self, st: SimState, arena: np.ndarray, lane: np.ndarray, x: np.ndarray,
-                     speed: np.ndarray, kind: np.ndarray, others: np.ndarray) -> np.ndarray:
+    def clearance_ok(
+        self,
+        st: SimState,
+        arena: np.ndarray,
+        lane: np.ndarray,
+        x: np.ndarray,
+        speed: np.ndarray,
+        kind: np.ndarray,
+        others: np.ndarray,
+    ) -> np.ndarray:
         """Whether candidate spots (K, M) keep an IDM-comfortable gap to every other vehicle.
 
         ``arena`` (K,) rows of ``st``; lane, x, speed, kind (K, M) the candidates; ``others``
@@ -215,10 +251,12 @@ class Spawner:
         shares_lane = ((o_lane == c_lane) | (o_target == c_lane)) & others[:, None, :]
         dx = o_x - c_x
         bodies = k.half_length[o_kind] + k.half_length[c_kind]
-        need_ahead = idm_desired_gap(c_speed, c_speed - o_speed, k.headway[c_kind],
-                                     k.min_gap[c_kind], k.two_sqrt_ab[c_kind])
-        need_behind = idm_desired_gap(o_speed, o_speed - c_speed, k.headway[o_kind],
-                                      k.min_gap[o_kind], k.two_sqrt_ab[o_kind])
+        need_ahead = idm_desired_gap(
+            c_speed, c_speed - o_speed, k.headway[c_kind], k.min_gap[c_kind], k.two_sqrt_ab[c_kind]
+        )
+        need_behind = idm_desired_gap(
+            o_speed, o_speed - c_speed, k.headway[o_kind], k.min_gap[o_kind], k.two_sqrt_ab[o_kind]
+        )
         clear = np.where(dx >= 0.0, dx - bodies >= need_ahead, -dx - bodies >= need_behind)
         return np.all(clear | ~shares_lane, axis=-1)
 
@@ -233,7 +271,13 @@ class Spawner:
         cols = np.tile(traffic, arenas)
         others = np.zeros((rows.size, vehicles), dtype=bool)
         others[:, :n] = True
-        ok = self.clearance_ok(st, rows, st.lane[rows, cols][:, None],
-                               st.x_m[rows, cols][:, None], st.speed_mps[rows, cols][:, None],
-                               st.kind[rows, cols][:, None], others)[:, 0]
+        ok = self.clearance_ok(
+            st,
+            rows,
+            st.lane[rows, cols][:, None],
+            st.x_m[rows, cols][:, None],
+            st.speed_mps[rows, cols][:, None],
+            st.kind[rows, cols][:, None],
+            others,
+        )[:, 0]
         st.active[rows, cols] &= ok

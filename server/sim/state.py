@@ -18,24 +18,24 @@ import numpy as np
 class SimState:
     """Everything that evolves; arrays are (arenas, ...). Columns 0..agents-1 are agents."""
 
-    x_m: np.ndarray                 # (A, V) float64, position along the road
-    y_m: np.ndarray                 # (A, V) lateral position, 0 at the right road edge
-    speed_mps: np.ndarray           # (A, V)
-    desired_speed_mps: np.ndarray   # (A, V) traffic's own; agents' cruise target
-    accel_mps2: np.ndarray          # (A, V) last frame's acceleration
-    lane: np.ndarray                # (A, V) int64 lane (the origin lane during a change)
-    target_lane: np.ndarray         # (A, V) int64 == lane unless changing
-    change_progress: np.ndarray     # (A, V) 0..1 through a lane change
-    active: np.ndarray              # (A, V) bool; inactive traffic slots wait to spawn
-    kind: np.ndarray                # (A, V) int64: behaviour index, AGENT_KIND for agents
-    frame: np.ndarray               # (A,) int64 physics frames since reset
-    decisions: np.ndarray           # (A,) int64 decisions since reset
+    x_m: np.ndarray  # (A, V) float64, position along the road
+    y_m: np.ndarray  # (A, V) lateral position, 0 at the right road edge
+    speed_mps: np.ndarray  # (A, V)
+    desired_speed_mps: np.ndarray  # (A, V) traffic's own; agents' cruise target
+    accel_mps2: np.ndarray  # (A, V) last frame's acceleration
+    lane: np.ndarray  # (A, V) int64 lane (the origin lane during a change)
+    target_lane: np.ndarray  # (A, V) int64 == lane unless changing
+    change_progress: np.ndarray  # (A, V) 0..1 through a lane change
+    active: np.ndarray  # (A, V) bool; inactive traffic slots wait to spawn
+    kind: np.ndarray  # (A, V) int64: behaviour index, AGENT_KIND for agents
+    frame: np.ndarray  # (A,) int64 physics frames since reset
+    decisions: np.ndarray  # (A,) int64 decisions since reset
     # Per agent (A, N) and per agent and vehicle (A, N, V):
-    agent_decisions: np.ndarray     # (A, N) decisions in the agent's current episode
-    ahead: np.ndarray               # (A, N, V) bool: vehicle was ahead of the agent last frame
-    credited: np.ndarray            # (A, N, V) bool: the agent's overtake of it was counted
-    braking: np.ndarray             # (A, N) bool: emergency braking last frame
-    distance_m: np.ndarray          # (A, N) episode accumulators
+    agent_decisions: np.ndarray  # (A, N) decisions in the agent's current episode
+    ahead: np.ndarray  # (A, N, V) bool: vehicle was ahead of the agent last frame
+    credited: np.ndarray  # (A, N, V) bool: the agent's overtake of it was counted
+    braking: np.ndarray  # (A, N) bool: emergency braking last frame
+    distance_m: np.ndarray  # (A, N) episode accumulators
     lane_changes: np.ndarray
     overtakes: np.ndarray
     collisions: np.ndarray
@@ -47,13 +47,29 @@ class SimState:
         """All zeros: no vehicle on the road yet."""
         a, n, v = arenas, agents, vehicles
         return cls(
-            x_m=_f64(a, v), y_m=_f64(a, v), speed_mps=_f64(a, v),
-            desired_speed_mps=_f64(a, v), accel_mps2=_f64(a, v), lane=_i64(a, v),
-            target_lane=_i64(a, v), change_progress=_f64(a, v), active=_bool(a, v),
-            kind=_i64(a, v), frame=_i64(a), decisions=_i64(a), agent_decisions=_i64(a, n),
-            ahead=_bool(a, n, v), credited=_bool(a, n, v), braking=_bool(a, n),
-            distance_m=_f64(a, n), lane_changes=_i64(a, n), overtakes=_i64(a, n),
-            collisions=_i64(a, n), emergency_brakes=_i64(a, n), episode_return=_f64(a, n))
+            x_m=_f64(a, v),
+            y_m=_f64(a, v),
+            speed_mps=_f64(a, v),
+            desired_speed_mps=_f64(a, v),
+            accel_mps2=_f64(a, v),
+            lane=_i64(a, v),
+            target_lane=_i64(a, v),
+            change_progress=_f64(a, v),
+            active=_bool(a, v),
+            kind=_i64(a, v),
+            frame=_i64(a),
+            decisions=_i64(a),
+            agent_decisions=_i64(a, n),
+            ahead=_bool(a, n, v),
+            credited=_bool(a, n, v),
+            braking=_bool(a, n),
+            distance_m=_f64(a, n),
+            lane_changes=_i64(a, n),
+            overtakes=_i64(a, n),
+            collisions=_i64(a, n),
+            emergency_brakes=_i64(a, n),
+            episode_return=_f64(a, n),
+        )
 
     def select(self, rows: np.ndarray) -> SimState:
         """A copy of some arenas' rows."""

@@ -18,8 +18,14 @@ def check(condition: bool, name: str, value: object, expected: str) -> None:
         raise ConfigError(f"{name} = {value!r} is not allowed: expected {expected}")
 
 
-def check_range(name: str, value: float, low: float | None = None, high: float | None = None,
-                *, low_open: bool = False) -> None:
+def check_range(
+    name: str,
+    value: float,
+    low: float | None = None,
+    high: float | None = None,
+    *,
+    low_open: bool = False,
+) -> None:
     ok = math.isfinite(value)
     if low is not None:
         ok = ok and (value > low if low_open else value >= low)
@@ -31,9 +37,12 @@ def check_range(name: str, value: float, low: float | None = None, high: float |
 
 
 def check_interval(name: str, value: tuple[float, float], low: float = 0.0) -> None:
-    check(len(value) == 2 and all(math.isfinite(v) for v in value)
-          and low <= value[0] <= value[1], name, value,
-          f"a pair (min, max) with {low} <= min <= max")
+    check(
+        len(value) == 2 and all(math.isfinite(v) for v in value) and low <= value[0] <= value[1],
+        name,
+        value,
+        f"a pair (min, max) with {low} <= min <= max",
+    )
 
 
 def check_flag(name: str, value: object) -> None:

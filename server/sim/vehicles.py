@@ -31,15 +31,16 @@ class VehicleParams:
     two_sqrt_ab: np.ndarray
     half_length: np.ndarray
     half_width: np.ndarray
-    change_rate: np.ndarray   # lane-change progress per frame
+    change_rate: np.ndarray  # lane-change progress per frame
     is_traffic: np.ndarray
 
 
 class VehicleKinds:
     """Per-kind tables (one entry per traffic behaviour, then one for agents)."""
 
-    def __init__(self, traffic: TrafficConfig, ego: EgoConfig, decision_period_s: float,
-                 physics_dt_s: float) -> None:
+    def __init__(
+        self, traffic: TrafficConfig, ego: EgoConfig, decision_period_s: float, physics_dt_s: float
+    ) -> None:
         behaviours = traffic.behaviours
         self.dt = physics_dt_s
 
@@ -62,7 +63,7 @@ class VehicleKinds:
         self.speed_lo = np.array([b.desired_speed_kmh[0] * KMH for b in behaviours] + [0.0])
         self.speed_hi = np.array([b.desired_speed_kmh[1] * KMH for b in behaviours] + [0.0])
         rates = np.array([b.speed_change_rate_per_s for b in behaviours] + [0.0])
-        self.change_prob = 1.0 - np.exp(-rates * decision_period_s)   # per decision
+        self.change_prob = 1.0 - np.exp(-rates * decision_period_s)  # per decision
         shares = np.array([b.share for b in behaviours])
         self.behaviour_cdf = np.cumsum(shares / shares.sum())
         self.behaviour_count = len(behaviours)
@@ -70,8 +71,9 @@ class VehicleKinds:
 
     def behaviour_of(self, uniform: np.ndarray) -> np.ndarray:
         """The traffic behaviour a uniform draw in [0, 1) picks, by the behaviours' shares."""
-        return np.minimum(np.searchsorted(self.behaviour_cdf, uniform, side="right"),
-                          self.behaviour_count - 1)
+        return np.minimum(
+            np.searchsorted(self.behaviour_cdf, uniform, side="right"), self.behaviour_count - 1
+        )
 
     def desired_speed(self, kind: np.ndarray, uniform: np.ndarray) -> np.ndarray:
         """A desired speed (m/s) in each kind's range, placed by a uniform draw."""
@@ -80,7 +82,12 @@ class VehicleKinds:
     def params(self, kind: np.ndarray) -> VehicleParams:
         """Per-vehicle parameters looked up once per decision (kinds change only on spawn)."""
         return VehicleParams(
-            headway=self.headway[kind], min_gap=self.min_gap[kind],
-            max_accel=self.accel[kind], two_sqrt_ab=self.two_sqrt_ab[kind],
-            half_length=self.half_length[kind], half_width=self.half_width[kind],
-            change_rate=self.dt / self.change_duration[kind], is_traffic=kind < AGENT_KIND)
+            headway=self.headway[kind],
+            min_gap=self.min_gap[kind],
+            max_accel=self.accel[kind],
+            two_sqrt_ab=self.two_sqrt_ab[kind],
+            half_length=self.half_length[kind],
+            half_width=self.half_width[kind],
+            change_rate=self.dt / self.change_duration[kind],
+            is_traffic=kind < AGENT_KIND,
+        )

@@ -31,14 +31,16 @@ class SensorSpace:
 
     shape: tuple[int, ...]
     dtype: np.dtype
-    low: np.ndarray     # of shape and dtype
+    low: np.ndarray  # of shape and dtype
     high: np.ndarray
 
     @classmethod
     def uniform(cls, shape: tuple[int, ...], dtype: Any, low: float, high: float) -> SensorSpace:
         """A box with the same bounds everywhere."""
         dtype = np.dtype(dtype)
-        return cls(shape, dtype, np.full(shape, low, dtype=dtype), np.full(shape, high, dtype=dtype))
+        return cls(
+            shape, dtype, np.full(shape, low, dtype=dtype), np.full(shape, high, dtype=dtype)
+        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,7 +55,7 @@ class ObserverViews:
     car_y: np.ndarray
     car_half_length: np.ndarray
     car_half_width: np.ndarray
-    car_visible: np.ndarray       # False for itself, inactive slots and cars off the road
+    car_visible: np.ndarray  # False for itself, inactive slots and cars off the road
 
 
 class Scene:
@@ -74,11 +76,15 @@ class Scene:
         visible = np.repeat(st.active, n, axis=0)
         visible[np.arange(arenas * n), np.tile(np.arange(n), arenas)] = False
         return ObserverViews(
-            origin_x=x_rel[:, :n].reshape(-1), origin_y=st.y_m[:, :n].reshape(-1),
+            origin_x=x_rel[:, :n].reshape(-1),
+            origin_y=st.y_m[:, :n].reshape(-1),
             heading=headings(st, self.kinds, self.road.lane_width_m, n).reshape(-1),
-            car_x=np.repeat(x_rel, n, axis=0), car_y=np.repeat(st.y_m, n, axis=0),
+            car_x=np.repeat(x_rel, n, axis=0),
+            car_y=np.repeat(st.y_m, n, axis=0),
             car_half_length=self.kinds.half_length[kind],
-            car_half_width=self.kinds.half_width[kind], car_visible=visible)
+            car_half_width=self.kinds.half_width[kind],
+            car_visible=visible,
+        )
 
 
 class Sensor(Protocol):

@@ -32,14 +32,17 @@ NEAR_PLANE_M = 0.3
 
 # Surface classes and their colours (grey values follow ITU-R BT.601 luma of the RGB ones).
 SKY, GRASS, SHOULDER, ROAD, MARKING, CAR = range(6)
-_RGB = np.array([
-    [150, 190, 235],  # sky
-    [70, 120, 60],    # grass
-    [150, 150, 140],  # shoulder
-    [90, 90, 95],     # asphalt
-    [240, 240, 240],  # lane marking
-    [200, 30, 30],    # car
-], dtype=np.float64)
+_RGB = np.array(
+    [
+        [150, 190, 235],  # sky
+        [70, 120, 60],  # grass
+        [150, 150, 140],  # shoulder
+        [90, 90, 95],  # asphalt
+        [240, 240, 240],  # lane marking
+        [200, 30, 30],  # car
+    ],
+    dtype=np.float64,
+)
 _GREY = np.round(_RGB @ np.array([0.299, 0.587, 0.114])).astype(np.uint8)
 _GREY[CAR] = 20  # darker than the road in grey, so cars stand out against asphalt and sky
 
@@ -64,8 +67,12 @@ class CameraConfig(SensorConfig):
         check(isinstance(self.rgb, bool), "camera.rgb", self.rgb, "true or false")
         for name in ("width_px", "height_px"):
             value = getattr(self, name)
-            check(isinstance(value, int) and 8 <= value <= 1024, f"camera.{name}", value,
-                   "an integer from 8 to 1024")
+            check(
+                isinstance(value, int) and 8 <= value <= 1024,
+                f"camera.{name}",
+                value,
+                "an integer from 8 to 1024",
+            )
         check_range("camera.horizontal_fov_deg", self.horizontal_fov_deg, 10.0, 160.0)
         check_range("camera.mount_height_m", self.mount_height_m, 0.3, 5.0)
         check_range("camera.pitch_down_deg", self.pitch_down_deg, -30.0, 45.0)
@@ -85,7 +92,9 @@ class Camera:
         self.config = camera
         self.height = camera.height_px
         self.width = camera.width_px
-        self.focal_px = (camera.width_px / 2.0) / np.tan(np.radians(camera.horizontal_fov_deg) / 2.0)
+        self.focal_px = (camera.width_px / 2.0) / np.tan(
+            np.radians(camera.horizontal_fov_deg) / 2.0
+        )
         self.pitch = np.radians(camera.pitch_down_deg)
         self.lane_count = road.lane_count
         self.lane_width = road.lane_width_m
@@ -111,7 +120,7 @@ class Camera:
         ground_rows = np.flatnonzero(np.isfinite(t) & (ahead < camera.max_distance_m))
         self.first_ground_row = int(ground_rows[0]) if ground_rows.size else self.height
         rows = slice(self.first_ground_row, self.height)
-        self.row_forward = ahead[rows]          # metres ahead of the eye where the row meets ground
+        self.row_forward = ahead[rows]  # metres ahead of the eye where the row meets ground
         self.row_metres_per_px = t[rows] / self.focal_px  # sideways ground size of a pixel
         # Lines are widened to about a pixel so that they do not alias away in the distance;
         # dashes become solid where one row spans more ground than the gap between dashes.
@@ -122,19 +131,26 @@ class Camera:
         self._col_basis = np.stack([np.ones(self.width), col_centres]).astype(np.float32)
         # Per ground pixel (R, W), so that comparisons broadcast only over observers.
         self._row_line_half32 = np.repeat(
-            (row_line_half_m / self.lane_width).astype(np.float32)[:, None], self.width, axis=1)
+            (row_line_half_m / self.lane_width).astype(np.float32)[:, None], self.width, axis=1
+        )
         self._cos_p, self._sin_p = np.cos(self.pitch), np.sin(self.pitch)
         self._corner_l = np.array([-1.0, 1.0, 1.0, -1.0])
         self._corner_w = np.array([-1.0, -1.0, 1.0, 1.0])
         # Height of a box's bottom and top corners relative to the camera.
         drop = (np.array([0.0, VEHICLE_HEIGHT_M]) - camera.mount_height_m)[:, None, None, None]
-        self._drop_sin = drop * self._sin_p                                    # (2, 1, 1, 1)
+        self._drop_sin = drop * self._sin_p  # (2, 1, 1, 1)
         self._drop_cos = drop * self._cos_p
         self._rows = np.arange(self.height, dtype=np.float64)
         self._cols = np.arange(self.width, dtype=np.float64)
 
-    def _ground(self, eye_x: np.ndarray, eye_y: np.ndarray, cos_h: np.ndarray,
-                sin_h: np.ndarray, road_x: np.ndarray) -> np.ndarray:
+    def _ground(
+        self,
+        eye_x: np.ndarray,
+        eye_y: np.ndarray,
+        cos_h: np.ndarray,
+        sin_h: np.ndarray,
+        road_x: np.ndarray,
+    ) -> np.ndarray:
         """(O, H, W) uint8 sky and ground: grey values, or surface classes for RGB."""
         value = self._stage_value
         observers = eye_x.shape[0]
@@ -149,14 +165,17 @@ class Camera:
         # One small matrix product instead of a broadcast with an 84-long inner loop.
         pair = np.empty(base.shape + (2,), dtype=np.float32)
         pair[..., 0], pair[..., 1] = base, slope
-        lanes = np.matmul(pair, self._col_basis)                               # (O, R, W)
+        lanes = np.matmul(pair, self._col_basis)  # (O, R, W)
         # Distance from the road's middle, in lane widths: road within L/2, rails beyond.
         half_road = 0.5 * self.lane_count
         from_middle = np.abs(lanes - np.float32(half_road))
-        ground = image[:, self.first_ground_row:, :]
+        ground = image[:, self.first_ground_row :, :]
         ground[...] = value[GRASS]
-        np.copyto(ground, value[SHOULDER],
-                  where=from_middle <= np.float32(half_road + self.barrier_offset * inv_w))
+        np.copyto(
+            ground,
+            value[SHOULDER],
+            where=from_middle <= np.float32(half_road + self.barrier_offset * inv_w),
+        )
         np.copyto(ground, value[ROAD], where=from_middle <= np.float32(half_road))
         # Lane lines: pixels within a line's half width of the nearest line on the road. The
         # edge lines are solid; inner lines are dashed by where the row meets the road along
@@ -164,7 +183,7 @@ class Camera:
         near_line = np.abs(lanes - np.rint(lanes)) <= self._row_line_half32
         near_line &= from_middle <= np.float32(half_road + 0.5)
         world_x = (road_x + eye_x)[:, None] + cos_h[:, None] * self.row_forward
-        gap = ~(self.row_dash_solid | ((world_x % DASH_PERIOD_M) < DASH_LENGTH_M))   # (O, R)
+        gap = ~(self.row_dash_solid | ((world_x % DASH_PERIOD_M) < DASH_LENGTH_M))  # (O, R)
         if gap.any():
             inner = from_middle < np.float32(half_road - 0.5)
             near_line &= ~(inner & gap[..., None])
@@ -181,14 +200,31 @@ class Camera:
     def observe(self, scene: Scene) -> np.ndarray:
         v = scene.views
         road_x = np.repeat(scene.state.x_m[:, 0], scene.agents)
-        image = self.render(v.origin_x, v.origin_y, v.heading, v.car_x, v.car_y,
-                            v.car_half_length, v.car_half_width, v.car_visible, road_x=road_x)
+        image = self.render(
+            v.origin_x,
+            v.origin_y,
+            v.heading,
+            v.car_x,
+            v.car_y,
+            v.car_half_length,
+            v.car_half_width,
+            v.car_visible,
+            road_x=road_x,
+        )
         return image.reshape((scene.arenas, scene.agents) + image.shape[1:])
 
-    def render(self, cam_x: np.ndarray, cam_y: np.ndarray, heading: np.ndarray,
-               car_x: np.ndarray, car_y: np.ndarray, car_half_length: np.ndarray,
-               car_half_width: np.ndarray, car_visible: np.ndarray,
-               road_x: np.ndarray) -> np.ndarray:
+    def render(
+        self,
+        cam_x: np.ndarray,
+        cam_y: np.ndarray,
+        heading: np.ndarray,
+        car_x: np.ndarray,
+        car_y: np.ndarray,
+        car_half_length: np.ndarray,
+        car_half_width: np.ndarray,
+        car_visible: np.ndarray,
+        road_x: np.ndarray,
+    ) -> np.ndarray:
         """Images (O, H, W[, 3]) uint8 for O observers at the driver's seat of their car.
 
         cam_x, cam_y, heading: (O,) the car's centre and heading; car_*: (O, V) the cars each
@@ -207,17 +243,20 @@ class Camera:
         # corner axes (2 heights, 4 ground corners) so that bounds reduce over leading axes.
         dx = car_x - eye_x[:, None]
         dy = car_y - eye_y[:, None]
-        corner_dx = dx + self._corner_l[:, None, None] * car_half_length      # (4, O, V)
+        corner_dx = dx + self._corner_l[:, None, None] * car_half_length  # (4, O, V)
         corner_dy = dy + self._corner_w[:, None, None] * car_half_width
         rel_fwd = cos_h[:, None] * corner_dx + sin_h[:, None] * corner_dy
         rel_left = cos_h[:, None] * corner_dy - sin_h[:, None] * corner_dx
-        cam_fwd = rel_fwd * self._cos_p - self._drop_sin                       # (2, 4, O, V)
+        cam_fwd = rel_fwd * self._cos_p - self._drop_sin  # (2, 4, O, V)
         cam_up = rel_fwd * self._sin_p + self._drop_cos
         inv_depth = self.focal_px / np.maximum(cam_fwd, NEAR_PLANE_M)
-        col = rel_left * inv_depth     # screen offsets left of and above the centre (px)
+        col = rel_left * inv_depth  # screen offsets left of and above the centre (px)
         row = cam_up * inv_depth
-        seen = car_visible & (cam_fwd.max(axis=(0, 1)) > NEAR_PLANE_M) \
+        seen = (
+            car_visible
+            & (cam_fwd.max(axis=(0, 1)) > NEAR_PLANE_M)
             & (rel_fwd.min(axis=0) < self.config.max_distance_m)
+        )
         # Only the cars some observer sees take part: compacted to the front (K <= V).
         observers, vehicles = seen.shape
         seen_count = int(seen.sum(axis=1).max()) if seen.size else 0
@@ -225,6 +264,7 @@ class Camera:
             return self._rgb_palette[surface] if self.config.rgb else surface
         order = np.argsort(~seen, axis=1, kind="stable")[:, :seen_count]
         pick = (order + np.arange(observers)[:, None] * vehicles).reshape(-1)
+
         def bounds(offsets: np.ndarray, half_size: float) -> tuple[np.ndarray, np.ndarray]:
             # Pixel p covers [p, p + 1); the first and last pixel centres inside the span,
             # and a sliver narrower than a pixel still covers one.
@@ -234,14 +274,15 @@ class Camera:
             sliver = last < first
             middle = np.floor(0.5 * (lo + hi))
             shape = (observers, seen_count, 1)
-            return np.where(sliver, middle, first).reshape(shape), \
-                np.where(sliver, middle, last).reshape(shape)
+            return np.where(sliver, middle, first).reshape(shape), np.where(
+                sliver, middle, last
+            ).reshape(shape)
+
         col_lo, col_hi = bounds(col, self.width / 2.0)
         row_lo, row_hi = bounds(row, self.height / 2.0)
         shown = seen.reshape(-1)[pick].reshape(observers, seen_count, 1)
-        cols = (self._cols >= col_lo) & (self._cols <= col_hi) & shown      # (O, K, W)
-        rows = (self._rows >= row_lo) & (self._rows <= row_hi)              # (O, K, H)
+        cols = (self._cols >= col_lo) & (self._cols <= col_hi) & shown  # (O, K, W)
+        rows = (self._rows >= row_lo) & (self._rows <= row_hi)  # (O, K, H)
         covered = np.matmul(rows.astype(np.float32).transpose(0, 2, 1), cols.astype(np.float32))
         image = np.where(covered > 0.0, self._stage_value[CAR], surface)
         return self._rgb_palette[image] if self.config.rgb else image
-

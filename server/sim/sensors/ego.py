@@ -35,8 +35,9 @@ class EgoVectorConfig(SensorConfig):
         check_flag("ego_vector.enabled", self.enabled)
 
     def build(self, config: SimConfig) -> EgoVector:
-        return EgoVector(Road(config.road), config.ego.cruise_min_kmh * KMH,
-                         config.ego.cruise_max_kmh * KMH)
+        return EgoVector(
+            Road(config.road), config.ego.cruise_min_kmh * KMH, config.ego.cruise_max_kmh * KMH
+        )
 
 
 class EgoVector:
@@ -53,8 +54,9 @@ class EgoVector:
         # The lane count's bounds are the configurable range, so no bound pair is degenerate.
         lanes = self.road.lane_count
         low = np.array([0.0, self.cruise_min_mps, 0.0, 1.0, 0.0, -1.0], dtype=np.float32)
-        high = np.array([MAX_SPEED_MPS, self.cruise_max_mps, lanes - 1, MAX_LANES, 1.0, 1.0],
-                        dtype=np.float32)
+        high = np.array(
+            [MAX_SPEED_MPS, self.cruise_max_mps, lanes - 1, MAX_LANES, 1.0, 1.0], dtype=np.float32
+        )
         return SensorSpace((len(EGO_FIELDS),), np.dtype(np.float32), low, high)
 
     def observe(self, scene: Scene) -> np.ndarray:

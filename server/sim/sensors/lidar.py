@@ -41,8 +41,12 @@ class LidarConfig(SensorConfig):
 
     def __post_init__(self) -> None:
         check(isinstance(self.enabled, bool), "lidar.enabled", self.enabled, "true or false")
-        check(isinstance(self.ray_count, int) and 4 <= self.ray_count <= 3600,
-               "lidar.ray_count", self.ray_count, "an integer from 4 to 3600")
+        check(
+            isinstance(self.ray_count, int) and 4 <= self.ray_count <= 3600,
+            "lidar.ray_count",
+            self.ray_count,
+            "an integer from 4 to 3600",
+        )
         check_range("lidar.max_range_m", self.max_range_m, 1.0, 1000.0)
 
     def build(self, config: SimConfig) -> Lidar:
@@ -60,8 +64,9 @@ class Lidar:
 
     key = "lidar"
 
-    def __init__(self, ray_count: int, max_range_m: float, rail_left_y_m: float,
-                 rail_right_y_m: float) -> None:
+    def __init__(
+        self, ray_count: int, max_range_m: float, rail_left_y_m: float, rail_right_y_m: float
+    ) -> None:
         self.ray_count = ray_count
         self.max_range_m = max_range_m
         self.rail_left_y_m = rail_left_y_m
@@ -78,15 +83,33 @@ class Lidar:
 
     def observe(self, scene: Scene) -> np.ndarray:
         v = scene.views
-        scan = self.scan(v.origin_x, v.origin_y, v.heading, v.car_x, v.car_y, v.car_half_length,
-                         v.car_half_width, v.car_visible, rail_left_y=self.rail_left_y_m,
-                         rail_right_y=self.rail_right_y_m)
+        scan = self.scan(
+            v.origin_x,
+            v.origin_y,
+            v.heading,
+            v.car_x,
+            v.car_y,
+            v.car_half_length,
+            v.car_half_width,
+            v.car_visible,
+            rail_left_y=self.rail_left_y_m,
+            rail_right_y=self.rail_right_y_m,
+        )
         return scan.reshape(scene.arenas, scene.agents, -1)
 
-    def scan(self, origin_x: np.ndarray, origin_y: np.ndarray, heading: np.ndarray,
-             car_x: np.ndarray, car_y: np.ndarray, car_half_length: np.ndarray,
-             car_half_width: np.ndarray, car_visible: np.ndarray,
-             rail_left_y: float, rail_right_y: float) -> np.ndarray:
+    def scan(
+        self,
+        origin_x: np.ndarray,
+        origin_y: np.ndarray,
+        heading: np.ndarray,
+        car_x: np.ndarray,
+        car_y: np.ndarray,
+        car_half_length: np.ndarray,
+        car_half_width: np.ndarray,
+        car_visible: np.ndarray,
+        rail_left_y: float,
+        rail_right_y: float,
+    ) -> np.ndarray:
         """Distances (O, R) float32 in metres, clipped at the maximum range.
 
         origin_x, origin_y, heading: (O,) for O observers. car_*: (O, V) per observer, the cars
@@ -111,10 +134,10 @@ class Lidar:
         rel_y = car_y - origin_y[:, None]
         x_lo, x_hi = rel_x - car_half_length, rel_x + car_half_length
         y_lo, y_hi = rel_y - car_half_width, rel_y + car_half_width
-        near_x = np.maximum(x_lo, np.minimum(0.0, x_hi))   # nearest point of the box
+        near_x = np.maximum(x_lo, np.minimum(0.0, x_hi))  # nearest point of the box
         near_y = np.maximum(y_lo, np.minimum(0.0, y_hi))
         inside = (near_x == 0.0) & (near_y == 0.0)
-        in_range = car_visible & (near_x * near_x + near_y * near_y <= self.max_range_m ** 2)
+        in_range = car_visible & (near_x * near_x + near_y * near_y <= self.max_range_m**2)
 
         # Angular extent: the corners' bearings relative to the centre's (wrapped, so a car
         # behind, across the +-pi seam, is handled like any other).

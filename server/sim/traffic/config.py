@@ -39,8 +39,9 @@ class BehaviourConfig:
         check_range(f"{name}.share", self.share, 0.0, 1.0)
         check_interval(f"{name}.desired_speed_kmh", self.desired_speed_kmh, 1.0)
         check_range(f"{name}.politeness", self.politeness, 0.0, 1.0)
-        check_range(f"{name}.lane_change_threshold_mps2", self.lane_change_threshold_mps2,
-                     0.0, 10.0)
+        check_range(
+            f"{name}.lane_change_threshold_mps2", self.lane_change_threshold_mps2, 0.0, 10.0
+        )
         check_range(f"{name}.speed_change_rate_per_s", self.speed_change_rate_per_s, 0.0, 10.0)
 
 
@@ -51,15 +52,31 @@ class TrafficConfig:
     density: Density = "medium"
     # None takes the density's count (20 / 40 / 60); an integer overrides it.
     vehicle_count: int | None = None
-    steady: BehaviourConfig = field(default_factory=lambda: BehaviourConfig(
-        share=0.5, desired_speed_kmh=(45.0, 65.0), politeness=0.5,
-        lane_change_threshold_mps2=1.0, speed_change_rate_per_s=0.05))
-    road_max: BehaviourConfig = field(default_factory=lambda: BehaviourConfig(
-        share=0.3, desired_speed_kmh=(68.0, 72.0), politeness=0.3,
-        lane_change_threshold_mps2=0.5))
-    lane_changer: BehaviourConfig = field(default_factory=lambda: BehaviourConfig(
-        share=0.2, desired_speed_kmh=(68.0, 72.0), politeness=0.0,
-        lane_change_threshold_mps2=0.1))
+    steady: BehaviourConfig = field(
+        default_factory=lambda: BehaviourConfig(
+            share=0.5,
+            desired_speed_kmh=(45.0, 65.0),
+            politeness=0.5,
+            lane_change_threshold_mps2=1.0,
+            speed_change_rate_per_s=0.05,
+        )
+    )
+    road_max: BehaviourConfig = field(
+        default_factory=lambda: BehaviourConfig(
+            share=0.3,
+            desired_speed_kmh=(68.0, 72.0),
+            politeness=0.3,
+            lane_change_threshold_mps2=0.5,
+        )
+    )
+    lane_changer: BehaviourConfig = field(
+        default_factory=lambda: BehaviourConfig(
+            share=0.2,
+            desired_speed_kmh=(68.0, 72.0),
+            politeness=0.0,
+            lane_change_threshold_mps2=0.1,
+        )
+    )
     # New traffic appears in these windows (metres ahead of / behind an agent) ...
     spawn_ahead_m: tuple[float, float] = (30.0, 90.0)
     spawn_behind_m: tuple[float, float] = (30.0, 60.0)
@@ -79,16 +96,28 @@ class TrafficConfig:
     lane_change_duration_s: float = 2.5
 
     def __post_init__(self) -> None:
-        check(self.density in DENSITY_VEHICLE_COUNT, "traffic.density", self.density,
-               f"one of {sorted(DENSITY_VEHICLE_COUNT)}")
-        check(self.vehicle_count is None
-               or (isinstance(self.vehicle_count, int) and 0 <= self.vehicle_count <= 200),
-               "traffic.vehicle_count", self.vehicle_count, "None or an integer from 0 to 200")
+        check(
+            self.density in DENSITY_VEHICLE_COUNT,
+            "traffic.density",
+            self.density,
+            f"one of {sorted(DENSITY_VEHICLE_COUNT)}",
+        )
+        check(
+            self.vehicle_count is None
+            or (isinstance(self.vehicle_count, int) and 0 <= self.vehicle_count <= 200),
+            "traffic.vehicle_count",
+            self.vehicle_count,
+            "None or an integer from 0 to 200",
+        )
         for name in BEHAVIOUR_NAMES:
             getattr(self, name).validate(f"traffic.{name}")
         total = sum(getattr(self, name).share for name in BEHAVIOUR_NAMES)
-        check(total > 0, "traffic.{steady,road_max,lane_changer}.share", total,
-               "shares that add up to more than 0")
+        check(
+            total > 0,
+            "traffic.{steady,road_max,lane_changer}.share",
+            total,
+            "shares that add up to more than 0",
+        )
         check_interval("traffic.spawn_ahead_m", self.spawn_ahead_m)
         check_interval("traffic.spawn_behind_m", self.spawn_behind_m)
         check_range("traffic.keep_ahead_m", self.keep_ahead_m, self.spawn_ahead_m[1], 5000.0)

@@ -31,8 +31,15 @@ class Mobil:
         self.lane_count = lane_count
         self.safe_decel_mps2 = traffic.safe_decel_mps2
 
-    def decide(self, st: SimState, p: VehicleParams, index: LaneIndex, x_rel: np.ndarray,
-               accel: np.ndarray, following: Following) -> None:
+    def decide(
+        self,
+        st: SimState,
+        p: VehicleParams,
+        index: LaneIndex,
+        x_rel: np.ndarray,
+        accel: np.ndarray,
+        following: Following,
+    ) -> None:
         """Start the lane changes MOBIL accepts (``target_lane`` and ``change_progress``).
 
         ``accel`` (A, V) is this frame's acceleration of every car in its current lane,
@@ -40,21 +47,36 @@ class Mobil:
         """
         direction = np.where(st.decisions % 2 == 0, 1, -1)
         target = st.lane + direction[:, None]
-        candidate = p.is_traffic & st.active & (st.target_lane == st.lane) \
-            & (target >= 0) & (target < self.lane_count)
+        candidate = (
+            p.is_traffic
+            & st.active
+            & (st.target_lane == st.lane)
+            & (target >= 0)
+            & (target < self.lane_count)
+        )
         flat = np.flatnonzero(candidate)
         if flat.size == 0:
             return
         vehicles = st.x_m.shape[1]
         arena = flat // vehicles
-        g = {name: getattr(p, name).reshape(-1) for name in
-             ("headway", "min_gap", "max_accel", "two_sqrt_ab", "half_length")}
+        g = {
+            name: getattr(p, name).reshape(-1)
+            for name in ("headway", "min_gap", "max_accel", "two_sqrt_ab", "half_length")
+        }
         xf, vf = x_rel.reshape(-1), st.speed_mps.reshape(-1)
         v0f, af = st.desired_speed_mps.reshape(-1), accel.reshape(-1)
 
         def idm(i: np.ndarray, gap_m: np.ndarray, closing: np.ndarray) -> np.ndarray:
-            return idm_accel(vf[i], v0f[i], gap_m, closing, g["headway"][i], g["min_gap"][i],
-                             g["max_accel"][i], g["two_sqrt_ab"][i])
+            return idm_accel(
+                vf[i],
+                v0f[i],
+                gap_m,
+                closing,
+                g["headway"][i],
+                g["min_gap"][i],
+                g["max_accel"][i],
+                g["two_sqrt_ab"][i],
+            )
 
         x, v, half = xf[flat], vf[flat], g["half_length"][flat]
         new_lane = target.reshape(-1)[flat]
@@ -77,15 +99,19 @@ class Mobil:
         of = np.maximum(old_follower, 0)
         own_gap = following.gap_m.reshape(-1)[flat]
         own_has_leader = following.has_leader.reshape(-1)[flat]
-        of_gap_after = np.where(own_has_leader, own_gap + 2 * half, NO_GAP_M) \
-            + (x - xf[of] - half - g["half_length"][of])
+        of_gap_after = np.where(own_has_leader, own_gap + 2 * half, NO_GAP_M) + (
+            x - xf[of] - half - g["half_length"][of]
+        )
         ol_speed = np.where(own_has_leader, vf[following.leader.reshape(-1)[flat]], vf[of])
         of_gain = np.where(has_of, idm(of, of_gap_after, vf[of] - ol_speed) - af[of], 0.0)
 
         kind = st.kind.reshape(-1)[flat]
         min_gap = g["min_gap"][flat]
-        safe = (gap_new > min_gap) & (gap_nf > min_gap) \
+        safe = (
+            (gap_new > min_gap)
+            & (gap_nf > min_gap)
             & (~has_nf | (nf_accel_new >= -self.safe_decel_mps2))
+        )
         incentive = accel_new - af[flat] + self.kinds.politeness[kind] * (nf_gain + of_gain)
         accept = safe & (incentive > self.kinds.threshold[kind])
         st.target_lane.reshape(-1)[flat[accept]] = new_lane[accept]

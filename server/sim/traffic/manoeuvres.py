@@ -29,8 +29,11 @@ class SpeedChanges:
 
     def decide(self, st: SimState, uniforms: np.ndarray) -> None:
         kinds = self.kinds
-        change = (st.kind < AGENT_KIND) & st.active \
+        change = (
+            (st.kind < AGENT_KIND)
+            & st.active
             & (uniforms[..., U_CHANGE] < kinds.change_prob[st.kind])
+        )
         if change.any():
             new_speed = kinds.desired_speed(st.kind, uniforms[..., U_NEW_SPEED])
             st.desired_speed_mps[:] = np.where(change, new_speed, st.desired_speed_mps)
