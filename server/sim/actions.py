@@ -32,11 +32,9 @@ class DasActions:
     names = ACTION_NAMES
     count = ACTION_COUNT
 
-    def __init__(
-        self, ego: EgoConfig, cruise: CruiseControl, lane_changes: LaneChangeAssist
-    ) -> None:
+    def __init__(self, ego: EgoConfig, agents: int, lane_changes: LaneChangeAssist) -> None:
         self.cruise_step_mps = ego.cruise_step_kmh * KMH
-        self.cruise = cruise
+        self.cruise = CruiseControl(ego, agents)
         self.lane_changes = lane_changes
 
     def check(self, actions: np.ndarray, expected: tuple[int, ...]) -> np.ndarray:

@@ -29,7 +29,7 @@ import numpy as np
 from overtake.protocol.vocabulary import METRIC_FIELDS
 
 from .actions import DasActions
-from .assist import CruiseControl, EmergencyBraking, LaneChangeAssist
+from .assist import LaneChangeAssist
 from .config import SimConfig
 from .episodes import EpisodeBook
 from .lane_index import LaneSorter, leaders
@@ -41,7 +41,6 @@ from .road import Road
 from .sensors.base import Scene, Sensor, SensorSpace
 from .spawning import Spawner
 from .state import SimState
-from .traffic.lane_changes import Mobil
 from .traffic.manoeuvres import SpeedChanges
 from .vehicles import VehicleKinds
 
@@ -90,18 +89,9 @@ class HighwaySim:
         self.spawner = Spawner(config, kinds, road, n, self.tracker)
         self.episodes = EpisodeBook(config.episode, config.ego, n)
         self.lane_changes = LaneChangeAssist(config.ego, kinds, road.lane_count, n)
-        self.actions = DasActions(config.ego, CruiseControl(config.ego, n), self.lane_changes)
+        self.actions = DasActions(config.ego, n, self.lane_changes)
         self.speed_changes = SpeedChanges(kinds)
-        self.physics = Physics(
-            self.dt,
-            config.traffic.max_decel_mps2,
-            road.lane_width_m,
-            n,
-            self.vehicles,
-            EmergencyBraking(config.ego, n),
-            Mobil(config.traffic, kinds, road.lane_count),
-            self.episodes,
-        )
+        self.physics = Physics(config, kinds, road, n, self.vehicles, self.episodes)
         self.rewards = Rewards(config.reward)
         self.sensors: list[Sensor] = [
             section.build(config)

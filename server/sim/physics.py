@@ -14,14 +14,16 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .assist import EmergencyBraking
 from .traffic.car_following import follow, idm_accel
+from .traffic.lane_changes import Mobil
 
 if TYPE_CHECKING:
-    from .assist import EmergencyBraking
+    from .config import SimConfig
     from .episodes import EpisodeBook
     from .lane_index import LaneIndex
+    from .road import Road
     from .state import SimState
-    from .traffic.lane_changes import Mobil
     from .vehicles import VehicleKinds, VehicleParams
 
 
@@ -55,21 +57,19 @@ class Physics:
 
     def __init__(
         self,
-        dt_s: float,
-        max_decel_mps2: float,
-        lane_width_m: float,
+        config: SimConfig,
+        kinds: VehicleKinds,
+        road: Road,
         agents: int,
         vehicles: int,
-        emergency_braking: EmergencyBraking,
-        mobil: Mobil,
         episodes: EpisodeBook,
     ) -> None:
-        self.dt = dt_s
-        self.max_decel_mps2 = max_decel_mps2
-        self.lane_width_m = lane_width_m
+        self.dt = config.episode.physics_dt_s
+        self.max_decel_mps2 = config.traffic.max_decel_mps2
+        self.lane_width_m = road.lane_width_m
         self.agents = agents
-        self.emergency_braking = emergency_braking
-        self.mobil = mobil
+        self.emergency_braking = EmergencyBraking(config.ego, agents)
+        self.mobil = Mobil(config.traffic, kinds, road.lane_count)
         self.episodes = episodes
         # (1, N, V): False where an agent would be compared with itself.
         self._not_self = np.ones((1, agents, vehicles), dtype=bool)
