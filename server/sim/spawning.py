@@ -47,7 +47,6 @@ class Spawner:
         agents: int,
         tracker: OvertakeTracker,
     ) -> None:
-        self.config = config
         self.traffic = config.traffic
         self.kinds = kinds
         self.road = road
