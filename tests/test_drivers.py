@@ -11,7 +11,8 @@ import pytest
 
 from conftest import LANE_WIDTH, Car, scripted_sim
 from overtake.client import HIGHWAY_ENV_ID, RandomDriver, RuleDriver, RuleDriverConfig
-from overtake.client.drive import DriveConfig, main, parse_overrides
+from overtake.client.drive import DriveConfig, main
+from overtake.client.episodes import parse_overrides
 
 KEEP, CRUISE_UP, CRUISE_DOWN, LANE_LEFT, LANE_RIGHT = range(5)
 RANGE = 80.0

@@ -17,8 +17,8 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
-from overtake.client.drive import (baseline_policy, make_vector_env, metric_summary,
-                                   parse_overrides, run_episodes)
+from overtake.client.episodes import (baseline_policy, make_vector_env, metric_summary,
+                                      parse_overrides, run_episodes)
 from overtake.protocol import ProtocolError
 from overtake.protocol.transport import SecurityConfig
 

@@ -37,7 +37,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from overtake.client.drive import make_vector_env, parse_overrides
+from overtake.client.episodes import make_vector_env, parse_overrides
 from overtake.protocol import ACTION_COUNT, ProtocolError
 from overtake.viz.recording import RecordingConfig, close_recording, open_recording
 from overtake.protocol.transport import SecurityConfig
