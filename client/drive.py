@@ -15,10 +15,10 @@ from typing import Literal
 
 import numpy as np
 
-from overtake.protocol import ProtocolError
 from overtake.protocol.transport import SecurityConfig
 from overtake.protocol.vocabulary import METRIC_FIELDS
 
+from .commands import UsageError, run_command
 from .episodes import (baseline_policy, make_vector_env, metric_summary, metric_table,
                        parse_overrides, run_episodes)
 
@@ -52,7 +52,7 @@ class DriveConfig:
 def main(config: DriveConfig) -> dict[str, dict[str, float]]:
     """Drive the episodes; returns {metric: {"mean": .., "std": ..}} and prints the table."""
     if config.episodes < 1:
-        raise SystemExit(f"--episodes must be >= 1, got {config.episodes}")
+        raise UsageError(f"--episodes must be >= 1, got {config.episodes}")
     overrides = parse_overrides(config.set)
     if config.traffic is not None:
         overrides["traffic.density"] = config.traffic
@@ -60,10 +60,12 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
         overrides["episode.max_decisions"] = config.max_decisions
     envs = make_vector_env(config.preset, overrides, config.episodes, config.connect,
                            config.security)
-    act = baseline_policy(config.policy, envs.unwrapped.sim_config, config.seed,
-                          config.episodes)
-    rows, decisions, elapsed = run_episodes(envs, act, config.episodes, config.seed)
-    envs.close()
+    try:
+        act = baseline_policy(config.policy, envs.unwrapped.sim_config, config.seed,
+                              config.episodes)
+        rows, decisions, elapsed = run_episodes(envs, act, config.episodes, config.seed)
+    finally:
+        envs.close()
 
     table = metric_table(rows)
     summary = metric_summary(rows)
@@ -102,13 +104,11 @@ def _print_table(config: DriveConfig, table: np.ndarray, summary: dict[str, dict
           "decisions/s)", file=sys.stderr)
 
 
-def cli() -> None:
+def cli(argv: list[str] | None = None) -> None:
     import tyro
 
-    try:
-        main(tyro.cli(DriveConfig, config=(tyro.conf.OmitArgPrefixes,)))
-    except ProtocolError as error:
-        sys.exit(f"overtake-drive: {error}")
+    config = tyro.cli(DriveConfig, args=argv, config=(tyro.conf.OmitArgPrefixes,))
+    run_command("overtake-drive", main, config)
 
 
 if __name__ == "__main__":

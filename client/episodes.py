@@ -21,6 +21,7 @@ from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_en
 from overtake.protocol.transport import SecurityConfig
 from overtake.protocol.vocabulary import METRIC_FIELDS
 
+from .commands import UsageError
 from .drivers import RandomDriver, RuleDriver, RuleDriverConfig
 from .remote import RemoteConfig
 
@@ -35,7 +36,7 @@ def parse_overrides(items: tuple[str, ...]) -> dict[str, object]:
     for item in items:
         name, sep, text = item.partition("=")
         if not sep or not name:
-            raise SystemExit(f"--set expects dotted.name=value, got {item!r}")
+            raise UsageError(f"--set expects dotted.name=value, got {item!r}")
         try:
             overrides[name] = json.loads(text)
         except json.JSONDecodeError:
@@ -105,7 +106,7 @@ def baseline_policy(policy: str, sim_config: dict[str, Any], seed: int, num_envs
     for :func:`run_episodes`."""
     if policy == "rule":
         if not sim_config["lidar"]["enabled"]:
-            raise SystemExit("the rule-based driver reads the LIDAR: keep lidar.enabled true")
+            raise UsageError("the rule-based driver reads the LIDAR: keep lidar.enabled true")
         driver: RuleDriver | RandomDriver = RuleDriver(
             RuleDriverConfig(cruise_max_kmh=sim_config["ego"]["cruise_max_kmh"],
                              lane_width_m=sim_config["road"]["lane_width_m"]),
@@ -114,7 +115,7 @@ def baseline_policy(policy: str, sim_config: dict[str, Any], seed: int, num_envs
     elif policy == "random":
         driver = RandomDriver(seed)
     else:
-        raise SystemExit(f"unknown baseline policy {policy!r}: rule or random")
+        raise UsageError(f"unknown baseline policy {policy!r}: rule or random")
 
     def act(obs: dict[str, np.ndarray], info: dict[str, Any], _starting: np.ndarray
             ) -> np.ndarray:

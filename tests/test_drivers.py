@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import math
+import subprocess
+import sys
 
 import gymnasium as gym
 import numpy as np
@@ -11,7 +13,9 @@ import pytest
 
 from conftest import LANE_WIDTH, Car, scripted_sim
 from overtake.client import HIGHWAY_ENV_ID, RandomDriver, RuleDriver, RuleDriverConfig
+from overtake.client.commands import UsageError
 from overtake.client.drive import DriveConfig, main
+from overtake.client.drive import cli as drive_cli
 from overtake.client.episodes import parse_overrides
 
 KEEP, CRUISE_UP, CRUISE_DOWN, LANE_LEFT, LANE_RIGHT = range(5)
@@ -216,9 +220,24 @@ def test_drive_cli_writes_the_summary(policy, tmp_path, capsys):
 
 
 def test_drive_cli_refuses_bad_input():
-    with pytest.raises(SystemExit, match="episodes"):
+    with pytest.raises(UsageError, match="episodes"):
         main(DriveConfig(episodes=0))
-    with pytest.raises(SystemExit, match="dotted.name=value"):
+    with pytest.raises(UsageError, match="dotted.name=value"):
         parse_overrides(("no-equals-sign",))
     assert parse_overrides(("a.b=3", "c.d=heavy", "e.f=[1, 2]", "g=true")) == {
         "a.b": 3, "c.d": "heavy", "e.f": [1, 2], "g": True}
+
+
+def test_drive_command_prints_what_is_wrong_and_exits_non_zero():
+    with pytest.raises(SystemExit) as exited:
+        drive_cli(["--episodes", "0"])
+    assert exited.value.code == "overtake-drive: --episodes must be >= 1, got 0"
+    # As a process: the in-process simulator refuses the override (its ConfigError, a
+    # ValueError); the command says so in one line and exits with status 1, no traceback.
+    done = subprocess.run([sys.executable, "-m", "overtake.client.drive", "--episodes", "1",
+                           "--set", "no.such_field=1"], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 1, done
+    assert done.stderr.startswith(
+        "overtake-drive: unknown configuration field 'no.such_field'"), done.stderr
+    assert "Traceback" not in done.stderr and not done.stdout

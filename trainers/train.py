@@ -37,13 +37,14 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from overtake.client.commands import UsageError, run_command
 from overtake.client.episodes import make_vector_env, parse_overrides
-from overtake.protocol import ACTION_COUNT, ProtocolError
+from overtake.protocol import ACTION_COUNT
 from overtake.viz.recording import RecordingConfig, close_recording, open_recording
 from overtake.protocol.transport import SecurityConfig
 
-from .checkpoint import (CHECKPOINT_NAME, REPLAY_NAME, load_checkpoint, plain_data,
-                         save_checkpoint)
+from .checkpoint import (CHECKPOINT_NAME, REPLAY_NAME, CheckpointError, load_checkpoint,
+                         plain_data, save_checkpoint)
 from .learner import ALGOS, Algo, DQNConfig, DQNLearner
 from .network import INPUT_SENSORS, Inputs, NetworkShape
 from .replay import FrameShapes, FrameStacker, ReplayMemory
@@ -120,7 +121,7 @@ def frame_shapes(space: gym.spaces.Dict, inputs: Inputs) -> FrameShapes:
     wanted = {"ego", *INPUT_SENSORS[inputs]}
     missing = wanted - set(space.spaces)
     if missing:
-        raise SystemExit(f"--inputs {inputs} needs the observation(s) {sorted(missing)}, which "
+        raise UsageError(f"--inputs {inputs} needs the observation(s) {sorted(missing)}, which "
                          "this preset's environment does not send (check camera.enabled / "
                          "lidar.enabled)")
     return FrameShapes({name: (tuple(space[name].shape), space[name].dtype)
@@ -192,7 +193,7 @@ def main(config: TrainConfig, envs: Any = None) -> dict[str, Any]:
     configuration describes; the caller keeps it and closes it.
     """
     if config.total_steps < 1 or config.num_envs < 1:
-        raise SystemExit("--total-steps and --num-envs must be >= 1")
+        raise UsageError("--total-steps and --num-envs must be >= 1")
     if config.torch_threads is not None:
         torch.set_num_threads(config.torch_threads)
     run_dir = config.resolved_run_dir()
@@ -200,11 +201,11 @@ def main(config: TrainConfig, envs: Any = None) -> dict[str, Any]:
     resumed = None
     if config.resume or (config.resume_if_found and checkpoint_path.exists()):
         if not checkpoint_path.exists():
-            raise SystemExit(f"--resume: no checkpoint at {checkpoint_path}")
+            raise CheckpointError(f"--resume: no checkpoint at {checkpoint_path}")
         resumed = load_checkpoint(checkpoint_path)
         resumed.check_compatible(config.algo, config.inputs, config.preset)
     elif checkpoint_path.exists():
-        raise SystemExit(f"{run_dir} already holds a run (checkpoint.pt); pass --resume (or "
+        raise UsageError(f"{run_dir} already holds a run (checkpoint.pt); pass --resume (or "
                          "--resume-if-found) to continue it or choose another --run-dir")
     run_dir.mkdir(parents=True, exist_ok=True)
 
@@ -409,12 +410,7 @@ def cli(argv: list[str] | None = None) -> None:
 
     config = tyro.cli(TrainConfig, args=argv, config=(tyro.conf.OmitArgPrefixes,),
                       description="overtake-train: DQN / Double DQN / Dueling DQN on overtake")
-    try:
-        summary = main(config)
-    except ProtocolError as error:
-        sys.exit(f"overtake-train: {error}")
-    except ValueError as error:
-        sys.exit(f"overtake-train: {error}")
+    summary = run_command("overtake-train", main, config)
     print(json.dumps(summary, indent=2))
 
 
