@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -605,6 +607,18 @@ def test_eval_table_joins_earlier_results_and_refuses_other_files(tmp_path, caps
     with pytest.raises(UsageError, match="not an overtake-eval result"):
         evaluate(EvalConfig(table=(tmp_path / "bad.json",)))
 
+
+
+def test_evaluation_does_not_import_the_training_command():
+    """overtake-eval reads the library modules, not another command's module."""
+    code = ("import json, sys, overtake.trainers.evaluate; "
+            "print(json.dumps([m for m in sys.modules if m.startswith('overtake.')]))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    loaded = set(json.loads(done.stdout))
+    assert "overtake.trainers.observations" in loaded
+    assert "overtake.trainers.train" not in loaded and "overtake.client.drive" not in loaded
 
 def test_training_writes_a_rerun_recording_of_its_episodes_and_learning(tmp_path):
     import rerun as rr

@@ -23,8 +23,8 @@ from overtake.protocol.transport import SecurityConfig
 
 from .checkpoint import load_checkpoint
 from .network import INPUT_SENSORS
+from .observations import frame_shapes
 from .replay import FrameStacker
-from .train import frame_shapes
 
 TABLE_METRICS = ("avg_speed_kmh", "lane_changes", "overtakes", "collisions",
                  "emergency_brakes", "return")

@@ -33,7 +33,6 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any, Literal
 
-import gymnasium as gym
 import numpy as np
 import torch
 
@@ -47,7 +46,8 @@ from .checkpoint import (CHECKPOINT_NAME, REPLAY_NAME, CheckpointError, load_che
                          plain_data, save_checkpoint)
 from .learner import ALGOS, Algo, DQNConfig, DQNLearner
 from .network import INPUT_SENSORS, Inputs, NetworkShape
-from .replay import FrameShapes, FrameStacker, ReplayMemory
+from .observations import describe_space, frame_shapes
+from .replay import FrameStacker, ReplayMemory
 from .visual import TrainingRecording, training_blueprint
 
 # Environment 0's view is logged every this many steps of the vector environment: about 6 MB
@@ -114,24 +114,6 @@ class TrainConfig:
         if self.inputs == "lidar":
             overrides.setdefault("camera.enabled", False)
         return overrides
-
-
-def frame_shapes(space: gym.spaces.Dict, inputs: Inputs) -> FrameShapes:
-    """The per-frame observations the learner uses, as the replay stores them."""
-    wanted = {"ego", *INPUT_SENSORS[inputs]}
-    missing = wanted - set(space.spaces)
-    if missing:
-        raise UsageError(f"--inputs {inputs} needs the observation(s) {sorted(missing)}, which "
-                         "this preset's environment does not send (check camera.enabled / "
-                         "lidar.enabled)")
-    return FrameShapes({name: (tuple(space[name].shape), space[name].dtype)
-                        for name in sorted(wanted)}, actions=ACTION_COUNT)
-
-
-def describe_space(space: gym.spaces.Dict) -> dict[str, Any]:
-    return {name: {"shape": list(box.shape), "dtype": box.dtype.name,
-                   "low": float(np.min(box.low)), "high": float(np.max(box.high))}
-            for name, box in space.spaces.items()}
 
 
 def git_commit() -> str:
