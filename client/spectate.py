@@ -8,6 +8,7 @@ web viewer this command serves; ``--record-every N`` logs one frame in N.
 
 from __future__ import annotations
 
+import functools
 import signal
 import sys
 import threading
@@ -16,12 +17,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from overtake.protocol import ProtocolError
-
 from overtake.viz.recording import RecordingConfig, close_recording, open_recording
 from overtake.protocol.transport import SecurityConfig
 from overtake.viz.world_view import WorldRecording, world_blueprint
 
+from .commands import run_command
 from .remote import RemoteConfig
 from .spectator import Spectator
 
@@ -85,10 +85,10 @@ def main(config: SpectateConfig, stop: threading.Event | None = None) -> int:
     return logged
 
 
-def cli() -> None:
+def cli(argv: list[str] | None = None) -> None:
     import tyro
 
-    config = tyro.cli(SpectateConfig, config=(tyro.conf.OmitArgPrefixes,),
+    config = tyro.cli(SpectateConfig, args=argv, config=(tyro.conf.OmitArgPrefixes,),
                       description="overtake-spectate: a running server's arenas in Rerun")
     stop = threading.Event()
 
@@ -97,10 +97,9 @@ def cli() -> None:
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
-    try:
-        logged = main(config, stop)
-    except (ProtocolError, ValueError, RuntimeError) as error:
-        sys.exit(f"overtake-spectate: {error}")
+    # RuntimeError: the Rerun web viewer could not be served (its port taken, say).
+    logged = run_command("overtake-spectate", functools.partial(main, stop=stop), config,
+                         also=(RuntimeError,))
     print(f"logged {logged} world frame(s) to {config.recording.describe(DEFAULT_RRD)}",
           file=sys.stderr)
 

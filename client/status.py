@@ -6,10 +6,10 @@ import json
 import sys
 from dataclasses import asdict, dataclass, field
 
-from overtake.protocol import errors
 from overtake.protocol.messages import StatusReply
 from overtake.protocol.transport import DEFAULT_ENDPOINT, SecurityConfig
 
+from .commands import run_command
 from .remote import Connection, RemoteConfig
 
 
@@ -63,16 +63,13 @@ def main(config: StatusConfig) -> list[StatusReply]:
     return statuses
 
 
-def cli() -> None:
+def cli(argv: list[str] | None = None) -> None:
     import tyro
 
-    config = tyro.cli(StatusConfig, config=(tyro.conf.OmitArgPrefixes,),
+    config = tyro.cli(StatusConfig, args=argv, config=(tyro.conf.OmitArgPrefixes,),
                       description="overtake-status: the simulator servers on the network and "
                                   "their arenas")
-    try:
-        statuses = main(config)
-    except errors.ProtocolError as error:
-        sys.exit(f"overtake-status: {error}")
+    statuses = run_command("overtake-status", main, config)
     if not statuses:
         sys.exit(1)
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import math
+import subprocess
+import sys
 
 import gymnasium as gym
 import numpy as np
@@ -11,11 +13,15 @@ import pytest
 
 from conftest import LANE_WIDTH, Car, scripted_sim
 from overtake.client import HIGHWAY_ENV_ID, RandomDriver, RuleDriver, RuleDriverConfig
-from overtake.client.drive import DriveConfig, main, parse_overrides
+from overtake.client.commands import UsageError
+from overtake.client.drive import DriveConfig, main
+from overtake.client.drive import cli as drive_cli
+from overtake.client.episodes import parse_overrides
+from overtake.protocol.vocabulary import (ACTION_COUNT, CRUISE_UP, EGO_FIELDS, KEEP, LANE_LEFT,
+                                         LANE_RIGHT)
 
-KEEP, CRUISE_UP, CRUISE_DOWN, LANE_LEFT, LANE_RIGHT = range(5)
 RANGE = 80.0
-ALL_ALLOWED = np.ones((1, 5), dtype=np.int8)
+ALL_ALLOWED = np.ones((1, ACTION_COUNT), dtype=np.int8)
 
 
 def scan(*points: tuple[float, float]) -> np.ndarray:
@@ -28,11 +34,17 @@ def scan(*points: tuple[float, float]) -> np.ndarray:
 
 
 def ego(cruise_kmh: float = 80.0) -> np.ndarray:
-    return np.array([[cruise_kmh / 3.6, cruise_kmh / 3.6, 2.0, 5.0, 0.0, 0.0]], dtype=np.float32)
+    """A (1, 6) ego vector: driving at its cruise target in lane 2 of 5, not changing lanes."""
+    fields = {"speed_mps": cruise_kmh / 3.6, "cruise_target_mps": cruise_kmh / 3.6,
+              "lane_index": 2.0, "lane_count": 5.0, "lane_change_progress": 0.0,
+              "lane_change_direction": 0.0}
+    return np.array([[fields[name] for name in EGO_FIELDS]], dtype=np.float32)
 
 
 def mask(left: bool = True, right: bool = True) -> np.ndarray:
-    return np.array([[1, 1, 1, int(left), int(right)]], dtype=np.int8)
+    allowed = np.ones((1, ACTION_COUNT), dtype=np.int8)
+    allowed[0, LANE_LEFT], allowed[0, LANE_RIGHT] = left, right
+    return allowed
 
 
 def act(lidar: np.ndarray, ego_vector: np.ndarray | None = None, action_mask=ALL_ALLOWED) -> int:
@@ -144,18 +156,20 @@ def test_rule_driver_takes_batches():
 def test_random_driver_picks_only_allowed_actions_and_all_of_them():
     driver = RandomDriver(seed=0)
     rng = np.random.default_rng(1)
-    masks = (rng.random((2000, 5)) < 0.6).astype(np.int8)
-    masks[:, 0] = 1                      # keep is always allowed
-    actions = driver.act(np.zeros((2000, 360)), np.zeros((2000, 6)), masks)
+    masks = (rng.random((2000, ACTION_COUNT)) < 0.6).astype(np.int8)
+    masks[:, KEEP] = 1                   # keep is always allowed
+    actions = driver.act(np.zeros((2000, 360)), np.zeros((2000, len(EGO_FIELDS))), masks)
     assert actions.shape == (2000,)
     assert masks[np.arange(2000), actions].all()
-    assert set(actions.tolist()) == {0, 1, 2, 3, 4}
-    only_keep = np.array([[1, 0, 0, 0, 0]] * 50, dtype=np.int8)
-    assert (driver.act(np.zeros((50, 360)), np.zeros((50, 6)), only_keep) == 0).all()
+    assert set(actions.tolist()) == set(range(ACTION_COUNT))
+    only_keep = np.zeros((50, ACTION_COUNT), dtype=np.int8)
+    only_keep[:, KEEP] = 1
+    assert (driver.act(np.zeros((50, 360)), np.zeros((50, len(EGO_FIELDS))), only_keep)
+            == KEEP).all()
 
 
 def test_random_driver_is_reproducible_by_seed():
-    masks = np.ones((100, 5), dtype=np.int8)
+    masks = np.ones((100, ACTION_COUNT), dtype=np.int8)
     a = RandomDriver(seed=3).act(None, None, masks)
     b = RandomDriver(seed=3).act(None, None, masks)
     c = RandomDriver(seed=4).act(None, None, masks)
@@ -215,9 +229,24 @@ def test_drive_cli_writes_the_summary(policy, tmp_path, capsys):
 
 
 def test_drive_cli_refuses_bad_input():
-    with pytest.raises(SystemExit, match="episodes"):
+    with pytest.raises(UsageError, match="episodes"):
         main(DriveConfig(episodes=0))
-    with pytest.raises(SystemExit, match="dotted.name=value"):
+    with pytest.raises(UsageError, match="dotted.name=value"):
         parse_overrides(("no-equals-sign",))
     assert parse_overrides(("a.b=3", "c.d=heavy", "e.f=[1, 2]", "g=true")) == {
         "a.b": 3, "c.d": "heavy", "e.f": [1, 2], "g": True}
+
+
+def test_drive_command_prints_what_is_wrong_and_exits_non_zero():
+    with pytest.raises(SystemExit) as exited:
+        drive_cli(["--episodes", "0"])
+    assert exited.value.code == "overtake-drive: --episodes must be >= 1, got 0"
+    # As a process: the in-process simulator refuses the override (its ConfigError, a
+    # ValueError); the command says so in one line and exits with status 1, no traceback.
+    done = subprocess.run([sys.executable, "-m", "overtake.client.drive", "--episodes", "1",
+                           "--set", "no.such_field=1"], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 1, done
+    assert done.stderr.startswith(
+        "overtake-drive: unknown configuration field 'no.such_field'"), done.stderr
+    assert "Traceback" not in done.stderr and not done.stdout

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import threading
 import time
 
@@ -67,3 +69,11 @@ def test_spectate_logs_the_arena_and_the_lidar_the_trainer_received(start_server
         assert rewards[round_][0] == pytest.approx(reward)
         matched += 1
     assert matched >= 3, f"only {matched} logged rounds matched what the trainer saw"
+
+
+def test_spectate_command_prints_what_is_wrong_and_exits_non_zero():
+    """A process, as a user runs it (cli() installs signal handlers, not for a test process)."""
+    done = subprocess.run([sys.executable, "-m", "overtake.client.spectate", "--arena", "1"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 1, done
+    assert done.stderr == "overtake-spectate: watching one arena needs its server's name\n"

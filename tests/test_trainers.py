@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -13,14 +15,17 @@ import pytest
 import torch
 from gymnasium import spaces
 
+from overtake.client.commands import UsageError
 from overtake.viz.recording import RecordingConfig
-from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
+from overtake.trainers.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
 from overtake.trainers.evaluate import EvalConfig
+from overtake.trainers.evaluate import cli as evaluate_cli
 from overtake.trainers.evaluate import main as evaluate
 from overtake.trainers.learner import DQNConfig, DQNLearner, masked, td_target
 from overtake.trainers.network import NetworkShape, QNetwork, dueling_q
 from overtake.trainers.replay import FrameShapes, FrameStacker, ReplayMemory
 from overtake.trainers.train import TrainConfig
+from overtake.trainers.train import cli as train_cli
 from overtake.trainers.train import main as train
 
 torch.set_num_threads(1)
@@ -404,7 +409,7 @@ def test_checkpoint_round_trip_and_resume_continue_the_step_count(tmp_path):
     assert restored.updates == first["updates"]
 
     # Running again without --resume refuses to overwrite the run.
-    with pytest.raises(SystemExit, match="--resume"):
+    with pytest.raises(UsageError, match="--resume"):
         train(config, envs=PickTheFreeLane(2, seed=1))
     resumed = train(replace(config, total_steps=500, resume=True), envs=PickTheFreeLane(2, seed=2))
     assert resumed["steps"] == 500 and resumed["updates"] > first["updates"]
@@ -415,7 +420,7 @@ def test_checkpoint_round_trip_and_resume_continue_the_step_count(tmp_path):
     steps = [json.loads(line)["step"] for line in (run_dir / "metrics.jsonl").read_text()
              .splitlines() if json.loads(line)["kind"] == "train"]
     assert steps == sorted(steps) and steps[-1] >= 400 and any(s <= 300 for s in steps)
-    with pytest.raises(SystemExit, match="algo=dueling"):
+    with pytest.raises(CheckpointError, match="algo=dueling"):
         train(replace(config, algo="dqn", total_steps=600, resume=True),
               envs=PickTheFreeLane(2, seed=2))
 
@@ -438,23 +443,40 @@ def test_resume_if_found_continues_a_run_and_starts_one_where_there_is_none(tmp_
     assert after.step == 160 and after.resumes == 1
     assert (run_dir / "run-resume-1.json").exists()
     # Like --resume, it refuses a checkpoint of another algorithm.
-    with pytest.raises(SystemExit, match="algo=ddqn"):
+    with pytest.raises(CheckpointError, match="algo=ddqn"):
         train(replace(config, algo="dqn", total_steps=200), envs=PickTheFreeLane(1))
 
 
 def test_resume_without_a_checkpoint_and_a_broken_checkpoint_say_what_is_wrong(tmp_path):
     config = TrainConfig(inputs="lidar", run_dir=tmp_path / "none", resume=True, progress=False,
                          dqn=tiny_dqn())
-    with pytest.raises(SystemExit, match="no checkpoint"):
+    with pytest.raises(CheckpointError, match="no checkpoint"):
         train(config)
     broken = tmp_path / "broken.pt"
     broken.write_bytes(b"not a checkpoint at all")
-    with pytest.raises(SystemExit, match="not a readable overtake checkpoint"):
+    with pytest.raises(CheckpointError, match="not a readable overtake checkpoint"):
         load_checkpoint(broken)
     torch.save({"header": {"format": "something-else/9"}}, tmp_path / "foreign.pt")
-    with pytest.raises(SystemExit, match="overtake-dqn/1.*something-else/9"):
+    with pytest.raises(CheckpointError, match="overtake-dqn/1.*something-else/9"):
         load_checkpoint(tmp_path / "foreign.pt")
 
+
+
+def test_the_commands_print_what_is_wrong_and_exit_non_zero(tmp_path):
+    """main() raises the typed error; the command prints ``<prog>: <message>`` and exits."""
+    with pytest.raises(SystemExit) as exited:
+        train_cli(["--total-steps", "0", "--run-dir", str(tmp_path / "run"), "--no-progress"])
+    assert exited.value.code == "overtake-train: --total-steps and --num-envs must be >= 1"
+    assert not (tmp_path / "run").exists()
+    broken = tmp_path / "broken.pt"
+    broken.write_bytes(b"not a checkpoint at all")
+    with pytest.raises(SystemExit) as exited:
+        evaluate_cli(["--checkpoint", str(broken)])
+    assert str(exited.value.code).startswith(
+        f"overtake-eval: {broken} is not a readable overtake checkpoint (")
+    with pytest.raises(SystemExit) as exited:
+        evaluate_cli(["--policy", "rule", "--episodes", "0"])
+    assert exited.value.code == "overtake-eval: --episodes must be >= 1, got 0"
 
 def test_a_kill_mid_write_leaves_the_previous_checkpoint_whole(tmp_path, monkeypatch):
     run_dir = tmp_path / "run"
@@ -520,7 +542,7 @@ def test_baselines_evaluate_on_the_same_seeds(tmp_path):
     assert rule["episodes"] == again["episodes"]
     random = evaluate(EvalConfig(policy="random", episodes=2, max_decisions=40, seed=5))
     assert random["summary"]["lane_changes"]["mean"] > rule["summary"]["lane_changes"]["mean"]
-    with pytest.raises(SystemExit, match="exactly one"):
+    with pytest.raises(UsageError, match="exactly one"):
         evaluate(EvalConfig(policy="rule", checkpoint=tmp_path / "x.pt"))
 
 
@@ -582,9 +604,21 @@ def test_eval_table_joins_earlier_results_and_refuses_other_files(tmp_path, caps
     lines = capsys.readouterr().out.splitlines()
     assert lines[2].split()[0] == "random-3" and lines[3].split()[0] == "random-4"
     (tmp_path / "bad.json").write_text("{}")
-    with pytest.raises(SystemExit, match="not an overtake-eval result"):
+    with pytest.raises(UsageError, match="not an overtake-eval result"):
         evaluate(EvalConfig(table=(tmp_path / "bad.json",)))
 
+
+
+def test_evaluation_does_not_import_the_training_command():
+    """overtake-eval reads the library modules, not another command's module."""
+    code = ("import json, sys, overtake.trainers.evaluate; "
+            "print(json.dumps([m for m in sys.modules if m.startswith('overtake.')]))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    loaded = set(json.loads(done.stdout))
+    assert "overtake.trainers.observations" in loaded
+    assert "overtake.trainers.train" not in loaded and "overtake.client.drive" not in loaded
 
 def test_training_writes_a_rerun_recording_of_its_episodes_and_learning(tmp_path):
     import rerun as rr

@@ -19,12 +19,19 @@ from typing import Any
 
 import torch
 
+from overtake.client.commands import UsageError
+
 from .learner import ALGOS, DQNConfig, DQNLearner
 from .network import NetworkShape
 
 CHECKPOINT_FORMAT = "overtake-dqn/1"
 CHECKPOINT_NAME = "checkpoint.pt"
 REPLAY_NAME = "replay.npz"
+
+
+class CheckpointError(UsageError):
+    """A checkpoint the command was pointed at is missing, unreadable, of another format, or
+    of another algorithm, inputs or preset than the run asks for."""
 
 
 @dataclass(frozen=True)
@@ -46,9 +53,9 @@ class Checkpoint:
 
     def check_compatible(self, algo: str, inputs: str, preset: str) -> None:
         if (algo, inputs, preset) != (self.algo, self.inputs, self.preset):
-            raise SystemExit(f"--resume: the checkpoint is algo={self.algo} inputs={self.inputs} "
-                             f"preset={self.preset}, this run asks for algo={algo} "
-                             f"inputs={inputs} preset={preset}")
+            raise CheckpointError(f"--resume: the checkpoint is algo={self.algo} "
+                                  f"inputs={self.inputs} preset={self.preset}, this run asks "
+                                  f"for algo={algo} inputs={inputs} preset={preset}")
 
     def make_learner(self, device: str = "cpu") -> DQNLearner:
         double, dueling = ALGOS[self.algo]
@@ -95,13 +102,13 @@ def load_checkpoint(path: Path) -> Checkpoint:
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # torch raises many types for a truncated or foreign file
-        raise SystemExit(f"{path} is not a readable overtake checkpoint "
-                         f"({type(error).__name__}: {error})") from None
+        raise CheckpointError(f"{path} is not a readable overtake checkpoint "
+                              f"({type(error).__name__}: {error})") from None
     header = payload.get("header") if isinstance(payload, dict) else None
     if not isinstance(header, dict) or header.get("format") != CHECKPOINT_FORMAT:
         found = header.get("format") if isinstance(header, dict) else type(payload).__name__
-        raise SystemExit(f"{path}: expected an overtake checkpoint of format "
-                         f"{CHECKPOINT_FORMAT}, got {found!r}")
+        raise CheckpointError(f"{path}: expected an overtake checkpoint of format "
+                              f"{CHECKPOINT_FORMAT}, got {found!r}")
     shape = dict(header["net_shape"])
     shape["camera_hw"] = tuple(shape["camera_hw"])
     shape["ego_high"] = tuple(shape["ego_high"])

@@ -9,7 +9,6 @@ collisions per 1,000 decisions (the issue's bar compares that one).
 from __future__ import annotations
 
 import json
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -17,15 +16,15 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
-from overtake.client.drive import (baseline_policy, make_vector_env, metric_summary,
-                                   parse_overrides, run_episodes)
-from overtake.protocol import ProtocolError
+from overtake.client.commands import UsageError, run_command
+from overtake.client.episodes import (baseline_policy, make_vector_env, metric_summary,
+                                      parse_overrides, run_episodes)
 from overtake.protocol.transport import SecurityConfig
 
 from .checkpoint import load_checkpoint
 from .network import INPUT_SENSORS
+from .observations import frame_shapes
 from .replay import FrameStacker
-from .train import frame_shapes
 
 TABLE_METRICS = ("avg_speed_kmh", "lane_changes", "overtakes", "collisions",
                  "emergency_brakes", "return")
@@ -117,7 +116,7 @@ def print_table(paths: tuple[Path, ...]) -> str:
             result = json.loads(Path(path).read_text())
             named.append((result["name"], result["summary"]))
         except (OSError, ValueError, KeyError) as error:
-            raise SystemExit(f"{path} is not an overtake-eval result ({error})") from None
+            raise UsageError(f"{path} is not an overtake-eval result ({error})") from None
     text = format_rows(named)
     print(text)
     return text
@@ -128,9 +127,9 @@ def main(config: EvalConfig) -> dict[str, Any]:
     if config.table:
         return {"table": print_table(config.table)}
     if (config.checkpoint is None) == (config.policy is None):
-        raise SystemExit("give exactly one of --checkpoint PATH or --policy rule|random")
+        raise UsageError("give exactly one of --checkpoint PATH or --policy rule|random")
     if config.episodes < 1:
-        raise SystemExit(f"--episodes must be >= 1, got {config.episodes}")
+        raise UsageError(f"--episodes must be >= 1, got {config.episodes}")
     checkpoint = load_checkpoint(config.checkpoint) if config.checkpoint is not None else None
     preset = config.preset or (checkpoint.preset if checkpoint else "min2018")
     overrides: dict[str, Any] = dict(checkpoint.overrides) if checkpoint else {}
@@ -173,10 +172,7 @@ def cli(argv: list[str] | None = None) -> None:
     config = tyro.cli(EvalConfig, args=argv, config=(tyro.conf.OmitArgPrefixes,),
                       description="overtake-eval: the papers' metrics for a checkpoint or a "
                                   "baseline on fixed seeds")
-    try:
-        main(config)
-    except ProtocolError as error:
-        sys.exit(f"overtake-eval: {error}")
+    run_command("overtake-eval", main, config)
 
 
 if __name__ == "__main__":

@@ -33,20 +33,22 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any, Literal
 
-import gymnasium as gym
 import numpy as np
 import torch
 
-from overtake.client.drive import make_vector_env, parse_overrides
-from overtake.protocol import ACTION_COUNT, ProtocolError
-from overtake.viz.recording import RecordingConfig, close_recording, open_recording
+from overtake.client.commands import UsageError, run_command
+from overtake.client.episodes import make_vector_env, parse_overrides
+from overtake.protocol import ACTION_COUNT
+from overtake.viz.recording import (Recording, RecordingConfig, close_recording,
+                                    open_recording)
 from overtake.protocol.transport import SecurityConfig
 
-from .checkpoint import (CHECKPOINT_NAME, REPLAY_NAME, load_checkpoint, plain_data,
-                         save_checkpoint)
+from .checkpoint import (CHECKPOINT_NAME, REPLAY_NAME, Checkpoint, CheckpointError,
+                         load_checkpoint, plain_data, save_checkpoint)
 from .learner import ALGOS, Algo, DQNConfig, DQNLearner
 from .network import INPUT_SENSORS, Inputs, NetworkShape
-from .replay import FrameShapes, FrameStacker, ReplayMemory
+from .observations import describe_space, frame_shapes
+from .replay import FrameStacker, ReplayMemory
 from .visual import TrainingRecording, training_blueprint
 
 # Environment 0's view is logged every this many steps of the vector environment: about 6 MB
@@ -115,24 +117,6 @@ class TrainConfig:
         return overrides
 
 
-def frame_shapes(space: gym.spaces.Dict, inputs: Inputs) -> FrameShapes:
-    """The per-frame observations the learner uses, as the replay stores them."""
-    wanted = {"ego", *INPUT_SENSORS[inputs]}
-    missing = wanted - set(space.spaces)
-    if missing:
-        raise SystemExit(f"--inputs {inputs} needs the observation(s) {sorted(missing)}, which "
-                         "this preset's environment does not send (check camera.enabled / "
-                         "lidar.enabled)")
-    return FrameShapes({name: (tuple(space[name].shape), space[name].dtype)
-                        for name in sorted(wanted)}, actions=ACTION_COUNT)
-
-
-def describe_space(space: gym.spaces.Dict) -> dict[str, Any]:
-    return {name: {"shape": list(box.shape), "dtype": box.dtype.name,
-                   "low": float(np.min(box.low)), "high": float(np.max(box.high))}
-            for name, box in space.spaces.items()}
-
-
 def git_commit() -> str:
     try:
         here = Path(__file__).resolve().parent
@@ -192,22 +176,11 @@ def main(config: TrainConfig, envs: Any = None) -> dict[str, Any]:
     configuration describes; the caller keeps it and closes it.
     """
     if config.total_steps < 1 or config.num_envs < 1:
-        raise SystemExit("--total-steps and --num-envs must be >= 1")
+        raise UsageError("--total-steps and --num-envs must be >= 1")
     if config.torch_threads is not None:
         torch.set_num_threads(config.torch_threads)
     run_dir = config.resolved_run_dir()
-    checkpoint_path = run_dir / CHECKPOINT_NAME
-    resumed = None
-    if config.resume or (config.resume_if_found and checkpoint_path.exists()):
-        if not checkpoint_path.exists():
-            raise SystemExit(f"--resume: no checkpoint at {checkpoint_path}")
-        resumed = load_checkpoint(checkpoint_path)
-        resumed.check_compatible(config.algo, config.inputs, config.preset)
-    elif checkpoint_path.exists():
-        raise SystemExit(f"{run_dir} already holds a run (checkpoint.pt); pass --resume (or "
-                         "--resume-if-found) to continue it or choose another --run-dir")
-    run_dir.mkdir(parents=True, exist_ok=True)
-
+    resumed = prepare_run_dir(config, run_dir)
     overrides = config.overrides()
     own_envs = envs is None
     if own_envs:
@@ -217,182 +190,299 @@ def main(config: TrainConfig, envs: Any = None) -> dict[str, Any]:
         raise ValueError(f"the environment has {envs.num_envs} sub-environments, the "
                          f"configuration says num_envs={config.num_envs}")
     try:
-        return _train(config, envs, run_dir, overrides, resumed)
+        return TrainingRun(config, envs, run_dir, overrides, resumed).run()
     finally:
         if own_envs:
             envs.close()
 
 
-def _train(config: TrainConfig, envs: Any, run_dir: Path, overrides: dict[str, Any],
-           resumed: Any) -> dict[str, Any]:
-    dqn, n = config.dqn, config.num_envs
-    double, dueling = ALGOS[config.algo]
-    checkpoint_path, replay_path = run_dir / CHECKPOINT_NAME, run_dir / REPLAY_NAME
-    space = envs.single_observation_space
-    space_description = describe_space(space)
-    shapes = frame_shapes(space, config.inputs)
-    stacked = INPUT_SENSORS[config.inputs]
-    net_shape = NetworkShape.from_space(space, ACTION_COUNT, dqn.stack)
-    torch.manual_seed(config.seed)
-    learner = DQNLearner(net_shape, config.inputs, dqn, double=double, dueling=dueling,
-                         device=config.device)
-    replay = ReplayMemory(dqn.replay_size, n, shapes, dqn.stack, stacked, seed=config.seed)
-    stacker = FrameStacker(n, shapes, dqn.stack, stacked)
-    rng = np.random.default_rng(config.seed)
-    step, episodes = 0, 0
-    env_seed = config.seed
-    if resumed is not None:
-        learner.load_state_dict(resumed.learner)
-        step, episodes = resumed.step, resumed.episodes
-        rng.bit_generator.state = resumed.rng_state
+def prepare_run_dir(config: TrainConfig, run_dir: Path) -> Checkpoint | None:
+    """The checkpoint this run continues (None for a fresh run), once ``run_dir`` is known to
+    be usable: a resume needs a compatible checkpoint there, a fresh run refuses to overwrite
+    one. Creates ``run_dir``."""
+    checkpoint_path = run_dir / CHECKPOINT_NAME
+    resumed = None
+    if config.resume or (config.resume_if_found and checkpoint_path.exists()):
+        if not checkpoint_path.exists():
+            raise CheckpointError(f"--resume: no checkpoint at {checkpoint_path}")
+        resumed = load_checkpoint(checkpoint_path)
+        resumed.check_compatible(config.algo, config.inputs, config.preset)
+    elif checkpoint_path.exists():
+        raise UsageError(f"{run_dir} already holds a run (checkpoint.pt); pass --resume (or "
+                         "--resume-if-found) to continue it or choose another --run-dir")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    return resumed
+
+
+class TrainingRun:
+    """One life of a training run (its start or one resume) in its run directory.
+
+    It holds the learner, the replay and the frame stacker, steps the vector environment
+    until ``total_steps`` transitions are stored, and writes the run's files: the run record,
+    the metrics log, the Rerun recording and the checkpoints.
+    """
+
+    # Set by run(): its outputs, then, once the environments start, the latest observation
+    # and action mask, the environments whose next step is their autoreset, the clock, and
+    # what the next training log line averages (see _new_log_window).
+    log: MetricsLog
+    recording: Recording | None
+    view: TrainingRecording | None
+    bar: Any
+    obs: dict[str, np.ndarray]
+    mask: np.ndarray
+    starting: np.ndarray
+    started: float
+    losses: list[float]
+    q_taken: list[float]
+    timings: Timings
+    log_t: float
+    log_step: int
+
+    def __init__(self, config: TrainConfig, envs: Any, run_dir: Path,
+                 overrides: dict[str, Any], resumed: Checkpoint | None) -> None:
+        self.config, self.dqn, self.envs = config, config.dqn, envs
+        self.run_dir, self.overrides = run_dir, overrides
+        self.checkpoint_path, self.replay_path = run_dir / CHECKPOINT_NAME, run_dir / REPLAY_NAME
+        self.space = envs.single_observation_space
+        self.space_description = describe_space(self.space)
+        self._build_learner()
+        self.step, self.episodes, self.resumes = 0, 0, 0
+        self.resumed_at_step: int | None = None
+        self.env_seed = config.seed
+        if resumed is not None:
+            self._restore(resumed)
+        self.next_update = self.step + self.dqn.train_every
+        self.next_sync = self.step + self.dqn.target_update_steps
+        self.next_checkpoint = self.step + config.checkpoint_every
+        self.next_log = self.step + config.log_every
+        # Updates wait for this many transitions: at the start of a run, and again after a
+        # resume without a saved replay (capped by what the replay can hold).
+        self.warm = max(self.dqn.batch_size,
+                        min(self.dqn.learning_starts, (self.replay.per_env - 1) * config.num_envs))
+        self.last_episode: dict[str, float] = {}
+        self.iteration = 0
+
+    def _build_learner(self) -> None:
+        """The learner (seeded), its replay memory and frame stacker, and the random generator
+        of its exploration."""
+        config, dqn = self.config, self.dqn
+        double, dueling = ALGOS[config.algo]
+        shapes = frame_shapes(self.space, config.inputs)
+        stacked = INPUT_SENSORS[config.inputs]
+        self.net_shape = NetworkShape.from_space(self.space, ACTION_COUNT, dqn.stack)
+        torch.manual_seed(config.seed)
+        self.learner = DQNLearner(self.net_shape, config.inputs, dqn, double=double,
+                                  dueling=dueling, device=config.device)
+        self.replay = ReplayMemory(dqn.replay_size, config.num_envs, shapes, dqn.stack, stacked,
+                                   seed=config.seed)
+        self.stacker = FrameStacker(config.num_envs, shapes, dqn.stack, stacked)
+        self.rng = np.random.default_rng(config.seed)
+
+    def _restore(self, resumed: Checkpoint) -> None:
+        """Carry on from ``resumed``: the learner, the counts, the random generators, and the
+        replay where it was saved."""
+        self.learner.load_state_dict(resumed.learner)
+        self.step, self.episodes = resumed.step, resumed.episodes
+        self.resumed_at_step = resumed.step
+        self.resumes = resumed.resumes + 1
+        self.rng.bit_generator.state = resumed.rng_state
         torch.set_rng_state(resumed.torch_rng_state)
         # New episodes, not the ones of the first life: different environment seeds.
-        env_seed = config.seed + 1_000_003 * (resumed.resumes + 1)
-        if config.save_replay and replay_path.exists():
-            replay.load(replay_path)
-    resumes = 0 if resumed is None else resumed.resumes + 1
+        self.env_seed = self.config.seed + 1_000_003 * self.resumes
+        if self.config.save_replay and self.replay_path.exists():
+            self.replay.load(self.replay_path)
 
-    record = {"config": plain_data(config), "algo": {"name": config.algo, "double": double,
-                                                    "dueling": dueling},
-              "overrides": overrides, "sim_config": getattr(envs.unwrapped, "sim_config", None),
-              "observation_space": space_description,
-              "network": dataclasses.asdict(net_shape), "versions": package_versions(),
-              "commit": git_commit(), "seed": config.seed, "resumes": resumes,
-              "resumed_at_step": step if resumed is not None else None,
-              "host": platform.node(), "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ",
-                                                                    time.gmtime()),
-              "replay_bytes": replay.nbytes, "replay_naive_bytes": replay.naive_nbytes()}
-    (run_dir / ("run.json" if resumed is None else f"run-resume-{resumes}.json")).write_text(
-        json.dumps(record, indent=2, default=str))
-    log = MetricsLog(run_dir / "metrics.jsonl")
-    run_name = run_dir.name or "run"
-    recording = open_recording("overtake-train", config.recording,
-                               run_dir / ("trainer.rrd" if resumed is None
-                                          else f"trainer-resume-{resumes}.rrd"),
-                               training_blueprint(run_name))
-    view = TrainingRecording(recording.stream, run_name) if recording is not None else None
+    def _life_file(self, stem: str, suffix: str) -> Path:
+        """``stem.suffix`` for a run's start, ``stem-resume-N.suffix`` for its N-th resume."""
+        name = stem if self.resumed_at_step is None else f"{stem}-resume-{self.resumes}"
+        return self.run_dir / f"{name}{suffix}"
 
-    def checkpoint() -> None:
-        save_checkpoint(checkpoint_path, learner=learner, config=config, overrides=overrides,
-                        space=space_description, net_shape=net_shape, step=step,
-                        episodes=episodes, rng_state=rng.bit_generator.state,
-                        resumes=resumes)
-        if config.save_replay:
-            replay.save(replay_path)
+    def run(self) -> dict[str, Any]:
+        """Train to ``total_steps``, checkpointing on the way and at the end; returns the
+        summary :func:`main` returns."""
+        self._write_run_record()
+        self.log = MetricsLog(self.run_dir / "metrics.jsonl")
+        self.recording, self.bar = None, None
+        try:
+            self._open_recording()
+            self._start_episodes()
+            while self.step < self.config.total_steps:
+                self._iteration()
+            self._checkpoint()
+        finally:
+            if self.bar is not None:
+                self.bar.close()
+            self.log.close()
+            close_recording(self.recording)
+        return {"run_dir": str(self.run_dir), "steps": self.step, "episodes": self.episodes,
+                "updates": self.learner.updates, "last_episode": self.last_episode}
 
-    obs, info = envs.reset(seed=env_seed)
-    everyone = np.arange(n)
-    stacker.reset(everyone, obs)
-    replay.start(everyone, obs, info["action_mask"])
-    mask = info["action_mask"]
-    starting = np.zeros(n, dtype=bool)   # envs whose next step is Gymnasium's autoreset step
-    # Updates wait for this many transitions: at the start of a run, and again after a resume
-    # without a saved replay (capped by what the replay can hold).
-    warm = max(dqn.batch_size, min(dqn.learning_starts, (replay.per_env - 1) * n))
-    next_update = step + dqn.train_every
-    next_sync = step + dqn.target_update_steps
-    next_checkpoint = step + config.checkpoint_every
-    next_log = step + config.log_every
-    last_episode: dict[str, float] = {}
-    losses: list[float] = []
-    q_taken: list[float] = []
-    timings = Timings()
-    log_t, log_step = time.perf_counter(), step
-    started = log_t
-    bar = _progress(config, step)
-    iteration, record_every = 0, config.recording.record_every
-    try:
-        while step < config.total_steps:
-            t0 = time.perf_counter()
-            epsilon = dqn.epsilon(step)
-            actions, q = learner.act(stacker.observation(), mask, epsilon, rng)
-            t1 = time.perf_counter()
-            seen = obs
-            obs, reward, terminated, truncated, info = envs.step(actions)
-            t2 = time.perf_counter()
-            if view is not None and not starting[0] and iteration % record_every == 0:
-                view.car_view(step, {k: v[0] for k, v in seen.items()}, int(actions[0]), q[0],
-                              float(reward[0]), {name: float(v[0]) for name, v
-                                                 in info.get("reward_terms", {}).items()})
-            iteration += 1
-            mask = info["action_mask"]
-            # Gymnasium next-step autoreset: envs that ended last step were reset by this one
-            # (its action ignored, reward 0); their observation starts a new episode.
-            moving = np.flatnonzero(~starting)
-            fresh = np.flatnonzero(starting)
-            if fresh.size:
-                sub = {k: v[fresh] for k, v in obs.items()}
-                stacker.reset(fresh, sub)
-                replay.start(fresh, sub, mask[fresh])
-            if moving.size:
-                sub = {k: v[moving] for k, v in obs.items()}
-                replay.add(moving, actions[moving], reward[moving], terminated[moving], sub,
-                           mask[moving])
-                stacker.push(moving, sub)
-                step += moving.size
-            ended = (terminated | truncated) & ~starting
-            for i in np.flatnonzero(ended):
-                episodes += 1
-                last_episode = {name: float(values[i])
-                                for name, values in info["metrics"].items()}
-                log.write({"kind": "episode", "step": step, "episode": episodes, "env": int(i),
-                           "wall_s": round(time.perf_counter() - started, 3),
-                           "terminated": bool(terminated[i]), **last_episode})
-                if view is not None:
-                    view.episode(step, last_episode)
-            starting = ended
-            t3 = time.perf_counter()
-            while step >= next_update:
-                next_update += dqn.train_every
-                if len(replay) >= warm:
-                    stats = learner.update(replay.sample(dqn.batch_size))
-                    losses.append(stats["loss"])
-                    q_taken.append(stats["q_taken"])
-            if step >= next_sync:
-                learner.sync_target()
-                next_sync = step + dqn.target_update_steps
-            t4 = time.perf_counter()
-            timings.act += t1 - t0
-            timings.env += t2 - t1
-            timings.replay += t3 - t2
-            timings.update += t4 - t3
-            if bar is not None:
-                bar.update(moving.size)
-            if step >= next_log:
-                now = time.perf_counter()
-                sps = (step - log_step) / max(now - log_t, 1e-9)
-                entry = {"kind": "train", "step": step, "episodes": episodes,
-                         "wall_s": round(now - started, 3),
-                         "epsilon": epsilon, "updates": learner.updates,
-                         "loss": float(np.mean(losses)) if losses else None,
-                         "q_taken": float(np.mean(q_taken)) if q_taken else None,
-                         "steps_per_s": sps, "replay": len(replay), **timings.shares()}
-                log.write(entry)
-                if view is not None:
-                    view.learning(step, entry)
-                if bar is not None:
-                    bar.set_postfix(eps=f"{epsilon:.2f}", loss=entry["loss"] and
-                                    f"{entry['loss']:.3f}",
-                                    speed=last_episode and
-                                    f"{last_episode['avg_speed_kmh']:.1f}",
-                                    ret=last_episode and f"{last_episode['return']:.0f}",
-                                    refresh=False)
-                losses.clear()
-                q_taken.clear()
-                timings = Timings()
-                log_t, log_step = now, step
-                next_log = step + config.log_every
-            if step >= next_checkpoint:
-                checkpoint()
-                next_checkpoint = step + config.checkpoint_every
-        checkpoint()
-    finally:
-        if bar is not None:
-            bar.close()
-        log.close()
-        close_recording(recording)
-    return {"run_dir": str(run_dir), "steps": step, "episodes": episodes,
-            "updates": learner.updates, "last_episode": last_episode}
+    def _write_run_record(self) -> None:
+        """run.json (run-resume-N.json): what this life of the run is, to reproduce it."""
+        config = self.config
+        double, dueling = ALGOS[config.algo]
+        record = {"config": plain_data(config),
+                  "algo": {"name": config.algo, "double": double, "dueling": dueling},
+                  "overrides": self.overrides,
+                  "sim_config": getattr(self.envs.unwrapped, "sim_config", None),
+                  "observation_space": self.space_description,
+                  "network": dataclasses.asdict(self.net_shape), "versions": package_versions(),
+                  "commit": git_commit(), "seed": config.seed, "resumes": self.resumes,
+                  "resumed_at_step": self.resumed_at_step, "host": platform.node(),
+                  "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                  "replay_bytes": self.replay.nbytes,
+                  "replay_naive_bytes": self.replay.naive_nbytes()}
+        self._life_file("run", ".json").write_text(json.dumps(record, indent=2, default=str))
+
+    def _open_recording(self) -> None:
+        run_name = self.run_dir.name or "run"
+        self.recording = open_recording("overtake-train", self.config.recording,
+                                        self._life_file("trainer", ".rrd"),
+                                        training_blueprint(run_name))
+        self.view = TrainingRecording(self.recording.stream, run_name) \
+            if self.recording is not None else None
+
+    def _start_episodes(self) -> None:
+        """Reset every environment and start its frame stack and its replay ring."""
+        self.obs, info = self.envs.reset(seed=self.env_seed)
+        everyone = np.arange(self.config.num_envs)
+        self.stacker.reset(everyone, self.obs)
+        self.replay.start(everyone, self.obs, info["action_mask"])
+        self.mask = info["action_mask"]
+        self.starting = np.zeros(self.config.num_envs, dtype=bool)
+        now = time.perf_counter()
+        self._new_log_window(now)
+        self.started = now
+        self.bar = _progress(self.config, self.step)
+
+    def _iteration(self) -> None:
+        """One step of every environment: act, step, store what came back, learn; log and
+        checkpoint when due."""
+        t0 = time.perf_counter()
+        epsilon = self.dqn.epsilon(self.step)
+        actions, q = self.learner.act(self.stacker.observation(), self.mask, epsilon, self.rng)
+        t1 = time.perf_counter()
+        seen = self.obs
+        self.obs, reward, terminated, truncated, info = self.envs.step(actions)
+        t2 = time.perf_counter()
+        self._record_car_view(seen, actions, q, reward, info)
+        stored = self._store_step(actions, reward, terminated, info["action_mask"])
+        self._end_episodes(terminated, truncated, info)
+        t3 = time.perf_counter()
+        self._learn()
+        t4 = time.perf_counter()
+        self.timings.act += t1 - t0
+        self.timings.env += t2 - t1
+        self.timings.replay += t3 - t2
+        self.timings.update += t4 - t3
+        if self.bar is not None:
+            self.bar.update(stored)
+        if self.step >= self.next_log:
+            self._log_training(epsilon)
+        if self.step >= self.next_checkpoint:
+            self._checkpoint()
+            self.next_checkpoint = self.step + self.config.checkpoint_every
+
+    def _record_car_view(self, seen: dict[str, np.ndarray], actions: np.ndarray,
+                         q: np.ndarray, reward: np.ndarray, info: dict[str, Any]) -> None:
+        """Environment 0's view, action, Q-values and reward to Rerun, every record_every
+        iterations (not for its autoreset step, whose action the environment ignored)."""
+        if (self.view is not None and not self.starting[0]
+                and self.iteration % self.config.recording.record_every == 0):
+            terms = {name: float(v[0]) for name, v in info.get("reward_terms", {}).items()}
+            self.view.car_view(self.step, {k: v[0] for k, v in seen.items()}, int(actions[0]),
+                               q[0], float(reward[0]), terms)
+        self.iteration += 1
+
+    def _store_step(self, actions: np.ndarray, reward: np.ndarray, terminated: np.ndarray,
+                    mask: np.ndarray) -> int:
+        """Store what a step returned; returns how many transitions that added.
+
+        Gymnasium next-step autoreset: environments that ended last step were reset by this
+        one (its action ignored, reward 0); their observation starts a new episode, no
+        transition. The others add one transition each.
+        """
+        self.mask = mask
+        moving = np.flatnonzero(~self.starting)
+        fresh = np.flatnonzero(self.starting)
+        if fresh.size:
+            sub = {k: v[fresh] for k, v in self.obs.items()}
+            self.stacker.reset(fresh, sub)
+            self.replay.start(fresh, sub, mask[fresh])
+        if moving.size:
+            sub = {k: v[moving] for k, v in self.obs.items()}
+            self.replay.add(moving, actions[moving], reward[moving], terminated[moving], sub,
+                            mask[moving])
+            self.stacker.push(moving, sub)
+            self.step += moving.size
+        return int(moving.size)
+
+    def _end_episodes(self, terminated: np.ndarray, truncated: np.ndarray,
+                      info: dict[str, Any]) -> None:
+        """Log the episodes this step ended (their metrics) and mark their environments for
+        the autoreset step that follows."""
+        ended = (terminated | truncated) & ~self.starting
+        for i in np.flatnonzero(ended):
+            self.episodes += 1
+            self.last_episode = {name: float(values[i])
+                                 for name, values in info["metrics"].items()}
+            self.log.write({"kind": "episode", "step": self.step, "episode": self.episodes,
+                            "env": int(i), "wall_s": round(time.perf_counter() - self.started, 3),
+                            "terminated": bool(terminated[i]), **self.last_episode})
+            if self.view is not None:
+                self.view.episode(self.step, self.last_episode)
+        self.starting = ended
+
+    def _learn(self) -> None:
+        """One update per ``train_every`` steps stored (once the replay holds ``warm``
+        transitions), and the target network's sync every ``target_update_steps``."""
+        while self.step >= self.next_update:
+            self.next_update += self.dqn.train_every
+            if len(self.replay) >= self.warm:
+                stats = self.learner.update(self.replay.sample(self.dqn.batch_size))
+                self.losses.append(stats["loss"])
+                self.q_taken.append(stats["q_taken"])
+        if self.step >= self.next_sync:
+            self.learner.sync_target()
+            self.next_sync = self.step + self.dqn.target_update_steps
+
+    def _new_log_window(self, now: float) -> None:
+        """Start collecting what the next training log line averages."""
+        self.losses, self.q_taken = [], []
+        self.timings = Timings()
+        self.log_t, self.log_step = now, self.step
+
+    def _log_training(self, epsilon: float) -> None:
+        """A ``{"kind": "train", ...}`` line (to metrics.jsonl, Rerun and the progress bar)
+        over the steps since the last one."""
+        now = time.perf_counter()
+        sps = (self.step - self.log_step) / max(now - self.log_t, 1e-9)
+        entry = {"kind": "train", "step": self.step, "episodes": self.episodes,
+                 "wall_s": round(now - self.started, 3),
+                 "epsilon": epsilon, "updates": self.learner.updates,
+                 "loss": float(np.mean(self.losses)) if self.losses else None,
+                 "q_taken": float(np.mean(self.q_taken)) if self.q_taken else None,
+                 "steps_per_s": sps, "replay": len(self.replay), **self.timings.shares()}
+        self.log.write(entry)
+        if self.view is not None:
+            self.view.learning(self.step, entry)
+        if self.bar is not None:
+            last = self.last_episode
+            self.bar.set_postfix(eps=f"{epsilon:.2f}",
+                                 loss=entry["loss"] and f"{entry['loss']:.3f}",
+                                 speed=last and f"{last['avg_speed_kmh']:.1f}",
+                                 ret=last and f"{last['return']:.0f}", refresh=False)
+        self._new_log_window(now)
+        self.next_log = self.step + self.config.log_every
+
+    def _checkpoint(self) -> None:
+        save_checkpoint(self.checkpoint_path, learner=self.learner, config=self.config,
+                        overrides=self.overrides, space=self.space_description,
+                        net_shape=self.net_shape, step=self.step, episodes=self.episodes,
+                        rng_state=self.rng.bit_generator.state, resumes=self.resumes)
+        if self.config.save_replay:
+            self.replay.save(self.replay_path)
 
 
 def _progress(config: TrainConfig, start: int) -> Any:
@@ -409,12 +499,7 @@ def cli(argv: list[str] | None = None) -> None:
 
     config = tyro.cli(TrainConfig, args=argv, config=(tyro.conf.OmitArgPrefixes,),
                       description="overtake-train: DQN / Double DQN / Dueling DQN on overtake")
-    try:
-        summary = main(config)
-    except ProtocolError as error:
-        sys.exit(f"overtake-train: {error}")
-    except ValueError as error:
-        sys.exit(f"overtake-train: {error}")
+    summary = run_command("overtake-train", main, config)
     print(json.dumps(summary, indent=2))
 
 

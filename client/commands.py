@@ -1,0 +1,37 @@
+"""The command layer's errors: what a request that cannot be carried out raises, and the one
+place where a command turns such errors into ``<prog>: <message>`` and a non-zero exit status.
+
+Library functions and the commands' ``main(config)`` raise typed exceptions, because they are
+called from Python too (tests, benchmarks, notebooks) and exiting there would end the caller.
+Only a command's ``cli()`` exits, through :func:`run_command`.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+from typing import TypeVar
+
+from overtake.protocol import ProtocolError
+
+ConfigT = TypeVar("ConfigT")
+ResultT = TypeVar("ResultT")
+
+
+class UsageError(ValueError):
+    """The user asked for something that cannot be done (an option out of range, options that
+    exclude each other, a file that is not what the option names); the message says what was
+    expected and what came."""
+
+
+def run_command(prog: str, main: Callable[[ConfigT], ResultT], config: ConfigT,
+                also: tuple[type[Exception], ...] = ()) -> ResultT:
+    """``main(config)``, exiting with ``<prog>: <message>`` (status 1) if it raises a
+    :class:`UsageError`, a :class:`~overtake.protocol.ProtocolError` (the network or a server
+    refused) or another ``ValueError`` (such as the in-process simulator's ``ConfigError`` for
+    a bad override), or one of the command's own ``also`` types; anything else is a bug and
+    keeps its traceback."""
+    try:
+        return main(config)
+    except (UsageError, ProtocolError, ValueError, *also) as error:
+        sys.exit(f"{prog}: {error}")

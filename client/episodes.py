@@ -1,0 +1,124 @@
+"""Episode running and metric tables: what ``overtake-drive``, ``overtake-train`` and
+``overtake-eval`` share.
+
+A vector environment of a preset (in this process or on a server), simulator overrides from
+``dotted.name=value`` text, a policy stepping one episode per environment to its end, and the
+papers' metrics of those episodes (the columns of
+:data:`overtake.protocol.vocabulary.METRIC_FIELDS`) with their mean and spread.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
+from overtake.protocol.transport import SecurityConfig
+from overtake.protocol.vocabulary import METRIC_FIELDS
+
+from .commands import UsageError
+from .drivers import RandomDriver, RuleDriver, RuleDriverConfig
+from .remote import RemoteConfig
+
+Policy = Callable[[dict[str, np.ndarray], dict[str, Any], np.ndarray], np.ndarray]
+"""``act(obs, info, starting)`` -> actions, for :func:`run_episodes`."""
+
+
+def parse_overrides(items: tuple[str, ...]) -> dict[str, object]:
+    """Simulator overrides from ``dotted.name=value`` items (the value read as JSON, else kept
+    as a string)."""
+    overrides: dict[str, object] = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        if not sep or not name:
+            raise UsageError(f"--set expects dotted.name=value, got {item!r}")
+        try:
+            overrides[name] = json.loads(text)
+        except json.JSONDecodeError:
+            overrides[name] = text
+    return overrides
+
+
+def make_vector_env(preset: str, overrides: dict[str, Any], num_envs: int,
+                    connect: str | None, security: SecurityConfig | None = None) -> Any:
+    """``num_envs`` arenas of ``preset`` as one vector environment: in this process, or on a
+    simulator server reached at ``connect`` (with ``security``'s credentials and
+    certificates)."""
+    register_environments()
+    if connect is None:
+        return gym.make_vec(HIGHWAY_ENV_ID, num_envs=num_envs,
+                            vectorization_mode="vector_entry_point", preset=preset,
+                            overrides=overrides)
+    remote = RemoteConfig(connect=(connect,), security=security or SecurityConfig())
+    return gym.make_vec(REMOTE_HIGHWAY_ENV_ID, num_envs=num_envs,
+                        vectorization_mode="vector_entry_point", preset=preset,
+                        overrides=overrides, remote=remote)
+
+
+def metric_table(rows: list[dict[str, float]]) -> np.ndarray:
+    """The episodes' metrics as an (episodes, metrics) array, columns in METRIC_FIELDS order."""
+    return np.array([[row[name] for name in METRIC_FIELDS] for row in rows])
+
+
+def metric_summary(rows: list[dict[str, float]]) -> dict[str, dict[str, float]]:
+    """Mean and spread of each metric over the episodes."""
+    table = metric_table(rows)
+    return {name: {"mean": float(table[:, j].mean()), "std": float(table[:, j].std())}
+            for j, name in enumerate(METRIC_FIELDS)}
+
+
+def run_episodes(envs: Any, act: Policy, episodes: int, seed: int
+                 ) -> tuple[list[dict[str, float]], int, float]:
+    """One episode per environment of ``envs`` (seeds seed, seed + 1, ...), all stepped
+    together; returns each episode's metrics, the decisions taken and the seconds it took.
+
+    ``act(obs, info, starting)`` returns the actions; ``starting`` marks the environments whose
+    observation is the first of an episode (a policy that stacks frames restarts there).
+    """
+    obs, info = envs.reset(seed=seed)
+    starting = np.ones(episodes, dtype=bool)
+    resetting = np.zeros(episodes, dtype=bool)  # ended: the next step is their autoreset
+    rows: list[dict[str, float] | None] = [None] * episodes
+    started = time.perf_counter()
+    decisions = 0
+    while any(row is None for row in rows):
+        actions = act(obs, info, starting)
+        obs, _, terminated, truncated, info = envs.step(actions)
+        decisions += episodes
+        ended = terminated | truncated
+        for i in np.flatnonzero(ended & info.get("_metrics", False)):
+            if rows[i] is None:
+                rows[i] = {name: float(info["metrics"][name][i]) for name in METRIC_FIELDS}
+        # Gymnasium's next-step autoreset: an env that ended is reset by the following step,
+        # whose observation is then the first of the new episode.
+        starting, resetting = resetting, ended
+    return [row for row in rows if row is not None], decisions, time.perf_counter() - started
+
+
+def baseline_policy(policy: str, sim_config: dict[str, Any], seed: int, num_envs: int
+                    ) -> Policy:
+    """The rule-based driver (tuned to the simulator's configuration) or random, as a policy
+    for :func:`run_episodes`."""
+    if policy == "rule":
+        if not sim_config["lidar"]["enabled"]:
+            raise UsageError("the rule-based driver reads the LIDAR: keep lidar.enabled true")
+        driver: RuleDriver | RandomDriver = RuleDriver(
+            RuleDriverConfig(cruise_max_kmh=sim_config["ego"]["cruise_max_kmh"],
+                             lane_width_m=sim_config["road"]["lane_width_m"]),
+            ray_count=sim_config["lidar"]["ray_count"],
+            max_range_m=sim_config["lidar"]["max_range_m"])
+    elif policy == "random":
+        driver = RandomDriver(seed)
+    else:
+        raise UsageError(f"unknown baseline policy {policy!r}: rule or random")
+
+    def act(obs: dict[str, np.ndarray], info: dict[str, Any], _starting: np.ndarray
+            ) -> np.ndarray:
+        lidar = obs.get("lidar", np.zeros((num_envs, 1), dtype=np.float32))
+        return driver.act(lidar, obs["ego"], info["action_mask"])
+    return act

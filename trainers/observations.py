@@ -1,0 +1,39 @@
+"""What the learner reads of the environment's observation space.
+
+:func:`frame_shapes` picks the observations a network of the given inputs uses (always the ego
+vector, plus camera and/or LIDAR) as the replay and the frame stacker store them, for training
+and evaluation alike; :func:`describe_space` is the space as plain data for the run record and
+the checkpoint.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from overtake.client.commands import UsageError
+from overtake.protocol import ACTION_COUNT
+
+from .network import INPUT_SENSORS, Inputs
+from .replay import FrameShapes
+
+
+def frame_shapes(space: gym.spaces.Dict, inputs: Inputs) -> FrameShapes:
+    """The per-frame observations the learner uses, as the replay stores them."""
+    wanted = {"ego", *INPUT_SENSORS[inputs]}
+    missing = wanted - set(space.spaces)
+    if missing:
+        raise UsageError(f"--inputs {inputs} needs the observation(s) {sorted(missing)}, which "
+                         "this preset's environment does not send (check camera.enabled / "
+                         "lidar.enabled)")
+    return FrameShapes({name: (tuple(space[name].shape), space[name].dtype)
+                        for name in sorted(wanted)}, actions=ACTION_COUNT)
+
+
+def describe_space(space: gym.spaces.Dict) -> dict[str, Any]:
+    """Each observation's shape, dtype and bounds, as JSON-ready data."""
+    return {name: {"shape": list(box.shape), "dtype": box.dtype.name,
+                   "low": float(np.min(box.low)), "high": float(np.max(box.high))}
+            for name, box in space.spaces.items()}
