@@ -13,6 +13,7 @@ from collections.abc import Callable
 from typing import TypeVar
 
 from overtake.protocol import ProtocolError
+from overtake.viz.recording import RecordingError
 
 ConfigT = TypeVar("ConfigT")
 ResultT = TypeVar("ResultT")
@@ -24,14 +25,13 @@ class UsageError(ValueError):
     expected and what came."""
 
 
-def run_command(prog: str, main: Callable[[ConfigT], ResultT], config: ConfigT,
-                also: tuple[type[Exception], ...] = ()) -> ResultT:
+def run_command(prog: str, main: Callable[[ConfigT], ResultT], config: ConfigT) -> ResultT:
     """``main(config)``, exiting with ``<prog>: <message>`` (status 1) if it raises a
     :class:`UsageError`, a :class:`~overtake.protocol.ProtocolError` (the network or a server
-    refused) or another ``ValueError`` (such as the in-process simulator's ``ConfigError`` for
-    a bad override), or one of the command's own ``also`` types; anything else is a bug and
-    keeps its traceback."""
+    refused), a :class:`~overtake.viz.recording.RecordingError` (a Rerun sink could not be
+    opened) or another ``ValueError`` (such as the in-process simulator's ``ConfigError`` for
+    a bad override); anything else is a bug and keeps its traceback."""
     try:
         return main(config)
-    except (UsageError, ProtocolError, ValueError, *also) as error:
+    except (UsageError, ProtocolError, RecordingError, ValueError) as error:
         sys.exit(f"{prog}: {error}")

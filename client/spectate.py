@@ -97,9 +97,7 @@ def cli(argv: list[str] | None = None) -> None:
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
-    # RuntimeError: the Rerun web viewer could not be served (its port taken, say).
-    logged = run_command("overtake-spectate", functools.partial(main, stop=stop), config,
-                         also=(RuntimeError,))
+    logged = run_command("overtake-spectate", functools.partial(main, stop=stop), config)
     print(f"logged {logged} world frame(s) to {config.recording.describe(DEFAULT_RRD)}",
           file=sys.stderr)
 

@@ -16,7 +16,7 @@ import rerun as rr
 import overtake.client  # noqa: F401  (registers the environments)
 from overtake.protocol import REMOTE_HIGHWAY_ENV_ID
 from overtake.protocol.messages import WorldFrame
-from overtake.viz.recording import (Recording, RecordingConfig, open_recording,
+from overtake.viz.recording import (Recording, RecordingConfig, RecordingError, open_recording,
                                          viewer_binary)
 
 from remote_support import (free_port, logged_by_round, remote_config, stop_process,
@@ -128,7 +128,7 @@ def test_web_sink_refuses_a_taken_port(tmp_path):
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        with pytest.raises(RuntimeError, match=f"port {port} on 127.0.0.1 is already taken"):
+        with pytest.raises(RecordingError, match=f"port {port} on 127.0.0.1 is already taken"):
             open_recording("overtake-test", RecordingConfig(sink="web", web_grpc_port=port),
                            tmp_path / "unused.rrd")
 

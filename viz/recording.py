@@ -35,6 +35,11 @@ FLUSH_TIMEOUT_S = 10.0
 log = logging.getLogger("overtake.recording")
 
 
+class RecordingError(RuntimeError):
+    """A recording sink could not be opened (the web viewer's port taken, the viewer not
+    starting); the message says what to change."""
+
+
 @dataclass(frozen=True)
 class RecordingConfig:
     """Where Rerun logging goes, and how often."""
@@ -152,7 +157,7 @@ def _die_with_parent() -> None:  # pragma: no cover - runs in the child before e
 
 def _start_web_viewer(config: RecordingConfig) -> tuple[subprocess.Popen, Any]:
     if _port_open(config.web_bind, config.web_grpc_port):
-        raise RuntimeError(
+        raise RecordingError(
             f"cannot serve the web viewer: port {config.web_grpc_port} on "
             f"{config.web_bind} is already taken (another viewer?); choose "
             "--web-grpc-port, or stream to that viewer with --sink grpc"
@@ -180,11 +185,11 @@ def _start_web_viewer(config: RecordingConfig) -> tuple[subprocess.Popen, Any]:
         preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None,
     )
 
-    def failed(why: str) -> RuntimeError:
+    def failed(why: str) -> RecordingError:
         viewer_log.seek(0)
         said = viewer_log.read().decode(errors="replace").strip()[-500:]
         viewer_log.close()
-        return RuntimeError(f"the Rerun web viewer {why}: {said}")
+        return RecordingError(f"the Rerun web viewer {why}: {said}")
 
     deadline = time.monotonic() + WEB_VIEWER_START_TIMEOUT_S
     while not _port_open(config.web_bind, config.web_grpc_port):
