@@ -52,6 +52,7 @@ PASS/FAIL is printed as information; the exit status is non-zero only on an erro
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime
 import json
@@ -141,6 +142,7 @@ class BenchConfig:
 
 # --- small helpers ----------------------------------------------------------------------------
 
+
 def free_port() -> int:
     """A TCP port free on 127.0.0.1 now (the OS picks it)."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
@@ -154,9 +156,15 @@ def latency_summary(seconds: Sequence[float]) -> dict[str, float]:
 
     ms = np.asarray(seconds, dtype=np.float64) * 1e3
     p50, p90, p99 = np.percentile(ms, [50, 90, 99])
-    return {"count": int(ms.size), "p50_ms": float(p50), "p90_ms": float(p90),
-            "p99_ms": float(p99), "mean_ms": float(ms.mean()), "min_ms": float(ms.min()),
-            "max_ms": float(ms.max())}
+    return {
+        "count": int(ms.size),
+        "p50_ms": float(p50),
+        "p90_ms": float(p90),
+        "p99_ms": float(p99),
+        "mean_ms": float(ms.mean()),
+        "min_ms": float(ms.min()),
+        "max_ms": float(ms.max()),
+    }
 
 
 def process_usage(pid: int) -> tuple[float, int]:
@@ -198,7 +206,8 @@ def wait_matching(publisher: Any, timeout_s: float, what: str) -> None:
     """Block until ``publisher`` has a matching subscriber (the notes' rule before a first put)."""
     matched = threading.Event()
     listener = publisher.declare_matching_listener(
-        lambda status: matched.set() if status.matching else None)
+        lambda status: matched.set() if status.matching else None
+    )
     try:
         if not publisher.matching_status.matching and not matched.wait(timeout_s):
             raise TimeoutError(f"no subscriber matched {what} within {timeout_s:g} s")
@@ -207,6 +216,7 @@ def wait_matching(publisher: Any, timeout_s: float, what: str) -> None:
 
 
 # --- the echo process of the ping-pong --------------------------------------------------------
+
 
 def echo_main(endpoint: str) -> None:
     """Serve ping-pongs on ``endpoint`` until stdin closes (the parent's end) or SIGTERM.
@@ -232,16 +242,24 @@ def echo_main(endpoint: str) -> None:
             reply = replies[size] = bytes(size)
         return reply
 
-    publishers = {shape: session.declare_publisher(
-        f"{PING_ROOT}/{shape}/rep", congestion_control=zenoh.CongestionControl.BLOCK,
-        priority=zenoh.Priority.DATA_HIGH) for shape in PING_SHAPES}
+    publishers = {
+        shape: session.declare_publisher(
+            f"{PING_ROOT}/{shape}/rep",
+            congestion_control=zenoh.CongestionControl.BLOCK,
+            priority=zenoh.Priority.DATA_HIGH,
+        )
+        for shape in PING_SHAPES
+    }
     inboxes: dict[str, queue.SimpleQueue[bytes]] = {}
     keep = []
     for shape in ("callback", "simulated"):
         inbox = inboxes[shape] = queue.SimpleQueue()
-        keep.append(session.declare_subscriber(
-            f"{PING_ROOT}/{shape}/req",
-            lambda sample, inbox=inbox: inbox.put(sample.payload.to_bytes())))
+        keep.append(
+            session.declare_subscriber(
+                f"{PING_ROOT}/{shape}/req",
+                lambda sample, inbox=inbox: inbox.put(sample.payload.to_bytes()),
+            )
+        )
 
     def serve_callback() -> None:
         pub, inbox = publishers["callback"], inboxes["callback"]
@@ -253,11 +271,12 @@ def echo_main(endpoint: str) -> None:
         simulations: dict[int, Driver] = {}
         while True:
             request = inbox.get()
-            arenas = int.from_bytes(request[HEADER_BYTES:2 * HEADER_BYTES], "little")
+            arenas = int.from_bytes(request[HEADER_BYTES : 2 * HEADER_BYTES], "little")
             driver = simulations.get(arenas)
             if driver is None:
-                driver = simulations[arenas] = Driver(make_env(ENV_ID, arenas, preset=PRESET),
-                                                      arenas, seed=0, vector=arenas > 1)
+                driver = simulations[arenas] = Driver(
+                    make_env(ENV_ID, arenas, preset=PRESET), arenas, seed=0, vector=arenas > 1
+                )
             driver.step_once()
             pub.put(reply_for(request))
 
@@ -285,16 +304,26 @@ class PingPong:
         from overtake.protocol.transport import TransportConfig, open_session
 
         self._zenoh = zenoh
-        self.session = open_session(TransportConfig(mode="client", connect=(endpoint,),
-                                                    connect_timeout_s=timeout_s))
+        self.session = open_session(
+            TransportConfig(mode="client", connect=(endpoint,), connect_timeout_s=timeout_s)
+        )
         self._inbox: queue.SimpleQueue[bytes] = queue.SimpleQueue()
-        self._reply_cb = [self.session.declare_subscriber(
-            f"{PING_ROOT}/{shape}/rep", lambda sample: self._inbox.put(sample.payload.to_bytes()))
-            for shape in ("callback", "simulated")]
+        self._reply_cb = [
+            self.session.declare_subscriber(
+                f"{PING_ROOT}/{shape}/rep",
+                lambda sample: self._inbox.put(sample.payload.to_bytes()),
+            )
+            for shape in ("callback", "simulated")
+        ]
         self._reply_ch = self.session.declare_subscriber(f"{PING_ROOT}/channel/rep")
-        self._pubs = {shape: self.session.declare_publisher(
-            f"{PING_ROOT}/{shape}/req", congestion_control=zenoh.CongestionControl.BLOCK,
-            priority=zenoh.Priority.DATA_HIGH) for shape in PING_SHAPES}
+        self._pubs = {
+            shape: self.session.declare_publisher(
+                f"{PING_ROOT}/{shape}/req",
+                congestion_control=zenoh.CongestionControl.BLOCK,
+                priority=zenoh.Priority.DATA_HIGH,
+            )
+            for shape in PING_SHAPES
+        }
         for shape, pub in self._pubs.items():
             wait_matching(pub, timeout_s, f"the echo's {shape} requests")
         # sub.recv() has no timeout: a watchdog wakes a stuck recv() with an empty sample.
@@ -309,15 +338,18 @@ class PingPong:
                 self._deadline = float("inf")
                 self.session.put(f"{PING_ROOT}/channel/rep", b"")
 
-    def round_trips(self, shape: str, request_bytes: int, reply_bytes: int,
-                    count: int, arenas: int = 1) -> list[float]:
+    def round_trips(
+        self, shape: str, request_bytes: int, reply_bytes: int, count: int, arenas: int = 1
+    ) -> list[float]:
         """``count`` timed round trips; each must bring back ``reply_bytes`` bytes (the
         simulated shape steps ``arenas`` arenas in the echo first)."""
         if request_bytes < 2 * HEADER_BYTES:
             raise ValueError(f"a request needs at least {2 * HEADER_BYTES} bytes")
-        request = (reply_bytes.to_bytes(HEADER_BYTES, "little")
-                   + arenas.to_bytes(HEADER_BYTES, "little")
-                   + bytes(request_bytes - 2 * HEADER_BYTES))
+        request = (
+            reply_bytes.to_bytes(HEADER_BYTES, "little")
+            + arenas.to_bytes(HEADER_BYTES, "little")
+            + bytes(request_bytes - 2 * HEADER_BYTES)
+        )
         pub = self._pubs[shape]
         times: list[float] = []
         clock = time.perf_counter
@@ -329,12 +361,14 @@ class PingPong:
                 try:
                     reply = inbox.get(timeout=RECEIVE_TIMEOUT_S)
                 except queue.Empty:
-                    raise TimeoutError(f"no ping-pong reply within "
-                                       f"{RECEIVE_TIMEOUT_S:g} s") from None
+                    raise TimeoutError(
+                        f"no ping-pong reply within {RECEIVE_TIMEOUT_S:g} s"
+                    ) from None
                 times.append(clock() - start)
                 if len(reply) != reply_bytes:
-                    raise RuntimeError(f"ping-pong reply of {len(reply)} bytes, "
-                                       f"expected {reply_bytes}")
+                    raise RuntimeError(
+                        f"ping-pong reply of {len(reply)} bytes, expected {reply_bytes}"
+                    )
         else:
             sub = self._reply_ch
             for _ in range(count):
@@ -344,10 +378,13 @@ class PingPong:
                 reply = sub.recv().payload.to_bytes()
                 times.append(clock() - start)
                 if len(reply) != reply_bytes:
-                    raise (TimeoutError(f"no ping-pong reply within {RECEIVE_TIMEOUT_S:g} s")
-                           if not reply else
-                           RuntimeError(f"ping-pong reply of {len(reply)} bytes, "
-                                        f"expected {reply_bytes}"))
+                    raise (
+                        TimeoutError(f"no ping-pong reply within {RECEIVE_TIMEOUT_S:g} s")
+                        if not reply
+                        else RuntimeError(
+                            f"ping-pong reply of {len(reply)} bytes, expected {reply_bytes}"
+                        )
+                    )
             self._deadline = float("inf")
         return times
 
@@ -361,6 +398,7 @@ class PingPong:
 
 
 # --- the environments ----------------------------------------------------------------------
+
 
 @dataclass
 class Driver:
@@ -428,13 +466,18 @@ class Driver:
             self.reward_sum += reward_sum
 
     def result(self) -> dict[str, Any]:
-        return {"steps": self.steps, "agent_steps": self.steps * self.arenas,
-                "wall_seconds": self.wall_seconds, "cpu_seconds": self.cpu_seconds,
-                "agent_steps_per_second": self.steps * self.arenas / self.wall_seconds,
-                "cpu_ms_per_step": 1e3 * self.cpu_seconds / self.steps,
-                "minor_faults_per_step": self.minor_faults / self.steps,
-                "episodes_ended": self.episodes_ended, "reward_sum": self.reward_sum,
-                "step": latency_summary(self.step_times)}
+        return {
+            "steps": self.steps,
+            "agent_steps": self.steps * self.arenas,
+            "wall_seconds": self.wall_seconds,
+            "cpu_seconds": self.cpu_seconds,
+            "agent_steps_per_second": self.steps * self.arenas / self.wall_seconds,
+            "cpu_ms_per_step": 1e3 * self.cpu_seconds / self.steps,
+            "minor_faults_per_step": self.minor_faults / self.steps,
+            "episodes_ended": self.episodes_ended,
+            "reward_sum": self.reward_sum,
+            "step": latency_summary(self.step_times),
+        }
 
 
 def make_env(env_id: str, arenas: int, **kwargs: Any) -> Any:
@@ -444,37 +487,60 @@ def make_env(env_id: str, arenas: int, **kwargs: Any) -> Any:
 
     if arenas == 1:
         return gymnasium.make(env_id, **kwargs)
-    return gymnasium.make_vec(env_id, num_envs=arenas, vectorization_mode="vector_entry_point",
-                              **kwargs)
+    return gymnasium.make_vec(
+        env_id, num_envs=arenas, vectorization_mode="vector_entry_point", **kwargs
+    )
 
 
-def start_server(endpoint: str, timeout_s: float, extra: tuple[str, ...] = (),
-                 env: dict[str, str] | None = None) -> subprocess.Popen[bytes]:
+def start_server(
+    endpoint: str, timeout_s: float, extra: tuple[str, ...] = (), env: dict[str, str] | None = None
+) -> subprocess.Popen[bytes]:
     """An ``overtake.server`` subprocess (``extra``: more flags; ``env``: its environment,
     by default this process's), returned once it answers a status request."""
     from overtake.client.remote import Connection, RemoteConfig
     from overtake.protocol import errors
 
     proc = subprocess.Popen(
-        [sys.executable, "-m", "overtake.server", "--listen", endpoint, "--name", SERVER_NAME,
-         "--log-level", "warning", "--max-arenas", "256", *extra], stdout=subprocess.DEVNULL,
-        env=env)
+        [
+            sys.executable,
+            "-m",
+            "overtake.server",
+            "--listen",
+            endpoint,
+            "--name",
+            SERVER_NAME,
+            "--log-level",
+            "warning",
+            "--max-arenas",
+            "256",
+            *extra,
+        ],
+        stdout=subprocess.DEVNULL,
+        env=env,
+    )
     connection = None
     try:
         deadline = time.monotonic() + timeout_s
         while True:
             if proc.poll() is not None:
-                raise RuntimeError(f"the server exited with status {proc.returncode} before "
-                                   "answering (its messages are above)")
+                raise RuntimeError(
+                    f"the server exited with status {proc.returncode} before "
+                    "answering (its messages are above)"
+                )
             remaining = deadline - time.monotonic()
             if remaining <= 0:
-                raise TimeoutError(f"the server did not answer on {endpoint} within "
-                                   f"{timeout_s:g} s")
+                raise TimeoutError(
+                    f"the server did not answer on {endpoint} within {timeout_s:g} s"
+                )
             try:
                 if connection is None:  # opening keeps retrying the endpoint for a while
-                    connection = Connection(RemoteConfig(
-                        connect=(endpoint,), connect_timeout_s=min(10.0, remaining),
-                        request_timeout_s=min(2.0, remaining)))
+                    connection = Connection(
+                        RemoteConfig(
+                            connect=(endpoint,),
+                            connect_timeout_s=min(10.0, remaining),
+                            request_timeout_s=min(2.0, remaining),
+                        )
+                    )
                 if any(status.server == SERVER_NAME for status in connection.discover()):
                     break
             except errors.ConnectError:
@@ -491,16 +557,18 @@ def start_server(endpoint: str, timeout_s: float, extra: tuple[str, ...] = (),
 
 
 def start_echo(endpoint: str) -> subprocess.Popen[bytes]:
-    return subprocess.Popen([sys.executable, "-m", "bench.bench_remote", "echo", endpoint],
-                            stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, cwd=ROOT)
+    return subprocess.Popen(
+        [sys.executable, "-m", "bench.bench_remote", "echo", endpoint],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        cwd=ROOT,
+    )
 
 
 def stop_echo(proc: subprocess.Popen[bytes]) -> None:
     if proc.stdin is not None:
-        try:
+        with contextlib.suppress(OSError):
             proc.stdin.close()  # the echo leaves when its stdin closes
-        except OSError:
-            pass
     try:
         proc.wait(timeout=5.0)
     except subprocess.TimeoutExpired:
@@ -527,9 +595,14 @@ def wire_messages(remote_env: Any, arenas: int, seed: int) -> tuple[Any, Any]:
     from overtake.protocol.messages import Actions
 
     group = remote_env.unwrapped.group
-    actions = Actions(trainer=group.connection.trainer, ticket=group.ticket, group=group.group_id,
-                      round=group.round, agents=np.asarray(group.agents, dtype=np.int32),
-                      actions=np.random.default_rng(seed).integers(5, size=arenas))
+    actions = Actions(
+        trainer=group.connection.trainer,
+        ticket=group.ticket,
+        group=group.group_id,
+        round=group.round,
+        agents=np.asarray(group.agents, dtype=np.int32),
+        actions=np.random.default_rng(seed).integers(5, size=arenas),
+    )
     return actions, group.last
 
 
@@ -541,9 +614,11 @@ def codec_times(actions: Any, steps: Any, repeats: int) -> dict[str, float]:
     fields_of = {f.name: getattr(actions, f.name) for f in dataclasses.fields(actions)}
     times = {
         "client_actions_build_encode_us": median_us(
-            lambda: codec.encode(Actions(**fields_of)), repeats),
-        "server_actions_decode_us": median_us(lambda: codec.decode(actions_bytes, Actions),
-                                              repeats),
+            lambda: codec.encode(Actions(**fields_of)), repeats
+        ),
+        "server_actions_decode_us": median_us(
+            lambda: codec.decode(actions_bytes, Actions), repeats
+        ),
         "server_steps_encode_us": median_us(lambda: codec.encode(steps), repeats),
         "client_steps_decode_us": median_us(lambda: codec.decode(steps_bytes, Steps), repeats),
     }
@@ -551,8 +626,9 @@ def codec_times(actions: Any, steps: Any, repeats: int) -> dict[str, float]:
     return times
 
 
-def measure_arenas(arenas: int, config: BenchConfig, endpoint: str, server_pid: int,
-                   ping: PingPong) -> dict[str, Any]:
+def measure_arenas(
+    arenas: int, config: BenchConfig, endpoint: str, server_pid: int, ping: PingPong
+) -> dict[str, Any]:
     """All figures of one N: in-process, remote, ping-pongs and codec, in alternating rounds."""
     from overtake.client.remote import RemoteConfig
     from overtake.protocol import codec
@@ -561,9 +637,14 @@ def measure_arenas(arenas: int, config: BenchConfig, endpoint: str, server_pid: 
     local = remote = None
     try:
         local = Driver(make_env(ENV_ID, arenas, preset=PRESET), arenas, config.seed, vector)
-        remote = Driver(make_env(REMOTE_ENV_ID, arenas, preset=PRESET,
-                                 remote=RemoteConfig(connect=(endpoint,))),
-                        arenas, config.seed, vector)
+        remote = Driver(
+            make_env(
+                REMOTE_ENV_ID, arenas, preset=PRESET, remote=RemoteConfig(connect=(endpoint,))
+            ),
+            arenas,
+            config.seed,
+            vector,
+        )
         local.drive(config.warmup_steps, timed=False)
         remote.drive(config.warmup_steps, timed=False)
         actions, steps = wire_messages(remote.env, arenas, config.seed)
@@ -573,13 +654,15 @@ def measure_arenas(arenas: int, config: BenchConfig, endpoint: str, server_pid: 
             ping.round_trips(shape, request_bytes, reply_bytes, config.warmup_steps, arenas)
 
         total = config.timed_steps(arenas)
-        chunks = [total // config.rounds + (1 if r < total % config.rounds else 0)
-                  for r in range(config.rounds)]
+        chunks = [
+            total // config.rounds + (1 if r < total % config.rounds else 0)
+            for r in range(config.rounds)
+        ]
         ping_times: dict[str, list[float]] = {shape: [] for shape in PING_SHAPES}
         server_cpu, server_faults = 0.0, 0
         kinds = ["local", "remote", *PING_SHAPES]
         for index, count in enumerate(chunks):
-            for kind in kinds[index % len(kinds):] + kinds[:index % len(kinds)]:
+            for kind in kinds[index % len(kinds) :] + kinds[: index % len(kinds)]:
                 if kind == "local":
                     local.drive(count)
                 elif kind == "remote":
@@ -589,13 +672,15 @@ def measure_arenas(arenas: int, config: BenchConfig, endpoint: str, server_pid: 
                     server_cpu += cpu_after - cpu_before
                     server_faults += faults_after - faults_before
                 else:
-                    ping_times[kind].extend(ping.round_trips(kind, request_bytes, reply_bytes,
-                                                             count, arenas))
+                    ping_times[kind].extend(
+                        ping.round_trips(kind, request_bytes, reply_bytes, count, arenas)
+                    )
         local_result, remote_result = local.result(), remote.result()
         remote_result["server_cpu_ms_per_step"] = 1e3 * server_cpu / remote.steps
         remote_result["server_minor_faults_per_step"] = server_faults / remote.steps
-        same = (local.episodes_ended == remote.episodes_ended
-                and local.reward_sum == remote.reward_sum)
+        same = (
+            local.episodes_ended == remote.episodes_ended and local.reward_sum == remote.reward_sum
+        )
     finally:
         for driver in (local, remote):
             if driver is not None:
@@ -605,26 +690,30 @@ def measure_arenas(arenas: int, config: BenchConfig, endpoint: str, server_pid: 
     overhead_ms = remote_result["step"]["p50_ms"] - local_result["step"]["p50_ms"]
     bound_ms = pings["simulated"]["p50_ms"] - local_result["step"]["p50_ms"]
     return {
-        "arenas": arenas, "in_process": local_result, "remote": remote_result,
+        "arenas": arenas,
+        "in_process": local_result,
+        "remote": remote_result,
         "same_episodes": same,
         "wire": {"actions_bytes": request_bytes, "steps_bytes": reply_bytes},
-        "ping_pong": pings, "codec": codec_us,
+        "ping_pong": pings,
+        "codec": codec_us,
         "overhead_p50_ms": overhead_ms,
         "overhead_over_ping_pong": overhead_ms / pings["callback"]["p50_ms"],
-        "unexplained_ms": (overhead_ms - pings["callback"]["p50_ms"]
-                           - codec_us["total_us"] / 1e3),
+        "unexplained_ms": (overhead_ms - pings["callback"]["p50_ms"] - codec_us["total_us"] / 1e3),
         "overhead_over_ping_pong_channel": overhead_ms / pings["channel"]["p50_ms"],
         # A server doing nothing but the simulation: its overhead over in-process, and what
         # the real server adds to that (protocol, validation, groups, the client's work).
         "bound_overhead_p50_ms": bound_ms,
         "bound_over_ping_pong": bound_ms / pings["callback"]["p50_ms"],
         "beyond_bound_ms": remote_result["step"]["p50_ms"] - pings["simulated"]["p50_ms"],
-        "throughput_ratio": (remote_result["agent_steps_per_second"]
-                             / local_result["agent_steps_per_second"]),
+        "throughput_ratio": (
+            remote_result["agent_steps_per_second"] / local_result["agent_steps_per_second"]
+        ),
     }
 
 
 # --- report ---------------------------------------------------------------------------------
+
 
 def format_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     widths = [max(len(cells[i]) for cells in (header, *rows)) for i in range(len(header))]
@@ -640,54 +729,136 @@ def print_report(results: list[dict[str, Any]]) -> None:
         return f"{value:.3f}"
 
     print("Step latency (ms, p50 / p99) and the remote overhead against the Zenoh floor")
-    print(format_table(
-        ("N", "in-process", "remote", "overhead p50", "ping-pong cb", "ping-pong recv",
-         "overhead/ping-pong"),
-        [(str(r["arenas"]),
-          f"{ms(r['in_process']['step']['p50_ms'])} / {ms(r['in_process']['step']['p99_ms'])}",
-          f"{ms(r['remote']['step']['p50_ms'])} / {ms(r['remote']['step']['p99_ms'])}",
-          ms(r["overhead_p50_ms"]),
-          (f"{ms(r['ping_pong']['callback']['p50_ms'])} / "
-           f"{ms(r['ping_pong']['callback']['p99_ms'])}"),
-          (f"{ms(r['ping_pong']['channel']['p50_ms'])} / "
-           f"{ms(r['ping_pong']['channel']['p99_ms'])}"),
-          f"{r['overhead_over_ping_pong']:.2f}x") for r in results]))
+    print(
+        format_table(
+            (
+                "N",
+                "in-process",
+                "remote",
+                "overhead p50",
+                "ping-pong cb",
+                "ping-pong recv",
+                "overhead/ping-pong",
+            ),
+            [
+                (
+                    str(r["arenas"]),
+                    f"{ms(r['in_process']['step']['p50_ms'])} / "
+                    f"{ms(r['in_process']['step']['p99_ms'])}",
+                    f"{ms(r['remote']['step']['p50_ms'])} / {ms(r['remote']['step']['p99_ms'])}",
+                    ms(r["overhead_p50_ms"]),
+                    (
+                        f"{ms(r['ping_pong']['callback']['p50_ms'])} / "
+                        f"{ms(r['ping_pong']['callback']['p99_ms'])}"
+                    ),
+                    (
+                        f"{ms(r['ping_pong']['channel']['p50_ms'])} / "
+                        f"{ms(r['ping_pong']['channel']['p99_ms'])}"
+                    ),
+                    f"{r['overhead_over_ping_pong']:.2f}x",
+                )
+                for r in results
+            ],
+        )
+    )
     print()
-    print("The bound: a ping-pong whose echo steps the in-process environment before it replies "
-          "(a server doing nothing but the simulation); beyond = remote p50 - its p50")
-    print(format_table(
-        ("N", "simulated ping-pong", "its overhead p50", "its overhead/ping-pong",
-         "remote beyond it ms"),
-        [(str(r["arenas"]),
-          (f"{ms(r['ping_pong']['simulated']['p50_ms'])} / "
-           f"{ms(r['ping_pong']['simulated']['p99_ms'])}"),
-          ms(r["bound_overhead_p50_ms"]), f"{r['bound_over_ping_pong']:.2f}x",
-          ms(r["beyond_bound_ms"])) for r in results]))
+    print(
+        "The bound: a ping-pong whose echo steps the in-process environment before it replies "
+        "(a server doing nothing but the simulation); beyond = remote p50 - its p50"
+    )
+    print(
+        format_table(
+            (
+                "N",
+                "simulated ping-pong",
+                "its overhead p50",
+                "its overhead/ping-pong",
+                "remote beyond it ms",
+            ),
+            [
+                (
+                    str(r["arenas"]),
+                    (
+                        f"{ms(r['ping_pong']['simulated']['p50_ms'])} / "
+                        f"{ms(r['ping_pong']['simulated']['p99_ms'])}"
+                    ),
+                    ms(r["bound_overhead_p50_ms"]),
+                    f"{r['bound_over_ping_pong']:.2f}x",
+                    ms(r["beyond_bound_ms"]),
+                )
+                for r in results
+            ],
+        )
+    )
     print()
     print("Throughput (agent-steps per wall second), CPU ms and minor page faults per step")
-    print(format_table(
-        ("N", "in-process/s", "remote/s", "remote/in-process", "CPU in-proc", "CPU client",
-         "CPU server", "faults in-proc", "faults client", "faults server", "same episodes"),
-        [(str(r["arenas"]), f"{r['in_process']['agent_steps_per_second']:,.0f}",
-          f"{r['remote']['agent_steps_per_second']:,.0f}", f"{r['throughput_ratio']:.2f}x",
-          f"{r['in_process']['cpu_ms_per_step']:.3f}", f"{r['remote']['cpu_ms_per_step']:.3f}",
-          f"{r['remote']['server_cpu_ms_per_step']:.3f}",
-          f"{r['in_process']['minor_faults_per_step']:,.0f}",
-          f"{r['remote']['minor_faults_per_step']:,.0f}",
-          f"{r['remote']['server_minor_faults_per_step']:,.0f}",
-          "yes" if r["same_episodes"] else "NO") for r in results]))
+    print(
+        format_table(
+            (
+                "N",
+                "in-process/s",
+                "remote/s",
+                "remote/in-process",
+                "CPU in-proc",
+                "CPU client",
+                "CPU server",
+                "faults in-proc",
+                "faults client",
+                "faults server",
+                "same episodes",
+            ),
+            [
+                (
+                    str(r["arenas"]),
+                    f"{r['in_process']['agent_steps_per_second']:,.0f}",
+                    f"{r['remote']['agent_steps_per_second']:,.0f}",
+                    f"{r['throughput_ratio']:.2f}x",
+                    f"{r['in_process']['cpu_ms_per_step']:.3f}",
+                    f"{r['remote']['cpu_ms_per_step']:.3f}",
+                    f"{r['remote']['server_cpu_ms_per_step']:.3f}",
+                    f"{r['in_process']['minor_faults_per_step']:,.0f}",
+                    f"{r['remote']['minor_faults_per_step']:,.0f}",
+                    f"{r['remote']['server_minor_faults_per_step']:,.0f}",
+                    "yes" if r["same_episodes"] else "NO",
+                )
+                for r in results
+            ],
+        )
+    )
     print()
-    print("Wire and codec per step (bytes; median microseconds of each codec call on the real "
-          "messages, timed in a loop); rest = overhead p50 - ping-pong p50 - codec total")
-    print(format_table(
-        ("N", "Actions B", "Steps B", "client Actions()+encode", "server decode Actions",
-         "server encode Steps", "client decode Steps", "codec total", "rest ms"),
-        [(str(r["arenas"]), f"{r['wire']['actions_bytes']:,}", f"{r['wire']['steps_bytes']:,}",
-          f"{r['codec']['client_actions_build_encode_us']:.1f}",
-          f"{r['codec']['server_actions_decode_us']:.1f}",
-          f"{r['codec']['server_steps_encode_us']:.1f}",
-          f"{r['codec']['client_steps_decode_us']:.1f}",
-          f"{r['codec']['total_us']:.1f}", f"{r['unexplained_ms']:.3f}") for r in results]))
+    print(
+        "Wire and codec per step (bytes; median microseconds of each codec call on the real "
+        "messages, timed in a loop); rest = overhead p50 - ping-pong p50 - codec total"
+    )
+    print(
+        format_table(
+            (
+                "N",
+                "Actions B",
+                "Steps B",
+                "client Actions()+encode",
+                "server decode Actions",
+                "server encode Steps",
+                "client decode Steps",
+                "codec total",
+                "rest ms",
+            ),
+            [
+                (
+                    str(r["arenas"]),
+                    f"{r['wire']['actions_bytes']:,}",
+                    f"{r['wire']['steps_bytes']:,}",
+                    f"{r['codec']['client_actions_build_encode_us']:.1f}",
+                    f"{r['codec']['server_actions_decode_us']:.1f}",
+                    f"{r['codec']['server_steps_encode_us']:.1f}",
+                    f"{r['codec']['client_steps_decode_us']:.1f}",
+                    f"{r['codec']['total_us']:.1f}",
+                    f"{r['unexplained_ms']:.3f}",
+                )
+                for r in results
+            ],
+        )
+    )
 
 
 def main(config: BenchConfig) -> dict[str, Any]:
@@ -695,15 +866,22 @@ def main(config: BenchConfig) -> dict[str, Any]:
     threads = pin_threads(config.blas_threads)
     machine = machine_description()
     print("overtake remote stepping benchmark")
-    print(f"machine: {machine['cpu_count']} CPUs ({machine['cpu_model']}), "
-          f"{machine['platform']}, Python {machine['python']}, numpy {machine['numpy']}, "
-          f"gymnasium {machine['gymnasium']}")
-    print(f"overtake {machine['overtake']} (source {machine['overtake_source']}), preset "
-          f"{PRESET}; numpy BLAS/OpenMP threads: {threads}")
-    allocator = {name: value for name, value in sorted(os.environ.items())
-                 if name.startswith("MALLOC_")}
-    print("glibc malloc settings (inherited by the server and echo): "
-          + (", ".join(f"{k}={v}" for k, v in allocator.items()) or "defaults"))
+    print(
+        f"machine: {machine['cpu_count']} CPUs ({machine['cpu_model']}), "
+        f"{machine['platform']}, Python {machine['python']}, numpy {machine['numpy']}, "
+        f"gymnasium {machine['gymnasium']}"
+    )
+    print(
+        f"overtake {machine['overtake']} (source {machine['overtake_source']}), preset "
+        f"{PRESET}; numpy BLAS/OpenMP threads: {threads}"
+    )
+    allocator = {
+        name: value for name, value in sorted(os.environ.items()) if name.startswith("MALLOC_")
+    }
+    print(
+        "glibc malloc settings (inherited by the server and echo): "
+        + (", ".join(f"{k}={v}" for k, v in allocator.items()) or "defaults")
+    )
     if config.quick:
         print(f"quick mode: timed counts divided by {QUICK_DIVISOR}; figures are noisier")
 
@@ -723,8 +901,11 @@ def main(config: BenchConfig) -> dict[str, Any]:
         for arenas in ARENAS:
             results.append(measure_arenas(arenas, config, server_endpoint, server.pid, ping))
             result = results[-1]
-            print(f"  N={arenas}: {result['remote']['steps']} timed steps each, "
-                  f"{time.perf_counter() - started:.1f} s so far", flush=True)
+            print(
+                f"  N={arenas}: {result['remote']['steps']} timed steps each, "
+                f"{time.perf_counter() - started:.1f} s so far",
+                flush=True,
+            )
         children_cpu = process_usage(server.pid)[0] + process_usage(echo.pid)[0]
         busy = machine_busy_cpu_seconds() - busy_before
         own = time.process_time() - own_before + children_cpu
@@ -744,46 +925,77 @@ def main(config: BenchConfig) -> dict[str, Any]:
     bars = []
     for arenas, bar in OVERHEAD_BARS.items():
         value = by_arenas[arenas]["overhead_over_ping_pong"]
-        bars.append({"arenas": arenas, "figure": "overhead_over_ping_pong", "bar": f"<= {bar}",
-                     "value": value, "passed": value <= bar})
+        bars.append(
+            {
+                "arenas": arenas,
+                "figure": "overhead_over_ping_pong",
+                "bar": f"<= {bar}",
+                "value": value,
+                "passed": value <= bar,
+            }
+        )
         bound = by_arenas[arenas]["bound_over_ping_pong"]
         bars[-1]["bound"] = bound
-        print(f"bar: {arenas} arena(s), remote overhead per step <= {bar:g}x the ping-pong p50: "
-              f"{value:.2f}x -> {'PASS' if value <= bar else 'FAIL'} (a server doing nothing "
-              f"but the simulation: {bound:.2f}x)")
+        print(
+            f"bar: {arenas} arena(s), remote overhead per step <= {bar:g}x the ping-pong p50: "
+            f"{value:.2f}x -> {'PASS' if value <= bar else 'FAIL'} (a server doing nothing "
+            f"but the simulation: {bound:.2f}x)"
+        )
     for arenas, bar in THROUGHPUT_BARS.items():
         value = by_arenas[arenas]["throughput_ratio"]
-        bars.append({"arenas": arenas, "figure": "throughput_ratio", "bar": f">= {bar}",
-                     "value": value, "passed": value >= bar})
-        print(f"bar: {arenas} arenas, remote throughput >= {bar:g}x in-process: {value:.2f}x "
-              f"-> {'PASS' if value >= bar else 'FAIL'}")
+        bars.append(
+            {
+                "arenas": arenas,
+                "figure": "throughput_ratio",
+                "bar": f">= {bar}",
+                "value": value,
+                "passed": value >= bar,
+            }
+        )
+        print(
+            f"bar: {arenas} arenas, remote throughput >= {bar:g}x in-process: {value:.2f}x "
+            f"-> {'PASS' if value >= bar else 'FAIL'}"
+        )
     for r in results:
         local_faults = r["in_process"]["minor_faults_per_step"]
-        remote_faults = (r["remote"]["minor_faults_per_step"]
-                         + r["remote"]["server_minor_faults_per_step"])
+        remote_faults = (
+            r["remote"]["minor_faults_per_step"] + r["remote"]["server_minor_faults_per_step"]
+        )
         if abs(local_faults - remote_faults) > FAULTS_NOTE_PER_STEP:
-            print(f"note: with {r['arenas']} arena(s) the in-process steps took "
-                  f"{local_faults:,.0f} minor page faults each and the remote ones "
-                  f"{remote_faults:,.0f} (client + server): the comparison is skewed by the "
-                  "state of glibc's allocator in each process; rerun with e.g. "
-                  "MALLOC_TRIM_THRESHOLD_=1000000000 MALLOC_MMAP_THRESHOLD_=1000000000 in the "
-                  "environment to compare without them")
+            print(
+                f"note: with {r['arenas']} arena(s) the in-process steps took "
+                f"{local_faults:,.0f} minor page faults each and the remote ones "
+                f"{remote_faults:,.0f} (client + server): the comparison is skewed by the "
+                "state of glibc's allocator in each process; rerun with e.g. "
+                "MALLOC_TRIM_THRESHOLD_=1000000000 MALLOC_MMAP_THRESHOLD_=1000000000 in the "
+                "environment to compare without them"
+            )
     wall = time.perf_counter() - started
     # Whatever else ran on the machine meanwhile (other processes, the kernel's own work).
     others = max(busy - own, 0.0)
-    print(f"measured in {wall:.1f} s; CPU used by this benchmark's 3 processes: {own:.1f} s, "
-          f"by everything else on the machine: {others:.1f} s "
-          f"({100 * others / wall:.0f}% of one core)")
+    print(
+        f"measured in {wall:.1f} s; CPU used by this benchmark's 3 processes: {own:.1f} s, "
+        f"by everything else on the machine: {others:.1f} s "
+        f"({100 * others / wall:.0f}% of one core)"
+    )
 
-    report = {"timestamp_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-              "config": {**dataclasses.asdict(config),
-                         "json": None if config.json is None else str(config.json)},
-              "machine": machine, "threads": threads, "malloc_environment": allocator,
-              "preset": PRESET,
-              "env_ids": {"in_process": ENV_ID, "remote": REMOTE_ENV_ID},
-              "endpoints": {"server": server_endpoint, "echo": echo_endpoint},
-              "results": results, "bars": bars, "wall_seconds": wall,
-              "cpu_seconds": {"benchmark_processes": own, "everything_else": others}}
+    report = {
+        "timestamp_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "config": {
+            **dataclasses.asdict(config),
+            "json": None if config.json is None else str(config.json),
+        },
+        "machine": machine,
+        "threads": threads,
+        "malloc_environment": allocator,
+        "preset": PRESET,
+        "env_ids": {"in_process": ENV_ID, "remote": REMOTE_ENV_ID},
+        "endpoints": {"server": server_endpoint, "echo": echo_endpoint},
+        "results": results,
+        "bars": bars,
+        "wall_seconds": wall,
+        "cpu_seconds": {"benchmark_processes": own, "everything_else": others},
+    }
     if config.json is not None:
         config.json.parent.mkdir(parents=True, exist_ok=True)
         config.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")

@@ -26,8 +26,15 @@ from typing import Any
 
 import tyro
 
-from bench.bench_remote import (REMOTE_ENV_ID, ROOT, Driver, free_port, make_env,
-                                start_server, stop_process)
+from bench.bench_remote import (
+    REMOTE_ENV_ID,
+    ROOT,
+    Driver,
+    free_port,
+    make_env,
+    start_server,
+    stop_process,
+)
 
 # The folders the project maps into overtake.* (pyproject.toml's package-dir).
 PACKAGE_FOLDERS = ("protocol", "viz", "server", "client", "trainers")
@@ -52,8 +59,9 @@ class ServerABConfig:
 def checkout(revision: str, where: Path) -> Path:
     """``revision``'s package folders under ``where``/overtake, for PYTHONPATH=``where``."""
     tree = where / "tree"
-    subprocess.run(["git", "worktree", "add", "--detach", "--quiet", str(tree), revision],
-                   cwd=ROOT, check=True)
+    subprocess.run(
+        ["git", "worktree", "add", "--detach", "--quiet", str(tree), revision], cwd=ROOT, check=True
+    )
     package = where / "path" / "overtake"
     package.mkdir(parents=True)
     for folder in PACKAGE_FOLDERS:
@@ -75,13 +83,21 @@ def measure(config: ServerABConfig, baseline_path: Path) -> dict[str, Any]:
     try:
         for side in SIDES:
             servers[side] = start_server(endpoints[side], 60.0, env=environments[side])
-            drivers[side] = Driver(make_env(REMOTE_ENV_ID, 1, preset=config.preset,
-                                            remote=RemoteConfig(connect=(endpoints[side],))),
-                                   arenas=1, seed=config.seed, vector=False)
+            drivers[side] = Driver(
+                make_env(
+                    REMOTE_ENV_ID,
+                    1,
+                    preset=config.preset,
+                    remote=RemoteConfig(connect=(endpoints[side],)),
+                ),
+                arenas=1,
+                seed=config.seed,
+                vector=False,
+            )
         for driver in drivers.values():
             driver.drive(config.warmup_steps, timed=False)
         for index in range(config.rounds):
-            for side in (SIDES if index % 2 == 0 else SIDES[::-1]):
+            for side in SIDES if index % 2 == 0 else SIDES[::-1]:
                 drivers[side].drive(config.chunk)
     finally:
         for driver in drivers.values():
@@ -89,8 +105,11 @@ def measure(config: ServerABConfig, baseline_path: Path) -> dict[str, Any]:
         for server in servers.values():
             stop_process(server)
     p50 = {side: float(np.median(d.step_times) * 1e3) for side, d in drivers.items()}
-    return {"p50_ms": p50, "steps": drivers["baseline"].steps,
-            "baseline_minus_working_tree_ms": p50["baseline"] - p50["working tree"]}
+    return {
+        "p50_ms": p50,
+        "steps": drivers["baseline"].steps,
+        "baseline_minus_working_tree_ms": p50["baseline"] - p50["working tree"],
+    }
 
 
 def main(config: ServerABConfig) -> dict[str, Any]:
@@ -102,20 +121,28 @@ def main(config: ServerABConfig) -> dict[str, Any]:
         for repeat in range(config.repeats):
             result = measure(config, baseline_path)
             results.append(result)
-            print(f"repeat {repeat + 1}: baseline {result['p50_ms']['baseline']:.3f} ms, "
-                  f"working tree {result['p50_ms']['working tree']:.3f} ms (p50 of "
-                  f"{result['steps']} steps each): "
-                  f"{1e3 * result['baseline_minus_working_tree_ms']:+.1f} us", flush=True)
+            print(
+                f"repeat {repeat + 1}: baseline {result['p50_ms']['baseline']:.3f} ms, "
+                f"working tree {result['p50_ms']['working tree']:.3f} ms (p50 of "
+                f"{result['steps']} steps each): "
+                f"{1e3 * result['baseline_minus_working_tree_ms']:+.1f} us",
+                flush=True,
+            )
     finally:
-        subprocess.run(["git", "worktree", "remove", "--force", str(where / "tree")], cwd=ROOT,
-                       check=False)
+        subprocess.run(
+            ["git", "worktree", "remove", "--force", str(where / "tree")], cwd=ROOT, check=False
+        )
         shutil.rmtree(where, ignore_errors=True)
     differences = sorted(r["baseline_minus_working_tree_ms"] for r in results)
-    print(f"median difference {1e3 * differences[len(differences) // 2]:+.1f} us "
-          f"(baseline - working tree; from {1e3 * differences[0]:+.1f} to "
-          f"{1e3 * differences[-1]:+.1f})")
-    report = {"config": {**config.__dict__, "json": None if config.json is None
-                         else str(config.json)}, "results": results}
+    print(
+        f"median difference {1e3 * differences[len(differences) // 2]:+.1f} us "
+        f"(baseline - working tree; from {1e3 * differences[0]:+.1f} to "
+        f"{1e3 * differences[-1]:+.1f})"
+    )
+    report = {
+        "config": {**config.__dict__, "json": None if config.json is None else str(config.json)},
+        "results": results,
+    }
     if config.json is not None:
         config.json.parent.mkdir(parents=True, exist_ok=True)
         config.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")

@@ -124,12 +124,13 @@ class Measurement(Rates):
     def decisions_per_wall_second(self) -> float:
         return self.decisions / self.wall_seconds
 
-
     def as_dict(self) -> dict[str, Any]:
-        return {**dataclasses.asdict(self),
-                "decisions_per_wall_second": self.decisions_per_wall_second,
-                "sim_seconds_per_wall_second": self.sim_seconds_per_wall_second,
-                "sim_seconds_per_cpu_second": self.sim_seconds_per_cpu_second}
+        return {
+            **dataclasses.asdict(self),
+            "decisions_per_wall_second": self.decisions_per_wall_second,
+            "sim_seconds_per_wall_second": self.sim_seconds_per_wall_second,
+            "sim_seconds_per_cpu_second": self.sim_seconds_per_cpu_second,
+        }
 
 
 class _Timer:
@@ -150,8 +151,10 @@ def pin_threads(threads: int | None) -> str:
         current = ", ".join(f"{name}={os.environ.get(name, 'unset')}" for name in THREAD_VARIABLES)
         return f"not pinned by the benchmark ({current})"
     if "numpy" in sys.modules:
-        raise RuntimeError("numpy was imported before the benchmark could pin its thread pools; "
-                           "run the benchmark in a fresh process or pass blas_threads=None")
+        raise RuntimeError(
+            "numpy was imported before the benchmark could pin its thread pools; "
+            "run the benchmark in a fresh process or pass blas_threads=None"
+        )
     for name in THREAD_VARIABLES:
         os.environ[name] = str(threads)
     return f"pinned to {threads} ({', '.join(THREAD_VARIABLES)}={threads})"
@@ -160,19 +163,25 @@ def pin_threads(threads: int | None) -> str:
 def _overtake_summary(env_config: SimConfig) -> dict[str, Any]:
     """The scene overtake actually simulates, read from its configuration."""
     camera = env_config.camera
-    return {"preset": env_config.preset,
-            "lanes": env_config.road.lane_count,
-            "traffic_cars": env_config.traffic.resolved_vehicle_count,
-            "density": env_config.traffic.density,
-            "lidar_rays": env_config.lidar.ray_count if env_config.lidar.enabled else 0,
-            "camera": (f"{camera.width_px}x{camera.height_px} {'rgb' if camera.rgb else 'grey'}"
-                       if camera.enabled else "off"),
-            "decision_period_s": env_config.episode.decision_period_s,
-            "max_decisions": env_config.episode.max_decisions}
+    return {
+        "preset": env_config.preset,
+        "lanes": env_config.road.lane_count,
+        "traffic_cars": env_config.traffic.resolved_vehicle_count,
+        "density": env_config.traffic.density,
+        "lidar_rays": env_config.lidar.ray_count if env_config.lidar.enabled else 0,
+        "camera": (
+            f"{camera.width_px}x{camera.height_px} {'rgb' if camera.rgb else 'grey'}"
+            if camera.enabled
+            else "off"
+        ),
+        "decision_period_s": env_config.episode.decision_period_s,
+        "max_decisions": env_config.episode.max_decisions,
+    }
 
 
-def measure_overtake_single(decisions: int, warmup: int,
-                            seed: int) -> tuple[Measurement, dict[str, Any]]:
+def measure_overtake_single(
+    decisions: int, warmup: int, seed: int
+) -> tuple[Measurement, dict[str, Any]]:
     """Time ``decisions`` random decisions of one arena made by ``gymnasium.make``."""
     # Imported here, after main() has pinned numpy's thread pools.
     import gymnasium
@@ -202,12 +211,14 @@ def measure_overtake_single(decisions: int, warmup: int,
         summary = _overtake_summary(env.unwrapped.config)
     finally:
         env.close()
-    return Measurement("overtake", 1, decisions, ended, decisions * period,
-                       timer.wall_seconds, timer.cpu_seconds), summary
+    return Measurement(
+        "overtake", 1, decisions, ended, decisions * period, timer.wall_seconds, timer.cpu_seconds
+    ), summary
 
 
-def measure_overtake_batch(arenas: int, arena_decisions: int, warmup_steps: int,
-                           seed: int) -> Measurement:
+def measure_overtake_batch(
+    arenas: int, arena_decisions: int, warmup_steps: int, seed: int
+) -> Measurement:
     """Time about ``arena_decisions`` random arena-decisions of ``arenas`` arenas in one vector
     env made by ``gymnasium.make_vec``."""
     import gymnasium
@@ -215,8 +226,9 @@ def measure_overtake_batch(arenas: int, arena_decisions: int, warmup_steps: int,
 
     import overtake.client  # noqa: F401
 
-    envs = gymnasium.make_vec(ENV_ID, num_envs=arenas, vectorization_mode="vector_entry_point",
-                              preset=PRESET)
+    envs = gymnasium.make_vec(
+        ENV_ID, num_envs=arenas, vectorization_mode="vector_entry_point", preset=PRESET
+    )
     try:
         period = envs.unwrapped.decision_period_s
         action_count = int(envs.single_action_space.n)
@@ -240,8 +252,15 @@ def measure_overtake_batch(arenas: int, arena_decisions: int, warmup_steps: int,
             decisions, ended = drive(max(1, arena_decisions // arenas))
     finally:
         envs.close()
-    return Measurement("overtake", arenas, decisions, ended, decisions * period,
-                       timer.wall_seconds, timer.cpu_seconds)
+    return Measurement(
+        "overtake",
+        arenas,
+        decisions,
+        ended,
+        decisions * period,
+        timer.wall_seconds,
+        timer.cpu_seconds,
+    )
 
 
 def _cpu_model() -> str:
@@ -260,8 +279,9 @@ def _source_revision() -> str:
     root = Path(__file__).resolve().parents[1]
 
     def git(*args: str) -> str:
-        return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True,
-                              check=True).stdout.strip()
+        return subprocess.run(
+            ["git", "-C", str(root), *args], capture_output=True, text=True, check=True
+        ).stdout.strip()
 
     try:
         commit = git("rev-parse", "--short", "HEAD")
@@ -275,33 +295,59 @@ def machine_description() -> dict[str, Any]:
     import gymnasium
     import numpy as np
 
-    return {"cpu_count": os.cpu_count(), "cpu_model": _cpu_model(),
-            "platform": platform.platform(), "python": platform.python_version(),
-            "numpy": np.__version__, "gymnasium": gymnasium.__version__,
-            "overtake": metadata.version("overtake"), "overtake_source": _source_revision()}
+    return {
+        "cpu_count": os.cpu_count(),
+        "cpu_model": _cpu_model(),
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "gymnasium": gymnasium.__version__,
+        "overtake": metadata.version("overtake"),
+        "overtake_source": _source_revision(),
+    }
 
 
 def _format_table(rows: list[Measurement], ratios: Mapping[int, float]) -> str:
-    header = ("simulator", "arenas", "decisions", "episodes", "wall s", "CPU s", "decisions/s",
-              "sim s/wall s", "sim s/CPU s", "x highway-env")
+    header = (
+        "simulator",
+        "arenas",
+        "decisions",
+        "episodes",
+        "wall s",
+        "CPU s",
+        "decisions/s",
+        "sim s/wall s",
+        "sim s/CPU s",
+        "x highway-env",
+    )
     lines = []
     for row in rows:
         ratio = ratios.get(row.arenas) if row.simulator == "overtake" else 1.0
-        lines.append((row.simulator, str(row.arenas), str(row.decisions),
-                      "-" if row.episodes_ended is None else str(row.episodes_ended),
-                      f"{row.wall_seconds:.2f}", f"{row.cpu_seconds:.2f}",
-                      f"{row.decisions_per_wall_second:,.1f}",
-                      f"{row.sim_seconds_per_wall_second:,.1f}",
-                      f"{row.sim_seconds_per_cpu_second:,.1f}",
-                      "-" if ratio is None else f"{ratio:,.1f}x"))
+        lines.append(
+            (
+                row.simulator,
+                str(row.arenas),
+                str(row.decisions),
+                "-" if row.episodes_ended is None else str(row.episodes_ended),
+                f"{row.wall_seconds:.2f}",
+                f"{row.cpu_seconds:.2f}",
+                f"{row.decisions_per_wall_second:,.1f}",
+                f"{row.sim_seconds_per_wall_second:,.1f}",
+                f"{row.sim_seconds_per_cpu_second:,.1f}",
+                "-" if ratio is None else f"{ratio:,.1f}x",
+            )
+        )
     widths = [max(len(cells[i]) for cells in (header, *lines)) for i in range(len(header))]
 
     def join(cells: tuple[str, ...]) -> str:
-        return "  ".join([cells[0].ljust(widths[0]),
-                          *(cell.rjust(width) for cell, width in zip(cells[1:], widths[1:]))])
+        return "  ".join(
+            [
+                cells[0].ljust(widths[0]),
+                *(cell.rjust(width) for cell, width in zip(cells[1:], widths[1:])),
+            ]
+        )
 
-    return "\n".join([join(header), "  ".join("-" * width for width in widths),
-                      *map(join, lines)])
+    return "\n".join([join(header), "  ".join("-" * width for width in widths), *map(join, lines)])
 
 
 def main(config: BenchConfig) -> dict[str, Any]:
@@ -312,31 +358,50 @@ def main(config: BenchConfig) -> dict[str, Any]:
 
     machine = machine_description()
     print("overtake simulation benchmark")
-    print(f"machine: {machine['cpu_count']} CPUs ({machine['cpu_model']}), "
-          f"{machine['platform']}, Python {machine['python']}, numpy {machine['numpy']}, "
-          f"gymnasium {machine['gymnasium']}")
+    print(
+        f"machine: {machine['cpu_count']} CPUs ({machine['cpu_model']}), "
+        f"{machine['platform']}, Python {machine['python']}, numpy {machine['numpy']}, "
+        f"gymnasium {machine['gymnasium']}"
+    )
     print(f"numpy BLAS/OpenMP threads: {threads}")
     print("CPU time: time.process_time() of the whole process (all threads)")
     if config.quick:
         print(f"quick mode: timed counts divided by {QUICK_DIVISOR}; figures are noisier")
 
-    single, scene = measure_overtake_single(config.timed(config.single_decisions),
-                                            config.single_warmup, config.seed)
-    print(f"overtake {machine['overtake']} (source {machine['overtake_source']}) {ENV_ID}: "
-          f"{scene}")
+    single, scene = measure_overtake_single(
+        config.timed(config.single_decisions), config.single_warmup, config.seed
+    )
+    print(f"overtake {machine['overtake']} (source {machine['overtake_source']}) {ENV_ID}: {scene}")
     rows = [single]
     for arenas in BATCH_SIZES:
-        rows.append(measure_overtake_batch(arenas, config.timed(config.batch_arena_decisions),
-                                           config.batch_warmup_steps, config.seed))
-    peer = measure_highway_env(config.timed(config.highway_env_decisions), config.seed,
-                               config.highway_env_warmup)
+        rows.append(
+            measure_overtake_batch(
+                arenas,
+                config.timed(config.batch_arena_decisions),
+                config.batch_warmup_steps,
+                config.seed,
+            )
+        )
+    peer = measure_highway_env(
+        config.timed(config.highway_env_decisions), config.seed, config.highway_env_warmup
+    )
     print(f"highway-env {peer.version} {PEER_ENV_ID}: {dict(peer.config)}")
-    peer_row = Measurement("highway-env", 1, peer.decisions, None, peer.simulated_seconds,
-                           peer.wall_seconds, peer.cpu_seconds)
+    peer_row = Measurement(
+        "highway-env",
+        1,
+        peer.decisions,
+        None,
+        peer.simulated_seconds,
+        peer.wall_seconds,
+        peer.cpu_seconds,
+    )
     rows.append(peer_row)
 
-    ratios = {row.arenas: row.sim_seconds_per_cpu_second / peer_row.sim_seconds_per_cpu_second
-              for row in rows if row.simulator == "overtake"}
+    ratios = {
+        row.arenas: row.sim_seconds_per_cpu_second / peer_row.sim_seconds_per_cpu_second
+        for row in rows
+        if row.simulator == "overtake"
+    }
     print()
     print("Throughput, summed over arenas (x highway-env: ratio of simulated seconds per CPU s)")
     print(_format_table(rows, ratios))
@@ -345,19 +410,29 @@ def main(config: BenchConfig) -> dict[str, Any]:
     for arenas, bar in BARS.items():
         passed = ratios[arenas] >= bar
         bars.append({"arenas": arenas, "bar": bar, "ratio": ratios[arenas], "passed": passed})
-        print(f"bar: {arenas} arena{'s' if arenas > 1 else ''}, simulated s per CPU s >= "
-              f"{bar:g}x highway-env: {ratios[arenas]:.1f}x -> {'PASS' if passed else 'FAIL'}")
+        print(
+            f"bar: {arenas} arena{'s' if arenas > 1 else ''}, simulated s per CPU s >= "
+            f"{bar:g}x highway-env: {ratios[arenas]:.1f}x -> {'PASS' if passed else 'FAIL'}"
+        )
 
-    report = {"timestamp_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-              "config": {**dataclasses.asdict(config),
-                         "json": None if config.json is None else str(config.json)},
-              "machine": machine, "threads": threads,
-              "overtake": {"env_id": ENV_ID, "scene": scene},
-              "highway_env": {"env_id": PEER_ENV_ID, "version": peer.version,
-                              "config": dict(peer.config)},
-              "measurements": [row.as_dict() for row in rows],
-              "ratios_sim_seconds_per_cpu_second": {str(k): v for k, v in ratios.items()},
-              "bars": bars}
+    report = {
+        "timestamp_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "config": {
+            **dataclasses.asdict(config),
+            "json": None if config.json is None else str(config.json),
+        },
+        "machine": machine,
+        "threads": threads,
+        "overtake": {"env_id": ENV_ID, "scene": scene},
+        "highway_env": {
+            "env_id": PEER_ENV_ID,
+            "version": peer.version,
+            "config": dict(peer.config),
+        },
+        "measurements": [row.as_dict() for row in rows],
+        "ratios_sim_seconds_per_cpu_second": {str(k): v for k, v in ratios.items()},
+        "bars": bars,
+    }
     if config.json is not None:
         config.json.parent.mkdir(parents=True, exist_ok=True)
         config.json.write_text(json.dumps(report, indent=2, default=str) + "\n", encoding="utf-8")

@@ -39,8 +39,9 @@ class TrainBenchConfig:
     json: Path | None = None
 
 
-def run_once(config: TrainBenchConfig, inputs: str, connect: str | None,
-             run_dir: Path, recording: Any = None) -> dict[str, Any]:
+def run_once(
+    config: TrainBenchConfig, inputs: str, connect: str | None, run_dir: Path, recording: Any = None
+) -> dict[str, Any]:
     """One ``overtake-train`` run; ``recording``: its RecordingConfig (None: the default)."""
     from overtake.trainers.learner import DQNConfig
     from overtake.trainers.train import TrainConfig, main
@@ -48,24 +49,47 @@ def run_once(config: TrainBenchConfig, inputs: str, connect: str | None,
     total = config.learning_starts + config.steps
     started = time.perf_counter()
     extra = {} if recording is None else {"recording": recording}
-    main(TrainConfig(algo=config.algo, inputs=inputs, num_envs=config.num_envs,  # type: ignore
-                     total_steps=total, seed=0, run_dir=run_dir, connect=connect,
-                     progress=False, log_every=config.learning_starts,
-                     checkpoint_every=10 * total, torch_threads=config.torch_threads,
-                     dqn=DQNConfig(learning_starts=config.learning_starts,
-                                   replay_size=max(10_000, 2 * total)), **extra))
+    main(
+        TrainConfig(
+            algo=config.algo,
+            inputs=inputs,
+            num_envs=config.num_envs,  # type: ignore
+            total_steps=total,
+            seed=0,
+            run_dir=run_dir,
+            connect=connect,
+            progress=False,
+            log_every=config.learning_starts,
+            checkpoint_every=10 * total,
+            torch_threads=config.torch_threads,
+            dqn=DQNConfig(
+                learning_starts=config.learning_starts, replay_size=max(10_000, 2 * total)
+            ),
+            **extra,
+        )
+    )
     wall = time.perf_counter() - started
     records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
-    timed = [r for r in records if r["kind"] == "train" and r["step"] > config.learning_starts
-             and r["updates"] > 0]
+    timed = [
+        r
+        for r in records
+        if r["kind"] == "train" and r["step"] > config.learning_starts and r["updates"] > 0
+    ]
     steps = sum(config.learning_starts for _ in timed)
     seconds = sum(config.learning_starts / r["steps_per_s"] for r in timed)
-    shares = {key: sum(r[key] * config.learning_starts / r["steps_per_s"] for r in timed)
-              / seconds for key in ("time_env", "time_act", "time_replay", "time_update")}
-    return {"inputs": inputs, "where": "remote" if connect else "in-process",
-            "steps_timed": steps, "steps_per_s": steps / seconds, "wall_s": wall,
-            "shares": shares,
-            "ms_per_step": {k: 1000 * v * seconds / steps for k, v in shares.items()}}
+    shares = {
+        key: sum(r[key] * config.learning_starts / r["steps_per_s"] for r in timed) / seconds
+        for key in ("time_env", "time_act", "time_replay", "time_update")
+    }
+    return {
+        "inputs": inputs,
+        "where": "remote" if connect else "in-process",
+        "steps_timed": steps,
+        "steps_per_s": steps / seconds,
+        "wall_s": wall,
+        "shares": shares,
+        "ms_per_step": {k: 1000 * v * seconds / steps for k, v in shares.items()},
+    }
 
 
 def main(config: TrainBenchConfig) -> dict[str, Any]:
@@ -78,30 +102,44 @@ def main(config: TrainBenchConfig) -> dict[str, Any]:
             for inputs in config.inputs:
                 for connect in (None, endpoint):
                     where = "remote" if connect else "inproc"
-                    results.append(run_once(config, inputs, connect,
-                                            Path(tmp) / f"{inputs}-{where}"))
+                    results.append(
+                        run_once(config, inputs, connect, Path(tmp) / f"{inputs}-{where}")
+                    )
     finally:
         stop_process(server)
-    print(f"{config.algo}, {config.num_envs} envs, torch threads {config.torch_threads}, "
-          f"{config.steps} timed steps after {config.learning_starts} (one update per 4 steps)")
-    print(f"{'inputs':>6} {'where':>10} {'steps/s':>8}  ms/step: {'env':>6} {'act':>6} "
-          f"{'replay':>6} {'update':>7}")
+    print(
+        f"{config.algo}, {config.num_envs} envs, torch threads {config.torch_threads}, "
+        f"{config.steps} timed steps after {config.learning_starts} (one update per 4 steps)"
+    )
+    print(
+        f"{'inputs':>6} {'where':>10} {'steps/s':>8}  ms/step: {'env':>6} {'act':>6} "
+        f"{'replay':>6} {'update':>7}"
+    )
     for r in results:
         ms = r["ms_per_step"]
-        print(f"{r['inputs']:>6} {r['where']:>10} {r['steps_per_s']:8.1f}           "
-              f"{ms['time_env']:6.2f} {ms['time_act']:6.2f} {ms['time_replay']:6.2f} "
-              f"{ms['time_update']:7.2f}")
+        print(
+            f"{r['inputs']:>6} {r['where']:>10} {r['steps_per_s']:8.1f}           "
+            f"{ms['time_env']:6.2f} {ms['time_act']:6.2f} {ms['time_replay']:6.2f} "
+            f"{ms['time_update']:7.2f}"
+        )
     by = {(r["inputs"], r["where"]): r for r in results}
     for inputs in config.inputs:
         local, remote = by[(inputs, "in-process")], by[(inputs, "remote")]
         transport = remote["ms_per_step"]["time_env"] - local["ms_per_step"]["time_env"]
         ratio = remote["steps_per_s"] / local["steps_per_s"]
-        print(f"{inputs}: remote / in-process steps/s {ratio:.2f}x; "
-              f"transport and serving ~{transport:.2f} ms per step")
-    report = {"config": {k: str(v) for k, v in vars(config).items()},
-              "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
-                          "python": sys.version.split()[0]},
-              "results": results}
+        print(
+            f"{inputs}: remote / in-process steps/s {ratio:.2f}x; "
+            f"transport and serving ~{transport:.2f} ms per step"
+        )
+    report = {
+        "config": {k: str(v) for k, v in vars(config).items()},
+        "machine": {
+            "cpus": os.cpu_count(),
+            "platform": platform.platform(),
+            "python": sys.version.split()[0],
+        },
+        "results": results,
+    }
     if config.json is not None:
         config.json.parent.mkdir(parents=True, exist_ok=True)
         config.json.write_text(json.dumps(report, indent=2))

@@ -28,9 +28,11 @@ class TableConfig:
 
 
 def evaluation_table(paths: tuple[Path, ...]) -> str:
-    lines = ["| policy | run | training steps | avg speed km/h | lane changes | overtakes "
-             "| collisions | emergency brakes | return | collisions / 1,000 decisions |",
-             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        "| policy | run | training steps | avg speed km/h | lane changes | overtakes "
+        "| collisions | emergency brakes | return | collisions / 1,000 decisions |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     for path in paths:
         result = json.loads(path.read_text())
         s = result["summary"]
@@ -38,12 +40,15 @@ def evaluation_table(paths: tuple[Path, ...]) -> str:
         steps = name.rsplit("@", 1)[1] if "@" in name else "-"
         run = Path(result["checkpoint"]).parent.name if result["checkpoint"] else "-"
 
-        def cell(metric: str) -> str:
+        def cell(metric: str, s: dict = s) -> str:
             return f"{s[metric]['mean']:.1f} ± {s[metric]['std']:.1f}"
-        lines.append(f"| {name.rsplit('@', 1)[0]} | {run} | {steps} | {cell('avg_speed_kmh')} | "
-                     f"{cell('lane_changes')} | {cell('overtakes')} | {cell('collisions')} | "
-                     f"{cell('emergency_brakes')} | {cell('return')} | "
-                     f"{s['collisions_per_1000_decisions']:.2f} |")
+
+        lines.append(
+            f"| {name.rsplit('@', 1)[0]} | {run} | {steps} | {cell('avg_speed_kmh')} | "
+            f"{cell('lane_changes')} | {cell('overtakes')} | {cell('collisions')} | "
+            f"{cell('emergency_brakes')} | {cell('return')} | "
+            f"{s['collisions_per_1000_decisions']:.2f} |"
+        )
     return "\n".join(lines)
 
 
@@ -55,18 +60,22 @@ def learning_curves(runs: tuple[Path, ...], bin_steps: int) -> str:
         if not episodes:
             continue
         last = max(r["step"] for r in episodes)
-        out.append(f"{run.name}: steps | episodes | avg speed km/h | collisions / 1,000 "
-                   "decisions | lane changes / episode | return / episode")
+        out.append(
+            f"{run.name}: steps | episodes | avg speed km/h | collisions / 1,000 "
+            "decisions | lane changes / episode | return / episode"
+        )
         for start in range(0, last + 1, bin_steps):
             chunk = [r for r in episodes if start < r["step"] <= start + bin_steps]
             if not chunk:
                 continue
             decisions = sum(r["decisions"] for r in chunk)
-            out.append(f"  {start:>6}-{start + bin_steps:<6} {len(chunk):>3} "
-                       f"{np.mean([r['avg_speed_kmh'] for r in chunk]):6.1f} "
-                       f"{1000 * sum(r['collisions'] for r in chunk) / decisions:6.2f} "
-                       f"{np.mean([r['lane_changes'] for r in chunk]):7.1f} "
-                       f"{np.mean([r['return'] for r in chunk]):7.1f}")
+            out.append(
+                f"  {start:>6}-{start + bin_steps:<6} {len(chunk):>3} "
+                f"{np.mean([r['avg_speed_kmh'] for r in chunk]):6.1f} "
+                f"{1000 * sum(r['collisions'] for r in chunk) / decisions:6.2f} "
+                f"{np.mean([r['lane_changes'] for r in chunk]):7.1f} "
+                f"{np.mean([r['return'] for r in chunk]):7.1f}"
+            )
     return "\n".join(out)
 
 

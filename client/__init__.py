@@ -6,12 +6,22 @@ from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_en
 from overtake.protocol.transport import SecurityConfig
 
 from .drivers import RandomDriver, RuleDriver, RuleDriverConfig
-from .environment import (ActionTuple, BehaviorSpec, DecisionSteps, RemoteEnvironment,
-                          TerminalSteps)
+from .environment import ActionTuple, BehaviorSpec, DecisionSteps, RemoteEnvironment, TerminalSteps
 from .remote import RemoteConfig
 
 register_environments()
 
-__all__ = ["HIGHWAY_ENV_ID", "REMOTE_HIGHWAY_ENV_ID", "ActionTuple", "BehaviorSpec",
-           "DecisionSteps", "RandomDriver", "RemoteConfig", "RemoteEnvironment", "RuleDriver",
-           "RuleDriverConfig", "SecurityConfig", "TerminalSteps"]
+__all__ = [
+    "HIGHWAY_ENV_ID",
+    "REMOTE_HIGHWAY_ENV_ID",
+    "ActionTuple",
+    "BehaviorSpec",
+    "DecisionSteps",
+    "RandomDriver",
+    "RemoteConfig",
+    "RemoteEnvironment",
+    "RuleDriver",
+    "RuleDriverConfig",
+    "SecurityConfig",
+    "TerminalSteps",
+]

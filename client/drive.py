@@ -19,8 +19,14 @@ from overtake.protocol.transport import SecurityConfig
 from overtake.protocol.vocabulary import METRIC_FIELDS
 
 from .commands import UsageError, run_command
-from .episodes import (baseline_policy, make_vector_env, metric_summary, metric_table,
-                       parse_overrides, run_episodes)
+from .episodes import (
+    baseline_policy,
+    make_vector_env,
+    metric_summary,
+    metric_table,
+    parse_overrides,
+    run_episodes,
+)
 
 
 @dataclass(frozen=True)
@@ -58,11 +64,13 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
         overrides["traffic.density"] = config.traffic
     if config.max_decisions is not None:
         overrides["episode.max_decisions"] = config.max_decisions
-    envs = make_vector_env(config.preset, overrides, config.episodes, config.connect,
-                           config.security)
+    envs = make_vector_env(
+        config.preset, overrides, config.episodes, config.connect, config.security
+    )
     try:
-        act = baseline_policy(config.policy, envs.unwrapped.sim_config, config.seed,
-                              config.episodes)
+        act = baseline_policy(
+            config.policy, envs.unwrapped.sim_config, config.seed, config.episodes
+        )
         rows, decisions, elapsed = run_episodes(envs, act, config.episodes, config.seed)
     finally:
         envs.close()
@@ -72,36 +80,64 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
     _print_table(config, table, summary, decisions, elapsed)
     if config.json_out is not None:
         config.json_out.parent.mkdir(parents=True, exist_ok=True)
-        config.json_out.write_text(json.dumps(
-            {"policy": config.policy, "preset": config.preset, "seed": config.seed,
-             "overrides": overrides,
-             "episodes": [dict(zip(METRIC_FIELDS, r)) for r in table.tolist()],
-             "summary": summary}, indent=2))
+        config.json_out.write_text(
+            json.dumps(
+                {
+                    "policy": config.policy,
+                    "preset": config.preset,
+                    "seed": config.seed,
+                    "overrides": overrides,
+                    "episodes": [dict(zip(METRIC_FIELDS, r)) for r in table.tolist()],
+                    "summary": summary,
+                },
+                indent=2,
+            )
+        )
     return summary
 
 
-def _print_table(config: DriveConfig, table: np.ndarray, summary: dict[str, dict[str, float]],
-                 decisions: int, elapsed: float) -> None:
-    headers = ("episode", "speed km/h", "lane chg", "overtakes", "collisions", "e-brakes",
-               "distance m", "return", "decisions")
+def _print_table(
+    config: DriveConfig,
+    table: np.ndarray,
+    summary: dict[str, dict[str, float]],
+    decisions: int,
+    elapsed: float,
+) -> None:
+    headers = (
+        "episode",
+        "speed km/h",
+        "lane chg",
+        "overtakes",
+        "collisions",
+        "e-brakes",
+        "distance m",
+        "return",
+        "decisions",
+    )
     widths = [max(9, len(h)) for h in headers]
     line = "  ".join(h.rjust(w) for h, w in zip(headers, widths))
     where = "in-process" if config.connect is None else f"on {config.connect}"
-    print(f"policy={config.policy} preset={config.preset} episodes={config.episodes} "
-          f"seed={config.seed} ({where})")
+    print(
+        f"policy={config.policy} preset={config.preset} episodes={config.episodes} "
+        f"seed={config.seed} ({where})"
+    )
     print(line)
     print("-" * len(line))
     for i, row in enumerate(table):
-        cells = [str(config.seed + i)] + [f"{v:.1f}" if j in (0, 5, 6) else f"{v:.0f}"
-                                           for j, v in enumerate(row)]
+        cells = [str(config.seed + i)] + [
+            f"{v:.1f}" if j in (0, 5, 6) else f"{v:.0f}" for j, v in enumerate(row)
+        ]
         print("  ".join(c.rjust(w) for c, w in zip(cells, widths)))
     print("-" * len(line))
     means = ["mean"] + [f"{summary[n]['mean']:.1f}" for n in METRIC_FIELDS]
     spreads = ["std"] + [f"{summary[n]['std']:.1f}" for n in METRIC_FIELDS]
     for cells in (means, spreads):
         print("  ".join(c.rjust(w) for c, w in zip(cells, widths)))
-    print(f"{decisions} decisions in {elapsed:.1f} s ({decisions / max(elapsed, 1e-9):.0f} "
-          "decisions/s)", file=sys.stderr)
+    print(
+        f"{decisions} decisions in {elapsed:.1f} s ({decisions / max(elapsed, 1e-9):.0f} "
+        "decisions/s)",
+        file=sys.stderr,
+    )
 
 
 def cli(argv: list[str] | None = None) -> None:

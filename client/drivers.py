@@ -23,8 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from overtake.protocol.vocabulary import (CRUISE_UP, EGO_CRUISE_TARGET, KEEP, LANE_LEFT,
-                                          LANE_RIGHT)
+from overtake.protocol.vocabulary import CRUISE_UP, EGO_CRUISE_TARGET, KEEP, LANE_LEFT, LANE_RIGHT
 
 
 @dataclass(frozen=True, slots=True)
@@ -40,8 +39,12 @@ class RuleDriverConfig:
 
 
 class RuleDriver:
-    def __init__(self, config: RuleDriverConfig = RuleDriverConfig(), ray_count: int = 360,
-                 max_range_m: float = 80.0) -> None:
+    def __init__(
+        self,
+        config: RuleDriverConfig = RuleDriverConfig(),
+        ray_count: int = 360,
+        max_range_m: float = 80.0,
+    ) -> None:
         self.config = config
         self.max_range_m = max_range_m
         angles = np.arange(ray_count) * (2.0 * np.pi / ray_count)
@@ -57,8 +60,9 @@ class RuleDriver:
         x = lidar * self._cos
         y = lidar * self._sin
         offsets = np.array([-1.0, 0.0, 1.0]) * cfg.lane_width_m
-        in_lane = (np.abs(y[:, None, :] - offsets[None, :, None]) < cfg.lane_width_m / 2) \
-            & hit[:, None, :]                                              # (B, 3, R)
+        in_lane = (np.abs(y[:, None, :] - offsets[None, :, None]) < cfg.lane_width_m / 2) & hit[
+            :, None, :
+        ]  # (B, 3, R)
         ahead = in_lane & (x[:, None, :] > 0.0)
         free = np.where(ahead, x[:, None, :], self.max_range_m).min(axis=-1)
         beside = in_lane & (x[:, None, :] > -cfg.gap_behind_m) & (x[:, None, :] < cfg.gap_ahead_m)

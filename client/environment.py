@@ -42,13 +42,16 @@ class ActionSpec(NamedTuple):
     def discrete_size(self) -> int:
         return len(self.discrete_branches)
 
-    def empty_action(self, n_agents: int) -> "ActionTuple":
+    def empty_action(self, n_agents: int) -> ActionTuple:
         return ActionTuple(discrete=np.zeros((n_agents, self.discrete_size), dtype=np.int32))
 
-    def random_action(self, n_agents: int) -> "ActionTuple":
+    def random_action(self, n_agents: int) -> ActionTuple:
         rng = np.random.default_rng()
-        return ActionTuple(discrete=np.column_stack(
-            [rng.integers(0, b, size=n_agents) for b in self.discrete_branches]).astype(np.int32))
+        return ActionTuple(
+            discrete=np.column_stack(
+                [rng.integers(0, b, size=n_agents) for b in self.discrete_branches]
+            ).astype(np.int32)
+        )
 
 
 class BehaviorSpec(NamedTuple):
@@ -59,12 +62,19 @@ class BehaviorSpec(NamedTuple):
 class ActionTuple:
     """Actions for several agents: ``discrete`` is (agents, branches) int32."""
 
-    def __init__(self, continuous: np.ndarray | None = None,
-                 discrete: np.ndarray | None = None) -> None:
-        self.continuous = np.zeros((0, 0), dtype=np.float32) if continuous is None \
+    def __init__(
+        self, continuous: np.ndarray | None = None, discrete: np.ndarray | None = None
+    ) -> None:
+        self.continuous = (
+            np.zeros((0, 0), dtype=np.float32)
+            if continuous is None
             else np.asarray(continuous, dtype=np.float32)
-        self.discrete = np.zeros((0, 0), dtype=np.int32) if discrete is None \
+        )
+        self.discrete = (
+            np.zeros((0, 0), dtype=np.int32)
+            if discrete is None
             else np.asarray(discrete, dtype=np.int32)
+        )
 
 
 @dataclass(frozen=True)
@@ -109,37 +119,57 @@ class _AgentSteps(Mapping):
 class DecisionSteps(_AgentSteps):
     """Agents that need an action: ``obs`` is one (agents, ...) array per observation spec."""
 
-    def __init__(self, obs: list[np.ndarray], reward: np.ndarray, agent_id: np.ndarray,
-                 action_mask: list[np.ndarray] | None, group_id: np.ndarray,
-                 group_reward: np.ndarray) -> None:
+    def __init__(
+        self,
+        obs: list[np.ndarray],
+        reward: np.ndarray,
+        agent_id: np.ndarray,
+        action_mask: list[np.ndarray] | None,
+        group_id: np.ndarray,
+        group_reward: np.ndarray,
+    ) -> None:
         self.obs, self.reward, self.agent_id = obs, reward, agent_id
         self.action_mask, self.group_id, self.group_reward = action_mask, group_id, group_reward
         self._index_agents()
 
     def __getitem__(self, agent_id: int) -> DecisionStep:
         i = self._index[int(agent_id)]
-        return DecisionStep(obs=[o[i] for o in self.obs], reward=float(self.reward[i]),
-                            agent_id=int(agent_id),
-                            action_mask=[m[i] for m in self.action_mask or []],
-                            group_id=int(self.group_id[i]),
-                            group_reward=float(self.group_reward[i]))
+        return DecisionStep(
+            obs=[o[i] for o in self.obs],
+            reward=float(self.reward[i]),
+            agent_id=int(agent_id),
+            action_mask=[m[i] for m in self.action_mask or []],
+            group_id=int(self.group_id[i]),
+            group_reward=float(self.group_reward[i]),
+        )
 
 
 class TerminalSteps(_AgentSteps):
     """Agents whose episode ended; ``interrupted`` marks the time limit."""
 
-    def __init__(self, obs: list[np.ndarray], reward: np.ndarray, interrupted: np.ndarray,
-                 agent_id: np.ndarray, group_id: np.ndarray, group_reward: np.ndarray) -> None:
+    def __init__(
+        self,
+        obs: list[np.ndarray],
+        reward: np.ndarray,
+        interrupted: np.ndarray,
+        agent_id: np.ndarray,
+        group_id: np.ndarray,
+        group_reward: np.ndarray,
+    ) -> None:
         self.obs, self.reward, self.interrupted = obs, reward, interrupted
         self.agent_id, self.group_id, self.group_reward = agent_id, group_id, group_reward
         self._index_agents()
 
     def __getitem__(self, agent_id: int) -> TerminalStep:
         i = self._index[int(agent_id)]
-        return TerminalStep(obs=[o[i] for o in self.obs], reward=float(self.reward[i]),
-                            interrupted=bool(self.interrupted[i]), agent_id=int(agent_id),
-                            group_id=int(self.group_id[i]),
-                            group_reward=float(self.group_reward[i]))
+        return TerminalStep(
+            obs=[o[i] for o in self.obs],
+            reward=float(self.reward[i]),
+            interrupted=bool(self.interrupted[i]),
+            agent_id=int(agent_id),
+            group_id=int(self.group_id[i]),
+            group_reward=float(self.group_reward[i]),
+        )
 
 
 class RemoteEnvironment:
@@ -151,10 +181,19 @@ class RemoteEnvironment:
     join that arena id of ``config.server`` with one car.
     """
 
-    def __init__(self, connect: str | tuple[str, ...] | None = None, *, preset: str = "min2018",
-                 overrides: Mapping[str, Scalar] | None = None, arenas: int = 1,
-                 agents_per_arena: int = 1, claim: int | None = None, seed: int | None = None,
-                 join: int | None = None, config: RemoteConfig | None = None) -> None:
+    def __init__(
+        self,
+        connect: str | tuple[str, ...] | None = None,
+        *,
+        preset: str = "min2018",
+        overrides: Mapping[str, Scalar] | None = None,
+        arenas: int = 1,
+        agents_per_arena: int = 1,
+        claim: int | None = None,
+        seed: int | None = None,
+        join: int | None = None,
+        config: RemoteConfig | None = None,
+    ) -> None:
         if config is None:
             config = RemoteConfig.from_connect(connect)
         elif connect is not None:
@@ -167,9 +206,14 @@ class RemoteEnvironment:
                 request = JoinRequest(trainer=trainer, arena=join, agents=1)
             else:
                 request = OpenRequest(
-                    trainer=trainer, preset=preset, overrides=dict(overrides or {}),
-                    arenas=arenas, agents_per_arena=agents_per_arena,
-                    claim=agents_per_arena if claim is None else claim, seed=seed)
+                    trainer=trainer,
+                    preset=preset,
+                    overrides=dict(overrides or {}),
+                    arenas=arenas,
+                    agents_per_arena=agents_per_arena,
+                    claim=agents_per_arena if claim is None else claim,
+                    seed=seed,
+                )
             self.group = ArenaGroup.open(self._connection, request)
         except BaseException:
             self._connection.close()
@@ -179,10 +223,14 @@ class RemoteEnvironment:
         self.behavior_name = spec.name
         self._obs_names = [o.name for o in spec.observations]
         self._spec = BehaviorSpec(
-            observation_specs=[ObservationSpec(shape=o.shape, dimension_property=(),
-                                               observation_type=0, name=o.name)
-                               for o in spec.observations],
-            action_spec=ActionSpec(continuous_size=0, discrete_branches=spec.action_branches))
+            observation_specs=[
+                ObservationSpec(
+                    shape=o.shape, dimension_property=(), observation_type=0, name=o.name
+                )
+                for o in spec.observations
+            ],
+            action_spec=ActionSpec(continuous_size=0, discrete_branches=spec.action_branches),
+        )
         self._actions: dict[int, int] = {}
         self._steps: Steps = self.group.last  # type: ignore[assignment]
 
@@ -199,8 +247,9 @@ class RemoteEnvironment:
 
     def _check_name(self, behavior_name: str) -> None:
         if behavior_name != self.behavior_name:
-            raise KeyError(f"unknown behaviour {behavior_name!r}; this environment has "
-                           f"{self.behavior_name!r}")
+            raise KeyError(
+                f"unknown behaviour {behavior_name!r}; this environment has {self.behavior_name!r}"
+            )
 
     def get_steps(self, behavior_name: str) -> tuple[DecisionSteps, TerminalSteps]:
         self._check_name(behavior_name)
@@ -210,14 +259,20 @@ class RemoteEnvironment:
         group = np.zeros(len(s.agents), dtype=np.int32)
         decision = DecisionSteps(
             obs=[s.observations[name][deciding] for name in self._obs_names],
-            reward=s.reward[deciding].astype(np.float32), agent_id=s.agents[deciding],
-            action_mask=[s.action_mask[deciding] == 0], group_id=group[deciding],
-            group_reward=np.zeros(int(deciding.sum()), dtype=np.float32))
+            reward=s.reward[deciding].astype(np.float32),
+            agent_id=s.agents[deciding],
+            action_mask=[s.action_mask[deciding] == 0],
+            group_id=group[deciding],
+            group_reward=np.zeros(int(deciding.sum()), dtype=np.float32),
+        )
         terminal = TerminalSteps(
             obs=[s.observations[name][ended] for name in self._obs_names],
-            reward=s.reward[ended].astype(np.float32), interrupted=s.truncated[ended],
-            agent_id=s.agents[ended], group_id=group[ended],
-            group_reward=np.zeros(int(ended.sum()), dtype=np.float32))
+            reward=s.reward[ended].astype(np.float32),
+            interrupted=s.truncated[ended],
+            agent_id=s.agents[ended],
+            group_id=group[ended],
+            group_reward=np.zeros(int(ended.sum()), dtype=np.float32),
+        )
         return decision, terminal
 
     def set_actions(self, behavior_name: str, action: Any) -> None:
@@ -229,9 +284,11 @@ class RemoteEnvironment:
         if values.ndim == 2 and values.shape[1] == 1:
             values = values[:, 0]
         if values.shape != (len(decision),):
-            raise ValueError(f"expected {len(decision)} discrete action(s) (one per agent in "
-                             f"DecisionSteps, shape ({len(decision)}, 1)), got shape "
-                             f"{np.shape(getattr(action, 'discrete', action))}")
+            raise ValueError(
+                f"expected {len(decision)} discrete action(s) (one per agent in "
+                f"DecisionSteps, shape ({len(decision)}, 1)), got shape "
+                f"{np.shape(getattr(action, 'discrete', action))}"
+            )
         self._actions = {}
         for agent, value in zip(decision.agent_id, values):
             self.set_action_for_agent(behavior_name, int(agent), int(value))
@@ -243,15 +300,18 @@ class RemoteEnvironment:
         if not 0 <= value < ACTION_COUNT:
             raise ValueError(f"action must be in [0, {ACTION_COUNT}), got {value}")
         if agent_id not in set(int(a) for a in self._steps.agents[~self._steps.ended]):
-            raise KeyError(f"agent {agent_id} is not in DecisionSteps; agents deciding now: "
-                           f"{self._steps.agents[~self._steps.ended].tolist()}")
+            raise KeyError(
+                f"agent {agent_id} is not in DecisionSteps; agents deciding now: "
+                f"{self._steps.agents[~self._steps.ended].tolist()}"
+            )
         self._actions[int(agent_id)] = value
 
     def step(self) -> None:
         """Send the set actions (keep for agents given none) and advance one decision."""
         agents = self._steps.agents
-        actions = np.array([self._actions.get(int(a), DEFAULT_ACTION) for a in agents],
-                           dtype=np.int64)
+        actions = np.array(
+            [self._actions.get(int(a), DEFAULT_ACTION) for a in agents], dtype=np.int64
+        )
         self._steps = self.group.step(agents, actions)
         self._actions = {}
 
@@ -267,7 +327,7 @@ class RemoteEnvironment:
         finally:
             self._connection.close()
 
-    def __enter__(self) -> "RemoteEnvironment":
+    def __enter__(self) -> RemoteEnvironment:
         return self
 
     def __exit__(self, *exc: object) -> None:

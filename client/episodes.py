@@ -44,20 +44,34 @@ def parse_overrides(items: tuple[str, ...]) -> dict[str, object]:
     return overrides
 
 
-def make_vector_env(preset: str, overrides: dict[str, Any], num_envs: int,
-                    connect: str | None, security: SecurityConfig | None = None) -> Any:
+def make_vector_env(
+    preset: str,
+    overrides: dict[str, Any],
+    num_envs: int,
+    connect: str | None,
+    security: SecurityConfig | None = None,
+) -> Any:
     """``num_envs`` arenas of ``preset`` as one vector environment: in this process, or on a
     simulator server reached at ``connect`` (with ``security``'s credentials and
     certificates)."""
     register_environments()
     if connect is None:
-        return gym.make_vec(HIGHWAY_ENV_ID, num_envs=num_envs,
-                            vectorization_mode="vector_entry_point", preset=preset,
-                            overrides=overrides)
+        return gym.make_vec(
+            HIGHWAY_ENV_ID,
+            num_envs=num_envs,
+            vectorization_mode="vector_entry_point",
+            preset=preset,
+            overrides=overrides,
+        )
     remote = RemoteConfig(connect=(connect,), security=security or SecurityConfig())
-    return gym.make_vec(REMOTE_HIGHWAY_ENV_ID, num_envs=num_envs,
-                        vectorization_mode="vector_entry_point", preset=preset,
-                        overrides=overrides, remote=remote)
+    return gym.make_vec(
+        REMOTE_HIGHWAY_ENV_ID,
+        num_envs=num_envs,
+        vectorization_mode="vector_entry_point",
+        preset=preset,
+        overrides=overrides,
+        remote=remote,
+    )
 
 
 def metric_table(rows: list[dict[str, float]]) -> np.ndarray:
@@ -68,12 +82,15 @@ def metric_table(rows: list[dict[str, float]]) -> np.ndarray:
 def metric_summary(rows: list[dict[str, float]]) -> dict[str, dict[str, float]]:
     """Mean and spread of each metric over the episodes."""
     table = metric_table(rows)
-    return {name: {"mean": float(table[:, j].mean()), "std": float(table[:, j].std())}
-            for j, name in enumerate(METRIC_FIELDS)}
+    return {
+        name: {"mean": float(table[:, j].mean()), "std": float(table[:, j].std())}
+        for j, name in enumerate(METRIC_FIELDS)
+    }
 
 
-def run_episodes(envs: Any, act: Policy, episodes: int, seed: int
-                 ) -> tuple[list[dict[str, float]], int, float]:
+def run_episodes(
+    envs: Any, act: Policy, episodes: int, seed: int
+) -> tuple[list[dict[str, float]], int, float]:
     """One episode per environment of ``envs`` (seeds seed, seed + 1, ...), all stepped
     together; returns each episode's metrics, the decisions taken and the seconds it took.
 
@@ -100,25 +117,27 @@ def run_episodes(envs: Any, act: Policy, episodes: int, seed: int
     return [row for row in rows if row is not None], decisions, time.perf_counter() - started
 
 
-def baseline_policy(policy: str, sim_config: dict[str, Any], seed: int, num_envs: int
-                    ) -> Policy:
+def baseline_policy(policy: str, sim_config: dict[str, Any], seed: int, num_envs: int) -> Policy:
     """The rule-based driver (tuned to the simulator's configuration) or random, as a policy
     for :func:`run_episodes`."""
     if policy == "rule":
         if not sim_config["lidar"]["enabled"]:
             raise UsageError("the rule-based driver reads the LIDAR: keep lidar.enabled true")
         driver: RuleDriver | RandomDriver = RuleDriver(
-            RuleDriverConfig(cruise_max_kmh=sim_config["ego"]["cruise_max_kmh"],
-                             lane_width_m=sim_config["road"]["lane_width_m"]),
+            RuleDriverConfig(
+                cruise_max_kmh=sim_config["ego"]["cruise_max_kmh"],
+                lane_width_m=sim_config["road"]["lane_width_m"],
+            ),
             ray_count=sim_config["lidar"]["ray_count"],
-            max_range_m=sim_config["lidar"]["max_range_m"])
+            max_range_m=sim_config["lidar"]["max_range_m"],
+        )
     elif policy == "random":
         driver = RandomDriver(seed)
     else:
         raise UsageError(f"unknown baseline policy {policy!r}: rule or random")
 
-    def act(obs: dict[str, np.ndarray], info: dict[str, Any], _starting: np.ndarray
-            ) -> np.ndarray:
+    def act(obs: dict[str, np.ndarray], info: dict[str, Any], _starting: np.ndarray) -> np.ndarray:
         lidar = obs.get("lidar", np.zeros((num_envs, 1), dtype=np.float32))
         return driver.act(lidar, obs["ego"], info["action_mask"])
+
     return act

@@ -15,6 +15,7 @@ the meantime passes the request on to the next.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import os
@@ -25,19 +26,35 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 import zenoh
 
 from overtake.protocol import codec, errors, keys
-from overtake.protocol.messages import (Ack, Actions, BehaviourSpec, CloseRequest, ErrorReply,
-                                        JoinRequest, Message, Opened, OpenRequest,
-                                        ResetRequest, StatusReply, StatusRequest,
-                                        Steps)
-from overtake.protocol.transport import (DEFAULT_ENDPOINT, USER_ENV, SecurityConfig,
-                                         TransportConfig, connect_failure_cause,
-                                         open_session)
+from overtake.protocol.messages import (
+    Ack,
+    Actions,
+    BehaviourSpec,
+    CloseRequest,
+    ErrorReply,
+    JoinRequest,
+    Message,
+    Opened,
+    OpenRequest,
+    ResetRequest,
+    StatusReply,
+    StatusRequest,
+    Steps,
+)
+from overtake.protocol.transport import (
+    DEFAULT_ENDPOINT,
+    USER_ENV,
+    SecurityConfig,
+    TransportConfig,
+    connect_failure_cause,
+    open_session,
+)
 
 log = logging.getLogger("overtake.client")
 
@@ -68,16 +85,20 @@ class RemoteConfig:
     """A readable prefix for this trainer's id in server logs and status."""
 
     @classmethod
-    def from_connect(cls, connect: str | tuple[str, ...] | list[str] | None) -> "RemoteConfig":
+    def from_connect(cls, connect: str | tuple[str, ...] | list[str] | None) -> RemoteConfig:
         """Defaults, with ``connect`` (one endpoint or several; None: the default)."""
         if connect is None:
             return cls()
         return cls(connect=(connect,) if isinstance(connect, str) else tuple(connect))
 
     def transport(self) -> TransportConfig:
-        return TransportConfig(mode="client", connect=self.connect,
-                               connect_timeout_s=self.connect_timeout_s, lease_s=self.lease_s,
-                               security=self.security)
+        return TransportConfig(
+            mode="client",
+            connect=self.connect,
+            connect_timeout_s=self.connect_timeout_s,
+            lease_s=self.lease_s,
+            security=self.security,
+        )
 
 
 def _trainer_id(prefix: str | None) -> str:
@@ -88,21 +109,25 @@ def _trainer_id(prefix: str | None) -> str:
 
 def likely_causes(config: RemoteConfig) -> str:
     user = config.security.user or os.environ.get(USER_ENV)
-    return ("Likely causes: no overtake-server (or Zenoh router) is running there; a wrong host "
-            "or port; the server listens on loopback only (start it with --listen "
-            "tcp/0.0.0.0:7447 to let other hosts in); a firewall; wrong or missing Zenoh "
-            "credentials" + (" (user " + repr(user) + ")" if user else "") + "; a TLS "
-            "certificate this side does not trust (--tls-root-ca).")
+    return (
+        "Likely causes: no overtake-server (or Zenoh router) is running there; a wrong host "
+        "or port; the server listens on loopback only (start it with --listen "
+        "tcp/0.0.0.0:7447 to let other hosts in); a firewall; wrong or missing Zenoh "
+        "credentials" + (" (user " + repr(user) + ")" if user else "") + "; a TLS "
+        "certificate this side does not trust (--tls-root-ca)."
+    )
 
 
 def unreachable_message(config: RemoteConfig, error: Exception) -> str:
     """Why opening a session failed: the cause found by trying the links by hand (Zenoh only
     says it could not connect), or the likely causes when none could be tried."""
-    zenoh_text = str(error).split(" at /")[0].strip()   # drop Zenoh's source location
+    zenoh_text = str(error).split(" at /")[0].strip()  # drop Zenoh's source location
     cause = connect_failure_cause(config.transport())
-    return (f"could not connect to {', '.join(config.connect)} within "
-            f"{config.connect_timeout_s:g} s ({zenoh_text}). "
-            + (f"{cause[0].upper()}{cause[1:]}." if cause else likely_causes(config)))
+    return (
+        f"could not connect to {', '.join(config.connect)} within "
+        f"{config.connect_timeout_s:g} s ({zenoh_text}). "
+        + (f"{cause[0].upper()}{cause[1:]}." if cause else likely_causes(config))
+    )
 
 
 class Connection:
@@ -130,9 +155,11 @@ class Connection:
         self._token = self.session.liveliness().declare_token(keys.trainer_alive(self.trainer))
         self._subscriber = self.session.declare_subscriber(
             keys.trainer_steps_all(self.trainer),
-            lambda sample: self._inbox.put((str(sample.key_expr), sample.payload.to_bytes())))
+            lambda sample: self._inbox.put((str(sample.key_expr), sample.payload.to_bytes())),
+        )
         self._alive_sub = self.session.liveliness().declare_subscriber(
-            keys.ALL_SERVERS_ALIVE, self._on_server_alive, history=True)
+            keys.ALL_SERVERS_ALIVE, self._on_server_alive, history=True
+        )
         self._publishers: dict[str, zenoh.Publisher] = {}
         self.closed = False
 
@@ -163,31 +190,46 @@ class Connection:
 
     def request(self, server: str, message: Message, expect: type[M]) -> M:
         """Send a request to one server; its reply, or the error it names."""
-        replies = list(self.session.get(
-            keys.server_request(server), payload=codec.encode(message),
-            timeout=self.config.request_timeout_s,
-            target=zenoh.QueryTarget.ALL, congestion_control=zenoh.CongestionControl.BLOCK))
+        replies = list(
+            self.session.get(
+                keys.server_request(server),
+                payload=codec.encode(message),
+                timeout=self.config.request_timeout_s,
+                target=zenoh.QueryTarget.ALL,
+                congestion_control=zenoh.CongestionControl.BLOCK,
+            )
+        )
         for reply in replies:
             if reply.ok is None:
-                text = reply.err.payload.to_bytes().decode("utf-8", "replace")
+                err = reply.err
+                text = (
+                    "no reply" if err is None else err.payload.to_bytes().decode("utf-8", "replace")
+                )
                 if self.server_lost(server):
-                    raise errors.ServerLost(f"server {server} went away during a "
-                                            f"{message.TYPE} request")
-                raise errors.StepTimeout(f"server {server} did not answer a {message.TYPE} "
-                                         f"request within {self.config.request_timeout_s:g} s "
-                                         f"({text})")
+                    raise errors.ServerLost(
+                        f"server {server} went away during a {message.TYPE} request"
+                    )
+                raise errors.StepTimeout(
+                    f"server {server} did not answer a {message.TYPE} "
+                    f"request within {self.config.request_timeout_s:g} s "
+                    f"({text})"
+                )
             answer = codec.decode(reply.ok.payload.to_bytes(), expect)
             if isinstance(answer, ErrorReply):
                 raise errors.error_from_code(answer.code, f"server {server}: {answer.message}")
-            return answer  # type: ignore[return-value]
-        raise errors.ServerLost(f"no server named {server!r} answers on "
-                                f"{', '.join(self.config.connect)}")
+            return answer
+        raise errors.ServerLost(
+            f"no server named {server!r} answers on {', '.join(self.config.connect)}"
+        )
 
     def discover(self) -> list[StatusReply]:
         """Status of every server that answers within the request timeout."""
-        replies = self.session.get(keys.ALL_SERVER_REQUESTS, payload=codec.encode(StatusRequest()),
-                                   timeout=self.config.request_timeout_s,
-                                   target=zenoh.QueryTarget.ALL)
+        replies = self.session.get(
+            keys.ALL_SERVER_REQUESTS,
+            payload=codec.encode(StatusRequest()),
+            timeout=self.config.request_timeout_s,
+            target=zenoh.QueryTarget.ALL,
+        )
         found: list[StatusReply] = []
         mismatch: errors.VersionMismatch | None = None
         for reply in replies:
@@ -226,7 +268,8 @@ class Connection:
             raise errors.ConnectError(
                 f"connected to {', '.join(self.config.connect)}, but no overtake server "
                 f"answered within {self.config.connect_timeout_s:g} s. "
-                + likely_causes(self.config))
+                + likely_causes(self.config)
+            )
         roomy = [s for s in statuses if s.arenas_free >= arenas]
         if not roomy:
             listing = ", ".join(f"{s.server} ({s.arenas_free} free)" for s in statuses)
@@ -242,7 +285,8 @@ class Connection:
             pub = self._publishers[server] = self.session.declare_publisher(
                 keys.server_actions(server, self.trainer),
                 congestion_control=zenoh.CongestionControl.BLOCK,
-                priority=zenoh.Priority.DATA_HIGH)
+                priority=zenoh.Priority.DATA_HIGH,
+            )
         pub.put(codec.encode(actions))
 
     def _take(self, server: str, group: int, round_: int) -> Steps | None:
@@ -282,17 +326,21 @@ class Connection:
             later = self._buffered.get((server, group))
             if later:
                 # Rounds come in order: a later one without ours means ours will never come.
-                raise errors.DecodeError(f"expected round {round_} of group {group} from "
-                                         f"server {server}, got round {later[0].round}")
+                raise errors.DecodeError(
+                    f"expected round {round_} of group {group} from "
+                    f"server {server}, got round {later[0].round}"
+                )
             if self.server_lost(server) or self.epoch(server) != epoch:
-                raise errors.ServerLost(f"server {server} went away while we waited for "
-                                        f"round {round_} of group {group}")
+                raise errors.ServerLost(
+                    f"server {server} went away while we waited for round {round_} of group {group}"
+                )
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 raise errors.StepTimeout(
                     f"no observations from server {server} for round {round_} of group {group} "
                     f"within {self.config.step_timeout_s:g} s (the server's step deadline may "
-                    "be longer; see RemoteConfig.step_timeout_s)")
+                    "be longer; see RemoteConfig.step_timeout_s)"
+                )
             try:
                 key, payload = self._inbox.get(timeout=min(remaining, 0.5))
             except queue.Empty:
@@ -310,15 +358,19 @@ class Connection:
         if isinstance(message, ErrorReply):
             if (sender, message.group) not in self._stepping:
                 # Not about a group we step (perhaps garbage sent in our name): say so only.
-                log.warning("server %s refused a message in our name: %s", sender,
-                            message.message)
+                log.warning("server %s refused a message in our name: %s", sender, message.message)
                 return
             self._errors.setdefault((sender, message.group), deque()).append(
-                errors.error_from_code(message.code, f"server {sender}: {message.message}"))
+                errors.error_from_code(message.code, f"server {sender}: {message.message}")
+            )
             return
         if message.server != sender or (sender, message.group) not in self._stepping:
-            log.warning("dropped steps of group %d from %s on server %s's key", message.group,
-                        message.server, sender)
+            log.warning(
+                "dropped steps of group %d from %s on server %s's key",
+                message.group,
+                message.server,
+                sender,
+            )
             return
         self._buffered.setdefault((sender, message.group), deque()).append(message)
 
@@ -336,15 +388,18 @@ class Connection:
         if self.closed:
             return
         self.closed = True
-        for obj in (*self._publishers.values(), self._subscriber, self._alive_sub, self._token):
-            try:
+        # What went with the session already needs no undeclaring.
+        declared: tuple[Any, ...] = (
+            *self._publishers.values(),
+            self._subscriber,
+            self._alive_sub,
+            self._token,
+        )
+        for obj in declared:
+            with contextlib.suppress(Exception):
                 obj.undeclare()
-            except Exception:  # pragma: no cover - the session may be gone already
-                pass
-        try:
+        with contextlib.suppress(Exception):
             self.session.close()
-        except Exception:  # pragma: no cover
-            pass
 
 
 @dataclass
@@ -363,15 +418,17 @@ class ArenaGroup:
     last: Steps | None = None
     _pending_restart: Steps | None = field(default=None, repr=False)
     restarts: int = 0
-    epoch: int = 0   # the server's epoch (Connection.epoch) when the group was opened
+    epoch: int = 0  # the server's epoch (Connection.epoch) when the group was opened
 
     @classmethod
-    def open(cls, connection: Connection, request: OpenRequest | JoinRequest) -> "ArenaGroup":
+    def open(cls, connection: Connection, request: OpenRequest | JoinRequest) -> ArenaGroup:
         """Open (or join) on the server the module's rule picks; ``request.trainer`` must be
         ``connection.trainer``."""
         if request.trainer != connection.trainer:
-            raise ValueError(f"the request names trainer {request.trainer!r}, but this "
-                             f"connection is {connection.trainer!r}")
+            raise ValueError(
+                f"the request names trainer {request.trainer!r}, but this "
+                f"connection is {connection.trainer!r}"
+            )
         group = cls(connection=connection, request=request)
         group._open()
         return group
@@ -419,9 +476,17 @@ class ArenaGroup:
             self._reopen()
         for attempt in (1, 2):
             try:
-                steps = conn.request(self.server, ResetRequest(
-                    trainer=conn.trainer, ticket=self.ticket, group=self.group_id,
-                    arenas=arenas, seeds=seeds), Steps)
+                steps = conn.request(
+                    self.server,
+                    ResetRequest(
+                        trainer=conn.trainer,
+                        ticket=self.ticket,
+                        group=self.group_id,
+                        arenas=arenas,
+                        seeds=seeds,
+                    ),
+                    Steps,
+                )
                 break
             except errors.ServerLost:
                 if attempt == 2:
@@ -436,22 +501,30 @@ class ArenaGroup:
         """Send our actions for this round and wait for the next round's Steps."""
         if self._pending_restart is not None:
             # The server was restarted: the step after the broken episodes starts the new ones.
-            steps, self._pending_restart = self._pending_restart, None
-            self.last = steps
-            return steps
+            pending, self._pending_restart = self._pending_restart, None
+            self.last = pending
+            return pending
         conn = self.connection
         try:
             if self._server_restarted():
-                raise errors.ServerLost(f"server {self.server} restarted since group "
-                                        f"{self.group_id} was opened")
+                raise errors.ServerLost(
+                    f"server {self.server} restarted since group {self.group_id} was opened"
+                )
             # Behind (the group played our round at the deadline)? Then that round's Steps are
             # here already, marked late; our actions would be stale, so they are not sent.
             steps = conn.arrived(self.server, self.group_id, self.round + 1)
             if steps is None:
-                conn.send_actions(self.server, Actions(
-                    trainer=conn.trainer, ticket=self.ticket, group=self.group_id,
-                    round=self.round, agents=np.asarray(agents, dtype=np.int32),
-                    actions=np.asarray(actions, dtype=np.int64)))
+                conn.send_actions(
+                    self.server,
+                    Actions(
+                        trainer=conn.trainer,
+                        ticket=self.ticket,
+                        group=self.group_id,
+                        round=self.round,
+                        agents=np.asarray(agents, dtype=np.int32),
+                        actions=np.asarray(actions, dtype=np.int64),
+                    ),
+                )
                 steps = conn.next_steps(self.server, self.group_id, self.round + 1, self.epoch)
         except errors.ServerLost as error:
             return self._survive(error)
@@ -475,14 +548,21 @@ class ArenaGroup:
         assert fresh is not None
         self._pending_restart = fresh
         truncated = Steps(
-            server=broken.server, group=broken.group, round=broken.round + 1,
-            agents=broken.agents, observations=broken.observations,
-            reward=np.zeros_like(broken.reward), terminated=np.zeros_like(broken.terminated),
+            server=broken.server,
+            group=broken.group,
+            round=broken.round + 1,
+            agents=broken.agents,
+            observations=broken.observations,
+            reward=np.zeros_like(broken.reward),
+            terminated=np.zeros_like(broken.terminated),
             # Agents that had just ended were reported already; the rest are cut short.
             truncated=~broken.ended,
             action_applied=np.full_like(broken.action_applied, -1),
-            late=np.zeros_like(broken.late), action_mask=broken.action_mask,
-            reward_terms=np.zeros_like(broken.reward_terms), metrics=broken.metrics)
+            late=np.zeros_like(broken.late),
+            action_mask=broken.action_mask,
+            reward_terms=np.zeros_like(broken.reward_terms),
+            metrics=broken.metrics,
+        )
         self.last = truncated
         return truncated
 
@@ -501,7 +581,8 @@ class ArenaGroup:
                     raise errors.ServerLost(
                         f"lost server {self.server} and found no server to reopen "
                         f"{len(self.arena_ids)} arena(s) on within "
-                        f"{conn.config.reconnect_timeout_s:g} s ({error})") from None
+                        f"{conn.config.reconnect_timeout_s:g} s ({error})"
+                    ) from None
                 time.sleep(0.2)  # polling for a server to come back; nothing to wait on
 
     def close(self) -> None:
@@ -509,8 +590,11 @@ class ArenaGroup:
         if conn.closed or self.group_id < 0:
             return
         try:
-            conn.request(self.server, CloseRequest(trainer=conn.trainer, ticket=self.ticket,
-                                                   group=self.group_id), Ack)
+            conn.request(
+                self.server,
+                CloseRequest(trainer=conn.trainer, ticket=self.ticket, group=self.group_id),
+                Ack,
+            )
         except errors.ProtocolError as error:
             log.debug("close of group %d: %s", self.group_id, error)
         conn.forget(self.server, self.group_id)

@@ -29,6 +29,7 @@ from .remote import ArenaGroup, Connection, RemoteConfig
 
 try:  # Gymnasium >= 1.1 names the autoreset modes; 1.0 only has next-step autoreset.
     from gymnasium.vector import AutoresetMode
+
     _NEXT_STEP: Any = AutoresetMode.NEXT_STEP
 except ImportError:  # pragma: no cover - Gymnasium 1.0
     _NEXT_STEP = "NextStep"
@@ -36,27 +37,46 @@ except ImportError:  # pragma: no cover - Gymnasium 1.0
 
 def spaces_from_spec(spec: BehaviourSpec) -> spaces.Dict:
     """The Dict observation space a behaviour spec describes."""
-    return spaces.Dict({o.name: spaces.Box(low=o.low, high=o.high, shape=o.shape,
-                                           dtype=np.dtype(o.dtype)) for o in spec.observations})
+    return spaces.Dict(
+        {
+            o.name: spaces.Box(low=o.low, high=o.high, shape=o.shape, dtype=np.dtype(o.dtype))
+            for o in spec.observations
+        }
+    )
 
 
 class _Remote:
     """The connection and group both Gymnasium environments are built on."""
 
-    def __init__(self, connect: str | Sequence[str] | None, remote: RemoteConfig | None,
-                 preset: str, overrides: Mapping[str, Scalar] | None, arenas: int,
-                 seed: int | None) -> None:
+    def __init__(
+        self,
+        connect: str | Sequence[str] | None,
+        remote: RemoteConfig | None,
+        preset: str,
+        overrides: Mapping[str, Scalar] | None,
+        arenas: int,
+        seed: int | None,
+    ) -> None:
         if remote is None:
-            remote = RemoteConfig.from_connect(connect if connect is None or isinstance(
-                connect, str) else tuple(connect))
+            remote = RemoteConfig.from_connect(
+                connect if connect is None or isinstance(connect, str) else tuple(connect)
+            )
         elif connect is not None:
             raise ValueError("pass either connect or remote (a RemoteConfig), not both")
         self.connection = Connection(remote)
         try:
-            self.group = ArenaGroup.open(self.connection, OpenRequest(
-                trainer=self.connection.trainer, preset=preset,
-                overrides=dict(overrides or {}), arenas=arenas, agents_per_arena=1, claim=1,
-                seed=seed))
+            self.group = ArenaGroup.open(
+                self.connection,
+                OpenRequest(
+                    trainer=self.connection.trainer,
+                    preset=preset,
+                    overrides=dict(overrides or {}),
+                    arenas=arenas,
+                    agents_per_arena=1,
+                    claim=1,
+                    seed=seed,
+                ),
+            )
         except BaseException:
             self.connection.close()
             raise
@@ -93,14 +113,22 @@ class _RemoteHandles:
 class RemoteHighwayEnv(_RemoteHandles, ReportsEpisodeLength, gym.Env):
     """One agent on one arena of a remote simulator server."""
 
-    metadata = {"render_modes": [], "render_fps": 10}
+    # Gymnasium's convention: a class attribute, replaced per instance with its frame rate.
+    metadata = {"render_modes": [], "render_fps": 10}  # noqa: RUF012
 
-    def __init__(self, connect: str | Sequence[str] | None = None, preset: str = "min2018",
-                 overrides: Mapping[str, Scalar] | None = None,
-                 remote: RemoteConfig | None = None, render_mode: str | None = None) -> None:
+    def __init__(
+        self,
+        connect: str | Sequence[str] | None = None,
+        preset: str = "min2018",
+        overrides: Mapping[str, Scalar] | None = None,
+        remote: RemoteConfig | None = None,
+        render_mode: str | None = None,
+    ) -> None:
         if render_mode is not None:
-            raise ValueError("the remote environment does not render; watch it with a "
-                             f"spectator (render_mode must be None, got {render_mode!r})")
+            raise ValueError(
+                "the remote environment does not render; watch it with a "
+                f"spectator (render_mode must be None, got {render_mode!r})"
+            )
         self._remote = _Remote(connect, remote, preset, overrides, arenas=1, seed=None)
         spec = self._remote.spec
         self.observation_space = spaces_from_spec(spec)
@@ -109,18 +137,21 @@ class RemoteHighwayEnv(_RemoteHandles, ReportsEpisodeLength, gym.Env):
         self.max_episode_steps = spec.max_episode_steps
         self.metadata = {**self.metadata, "render_fps": 1.0 / self.decision_period_s}
 
-
-
     def _unpack(self, steps: Steps) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         obs = {name: value[0] for name, value in steps.observations.items()}
         info: dict[str, Any] = {
             "action_mask": steps.action_mask[0],
             "action_applied": int(steps.action_applied[0]),
-            "reward_terms": {name: float(steps.reward_terms[0, i])
-                             for i, name in enumerate(self._remote.reward_terms)}}
+            "reward_terms": {
+                name: float(steps.reward_terms[0, i])
+                for i, name in enumerate(self._remote.reward_terms)
+            },
+        }
         if steps.ended[0]:
-            info["metrics"] = {name: float(steps.metrics[0, i])
-                               for i, name in enumerate(self._remote.metric_fields)}
+            info["metrics"] = {
+                name: float(steps.metrics[0, i])
+                for i, name in enumerate(self._remote.metric_fields)
+            }
         if steps.late[0]:
             info["late"] = True
         return obs, info
@@ -137,8 +168,13 @@ class RemoteHighwayEnv(_RemoteHandles, ReportsEpisodeLength, gym.Env):
         obs, info = self._unpack(steps)
         if self.group.restarts != restarts:
             info["server_restarted"] = True
-        return (obs, float(steps.reward[0]), bool(steps.terminated[0]),
-                bool(steps.truncated[0]), info)
+        return (
+            obs,
+            float(steps.reward[0]),
+            bool(steps.terminated[0]),
+            bool(steps.truncated[0]),
+            info,
+        )
 
     def action_masks(self) -> np.ndarray:
         last = self.group.last
@@ -152,11 +188,17 @@ class RemoteHighwayEnv(_RemoteHandles, ReportsEpisodeLength, gym.Env):
 class RemoteHighwayVectorEnv(_RemoteHandles, gym.vector.VectorEnv):
     """``num_envs`` arenas of a remote server, stepped together (one message each way)."""
 
-    metadata = {"render_modes": [], "autoreset_mode": _NEXT_STEP}
+    metadata = {"render_modes": [], "autoreset_mode": _NEXT_STEP}  # noqa: RUF012
 
-    def __init__(self, num_envs: int = 1, connect: str | Sequence[str] | None = None,
-                 preset: str = "min2018", overrides: Mapping[str, Scalar] | None = None,
-                 remote: RemoteConfig | None = None, render_mode: str | None = None) -> None:
+    def __init__(
+        self,
+        num_envs: int = 1,
+        connect: str | Sequence[str] | None = None,
+        preset: str = "min2018",
+        overrides: Mapping[str, Scalar] | None = None,
+        remote: RemoteConfig | None = None,
+        render_mode: str | None = None,
+    ) -> None:
         if render_mode is not None:
             raise ValueError(f"the remote environment does not render (got {render_mode!r})")
         self._remote = _Remote(connect, remote, preset, overrides, arenas=num_envs, seed=None)
@@ -170,23 +212,31 @@ class RemoteHighwayVectorEnv(_RemoteHandles, gym.vector.VectorEnv):
         self.decision_period_s = spec.decision_period_s
         self.max_episode_steps = spec.max_episode_steps
 
-
     def _info(self, steps: Steps) -> dict[str, Any]:
         info: dict[str, Any] = {
-            "action_mask": steps.action_mask, "action_applied": steps.action_applied,
-            "reward_terms": {name: steps.reward_terms[:, i]
-                             for i, name in enumerate(self._remote.reward_terms)}}
+            "action_mask": steps.action_mask,
+            "action_applied": steps.action_applied,
+            "reward_terms": {
+                name: steps.reward_terms[:, i] for i, name in enumerate(self._remote.reward_terms)
+            },
+        }
         ended = steps.ended
         if ended.any():
-            info["metrics"] = {name: np.where(ended, steps.metrics[:, i], 0.0)
-                               for i, name in enumerate(self._remote.metric_fields)}
+            info["metrics"] = {
+                name: np.where(ended, steps.metrics[:, i], 0.0)
+                for i, name in enumerate(self._remote.metric_fields)
+            }
             info["_metrics"] = ended
         if steps.late.any():
             info["late"] = steps.late
         return info
 
-    def reset(self, *, seed: int | Sequence[int | None] | None = None,
-              options: dict[str, Any] | None = None):
+    def reset(
+        self,
+        *,
+        seed: int | Sequence[int | None] | None = None,
+        options: dict[str, Any] | None = None,
+    ):
         seeds = arena_seeds(seed, self.num_envs)
         if seed is not None:
             self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seeds[0])

@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from overtake.viz.recording import RecordingConfig, close_recording, open_recording
 from overtake.protocol.transport import SecurityConfig
+from overtake.viz.recording import RecordingConfig, close_recording, open_recording
 from overtake.viz.world_view import WorldRecording, world_blueprint
 
 from .commands import run_command
@@ -55,13 +55,14 @@ def main(config: SpectateConfig, stop: threading.Event | None = None) -> int:
     stop = stop or threading.Event()
     remote = RemoteConfig(connect=(config.connect,), security=config.security)
     # A laid-out view for one arena; for many, Rerun's own layout.
-    blueprint = world_blueprint(config.server, config.arena) \
-        if config.server is not None and config.arena is not None else None
+    blueprint = (
+        world_blueprint(config.server, config.arena)
+        if config.server is not None and config.arena is not None
+        else None
+    )
     with Spectator(remote, server=config.server, arena=config.arena) as spectator:
-        recording = open_recording("overtake-spectate", config.recording, DEFAULT_RRD,
-                                   blueprint)
-        view = WorldRecording(recording.stream, rays=config.rays) \
-            if recording is not None else None
+        recording = open_recording("overtake-spectate", config.recording, DEFAULT_RRD, blueprint)
+        view = WorldRecording(recording.stream, rays=config.rays) if recording is not None else None
         logged = received = 0
         deadline = None if config.seconds is None else time.monotonic() + config.seconds
         try:
@@ -88,8 +89,12 @@ def main(config: SpectateConfig, stop: threading.Event | None = None) -> int:
 def cli(argv: list[str] | None = None) -> None:
     import tyro
 
-    config = tyro.cli(SpectateConfig, args=argv, config=(tyro.conf.OmitArgPrefixes,),
-                      description="overtake-spectate: a running server's arenas in Rerun")
+    config = tyro.cli(
+        SpectateConfig,
+        args=argv,
+        config=(tyro.conf.OmitArgPrefixes,),
+        description="overtake-spectate: a running server's arenas in Rerun",
+    )
     stop = threading.Event()
 
     def on_signal(_signum: int, _frame: Any) -> None:
@@ -98,8 +103,10 @@ def cli(argv: list[str] | None = None) -> None:
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
     logged = run_command("overtake-spectate", functools.partial(main, stop=stop), config)
-    print(f"logged {logged} world frame(s) to {config.recording.describe(DEFAULT_RRD)}",
-          file=sys.stderr)
+    print(
+        f"logged {logged} world frame(s) to {config.recording.describe(DEFAULT_RRD)}",
+        file=sys.stderr,
+    )
 
 
 if __name__ == "__main__":

@@ -16,7 +16,6 @@ import zenoh
 
 from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import WorldFrame
-
 from overtake.protocol.transport import open_session
 
 from .remote import RemoteConfig, unreachable_message
@@ -27,8 +26,13 @@ log = logging.getLogger("overtake.client.spectator")
 class Spectator:
     """Watch ``server``'s arenas (every server's by default; one ``arena`` if given)."""
 
-    def __init__(self, config: RemoteConfig, server: str | None = None,
-                 arena: int | None = None, backlog: int = 64) -> None:
+    def __init__(
+        self,
+        config: RemoteConfig,
+        server: str | None = None,
+        arena: int | None = None,
+        backlog: int = 64,
+    ) -> None:
         if arena is not None and server is None:
             raise ValueError("watching one arena needs its server's name")
         try:
@@ -69,9 +73,8 @@ class Spectator:
         with self._changed:
             while not self._recent:
                 remaining = deadline - time.monotonic()
-                if remaining <= 0 or not self._changed.wait(remaining):
-                    if not self._recent:
-                        return None
+                if (remaining <= 0 or not self._changed.wait(remaining)) and not self._recent:
+                    return None
             return self._recent.popleft()
 
     def close(self) -> None:
@@ -80,7 +83,7 @@ class Spectator:
         finally:
             self.session.close()
 
-    def __enter__(self) -> "Spectator":
+    def __enter__(self) -> Spectator:
         return self
 
     def __exit__(self, *exc: object) -> None:

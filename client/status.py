@@ -32,22 +32,30 @@ class StatusConfig:
 def format_status(statuses: list[StatusReply]) -> str:
     lines = []
     for s in sorted(statuses, key=lambda s: s.server):
-        lines.append(f"{s.server}: {s.arenas_used}/{s.max_arenas} arenas, {len(s.groups)} "
-                     f"group(s), step deadline {s.step_deadline_s:g} s, up {s.uptime_s:.0f} s, "
-                     f"overtake {s.package_version}")
+        lines.append(
+            f"{s.server}: {s.arenas_used}/{s.max_arenas} arenas, {len(s.groups)} "
+            f"group(s), step deadline {s.step_deadline_s:g} s, up {s.uptime_s:.0f} s, "
+            f"overtake {s.package_version}"
+        )
         for g in s.groups:
-            lines.append(f"  group {g.group}: {g.preset}, arenas {list(g.arenas)}, "
-                         f"{g.agents_per_arena} agent(s) each, trainers {list(g.trainers)}, "
-                         f"{g.rounds} rounds, {g.rounds_per_s:.1f} rounds/s, "
-                         f"{g.agent_steps_per_s:.0f} agent-steps/s, {g.late_agents} late")
+            lines.append(
+                f"  group {g.group}: {g.preset}, arenas {list(g.arenas)}, "
+                f"{g.agents_per_arena} agent(s) each, trainers {list(g.trainers)}, "
+                f"{g.rounds} rounds, {g.rounds_per_s:.1f} rounds/s, "
+                f"{g.agent_steps_per_s:.0f} agent-steps/s, {g.late_agents} late"
+            )
     return "\n".join(lines) if lines else "no overtake server answered"
 
 
 def main(config: StatusConfig) -> list[StatusReply]:
-    connection = Connection(RemoteConfig(connect=config.connect,
-                                         connect_timeout_s=config.timeout_s,
-                                         request_timeout_s=config.timeout_s,
-                                         security=config.security))
+    connection = Connection(
+        RemoteConfig(
+            connect=config.connect,
+            connect_timeout_s=config.timeout_s,
+            request_timeout_s=config.timeout_s,
+            security=config.security,
+        )
+    )
     try:
         statuses = connection.discover()
     finally:
@@ -66,9 +74,12 @@ def main(config: StatusConfig) -> list[StatusReply]:
 def cli(argv: list[str] | None = None) -> None:
     import tyro
 
-    config = tyro.cli(StatusConfig, args=argv, config=(tyro.conf.OmitArgPrefixes,),
-                      description="overtake-status: the simulator servers on the network and "
-                                  "their arenas")
+    config = tyro.cli(
+        StatusConfig,
+        args=argv,
+        config=(tyro.conf.OmitArgPrefixes,),
+        description="overtake-status: the simulator servers on the network and their arenas",
+    )
     statuses = run_command("overtake-status", main, config)
     if not statuses:
         sys.exit(1)

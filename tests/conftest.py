@@ -7,16 +7,16 @@ from typing import Any
 
 import numpy as np
 
-from overtake.server.sim import HighwaySim, make_config
 from overtake.protocol.vocabulary import AGENT_KIND, BEHAVIOUR_NAMES
+from overtake.server.sim import HighwaySim, make_config
 from overtake.server.sim.units import KMH
 
 # The end-to-end fixtures that start (and stop, by PID) servers and trainer processes.
-from remote_support import start_server, start_trainer  # noqa: E402,F401
+from remote_support import start_server, start_trainer  # noqa: F401
 
 LANE_WIDTH = 3.5
-HALF_LENGTH = 2.25   # 4.5 m cars and ego
-HALF_WIDTH = 0.9     # 1.8 m cars and ego
+HALF_LENGTH = 2.25  # 4.5 m cars and ego
+HALF_WIDTH = 0.9  # 1.8 m cars and ego
 STEADY, ROAD_MAX, LANE_CHANGER = range(3)
 
 # Scripted traffic keeps to its lane and its speed: MOBIL never finds a change worth it and
@@ -43,9 +43,15 @@ def lane_centre(lane: float) -> float:
     return (lane + 0.5) * LANE_WIDTH
 
 
-def scripted_sim(cars: list[Car] | tuple[Car, ...] = (), *, ego_lane: int = 2,
-                 ego_speed_kmh: float = 60.0, cruise_kmh: float | None = None,
-                 overrides: dict[str, Any] | None = None, calm: bool = True) -> HighwaySim:
+def scripted_sim(
+    cars: list[Car] | tuple[Car, ...] = (),
+    *,
+    ego_lane: int = 2,
+    ego_speed_kmh: float = 60.0,
+    cruise_kmh: float | None = None,
+    overrides: dict[str, Any] | None = None,
+    calm: bool = True,
+) -> HighwaySim:
     """One arena, one agent at x = 0 in ``ego_lane``, and exactly ``cars`` as traffic."""
     all_overrides: dict[str, Any] = dict(CALM_TRAFFIC) if calm else {}
     all_overrides["traffic.vehicle_count"] = len(cars)
@@ -54,21 +60,37 @@ def scripted_sim(cars: list[Car] | tuple[Car, ...] = (), *, ego_lane: int = 2,
     sim.reset(seeds=[0])
     st = sim.state
     cruise = ego_speed_kmh if cruise_kmh is None else cruise_kmh
-    place(sim, 0, x=0.0, lane=ego_lane, speed_kmh=ego_speed_kmh, desired_kmh=cruise,
-          kind=AGENT_KIND)
+    place(
+        sim, 0, x=0.0, lane=ego_lane, speed_kmh=ego_speed_kmh, desired_kmh=cruise, kind=AGENT_KIND
+    )
     for i, car in enumerate(cars):
-        place(sim, 1 + i, x=car.dx, lane=car.lane, speed_kmh=car.speed_kmh,
-              desired_kmh=car.speed_kmh if car.desired_kmh is None else car.desired_kmh,
-              kind=car.kind)
+        place(
+            sim,
+            1 + i,
+            x=car.dx,
+            lane=car.lane,
+            speed_kmh=car.speed_kmh,
+            desired_kmh=car.speed_kmh if car.desired_kmh is None else car.desired_kmh,
+            kind=car.kind,
+        )
     st.frame[:] = 0
-    st.decisions[:] = 1          # not a respawn-retry decision (there are no empty slots anyway)
+    st.decisions[:] = 1  # not a respawn-retry decision (there are no empty slots anyway)
     st.agent_decisions[:] = 0
     retrack(sim)
     return sim
 
 
-def place(sim: HighwaySim, column: int, *, x: float, lane: int, speed_kmh: float,
-          desired_kmh: float | None = None, kind: int | None = None, arena: int = 0) -> None:
+def place(
+    sim: HighwaySim,
+    column: int,
+    *,
+    x: float,
+    lane: int,
+    speed_kmh: float,
+    desired_kmh: float | None = None,
+    kind: int | None = None,
+    arena: int = 0,
+) -> None:
     """Put vehicle ``column`` of ``arena`` centred in ``lane`` at ``x``, not changing lanes."""
     st = sim.state
     st.x_m[arena, column] = x

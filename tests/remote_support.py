@@ -7,6 +7,7 @@ Every process started here is ended by its PID (SIGTERM, then SIGKILL after a ti
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import queue
@@ -37,8 +38,10 @@ T = TypeVar("T")
 
 # --- waiting ---------------------------------------------------------------------------------
 
-def wait_until(predicate: Callable[[], T], timeout_s: float, what: str,
-               interval_s: float = 0.02) -> T:
+
+def wait_until(
+    predicate: Callable[[], T], timeout_s: float, what: str, interval_s: float = 0.02
+) -> T:
     """Poll ``predicate`` until it returns something truthy (returned); fail after ``timeout_s``.
 
     The short pause between polls is the polling period of a condition, not a guess at how
@@ -71,21 +74,16 @@ def endpoint(port: int) -> str:
     return f"tcp/{LOOPBACK}:{port}"
 
 
-def stop_process(proc: subprocess.Popen, timeout_s: float = 5.0,
-                 sig: int = signal.SIGTERM) -> int:
+def stop_process(proc: subprocess.Popen, timeout_s: float = 5.0, sig: int = signal.SIGTERM) -> int:
     """End ``proc`` by its PID: ``sig``, then SIGKILL after ``timeout_s``; its exit status."""
     if proc.poll() is None:
-        try:
+        with contextlib.suppress(ProcessLookupError):
             os.kill(proc.pid, sig)
-        except ProcessLookupError:
-            pass
         try:
             return proc.wait(timeout=timeout_s)
         except subprocess.TimeoutExpired:
-            try:
+            with contextlib.suppress(ProcessLookupError):
                 os.kill(proc.pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
     return proc.wait(timeout=30)
 
 
@@ -96,17 +94,24 @@ def child_env() -> dict[str, str]:
     return env
 
 
-def remote_config(ep: str | Iterable[str], server: str | None = None, **kwargs: Any
-                  ) -> RemoteConfig:
+def remote_config(
+    ep: str | Iterable[str], server: str | None = None, **kwargs: Any
+) -> RemoteConfig:
     """A RemoteConfig with short timeouts for tests (any of them can be overridden)."""
     connect = (ep,) if isinstance(ep, str) else tuple(ep)
-    settings: dict[str, Any] = dict(connect_timeout_s=10.0, request_timeout_s=5.0,
-                                    step_timeout_s=20.0, reconnect_timeout_s=0.0, lease_s=3.0)
+    settings: dict[str, Any] = dict(
+        connect_timeout_s=10.0,
+        request_timeout_s=5.0,
+        step_timeout_s=20.0,
+        reconnect_timeout_s=0.0,
+        lease_s=3.0,
+    )
     settings.update(kwargs)
     return RemoteConfig(connect=connect, server=server, **settings)
 
 
 # --- servers ---------------------------------------------------------------------------------
+
 
 class ServerProcess:
     """``python -m overtake.server`` on 127.0.0.1; its stderr log goes to a file.
@@ -115,18 +120,31 @@ class ServerProcess:
     answers (a StatusRequest through :meth:`Connection.discover` lists its name).
     """
 
-    def __init__(self, log_dir: Path, name: str, *, port: int | None = None,
-                 connect: tuple[str, ...] = (), step_deadline_s: float | None = None,
-                 max_arenas: int | None = None, lease_s: float | None = None,
-                 world_rate_hz: float | None = None, extra: tuple[str, ...] = (),
-                 start_timeout_s: float = 20.0) -> None:
+    def __init__(
+        self,
+        log_dir: Path,
+        name: str,
+        *,
+        port: int | None = None,
+        connect: tuple[str, ...] = (),
+        step_deadline_s: float | None = None,
+        max_arenas: int | None = None,
+        lease_s: float | None = None,
+        world_rate_hz: float | None = None,
+        extra: tuple[str, ...] = (),
+        start_timeout_s: float = 20.0,
+    ) -> None:
         self.name = name
         self.port = port if port is not None else free_port()
         self.endpoint = endpoint(self.port)
         self.connect = connect
         self.args = ["--listen", self.endpoint, "--name", name, "--log-level", "info"]
-        for flag, value in (("--step-deadline-s", step_deadline_s), ("--max-arenas", max_arenas),
-                            ("--lease-s", lease_s), ("--world-rate-hz", world_rate_hz)):
+        for flag, value in (
+            ("--step-deadline-s", step_deadline_s),
+            ("--max-arenas", max_arenas),
+            ("--lease-s", lease_s),
+            ("--world-rate-hz", world_rate_hz),
+        ):
             if value is not None:
                 self.args += [flag, str(value)]
         if connect:
@@ -142,11 +160,16 @@ class ServerProcess:
     # lifecycle
 
     def start(self) -> ServerProcess:
-        log = open(self.log_path, "wb")
+        log = open(self.log_path, "wb")  # noqa: SIM115 (the server writes it until stopped)
         try:
             self.proc = subprocess.Popen(
-                [sys.executable, "-m", "overtake.server", *self.args], stdin=subprocess.DEVNULL,
-                stdout=log, stderr=subprocess.STDOUT, env=child_env(), cwd=HERE.parent)
+                [sys.executable, "-m", "overtake.server", *self.args],
+                stdin=subprocess.DEVNULL,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                env=child_env(),
+                cwd=HERE.parent,
+            )
         finally:
             log.close()
         try:
@@ -161,9 +184,12 @@ class ServerProcess:
 
         def listed() -> bool:
             if self.proc.poll() is not None:
-                raise RuntimeError(f"server {self.name} exited with {self.proc.returncode}: "
-                                   f"{self.log_text()[-2000:]}")
+                raise RuntimeError(
+                    f"server {self.name} exited with {self.proc.returncode}: "
+                    f"{self.log_text()[-2000:]}"
+                )
             return any(s.server == self.name for s in self.probe().discover())
+
         deadline = time.monotonic() + timeout_s
         while True:
             try:
@@ -174,17 +200,21 @@ class ServerProcess:
             except errors.ConnectError:
                 pass  # not listening yet: the probe is opened again
             if time.monotonic() >= deadline:
-                raise AssertionError(f"server {self.name} did not answer a status request on "
-                                     f"{self.endpoint} within {timeout_s:g} s; log:\n"
-                                     f"{self.log_text()[-2000:]}")
+                raise AssertionError(
+                    f"server {self.name} did not answer a status request on "
+                    f"{self.endpoint} within {timeout_s:g} s; log:\n"
+                    f"{self.log_text()[-2000:]}"
+                )
             threading.Event().wait(0.05)
 
     def probe(self) -> Connection:
         """The test's own trainer-side connection to this server (status queries)."""
         if self._probe is None:
-            self._probe = Connection(remote_config(self.endpoint, server=self.name,
-                                                   connect_timeout_s=2.0,
-                                                   request_timeout_s=2.0))
+            self._probe = Connection(
+                remote_config(
+                    self.endpoint, server=self.name, connect_timeout_s=2.0, request_timeout_s=2.0
+                )
+            )
         return self._probe
 
     @property
@@ -247,6 +277,7 @@ class ServerProcess:
 
 # --- trainers ---------------------------------------------------------------------------------
 
+
 class TrainerProcess:
     """``tests/trainer_script.py`` as a subprocess: commands on stdin, one event per line out.
 
@@ -266,16 +297,21 @@ class TrainerProcess:
         self._reader: threading.Thread | None = None
 
     def start(self) -> TrainerProcess:
-        err = open(self.stderr_path, "wb")
+        err = open(self.stderr_path, "wb")  # noqa: SIM115 (the trainer writes it until stopped)
         try:
             self.proc = subprocess.Popen(
-                [sys.executable, str(TRAINER_SCRIPT), *self.args], stdin=subprocess.PIPE,
-                stdout=subprocess.PIPE, stderr=err, env=child_env(), cwd=HERE.parent,
-                text=True, bufsize=1)
+                [sys.executable, str(TRAINER_SCRIPT), *self.args],
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                stderr=err,
+                env=child_env(),
+                cwd=HERE.parent,
+                text=True,
+                bufsize=1,
+            )
         finally:
             err.close()
-        self._reader = threading.Thread(target=self._read, name=f"{self.label}-stdout",
-                                        daemon=True)
+        self._reader = threading.Thread(target=self._read, name=f"{self.label}-stdout", daemon=True)
         self._reader.start()
         return self
 
@@ -306,14 +342,18 @@ class TrainerProcess:
         try:
             line = self._pushback.pop() if self._pushback else self.lines.get(timeout=timeout_s)
         except queue.Empty:
-            raise AssertionError(f"{self.label}: no output line within {timeout_s:g} s; "
-                                 f"so far {self.history[-5:]}; stderr:\n"
-                                 f"{self.stderr_text()[-3000:]}") from None
+            raise AssertionError(
+                f"{self.label}: no output line within {timeout_s:g} s; "
+                f"so far {self.history[-5:]}; stderr:\n"
+                f"{self.stderr_text()[-3000:]}"
+            ) from None
         if line is None:
             self._pushback.append(None)  # stay at end of file for later calls
             code = self.proc.wait(timeout=10) if self.proc is not None else None
-            raise AssertionError(f"{self.label} exited ({code}) ; last lines "
-                                 f"{self.history[-5:]}; stderr:\n{self.stderr_text()[-3000:]}")
+            raise AssertionError(
+                f"{self.label} exited ({code}) ; last lines "
+                f"{self.history[-5:]}; stderr:\n{self.stderr_text()[-3000:]}"
+            )
         self.history.append(line)
         event, _, rest = line.partition(" ")
         try:
@@ -330,8 +370,9 @@ class TrainerProcess:
             if got == event:
                 return fields
             if got == "ERROR" and event != "ERROR":
-                raise AssertionError(f"{self.label} reported an error while we waited for "
-                                     f"{event}: {fields}")
+                raise AssertionError(
+                    f"{self.label} reported an error while we waited for {event}: {fields}"
+                )
 
     def no_event_within(self, timeout_s: float) -> bool:
         """True when no line arrives within ``timeout_s`` (a bounded check that nothing
@@ -350,10 +391,8 @@ class TrainerProcess:
             return None
         try:
             if self.proc.poll() is None and self.proc.stdin is not None:
-                try:
+                with contextlib.suppress(BrokenPipeError, OSError, ValueError):
                     self.send("exit")
-                except (BrokenPipeError, OSError, ValueError):
-                    pass
             try:
                 return self.proc.wait(timeout=timeout_s)
             except subprocess.TimeoutExpired:
@@ -396,12 +435,16 @@ def trainer_args(server: ServerProcess | str, name: str, **options: Any) -> list
 
 # --- raw Zenoh ----------------------------------------------------------------------------------
 
+
 class RawClient:
     """A bare Zenoh client session (no overtake client code): hostile input, spectators."""
 
     def __init__(self, ep: str, timeout_s: float = 10.0) -> None:
-        self.session = zenoh.open(TransportConfig(mode="client", connect=(ep,),
-                                                  connect_timeout_s=timeout_s).zenoh_config())
+        self.session = zenoh.open(
+            TransportConfig(
+                mode="client", connect=(ep,), connect_timeout_s=timeout_s
+            ).zenoh_config()
+        )
         self._declared: list[Any] = []
 
     def query(self, key: str, payload: bytes, timeout_s: float = 5.0) -> list[bytes]:
@@ -412,8 +455,9 @@ class RawClient:
             if reply.ok is not None:
                 out.append(reply.ok.payload.to_bytes())
             else:
-                raise AssertionError("query error reply: "
-                                     + reply.err.payload.to_bytes().decode("utf-8", "replace"))
+                raise AssertionError(
+                    "query error reply: " + reply.err.payload.to_bytes().decode("utf-8", "replace")
+                )
         return out
 
     def request(self, server: str, message: Message | bytes, timeout_s: float = 5.0) -> Message:
@@ -443,15 +487,11 @@ class RawClient:
 
     def close(self) -> None:
         for obj in reversed(self._declared):
-            try:
+            with contextlib.suppress(Exception):
                 obj.undeclare()
-            except Exception:
-                pass
         self._declared.clear()
-        try:
+        with contextlib.suppress(Exception):
             self.session.close()
-        except Exception:
-            pass
 
     def __enter__(self) -> RawClient:
         return self
@@ -460,8 +500,9 @@ class RawClient:
         self.close()
 
 
-def next_message(inbox: queue.Queue[tuple[str, bytes]], timeout_s: float,
-                 what: str) -> tuple[str, Message]:
+def next_message(
+    inbox: queue.Queue[tuple[str, bytes]], timeout_s: float, what: str
+) -> tuple[str, Message]:
     try:
         key, payload = inbox.get(timeout=timeout_s)
     except queue.Empty:
@@ -510,7 +551,8 @@ def logged_by_round(reader: Any, entity: str, column: str) -> dict[int, list]:
         if chunk.entity_path != entity or chunk.is_static:
             continue
         batch = chunk.to_record_batch()
-        for round_, value in zip(batch.column("round").to_pylist(),
-                                 batch.column(column).to_pylist()):
+        for round_, value in zip(
+            batch.column("round").to_pylist(), batch.column(column).to_pylist()
+        ):
             out[round_] = value
     return out

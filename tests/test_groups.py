@@ -12,9 +12,14 @@ QUIET = {"traffic.vehicle_count": 0}
 
 
 def _actions(group: Group, trainer: str, agents, actions) -> Actions:
-    return Actions(trainer=trainer, ticket=group.members[trainer].ticket, group=group.group_id,
-                   round=group.round, agents=np.asarray(agents, dtype=np.int32),
-                   actions=np.asarray(actions, dtype=np.int64))
+    return Actions(
+        trainer=trainer,
+        ticket=group.members[trainer].ticket,
+        group=group.group_id,
+        round=group.round,
+        agents=np.asarray(agents, dtype=np.int32),
+        actions=np.asarray(actions, dtype=np.int64),
+    )
 
 
 def _shared(agents: int = 3, overrides=None) -> Group:
@@ -91,12 +96,24 @@ def test_actions_are_checked_against_what_the_trainer_owns():
         group.accept(_actions(group, "a", [1], [0]), deadline_s=1.0)
     with pytest.raises(errors.BadAction, match="0..2"):
         group.accept(_actions(group, "a", [5], [0]), deadline_s=1.0)
-    stale = Actions(trainer="a", ticket=group.members["a"].ticket, group=0, round=3,
-                    agents=np.array([0], np.int32), actions=np.array([0]))
+    stale = Actions(
+        trainer="a",
+        ticket=group.members["a"].ticket,
+        group=0,
+        round=3,
+        agents=np.array([0], np.int32),
+        actions=np.array([0]),
+    )
     with pytest.raises(errors.BadAction, match="round 3.*round 0"):
         group.accept(stale, deadline_s=1.0)
-    forged = Actions(trainer="a", ticket=b"\0" * 16, group=0, round=0,
-                     agents=np.array([0], np.int32), actions=np.array([0]))
+    forged = Actions(
+        trainer="a",
+        ticket=b"\0" * 16,
+        group=0,
+        round=0,
+        agents=np.array([0], np.int32),
+        actions=np.array([0]),
+    )
     with pytest.raises(errors.NotOwner, match="wrong ticket"):
         group.accept(forged, deadline_s=1.0)
     with pytest.raises(errors.NotOwner, match="no agents"):
@@ -113,14 +130,18 @@ def test_in_a_shared_arena_only_the_crashed_car_restarts():
     st.x_m[0, :2] = [10.0, 5.0]
     st.speed_mps[0, :2] = [10.0, 30.0]
     for member in ("a", "b"):
-        group.accept(_actions(group, member, group.members[member].slots.reshape(-1).nonzero()[0],
-                              [0]), deadline_s=1.0)
+        group.accept(
+            _actions(group, member, group.members[member].slots.reshape(-1).nonzero()[0], [0]),
+            deadline_s=1.0,
+        )
     steps = group.step()
     assert steps["a"].terminated.tolist() == [True] and steps["b"].terminated.tolist() == [True]
     x_before = st.x_m[0, :2].copy()
     for member in ("a", "b"):
-        group.accept(_actions(group, member, group.members[member].slots.reshape(-1).nonzero()[0],
-                              [0]), deadline_s=1.0)
+        group.accept(
+            _actions(group, member, group.members[member].slots.reshape(-1).nonzero()[0], [0]),
+            deadline_s=1.0,
+        )
     steps = group.step()
     # Both restarted: reward 0, no flags, fresh counters, and placed behind where they were.
     for member in ("a", "b"):
@@ -170,8 +191,8 @@ def _all_act(group: Group) -> None:
 def test_a_car_that_ended_as_its_trainer_left_stays_off_the_road():
     group = _shared(agents=2, overrides=QUIET)
     group.claim("b", 0, 1, fresh=False)
-    group.ended[0, 1] = True          # b's episode just ended...
-    group.leave("b")                  # ...and b left before its next action
+    group.ended[0, 1] = True  # b's episode just ended...
+    group.leave("b")  # ...and b left before its next action
     for _ in range(3):
         _all_act(group)
         group.step()
@@ -182,9 +203,9 @@ def test_a_respawned_car_is_not_an_overtake_for_the_others():
     group = _shared(agents=2, overrides=QUIET)
     group.claim("b", 0, 1, fresh=False)
     st = group.sim.state
-    st.x_m[0, 1] = st.x_m[0, 0] + 80.0   # b far ahead of a
+    st.x_m[0, 1] = st.x_m[0, 0] + 80.0  # b far ahead of a
     group.sim.tracker.start(st, np.ones_like(st.active))
-    group.ended[0, 1] = True             # b restarts behind a on the next round
+    group.ended[0, 1] = True  # b restarts behind a on the next round
     for _ in range(2):
         _all_act(group)
         steps = group.step()

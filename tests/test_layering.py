@@ -23,8 +23,13 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-FOLDERS = {"protocol": "protocol", "viz": "viz", "server": "server", "client": "client",
-           "trainers": "trainers"}
+FOLDERS = {
+    "protocol": "protocol",
+    "viz": "viz",
+    "server": "server",
+    "client": "client",
+    "trainers": "trainers",
+}
 # The parts of the project each package may import (besides itself).
 ALLOWED = {
     "protocol": set(),
@@ -54,7 +59,7 @@ def _imports(path: Path) -> list[tuple[str, int]]:
         elif isinstance(node, ast.ImportFrom):
             if node.level:
                 base = package.split(".")
-                base = base[:len(base) - node.level + 1]
+                base = base[: len(base) - node.level + 1]
                 name = ".".join(base + ([node.module] if node.module else []))
             else:
                 name = node.module or ""
@@ -92,30 +97,45 @@ def test_the_simulation_core_imports_numpy_the_standard_library_and_the_vocabula
     for path in _sources("server/sim"):
         for name, line in _imports(path):
             top = name.split(".")[0]
-            if name.startswith("overtake.server.sim") or top == "numpy" \
-                    or top in sys.stdlib_module_names or name == "__future__":
+            if (
+                name.startswith("overtake.server.sim")
+                or top == "numpy"
+                or top in sys.stdlib_module_names
+                or name == "__future__"
+            ):
                 continue
             if name == "overtake.protocol.vocabulary" or name.startswith(
-                    "overtake.protocol.vocabulary."):
+                "overtake.protocol.vocabulary."
+            ):
                 continue
             wrong.append(f"{path.relative_to(ROOT)}:{line} imports {name}")
-    assert not wrong, "server/sim may import numpy, the standard library and " \
+    assert not wrong, (
+        "server/sim may import numpy, the standard library and "
         "overtake.protocol.vocabulary only:\n" + "\n".join(wrong)
+    )
 
 
 def _loaded_after(statement: str) -> dict:
     """What a fresh interpreter has loaded after ``statement``: top-level module names, and
     which overtake Gymnasium ids are registered if Gymnasium is loaded at all."""
-    probe = (f"{statement}\n"
-             "import json, sys\n"
-             "ids = []\n"
-             "if 'gymnasium' in sys.modules:\n"
-             "    ids = sorted(i for i in sys.modules['gymnasium'].registry "
-             "if i.startswith('overtake/'))\n"
-             "print(json.dumps({'modules': sorted({m.split('.')[0] for m in sys.modules}), "
-             "'ids': ids}))\n")
-    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
-                         timeout=120, check=True, cwd=ROOT).stdout
+    probe = (
+        f"{statement}\n"
+        "import json, sys\n"
+        "ids = []\n"
+        "if 'gymnasium' in sys.modules:\n"
+        "    ids = sorted(i for i in sys.modules['gymnasium'].registry "
+        "if i.startswith('overtake/'))\n"
+        "print(json.dumps({'modules': sorted({m.split('.')[0] for m in sys.modules}), "
+        "'ids': ids}))\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", probe],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+        cwd=ROOT,
+    ).stdout
     return json.loads(out.strip().splitlines()[-1])
 
 
@@ -140,14 +160,21 @@ def test_importing_viz_loads_no_rerun():
 
 
 def test_environments_are_registered_by_the_client_and_by_nothing_else():
-    for statement in ("import overtake.server", "import overtake.server.sim",
-                      "import overtake.server.env", "import overtake.protocol"):
+    for statement in (
+        "import overtake.server",
+        "import overtake.server.sim",
+        "import overtake.server.env",
+        "import overtake.protocol",
+    ):
         assert _loaded_after(statement)["ids"] == [], f"{statement} registered environments"
     assert _loaded_after("import overtake.client")["ids"] == [
-        "overtake/Highway-v0", "overtake/RemoteHighway-v0"]
+        "overtake/Highway-v0",
+        "overtake/RemoteHighway-v0",
+    ]
     # The entry-point string imports the client first, so it works without an import.
-    made = _loaded_after("import gymnasium as gym\n"
-                         "gym.make('overtake.client:overtake/Highway-v0').close()")
+    made = _loaded_after(
+        "import gymnasium as gym\ngym.make('overtake.client:overtake/Highway-v0').close()"
+    )
     assert made["ids"] == ["overtake/Highway-v0", "overtake/RemoteHighway-v0"]
 
 
@@ -156,7 +183,9 @@ def test_every_package_folder_is_listed_in_pyproject():
     from a built one (the Docker images)."""
     project = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
     listed = set(project["tool"]["setuptools"]["packages"])
-    present = {_module_name(init) for folder in FOLDERS
-               for init in (ROOT / folder).rglob("__init__.py")}
-    assert present == listed, f"missing: {sorted(present - listed)}, " \
-        f"stale: {sorted(listed - present)}"
+    present = {
+        _module_name(init) for folder in FOLDERS for init in (ROOT / folder).rglob("__init__.py")
+    }
+    assert present == listed, (
+        f"missing: {sorted(present - listed)}, stale: {sorted(listed - present)}"
+    )

@@ -19,27 +19,54 @@ from hypothesis.extra import numpy as hnp
 
 from overtake.protocol import codec, errors, keys, messages
 from overtake.protocol.codec import decode, encode, version_text
-from overtake.protocol.errors import (ERRORS_BY_CODE, DecodeError, ProtocolError,
-                                      VersionMismatch, error_from_code)
-from overtake.protocol.messages import (ACTION_COUNT, ACTION_NAMES, MESSAGE_TYPES,
-                                        NAME_PATTERN, PROTOCOL_VERSION, WIRE_DTYPES, Ack,
-                                        Actions, BehaviourSpec, CloseRequest, ErrorReply,
-                                        GroupStatus, JoinRequest, Message, ObservationSpec,
-                                        Opened, OpenRequest, Part, ResetRequest, StatusReply,
-                                        StatusRequest, Steps, WorldFrame)
+from overtake.protocol.errors import (
+    ERRORS_BY_CODE,
+    DecodeError,
+    ProtocolError,
+    VersionMismatch,
+    error_from_code,
+)
+from overtake.protocol.messages import (
+    ACTION_COUNT,
+    ACTION_NAMES,
+    MESSAGE_TYPES,
+    NAME_PATTERN,
+    PROTOCOL_VERSION,
+    WIRE_DTYPES,
+    Ack,
+    Actions,
+    BehaviourSpec,
+    CloseRequest,
+    ErrorReply,
+    GroupStatus,
+    JoinRequest,
+    Message,
+    ObservationSpec,
+    Opened,
+    OpenRequest,
+    Part,
+    ResetRequest,
+    StatusReply,
+    StatusRequest,
+    Steps,
+    WorldFrame,
+)
 
 MAJOR, MINOR = PROTOCOL_VERSION
 
 # Hypothesis runs are sized so the file stays fast; deadlines are off because the first
 # example of a strategy pays for numpy and regex compilation and would flake on a slow box.
-FAST = settings(max_examples=40, deadline=None,
-                suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+FAST = settings(
+    max_examples=40,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
 
 
 # --- strategies ----------------------------------------------------------------------------
 
 # Every integer msgpack can carry: the extremes are where a codec loses bits.
-ints = st.integers(-2**63, 2**64 - 1)
+ints = st.integers(-(2**63), 2**64 - 1)
 # NaN and infinities included: Message equality treats NaN as equal to NaN.
 floats = st.floats()
 texts = st.text(max_size=12)
@@ -54,8 +81,9 @@ def wire_array(dtype: str, shape, **kwargs):
 
 def per_agent_tail_shapes():
     """The axes after the agent axis: up to MAX_ARRAY_DIMS in all, empty sizes included."""
-    return hnp.array_shapes(min_dims=0, max_dims=messages.MAX_ARRAY_DIMS - 1, min_side=0,
-                            max_side=2)
+    return hnp.array_shapes(
+        min_dims=0, max_dims=messages.MAX_ARRAY_DIMS - 1, min_side=0, max_side=2
+    )
 
 
 @st.composite
@@ -70,19 +98,27 @@ def observation_dicts(draw, rows: int):
 @st.composite
 def observation_specs(draw):
     dtype = draw(wire_dtype_names)
-    shape = draw(hnp.array_shapes(min_dims=1, max_dims=messages.MAX_ARRAY_DIMS - 1,
-                                  min_side=1, max_side=2))
-    return ObservationSpec(name=draw(names), shape=shape, dtype=dtype,
-                           low=draw(wire_array(dtype, shape)),
-                           high=draw(wire_array(dtype, shape)))
+    shape = draw(
+        hnp.array_shapes(min_dims=1, max_dims=messages.MAX_ARRAY_DIMS - 1, min_side=1, max_side=2)
+    )
+    return ObservationSpec(
+        name=draw(names),
+        shape=shape,
+        dtype=dtype,
+        low=draw(wire_array(dtype, shape)),
+        high=draw(wire_array(dtype, shape)),
+    )
 
 
 @st.composite
 def behaviour_specs(draw):
-    observations = draw(st.lists(observation_specs(), min_size=1, max_size=3,
-                                 unique_by=lambda o: o.name))
+    observations = draw(
+        st.lists(observation_specs(), min_size=1, max_size=3, unique_by=lambda o: o.name)
+    )
     return BehaviourSpec(
-        name=draw(texts), preset=draw(texts), observations=tuple(observations),
+        name=draw(texts),
+        preset=draw(texts),
+        observations=tuple(observations),
         action_branches=(ACTION_COUNT,),
         action_names=tuple(draw(st.lists(texts, min_size=ACTION_COUNT, max_size=ACTION_COUNT))),
         reward_terms=tuple(draw(st.lists(texts, max_size=3))),
@@ -90,7 +126,8 @@ def behaviour_specs(draw):
         decision_period_s=draw(st.floats(min_value=0.0, exclude_min=True)),
         max_episode_steps=draw(st.integers(1, 2**62)),
         agents_per_arena=draw(st.integers(1, messages.MAX_AGENTS_PER_ARENA)),
-        config_json=draw(texts))
+        config_json=draw(texts),
+    )
 
 
 @st.composite
@@ -98,7 +135,9 @@ def steps_messages(draw):
     k = draw(st.integers(0, 4))
     terms, metrics = draw(st.integers(0, 3)), draw(st.integers(0, 3))
     return Steps(
-        server=draw(names), group=draw(ints), round=draw(ints),
+        server=draw(names),
+        group=draw(ints),
+        round=draw(ints),
         agents=draw(wire_array("int32", (k,))),
         observations=draw(observation_dicts(k)),
         reward=draw(wire_array("float64", (k,))),
@@ -108,24 +147,36 @@ def steps_messages(draw):
         late=draw(wire_array("bool", (k,))),
         action_mask=draw(wire_array("int8", (k, ACTION_COUNT))),
         reward_terms=draw(wire_array("float64", (k, terms))),
-        metrics=draw(wire_array("float64", (k, metrics))))
+        metrics=draw(wire_array("float64", (k, metrics))),
+    )
 
 
 @st.composite
 def group_statuses(draw):
     return GroupStatus(
-        group=draw(ints), preset=draw(texts), arenas=tuple(draw(st.lists(ints, max_size=4))),
-        agents_per_arena=draw(ints), trainers=tuple(draw(st.lists(texts, max_size=3))),
-        rounds=draw(ints), rounds_per_s=draw(floats), agent_steps_per_s=draw(floats),
-        late_agents=draw(ints))
+        group=draw(ints),
+        preset=draw(texts),
+        arenas=tuple(draw(st.lists(ints, max_size=4))),
+        agents_per_arena=draw(ints),
+        trainers=tuple(draw(st.lists(texts, max_size=3))),
+        rounds=draw(ints),
+        rounds_per_s=draw(floats),
+        agent_steps_per_s=draw(floats),
+        late_agents=draw(ints),
+    )
 
 
 @st.composite
 def status_replies(draw):
     return StatusReply(
-        server=draw(names), package_version=draw(texts), max_arenas=draw(ints),
-        arenas_used=draw(ints), step_deadline_s=draw(floats), uptime_s=draw(floats),
-        groups=tuple(draw(st.lists(group_statuses(), max_size=3))))
+        server=draw(names),
+        package_version=draw(texts),
+        max_arenas=draw(ints),
+        arenas_used=draw(ints),
+        step_deadline_s=draw(floats),
+        uptime_s=draw(floats),
+        groups=tuple(draw(st.lists(group_statuses(), max_size=3))),
+    )
 
 
 overrides = st.dictionaries(texts, st.one_of(st.booleans(), ints, floats, texts), max_size=4)
@@ -135,50 +186,76 @@ overrides = st.dictionaries(texts, st.one_of(st.booleans(), ints, floats, texts)
 def open_requests(draw):
     agents = draw(st.integers(1, messages.MAX_AGENTS_PER_ARENA))
     return OpenRequest(
-        trainer=draw(names), preset=draw(names), overrides=draw(overrides),
-        arenas=draw(st.integers(1, messages.MAX_ARENAS_PER_REQUEST)), agents_per_arena=agents,
-        claim=draw(st.integers(1, agents)), seed=draw(st.none() | seeds))
+        trainer=draw(names),
+        preset=draw(names),
+        overrides=draw(overrides),
+        arenas=draw(st.integers(1, messages.MAX_ARENAS_PER_REQUEST)),
+        agents_per_arena=agents,
+        claim=draw(st.integers(1, agents)),
+        seed=draw(st.none() | seeds),
+    )
 
 
 @st.composite
 def opened_messages(draw):
-    return Opened(server=draw(names), group=draw(ints),
-                  arenas=tuple(draw(st.lists(ints, min_size=1, max_size=4))),
-                  ticket=draw(st.binary(min_size=16, max_size=64)),
-                  spec=draw(behaviour_specs()), steps=draw(steps_messages()))
+    return Opened(
+        server=draw(names),
+        group=draw(ints),
+        arenas=tuple(draw(st.lists(ints, min_size=1, max_size=4))),
+        ticket=draw(st.binary(min_size=16, max_size=64)),
+        spec=draw(behaviour_specs()),
+        steps=draw(steps_messages()),
+    )
 
 
 @st.composite
 def reset_requests(draw):
     arenas = draw(st.lists(ints, max_size=4, unique=True))
     return ResetRequest(
-        trainer=draw(names), ticket=draw(st.binary(max_size=64)), group=draw(ints),
+        trainer=draw(names),
+        ticket=draw(st.binary(max_size=64)),
+        group=draw(ints),
         arenas=tuple(arenas),
-        seeds=tuple(draw(st.lists(st.none() | seeds, min_size=len(arenas),
-                                  max_size=len(arenas)))))
+        seeds=tuple(draw(st.lists(st.none() | seeds, min_size=len(arenas), max_size=len(arenas)))),
+    )
 
 
 @st.composite
 def actions_messages(draw):
     k = draw(st.integers(0, 6))
-    return Actions(trainer=draw(names), ticket=draw(st.binary(max_size=64)), group=draw(ints),
-                   round=draw(ints), agents=draw(wire_array("int32", (k,), unique=True)),
-                   actions=draw(wire_array("int64", (k,),
-                                           elements=st.integers(0, ACTION_COUNT - 1))))
+    return Actions(
+        trainer=draw(names),
+        ticket=draw(st.binary(max_size=64)),
+        group=draw(ints),
+        round=draw(ints),
+        agents=draw(wire_array("int32", (k,), unique=True)),
+        actions=draw(wire_array("int64", (k,), elements=st.integers(0, ACTION_COUNT - 1))),
+    )
 
 
 @st.composite
 def world_frames(draw):
     v, n = draw(st.integers(0, 5)), draw(st.integers(0, 3))
     return WorldFrame(
-        server=draw(names), group=draw(ints), arena=draw(ints), round=draw(ints),
-        sim_time_s=draw(floats), lane_count=draw(ints), lane_width_m=draw(floats),
-        agent_kind=draw(ints), agent_active=draw(wire_array("bool", (n,))),
-        x_m=draw(wire_array("float64", (v,))), y_m=draw(wire_array("float64", (v,))),
-        speed_mps=draw(wire_array("float32", (v,))), kind=draw(wire_array("int8", (v,))),
-        active=draw(wire_array("bool", (v,))), observations=draw(observation_dicts(n)),
+        server=draw(names),
+        group=draw(ints),
+        arena=draw(ints),
+        round=draw(ints),
+        sim_time_s=draw(floats),
+        lane_count=draw(ints),
+        lane_width_m=draw(floats),
+        agent_kind=draw(ints),
+        agent_active=draw(wire_array("bool", (n,))),
+        x_m=draw(wire_array("float64", (v,))),
+        y_m=draw(wire_array("float64", (v,))),
+        speed_mps=draw(wire_array("float32", (v,))),
+        kind=draw(wire_array("int8", (v,))),
+        active=draw(wire_array("bool", (v,))),
+        observations=draw(observation_dicts(n)),
         reward=draw(wire_array("float64", (n,))),
-        action_applied=draw(wire_array("int64", (n,))), **draw(reward_term_fields(n)))
+        action_applied=draw(wire_array("int64", (n,))),
+        **draw(reward_term_fields(n)),
+    )
 
 
 @st.composite
@@ -186,22 +263,29 @@ def reward_term_fields(draw, n):
     terms = draw(st.none() | st.integers(0, 3))
     if terms is None:
         return {}
-    return {"reward_term_names": tuple(draw(st.lists(names, min_size=terms, max_size=terms))),
-            "reward_terms": draw(wire_array("float64", (n, terms)))}
+    return {
+        "reward_term_names": tuple(draw(st.lists(names, min_size=terms, max_size=terms))),
+        "reward_terms": draw(wire_array("float64", (n, terms))),
+    }
 
 
 MESSAGES = {
     StatusRequest.TYPE: st.just(StatusRequest()),
     StatusReply.TYPE: status_replies(),
     OpenRequest.TYPE: open_requests(),
-    JoinRequest.TYPE: st.builds(JoinRequest, trainer=names, arena=st.integers(0, 2**62),
-                                agents=st.integers(1, messages.MAX_AGENTS_PER_ARENA)),
+    JoinRequest.TYPE: st.builds(
+        JoinRequest,
+        trainer=names,
+        arena=st.integers(0, 2**62),
+        agents=st.integers(1, messages.MAX_AGENTS_PER_ARENA),
+    ),
     Opened.TYPE: opened_messages(),
     ResetRequest.TYPE: reset_requests(),
     Steps.TYPE: steps_messages(),
     Actions.TYPE: actions_messages(),
-    CloseRequest.TYPE: st.builds(CloseRequest, trainer=names, ticket=st.binary(max_size=64),
-                                 group=ints),
+    CloseRequest.TYPE: st.builds(
+        CloseRequest, trainer=names, ticket=st.binary(max_size=64), group=ints
+    ),
     Ack.TYPE: st.builds(Ack, message=texts),
     ErrorReply.TYPE: st.builds(ErrorReply, code=texts, message=texts),
     WorldFrame.TYPE: world_frames(),
@@ -210,6 +294,7 @@ any_message = st.sampled_from(sorted(MESSAGES)).flatmap(MESSAGES.__getitem__)
 
 
 # --- helpers ----------------------------------------------------------------------------------
+
 
 def arrays_in(value):
     """Every numpy array anywhere inside a message."""
@@ -253,45 +338,94 @@ def wire_array_value(array: np.ndarray) -> dict:
 
 
 def sample_actions(agents=(3, 1, 2), actions=(0, 4, 2)) -> Actions:
-    return Actions(trainer="trainer-0", ticket=b"t" * 16, group=7, round=11,
-                   agents=np.array(agents, dtype=np.int32),
-                   actions=np.array(actions, dtype=np.int64))
+    return Actions(
+        trainer="trainer-0",
+        ticket=b"t" * 16,
+        group=7,
+        round=11,
+        agents=np.array(agents, dtype=np.int32),
+        actions=np.array(actions, dtype=np.int64),
+    )
 
 
 def sample_steps(k: int = 3, reward_rows: int | None = None) -> Steps:
     rows = k if reward_rows is None else reward_rows
-    return Steps(server="srv", group=1, round=2, agents=np.arange(k, dtype=np.int32),
-                 observations={"lidar": np.zeros((k, 4), np.float32)},
-                 reward=np.zeros(rows, np.float64), terminated=np.zeros(k, bool),
-                 truncated=np.zeros(k, bool), action_applied=np.full(k, -1, np.int64),
-                 late=np.zeros(k, bool), action_mask=np.ones((k, ACTION_COUNT), np.int8),
-                 reward_terms=np.zeros((k, 2)), metrics=np.zeros((k, 3)))
+    return Steps(
+        server="srv",
+        group=1,
+        round=2,
+        agents=np.arange(k, dtype=np.int32),
+        observations={"lidar": np.zeros((k, 4), np.float32)},
+        reward=np.zeros(rows, np.float64),
+        terminated=np.zeros(k, bool),
+        truncated=np.zeros(k, bool),
+        action_applied=np.full(k, -1, np.int64),
+        late=np.zeros(k, bool),
+        action_mask=np.ones((k, ACTION_COUNT), np.int8),
+        reward_terms=np.zeros((k, 2)),
+        metrics=np.zeros((k, 3)),
+    )
 
 
 def sample_spec() -> BehaviourSpec:
-    obs = ObservationSpec(name="lidar", shape=(4,), dtype="float32",
-                          low=np.zeros(4, np.float32), high=np.ones(4, np.float32))
-    return BehaviourSpec(name="Highway", preset="min2018", observations=(obs,),
-                         action_branches=(ACTION_COUNT,), action_names=ACTION_NAMES,
-                         reward_terms=("a", "b"), metric_fields=("x", "y", "z"),
-                         decision_period_s=0.4, max_episode_steps=100, agents_per_arena=1,
-                         config_json="{}")
+    obs = ObservationSpec(
+        name="lidar",
+        shape=(4,),
+        dtype="float32",
+        low=np.zeros(4, np.float32),
+        high=np.ones(4, np.float32),
+    )
+    return BehaviourSpec(
+        name="Highway",
+        preset="min2018",
+        observations=(obs,),
+        action_branches=(ACTION_COUNT,),
+        action_names=ACTION_NAMES,
+        reward_terms=("a", "b"),
+        metric_fields=("x", "y", "z"),
+        decision_period_s=0.4,
+        max_episode_steps=100,
+        agents_per_arena=1,
+        config_json="{}",
+    )
 
 
 def sample_opened() -> Opened:
-    return Opened(server="srv", group=1, arenas=(0, 1), ticket=b"k" * 16, spec=sample_spec(),
-                  steps=sample_steps())
+    return Opened(
+        server="srv",
+        group=1,
+        arenas=(0, 1),
+        ticket=b"k" * 16,
+        spec=sample_spec(),
+        steps=sample_steps(),
+    )
 
 
 def sample_status() -> StatusReply:
-    group = GroupStatus(group=1, preset="min2018", arenas=(0, 1), agents_per_arena=1,
-                        trainers=("t",), rounds=10, rounds_per_s=5.0, agent_steps_per_s=10.0,
-                        late_agents=0)
-    return StatusReply(server="srv", package_version="0.1.0", max_arenas=8, arenas_used=2,
-                       step_deadline_s=0.5, uptime_s=3.0, groups=(group,))
+    group = GroupStatus(
+        group=1,
+        preset="min2018",
+        arenas=(0, 1),
+        agents_per_arena=1,
+        trainers=("t",),
+        rounds=10,
+        rounds_per_s=5.0,
+        agent_steps_per_s=10.0,
+        late_agents=0,
+    )
+    return StatusReply(
+        server="srv",
+        package_version="0.1.0",
+        max_arenas=8,
+        arenas_used=2,
+        step_deadline_s=0.5,
+        uptime_s=3.0,
+        groups=(group,),
+    )
 
 
 # --- 1. round trips ------------------------------------------------------------------------
+
 
 def test_strategies_cover_every_message_type():
     # A message type added to the protocol without a strategy here would go untested.
@@ -360,6 +494,7 @@ def test_array_of_a_dtype_the_wire_lacks_is_refused_on_encode():
 
 # --- 2. robustness -------------------------------------------------------------------------
 
+
 @settings(max_examples=300, deadline=None)
 @given(st.binary(max_size=256))
 def test_random_bytes_decode_or_raise_protocol_error(data):
@@ -389,8 +524,11 @@ def test_every_truncation_of_a_valid_frame_is_refused(message):
         decode(frame + b"\x00")
 
 
-@settings(max_examples=200, deadline=None,
-          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@settings(
+    max_examples=200,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
 @given(data=st.data())
 def test_single_byte_corruptions_decode_or_raise_protocol_error(data):
     frame = bytearray(encode(data.draw(any_message)))
@@ -403,17 +541,23 @@ def test_single_byte_corruptions_decode_or_raise_protocol_error(data):
 
 
 # Random msgpack values, including array-like maps with odd dtypes, shapes and data.
-_scalars = st.none() | st.booleans() | ints | st.floats() | st.text(max_size=6) | st.binary(
-    max_size=12)
-_array_like = st.fixed_dictionaries({
-    "dtype": wire_dtype_names | st.text(max_size=6) | st.lists(ints, max_size=2),
-    "shape": st.lists(st.integers(-2, 2**31) | st.booleans() | st.text(max_size=2), max_size=7),
-    "data": st.binary(max_size=24) | st.text(max_size=4),
-})
-msgpack_values = st.recursive(_scalars | _array_like,
-                              lambda inner: st.lists(inner, max_size=3)
-                              | st.dictionaries(st.text(max_size=6), inner, max_size=3),
-                              max_leaves=8)
+_scalars = (
+    st.none() | st.booleans() | ints | st.floats() | st.text(max_size=6) | st.binary(max_size=12)
+)
+_array_like = st.fixed_dictionaries(
+    {
+        "dtype": wire_dtype_names | st.text(max_size=6) | st.lists(ints, max_size=2),
+        "shape": st.lists(st.integers(-2, 2**31) | st.booleans() | st.text(max_size=2), max_size=7),
+        "data": st.binary(max_size=24) | st.text(max_size=4),
+    }
+)
+msgpack_values = st.recursive(
+    _scalars | _array_like,
+    lambda inner: (
+        st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=6), inner, max_size=3)
+    ),
+    max_leaves=8,
+)
 
 
 def _nodes(node, path=()):
@@ -426,8 +570,11 @@ def _nodes(node, path=()):
             yield from _nodes(value, (*path, index))
 
 
-@settings(max_examples=300, deadline=None,
-          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@settings(
+    max_examples=300,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
 @given(data=st.data())
 def test_structural_mutations_decode_or_raise_protocol_error(data):
     # Byte flips mostly break msgpack itself; replacing, deleting or adding one node of the
@@ -448,6 +595,7 @@ def test_structural_mutations_decode_or_raise_protocol_error(data):
 
 
 # --- 3. validation with clear messages -----------------------------------------------------
+
 
 @pytest.mark.parametrize("major", [MAJOR + 1, MAJOR - 1])
 def test_other_major_version_is_refused_naming_both_versions(major):
@@ -472,18 +620,33 @@ def test_newer_minor_version_may_add_fields_the_current_minor_may_not():
     with pytest.raises(DecodeError) as err:
         decode(pack([MAJOR, MINOR, "ack", body]))
     assert "added_in_a_later_minor" in str(err.value)  # what came
-    assert "'message'" in str(err.value)                # what was expected
+    assert "'message'" in str(err.value)  # what was expected
 
 
 def test_world_frame_of_a_1_0_peer_decodes_without_reward_terms():
     # 1.1 added the reward terms to world frames: a spectator of this version still reads an
     # older server's frames, and gets none...
     frame = WorldFrame(
-        server="s", group=0, arena=1, round=2, sim_time_s=0.4, lane_count=5, lane_width_m=3.5,
-        agent_kind=9, agent_active=np.ones(1, bool), x_m=np.zeros(2), y_m=np.zeros(2),
-        speed_mps=np.zeros(2, np.float32), kind=np.zeros(2, np.int8), active=np.ones(2, bool),
-        observations={}, reward=np.ones(1), action_applied=np.zeros(1, np.int64),
-        reward_terms=np.array([[0.5, -0.25]]), reward_term_names=("speed", "lane_change"))
+        server="s",
+        group=0,
+        arena=1,
+        round=2,
+        sim_time_s=0.4,
+        lane_count=5,
+        lane_width_m=3.5,
+        agent_kind=9,
+        agent_active=np.ones(1, bool),
+        x_m=np.zeros(2),
+        y_m=np.zeros(2),
+        speed_mps=np.zeros(2, np.float32),
+        kind=np.zeros(2, np.int8),
+        active=np.ones(2, bool),
+        observations={},
+        reward=np.ones(1),
+        action_applied=np.zeros(1, np.int64),
+        reward_terms=np.array([[0.5, -0.25]]),
+        reward_term_names=("speed", "lane_change"),
+    )
     *_, body = msgpack.unpackb(encode(frame), raw=False)
     assert body.pop("reward_term_names") == ["speed", "lane_change"]
     body.pop("reward_terms")
@@ -496,11 +659,25 @@ def test_world_frame_of_a_1_0_peer_decodes_without_reward_terms():
 
 
 def test_world_frame_reward_terms_must_match_their_names():
-    base = dict(server="s", group=0, arena=1, round=2, sim_time_s=0.4, lane_count=5,
-                lane_width_m=3.5, agent_kind=9, agent_active=np.ones(2, bool), x_m=np.zeros(2),
-                y_m=np.zeros(2), speed_mps=np.zeros(2, np.float32), kind=np.zeros(2, np.int8),
-                active=np.ones(2, bool), observations={}, reward=np.ones(2),
-                action_applied=np.zeros(2, np.int64))
+    base = dict(
+        server="s",
+        group=0,
+        arena=1,
+        round=2,
+        sim_time_s=0.4,
+        lane_count=5,
+        lane_width_m=3.5,
+        agent_kind=9,
+        agent_active=np.ones(2, bool),
+        x_m=np.zeros(2),
+        y_m=np.zeros(2),
+        speed_mps=np.zeros(2, np.float32),
+        kind=np.zeros(2, np.int8),
+        active=np.ones(2, bool),
+        observations={},
+        reward=np.ones(2),
+        action_applied=np.zeros(2, np.int64),
+    )
     with pytest.raises(DecodeError, match=r"reward_terms must have shape \(2, 3\)"):
         WorldFrame(**base, reward_terms=np.zeros((2, 2)), reward_term_names=("a", "b", "c"))
     with pytest.raises(DecodeError, match="without reward_terms"):
@@ -530,12 +707,16 @@ def _opened_steps(frame):
 
 # Nested records (GroupStatus, BehaviourSpec, ObservationSpec, the Steps inside Opened) are
 # judged by the peer's minor version too, not only the top-level message.
-@pytest.mark.parametrize("message, nested", [
-    (sample_status, _status_group),
-    (sample_opened, _opened_spec),
-    (sample_opened, _opened_spec_observation),
-    (sample_opened, _opened_steps),
-], ids=["status.groups[0]", "opened.spec", "opened.spec.observations[0]", "opened.steps"])
+@pytest.mark.parametrize(
+    "message, nested",
+    [
+        (sample_status, _status_group),
+        (sample_opened, _opened_spec),
+        (sample_opened, _opened_spec_observation),
+        (sample_opened, _opened_steps),
+    ],
+    ids=["status.groups[0]", "opened.spec", "opened.spec.observations[0]", "opened.steps"],
+)
 def test_newer_minor_version_may_add_fields_to_nested_records(message, nested):
     original = message()
     frame = frame_of(original)
@@ -557,8 +738,10 @@ def test_unknown_type_tag_is_refused_naming_the_known_ones(tag):
         assert repr(known) in str(err.value)
 
 
-@pytest.mark.parametrize("frame", [[], [MAJOR, MINOR, "ack"], {"a": 1}, "ack",
-                                   [MAJOR, MINOR, "ack", {"message": "m"}, 0]])
+@pytest.mark.parametrize(
+    "frame",
+    [[], [MAJOR, MINOR, "ack"], {"a": 1}, "ack", [MAJOR, MINOR, "ack", {"message": "m"}, 0]],
+)
 def test_frame_that_is_not_a_four_element_list_is_refused(frame):
     with pytest.raises(DecodeError, match=r"\[major, minor, type, body\]"):
         decode(pack(frame))
@@ -577,15 +760,19 @@ def test_missing_field_is_refused_naming_it():
     assert "JoinRequest" in str(err.value) and "'agents'" in str(err.value)
 
 
-@pytest.mark.parametrize("field, value, expected, came", [
-    ("arena", "3", "integer", "str"),
-    ("arena", 3.0, "integer", "float"),
-    ("arena", True, "integer", "bool"),   # bool is an int subclass in Python, not on the wire
-    ("arena", None, "integer", "NoneType"),
-    ("trainer", 5, "text", "int"),
-])
-def test_wrong_field_type_is_refused_naming_field_expectation_and_arrival(field, value,
-                                                                          expected, came):
+@pytest.mark.parametrize(
+    "field, value, expected, came",
+    [
+        ("arena", "3", "integer", "str"),
+        ("arena", 3.0, "integer", "float"),
+        ("arena", True, "integer", "bool"),  # bool is an int subclass in Python, not on the wire
+        ("arena", None, "integer", "NoneType"),
+        ("trainer", 5, "text", "int"),
+    ],
+)
+def test_wrong_field_type_is_refused_naming_field_expectation_and_arrival(
+    field, value, expected, came
+):
     frame = frame_of(JoinRequest(trainer="t", arena=0, agents=1))
     frame[3][field] = value
     with pytest.raises(DecodeError) as err:
@@ -607,8 +794,7 @@ def test_array_with_the_wrong_wire_dtype_is_refused():
     frame[3]["agents"] = wire_array_value(np.array([3, 1, 2], dtype=np.int64))
     with pytest.raises(DecodeError) as err:
         decode(pack(frame))
-    assert "agents" in str(err.value) and "int32" in str(err.value) \
-        and "int64" in str(err.value)
+    assert "agents" in str(err.value) and "int32" in str(err.value) and "int64" in str(err.value)
 
 
 def test_array_with_a_dtype_the_wire_lacks_is_refused():
@@ -723,8 +909,9 @@ def test_frame_over_the_size_limit_is_refused_without_unpacking(monkeypatch):
     assert calls == []
     assert str(limit + 1) in str(err.value) and str(limit) in str(err.value)
     # A frame exactly at the limit goes on to be unpacked.
-    at_limit = next(Ack(message="x" * n) for n in range(limit)
-                    if len(encode(Ack(message="x" * n))) == limit)
+    at_limit = next(
+        Ack(message="x" * n) for n in range(limit) if len(encode(Ack(message="x" * n))) == limit
+    )
     assert decode(encode(at_limit)) == at_limit
     assert calls == [limit]
 
@@ -732,8 +919,9 @@ def test_frame_over_the_size_limit_is_refused_without_unpacking(monkeypatch):
 def test_text_over_the_limit_is_refused_both_ways():
     too_long = "x" * (messages.MAX_TEXT_CHARS + 1)
     # A peer that skipped the check still cannot make us accept it...
-    frame = msgpack.packb([PROTOCOL_VERSION[0], PROTOCOL_VERSION[1], "ack",
-                           {"message": too_long}], use_bin_type=True)
+    frame = msgpack.packb(
+        [PROTOCOL_VERSION[0], PROTOCOL_VERSION[1], "ack", {"message": too_long}], use_bin_type=True
+    )
     with pytest.raises(DecodeError, match=str(messages.MAX_TEXT_CHARS)):
         decode(frame)
     # ...and we never build a frame the other side would refuse.
@@ -760,15 +948,25 @@ def test_encode_refuses_what_is_not_a_message():
 
 # --- 4. numpy scalars ------------------------------------------------------------------------
 
+
 def test_numpy_scalars_encode_and_decode_as_plain_python_values():
     # Trainers routinely pass np.int64 seeds (rng.integers) and numpy-typed overrides. The
     # dataclass checks accept them (comparisons work on numpy scalars); the codec turns them
     # into plain Python values, so the peer sees ints, floats and bools.
-    request = OpenRequest(trainer=np.str_("trainer"), preset="min2018",
-                          overrides={"f": np.float32(0.1), "i": np.int64(-3),
-                                     "b": np.bool_(True), "d": np.float64(2.5)},
-                          arenas=np.int64(2), agents_per_arena=np.int32(3),
-                          claim=np.uint8(2), seed=np.int64(7))
+    request = OpenRequest(
+        trainer=np.str_("trainer"),
+        preset="min2018",
+        overrides={
+            "f": np.float32(0.1),
+            "i": np.int64(-3),
+            "b": np.bool_(True),
+            "d": np.float64(2.5),
+        },
+        arenas=np.int64(2),
+        agents_per_arena=np.int32(3),
+        claim=np.uint8(2),
+        seed=np.int64(7),
+    )
     back = decode(encode(request))
     assert back.seed == 7 and type(back.seed) is int
     assert (back.arenas, back.agents_per_arena, back.claim) == (2, 3, 2)
@@ -776,15 +974,25 @@ def test_numpy_scalars_encode_and_decode_as_plain_python_values():
     assert back.overrides == {"f": float(np.float32(0.1)), "i": -3, "b": True, "d": 2.5}
     assert [type(v) for v in back.overrides.values()] == [float, int, bool, float]
     assert type(back.trainer) is str
-    assert back == OpenRequest(trainer="trainer", preset="min2018",
-                               overrides={"f": float(np.float32(0.1)), "i": -3, "b": True,
-                                          "d": 2.5},
-                               arenas=2, agents_per_arena=3, claim=2, seed=7)
+    assert back == OpenRequest(
+        trainer="trainer",
+        preset="min2018",
+        overrides={"f": float(np.float32(0.1)), "i": -3, "b": True, "d": 2.5},
+        arenas=2,
+        agents_per_arena=3,
+        claim=2,
+        seed=7,
+    )
 
 
 def test_numpy_scalars_inside_tuples_and_float_fields_become_plain():
-    reset = ResetRequest(trainer="t", ticket=b"", group=np.int16(4),
-                         arenas=(np.int32(0), np.int64(5)), seeds=(np.uint64(9), None))
+    reset = ResetRequest(
+        trainer="t",
+        ticket=b"",
+        group=np.int16(4),
+        arenas=(np.int32(0), np.int64(5)),
+        seeds=(np.uint64(9), None),
+    )
     back = decode(encode(reset))
     assert back == ResetRequest(trainer="t", ticket=b"", group=4, arenas=(0, 5), seeds=(9, None))
     status = sample_status()
@@ -795,11 +1003,19 @@ def test_numpy_scalars_inside_tuples_and_float_fields_become_plain():
 
 def test_numpy_seed_out_of_range_is_refused_like_a_python_one():
     with pytest.raises(DecodeError, match="seed must be from 0"):
-        OpenRequest(trainer="t", preset="p", overrides={}, arenas=1, agents_per_arena=1,
-                    claim=1, seed=np.uint64(2**64 - 1))
+        OpenRequest(
+            trainer="t",
+            preset="p",
+            overrides={},
+            arenas=1,
+            agents_per_arena=1,
+            claim=1,
+            seed=np.uint64(2**64 - 1),
+        )
 
 
 # --- 5. key expressions ----------------------------------------------------------------------
+
 
 def test_builders_produce_the_documented_keys():
     assert keys.server_request("s1") == "overtake/server/s1/request"
@@ -827,40 +1043,51 @@ def test_parsers_invert_builders(server, trainer, arena):
     assert keys.parse_world(keys.world(server, arena)) == (server, arena)
 
 
-@pytest.mark.parametrize("build", [
-    lambda bad: keys.server_request(bad), lambda bad: keys.server_actions("s", bad),
-    lambda bad: keys.server_actions(bad, "t"), lambda bad: keys.server_actions_all(bad),
-    lambda bad: keys.trainer_steps(bad, "s"), lambda bad: keys.trainer_steps("t", bad),
-    lambda bad: keys.trainer_steps_all(bad), lambda bad: keys.world(bad),
-    lambda bad: keys.server_alive(bad), lambda bad: keys.trainer_alive(bad),
-])
+@pytest.mark.parametrize(
+    "build",
+    [
+        lambda bad: keys.server_request(bad),
+        lambda bad: keys.server_actions("s", bad),
+        lambda bad: keys.server_actions(bad, "t"),
+        lambda bad: keys.server_actions_all(bad),
+        lambda bad: keys.trainer_steps(bad, "s"),
+        lambda bad: keys.trainer_steps("t", bad),
+        lambda bad: keys.trainer_steps_all(bad),
+        lambda bad: keys.world(bad),
+        lambda bad: keys.server_alive(bad),
+        lambda bad: keys.trainer_alive(bad),
+    ],
+)
 @pytest.mark.parametrize("bad", ["a/b", "*", "**", "", "a?b"])
 def test_builders_refuse_names_that_would_change_the_key(build, bad):
     with pytest.raises(DecodeError):
         build(bad)
 
 
-@pytest.mark.parametrize("parse, key", [
-    (keys.parse_server_actions, "other/server/s/actions/t"),         # wrong root
-    (keys.parse_server_actions, "overtake/server/s/actions"),        # too few segments
-    (keys.parse_server_actions, "overtake/server/s/actions/t/x"),    # too many segments
-    (keys.parse_server_actions, "overtake/server/s/world/t"),        # wrong literal
-    (keys.parse_server_actions, "overtake/server/*/actions/t"),      # wildcard server
-    (keys.parse_server_actions, "overtake/server/s/actions/**"),     # wildcard trainer
-    (keys.parse_server_actions, "overtake/server/s/actions/"),       # empty name
-    (keys.parse_trainer_alive, "overtake/alive/trainer/a/b"),        # name with '/'
-    (keys.parse_trainer_alive, "overtake/alive/server/t"),
-    (keys.parse_trainer_alive, "overtake/alive/trainer/t*"),
-    (keys.parse_server_alive, "overtake/alive/server"),
-    (keys.parse_server_alive, "/overtake/alive/server/s"),
-    (keys.parse_server_request, "overtake/server/s/requests"),
-    (keys.parse_server_request, "overtake/server/*/request"),
-    (keys.parse_world, "overtake/server/s/world/*"),
-    (keys.parse_world, "overtake/server/s/world/x"),
-    (keys.parse_world, "overtake/server/s/world/-1"),
-    (keys.parse_world, "overtake/server/s/world"),
-    (keys.parse_world, "overtake/trainer/s/world/1"),
-])
+@pytest.mark.parametrize(
+    "parse, key",
+    [
+        (keys.parse_server_actions, "other/server/s/actions/t"),  # wrong root
+        (keys.parse_server_actions, "overtake/server/s/actions"),  # too few segments
+        (keys.parse_server_actions, "overtake/server/s/actions/t/x"),  # too many segments
+        (keys.parse_server_actions, "overtake/server/s/world/t"),  # wrong literal
+        (keys.parse_server_actions, "overtake/server/*/actions/t"),  # wildcard server
+        (keys.parse_server_actions, "overtake/server/s/actions/**"),  # wildcard trainer
+        (keys.parse_server_actions, "overtake/server/s/actions/"),  # empty name
+        (keys.parse_trainer_alive, "overtake/alive/trainer/a/b"),  # name with '/'
+        (keys.parse_trainer_alive, "overtake/alive/server/t"),
+        (keys.parse_trainer_alive, "overtake/alive/trainer/t*"),
+        (keys.parse_server_alive, "overtake/alive/server"),
+        (keys.parse_server_alive, "/overtake/alive/server/s"),
+        (keys.parse_server_request, "overtake/server/s/requests"),
+        (keys.parse_server_request, "overtake/server/*/request"),
+        (keys.parse_world, "overtake/server/s/world/*"),
+        (keys.parse_world, "overtake/server/s/world/x"),
+        (keys.parse_world, "overtake/server/s/world/-1"),
+        (keys.parse_world, "overtake/server/s/world"),
+        (keys.parse_world, "overtake/trainer/s/world/1"),
+    ],
+)
 def test_malformed_keys_are_refused(parse, key):
     with pytest.raises(DecodeError) as err:
         parse(key)
@@ -869,6 +1096,7 @@ def test_malformed_keys_are_refused(parse, key):
 
 
 # --- 6. error hierarchy ----------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("code, cls", sorted(ERRORS_BY_CODE.items()))
 def test_error_from_code_rebuilds_the_class_with_that_code(code, cls):
@@ -888,10 +1116,14 @@ def test_error_from_an_unknown_code_is_the_base_class():
 
 def test_every_error_class_has_its_own_code():
     # Two classes sharing a code would silently drop one from ERRORS_BY_CODE.
-    classes = [obj for obj in vars(errors).values()
-               if inspect.isclass(obj) and issubclass(obj, ProtocolError)]
-    assert sorted(ERRORS_BY_CODE.values(), key=lambda c: c.__name__) == \
-        sorted(classes, key=lambda c: c.__name__)
+    classes = [
+        obj
+        for obj in vars(errors).values()
+        if inspect.isclass(obj) and issubclass(obj, ProtocolError)
+    ]
+    assert sorted(ERRORS_BY_CODE.values(), key=lambda c: c.__name__) == sorted(
+        classes, key=lambda c: c.__name__
+    )
     assert all(issubclass(cls, ProtocolError) for cls in ERRORS_BY_CODE.values())
 
 

@@ -16,18 +16,23 @@ import rerun as rr
 import overtake.client  # noqa: F401  (registers the environments)
 from overtake.protocol import REMOTE_HIGHWAY_ENV_ID
 from overtake.protocol.messages import WorldFrame
-from overtake.viz.recording import (Recording, RecordingConfig, RecordingError, open_recording,
-                                         viewer_binary)
+from overtake.viz.recording import (
+    Recording,
+    RecordingConfig,
+    RecordingError,
+    open_recording,
+    viewer_binary,
+)
 
-from remote_support import (free_port, logged_by_round, remote_config, stop_process,
-                            wait_until)
+from remote_support import free_port, logged_by_round, remote_config, stop_process, wait_until
 
 
 @pytest.mark.timeout(120)
 def test_server_records_its_arenas_with_reward_terms_decimated(start_server, tmp_path):
     rrd = tmp_path / "server.rrd"
-    server = start_server("recorder", extra=("--sink", "file", "--rrd", str(rrd),
-                                             "--record-every", "3"))
+    server = start_server(
+        "recorder", extra=("--sink", "file", "--rrd", str(rrd), "--record-every", "3")
+    )
     env = gym.make(REMOTE_HIGHWAY_ENV_ID, remote=remote_config(server.endpoint, server.name))
     seen: dict[int, tuple[np.ndarray, float, dict[str, float]]] = {}
     try:
@@ -44,7 +49,7 @@ def test_server_records_its_arenas_with_reward_terms_decimated(start_server, tmp
         arena = group.arena_ids[0]
     finally:
         env.close()
-    server.stop()    # SIGTERM: the server closes the recording, which gets its footer
+    server.stop()  # SIGTERM: the server closes the recording, which gets its footer
     assert server.proc.returncode == 0, server.log_text()[-2000:]
     assert "recorded" in server.log_text() and "0 dropped" in server.log_text()
 
@@ -53,8 +58,10 @@ def test_server_records_its_arenas_with_reward_terms_decimated(start_server, tmp
     hits = logged_by_round(reader, f"{root}/agent0/lidar/hits", "Points2D:positions")
     cars = logged_by_round(reader, f"{root}/cars", "Boxes2D:centers")
     rewards = logged_by_round(reader, f"{root}/agent0/reward", "Scalars:scalars")
-    terms = {name: logged_by_round(reader, f"{root}/agent0/reward_terms/{name}", "Scalars:scalars")
-             for name in seen[max(seen)][2]}
+    terms = {
+        name: logged_by_round(reader, f"{root}/agent0/reward_terms/{name}", "Scalars:scalars")
+        for name in seen[max(seen)][2]
+    }
     # Every third round, and only those.
     assert sorted(hits) == [r for r in sorted(seen) if r % 3 == 0]
     angles = np.arange(360) * (2 * np.pi / 360)
@@ -62,15 +69,17 @@ def test_server_records_its_arenas_with_reward_terms_decimated(start_server, tmp
         lidar, reward, reward_terms = seen[round_]
         points = np.asarray(points)
         origin = points - np.stack([lidar * np.cos(angles), lidar * np.sin(angles)], axis=1)
-        assert np.allclose(origin, cars[round_][0], atol=1e-3)   # from the agent's box
+        assert np.allclose(origin, cars[round_][0], atol=1e-3)  # from the agent's box
         assert rewards[round_][0] == pytest.approx(reward)
         for name, value in reward_terms.items():
             assert terms[name][round_][0] == pytest.approx(value), (round_, name)
-    assert any(terms["lane_change"][r][0] != 0 for r in hits)   # the lane change was logged
+    assert any(terms["lane_change"][r][0] != 0 for r in hits)  # the lane change was logged
     assert sum(v[0] for v in terms["speed"].values()) > 0
     # The recording lays its arena out (a tab with the road, agent 0's camera and scalars).
-    assert any({root, f"{root}/agent0/camera"} <= blueprint_texts(reader, store)
-               for store in reader.blueprints())
+    assert any(
+        {root, f"{root}/agent0/camera"} <= blueprint_texts(reader, store)
+        for store in reader.blueprints()
+    )
 
 
 def listening_addresses(port: int) -> set[str]:
@@ -79,7 +88,7 @@ def listening_addresses(port: int) -> set[str]:
     for line in Path("/proc/net/tcp").read_text().splitlines()[1:]:
         local, state = line.split()[1], line.split()[3]
         address, port_hex = local.split(":")
-        if state == "0A" and int(port_hex, 16) == port:   # 0A: LISTEN
+        if state == "0A" and int(port_hex, 16) == port:  # 0A: LISTEN
             out.add(".".join(str(b) for b in reversed(bytes.fromhex(address))))
     return out
 
@@ -92,7 +101,7 @@ def test_web_sink_serves_the_viewer_on_loopback_and_stops_it(tmp_path):
     assert isinstance(recording, Recording) and recording.viewer is not None
     viewer = recording.viewer
     try:
-        assert viewer.args[0] == viewer_binary()   # the binary, not the Python wrapper
+        assert viewer.args[0] == viewer_binary()  # the binary, not the Python wrapper
         recording.stream.log("probe", rr.Scalars(1.0))
         wait_until(lambda: listening_addresses(web_port), 20, "the web viewer's port")
         assert listening_addresses(grpc_port) == {"127.0.0.1"}
@@ -101,7 +110,7 @@ def test_web_sink_serves_the_viewer_on_loopback_and_stops_it(tmp_path):
             assert page.status == 200 and b"<html" in page.read().lower()
     finally:
         recording.close()
-        if viewer.poll() is None:   # close() failed to stop it: do it here and fail below
+        if viewer.poll() is None:  # close() failed to stop it: do it here and fail below
             stop_process(viewer)
     assert viewer.returncode is not None
     assert not listening_addresses(grpc_port)
@@ -112,12 +121,12 @@ def test_web_sink_serves_the_viewer_on_loopback_and_stops_it(tmp_path):
 def test_closing_a_recording_whose_viewer_died_does_not_raise(tmp_path, caplog):
     config = RecordingConfig(sink="web", web_port=free_port(), web_grpc_port=free_port())
     recording = open_recording("overtake-test", config, tmp_path / "unused.rrd")
-    stop_process(recording.viewer, sig=signal.SIGKILL)   # as a viewer closed under a trainer
+    stop_process(recording.viewer, sig=signal.SIGKILL)  # as a viewer closed under a trainer
     for step in range(50):
         recording.stream.set_time("step", sequence=step)
         recording.stream.log("probe", rr.Scalars(float(step)))
     with caplog.at_level(logging.WARNING, logger="overtake.recording"):
-        recording.close()      # a warning, not an exception that would end a training run
+        recording.close()  # a warning, not an exception that would end a training run
     assert recording.viewer.returncode is not None
 
 
@@ -129,8 +138,11 @@ def test_web_sink_refuses_a_taken_port(tmp_path):
         taken.listen()
         port = taken.getsockname()[1]
         with pytest.raises(RecordingError, match=f"port {port} on 127.0.0.1 is already taken"):
-            open_recording("overtake-test", RecordingConfig(sink="web", web_grpc_port=port),
-                           tmp_path / "unused.rrd")
+            open_recording(
+                "overtake-test",
+                RecordingConfig(sink="web", web_grpc_port=port),
+                tmp_path / "unused.rrd",
+            )
 
 
 def test_recording_config_refuses_no_decimation():
@@ -140,11 +152,24 @@ def test_recording_config_refuses_no_decimation():
 
 def small_frame(round_: int, arena: int = 0) -> WorldFrame:
     return WorldFrame(
-        server="s", group=0, arena=arena, round=round_, sim_time_s=0.4 * round_, lane_count=5,
-        lane_width_m=3.5, agent_kind=3, agent_active=np.ones(1, bool), x_m=np.zeros(2),
-        y_m=np.ones(2), speed_mps=np.zeros(2, np.float32), kind=np.array([3, 0], np.int8),
-        active=np.ones(2, bool), observations={}, reward=np.ones(1),
-        action_applied=np.zeros(1, np.int64))
+        server="s",
+        group=0,
+        arena=arena,
+        round=round_,
+        sim_time_s=0.4 * round_,
+        lane_count=5,
+        lane_width_m=3.5,
+        agent_kind=3,
+        agent_active=np.ones(1, bool),
+        x_m=np.zeros(2),
+        y_m=np.ones(2),
+        speed_mps=np.zeros(2, np.float32),
+        kind=np.array([3, 0], np.int8),
+        active=np.ones(2, bool),
+        observations={},
+        reward=np.ones(1),
+        action_applied=np.zeros(1, np.int64),
+    )
 
 
 def test_server_recorder_drops_and_counts_what_it_cannot_keep_up_with(tmp_path, caplog):
@@ -152,13 +177,14 @@ def test_server_recorder_drops_and_counts_what_it_cannot_keep_up_with(tmp_path, 
 
     from overtake.server import recorder as recorder_module
 
-    recorder = recorder_module.ServerRecorder(RecordingConfig(sink="file",
-                                                              rrd=tmp_path / "s.rrd"), "s")
+    recorder = recorder_module.ServerRecorder(
+        RecordingConfig(sink="file", rrd=tmp_path / "s.rrd"), "s"
+    )
     release = threading.Event()
     logged_rounds: list[int] = []
     real_log = recorder.view.log
 
-    def slow_log(frame):             # a logging thread that has fallen behind
+    def slow_log(frame):  # a logging thread that has fallen behind
         release.wait(30)
         real_log(frame)
         logged_rounds.append(frame.round)
@@ -174,7 +200,7 @@ def test_server_recorder_drops_and_counts_what_it_cannot_keep_up_with(tmp_path, 
     release.set()
     recorder.close()
     assert recorder.logged == sum(kept) == len(logged_rounds)
-    assert logged_rounds == sorted(logged_rounds)            # in order, none twice
+    assert logged_rounds == sorted(logged_rounds)  # in order, none twice
     reader = rr.chunk.RrdReader(str(tmp_path / "s.rrd"))
     assert {c.entity_path for c in reader.stream().to_chunks()} >= {"/world/s/arena0/cars"}
 
@@ -192,10 +218,11 @@ def blueprint_texts(reader, store) -> set[str]:
         elif isinstance(value, dict):
             for item in value.values():
                 collect(item)
+
     for chunk in reader.stream(store=store).to_chunks():
         batch = chunk.to_record_batch()
         for column, column_field in zip(batch.columns, batch.schema):
-            if not pa.types.is_temporal(column_field.type):   # timelines hold no text
+            if not pa.types.is_temporal(column_field.type):  # timelines hold no text
                 collect(column.to_pylist())
     return texts
 
@@ -204,21 +231,24 @@ def test_server_recording_lays_out_each_arena_as_it_appears(tmp_path, monkeypatc
     from overtake.server import recorder as recorder_module
 
     monkeypatch.setattr(recorder_module, "BLUEPRINT_ARENAS", 2)
-    recorder = recorder_module.ServerRecorder(RecordingConfig(sink="file",
-                                                              rrd=tmp_path / "s.rrd"), "s")
+    recorder = recorder_module.ServerRecorder(
+        RecordingConfig(sink="file", rrd=tmp_path / "s.rrd"), "s"
+    )
     for round_ in range(3):
-        for arena in (7, 3, 9):   # 9 appears last: 7, the oldest, leaves the layout
+        for arena in (7, 3, 9):  # 9 appears last: 7, the oldest, leaves the layout
             recorder.offer(small_frame(round_, arena))
     recorder.close()
     reader = rr.chunk.RrdReader(str(tmp_path / "s.rrd"))
     # One layout each time an arena appeared (the .rrd lists them in no particular order):
     # 7; 7 and 3; then 3 and 9, the oldest (7) dropped. Arenas seen before send none again.
     layouts = [blueprint_texts(reader, store) for store in reader.blueprints()]
-    laid_out = sorted(sorted(a for a in (3, 7, 9) if f"/world/s/arena{a}" in texts)
-                      for texts in layouts)
+    laid_out = sorted(
+        sorted(a for a in (3, 7, 9) if f"/world/s/arena{a}" in texts) for texts in layouts
+    )
     assert laid_out == [[3, 7], [3, 9], [7]]
-    both = next(texts for texts in layouts if "/world/s/arena7" in texts
-                and "/world/s/arena3" in texts)
+    both = next(
+        texts for texts in layouts if "/world/s/arena7" in texts and "/world/s/arena3" in texts
+    )
     assert {"arena 3", "arena 7", "all arenas", "/world/s/arena3/agent0/camera"} <= both
     # Arena 7 is recorded all the same.
     assert "/world/s/arena7/cars" in {c.entity_path for c in reader.stream().to_chunks()}

@@ -58,11 +58,13 @@ def assert_same(a, b, where: str = "value") -> None:
 
 # --- 1. bit for bit equal to the in-process environments ------------------------------------
 
+
 @pytest.mark.timeout(90)
 def test_remote_env_is_bit_identical_to_in_process_env(start_server):
     server = start_server("e2e-bits")
-    remote = gym.make(REMOTE_HIGHWAY_ENV_ID, remote=remote_config(server.endpoint, server.name),
-                      overrides=SHORT)
+    remote = gym.make(
+        REMOTE_HIGHWAY_ENV_ID, remote=remote_config(server.endpoint, server.name), overrides=SHORT
+    )
     local = gym.make(HIGHWAY_ENV_ID, overrides=SHORT)
     try:
         assert remote.observation_space == local.observation_space
@@ -93,11 +95,16 @@ def test_remote_env_is_bit_identical_to_in_process_env(start_server):
 def test_remote_vector_env_is_bit_identical_to_in_process_vector_env(start_server):
     server = start_server("e2e-vbits")
     n = 4
-    remote = gym.make_vec(REMOTE_HIGHWAY_ENV_ID, num_envs=n,
-                          vectorization_mode="vector_entry_point",
-                          remote=remote_config(server.endpoint, server.name), overrides=SHORT)
-    local = gym.make_vec(HIGHWAY_ENV_ID, num_envs=n, vectorization_mode="vector_entry_point",
-                         overrides=SHORT)
+    remote = gym.make_vec(
+        REMOTE_HIGHWAY_ENV_ID,
+        num_envs=n,
+        vectorization_mode="vector_entry_point",
+        remote=remote_config(server.endpoint, server.name),
+        overrides=SHORT,
+    )
+    local = gym.make_vec(
+        HIGHWAY_ENV_ID, num_envs=n, vectorization_mode="vector_entry_point", overrides=SHORT
+    )
     try:
         assert remote.observation_space == local.observation_space
         assert remote.single_observation_space == local.single_observation_space
@@ -113,8 +120,9 @@ def test_remote_vector_env_is_bit_identical_to_in_process_vector_env(start_serve
         autoresets = metric_rows = 0
         for step in range(150):
             if step == 70:
-                assert_same(remote.reset(seed=[5, 6, 7, 8]), local.reset(seed=[5, 6, 7, 8]),
-                             "mid reset")
+                assert_same(
+                    remote.reset(seed=[5, 6, 7, 8]), local.reset(seed=[5, 6, 7, 8]), "mid reset"
+                )
                 ended[:] = False
             actions = rng.integers(0, 5, size=n)
             got, want = remote.step(actions), local.step(actions)
@@ -136,18 +144,25 @@ def test_remote_vector_env_is_bit_identical_to_in_process_vector_env(start_serve
 
 # --- 2. RemoteEnvironment: ML-Agents' low-level API -----------------------------------------
 
+
 @pytest.mark.timeout(60)
 def test_remote_environment_follows_ml_agents_base_env(start_server):
     server = start_server("e2e-mla")
-    env = RemoteEnvironment(arenas=2, agents_per_arena=1, seed=5, overrides=EMPTY_ROAD,
-                            config=remote_config(server.endpoint, server.name))
+    env = RemoteEnvironment(
+        arenas=2,
+        agents_per_arena=1,
+        seed=5,
+        overrides=EMPTY_ROAD,
+        config=remote_config(server.endpoint, server.name),
+    )
     local = HighwayVectorEnv(num_envs=2, overrides=EMPTY_ROAD)
     try:
-        (name, spec), = env.behavior_specs.items()
+        ((name, spec),) = env.behavior_specs.items()
         local_space = local.single_observation_space
         assert [o.name for o in spec.observation_specs] == list(local_space.spaces)
-        assert [o.shape for o in spec.observation_specs] == \
-            [local_space[k].shape for k in local_space.spaces]
+        assert [o.shape for o in spec.observation_specs] == [
+            local_space[k].shape for k in local_space.spaces
+        ]
         assert spec.action_spec.continuous_size == 0
         assert spec.action_spec.discrete_branches == (5,)
 
@@ -161,7 +176,7 @@ def test_remote_environment_follows_ml_agents_base_env(start_server):
             for obs, o_spec in zip(decision.obs, spec.observation_specs):
                 assert obs.shape == (len(agents),) + o_spec.shape
                 assert_same(obs, local_obs[o_spec.name][agents], o_spec.name)
-            mask, = decision.action_mask
+            (mask,) = decision.action_mask
             assert mask.dtype == bool
             # ML-Agents' mask: True marks an action that can NOT be taken.
             assert_same(mask, local_info["action_mask"][agents] == 0, "action_mask")
@@ -170,7 +185,10 @@ def test_remote_environment_follows_ml_agents_base_env(start_server):
         assert isinstance(decision, DecisionSteps) and isinstance(terminal, TerminalSteps)
         check_decisions(decision, [0, 1])
         assert len(terminal) == 0
-        assert decision[1].agent_id == 1 and decision[1].obs[0].shape == spec.observation_specs[0].shape
+        assert (
+            decision[1].agent_id == 1
+            and decision[1].obs[0].shape == spec.observation_specs[0].shape
+        )
 
         with pytest.raises(KeyError):
             env.get_steps("no-such-behaviour")
@@ -185,7 +203,7 @@ def test_remote_environment_follows_ml_agents_base_env(start_server):
         for step in range(1, 24):
             decision, terminal = env.get_steps(name)
             deciding = decision.agent_id.tolist()
-            actions = np.array([[1], [2]], dtype=np.int32)[:len(deciding)]
+            actions = np.array([[1], [2]], dtype=np.int32)[: len(deciding)]
             env.set_actions(name, ActionTuple(discrete=actions))
             if 1 in deciding:
                 env.set_action_for_agent(name, 1, ActionTuple(discrete=np.array([[3]])))
@@ -234,12 +252,17 @@ def test_remote_environment_follows_ml_agents_base_env(start_server):
 
 # --- 7. a lost server, and no server at all ---------------------------------------------------
 
+
 @pytest.mark.timeout(60)
 def test_step_raises_server_lost_when_the_server_is_killed(start_server):
     server = start_server("e2e-lost")
-    env = gym.make(REMOTE_HIGHWAY_ENV_ID, overrides=SHORT,
-                   remote=remote_config(server.endpoint, server.name, reconnect_timeout_s=1.0,
-                                        step_timeout_s=30.0))
+    env = gym.make(
+        REMOTE_HIGHWAY_ENV_ID,
+        overrides=SHORT,
+        remote=remote_config(
+            server.endpoint, server.name, reconnect_timeout_s=1.0, step_timeout_s=30.0
+        ),
+    )
     try:
         env.reset(seed=1)
         for _ in range(3):
@@ -277,12 +300,16 @@ def test_no_server_raises_connect_error_within_the_timeout(make):
 
 # --- 8. a server restart is survived ------------------------------------------------------
 
+
 @pytest.mark.timeout(60)
 def test_gym_env_carries_on_across_a_server_restart(start_server):
     port = free_port()
     server = start_server("e2e-restart", port=port)
-    env = gym.make(REMOTE_HIGHWAY_ENV_ID, overrides=SHORT,
-                   remote=remote_config(server.endpoint, server.name, reconnect_timeout_s=15.0))
+    env = gym.make(
+        REMOTE_HIGHWAY_ENV_ID,
+        overrides=SHORT,
+        remote=remote_config(server.endpoint, server.name, reconnect_timeout_s=15.0),
+    )
     try:
         env.reset(seed=2)
         for _ in range(5):
@@ -311,8 +338,9 @@ def test_gym_env_carries_on_across_a_server_restart(start_server):
 def test_trainer_stepping_through_a_server_restart_carries_on(start_server, start_trainer):
     port = free_port()
     server = start_server("e2e-restart2", port=port)
-    trainer = start_trainer(trainer_args(server, server.name, reconnect_timeout_s=20,
-                                         print_every=50), "runner")
+    trainer = start_trainer(
+        trainer_args(server, server.name, reconnect_timeout_s=20, print_every=50), "runner"
+    )
     trainer.expect("READY")
     trainer.send("run")
     trainer.expect("STEP")  # stepping
@@ -330,6 +358,7 @@ def test_trainer_stepping_through_a_server_restart_carries_on(start_server, star
 
 # --- 12. spectators -------------------------------------------------------------------------
 
+
 @pytest.mark.timeout(60)
 def test_world_frames_show_the_arena_and_the_trainers_observations(start_server):
     server = start_server("e2e-world", world_rate_hz=50)
@@ -342,8 +371,9 @@ def test_world_frames_show_the_arena_and_the_trainers_observations(start_server)
         except Exception as error:  # reported by the test, not lost in Zenoh's thread
             problems.append(repr(error))
 
-    env = gym.make(REMOTE_HIGHWAY_ENV_ID, overrides=SHORT,
-                   remote=remote_config(server.endpoint, server.name))
+    env = gym.make(
+        REMOTE_HIGHWAY_ENV_ID, overrides=SHORT, remote=remote_config(server.endpoint, server.name)
+    )
     with RawClient(server.endpoint) as spectator:
         spectator.subscribe(keys.world(server.name), on_frame)
         try:
@@ -386,8 +416,9 @@ def test_a_slow_spectator_does_not_slow_the_simulation(start_server, start_train
     big_camera = {"camera.width_px": 128, "camera.height_px": 128, "camera.rgb": True}
     server = start_server("e2e-slowspec", world_rate_hz=1000)
     steps = 1000
-    trainer = start_trainer(trainer_args(server, server.name, overrides=big_camera,
-                                         print_every=steps), "stepper")
+    trainer = start_trainer(
+        trainer_args(server, server.name, overrides=big_camera, print_every=steps), "stepper"
+    )
     ready = trainer.expect("READY")
     received = []
     slow = threading.Event()
@@ -416,4 +447,3 @@ def test_a_slow_spectator_does_not_slow_the_simulation(start_server, start_train
     assert summary["max_gap_s"] < 0.5, f"a step took {summary['max_gap_s']:.2f} s"
     assert received, "the spectator got no frames"
     assert server.alive()
-

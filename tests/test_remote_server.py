@@ -26,8 +26,6 @@ from overtake.client.remote import Connection
 from overtake.protocol import REMOTE_HIGHWAY_ENV_ID, codec, keys
 from overtake.protocol.codec import version_text
 from overtake.protocol.errors import ServerLost
-from overtake.server.errors import StartError
-from overtake.server.service import ServerConfig, main
 from overtake.protocol.messages import (
     Ack,
     Actions,
@@ -37,6 +35,8 @@ from overtake.protocol.messages import (
     StatusReply,
     WorldFrame,
 )
+from overtake.server.errors import StartError
+from overtake.server.service import ServerConfig, main
 
 from remote_support import (
     RawClient,
@@ -54,14 +54,17 @@ def group_of(status: StatusReply, trainer: str):
 
 # --- 3. two trainers, independent arenas, at the same time -----------------------------------
 
+
 @pytest.mark.timeout(60)
 def test_two_trainers_step_their_own_arenas_concurrently(start_server, start_trainer):
     server = start_server("e2e-two")
     steps = 300
-    a = start_trainer(trainer_args(server, server.name, seed=1, policy="random",
-                                   print_every=steps), "a")
-    b = start_trainer(trainer_args(server, server.name, seed=2, policy="random",
-                                   print_every=steps), "b")
+    a = start_trainer(
+        trainer_args(server, server.name, seed=1, policy="random", print_every=steps), "a"
+    )
+    b = start_trainer(
+        trainer_args(server, server.name, seed=2, policy="random", print_every=steps), "b"
+    )
     ready_a, ready_b = a.expect("READY"), b.expect("READY")
     assert ready_a["trainer"] != ready_b["trainer"]
     assert ready_a["group"] != ready_b["group"]
@@ -69,6 +72,7 @@ def test_two_trainers_step_their_own_arenas_concurrently(start_server, start_tra
 
     a.send(f"step {steps}")
     b.send(f"step {steps}")
+
     # While they run, the server holds two groups, one trainer each.
     def both_stepping() -> StatusReply | None:
         s = server.status()
@@ -98,12 +102,24 @@ def test_two_trainers_step_their_own_arenas_concurrently(start_server, start_tra
 
 # --- 4. three trainers on one road ------------------------------------------------------------
 
+
 @pytest.mark.timeout(60)
 def test_three_trainers_share_one_arena_in_lock_step(start_server, start_trainer):
     server = start_server("e2e-share", world_rate_hz=1000)
     empty_road = {"traffic.vehicle_count": 0}
-    a = start_trainer(trainer_args(server, server.name, arenas=1, agents_per_arena=3, claim=1,
-                                   seed=3, overrides=empty_road, print_lidar=True), "a")
+    a = start_trainer(
+        trainer_args(
+            server,
+            server.name,
+            arenas=1,
+            agents_per_arena=3,
+            claim=1,
+            seed=3,
+            overrides=empty_road,
+            print_lidar=True,
+        ),
+        "a",
+    )
     ready_a = a.expect("READY")
     arena = ready_a["arena_ids"][0]
     b = start_trainer(trainer_args(server, server.name, join=arena, print_lidar=True), "b")
@@ -123,14 +139,19 @@ def test_three_trainers_share_one_arena_in_lock_step(start_server, start_trainer
 
     frames: dict[int, WorldFrame] = {}
     with RawClient(server.endpoint) as spectator:
-        spectator.subscribe(keys.world(server.name, arena), lambda sample: frames.setdefault(
-            (f := codec.decode(sample.payload.to_bytes(), WorldFrame)).round, f))
+        spectator.subscribe(
+            keys.world(server.name, arena),
+            lambda sample: frames.setdefault(
+                (f := codec.decode(sample.payload.to_bytes(), WorldFrame)).round, f
+            ),
+        )
 
         # The round waits for every trainer: two acting is not enough.
         a.send("step 1")
         b.send("step 1")
-        assert a.no_event_within(0.5) and b.no_event_within(0.0), \
+        assert a.no_event_within(0.5) and b.no_event_within(0.0), (
             "the shared round stepped without the third trainer"
+        )
         c.send("step 1")
         for t in trainers:
             assert t.expect("STEPPED")["round"] == 1
@@ -149,8 +170,11 @@ def test_three_trainers_share_one_arena_in_lock_step(start_server, start_trainer
                 if event == "STEPPED":
                     assert fields["round"] == rounds + 1 and fields["late_seen"] == 0
                     break
-        wait_until(lambda: any(r in frames for r in range(2, rounds + 2)), 10,
-                   "a world frame of a round the trainers saw")
+        wait_until(
+            lambda: any(r in frames for r in range(2, rounds + 2)),
+            10,
+            "a world frame of a round the trainers saw",
+        )
 
     status = server.status()
     assert status.groups[0].rounds == rounds + 1 and status.groups[0].late_agents == 0
@@ -159,8 +183,9 @@ def test_three_trainers_share_one_arena_in_lock_step(start_server, start_trainer
     # stops short of it (on an empty road nothing else is there; without that car the ray
     # would go on to the guard rail beyond it, or to its full range).
     checked = 0
-    for r in sorted(set(frames) & set(lidar_by_round[0]) & set(lidar_by_round[1])
-                    & set(lidar_by_round[2])):
+    for r in sorted(
+        set(frames) & set(lidar_by_round[0]) & set(lidar_by_round[1]) & set(lidar_by_round[2])
+    ):
         frame = frames[r]
         assert frame.agent_active.tolist() == [True, True, True]
         for k in range(3):
@@ -174,13 +199,15 @@ def test_three_trainers_share_one_arena_in_lock_step(start_server, start_trainer
                 assert distance < 75.0, "the cars are further apart than the LIDAR's range"
                 ray = round(math.degrees(math.atan2(dy, dx))) % 360
                 window = [(ray + d) % 360 for d in range(-2, 3)]
-                assert lidar[window].min() < distance, \
+                assert lidar[window].min() < distance, (
                     f"trainer {k} (agent {me}) does not see agent {other} at round {r}"
+                )
                 checked += 1
     assert checked >= 6
 
 
 # --- 5. a trainer killed mid-episode ------------------------------------------------------------
+
 
 @pytest.mark.timeout(60)
 def test_killed_trainer_frees_its_arena_and_never_stalls_another(start_server, start_trainer):
@@ -190,15 +217,18 @@ def test_killed_trainer_frees_its_arena_and_never_stalls_another(start_server, s
     ready_v, ready_o = victim.expect("READY"), other.expect("READY")
     victim.send("run")
     other.send("run")
-    victim.expect("STEP")   # mid-episode: stepping
+    victim.expect("STEP")  # mid-episode: stepping
     other.expect("STEP")
     status = server.status()
     assert status.arenas_used == 2 and len(status.groups) == 2
 
     killed_at = time.monotonic()
     assert victim.kill() == -signal.SIGKILL
-    wait_until(lambda: group_of(server.status(), ready_v["trainer"]) is None, 2.0,
-               "the killed trainer's group to be freed")
+    wait_until(
+        lambda: group_of(server.status(), ready_v["trainer"]) is None,
+        2.0,
+        "the killed trainer's group to be freed",
+    )
     freed_after = time.monotonic() - killed_at
     status = server.status()
     assert status.arenas_used == 1
@@ -227,8 +257,11 @@ def test_frozen_trainer_host_is_dropped_within_its_lease(start_server, start_tra
     frozen_at = time.monotonic()
     frozen.proc.send_signal(signal.SIGSTOP)
     try:
-        wait_until(lambda: group_of(server.status(), ready["trainer"]) is None, lease_s + 3.0,
-                   "the frozen trainer's group to be freed")
+        wait_until(
+            lambda: group_of(server.status(), ready["trainer"]) is None,
+            lease_s + 3.0,
+            "the frozen trainer's group to be freed",
+        )
         freed_after = time.monotonic() - frozen_at
         # Not before the lease: a trainer busy for a moment is not thrown out.
         assert freed_after >= 0.5 * lease_s, f"freed after only {freed_after:.2f} s"
@@ -238,6 +271,7 @@ def test_frozen_trainer_host_is_dropped_within_its_lease(start_server, start_tra
 
 
 # --- 6. a trainer that stops answering in a shared arena ---------------------------------------
+
 
 @pytest.mark.timeout(60)
 def test_late_trainer_gets_keep_and_is_counted_and_can_resume(start_server):
@@ -297,21 +331,36 @@ def test_late_trainer_gets_keep_and_is_counted_and_can_resume(start_server):
 
 # --- 9. hostile input straight over Zenoh ---------------------------------------------------
 
+
 def _open(trainer: str, **changes) -> OpenRequest:
-    fields = dict(trainer=trainer, preset="min2018", overrides={}, arenas=1,
-                  agents_per_arena=1, claim=1, seed=None)
+    fields = dict(
+        trainer=trainer,
+        preset="min2018",
+        overrides={},
+        arenas=1,
+        agents_per_arena=1,
+        claim=1,
+        seed=None,
+    )
     fields.update(changes)
     return OpenRequest(**fields)
 
 
-def _actions_frame(trainer: str, ticket: bytes, group: int, round_: int, agents, actions
-                   ) -> bytes:
+def _actions_frame(trainer: str, ticket: bytes, group: int, round_: int, agents, actions) -> bytes:
     """An Actions frame built by hand, bypassing the dataclass's own checks."""
+
     def array(values, dtype):
         a = np.asarray(values, dtype=dtype)
         return {"dtype": np.dtype(dtype).name, "shape": list(a.shape), "data": a.tobytes()}
-    body = {"trainer": trainer, "ticket": ticket, "group": group, "round": round_,
-            "agents": array(agents, "<i4"), "actions": array(actions, "<i8")}
+
+    body = {
+        "trainer": trainer,
+        "ticket": ticket,
+        "group": group,
+        "round": round_,
+        "agents": array(agents, "<i4"),
+        "actions": array(actions, "<i8"),
+    }
     return msgpack.packb([1, 0, "actions", body], use_bin_type=True)
 
 
@@ -330,6 +379,7 @@ def test_hostile_input_is_refused_and_harms_nobody(start_server):
 
     try:
         with RawClient(server.endpoint) as raw:
+
             def refused(payload, code: str) -> str:
                 reply = raw.request(name, payload)
                 assert isinstance(reply, ErrorReply), reply
@@ -348,18 +398,26 @@ def test_hostile_input_is_refused_and_harms_nobody(start_server):
             # Opening needs a liveliness token, as overtake.client declares.
             refused(codec.encode(_open("ghost")), "not_owner")
             raw.token(keys.trainer_alive("hostile"))
-            assert "no-such-preset" in refused(codec.encode(_open("hostile",
-                                                                  preset="no-such-preset")),
-                                               "unknown_preset")
-            assert "no.such.field" in refused(codec.encode(_open(
-                "hostile", overrides={"no.such.field": 1})), "bad_config")
-            refused(codec.encode(_open("hostile", overrides={"episode.max_decisions": "many"})),
-                    "bad_config")
+            assert "no-such-preset" in refused(
+                codec.encode(_open("hostile", preset="no-such-preset")), "unknown_preset"
+            )
+            assert "no.such.field" in refused(
+                codec.encode(_open("hostile", overrides={"no.such.field": 1})), "bad_config"
+            )
+            refused(
+                codec.encode(_open("hostile", overrides={"episode.max_decisions": "many"})),
+                "bad_config",
+            )
             refused(codec.encode(_open("hostile", arenas=5)), "server_full")
-            refused(codec.encode(JoinRequest(trainer="hostile", arena=999, agents=1)),
-                    "unknown_arena")
-            refused(codec.encode(JoinRequest(trainer="hostile", arena=victim.group.arena_ids[0],
-                                             agents=1)), "server_full")  # its one slot is taken
+            refused(
+                codec.encode(JoinRequest(trainer="hostile", arena=999, agents=1)), "unknown_arena"
+            )
+            refused(
+                codec.encode(
+                    JoinRequest(trainer="hostile", arena=victim.group.arena_ids[0], agents=1)
+                ),
+                "server_full",
+            )  # its one slot is taken
 
             # Bad actions are answered where the trainer's Steps would go.
             inbox = raw.collect(keys.trainer_steps("hostile", name))
@@ -374,25 +432,60 @@ def test_hostile_input_is_refused_and_harms_nobody(start_server):
                 victim_steps()
                 return reply.message
 
-            refused_actions(codec.encode(Actions(
-                trainer="hostile", ticket=made_up, group=77, round=0,
-                agents=np.array([0], np.int32), actions=np.array([1]))), "unknown_arena")
+            refused_actions(
+                codec.encode(
+                    Actions(
+                        trainer="hostile",
+                        ticket=made_up,
+                        group=77,
+                        round=0,
+                        agents=np.array([0], np.int32),
+                        actions=np.array([1]),
+                    )
+                ),
+                "unknown_arena",
+            )
             refused_actions(rng.bytes(32), "bad_message")
-            assert "[7]" in refused_actions(_actions_frame(
-                "hostile", made_up, victim.group.group_id, victim.group.round, [0], [7]),
-                "bad_message")
-            refused_actions(_actions_frame("hostile", made_up, victim.group.group_id,
-                                           victim.group.round, [0, 0], [1, 1]), "bad_message")
+            assert "[7]" in refused_actions(
+                _actions_frame(
+                    "hostile", made_up, victim.group.group_id, victim.group.round, [0], [7]
+                ),
+                "bad_message",
+            )
+            refused_actions(
+                _actions_frame(
+                    "hostile", made_up, victim.group.group_id, victim.group.round, [0, 0], [1, 1]
+                ),
+                "bad_message",
+            )
             # Actions for another trainer's group, on our own key with a made-up ticket.
-            refused_actions(codec.encode(Actions(
-                trainer="hostile", ticket=made_up, group=victim.group.group_id,
-                round=victim.group.round, agents=np.array([0], np.int32),
-                actions=np.array([3]))), "not_owner")
+            refused_actions(
+                codec.encode(
+                    Actions(
+                        trainer="hostile",
+                        ticket=made_up,
+                        group=victim.group.group_id,
+                        round=victim.group.round,
+                        agents=np.array([0], np.int32),
+                        actions=np.array([3]),
+                    )
+                ),
+                "not_owner",
+            )
             # Actions that claim to be the victim's, on our key: dropped, logged.
-            raw.put(actions_key, codec.encode(Actions(
-                trainer=victim.group.connection.trainer, ticket=made_up,
-                group=victim.group.group_id, round=victim.group.round,
-                agents=np.array([0], np.int32), actions=np.array([3]))))
+            raw.put(
+                actions_key,
+                codec.encode(
+                    Actions(
+                        trainer=victim.group.connection.trainer,
+                        ticket=made_up,
+                        group=victim.group.group_id,
+                        round=victim.group.round,
+                        agents=np.array([0], np.int32),
+                        actions=np.array([3]),
+                    )
+                ),
+            )
             server.wait_log("claim to come from", 5)
             victim_steps()
             assert victim.steps.action_applied.tolist() == [0]  # the victim's keep, not 3
@@ -412,17 +505,27 @@ def test_spoofed_actions_on_a_trainers_key_do_not_break_its_steps(start_server):
     stranger putting garbage there, with the trainer's name and a made-up ticket, must not
     make the trainer's own next step fail."""
     server = start_server("e2e-spoof")
-    victim = RemoteEnvironment(config=remote_config(server.endpoint, server.name,
-                                                    step_timeout_s=10.0))
+    victim = RemoteEnvironment(
+        config=remote_config(server.endpoint, server.name, step_timeout_s=10.0)
+    )
     try:
         trainer = victim.group.connection.trainer
         assert trainer in server.status().groups[0].trainers  # anybody can read it
         victim.step()
         with RawClient(server.endpoint) as raw:
-            raw.put(keys.server_actions(server.name, trainer), codec.encode(Actions(
-                trainer=trainer, ticket=secrets.token_bytes(16), group=victim.group.group_id,
-                round=victim.group.round, agents=np.array([0], np.int32),
-                actions=np.array([3]))))
+            raw.put(
+                keys.server_actions(server.name, trainer),
+                codec.encode(
+                    Actions(
+                        trainer=trainer,
+                        ticket=secrets.token_bytes(16),
+                        group=victim.group.group_id,
+                        round=victim.group.round,
+                        agents=np.array([0], np.int32),
+                        actions=np.array([3]),
+                    )
+                ),
+            )
             server.wait_log("wrong ticket", 5)
             for _ in range(3):
                 victim.step()  # must not raise NotOwner
@@ -433,6 +536,7 @@ def test_spoofed_actions_on_a_trainers_key_do_not_break_its_steps(start_server):
 
 # --- 10. two servers on one Zenoh network ------------------------------------------------------
 
+
 @pytest.mark.timeout(60)
 def test_two_servers_on_one_network_share_the_load(start_server):
     first = start_server("e2e-srv-a", max_arenas=4)
@@ -440,8 +544,11 @@ def test_two_servers_on_one_network_share_the_load(start_server):
     probe = Connection(remote_config(first.endpoint))
     envs: list[RemoteEnvironment] = []
     try:
-        wait_until(lambda: {s.server for s in probe.discover()} == {first.name, second.name},
-                   10, "both servers visible through the first one's endpoint")
+        wait_until(
+            lambda: {s.server for s in probe.discover()} == {first.name, second.name},
+            10,
+            "both servers visible through the first one's endpoint",
+        )
         config = remote_config(first.endpoint)  # no server named: the client picks
         for _ in range(3):
             envs.append(RemoteEnvironment(config=config))
@@ -470,12 +577,17 @@ def test_two_servers_on_one_network_share_the_load(start_server):
 
 # --- 11. clean shutdown -------------------------------------------------------------------------
 
+
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
 def test_server_shuts_down_cleanly_on_signal(start_server, sig):
     server = start_server(f"e2e-stop-{sig.name.lower()}")
-    env = gym.make(REMOTE_HIGHWAY_ENV_ID, remote=remote_config(
-        server.endpoint, server.name, reconnect_timeout_s=0.0, step_timeout_s=10.0))
+    env = gym.make(
+        REMOTE_HIGHWAY_ENV_ID,
+        remote=remote_config(
+            server.endpoint, server.name, reconnect_timeout_s=0.0, step_timeout_s=10.0
+        ),
+    )
     try:
         env.reset(seed=0)
         for _ in range(3):
@@ -501,9 +613,23 @@ def test_a_server_that_cannot_listen_says_why_and_exits(start_server):
     owner = start_server("port-owner")
     with pytest.raises(StartError, match="could not open the Zenoh session"):
         main(ServerConfig(name="second", listen=(owner.endpoint,), log_level="error"))
-    done = subprocess.run([sys.executable, "-m", "overtake.server", "--listen", owner.endpoint,
-                           "--name", "third", "--log-level", "error"], capture_output=True,
-                          text=True, timeout=60, env=child_env())
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "overtake.server",
+            "--listen",
+            owner.endpoint,
+            "--name",
+            "third",
+            "--log-level",
+            "error",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=child_env(),
+    )
     assert done.returncode == 1
     assert "overtake-server: could not open the Zenoh session" in done.stderr
     assert "Traceback" not in done.stderr

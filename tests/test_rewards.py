@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import Car, keep, scripted_sim
 from overtake.server.env import HighwayEnv
 from overtake.server.sim.units import KMH
+
+from conftest import Car, keep, scripted_sim
 
 
 def terms_of(result) -> dict[str, float]:
@@ -21,8 +22,10 @@ def assert_reward_is_the_sum_of_its_terms(result) -> None:
 
 # --- speed -----------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("speed_kmh, expected", [
-    (40.0, 0.0), (50.0, 0.25), (60.0, 0.5), (70.0, 0.75), (80.0, 1.0)])
+
+@pytest.mark.parametrize(
+    "speed_kmh, expected", [(40.0, 0.0), (50.0, 0.25), (60.0, 0.5), (70.0, 0.75), (80.0, 1.0)]
+)
 def test_speed_term_is_linear_from_40_to_80_kmh(speed_kmh, expected):
     sim = scripted_sim([], ego_speed_kmh=speed_kmh)
     result = keep(sim)
@@ -33,10 +36,13 @@ def test_speed_term_is_linear_from_40_to_80_kmh(speed_kmh, expected):
 
 @pytest.mark.parametrize("speed_kmh, cruise_kmh", [(100.0, 80.0), (25.0, 40.0), (55.0, 80.0)])
 @pytest.mark.parametrize("clip", [True, False])
-def test_speed_term_uses_the_speed_after_the_decision_and_is_clipped(speed_kmh, cruise_kmh,
-                                                                       clip):
-    sim = scripted_sim([], ego_speed_kmh=speed_kmh, cruise_kmh=cruise_kmh,
-                       overrides={"reward.clip_speed_term": clip})
+def test_speed_term_uses_the_speed_after_the_decision_and_is_clipped(speed_kmh, cruise_kmh, clip):
+    sim = scripted_sim(
+        [],
+        ego_speed_kmh=speed_kmh,
+        cruise_kmh=cruise_kmh,
+        overrides={"reward.clip_speed_term": clip},
+    )
     result = keep(sim)
     after_kmh = float(sim.state.speed_mps[0, 0]) / KMH
     assert after_kmh != pytest.approx(speed_kmh, abs=0.1)  # it did change within the decision
@@ -46,22 +52,29 @@ def test_speed_term_uses_the_speed_after_the_decision_and_is_clipped(speed_kmh, 
 
 
 def test_speed_term_follows_its_config():
-    sim = scripted_sim([], ego_speed_kmh=60.0, overrides={
-        "reward.speed_min_kmh": 50.0, "reward.speed_max_kmh": 70.0, "reward.speed_reward_max": 2.0})
+    sim = scripted_sim(
+        [],
+        ego_speed_kmh=60.0,
+        overrides={
+            "reward.speed_min_kmh": 50.0,
+            "reward.speed_max_kmh": 70.0,
+            "reward.speed_reward_max": 2.0,
+        },
+    )
     assert terms_of(keep(sim))["speed"] == pytest.approx(1.0)
 
 
 # --- collision -------------------------------------------------------------------------------
 
+
 def test_changing_lane_into_a_car_alongside_is_a_collision():
     # The car alongside is a little faster, so braking (it sees the ego cut in) cannot save it.
     # Driver assistance would refuse this change; without it the change starts.
-    sim = scripted_sim([Car(0.0, 3, 70.0)], ego_lane=2,
-                       overrides={"ego.lane_change_check": False})
+    sim = scripted_sim([Car(0.0, 3, 70.0)], ego_lane=2, overrides={"ego.lane_change_check": False})
     first = sim.step(np.array([[3]]))
     assert terms_of(first)["lane_change"] == -0.25
     assert not first.terminated[0, 0]
-    for decision in range(2, 6):
+    for decision in range(2, 6):  # noqa: B007 (the decision of the collision, read below)
         result = keep(sim)
         if result.terminated[0, 0]:
             break
@@ -98,6 +111,7 @@ def test_collision_reward_follows_its_config():
 
 # --- lane change -----------------------------------------------------------------------------
 
+
 def test_lane_change_costs_0_25_on_the_decision_it_starts():
     sim = scripted_sim([], ego_lane=2, ego_speed_kmh=60.0)
     result = sim.step(np.array([[4]]))
@@ -113,19 +127,24 @@ def test_lane_change_costs_0_25_on_the_decision_it_starts():
 
 # --- overtakes -------------------------------------------------------------------------------
 
+
 def drive_past_and_back(undo: bool, passed_reward: float = 0.0):
     """The ego (80 km/h, lane 2) passes a 40 km/h car in lane 3; the car speeds up and passes
     it back; then slows down and is passed again. Returns per-decision overtake and passed
     terms, the running overtake count and the car's position relative to the ego."""
-    sim = scripted_sim([Car(10.0, 3, 40.0)], ego_lane=2, ego_speed_kmh=80.0, cruise_kmh=80.0,
-                       overrides={"reward.undo_overtake_when_passed_back": undo,
-                                  "reward.passed": passed_reward})
+    sim = scripted_sim(
+        [Car(10.0, 3, 40.0)],
+        ego_lane=2,
+        ego_speed_kmh=80.0,
+        cruise_kmh=80.0,
+        overrides={"reward.undo_overtake_when_passed_back": undo, "reward.passed": passed_reward},
+    )
     st = sim.state
     overtake, passed, count, ahead = [], [], [], []
     for k in range(30):
-        if k == 8:     # the car speeds up and passes the ego back ...
+        if k == 8:  # the car speeds up and passes the ego back ...
             st.speed_mps[0, 1] = st.desired_speed_mps[0, 1] = 110.0 * KMH
-        if k == 20:    # ... and slows down again, so that the ego passes it once more
+        if k == 20:  # ... and slows down again, so that the ego passes it once more
             st.speed_mps[0, 1] = st.desired_speed_mps[0, 1] = 40.0 * KMH
         result = keep(sim)
         assert not result.terminated[0, 0]
@@ -151,10 +170,10 @@ def test_overtake_counts_once_per_car():
     assert len(overtaken) == 2 and len(passed_back) == 1  # the scene did what it should
     first, again = overtaken
     assert overtake[first] == 0.5
-    assert sum(overtake) == 0.5                # the re-pass earns nothing
+    assert sum(overtake) == 0.5  # the re-pass earns nothing
     assert overtake[again] == 0.0
     assert count[first - 1] == 0 and count[first:] == [1] * (len(count) - first)
-    assert passed == [0.0] * len(passed)       # Min et al.: no penalty for being passed
+    assert passed == [0.0] * len(passed)  # Min et al.: no penalty for being passed
 
 
 def test_overtake_is_undone_when_passed_back_if_configured():
@@ -191,8 +210,13 @@ def test_car_overtaken_in_the_same_lane_by_changing_lanes_counts():
 def test_recycled_cars_are_not_counted_as_passes():
     # A car far behind falls out of range and is respawned elsewhere: neither an overtake
     # nor a pass, whatever side it reappears on.
-    sim = scripted_sim([Car(-145.0, 0, 40.0)], ego_lane=2, ego_speed_kmh=80.0, cruise_kmh=80.0,
-                       overrides={"reward.passed": -1.0})
+    sim = scripted_sim(
+        [Car(-145.0, 0, 40.0)],
+        ego_lane=2,
+        ego_speed_kmh=80.0,
+        cruise_kmh=80.0,
+        overrides={"reward.passed": -1.0},
+    )
     st = sim.state
     recycled = False
     for _ in range(10):
@@ -205,6 +229,7 @@ def test_recycled_cars_are_not_counted_as_passes():
 
 
 # --- emergency brakes ------------------------------------------------------------------------
+
 
 def test_braking_hard_for_a_much_slower_car_is_one_emergency_brake():
     sim = scripted_sim([Car(30.0, 2, 40.0)], ego_lane=2, ego_speed_kmh=80.0, cruise_kmh=80.0)
@@ -220,20 +245,24 @@ def test_braking_hard_for_a_much_slower_car_is_one_emergency_brake():
 
 @pytest.mark.parametrize("leader_kmh", [61.0, 65.0])
 def test_braking_with_less_than_20_kmh_difference_is_not_an_emergency_brake(leader_kmh):
-    sim = scripted_sim([Car(30.0, 2, leader_kmh)], ego_lane=2, ego_speed_kmh=80.0,
-                       cruise_kmh=80.0)
+    sim = scripted_sim([Car(30.0, 2, leader_kmh)], ego_lane=2, ego_speed_kmh=80.0, cruise_kmh=80.0)
     hardest = 0.0
     for _ in range(50):
         keep(sim)
         hardest = min(hardest, float(sim.state.accel_mps2[0, 0]))
     if leader_kmh == 61.0:
-        assert hardest <= -4.0      # hard braking, but only 19 km/h faster than the car ahead
+        assert hardest <= -4.0  # hard braking, but only 19 km/h faster than the car ahead
     assert sim.metrics()["emergency_brakes"][0, 0] == 0
 
 
 def test_emergency_brake_thresholds_follow_the_config():
-    sim = scripted_sim([Car(30.0, 2, 61.0)], ego_lane=2, ego_speed_kmh=80.0, cruise_kmh=80.0,
-                       overrides={"ego.emergency_speed_diff_kmh": 15.0})
+    sim = scripted_sim(
+        [Car(30.0, 2, 61.0)],
+        ego_lane=2,
+        ego_speed_kmh=80.0,
+        cruise_kmh=80.0,
+        overrides={"ego.emergency_speed_diff_kmh": 15.0},
+    )
     for _ in range(50):
         keep(sim)
     assert sim.metrics()["emergency_brakes"][0, 0] == 1
@@ -254,6 +283,7 @@ def test_two_separate_hard_brakings_count_twice():
 
 
 # --- episode metrics -------------------------------------------------------------------------
+
 
 def test_episode_metrics_at_the_end_of_an_episode():
     env = HighwayEnv(overrides={"traffic.vehicle_count": 0, "episode.max_decisions": 20})
@@ -280,8 +310,16 @@ def test_episode_metrics_at_the_end_of_an_episode():
     assert metrics["emergency_brakes"] == 0
     assert metrics["decisions"] == 20
     assert metrics["return"] == pytest.approx(total)
-    assert set(metrics) == {"avg_speed_kmh", "lane_changes", "overtakes", "collisions",
-                            "emergency_brakes", "distance_m", "return", "decisions"}
+    assert set(metrics) == {
+        "avg_speed_kmh",
+        "lane_changes",
+        "overtakes",
+        "collisions",
+        "emergency_brakes",
+        "distance_m",
+        "return",
+        "decisions",
+    }
 
 
 def test_metrics_restart_with_each_episode():

@@ -9,11 +9,21 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from conftest import (HALF_LENGTH, HALF_WIDTH, LANE_WIDTH, Car, camera_of, keep, lidar_of, place,
-                      scripted_sim)
 from overtake.server.sim import HighwaySim, make_config
 from overtake.server.sim.physics import headings
 from overtake.server.sim.sensors.camera import VEHICLE_HEIGHT_M
+
+from conftest import (
+    HALF_LENGTH,
+    HALF_WIDTH,
+    LANE_WIDTH,
+    Car,
+    camera_of,
+    keep,
+    lidar_of,
+    place,
+    scripted_sim,
+)
 
 MAX_RANGE = 80.0
 BARRIER_OFFSET = 1.0
@@ -27,6 +37,7 @@ def rail_distances(ego_lane: int) -> tuple[float, float]:
 
 
 # --- LIDAR -----------------------------------------------------------------------------------
+
 
 def test_empty_road_reads_rails_sideways_and_max_range_along_the_road():
     lidar = lidar_of(scripted_sim([], ego_lane=2))
@@ -52,8 +63,7 @@ def test_rails_from_an_outer_lane(ego_lane):
     assert lidar[90] == pytest.approx(left, rel=1e-6)
     assert lidar[270] == pytest.approx(right, rel=1e-6)
     assert lidar[30] == pytest.approx(min(left / math.sin(math.radians(30)), MAX_RANGE), rel=1e-5)
-    assert lidar[330] == pytest.approx(min(right / math.sin(math.radians(30)), MAX_RANGE),
-                                       rel=1e-5)
+    assert lidar[330] == pytest.approx(min(right / math.sin(math.radians(30)), MAX_RANGE), rel=1e-5)
     # The outer rail is 1.75 + 1 m away: a shallow ray still reaches it within range.
     near = right if ego_lane == 0 else left
     ray = 355 if ego_lane == 0 else 5
@@ -156,7 +166,7 @@ def test_lidar_turns_with_the_ego_during_a_lane_change():
     sim = scripted_sim([Car(60.0, 2, 60)], ego_lane=2)
     straight = lidar_of(sim)
     sim.step(np.array([[3]]))
-    sim.step(np.array([[3]]))   # ignored: the change is under way
+    sim.step(np.array([[3]]))  # ignored: the change is under way
     heading = float(headings(sim.state, sim.kinds, sim.road.lane_width_m, sim.agents)[0, 0])
     assert heading > math.radians(1.0)
     turned = lidar_of(sim)
@@ -177,8 +187,9 @@ def test_lidar_turns_with_the_ego_during_a_lane_change():
 
 
 def test_lidar_ray_count_and_range_follow_the_config():
-    sim = scripted_sim([Car(20.0, 2, 60)], ego_lane=2,
-                       overrides={"lidar.ray_count": 8, "lidar.max_range_m": 15.0})
+    sim = scripted_sim(
+        [Car(20.0, 2, 60)], ego_lane=2, overrides={"lidar.ray_count": 8, "lidar.max_range_m": 15.0}
+    )
     lidar = lidar_of(sim)
     assert lidar.shape == (8,)
     left, right = rail_distances(2)
@@ -200,8 +211,9 @@ MOUNT_FORWARD = 0.3
 PITCH_DEG = 6.0
 
 
-def projected_span(dx: float, dy: float, width: int = W, height: int = H,
-                   fov_deg: float = FOV_DEG) -> tuple[float, float, float, float]:
+def projected_span(
+    dx: float, dy: float, width: int = W, height: int = H, fov_deg: float = FOV_DEG
+) -> tuple[float, float, float, float]:
     """Screen span (col_lo, col_hi, row_lo, row_hi) of a car centred dx ahead, dy left of the ego.
 
     Pinhole model: focal length f = (W/2) / tan(fov/2); a point ``left`` metres to the left,
@@ -225,8 +237,9 @@ def projected_span(dx: float, dy: float, width: int = W, height: int = H,
     return min(cols), max(cols), min(rows), max(rows)
 
 
-def projected_extent(dx: float, dy: float, width: int = W, height: int = H,
-                     fov_deg: float = FOV_DEG) -> tuple[list[int], list[int]]:
+def projected_extent(
+    dx: float, dy: float, width: int = W, height: int = H, fov_deg: float = FOV_DEG
+) -> tuple[list[int], list[int]]:
     """Pixel columns and rows whose centres (p + 0.5) lie inside the car's screen span."""
     col_lo, col_hi, row_lo, row_hi = projected_span(dx, dy, width, height, fov_deg)
     covered_cols = [c for c in range(width) if col_lo <= c + 0.5 <= col_hi]
@@ -250,8 +263,7 @@ def test_empty_road_image_has_sky_road_and_markings_but_no_car():
     assert bottom[W // 2] != top[0]
 
 
-@pytest.mark.parametrize("ego_x", [
-    0.0, 6.0])
+@pytest.mark.parametrize("ego_x", [0.0, 6.0])
 def test_lane_markings_are_where_the_lane_lines_project(ego_x):
     # The ego is centred in its lane, so the nearest lines are 1.75 m either side of the eye;
     # they are dashed (6 m dash, 6 m gap), so near rows show them or not by where the ego is.
@@ -260,9 +272,10 @@ def test_lane_markings_are_where_the_lane_lines_project(ego_x):
     image = camera_of(sim)
     f = (W / 2.0) / math.tan(math.radians(FOV_DEG) / 2.0)
     pitch = math.radians(PITCH_DEG)
+
     def ground_ahead(row: int) -> float:
         """Metres ahead of the eye where the centre ray of ``row`` meets the road (inf: sky)."""
-        up = -((row + 0.5) - H / 2.0) / f          # ray direction in the camera frame
+        up = -((row + 0.5) - H / 2.0) / f  # ray direction in the camera frame
         ray_x = math.cos(pitch) + up * math.sin(pitch)
         ray_z = -math.sin(pitch) + up * math.cos(pitch)
         return math.inf if ray_z >= 0 else ray_x * MOUNT_HEIGHT / -ray_z
@@ -270,22 +283,22 @@ def test_lane_markings_are_where_the_lane_lines_project(ego_x):
     on_dash = off_dash = 0
     for row in range(1, H):
         ahead = ground_ahead(row)
-        along = ground_ahead(row - 1) - ahead       # road length one row spans
+        along = ground_ahead(row - 1) - ahead  # road length one row spans
         if not math.isfinite(along) or along > 1.0:
-            continue                               # far rows: dashes blur into solid lines
-        phase = (ego_x + MOUNT_FORWARD + ahead) % 12.0   # dashes 6 m long every 12 m
+            continue  # far rows: dashes blur into solid lines
+        phase = (ego_x + MOUNT_FORWARD + ahead) % 12.0  # dashes 6 m long every 12 m
         if min(phase, abs(phase - 6.0), 12.0 - phase) < 1.0:
-            continue                               # too close to a dash's end to call
+            continue  # too close to a dash's end to call
         for side in (-1, 1):
             # A ground point ``left`` metres to the side lands at column W/2 - f * left / depth;
             # the ray's depth per metre ahead is fixed per row, so use the ray's own scale.
             up = -((row + 0.5) - H / 2.0) / f
             depth = ahead / (math.cos(pitch) + up * math.sin(pitch))
             col = W / 2.0 - side * (LANE_WIDTH / 2.0) * f / depth
-            c = int(math.floor(col))
+            c = math.floor(col)
             if not 1 <= c < W - 1:
                 continue
-            window = image[row, c - 1:c + 2]
+            window = image[row, c - 1 : c + 2]
             if phase < 6.0:
                 on_dash += 1
                 assert (window == MARKING_GREY).any(), (row, side, col)
@@ -294,11 +307,11 @@ def test_lane_markings_are_where_the_lane_lines_project(ego_x):
                 assert not (window == MARKING_GREY).any(), (row, side, col)
     assert (on_dash if ego_x == 0.0 else off_dash) >= 20, (on_dash, off_dash)
     # Markings never appear in the middle of the ego's own lane near the car.
-    assert not (image[H - 10:, W // 2 - 5:W // 2 + 5] == MARKING_GREY).any()
+    assert not (image[H - 10 :, W // 2 - 5 : W // 2 + 5] == MARKING_GREY).any()
 
 
 def test_dashes_scroll_past_as_the_car_drives():
-    sim = scripted_sim([], ego_lane=2, ego_speed_kmh=54.0)   # 15 m/s: 6 m per decision
+    sim = scripted_sim([], ego_lane=2, ego_speed_kmh=54.0)  # 15 m/s: 6 m per decision
     before = camera_of(sim)
     keep(sim)
     assert sim.state.x_m[0, 0] == pytest.approx(6.0)
@@ -326,8 +339,11 @@ def test_a_car_smaller_than_a_pixel_is_drawn_in_a_pixel_it_covers():
     size = 32
     wrong = []
     for dy in np.linspace(-0.6, 0.6, 25):
-        sim = scripted_sim([Car(100.0, 2, 60)], ego_lane=2, overrides={
-            "camera.width_px": size, "camera.height_px": size, "lidar.enabled": False})
+        sim = scripted_sim(
+            [Car(100.0, 2, 60)],
+            ego_lane=2,
+            overrides={"camera.width_px": size, "camera.height_px": size, "lidar.enabled": False},
+        )
         sim.state.y_m[0, 1] += dy
         cols, rows = car_pixels(camera_of(sim))
         col_lo, col_hi, row_lo, row_hi = projected_span(100.0, float(dy), size, size)
@@ -384,21 +400,31 @@ def test_rgb_camera_has_three_channels_and_a_red_car():
 
 @pytest.mark.parametrize("width, height", [(64, 48), (120, 30)])
 def test_camera_of_another_size(width, height):
-    sim = scripted_sim([Car(20.0, 2, 60)], ego_lane=2,
-                       overrides={"camera.width_px": width, "camera.height_px": height})
+    sim = scripted_sim(
+        [Car(20.0, 2, 60)],
+        ego_lane=2,
+        overrides={"camera.width_px": width, "camera.height_px": height},
+    )
     image = camera_of(sim)
     assert image.shape == (height, width)
     cols, rows = car_pixels(image)
     expected_cols, expected_rows = projected_extent(20.0, 0.0, width, height)
     assert cols.tolist() == expected_cols
     assert rows.tolist() == expected_rows
-    rgb = camera_of(scripted_sim([], ego_lane=2, overrides={
-        "camera.width_px": width, "camera.height_px": height, "camera.rgb": True}))
+    rgb = camera_of(
+        scripted_sim(
+            [],
+            ego_lane=2,
+            overrides={"camera.width_px": width, "camera.height_px": height, "camera.rgb": True},
+        )
+    )
     assert rgb.shape == (height, width, 3)
 
 
 def test_field_of_view_changes_the_projection():
-    sim = scripted_sim([Car(20.0, 3, 60)], ego_lane=2, overrides={"camera.horizontal_fov_deg": 40.0})
+    sim = scripted_sim(
+        [Car(20.0, 3, 60)], ego_lane=2, overrides={"camera.horizontal_fov_deg": 40.0}
+    )
     cols, _ = car_pixels(camera_of(sim))
     assert cols.tolist() == projected_extent(20.0, LANE_WIDTH, fov_deg=40.0)[0]
 
@@ -427,8 +453,10 @@ def test_ego_vector_fields():
 
 # --- property tests against an independent ray caster ---------------------------------------
 
-def brute_force_scan(car_dx: float, car_dy: float, ego_lane: int,
-                     eps: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+
+def brute_force_scan(
+    car_dx: float, car_dy: float, ego_lane: int, eps: float = 1e-6
+) -> tuple[np.ndarray, np.ndarray]:
     """Per ray of 360: expected distance, and whether the ray is clear of any grazing doubt.
 
     Rays are intersected with each of the car's four faces and with the rails, one ray at a
@@ -449,8 +477,11 @@ def brute_force_scan(car_dx: float, car_dy: float, ego_lane: int,
         elif s < -1e-9:
             best = min(best, right / -s)
         for plane, speed, other_speed, lo, hi in (
-                (x_lo, c, s, y_lo, y_hi), (x_hi, c, s, y_lo, y_hi),
-                (y_lo, s, c, x_lo, x_hi), (y_hi, s, c, x_lo, x_hi)):
+            (x_lo, c, s, y_lo, y_hi),
+            (x_hi, c, s, y_lo, y_hi),
+            (y_lo, s, c, x_lo, x_hi),
+            (y_hi, s, c, x_lo, x_hi),
+        ):
             if abs(speed) < 1e-12:
                 continue
             t = plane / speed
@@ -460,44 +491,57 @@ def brute_force_scan(car_dx: float, car_dy: float, ego_lane: int,
             if lo + eps < other < hi - eps:
                 best = min(best, t)
             elif lo - eps <= other <= hi + eps and t < best:
-                sure[ray] = False    # grazing a corner
+                sure[ray] = False  # grazing a corner
         expected[ray] = best
     return expected, sure
 
 
 @settings(max_examples=60, deadline=None)
-@given(ego_lane=st.integers(0, 4), car_lane=st.integers(0, 4),
-       car_dx=st.floats(-90.0, 90.0, allow_nan=False))
+@given(
+    ego_lane=st.integers(0, 4),
+    car_lane=st.integers(0, 4),
+    car_dx=st.floats(-90.0, 90.0, allow_nan=False),
+)
 def test_lidar_matches_an_independent_ray_caster(ego_lane, car_lane, car_dx):
     assume(car_lane != ego_lane or abs(car_dx) >= 2 * HALF_LENGTH)  # no overlapping boxes
-    sim = scripted_sim([Car(car_dx, car_lane, 60.0)], ego_lane=ego_lane,
-                       overrides={"camera.enabled": False})
+    sim = scripted_sim(
+        [Car(car_dx, car_lane, 60.0)], ego_lane=ego_lane, overrides={"camera.enabled": False}
+    )
     lidar = lidar_of(sim)
     expected, sure = brute_force_scan(car_dx, (car_lane - ego_lane) * LANE_WIDTH, ego_lane)
-    np.testing.assert_allclose(lidar[sure], expected[sure].astype(np.float32), rtol=2e-6,
-                               atol=1e-5)
+    np.testing.assert_allclose(lidar[sure], expected[sure].astype(np.float32), rtol=2e-6, atol=1e-5)
 
 
 @settings(max_examples=40, deadline=None)
 @given(car_lane=st.integers(0, 4), car_dx=st.floats(6.0, 60.0, allow_nan=False))
 def test_camera_matches_the_pinhole_model(car_lane, car_dx):
-    sim = scripted_sim([Car(car_dx, car_lane, 60.0)], ego_lane=2,
-                       overrides={"lidar.enabled": False})
+    sim = scripted_sim(
+        [Car(car_dx, car_lane, 60.0)], ego_lane=2, overrides={"lidar.enabled": False}
+    )
     cols, rows = car_pixels(camera_of(sim))
     dy = (car_lane - 2) * LANE_WIDTH
     expected_cols, expected_rows = projected_extent(car_dx, dy)
     # Boundaries that fall on a pixel centre could go either way: allow one pixel there.
     if expected_cols:
         assert set(cols.tolist()) ^ set(expected_cols) <= {
-            expected_cols[0] - 1, expected_cols[0], expected_cols[-1], expected_cols[-1] + 1}
+            expected_cols[0] - 1,
+            expected_cols[0],
+            expected_cols[-1],
+            expected_cols[-1] + 1,
+        }
         assert abs(len(cols) - len(expected_cols)) <= 1
         assert set(rows.tolist()) ^ set(expected_rows) <= {
-            expected_rows[0] - 1, expected_rows[0], expected_rows[-1], expected_rows[-1] + 1}
+            expected_rows[0] - 1,
+            expected_rows[0],
+            expected_rows[-1],
+            expected_rows[-1] + 1,
+        }
     else:
         assert cols.size == 0
 
 
 # --- several agents --------------------------------------------------------------------------
+
 
 def test_agents_see_each_other():
     config = make_config(overrides={"traffic.vehicle_count": 0})

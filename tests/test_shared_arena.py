@@ -32,7 +32,7 @@ def test_agents_see_each_other_with_lidar_and_camera():
 
 def test_agents_crashing_into_each_other_are_both_terminated():
     sim = _two_agents_in_lane_one(gap_m=5.0)
-    sim.state.speed_mps[0, 0] = 30.0   # closing at 10 m/s from 0.5 m: no brake can stop it
+    sim.state.speed_mps[0, 0] = 30.0  # closing at 10 m/s from 0.5 m: no brake can stop it
     sim.state.speed_mps[0, 1] = 20.0
     sim.state.desired_speed_mps[0, 1] = 20.0
     result = sim.step(np.zeros((1, 2), dtype=np.int64))

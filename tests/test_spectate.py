@@ -13,10 +13,10 @@ import pytest
 import rerun as rr
 
 import overtake.client  # noqa: F401  (registers the environments)
-from overtake.viz.recording import RecordingConfig
 from overtake.client.spectate import SpectateConfig
 from overtake.client.spectate import main as spectate
 from overtake.protocol import REMOTE_HIGHWAY_ENV_ID
+from overtake.viz.recording import RecordingConfig
 
 from remote_support import logged_by_round, remote_config, wait_until
 
@@ -25,12 +25,25 @@ from remote_support import logged_by_round, remote_config, wait_until
 def test_spectate_logs_the_arena_and_the_lidar_the_trainer_received(start_server, tmp_path):
     server = start_server("spectate", world_rate_hz=50)
     rrd = tmp_path / "world.rrd"
-    env = gym.make(REMOTE_HIGHWAY_ENV_ID, overrides={"episode.max_decisions": 500},
-                   remote=remote_config(server.endpoint, server.name))
+    env = gym.make(
+        REMOTE_HIGHWAY_ENV_ID,
+        overrides={"episode.max_decisions": 500},
+        remote=remote_config(server.endpoint, server.name),
+    )
     logged: list[int] = []
-    watcher = threading.Thread(target=lambda: logged.append(spectate(SpectateConfig(
-        connect=server.endpoint, server=server.name, frames=8, seconds=60,
-        recording=RecordingConfig(rrd=rrd)))))
+    watcher = threading.Thread(
+        target=lambda: logged.append(
+            spectate(
+                SpectateConfig(
+                    connect=server.endpoint,
+                    server=server.name,
+                    frames=8,
+                    seconds=60,
+                    recording=RecordingConfig(rrd=rrd),
+                )
+            )
+        )
+    )
     try:
         group = env.unwrapped.group
         env.reset(seed=3)
@@ -48,8 +61,16 @@ def test_spectate_logs_the_arena_and_the_lidar_the_trainer_received(start_server
     reader = rr.chunk.RrdReader(str(rrd))
     root = f"/world/{server.name}/arena{group.arena_ids[0]}"
     entities = {chunk.entity_path for chunk in reader.stream().to_chunks()}
-    for name in ("cars", "road/lanes", "agent0/lidar/hits", "agent0/lidar/rays",
-                 "agent0/camera", "agent0/speed_kmh", "agent0/reward", "agent0/action"):
+    for name in (
+        "cars",
+        "road/lanes",
+        "agent0/lidar/hits",
+        "agent0/lidar/rays",
+        "agent0/camera",
+        "agent0/speed_kmh",
+        "agent0/reward",
+        "agent0/action",
+    ):
         assert f"{root}/{name}" in entities, name
     hits = logged_by_round(reader, f"{root}/agent0/lidar/hits", "Points2D:positions")
     rewards = logged_by_round(reader, f"{root}/agent0/reward", "Scalars:scalars")
@@ -65,7 +86,7 @@ def test_spectate_logs_the_arena_and_the_lidar_the_trainer_received(start_server
         # each ray: what is left after taking the distances away is one point, the car.
         origin = points - np.stack([lidar * np.cos(angles), lidar * np.sin(angles)], axis=1)
         assert np.allclose(origin, origin[0], atol=1e-3)
-        assert np.allclose(origin[0], cars[round_][0], atol=1e-3)   # the agent's box
+        assert np.allclose(origin[0], cars[round_][0], atol=1e-3)  # the agent's box
         assert rewards[round_][0] == pytest.approx(reward)
         matched += 1
     assert matched >= 3, f"only {matched} logged rounds matched what the trainer saw"
@@ -73,7 +94,11 @@ def test_spectate_logs_the_arena_and_the_lidar_the_trainer_received(start_server
 
 def test_spectate_command_prints_what_is_wrong_and_exits_non_zero():
     """A process, as a user runs it (cli() installs signal handlers, not for a test process)."""
-    done = subprocess.run([sys.executable, "-m", "overtake.client.spectate", "--arena", "1"],
-                          capture_output=True, text=True, timeout=120)
+    done = subprocess.run(
+        [sys.executable, "-m", "overtake.client.spectate", "--arena", "1"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert done.returncode == 1, done
     assert done.stderr == "overtake-spectate: watching one arena needs its server's name\n"

@@ -5,13 +5,23 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import (HALF_LENGTH, LANE_WIDTH, ROAD_MAX, STEADY, Car, keep, lane_centre, place,
-                      scripted_sim)
-from overtake.server.sim import HighwaySim, make_config
 from overtake.protocol.vocabulary import AGENT_KIND
-from overtake.server.sim.units import KMH
+from overtake.server.sim import HighwaySim, make_config
 from overtake.server.sim.physics import min_jerk, traffic_overlaps
 from overtake.server.sim.traffic.car_following import idm_accel
+from overtake.server.sim.units import KMH
+
+from conftest import (
+    HALF_LENGTH,
+    LANE_WIDTH,
+    ROAD_MAX,
+    STEADY,
+    Car,
+    keep,
+    lane_centre,
+    place,
+    scripted_sim,
+)
 
 MIN_GAP = 2.0
 DECISION_S = 0.4
@@ -24,14 +34,24 @@ def bumper_gap(sim: HighwaySim, follower: int, leader: int) -> float:
 
 # --- car-following ---------------------------------------------------------------------------
 
-@pytest.mark.parametrize("leader_kmh, follower_kmh, gap_m", [
-    (50.0, 80.0, 40.0), (45.0, 80.0, 20.0), (60.0, 80.0, 10.0), (45.0, 65.0, 80.0)])
-def test_traffic_follows_a_slower_leader_without_closing_below_min_gap(leader_kmh, follower_kmh,
-                                                                        gap_m):
+
+@pytest.mark.parametrize(
+    "leader_kmh, follower_kmh, gap_m",
+    [(50.0, 80.0, 40.0), (45.0, 80.0, 20.0), (60.0, 80.0, 10.0), (45.0, 65.0, 80.0)],
+)
+def test_traffic_follows_a_slower_leader_without_closing_below_min_gap(
+    leader_kmh, follower_kmh, gap_m
+):
     # The agent drives beside them at the leader's speed so that nobody is recycled.
-    sim = scripted_sim([Car(gap_m + 2 * HALF_LENGTH, 1, follower_kmh, desired_kmh=80.0),
-                        Car(2 * gap_m + 4 * HALF_LENGTH, 1, leader_kmh)],
-                       ego_lane=3, ego_speed_kmh=leader_kmh, cruise_kmh=leader_kmh)
+    sim = scripted_sim(
+        [
+            Car(gap_m + 2 * HALF_LENGTH, 1, follower_kmh, desired_kmh=80.0),
+            Car(2 * gap_m + 4 * HALF_LENGTH, 1, leader_kmh),
+        ],
+        ego_lane=3,
+        ego_speed_kmh=leader_kmh,
+        cruise_kmh=leader_kmh,
+    )
     gaps = []
     for _ in range(500):
         keep(sim)
@@ -62,30 +82,51 @@ def test_ego_cruise_control_follows_a_slower_leader_without_closing_below_min_ga
 
 def test_idm_acceleration_formula():
     # Free road at the desired speed: no acceleration; half the desired speed: 15/16 of a_max.
-    a = idm_accel(np.array([20.0, 10.0]), np.array([20.0, 20.0]), np.array([1e9, 1e9]),
-                  np.zeros(2), 1.5, 2.0, 1.5, 2 * np.sqrt(1.5 * 2.5))
+    a = idm_accel(
+        np.array([20.0, 10.0]),
+        np.array([20.0, 20.0]),
+        np.array([1e9, 1e9]),
+        np.zeros(2),
+        1.5,
+        2.0,
+        1.5,
+        2 * np.sqrt(1.5 * 2.5),
+    )
     assert a == pytest.approx([0.0, 1.5 * 15 / 16], abs=1e-9)
     # Far below the desired speed, exactly at the desired gap s* = s0 + v T behind an equally
     # fast leader: no acceleration; at half of it: a_max (1 - 4).
     gap = 2.0 + 10.0 * 1.5
     for factor, expected in ((1.0, 0.0), (0.5, -4.5)):
-        a = idm_accel(np.array(10.0), np.array(1e9), np.array(gap * factor), np.array(0.0),
-                      1.5, 2.0, 1.5, 3.0)
+        a = idm_accel(
+            np.array(10.0), np.array(1e9), np.array(gap * factor), np.array(0.0), 1.5, 2.0, 1.5, 3.0
+        )
         assert a == pytest.approx(expected, abs=1e-9)
     # Closing in adds v * dv / (2 sqrt(a b)) to the desired gap.
-    a = idm_accel(np.array(10.0), np.array(1e9), np.array(gap + 10.0 * 3.0 / 3.0),
-                  np.array(3.0), 1.5, 2.0, 1.5, 3.0)
+    a = idm_accel(
+        np.array(10.0),
+        np.array(1e9),
+        np.array(gap + 10.0 * 3.0 / 3.0),
+        np.array(3.0),
+        1.5,
+        2.0,
+        1.5,
+        3.0,
+    )
     assert a == pytest.approx(0.0, abs=1e-9)
 
 
-@pytest.mark.parametrize("overrides", [
-    {"traffic.density": "heavy"},
-    {"road.lane_count": 7, "traffic.vehicle_count": 90},
-])
+@pytest.mark.parametrize(
+    "overrides",
+    [
+        {"traffic.density": "heavy"},
+        {"road.lane_count": 7, "traffic.vehicle_count": 90},
+    ],
+)
 def test_heavy_traffic_never_overlaps(overrides):
     arenas, decisions = 8, 400
-    sim = HighwaySim(make_config(overrides={**overrides, "camera.enabled": False}),
-                     num_arenas=arenas)
+    sim = HighwaySim(
+        make_config(overrides={**overrides, "camera.enabled": False}), num_arenas=arenas
+    )
     sim.reset(seeds=list(range(100, 100 + arenas)))
     rng = np.random.default_rng(0)
     moved = 0
@@ -110,8 +151,10 @@ def test_a_passive_agent_is_never_hit():
     # Agents that only keep their lane: traffic's lane changes are safe for them and their
     # cruise control and emergency braking keep them off the car ahead.
     arenas = 16
-    sim = HighwaySim(make_config(overrides={"traffic.density": "medium", "camera.enabled": False}),
-                     num_arenas=arenas)
+    sim = HighwaySim(
+        make_config(overrides={"traffic.density": "medium", "camera.enabled": False}),
+        num_arenas=arenas,
+    )
     sim.reset(seeds=list(range(arenas)))
     for _ in range(250):
         result = keep(sim)
@@ -127,6 +170,7 @@ def test_traffic_overlaps_counts_overlapping_pairs():
 
 
 # --- lane changes, masks and cruise ------------------------------------------------------------
+
 
 @pytest.mark.parametrize("action, direction", [(3, 1), (4, -1)])
 def test_lane_change_ends_centred_in_the_next_lane_after_two_seconds(action, direction):
@@ -173,20 +217,25 @@ def test_lateral_action_during_a_change_is_ignored_and_masked():
     assert sim.metrics()["lane_changes"][0, 0] == 1
 
 
-BODY = 2 * HALF_LENGTH   # centre to centre when two cars touch bumper to bumper
+BODY = 2 * HALF_LENGTH  # centre to centre when two cars touch bumper to bumper
 
 
-@pytest.mark.parametrize("dx, clear", [
-    (0.0, False),                       # alongside
-    (BODY + 1.9, False), (BODY + 2.1, True),          # ahead: 2 m bumper to bumper needed
-    (-(BODY + 3.9), False), (-(BODY + 4.1), True),    # behind: 4 m needed
-    (-(BODY - 1.0), False),             # overlapping from behind
-])
+@pytest.mark.parametrize(
+    "dx, clear",
+    [
+        (0.0, False),  # alongside
+        (BODY + 1.9, False),
+        (BODY + 2.1, True),  # ahead: 2 m bumper to bumper needed
+        (-(BODY + 3.9), False),
+        (-(BODY + 4.1), True),  # behind: 4 m needed
+        (-(BODY - 1.0), False),  # overlapping from behind
+    ],
+)
 def test_driver_assistance_starts_a_lane_change_only_into_a_clear_lane(dx, clear):
     sim = scripted_sim([Car(dx, 3, 60.0)], ego_lane=2)
     mask = sim.action_mask()[0, 0]
     assert mask[3] == clear
-    assert mask[4] == 1                 # the lane on the right is empty
+    assert mask[4] == 1  # the lane on the right is empty
     result = sim.step(np.array([[3]]))
     assert result.action_applied[0, 0] == (3 if clear else 0)
     assert result.reward_terms["lane_change"][0, 0] == (-0.25 if clear else 0.0)
@@ -195,9 +244,10 @@ def test_driver_assistance_starts_a_lane_change_only_into_a_clear_lane(dx, clear
 
 def test_a_car_moving_into_the_target_lane_blocks_it_and_the_check_can_be_turned_off():
     for check in (True, False):
-        sim = scripted_sim([Car(0.0, 4, 60.0)], ego_lane=2,
-                           overrides={"ego.lane_change_check": check})
-        sim.state.target_lane[0, 1] = 3   # the car two lanes over is moving into lane 3
+        sim = scripted_sim(
+            [Car(0.0, 4, 60.0)], ego_lane=2, overrides={"ego.lane_change_check": check}
+        )
+        sim.state.target_lane[0, 1] = 3  # the car two lanes over is moving into lane 3
         assert sim.action_mask()[0, 0, 3] == (0 if check else 1)
         assert sim.step(np.array([[3]])).action_applied[0, 0] == (0 if check else 3)
 
@@ -226,20 +276,20 @@ def test_stepping_some_arenas_checks_each_arenas_own_side():
 
 
 def test_two_agents_cleared_into_one_gap_at_once_the_first_goes():
-    sim = HighwaySim(make_config(overrides={"traffic.vehicle_count": 0}), num_arenas=1,
-                     agents_per_arena=2)
+    sim = HighwaySim(
+        make_config(overrides={"traffic.vehicle_count": 0}), num_arenas=1, agents_per_arena=2
+    )
     sim.reset(seeds=[0])
     place(sim, 0, x=0.0, lane=1, speed_kmh=60.0, kind=AGENT_KIND)
     place(sim, 1, x=1.0, lane=3, speed_kmh=60.0, kind=AGENT_KIND)
-    assert sim.action_mask()[0, :, 3:].tolist() == [[1, 1], [1, 1]]   # each alone is clear
+    assert sim.action_mask()[0, :, 3:].tolist() == [[1, 1], [1, 1]]  # each alone is clear
     result = sim.step(np.array([[3, 4]]))
     assert result.action_applied[0].tolist() == [3, 0]
     assert sim.state.target_lane[0, :2].tolist() == [2, 3]
 
 
 def test_cars_in_the_own_lane_or_two_lanes_over_do_not_block_a_change():
-    sim = scripted_sim([Car(BODY + 0.5, 2, 60.0), Car(0.0, 0, 60.0), Car(0.0, 4, 60.0)],
-                       ego_lane=2)
+    sim = scripted_sim([Car(BODY + 0.5, 2, 60.0), Car(0.0, 0, 60.0), Car(0.0, 4, 60.0)], ego_lane=2)
     assert sim.action_mask()[0, 0].tolist() == [1, 1, 1, 1, 1]
     assert sim.lane_changes.side_clear(sim.state)[0, 0].tolist() == [True, True]
 
@@ -305,16 +355,23 @@ def test_one_decision_is_0_4_seconds(speed_kmh):
 
 
 def test_frames_per_decision_and_dt_set_the_decision_period():
-    sim = scripted_sim([], ego_lane=2, ego_speed_kmh=72.0,
-                       overrides={"episode.frames_per_decision": 5, "episode.physics_dt_s": 0.05})
+    sim = scripted_sim(
+        [],
+        ego_lane=2,
+        ego_speed_kmh=72.0,
+        overrides={"episode.frames_per_decision": 5, "episode.physics_dt_s": 0.05},
+    )
     keep(sim)
     assert sim.decision_period_s == pytest.approx(0.25)
     assert sim.state.x_m[0, 0] == pytest.approx(20.0 * 0.25, rel=1e-9)
 
 
 def test_traffic_keeps_its_speed_on_a_free_lane():
-    sim = scripted_sim([Car(30.0, 0, 70.0, kind=ROAD_MAX), Car(-30.0, 4, 50.0, kind=STEADY)],
-                       ego_lane=2, ego_speed_kmh=60.0)
+    sim = scripted_sim(
+        [Car(30.0, 0, 70.0, kind=ROAD_MAX), Car(-30.0, 4, 50.0, kind=STEADY)],
+        ego_lane=2,
+        ego_speed_kmh=60.0,
+    )
     st = sim.state
     x0 = st.x_m[0].copy()
     for _ in range(10):

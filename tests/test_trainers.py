@@ -16,7 +16,6 @@ import torch
 from gymnasium import spaces
 
 from overtake.client.commands import UsageError
-from overtake.viz.recording import RecordingConfig
 from overtake.trainers.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
 from overtake.trainers.evaluate import EvalConfig
 from overtake.trainers.evaluate import cli as evaluate_cli
@@ -27,6 +26,7 @@ from overtake.trainers.replay import FrameShapes, FrameStacker, ReplayMemory
 from overtake.trainers.train import TrainConfig
 from overtake.trainers.train import cli as train_cli
 from overtake.trainers.train import main as train
+from overtake.viz.recording import RecordingConfig
 
 torch.set_num_threads(1)
 
@@ -63,15 +63,24 @@ def test_dueling_aggregation_subtracts_the_mean_advantage():
 
 
 def small_shape(**changes: Any) -> NetworkShape:
-    shape = NetworkShape(camera_hw=(36, 36), lidar_rays=8, ego_size=6, actions=5, stack=4,
-                         lidar_max_m=80.0, ego_high=(100.0, 22.2, 4.0, 12.0, 1.0, 1.0))
+    shape = NetworkShape(
+        camera_hw=(36, 36),
+        lidar_rays=8,
+        ego_size=6,
+        actions=5,
+        stack=4,
+        lidar_max_m=80.0,
+        ego_high=(100.0, 22.2, 4.0, 12.0, 1.0, 1.0),
+    )
     return replace(shape, **changes)
 
 
 def random_obs(shape: NetworkShape, batch: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
-    return {"camera": rng.integers(0, 256, (batch, shape.stack) + shape.camera_hw, dtype=np.uint8),
-            "lidar": rng.uniform(0, 80, (batch, shape.stack, shape.lidar_rays)).astype(np.float32),
-            "ego": rng.uniform(0, 1, (batch, shape.ego_size)).astype(np.float32)}
+    return {
+        "camera": rng.integers(0, 256, (batch, shape.stack) + shape.camera_hw, dtype=np.uint8),
+        "lidar": rng.uniform(0, 80, (batch, shape.stack, shape.lidar_rays)).astype(np.float32),
+        "ego": rng.uniform(0, 1, (batch, shape.ego_size)).astype(np.float32),
+    }
 
 
 @pytest.mark.parametrize("inputs", ["camera", "lidar", "both"])
@@ -83,8 +92,9 @@ def test_dueling_network_output_is_value_plus_centred_advantage(inputs):
     seen: dict[str, torch.Tensor] = {}
     net.value.register_forward_hook(lambda _m, _i, out: seen.__setitem__("v", out))
     net.advantage.register_forward_hook(lambda _m, _i, out: seen.__setitem__("a", out))
-    q = net(torch.as_tensor(obs["camera"]), torch.as_tensor(obs["lidar"]),
-            torch.as_tensor(obs["ego"]))
+    q = net(
+        torch.as_tensor(obs["camera"]), torch.as_tensor(obs["lidar"]), torch.as_tensor(obs["ego"])
+    )
     assert q.shape == (3, 5)
     expected = seen["v"] + seen["a"] - seen["a"].mean(dim=1, keepdim=True)
     assert torch.allclose(q, expected)
@@ -103,8 +113,12 @@ def test_camera_only_and_lidar_only_networks_ignore_the_other_sensor():
         a = net(*(torch.as_tensor(obs[k]) for k in ("camera", "lidar", "ego")))
         b = net(*(torch.as_tensor(mixed[k]) for k in ("camera", "lidar", "ego")))
         assert torch.equal(a, b)
-        c = net(*(torch.as_tensor({**obs, inputs: other[inputs]}[k])
-                  for k in ("camera", "lidar", "ego")))
+        c = net(
+            *(
+                torch.as_tensor({**obs, inputs: other[inputs]}[k])
+                for k in ("camera", "lidar", "ego")
+            )
+        )
         assert not torch.equal(a, c)
 
 
@@ -113,7 +127,10 @@ def test_paper_network_has_the_table_ii_layers():
     net = QNetwork(shape, "both")
     convs = [m for m in net.conv if isinstance(m, torch.nn.Conv2d)]
     assert [(c.in_channels, c.out_channels, c.kernel_size, c.stride) for c in convs] == [
-        (4, 32, (8, 8), (4, 4)), (32, 64, (4, 4), (2, 2)), (64, 64, (3, 3), (1, 1))]
+        (4, 32, (8, 8), (4, 4)),
+        (32, 64, (4, 4), (2, 2)),
+        (64, 64, (3, 3), (1, 1)),
+    ]
     assert (net.lstm.input_size, net.lstm.hidden_size) == (360, 256)
     assert net.fuse[0].in_features == 64 * 7 * 7 + 256 + 6 and net.fuse[0].out_features == 512
     assert net.q.out_features == 5
@@ -121,13 +138,14 @@ def test_paper_network_has_the_table_ii_layers():
 
 def test_acting_never_picks_a_masked_action():
     shape = small_shape()
-    learner = DQNLearner(shape, "lidar", DQNConfig(lstm_cells=8, hidden_units=16), double=True,
-                         dueling=False)
+    learner = DQNLearner(
+        shape, "lidar", DQNConfig(lstm_cells=8, hidden_units=16), double=True, dueling=False
+    )
     rng = np.random.default_rng(0)
     obs = random_obs(shape, 64, rng)
     q = learner.q_values(obs)
     mask = np.ones((64, 5), dtype=np.int8)
-    mask[np.arange(64), q.argmax(axis=1)] = 0            # the greedy choice is not allowed
+    mask[np.arange(64), q.argmax(axis=1)] = 0  # the greedy choice is not allowed
     mask[:, 4] = 0
     for epsilon in (0.0, 1.0, 0.5):
         actions, _ = learner.act(obs, mask, epsilon, rng)
@@ -135,7 +153,7 @@ def test_acting_never_picks_a_masked_action():
     greedy, _ = learner.act(obs, mask, 0.0, rng)
     assert np.array_equal(greedy, np.where(mask.astype(bool), q, -np.inf).argmax(axis=1))
     explored, _ = learner.act(obs, mask, 1.0, rng)
-    assert len(set(explored.tolist())) >= 3              # random among the allowed, not fixed
+    assert len(set(explored.tolist())) >= 3  # random among the allowed, not fixed
 
 
 def test_masked_leaves_rows_with_nothing_allowed_unmasked():
@@ -155,9 +173,14 @@ def test_update_moves_q_towards_the_target():
     config = DQNConfig(lstm_cells=8, hidden_units=16, learning_rate=0.01, gamma=0.0)
     learner = DQNLearner(shape, "lidar", config, double=False, dueling=False)
     obs = random_obs(shape, 32, np.random.default_rng(2))
-    batch = {**obs, **{"next_" + k: v for k, v in obs.items()},
-             "action": np.full(32, 2), "reward": np.full(32, 3.0, dtype=np.float32),
-             "terminated": np.zeros(32, dtype=bool), "next_mask": np.ones((32, 5), np.int8)}
+    batch = {
+        **obs,
+        **{"next_" + k: v for k, v in obs.items()},
+        "action": np.full(32, 2),
+        "reward": np.full(32, 3.0, dtype=np.float32),
+        "terminated": np.zeros(32, dtype=bool),
+        "next_mask": np.ones((32, 5), np.int8),
+    }
     before = learner.q_values(obs)[:, 2].mean()
     for _ in range(100):
         learner.update(batch)
@@ -167,18 +190,25 @@ def test_update_moves_q_towards_the_target():
 
 # --- replay and stacking -------------------------------------------------------------------------
 
-SHAPES = FrameShapes({"lidar": ((3,), np.dtype(np.float32)), "ego": ((2,), np.dtype(np.float32))},
-                     actions=5)
+SHAPES = FrameShapes(
+    {"lidar": ((3,), np.dtype(np.float32)), "ego": ((2,), np.dtype(np.float32))}, actions=5
+)
 
 
 def frame(env: int, episode: int, step: int) -> dict[str, np.ndarray]:
     """A frame that names itself: lidar = (env, episode, step)."""
-    return {"lidar": np.array([[env, episode, step]], dtype=np.float32),
-            "ego": np.array([[episode, step]], dtype=np.float32)}
+    return {
+        "lidar": np.array([[env, episode, step]], dtype=np.float32),
+        "ego": np.array([[episode, step]], dtype=np.float32),
+    }
 
 
-def fill(replay: ReplayMemory, stacker: FrameStacker | None, lengths: dict[int, list[int]],
-         terminate: bool = True) -> dict[tuple[int, int, int], np.ndarray]:
+def fill(
+    replay: ReplayMemory,
+    stacker: FrameStacker | None,
+    lengths: dict[int, list[int]],
+    terminate: bool = True,
+) -> dict[tuple[int, int, int], np.ndarray]:
     """Play episodes of the given lengths per env, interleaved; returns the stacker's lidar
     stack at each (env, episode, step)."""
     stacks = {}
@@ -193,8 +223,14 @@ def fill(replay: ReplayMemory, stacker: FrameStacker | None, lengths: dict[int, 
             for step in range(1, length + 1):
                 nxt = frame(env, episode, step)
                 ended = terminate and step == length
-                replay.add(e, np.array([step % 5]), np.array([float(step)]), np.array([ended]),
-                           nxt, np.ones((1, 5), np.int8))
+                replay.add(
+                    e,
+                    np.array([step % 5]),
+                    np.array([float(step)]),
+                    np.array([ended]),
+                    nxt,
+                    np.ones((1, 5), np.int8),
+                )
                 if stacker is not None:
                     stacker.push(e, nxt)
                     stacks[(env, episode, step)] = stacker.frames["lidar"][env].copy()
@@ -215,11 +251,11 @@ def test_replay_rebuilds_stacks_within_episodes_and_matches_the_stacker():
         assert (now[:, 0] == env).all() and (now[:, 1] == episode).all()
         assert now[:, 2].tolist() == [max(step - k, 0) for k in (3, 2, 1, 0)]
         assert nxt[:, 2].tolist() == [max(step + 1 - k, 0) for k in (3, 2, 1, 0)]
-        assert (nxt[:, :2] == now[:, :2]).all()              # never across a boundary
+        assert (nxt[:, :2] == now[:, :2]).all()  # never across a boundary
         assert np.array_equal(now, stacks[(env, episode, step)])
         assert np.array_equal(nxt, stacks[(env, episode, step + 1)])
         assert batch["action"][i] == (step + 1) % 5 and batch["reward"][i] == step + 1
-        assert batch["ego"][i].tolist() == [episode, step]            # unstacked: the latest
+        assert batch["ego"][i].tolist() == [episode, step]  # unstacked: the latest
         assert batch["next_ego"][i].tolist() == [episode, step + 1]
         length = {0: [2, 7, 5], 1: [9, 1, 3]}[env][episode]
         assert batch["terminated"][i] == (step + 1 == length)
@@ -235,7 +271,7 @@ def test_truncated_episode_ends_are_not_terminal_and_never_followed_across():
 
 def test_replay_ring_never_samples_overwritten_frames():
     replay = ReplayMemory(12, 1, SHAPES, 4, ("lidar",), seed=2)
-    fill(replay, None, {0: [30]})   # 31 frames through a ring of 12
+    fill(replay, None, {0: [30]})  # 31 frames through a ring of 12
     batch = replay.sample(300)
     steps = batch["lidar"][:, :, 2]
     # The ring holds steps 19..30; a stack needs its 3 predecessors, the transition its next.
@@ -249,14 +285,25 @@ def test_replay_refuses_to_sample_when_empty_and_to_add_before_start():
     with pytest.raises(RuntimeError, match="no transitions"):
         replay.sample(1)
     with pytest.raises(RuntimeError, match="before start"):
-        replay.add(np.array([0]), np.array([0]), np.array([0.0]), np.array([False]),
-                   frame(0, 0, 1), np.ones((1, 5), np.int8))
+        replay.add(
+            np.array([0]),
+            np.array([0]),
+            np.array([0.0]),
+            np.array([False]),
+            frame(0, 0, 1),
+            np.ones((1, 5), np.int8),
+        )
 
 
 def test_replay_of_paper_size_stores_each_frame_once():
-    shapes = FrameShapes({"camera": ((84, 84), np.dtype(np.uint8)),
-                          "lidar": ((360,), np.dtype(np.float32)),
-                          "ego": ((6,), np.dtype(np.float32))}, actions=5)
+    shapes = FrameShapes(
+        {
+            "camera": ((84, 84), np.dtype(np.uint8)),
+            "lidar": ((360,), np.dtype(np.float32)),
+            "ego": ((6,), np.dtype(np.float32)),
+        },
+        actions=5,
+    )
     replay = ReplayMemory(100_000, 4, shapes, 4, ("camera", "lidar"))
     # 100,000 frames of 8,520 bytes plus per-transition fields; a naive replay keeps two stacks
     # of four frames per transition.
@@ -280,6 +327,7 @@ def test_replay_save_and_load_round_trip(tmp_path):
 
 # --- a purpose-built tiny environment: the learner learns ----------------------------------------
 
+
 class PickTheFreeLane(gym.vector.VectorEnv):
     """Each decision the LIDAR shows five distances; driving towards the largest pays 1.
 
@@ -287,16 +335,20 @@ class PickTheFreeLane(gym.vector.VectorEnv):
     ``length`` decisions, Gymnasium next-step autoreset, overtake's observation keys.
     """
 
-    metadata = {"autoreset_mode": gym.vector.AutoresetMode.NEXT_STEP}
+    metadata = {"autoreset_mode": gym.vector.AutoresetMode.NEXT_STEP}  # noqa: RUF012
 
     def __init__(self, num_envs: int, length: int = 16, seed: int = 0) -> None:
         self.num_envs, self.length = num_envs, length
-        self.single_observation_space = spaces.Dict({
-            "ego": spaces.Box(-1.0, 1.0, (6,), np.float32),
-            "lidar": spaces.Box(0.0, 80.0, (5,), np.float32)})
+        self.single_observation_space = spaces.Dict(
+            {
+                "ego": spaces.Box(-1.0, 1.0, (6,), np.float32),
+                "lidar": spaces.Box(0.0, 80.0, (5,), np.float32),
+            }
+        )
         self.single_action_space = spaces.Discrete(5)
-        self.observation_space = gym.vector.utils.batch_space(self.single_observation_space,
-                                                              num_envs)
+        self.observation_space = gym.vector.utils.batch_space(
+            self.single_observation_space, num_envs
+        )
         self.action_space = spaces.MultiDiscrete(np.full(num_envs, 5))
         self.rng = np.random.default_rng(seed)
         self.t = np.zeros(num_envs, dtype=int)
@@ -324,8 +376,10 @@ class PickTheFreeLane(gym.vector.VectorEnv):
         truncated = self.t >= self.length
         info = self._info()
         if truncated.any():
-            info["metrics"] = {"return": np.where(truncated, self.total, 0.0),
-                               "avg_speed_kmh": np.zeros(self.num_envs)}
+            info["metrics"] = {
+                "return": np.where(truncated, self.total, 0.0),
+                "avg_speed_kmh": np.zeros(self.num_envs),
+            }
             info["_metrics"] = truncated
         self.autoreset = truncated
         return self._obs(), reward, np.zeros(self.num_envs, bool), truncated, info
@@ -359,9 +413,19 @@ class WatchEnvZero(gym.vector.VectorEnv):
 
 
 def tiny_dqn(**changes: Any) -> DQNConfig:
-    settings = dict(learning_rate=0.002, batch_size=32, replay_size=4000, learning_starts=300,
-                    gamma=0.5, epsilon_decay_steps=1500, epsilon_end=0.05,
-                    target_update_steps=200, train_every=1, lstm_cells=32, hidden_units=64)
+    settings = dict(
+        learning_rate=0.002,
+        batch_size=32,
+        replay_size=4000,
+        learning_starts=300,
+        gamma=0.5,
+        epsilon_decay_steps=1500,
+        epsilon_end=0.05,
+        target_update_steps=200,
+        train_every=1,
+        lstm_cells=32,
+        hidden_units=64,
+    )
     settings.update(changes)
     return DQNConfig(**settings)
 
@@ -372,16 +436,26 @@ def greedy_score(checkpoint_path: Path, episodes: int = 200) -> float:
     env = PickTheFreeLane(episodes, seed=99)
     obs, info = env.reset()
     stack = np.repeat(obs["lidar"][:, None], checkpoint.dqn.stack, axis=1)
-    actions, _ = learner.act({"lidar": stack, "ego": obs["ego"]}, info["action_mask"], 0.0,
-                             np.random.default_rng(0))
+    actions, _ = learner.act(
+        {"lidar": stack, "ego": obs["ego"]}, info["action_mask"], 0.0, np.random.default_rng(0)
+    )
     _, reward, *_ = env.step(actions)
     return float(reward.mean())
 
 
 def test_learner_beats_random_on_a_tiny_environment(tmp_path):
-    config = TrainConfig(algo="ddqn", inputs="lidar", num_envs=4, total_steps=2400, seed=0,
-                         run_dir=tmp_path / "run", progress=False, log_every=400,
-                         checkpoint_every=10_000, dqn=tiny_dqn())
+    config = TrainConfig(
+        algo="ddqn",
+        inputs="lidar",
+        num_envs=4,
+        total_steps=2400,
+        seed=0,
+        run_dir=tmp_path / "run",
+        progress=False,
+        log_every=400,
+        checkpoint_every=10_000,
+        dqn=tiny_dqn(),
+    )
     env = PickTheFreeLane(4, seed=0)
     summary = train(config, envs=env)
     assert summary["steps"] >= 2400 and summary["updates"] > 1500
@@ -391,19 +465,31 @@ def test_learner_beats_random_on_a_tiny_environment(tmp_path):
 
 # --- checkpoints and resume ----------------------------------------------------------------------
 
+
 def test_checkpoint_round_trip_and_resume_continue_the_step_count(tmp_path):
     run_dir = tmp_path / "run"
-    config = TrainConfig(algo="dueling", inputs="lidar", num_envs=2, total_steps=300, seed=4,
-                         run_dir=run_dir, progress=False, log_every=100,
-                         checkpoint_every=10_000, dqn=tiny_dqn(learning_starts=50))
+    config = TrainConfig(
+        algo="dueling",
+        inputs="lidar",
+        num_envs=2,
+        total_steps=300,
+        seed=4,
+        run_dir=run_dir,
+        progress=False,
+        log_every=100,
+        checkpoint_every=10_000,
+        dqn=tiny_dqn(learning_starts=50),
+    )
     first = train(config, envs=PickTheFreeLane(2, seed=1))
     checkpoint = load_checkpoint(run_dir / CHECKPOINT_NAME)
     assert (checkpoint.algo, checkpoint.inputs, checkpoint.step) == ("dueling", "lidar", 300)
     assert checkpoint.space["lidar"]["shape"] == [5] and checkpoint.net_shape.lidar_rays == 5
     assert checkpoint.episodes == first["episodes"] and checkpoint.dqn == config.dqn
     # The learner comes back exactly: same Q-values.
-    obs = {"lidar": np.random.default_rng(0).uniform(0, 80, (3, 4, 5)).astype(np.float32),
-           "ego": np.zeros((3, 6), np.float32)}
+    obs = {
+        "lidar": np.random.default_rng(0).uniform(0, 80, (3, 4, 5)).astype(np.float32),
+        "ego": np.zeros((3, 6), np.float32),
+    }
     restored = checkpoint.make_learner()
     assert restored.dueling and restored.double
     assert restored.updates == first["updates"]
@@ -417,20 +503,33 @@ def test_checkpoint_round_trip_and_resume_continue_the_step_count(tmp_path):
     assert after.step == 500 and after.resumes == 1
     assert not np.allclose(after.make_learner().q_values(obs), restored.q_values(obs))
     assert (run_dir / "run.json").exists() and (run_dir / "run-resume-1.json").exists()
-    steps = [json.loads(line)["step"] for line in (run_dir / "metrics.jsonl").read_text()
-             .splitlines() if json.loads(line)["kind"] == "train"]
+    steps = [
+        json.loads(line)["step"]
+        for line in (run_dir / "metrics.jsonl").read_text().splitlines()
+        if json.loads(line)["kind"] == "train"
+    ]
     assert steps == sorted(steps) and steps[-1] >= 400 and any(s <= 300 for s in steps)
     with pytest.raises(CheckpointError, match="algo=dueling"):
-        train(replace(config, algo="dqn", total_steps=600, resume=True),
-              envs=PickTheFreeLane(2, seed=2))
+        train(
+            replace(config, algo="dqn", total_steps=600, resume=True),
+            envs=PickTheFreeLane(2, seed=2),
+        )
 
 
 def test_resume_if_found_continues_a_run_and_starts_one_where_there_is_none(tmp_path):
     """What a restarted compose trainer does: same command, same --run-dir."""
     run_dir = tmp_path / "run"
-    config = TrainConfig(inputs="lidar", num_envs=1, total_steps=100, seed=3, run_dir=run_dir,
-                         progress=False, log_every=50, resume_if_found=True,
-                         dqn=tiny_dqn(learning_starts=20))
+    config = TrainConfig(
+        inputs="lidar",
+        num_envs=1,
+        total_steps=100,
+        seed=3,
+        run_dir=run_dir,
+        progress=False,
+        log_every=50,
+        resume_if_found=True,
+        dqn=tiny_dqn(learning_starts=20),
+    )
     # No checkpoint yet: a fresh run, not a refusal.
     first = train(config, envs=PickTheFreeLane(1, seed=1))
     assert first["steps"] == 100
@@ -448,8 +547,9 @@ def test_resume_if_found_continues_a_run_and_starts_one_where_there_is_none(tmp_
 
 
 def test_resume_without_a_checkpoint_and_a_broken_checkpoint_say_what_is_wrong(tmp_path):
-    config = TrainConfig(inputs="lidar", run_dir=tmp_path / "none", resume=True, progress=False,
-                         dqn=tiny_dqn())
+    config = TrainConfig(
+        inputs="lidar", run_dir=tmp_path / "none", resume=True, progress=False, dqn=tiny_dqn()
+    )
     with pytest.raises(CheckpointError, match="no checkpoint"):
         train(config)
     broken = tmp_path / "broken.pt"
@@ -459,7 +559,6 @@ def test_resume_without_a_checkpoint_and_a_broken_checkpoint_say_what_is_wrong(t
     torch.save({"header": {"format": "something-else/9"}}, tmp_path / "foreign.pt")
     with pytest.raises(CheckpointError, match="overtake-dqn/1.*something-else/9"):
         load_checkpoint(tmp_path / "foreign.pt")
-
 
 
 def test_the_commands_print_what_is_wrong_and_exit_non_zero(tmp_path):
@@ -473,20 +572,29 @@ def test_the_commands_print_what_is_wrong_and_exit_non_zero(tmp_path):
     with pytest.raises(SystemExit) as exited:
         evaluate_cli(["--checkpoint", str(broken)])
     assert str(exited.value.code).startswith(
-        f"overtake-eval: {broken} is not a readable overtake checkpoint (")
+        f"overtake-eval: {broken} is not a readable overtake checkpoint ("
+    )
     with pytest.raises(SystemExit) as exited:
         evaluate_cli(["--policy", "rule", "--episodes", "0"])
     assert exited.value.code == "overtake-eval: --episodes must be >= 1, got 0"
 
+
 def test_a_kill_mid_write_leaves_the_previous_checkpoint_whole(tmp_path, monkeypatch):
     run_dir = tmp_path / "run"
-    config = TrainConfig(inputs="lidar", num_envs=1, total_steps=100, run_dir=run_dir,
-                         progress=False, dqn=tiny_dqn(learning_starts=20))
+    config = TrainConfig(
+        inputs="lidar",
+        num_envs=1,
+        total_steps=100,
+        run_dir=run_dir,
+        progress=False,
+        dqn=tiny_dqn(learning_starts=20),
+    )
     train(config, envs=PickTheFreeLane(1))
     good = (run_dir / CHECKPOINT_NAME).read_bytes()
 
     def dies(*_args: Any, **_kwargs: Any) -> None:
         raise KeyboardInterrupt("killed while writing")
+
     monkeypatch.setattr(torch, "save", dies)
     with pytest.raises(KeyboardInterrupt):
         train(replace(config, total_steps=200, resume=True), envs=PickTheFreeLane(1))
@@ -496,16 +604,27 @@ def test_a_kill_mid_write_leaves_the_previous_checkpoint_whole(tmp_path, monkeyp
 
 # --- smoke runs on the real simulator -------------------------------------------------------------
 
-SMOKE_DQN = dict(learning_starts=60, replay_size=2000, target_update_steps=100,
-                 epsilon_decay_steps=200)
+SMOKE_DQN = dict(
+    learning_starts=60, replay_size=2000, target_update_steps=100, epsilon_decay_steps=200
+)
 
 
 @pytest.mark.parametrize("algo", ["dqn", "ddqn", "dueling"])
 def test_each_algorithm_trains_in_process_and_its_checkpoint_evaluates(tmp_path, algo):
     run_dir = tmp_path / algo
-    summary = train(TrainConfig(algo=algo, inputs="both", num_envs=2, total_steps=240,
-                                run_dir=run_dir, progress=False, log_every=80,
-                                set=("episode.max_decisions=60",), dqn=DQNConfig(**SMOKE_DQN)))
+    summary = train(
+        TrainConfig(
+            algo=algo,
+            inputs="both",
+            num_envs=2,
+            total_steps=240,
+            run_dir=run_dir,
+            progress=False,
+            log_every=80,
+            set=("episode.max_decisions=60",),
+            dqn=DQNConfig(**SMOKE_DQN),
+        )
+    )
     assert summary["steps"] >= 240 and summary["updates"] >= 40 and summary["episodes"] >= 2
     records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
     episodes = [r for r in records if r["kind"] == "episode"]
@@ -514,9 +633,15 @@ def test_each_algorithm_trains_in_process_and_its_checkpoint_evaluates(tmp_path,
     run = json.loads((run_dir / "run.json").read_text())
     assert run["algo"]["name"] == algo and run["sim_config"]["episode"]["max_decisions"] == 60
     assert run["versions"]["torch"].startswith("2.13") and run["commit"]
-    result = evaluate(EvalConfig(checkpoint=run_dir / CHECKPOINT_NAME, episodes=2,
-                                 max_decisions=30, traffic="light",
-                                 json_out=tmp_path / "eval.json"))
+    result = evaluate(
+        EvalConfig(
+            checkpoint=run_dir / CHECKPOINT_NAME,
+            episodes=2,
+            max_decisions=30,
+            traffic="light",
+            json_out=tmp_path / "eval.json",
+        )
+    )
     assert result["summary"]["episodes"] == 2
     assert result["summary"]["decisions"]["mean"] == 30
     assert result["overrides"]["traffic.density"] == "light"
@@ -526,13 +651,22 @@ def test_each_algorithm_trains_in_process_and_its_checkpoint_evaluates(tmp_path,
 @pytest.mark.parametrize("algo", ["dqn", "ddqn", "dueling"])
 def test_each_algorithm_trains_against_a_real_server(tmp_path, start_server, algo):
     server = start_server(f"train-{algo}")
-    summary = train(TrainConfig(algo=algo, inputs="lidar", num_envs=2, total_steps=200,
-                                connect=server.endpoint, run_dir=tmp_path / algo,
-                                progress=False, set=("episode.max_decisions=50",),
-                                dqn=DQNConfig(**SMOKE_DQN)))
+    summary = train(
+        TrainConfig(
+            algo=algo,
+            inputs="lidar",
+            num_envs=2,
+            total_steps=200,
+            connect=server.endpoint,
+            run_dir=tmp_path / algo,
+            progress=False,
+            set=("episode.max_decisions=50",),
+            dqn=DQNConfig(**SMOKE_DQN),
+        )
+    )
     assert summary["steps"] >= 200 and summary["updates"] >= 30 and summary["episodes"] >= 2
     run = json.loads((tmp_path / algo / "run.json").read_text())
-    assert run["overrides"]["camera.enabled"] is False       # lidar-only: no camera rendered
+    assert run["overrides"]["camera.enabled"] is False  # lidar-only: no camera rendered
     assert run["config"]["connect"] == server.endpoint
 
 
@@ -569,16 +703,25 @@ class CountingEnv(PickTheFreeLane):
         truncated = ended & ~terminated
         info = self._info()
         if ended.any():
-            info["metrics"] = {"return": np.zeros(self.num_envs),
-                               "avg_speed_kmh": np.zeros(self.num_envs)}
+            info["metrics"] = {
+                "return": np.zeros(self.num_envs),
+                "avg_speed_kmh": np.zeros(self.num_envs),
+            }
             info["_metrics"] = ended
         self.autoreset = ended
         return self._obs(), np.where(resetting, 0.0, 1.0), terminated, truncated, info
 
 
 def test_training_loop_stores_no_transition_across_an_autoreset(tmp_path):
-    config = TrainConfig(inputs="lidar", num_envs=3, total_steps=400, run_dir=tmp_path,
-                         progress=False, save_replay=True, dqn=tiny_dqn(learning_starts=50))
+    config = TrainConfig(
+        inputs="lidar",
+        num_envs=3,
+        total_steps=400,
+        run_dir=tmp_path,
+        progress=False,
+        save_replay=True,
+        dqn=tiny_dqn(learning_starts=50),
+    )
     summary = train(config, envs=CountingEnv(3))
     assert summary["episodes"] > 10
     with np.load(tmp_path / "replay.npz") as saved:
@@ -589,16 +732,24 @@ def test_training_loop_stores_no_transition_across_an_autoreset(tmp_path):
         for j in range(int(count[env]) - 1):
             now, nxt = frames[env, j], frames[env, j + 1]
             assert now[0] == env and ep_step[env, j] == now[2]
-            if has_next[env, j]:    # a transition: same episode, the next step
+            if has_next[env, j]:  # a transition: same episode, the next step
                 assert nxt[1] == now[1] and nxt[2] == now[2] + 1
-            else:                   # an episode's end: the next frame starts the next one
+            else:  # an episode's end: the next frame starts the next one
                 assert nxt[1] == now[1] + 1 and nxt[2] == 0 and ep_step[env, j + 1] == 0
 
 
 def test_eval_table_joins_earlier_results_and_refuses_other_files(tmp_path, capsys):
     for seed in (3, 4):
-        evaluate(EvalConfig(policy="random", episodes=1, max_decisions=20, seed=seed,
-                            name=f"random-{seed}", json_out=tmp_path / f"r{seed}.json"))
+        evaluate(
+            EvalConfig(
+                policy="random",
+                episodes=1,
+                max_decisions=20,
+                seed=seed,
+                name=f"random-{seed}",
+                json_out=tmp_path / f"r{seed}.json",
+            )
+        )
     capsys.readouterr()
     evaluate(EvalConfig(table=(tmp_path / "r3.json", tmp_path / "r4.json")))
     lines = capsys.readouterr().out.splitlines()
@@ -608,28 +759,37 @@ def test_eval_table_joins_earlier_results_and_refuses_other_files(tmp_path, caps
         evaluate(EvalConfig(table=(tmp_path / "bad.json",)))
 
 
-
 def test_evaluation_does_not_import_the_training_command():
     """overtake-eval reads the library modules, not another command's module."""
-    code = ("import json, sys, overtake.trainers.evaluate; "
-            "print(json.dumps([m for m in sys.modules if m.startswith('overtake.')]))")
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          timeout=120)
+    code = (
+        "import json, sys, overtake.trainers.evaluate; "
+        "print(json.dumps([m for m in sys.modules if m.startswith('overtake.')]))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     loaded = set(json.loads(done.stdout))
     assert "overtake.trainers.observations" in loaded
     assert "overtake.trainers.train" not in loaded and "overtake.client.drive" not in loaded
 
+
 def test_training_writes_a_rerun_recording_of_its_episodes_and_learning(tmp_path):
     import rerun as rr
 
-    config = TrainConfig(inputs="lidar", num_envs=2, total_steps=300, run_dir=tmp_path / "run",
-                         progress=False, log_every=100, dqn=tiny_dqn(learning_starts=50),
-                         recording=RecordingConfig(record_every=3))
+    config = TrainConfig(
+        inputs="lidar",
+        num_envs=2,
+        total_steps=300,
+        run_dir=tmp_path / "run",
+        progress=False,
+        log_every=100,
+        dqn=tiny_dqn(learning_starts=50),
+        recording=RecordingConfig(record_every=3),
+    )
     envs = WatchEnvZero(PickTheFreeLane(2, length=16))
     train(config, envs=envs)
-    records = [json.loads(line) for line in
-               (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
+    records = [
+        json.loads(line) for line in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()
+    ]
     reader = rr.chunk.RrdReader(str(tmp_path / "run" / "trainer.rrd"))
     assert reader.recordings() and reader.blueprints()
 
@@ -657,8 +817,11 @@ def test_training_writes_a_rerun_recording_of_its_episodes_and_learning(tmp_path
 
     # Environment 0's view, every 3rd step of the vector env, skipping autoreset steps: the
     # LIDAR it was shown, the action it took and the reward it got for it.
-    expected = [(seen, action, reward) for i, (seen, action, reward, resetting)
-                in enumerate(envs.log) if i % 3 == 0 and not resetting]
+    expected = [
+        (seen, action, reward)
+        for i, (seen, action, reward, resetting) in enumerate(envs.log)
+        if i % 3 == 0 and not resetting
+    ]
     _, rewards = series("/trainer/run/env0/reward")
     _, actions = series("/trainer/run/env0/action")
     _, chosen_q = series("/trainer/run/env0/q_chosen")
@@ -666,8 +829,9 @@ def test_training_writes_a_rerun_recording_of_its_episodes_and_learning(tmp_path
     for chunk in reader.stream().to_chunks():
         if chunk.entity_path == "/trainer/run/env0/lidar/hits" and not chunk.is_static:
             batch = chunk.to_record_batch()
-            hits += zip(batch.column("step").to_pylist(),
-                        batch.column("Points2D:positions").to_pylist())
+            hits += zip(
+                batch.column("step").to_pylist(), batch.column("Points2D:positions").to_pylist()
+            )
     hits = [np.asarray(points) for _, points in sorted(hits, key=lambda h: h[0])]
     assert len(expected) == len(rewards) == len(actions) == len(hits) == len(chosen_q) > 30
     assert rewards == pytest.approx([r for _, _, r in expected])
@@ -675,5 +839,6 @@ def test_training_writes_a_rerun_recording_of_its_episodes_and_learning(tmp_path
     angles = np.arange(5) * (2 * np.pi / 5)
     for points, (seen, _, _) in zip(hits, expected):
         assert np.hypot(points[:, 0], points[:, 1]) == pytest.approx(seen, rel=1e-5)
-        assert np.allclose(points, np.stack([seen * np.cos(angles), seen * np.sin(angles)], 1),
-                           atol=1e-4)
+        assert np.allclose(
+            points, np.stack([seen * np.cos(angles), seen * np.sin(angles)], 1), atol=1e-4
+        )

@@ -8,17 +8,20 @@ import pytest
 
 import overtake.client  # noqa: F401
 from overtake.protocol import HIGHWAY_ENV_ID
-from overtake.server.env import HighwayEnv, HighwayVectorEnv
 from overtake.protocol.vocabulary import METRIC_FIELDS
+from overtake.server.env import HighwayEnv, HighwayVectorEnv
 
 NUM = 4
 OVERRIDES = {"episode.max_decisions": 15, "traffic.density": "heavy"}
 
 
 def make_vec(num_envs: int = NUM, **overrides):
-    return gym.make_vec(HIGHWAY_ENV_ID, num_envs=num_envs,
-                        vectorization_mode="vector_entry_point",
-                        overrides={**OVERRIDES, **overrides})
+    return gym.make_vec(
+        HIGHWAY_ENV_ID,
+        num_envs=num_envs,
+        vectorization_mode="vector_entry_point",
+        overrides={**OVERRIDES, **overrides},
+    )
 
 
 def test_make_vec_builds_the_numpy_vector_env():
@@ -42,7 +45,7 @@ def test_vector_env_matches_single_envs_step_by_step_across_episode_ends():
     singles = [HighwayEnv(overrides=OVERRIDES) for _ in range(NUM)]
     rng = np.random.default_rng(5)
 
-    obs, info = envs.reset(seed=seed)           # arena i gets seed + i
+    obs, info = envs.reset(seed=seed)  # arena i gets seed + i
     single_obs = [env.reset(seed=seed + i) for i, env in enumerate(singles)]
     for i, (o, single_info) in enumerate(single_obs):
         for key in o:
@@ -95,16 +98,16 @@ def test_autoreset_step_ignores_the_action_and_returns_zero_reward():
     assert info["_metrics"].tolist() == [True, True]
     assert info["metrics"]["decisions"].tolist() == [3, 3]
     final_speed = obs["ego"][:, 1].copy()
-    assert final_speed[0] > final_speed[1]      # arena 0 raised its cruise target
+    assert final_speed[0] > final_speed[1]  # arena 0 raised its cruise target
     # The autoreset step: a lane change requested in both arenas is not applied.
     obs, reward, terminated, truncated, info = envs.step(np.array([3, 4]))
     assert reward.tolist() == [0.0, 0.0]
     assert not terminated.any() and not truncated.any()
     assert "metrics" not in info
     assert info["action_applied"].tolist() == [-1, -1]
-    assert obs["ego"][:, 4].tolist() == [0.0, 0.0]    # no lane change under way
+    assert obs["ego"][:, 4].tolist() == [0.0, 0.0]  # no lane change under way
     assert obs["ego"][:, 5].tolist() == [0.0, 0.0]
-    assert np.allclose(obs["ego"][:, 1], 60.0 / 3.6)   # fresh episodes at the initial cruise
+    assert np.allclose(obs["ego"][:, 1], 60.0 / 3.6)  # fresh episodes at the initial cruise
     assert all(v == 0.0 for v in info["reward_terms"]["lane_change"])
     # The next step acts again.
     obs, reward, *_, info = envs.step(np.array([1, 1]))
@@ -113,15 +116,16 @@ def test_autoreset_step_ignores_the_action_and_returns_zero_reward():
 
 
 def test_arenas_ending_at_different_times_reset_independently():
-    envs = HighwayVectorEnv(num_envs=3, overrides={"traffic.vehicle_count": 0,
-                                                     "episode.max_decisions": 4})
+    envs = HighwayVectorEnv(
+        num_envs=3, overrides={"traffic.vehicle_count": 0, "episode.max_decisions": 4}
+    )
     envs.reset(seed=0)
     # Put arena 1 one decision behind the others by restarting its episode in the core.
     envs.step(np.zeros(3, dtype=np.int64))
     envs.sim.reset([1])
     flags = []
     for _ in range(6):
-        _, reward, terminated, truncated, info = envs.step(np.zeros(3, dtype=np.int64))
+        _, _, _, truncated, info = envs.step(np.zeros(3, dtype=np.int64))
         flags.append(truncated.tolist())
         if truncated.any():
             assert info["_metrics"].tolist() == truncated.tolist()
@@ -134,7 +138,7 @@ def test_vector_seeds_and_render():
     obs_a, _ = envs.reset(seed=[5, 5])
     for key in obs_a:
         assert np.array_equal(obs_a[key][0], obs_a[key][1])
-    obs_b, _ = envs.reset(seed=5)      # seeds 5 and 6
+    obs_b, _ = envs.reset(seed=5)  # seeds 5 and 6
     assert np.array_equal(obs_b["lidar"][0], obs_a["lidar"][0])
     assert not np.array_equal(obs_b["lidar"][1], obs_a["lidar"][1])
     frames = envs.render()
@@ -143,8 +147,9 @@ def test_vector_seeds_and_render():
         envs.reset(seed=[1, 2, 3])
 
 
-@pytest.mark.parametrize("actions", [np.array([0, 5]), np.array([-1, 0]), np.array([0.0, 1.0]),
-                                     np.array([0, 1, 2])])
+@pytest.mark.parametrize(
+    "actions", [np.array([0, 5]), np.array([-1, 0]), np.array([0.0, 1.0]), np.array([0, 1, 2])]
+)
 def test_vector_env_refuses_bad_actions(actions):
     envs = HighwayVectorEnv(num_envs=2)
     envs.reset(seed=0)

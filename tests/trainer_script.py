@@ -66,15 +66,26 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace:
 class Trainer:
     def __init__(self, args: argparse.Namespace) -> None:
         self.args = args
-        config = RemoteConfig(connect=(args.connect,), server=args.server,
-                              connect_timeout_s=args.connect_timeout_s, request_timeout_s=5.0,
-                              step_timeout_s=args.step_timeout_s,
-                              reconnect_timeout_s=args.reconnect_timeout_s,
-                              trainer_name=args.trainer_name, lease_s=args.lease_s)
-        self.env = RemoteEnvironment(preset=args.preset, overrides=json.loads(args.overrides),
-                                     arenas=args.arenas, agents_per_arena=args.agents_per_arena,
-                                     claim=args.claim, seed=args.seed, join=args.join,
-                                     config=config)
+        config = RemoteConfig(
+            connect=(args.connect,),
+            server=args.server,
+            connect_timeout_s=args.connect_timeout_s,
+            request_timeout_s=5.0,
+            step_timeout_s=args.step_timeout_s,
+            reconnect_timeout_s=args.reconnect_timeout_s,
+            trainer_name=args.trainer_name,
+            lease_s=args.lease_s,
+        )
+        self.env = RemoteEnvironment(
+            preset=args.preset,
+            overrides=json.loads(args.overrides),
+            arenas=args.arenas,
+            agents_per_arena=args.agents_per_arena,
+            claim=args.claim,
+            seed=args.seed,
+            join=args.join,
+            config=config,
+        )
         self.name = next(iter(self.env.behavior_specs))
         self.rng = np.random.default_rng(args.seed)
         self.steps_done = 0
@@ -84,9 +95,16 @@ class Trainer:
     def ready(self) -> None:
         group = self.env.group
         steps = self.env.steps
-        emit("READY", trainer=group.connection.trainer, server=group.server, group=group.group_id,
-             arena_ids=list(group.arena_ids), agents=steps.agents, round=group.round,
-             observations=[s.name for s in self.env.behavior_specs[self.name].observation_specs])
+        emit(
+            "READY",
+            trainer=group.connection.trainer,
+            server=group.server,
+            group=group.group_id,
+            arena_ids=list(group.arena_ids),
+            agents=steps.agents,
+            round=group.round,
+            observations=[s.name for s in self.env.behavior_specs[self.name].observation_specs],
+        )
 
     def one_step(self) -> dict[str, Any]:
         decision, _ = self.env.get_steps(self.name)
@@ -102,10 +120,18 @@ class Trainer:
         s = self.env.steps
         self.late_seen += int(s.late.sum())
         info: dict[str, Any] = dict(
-            i=self.steps_done, round=self.env.group.round, t=time.monotonic(), agents=s.agents,
-            reward=s.reward, terminated=s.terminated, truncated=s.truncated, late=s.late,
-            applied=s.action_applied, restarted=self.env.group.restarts != restarts,
-            restarts=self.env.group.restarts)
+            i=self.steps_done,
+            round=self.env.group.round,
+            t=time.monotonic(),
+            agents=s.agents,
+            reward=s.reward,
+            terminated=s.terminated,
+            truncated=s.truncated,
+            late=s.late,
+            applied=s.action_applied,
+            restarted=self.env.group.restarts != restarts,
+            restarts=self.env.group.restarts,
+        )
         if "lidar" in s.observations:
             lidar = s.observations["lidar"]
             info["min_lidar"] = lidar.min(axis=1)
@@ -136,10 +162,17 @@ class Trainer:
             last_t = now
             if done % self.args.print_every == 0 or info["restarted"]:
                 emit("STEP", **info)
-        summary = dict(steps=done, total_steps=self.steps_done, round=self.env.group.round,
-                       t0=start, t1=time.monotonic(), max_gap_s=max_gap,
-                       late_seen=self.late_seen, restarts=self.env.group.restarts,
-                       last=info)
+        summary = dict(
+            steps=done,
+            total_steps=self.steps_done,
+            round=self.env.group.round,
+            t0=start,
+            t1=time.monotonic(),
+            max_gap_s=max_gap,
+            late_seen=self.late_seen,
+            restarts=self.env.group.restarts,
+            last=info,
+        )
         return summary, stopped_by
 
     def close(self) -> None:
@@ -189,8 +222,13 @@ def main() -> int:
                 else:
                     emit("ERROR", type="UnknownCommand", message=command)
             except Exception as error:
-                emit("ERROR", type=type(error).__name__, message=str(error),
-                     t=time.monotonic(), steps=trainer.steps_done)
+                emit(
+                    "ERROR",
+                    type=type(error).__name__,
+                    message=str(error),
+                    t=time.monotonic(),
+                    steps=trainer.steps_done,
+                )
     finally:
         try:
             trainer.close()

@@ -9,5 +9,12 @@ from .learner import ALGOS, DQNConfig, DQNLearner
 from .network import NetworkShape, QNetwork
 from .replay import FrameStacker, ReplayMemory
 
-__all__ = ["ALGOS", "DQNConfig", "DQNLearner", "FrameStacker", "NetworkShape", "QNetwork",
-           "ReplayMemory"]
+__all__ = [
+    "ALGOS",
+    "DQNConfig",
+    "DQNLearner",
+    "FrameStacker",
+    "NetworkShape",
+    "QNetwork",
+    "ReplayMemory",
+]

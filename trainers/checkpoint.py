@@ -13,16 +13,17 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
 import torch
 
 from overtake.client.commands import UsageError
 
 from .learner import ALGOS, DQNConfig, DQNLearner
-from .network import NetworkShape
+from .network import Inputs, NetworkShape
 
 CHECKPOINT_FORMAT = "overtake-dqn/1"
 CHECKPOINT_NAME = "checkpoint.pt"
@@ -37,7 +38,7 @@ class CheckpointError(UsageError):
 @dataclass(frozen=True)
 class Checkpoint:
     algo: str
-    inputs: str
+    inputs: Inputs
     preset: str
     overrides: dict[str, Any]
     space: dict[str, Any]
@@ -53,30 +54,60 @@ class Checkpoint:
 
     def check_compatible(self, algo: str, inputs: str, preset: str) -> None:
         if (algo, inputs, preset) != (self.algo, self.inputs, self.preset):
-            raise CheckpointError(f"--resume: the checkpoint is algo={self.algo} "
-                                  f"inputs={self.inputs} preset={self.preset}, this run asks "
-                                  f"for algo={algo} inputs={inputs} preset={preset}")
+            raise CheckpointError(
+                f"--resume: the checkpoint is algo={self.algo} "
+                f"inputs={self.inputs} preset={self.preset}, this run asks "
+                f"for algo={algo} inputs={inputs} preset={preset}"
+            )
 
     def make_learner(self, device: str = "cpu") -> DQNLearner:
         double, dueling = ALGOS[self.algo]
-        learner = DQNLearner(self.net_shape, self.inputs, self.dqn,  # type: ignore[arg-type]
-                             double=double, dueling=dueling, device=device)
+        learner = DQNLearner(
+            self.net_shape,
+            self.inputs,
+            self.dqn,
+            double=double,
+            dueling=dueling,
+            device=device,
+        )
         learner.load_state_dict(self.learner)
         return learner
 
 
-def save_checkpoint(path: Path, *, learner: DQNLearner, config: Any, overrides: dict[str, Any],
-                    space: dict[str, Any], net_shape: NetworkShape, step: int, episodes: int,
-                    rng_state: dict[str, Any], resumes: int) -> None:
-    header = {"format": CHECKPOINT_FORMAT, "algo": config.algo, "inputs": config.inputs,
-              "preset": config.preset, "overrides": overrides, "space": space,
-              "net_shape": dataclasses.asdict(net_shape),
-              "dqn": dataclasses.asdict(config.dqn), "step": step, "episodes": episodes,
-              "resumes": resumes,
-              # Plain JSON: loading with weights_only=True accepts no other objects.
-              "config_json": json.dumps(plain_data(config))}
-    payload = {"header": header, "learner": learner.state_dict(),
-               "rng_state": json.dumps(rng_state), "torch_rng_state": torch.get_rng_state()}
+def save_checkpoint(
+    path: Path,
+    *,
+    learner: DQNLearner,
+    config: Any,
+    overrides: dict[str, Any],
+    space: dict[str, Any],
+    net_shape: NetworkShape,
+    step: int,
+    episodes: int,
+    rng_state: Mapping[str, Any],
+    resumes: int,
+) -> None:
+    header = {
+        "format": CHECKPOINT_FORMAT,
+        "algo": config.algo,
+        "inputs": config.inputs,
+        "preset": config.preset,
+        "overrides": overrides,
+        "space": space,
+        "net_shape": dataclasses.asdict(net_shape),
+        "dqn": dataclasses.asdict(config.dqn),
+        "step": step,
+        "episodes": episodes,
+        "resumes": resumes,
+        # Plain JSON: loading with weights_only=True accepts no other objects.
+        "config_json": json.dumps(plain_data(config)),
+    }
+    payload = {
+        "header": header,
+        "learner": learner.state_dict(),
+        "rng_state": json.dumps(rng_state),
+        "torch_rng_state": torch.get_rng_state(),
+    }
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "wb") as handle:
         torch.save(payload, handle)
@@ -102,20 +133,35 @@ def load_checkpoint(path: Path) -> Checkpoint:
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # torch raises many types for a truncated or foreign file
-        raise CheckpointError(f"{path} is not a readable overtake checkpoint "
-                              f"({type(error).__name__}: {error})") from None
+        raise CheckpointError(
+            f"{path} is not a readable overtake checkpoint ({type(error).__name__}: {error})"
+        ) from None
     header = payload.get("header") if isinstance(payload, dict) else None
     if not isinstance(header, dict) or header.get("format") != CHECKPOINT_FORMAT:
         found = header.get("format") if isinstance(header, dict) else type(payload).__name__
-        raise CheckpointError(f"{path}: expected an overtake checkpoint of format "
-                              f"{CHECKPOINT_FORMAT}, got {found!r}")
+        raise CheckpointError(
+            f"{path}: expected an overtake checkpoint of format {CHECKPOINT_FORMAT}, got {found!r}"
+        )
+    if header.get("inputs") not in get_args(Inputs):
+        raise CheckpointError(
+            f"{path}: expected inputs one of {list(get_args(Inputs))}, got {header.get('inputs')!r}"
+        )
     shape = dict(header["net_shape"])
     shape["camera_hw"] = tuple(shape["camera_hw"])
     shape["ego_high"] = tuple(shape["ego_high"])
     return Checkpoint(
-        algo=header["algo"], inputs=header["inputs"], preset=header["preset"],
-        overrides=header["overrides"], space=header["space"], net_shape=NetworkShape(**shape),
-        dqn=DQNConfig(**header["dqn"]), step=int(header["step"]),
-        episodes=int(header["episodes"]), resumes=int(header["resumes"]),
-        learner=payload["learner"], rng_state=json.loads(payload["rng_state"]),
-        torch_rng_state=payload["torch_rng_state"], config=json.loads(header["config_json"]))
+        algo=header["algo"],
+        inputs=header["inputs"],
+        preset=header["preset"],
+        overrides=header["overrides"],
+        space=header["space"],
+        net_shape=NetworkShape(**shape),
+        dqn=DQNConfig(**header["dqn"]),
+        step=int(header["step"]),
+        episodes=int(header["episodes"]),
+        resumes=int(header["resumes"]),
+        learner=payload["learner"],
+        rng_state=json.loads(payload["rng_state"]),
+        torch_rng_state=payload["torch_rng_state"],
+        config=json.loads(header["config_json"]),
+    )

@@ -17,8 +17,13 @@ import numpy as np
 import torch
 
 from overtake.client.commands import UsageError, run_command
-from overtake.client.episodes import (baseline_policy, make_vector_env, metric_summary,
-                                      parse_overrides, run_episodes)
+from overtake.client.episodes import (
+    baseline_policy,
+    make_vector_env,
+    metric_summary,
+    parse_overrides,
+    run_episodes,
+)
 from overtake.protocol.transport import SecurityConfig
 
 from .checkpoint import load_checkpoint
@@ -26,8 +31,14 @@ from .network import INPUT_SENSORS
 from .observations import frame_shapes
 from .replay import FrameStacker
 
-TABLE_METRICS = ("avg_speed_kmh", "lane_changes", "overtakes", "collisions",
-                 "emergency_brakes", "return")
+TABLE_METRICS = (
+    "avg_speed_kmh",
+    "lane_changes",
+    "overtakes",
+    "collisions",
+    "emergency_brakes",
+    "return",
+)
 
 
 @dataclass(frozen=True)
@@ -68,20 +79,23 @@ class GreedyPolicy:
         self.learner = checkpoint.make_learner()
         shapes = frame_shapes(space, checkpoint.inputs)
         self.names = tuple(shapes.shapes)
-        self.stacker = FrameStacker(num_envs, shapes, checkpoint.dqn.stack,
-                                    INPUT_SENSORS[checkpoint.inputs])
-        self.rng = np.random.default_rng(0)   # unused by a greedy policy, which act() needs
+        self.stacker = FrameStacker(
+            num_envs, shapes, checkpoint.dqn.stack, INPUT_SENSORS[checkpoint.inputs]
+        )
+        self.rng = np.random.default_rng(0)  # unused by a greedy policy, which act() needs
 
-    def __call__(self, obs: dict[str, np.ndarray], info: dict[str, Any],
-                 starting: np.ndarray) -> np.ndarray:
+    def __call__(
+        self, obs: dict[str, np.ndarray], info: dict[str, Any], starting: np.ndarray
+    ) -> np.ndarray:
         frames = {name: obs[name] for name in self.names}
         fresh, moving = np.flatnonzero(starting), np.flatnonzero(~starting)
         if fresh.size:
             self.stacker.reset(fresh, {k: v[fresh] for k, v in frames.items()})
         if moving.size:
             self.stacker.push(moving, {k: v[moving] for k, v in frames.items()})
-        actions, _ = self.learner.act(self.stacker.observation(), info["action_mask"], 0.0,
-                                      self.rng)
+        actions, _ = self.learner.act(
+            self.stacker.observation(), info["action_mask"], 0.0, self.rng
+        )
         return actions
 
 
@@ -96,9 +110,17 @@ def summarise(rows: list[dict[str, float]]) -> dict[str, Any]:
 
 
 def format_rows(named: list[tuple[str, dict[str, Any]]]) -> str:
-    headers = ("policy", "speed km/h", "lane changes", "overtakes", "collisions", "e-brakes",
-               "return", "coll./1k dec.")
-    lines = [headers]
+    headers = (
+        "policy",
+        "speed km/h",
+        "lane changes",
+        "overtakes",
+        "collisions",
+        "e-brakes",
+        "return",
+        "coll./1k dec.",
+    )
+    lines: list[tuple[str, ...]] = [headers]
     for name, s in named:
         cells = [name] + [f"{s[m]['mean']:.1f} ± {s[m]['std']:.1f}" for m in TABLE_METRICS]
         lines.append(tuple(cells + [f"{s['collisions_per_1000_decisions']:.2f}"]))
@@ -133,7 +155,7 @@ def main(config: EvalConfig) -> dict[str, Any]:
     checkpoint = load_checkpoint(config.checkpoint) if config.checkpoint is not None else None
     preset = config.preset or (checkpoint.preset if checkpoint else "min2018")
     overrides: dict[str, Any] = dict(checkpoint.overrides) if checkpoint else {}
-    overrides.pop("traffic.density", None)   # evaluation sets its own traffic
+    overrides.pop("traffic.density", None)  # evaluation sets its own traffic
     overrides.update(parse_overrides(config.set))
     if config.traffic is not None:
         overrides["traffic.density"] = config.traffic
@@ -155,10 +177,17 @@ def main(config: EvalConfig) -> dict[str, Any]:
     finally:
         envs.close()
     summary = summarise(rows)
-    result = {"name": name, "preset": preset, "overrides": overrides, "seed": config.seed,
-              "checkpoint": str(config.checkpoint) if config.checkpoint else None,
-              "policy": config.policy, "summary": summary, "episodes": rows,
-              "decisions_per_s": decisions / max(elapsed, 1e-9)}
+    result = {
+        "name": name,
+        "preset": preset,
+        "overrides": overrides,
+        "seed": config.seed,
+        "checkpoint": str(config.checkpoint) if config.checkpoint else None,
+        "policy": config.policy,
+        "summary": summary,
+        "episodes": rows,
+        "decisions_per_s": decisions / max(elapsed, 1e-9),
+    }
     print(format_rows([(name, summary)]))
     if config.json_out is not None:
         config.json_out.parent.mkdir(parents=True, exist_ok=True)
@@ -169,9 +198,13 @@ def main(config: EvalConfig) -> dict[str, Any]:
 def cli(argv: list[str] | None = None) -> None:
     import tyro
 
-    config = tyro.cli(EvalConfig, args=argv, config=(tyro.conf.OmitArgPrefixes,),
-                      description="overtake-eval: the papers' metrics for a checkpoint or a "
-                                  "baseline on fixed seeds")
+    config = tyro.cli(
+        EvalConfig,
+        args=argv,
+        config=(tyro.conf.OmitArgPrefixes,),
+        description="overtake-eval: the papers' metrics for a checkpoint or a "
+        "baseline on fixed seeds",
+    )
     run_command("overtake-eval", main, config)
 
 

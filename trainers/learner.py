@@ -27,8 +27,11 @@ Algo = Literal["dqn", "ddqn", "dueling"]
 
 # The algorithms as switch settings. Dueling uses the double target as well, as Wang et al.
 # (2016) did and as Min et al.'s code does (Double + Dueling DQN).
-ALGOS: dict[str, tuple[bool, bool]] = {"dqn": (False, False), "ddqn": (True, False),
-                                       "dueling": (True, True)}
+ALGOS: dict[str, tuple[bool, bool]] = {
+    "dqn": (False, False),
+    "ddqn": (True, False),
+    "dueling": (True, True),
+}
 
 
 @dataclass(frozen=True)
@@ -60,8 +63,16 @@ class DQNConfig:
     hidden_units: int = 512
 
     def __post_init__(self) -> None:
-        for name in ("batch_size", "replay_size", "epsilon_decay_steps", "target_update_steps",
-                     "train_every", "stack", "lstm_cells", "hidden_units"):
+        for name in (
+            "batch_size",
+            "replay_size",
+            "epsilon_decay_steps",
+            "target_update_steps",
+            "train_every",
+            "stack",
+            "lstm_cells",
+            "hidden_units",
+        ):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.learning_starts < 0:
@@ -86,9 +97,14 @@ def masked(q: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     return q.masked_fill(~allowed, float("-inf"))
 
 
-def td_target(reward: torch.Tensor, terminated: torch.Tensor, gamma: float,
-              next_q_target: torch.Tensor, next_mask: torch.Tensor,
-              next_q_online: torch.Tensor | None = None) -> torch.Tensor:
+def td_target(
+    reward: torch.Tensor,
+    terminated: torch.Tensor,
+    gamma: float,
+    next_q_target: torch.Tensor,
+    next_mask: torch.Tensor,
+    next_q_online: torch.Tensor | None = None,
+) -> torch.Tensor:
     """r + gamma * (1 - terminated) * value of s'. With ``next_q_online`` (Double DQN, Eq. 8)
     the online network picks the action and the target network values it; without, the target
     network's max. Both only over the actions ``next_mask`` allows."""
@@ -106,14 +122,22 @@ class DQNLearner:
     ``double``: the Double DQN target (Eq. 8); ``dueling``: value and advantage streams (Eq. 9).
     """
 
-    def __init__(self, shape: NetworkShape, inputs: Inputs, config: DQNConfig, *,
-                 double: bool, dueling: bool, device: str = "cpu") -> None:
+    def __init__(
+        self,
+        shape: NetworkShape,
+        inputs: Inputs,
+        config: DQNConfig,
+        *,
+        double: bool,
+        dueling: bool,
+        device: str = "cpu",
+    ) -> None:
         self.shape, self.inputs, self.config = shape, inputs, config
         self.double, self.dueling = double, dueling
         self.device = torch.device(device)
-        self.online = QNetwork(shape, inputs, dueling=dueling,
-                               lstm_cells=config.lstm_cells,
-                               hidden=config.hidden_units).to(self.device)
+        self.online = QNetwork(
+            shape, inputs, dueling=dueling, lstm_cells=config.lstm_cells, hidden=config.hidden_units
+        ).to(self.device)
         self.target = copy.deepcopy(self.online).eval()
         for p in self.target.parameters():
             p.requires_grad_(False)
@@ -123,15 +147,20 @@ class DQNLearner:
 
     # --- inputs ---------------------------------------------------------------------------
 
-    def _tensors(self, obs: dict[str, np.ndarray], prefix: str = ""
-                 ) -> tuple[torch.Tensor | None, torch.Tensor | None, torch.Tensor]:
+    def _tensors(
+        self, obs: dict[str, np.ndarray], prefix: str = ""
+    ) -> tuple[torch.Tensor | None, torch.Tensor | None, torch.Tensor]:
         def get(name: str) -> torch.Tensor | None:
             value = obs.get(prefix + name)
             return None if value is None else torch.as_tensor(value, device=self.device)
+
         ego = get("ego")
         assert ego is not None
-        return (get("camera") if self.online.uses_camera else None,
-                get("lidar") if self.online.uses_lidar else None, ego)
+        return (
+            get("camera") if self.online.uses_camera else None,
+            get("lidar") if self.online.uses_lidar else None,
+            ego,
+        )
 
     # --- acting ---------------------------------------------------------------------------
 
@@ -141,8 +170,9 @@ class DQNLearner:
         self.online.eval()
         return self.online(*self._tensors(obs)).cpu().numpy()
 
-    def act(self, obs: dict[str, np.ndarray], mask: np.ndarray, epsilon: float,
-            rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    def act(
+        self, obs: dict[str, np.ndarray], mask: np.ndarray, epsilon: float, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Epsilon-greedy actions (N,) among the allowed ones, and the Q-values (N, actions)."""
         q = self.q_values(obs)
         allowed = mask.astype(bool)
@@ -168,8 +198,9 @@ class DQNLearner:
             next_inputs = self._tensors(batch, "next_")
             next_q_target = self.target(*next_inputs)
             next_q_online = self.online(*next_inputs) if self.double else None
-            target = td_target(reward, terminated, self.config.gamma, next_q_target, next_mask,
-                               next_q_online)
+            target = td_target(
+                reward, terminated, self.config.gamma, next_q_target, next_mask, next_q_online
+            )
         loss = self.loss_fn(q_taken, target)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
@@ -184,8 +215,12 @@ class DQNLearner:
     # --- persistence ----------------------------------------------------------------------
 
     def state_dict(self) -> dict[str, Any]:
-        return {"online": self.online.state_dict(), "target": self.target.state_dict(),
-                "optimizer": self.optimizer.state_dict(), "updates": self.updates}
+        return {
+            "online": self.online.state_dict(),
+            "target": self.target.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "updates": self.updates,
+        }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.online.load_state_dict(state["online"])

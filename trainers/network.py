@@ -28,8 +28,11 @@ from torch import nn
 Inputs = Literal["camera", "lidar", "both"]
 # The sensors each input configuration reads; both are stacked over the last frames (the ego
 # vector, read by every configuration, is not).
-INPUT_SENSORS: dict[str, tuple[str, ...]] = {"camera": ("camera",), "lidar": ("lidar",),
-                                             "both": ("camera", "lidar")}
+INPUT_SENSORS: dict[str, tuple[str, ...]] = {
+    "camera": ("camera",),
+    "lidar": ("lidar",),
+    "both": ("camera", "lidar"),
+}
 INPUTS: tuple[str, ...] = tuple(INPUT_SENSORS)
 
 
@@ -46,17 +49,21 @@ class NetworkShape:
     ego_high: tuple[float, ...] = ()
 
     @classmethod
-    def from_space(cls, space, actions: int, stack: int) -> "NetworkShape":
+    def from_space(cls, space, actions: int, stack: int) -> NetworkShape:
         """From a single environment's Dict observation space."""
         camera = space["camera"].shape if "camera" in space.spaces else (84, 84)
         lidar = space["lidar"] if "lidar" in space.spaces else None
         ego = space["ego"]
         high = np.maximum(np.abs(ego.high), np.abs(ego.low))
-        return cls(camera_hw=(int(camera[0]), int(camera[1])),
-                   lidar_rays=int(lidar.shape[0]) if lidar is not None else 0,
-                   ego_size=int(ego.shape[0]), actions=actions, stack=stack,
-                   lidar_max_m=float(lidar.high.max()) if lidar is not None else 1.0,
-                   ego_high=tuple(float(h) if h > 0 else 1.0 for h in high))
+        return cls(
+            camera_hw=(int(camera[0]), int(camera[1])),
+            lidar_rays=int(lidar.shape[0]) if lidar is not None else 0,
+            ego_size=int(ego.shape[0]),
+            actions=actions,
+            stack=stack,
+            lidar_max_m=float(lidar.high.max()) if lidar is not None else 1.0,
+            ego_high=tuple(float(h) if h > 0 else 1.0 for h in high),
+        )
 
 
 def conv_output_size(height: int, width: int) -> int:
@@ -65,8 +72,9 @@ def conv_output_size(height: int, width: int) -> int:
         height = (height - kernel) // stride + 1
         width = (width - kernel) // stride + 1
     if height < 1 or width < 1:
-        raise ValueError("the camera image is too small for the DQN convolutions (at least "
-                         "36x36 pixels)")
+        raise ValueError(
+            "the camera image is too small for the DQN convolutions (at least 36x36 pixels)"
+        )
     return 64 * height * width
 
 
@@ -74,8 +82,16 @@ class QNetwork(nn.Module):
     """Q-values (B, actions) from stacked camera (B, S, H, W) uint8, LIDAR (B, S, R) and ego
     (B, E)."""
 
-    def __init__(self, shape: NetworkShape, inputs: Inputs = "both", dueling: bool = False,
-                 lstm_cells: int = 256, hidden: int = 512) -> None:
+    ego_scale: torch.Tensor  # a buffer: 1 / each ego field's upper bound
+
+    def __init__(
+        self,
+        shape: NetworkShape,
+        inputs: Inputs = "both",
+        dueling: bool = False,
+        lstm_cells: int = 256,
+        hidden: int = 512,
+    ) -> None:
         super().__init__()
         if inputs not in INPUTS:
             raise ValueError(f"inputs must be one of {INPUTS}, got {inputs!r}")
@@ -87,10 +103,14 @@ class QNetwork(nn.Module):
         features = shape.ego_size
         if self.uses_camera:
             self.conv = nn.Sequential(
-                nn.Conv2d(shape.stack, 32, kernel_size=8, stride=4), nn.ReLU(),
-                nn.Conv2d(32, 64, kernel_size=4, stride=2), nn.ReLU(),
-                nn.Conv2d(64, 64, kernel_size=3, stride=1), nn.ReLU(),
-                nn.Flatten())
+                nn.Conv2d(shape.stack, 32, kernel_size=8, stride=4),
+                nn.ReLU(),
+                nn.Conv2d(32, 64, kernel_size=4, stride=2),
+                nn.ReLU(),
+                nn.Conv2d(64, 64, kernel_size=3, stride=1),
+                nn.ReLU(),
+                nn.Flatten(),
+            )
             features += conv_output_size(*shape.camera_hw)
         if self.uses_lidar:
             self.lstm = nn.LSTM(shape.lidar_rays, lstm_cells, batch_first=True)
@@ -101,11 +121,16 @@ class QNetwork(nn.Module):
             self.advantage = nn.Linear(hidden, shape.actions)
         else:
             self.q = nn.Linear(hidden, shape.actions)
-        self.register_buffer("ego_scale", torch.tensor(
-            [1.0 / h for h in (shape.ego_high or (1.0,) * shape.ego_size)], dtype=torch.float32))
+        self.register_buffer(
+            "ego_scale",
+            torch.tensor(
+                [1.0 / h for h in (shape.ego_high or (1.0,) * shape.ego_size)], dtype=torch.float32
+            ),
+        )
 
-    def forward(self, camera: torch.Tensor | None, lidar: torch.Tensor | None,
-                ego: torch.Tensor) -> torch.Tensor:
+    def forward(
+        self, camera: torch.Tensor | None, lidar: torch.Tensor | None, ego: torch.Tensor
+    ) -> torch.Tensor:
         parts = [ego.float() * self.ego_scale]
         if self.uses_camera:
             assert camera is not None

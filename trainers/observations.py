@@ -25,15 +25,32 @@ def frame_shapes(space: gym.spaces.Dict, inputs: Inputs) -> FrameShapes:
     wanted = {"ego", *INPUT_SENSORS[inputs]}
     missing = wanted - set(space.spaces)
     if missing:
-        raise UsageError(f"--inputs {inputs} needs the observation(s) {sorted(missing)}, which "
-                         "this preset's environment does not send (check camera.enabled / "
-                         "lidar.enabled)")
-    return FrameShapes({name: (tuple(space[name].shape), space[name].dtype)
-                        for name in sorted(wanted)}, actions=ACTION_COUNT)
+        raise UsageError(
+            f"--inputs {inputs} needs the observation(s) {sorted(missing)}, which "
+            "this preset's environment does not send (check camera.enabled / "
+            "lidar.enabled)"
+        )
+    boxes = {name: _box(space, name) for name in sorted(wanted)}
+    return FrameShapes(
+        {name: (box.shape, box.dtype) for name, box in boxes.items()}, actions=ACTION_COUNT
+    )
+
+
+def _box(space: gym.spaces.Dict, name: str) -> gym.spaces.Box:
+    box = space[name]
+    if not isinstance(box, gym.spaces.Box):
+        raise UsageError(f"observation {name!r} must be a Box space, got {box}")
+    return box
 
 
 def describe_space(space: gym.spaces.Dict) -> dict[str, Any]:
     """Each observation's shape, dtype and bounds, as JSON-ready data."""
-    return {name: {"shape": list(box.shape), "dtype": box.dtype.name,
-                   "low": float(np.min(box.low)), "high": float(np.max(box.high))}
-            for name, box in space.spaces.items()}
+    return {
+        name: {
+            "shape": list(box.shape),
+            "dtype": box.dtype.name,
+            "low": float(np.min(box.low)),
+            "high": float(np.max(box.high)),
+        }
+        for name, box in ((key, _box(space, key)) for key in space.spaces)
+    }

@@ -19,10 +19,11 @@ import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-Frames = Mapping[str, np.ndarray]   # name -> (k, ...) one frame per listed environment
+Frames = Mapping[str, np.ndarray]  # name -> (k, ...) one frame per listed environment
 
 
 @dataclass(frozen=True)
@@ -34,8 +35,9 @@ class FrameShapes:
 
     @property
     def frame_bytes(self) -> int:
-        return sum(int(np.prod(shape)) * np.dtype(dtype).itemsize
-                   for shape, dtype in self.shapes.values())
+        return sum(
+            int(np.prod(shape)) * np.dtype(dtype).itemsize for shape, dtype in self.shapes.values()
+        )
 
 
 class FrameStacker:
@@ -45,13 +47,20 @@ class FrameStacker:
     others (ego) as the latest frame only.
     """
 
-    def __init__(self, num_envs: int, shapes: FrameShapes, stack: int,
-                 stacked: tuple[str, ...]) -> None:
+    def __init__(
+        self, num_envs: int, shapes: FrameShapes, stack: int, stacked: tuple[str, ...]
+    ) -> None:
         self.stack, self.stacked = stack, stacked
-        self.frames = {name: np.zeros((num_envs, stack) + tuple(shape), dtype=dtype)
-                       for name, (shape, dtype) in shapes.shapes.items() if name in stacked}
-        self.latest = {name: np.zeros((num_envs,) + tuple(shape), dtype=dtype)
-                       for name, (shape, dtype) in shapes.shapes.items() if name not in stacked}
+        self.frames = {
+            name: np.zeros((num_envs, stack) + tuple(shape), dtype=dtype)
+            for name, (shape, dtype) in shapes.shapes.items()
+            if name in stacked
+        }
+        self.latest = {
+            name: np.zeros((num_envs,) + tuple(shape), dtype=dtype)
+            for name, (shape, dtype) in shapes.shapes.items()
+            if name not in stacked
+        }
 
     def reset(self, envs: np.ndarray, frames: Frames) -> None:
         """Start episodes in ``envs``: every slot of their stacks holds the first frame."""
@@ -74,39 +83,51 @@ class FrameStacker:
 class ReplayMemory:
     """Transitions of ``num_envs`` environments, each frame stored once."""
 
-    def __init__(self, capacity: int, num_envs: int, shapes: FrameShapes, stack: int,
-                 stacked: tuple[str, ...], seed: int | None = None) -> None:
+    def __init__(
+        self,
+        capacity: int,
+        num_envs: int,
+        shapes: FrameShapes,
+        stack: int,
+        stacked: tuple[str, ...],
+        seed: int | None = None,
+    ) -> None:
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         per_env = capacity // num_envs
         if per_env < stack + 1:
-            raise ValueError(f"a replay of {capacity} transitions over {num_envs} environments "
-                             f"leaves {per_env} frames each; at least {stack + 1} are needed")
+            raise ValueError(
+                f"a replay of {capacity} transitions over {num_envs} environments "
+                f"leaves {per_env} frames each; at least {stack + 1} are needed"
+            )
         self.capacity, self.num_envs, self.per_env = capacity, num_envs, per_env
         self.shapes, self.stack, self.stacked = shapes, stack, stacked
         size = (num_envs, per_env)
-        self.frames = {name: np.zeros(size + tuple(shape), dtype=dtype)
-                       for name, (shape, dtype) in shapes.shapes.items()}
+        self.frames = {
+            name: np.zeros(size + tuple(shape), dtype=dtype)
+            for name, (shape, dtype) in shapes.shapes.items()
+        }
         self.mask = np.zeros(size + (shapes.actions,), dtype=np.int8)
         self.action = np.zeros(size, dtype=np.int64)
         self.reward = np.zeros(size, dtype=np.float32)
         self.terminated = np.zeros(size, dtype=bool)
         self.has_next = np.zeros(size, dtype=bool)
         self.ep_step = np.zeros(size, dtype=np.int64)
-        self.pos = np.zeros(num_envs, dtype=np.int64)     # next slot to write, per env
-        self.count = np.zeros(num_envs, dtype=np.int64)   # frames held, per env
+        self.pos = np.zeros(num_envs, dtype=np.int64)  # next slot to write, per env
+        self.count = np.zeros(num_envs, dtype=np.int64)  # frames held, per env
         self.rng = np.random.default_rng(seed)
 
     # --- writing --------------------------------------------------------------------------
 
-    def _write(self, envs: np.ndarray, frames: Frames, mask: np.ndarray,
-               ep_step: np.ndarray) -> None:
+    def _write(
+        self, envs: np.ndarray, frames: Frames, mask: np.ndarray, ep_step: np.ndarray
+    ) -> None:
         slots = self.pos[envs]
         for name, store in self.frames.items():
             store[envs, slots] = frames[name]
         self.mask[envs, slots] = mask
         self.ep_step[envs, slots] = ep_step
-        self.has_next[envs, slots] = False   # an overwritten slot's old transition is gone
+        self.has_next[envs, slots] = False  # an overwritten slot's old transition is gone
         self.pos[envs] = (slots + 1) % self.per_env
         self.count[envs] = np.minimum(self.count[envs] + 1, self.per_env)
 
@@ -115,8 +136,15 @@ class ReplayMemory:
         envs = np.asarray(envs, dtype=np.int64)
         self._write(envs, frames, mask, np.zeros(envs.size, dtype=np.int64))
 
-    def add(self, envs: np.ndarray, action: np.ndarray, reward: np.ndarray,
-            terminated: np.ndarray, frames: Frames, mask: np.ndarray) -> None:
+    def add(
+        self,
+        envs: np.ndarray,
+        action: np.ndarray,
+        reward: np.ndarray,
+        terminated: np.ndarray,
+        frames: Frames,
+        mask: np.ndarray,
+    ) -> None:
         """Transitions from each env's latest frame: the action taken there, the reward, whether
         the episode terminated, and the frame it led to (with its action mask)."""
         envs = np.asarray(envs, dtype=np.int64)
@@ -159,8 +187,9 @@ class ReplayMemory:
         for _ in range(1000):
             e = self.rng.choice(self.num_envs, size=missing.size, p=weights)
             oldest = (self.pos[e] - self.count[e]) % self.per_env
-            s = (oldest + (self.rng.random(missing.size) * self.count[e]).astype(np.int64)) \
-                % self.per_env
+            s = (
+                oldest + (self.rng.random(missing.size) * self.count[e]).astype(np.int64)
+            ) % self.per_env
             envs[missing], slots[missing] = e, s
             missing = missing[~self._valid(e, s)]
             if missing.size == 0:
@@ -172,8 +201,11 @@ class ReplayMemory:
         now_slots = self._stack_slots(slots, ep_step)
         next_slots = self._stack_slots(nxt, ep_step + 1)
         out: dict[str, np.ndarray] = {
-            "action": self.action[envs, slots], "reward": self.reward[envs, slots],
-            "terminated": self.terminated[envs, slots], "next_mask": self.mask[envs, nxt]}
+            "action": self.action[envs, slots],
+            "reward": self.reward[envs, slots],
+            "terminated": self.terminated[envs, slots],
+            "next_mask": self.mask[envs, nxt],
+        }
         rows = envs[:, None]
         for name, store in self.frames.items():
             if name in self.stacked:
@@ -188,27 +220,45 @@ class ReplayMemory:
 
     @property
     def nbytes(self) -> int:
-        arrays = [*self.frames.values(), self.mask, self.action, self.reward, self.terminated,
-                  self.has_next, self.ep_step]
+        arrays = [
+            *self.frames.values(),
+            self.mask,
+            self.action,
+            self.reward,
+            self.terminated,
+            self.has_next,
+            self.ep_step,
+        ]
         return sum(a.nbytes for a in arrays)
 
     def naive_nbytes(self) -> int:
         """What storing each transition's two stacked states would take (the naive layout)."""
-        stacked = sum(int(np.prod(shape)) * np.dtype(dtype).itemsize * self.stack
-                      for name, (shape, dtype) in self.shapes.shapes.items()
-                      if name in self.stacked)
-        latest = sum(int(np.prod(shape)) * np.dtype(dtype).itemsize
-                     for name, (shape, dtype) in self.shapes.shapes.items()
-                     if name not in self.stacked)
+        stacked = sum(
+            int(np.prod(shape)) * np.dtype(dtype).itemsize * self.stack
+            for name, (shape, dtype) in self.shapes.shapes.items()
+            if name in self.stacked
+        )
+        latest = sum(
+            int(np.prod(shape)) * np.dtype(dtype).itemsize
+            for name, (shape, dtype) in self.shapes.shapes.items()
+            if name not in self.stacked
+        )
         per_transition = 2 * (stacked + latest) + self.shapes.actions + 8 + 4 + 1
         return self.num_envs * self.per_env * per_transition
 
     def save(self, path: Path) -> None:
         """Write to ``path`` atomically (a temporary file, then a rename)."""
-        arrays = {f"frame_{name}": store for name, store in self.frames.items()}
-        arrays.update(mask=self.mask, action=self.action, reward=self.reward,
-                      terminated=self.terminated, has_next=self.has_next, ep_step=self.ep_step,
-                      pos=self.pos, count=self.count)
+        arrays: dict[str, Any] = {f"frame_{name}": store for name, store in self.frames.items()}
+        arrays.update(
+            mask=self.mask,
+            action=self.action,
+            reward=self.reward,
+            terminated=self.terminated,
+            has_next=self.has_next,
+            ep_step=self.ep_step,
+            pos=self.pos,
+            count=self.count,
+        )
         tmp = path.with_name(path.name + ".tmp")
         with open(tmp, "wb") as handle:
             np.savez(handle, **arrays)
@@ -220,14 +270,24 @@ class ReplayMemory:
         with np.load(path) as data:
             for name, store in self.frames.items():
                 _restore(store, data[f"frame_{name}"], f"frame {name}")
-            for name in ("mask", "action", "reward", "terminated", "has_next", "ep_step", "pos",
-                         "count"):
+            for name in (
+                "mask",
+                "action",
+                "reward",
+                "terminated",
+                "has_next",
+                "ep_step",
+                "pos",
+                "count",
+            ):
                 _restore(getattr(self, name), data[name], name)
 
 
 def _restore(target: np.ndarray, value: np.ndarray, what: str) -> None:
     if value.shape != target.shape or value.dtype != target.dtype:
-        raise ValueError(f"saved replay {what} is {value.dtype}{value.shape}, this run needs "
-                         f"{target.dtype}{target.shape} (same capacity, environments and "
-                         "inputs required)")
+        raise ValueError(
+            f"saved replay {what} is {value.dtype}{value.shape}, this run needs "
+            f"{target.dtype}{target.shape} (same capacity, environments and "
+            "inputs required)"
+        )
     target[...] = value

@@ -39,12 +39,18 @@ import torch
 from overtake.client.commands import UsageError, run_command
 from overtake.client.episodes import make_vector_env, parse_overrides
 from overtake.protocol import ACTION_COUNT
-from overtake.viz.recording import (Recording, RecordingConfig, close_recording,
-                                    open_recording)
 from overtake.protocol.transport import SecurityConfig
+from overtake.viz.recording import Recording, RecordingConfig, close_recording, open_recording
 
-from .checkpoint import (CHECKPOINT_NAME, REPLAY_NAME, Checkpoint, CheckpointError,
-                         load_checkpoint, plain_data, save_checkpoint)
+from .checkpoint import (
+    CHECKPOINT_NAME,
+    REPLAY_NAME,
+    Checkpoint,
+    CheckpointError,
+    load_checkpoint,
+    plain_data,
+    save_checkpoint,
+)
 from .learner import ALGOS, Algo, DQNConfig, DQNLearner
 from .network import INPUT_SENSORS, Inputs, NetworkShape
 from .observations import describe_space, frame_shapes
@@ -55,6 +61,7 @@ from .visual import TrainingRecording, training_blueprint
 # of .rrd per 10,000 steps with the camera, and no loss in steps per second measurable above
 # the machine's noise (bench/RESULTS.md), for runs that last days.
 TRAINER_RECORD_EVERY = 10
+
 
 @dataclass(frozen=True)
 class TrainConfig:
@@ -99,7 +106,8 @@ class TrainConfig:
     """show a progress bar"""
     dqn: DQNConfig = field(default_factory=DQNConfig)
     recording: RecordingConfig = field(
-        default_factory=lambda: RecordingConfig(record_every=TRAINER_RECORD_EVERY))
+        default_factory=lambda: RecordingConfig(record_every=TRAINER_RECORD_EVERY)
+    )
     """Rerun: episodes, learning curves and environment 0's view (default: trainer.rrd in the
     run directory)"""
 
@@ -120,10 +128,19 @@ class TrainConfig:
 def git_commit() -> str:
     try:
         here = Path(__file__).resolve().parent
-        out = subprocess.run(["git", "-C", str(here), "rev-parse", "HEAD"], capture_output=True,
-                             text=True, timeout=5, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(here), "status", "--porcelain"],
-                               capture_output=True, text=True, timeout=5).stdout.strip()
+        out = subprocess.run(
+            ["git", "-C", str(here), "rev-parse", "HEAD"],
+            capture_output=True,
+            text=True,
+            timeout=5,
+            check=True,
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "-C", str(here), "status", "--porcelain"],
+            capture_output=True,
+            text=True,
+            timeout=5,
+        ).stdout.strip()
         return out + ("+uncommitted" if dirty else "")
     except (OSError, subprocess.SubprocessError):
         return "unknown (not a git checkout)"
@@ -143,7 +160,7 @@ class MetricsLog:
     """Appends JSON lines; each line is flushed, so a kill loses at most the line being written."""
 
     def __init__(self, path: Path) -> None:
-        self.handle = open(path, "a", encoding="utf-8")
+        self.handle = open(path, "a", encoding="utf-8")  # noqa: SIM115 (open for the run)
 
     def write(self, record: dict[str, Any]) -> None:
         self.handle.write(json.dumps(record) + "\n")
@@ -164,8 +181,9 @@ class Timings:
 
     def shares(self) -> dict[str, float]:
         total = self.env + self.act + self.update + self.replay
-        return {f"time_{k}": (v / total if total else 0.0)
-                for k, v in dataclasses.asdict(self).items()}
+        return {
+            f"time_{k}": (v / total if total else 0.0) for k, v in dataclasses.asdict(self).items()
+        }
 
 
 def main(config: TrainConfig, envs: Any = None) -> dict[str, Any]:
@@ -184,11 +202,14 @@ def main(config: TrainConfig, envs: Any = None) -> dict[str, Any]:
     overrides = config.overrides()
     own_envs = envs is None
     if own_envs:
-        envs = make_vector_env(config.preset, overrides, config.num_envs, config.connect,
-                               config.security)
+        envs = make_vector_env(
+            config.preset, overrides, config.num_envs, config.connect, config.security
+        )
     elif envs.num_envs != config.num_envs:
-        raise ValueError(f"the environment has {envs.num_envs} sub-environments, the "
-                         f"configuration says num_envs={config.num_envs}")
+        raise ValueError(
+            f"the environment has {envs.num_envs} sub-environments, the "
+            f"configuration says num_envs={config.num_envs}"
+        )
     try:
         return TrainingRun(config, envs, run_dir, overrides, resumed).run()
     finally:
@@ -208,8 +229,10 @@ def prepare_run_dir(config: TrainConfig, run_dir: Path) -> Checkpoint | None:
         resumed = load_checkpoint(checkpoint_path)
         resumed.check_compatible(config.algo, config.inputs, config.preset)
     elif checkpoint_path.exists():
-        raise UsageError(f"{run_dir} already holds a run (checkpoint.pt); pass --resume (or "
-                         "--resume-if-found) to continue it or choose another --run-dir")
+        raise UsageError(
+            f"{run_dir} already holds a run (checkpoint.pt); pass --resume (or "
+            "--resume-if-found) to continue it or choose another --run-dir"
+        )
     run_dir.mkdir(parents=True, exist_ok=True)
     return resumed
 
@@ -239,8 +262,14 @@ class TrainingRun:
     log_t: float
     log_step: int
 
-    def __init__(self, config: TrainConfig, envs: Any, run_dir: Path,
-                 overrides: dict[str, Any], resumed: Checkpoint | None) -> None:
+    def __init__(
+        self,
+        config: TrainConfig,
+        envs: Any,
+        run_dir: Path,
+        overrides: dict[str, Any],
+        resumed: Checkpoint | None,
+    ) -> None:
         self.config, self.dqn, self.envs = config, config.dqn, envs
         self.run_dir, self.overrides = run_dir, overrides
         self.checkpoint_path, self.replay_path = run_dir / CHECKPOINT_NAME, run_dir / REPLAY_NAME
@@ -258,8 +287,10 @@ class TrainingRun:
         self.next_log = self.step + config.log_every
         # Updates wait for this many transitions: at the start of a run, and again after a
         # resume without a saved replay (capped by what the replay can hold).
-        self.warm = max(self.dqn.batch_size,
-                        min(self.dqn.learning_starts, (self.replay.per_env - 1) * config.num_envs))
+        self.warm = max(
+            self.dqn.batch_size,
+            min(self.dqn.learning_starts, (self.replay.per_env - 1) * config.num_envs),
+        )
         self.last_episode: dict[str, float] = {}
         self.iteration = 0
 
@@ -272,10 +303,12 @@ class TrainingRun:
         stacked = INPUT_SENSORS[config.inputs]
         self.net_shape = NetworkShape.from_space(self.space, ACTION_COUNT, dqn.stack)
         torch.manual_seed(config.seed)
-        self.learner = DQNLearner(self.net_shape, config.inputs, dqn, double=double,
-                                  dueling=dueling, device=config.device)
-        self.replay = ReplayMemory(dqn.replay_size, config.num_envs, shapes, dqn.stack, stacked,
-                                   seed=config.seed)
+        self.learner = DQNLearner(
+            self.net_shape, config.inputs, dqn, double=double, dueling=dueling, device=config.device
+        )
+        self.replay = ReplayMemory(
+            dqn.replay_size, config.num_envs, shapes, dqn.stack, stacked, seed=config.seed
+        )
         self.stacker = FrameStacker(config.num_envs, shapes, dqn.stack, stacked)
         self.rng = np.random.default_rng(config.seed)
 
@@ -315,33 +348,50 @@ class TrainingRun:
                 self.bar.close()
             self.log.close()
             close_recording(self.recording)
-        return {"run_dir": str(self.run_dir), "steps": self.step, "episodes": self.episodes,
-                "updates": self.learner.updates, "last_episode": self.last_episode}
+        return {
+            "run_dir": str(self.run_dir),
+            "steps": self.step,
+            "episodes": self.episodes,
+            "updates": self.learner.updates,
+            "last_episode": self.last_episode,
+        }
 
     def _write_run_record(self) -> None:
         """run.json (run-resume-N.json): what this life of the run is, to reproduce it."""
         config = self.config
         double, dueling = ALGOS[config.algo]
-        record = {"config": plain_data(config),
-                  "algo": {"name": config.algo, "double": double, "dueling": dueling},
-                  "overrides": self.overrides,
-                  "sim_config": getattr(self.envs.unwrapped, "sim_config", None),
-                  "observation_space": self.space_description,
-                  "network": dataclasses.asdict(self.net_shape), "versions": package_versions(),
-                  "commit": git_commit(), "seed": config.seed, "resumes": self.resumes,
-                  "resumed_at_step": self.resumed_at_step, "host": platform.node(),
-                  "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-                  "replay_bytes": self.replay.nbytes,
-                  "replay_naive_bytes": self.replay.naive_nbytes()}
+        record = {
+            "config": plain_data(config),
+            "algo": {"name": config.algo, "double": double, "dueling": dueling},
+            "overrides": self.overrides,
+            "sim_config": getattr(self.envs.unwrapped, "sim_config", None),
+            "observation_space": self.space_description,
+            "network": dataclasses.asdict(self.net_shape),
+            "versions": package_versions(),
+            "commit": git_commit(),
+            "seed": config.seed,
+            "resumes": self.resumes,
+            "resumed_at_step": self.resumed_at_step,
+            "host": platform.node(),
+            "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "replay_bytes": self.replay.nbytes,
+            "replay_naive_bytes": self.replay.naive_nbytes(),
+        }
         self._life_file("run", ".json").write_text(json.dumps(record, indent=2, default=str))
 
     def _open_recording(self) -> None:
         run_name = self.run_dir.name or "run"
-        self.recording = open_recording("overtake-train", self.config.recording,
-                                        self._life_file("trainer", ".rrd"),
-                                        training_blueprint(run_name))
-        self.view = TrainingRecording(self.recording.stream, run_name) \
-            if self.recording is not None else None
+        self.recording = open_recording(
+            "overtake-train",
+            self.config.recording,
+            self._life_file("trainer", ".rrd"),
+            training_blueprint(run_name),
+        )
+        self.view = (
+            TrainingRecording(self.recording.stream, run_name)
+            if self.recording is not None
+            else None
+        )
 
     def _start_episodes(self) -> None:
         """Reset every environment and start its frame stack and its replay ring."""
@@ -384,19 +434,35 @@ class TrainingRun:
             self._checkpoint()
             self.next_checkpoint = self.step + self.config.checkpoint_every
 
-    def _record_car_view(self, seen: dict[str, np.ndarray], actions: np.ndarray,
-                         q: np.ndarray, reward: np.ndarray, info: dict[str, Any]) -> None:
+    def _record_car_view(
+        self,
+        seen: dict[str, np.ndarray],
+        actions: np.ndarray,
+        q: np.ndarray,
+        reward: np.ndarray,
+        info: dict[str, Any],
+    ) -> None:
         """Environment 0's view, action, Q-values and reward to Rerun, every record_every
         iterations (not for its autoreset step, whose action the environment ignored)."""
-        if (self.view is not None and not self.starting[0]
-                and self.iteration % self.config.recording.record_every == 0):
+        if (
+            self.view is not None
+            and not self.starting[0]
+            and self.iteration % self.config.recording.record_every == 0
+        ):
             terms = {name: float(v[0]) for name, v in info.get("reward_terms", {}).items()}
-            self.view.car_view(self.step, {k: v[0] for k, v in seen.items()}, int(actions[0]),
-                               q[0], float(reward[0]), terms)
+            self.view.car_view(
+                self.step,
+                {k: v[0] for k, v in seen.items()},
+                int(actions[0]),
+                q[0],
+                float(reward[0]),
+                terms,
+            )
         self.iteration += 1
 
-    def _store_step(self, actions: np.ndarray, reward: np.ndarray, terminated: np.ndarray,
-                    mask: np.ndarray) -> int:
+    def _store_step(
+        self, actions: np.ndarray, reward: np.ndarray, terminated: np.ndarray, mask: np.ndarray
+    ) -> int:
         """Store what a step returned; returns how many transitions that added.
 
         Gymnasium next-step autoreset: environments that ended last step were reset by this
@@ -412,24 +478,33 @@ class TrainingRun:
             self.replay.start(fresh, sub, mask[fresh])
         if moving.size:
             sub = {k: v[moving] for k, v in self.obs.items()}
-            self.replay.add(moving, actions[moving], reward[moving], terminated[moving], sub,
-                            mask[moving])
+            self.replay.add(
+                moving, actions[moving], reward[moving], terminated[moving], sub, mask[moving]
+            )
             self.stacker.push(moving, sub)
             self.step += moving.size
         return int(moving.size)
 
-    def _end_episodes(self, terminated: np.ndarray, truncated: np.ndarray,
-                      info: dict[str, Any]) -> None:
+    def _end_episodes(
+        self, terminated: np.ndarray, truncated: np.ndarray, info: dict[str, Any]
+    ) -> None:
         """Log the episodes this step ended (their metrics) and mark their environments for
         the autoreset step that follows."""
         ended = (terminated | truncated) & ~self.starting
         for i in np.flatnonzero(ended):
             self.episodes += 1
-            self.last_episode = {name: float(values[i])
-                                 for name, values in info["metrics"].items()}
-            self.log.write({"kind": "episode", "step": self.step, "episode": self.episodes,
-                            "env": int(i), "wall_s": round(time.perf_counter() - self.started, 3),
-                            "terminated": bool(terminated[i]), **self.last_episode})
+            self.last_episode = {name: float(values[i]) for name, values in info["metrics"].items()}
+            self.log.write(
+                {
+                    "kind": "episode",
+                    "step": self.step,
+                    "episode": self.episodes,
+                    "env": int(i),
+                    "wall_s": round(time.perf_counter() - self.started, 3),
+                    "terminated": bool(terminated[i]),
+                    **self.last_episode,
+                }
+            )
             if self.view is not None:
                 self.view.episode(self.step, self.last_episode)
         self.starting = ended
@@ -458,29 +533,47 @@ class TrainingRun:
         over the steps since the last one."""
         now = time.perf_counter()
         sps = (self.step - self.log_step) / max(now - self.log_t, 1e-9)
-        entry = {"kind": "train", "step": self.step, "episodes": self.episodes,
-                 "wall_s": round(now - self.started, 3),
-                 "epsilon": epsilon, "updates": self.learner.updates,
-                 "loss": float(np.mean(self.losses)) if self.losses else None,
-                 "q_taken": float(np.mean(self.q_taken)) if self.q_taken else None,
-                 "steps_per_s": sps, "replay": len(self.replay), **self.timings.shares()}
+        entry = {
+            "kind": "train",
+            "step": self.step,
+            "episodes": self.episodes,
+            "wall_s": round(now - self.started, 3),
+            "epsilon": epsilon,
+            "updates": self.learner.updates,
+            "loss": float(np.mean(self.losses)) if self.losses else None,
+            "q_taken": float(np.mean(self.q_taken)) if self.q_taken else None,
+            "steps_per_s": sps,
+            "replay": len(self.replay),
+            **self.timings.shares(),
+        }
         self.log.write(entry)
         if self.view is not None:
             self.view.learning(self.step, entry)
         if self.bar is not None:
             last = self.last_episode
-            self.bar.set_postfix(eps=f"{epsilon:.2f}",
-                                 loss=entry["loss"] and f"{entry['loss']:.3f}",
-                                 speed=last and f"{last['avg_speed_kmh']:.1f}",
-                                 ret=last and f"{last['return']:.0f}", refresh=False)
+            self.bar.set_postfix(
+                eps=f"{epsilon:.2f}",
+                loss=entry["loss"] and f"{entry['loss']:.3f}",
+                speed=last and f"{last['avg_speed_kmh']:.1f}",
+                ret=last and f"{last['return']:.0f}",
+                refresh=False,
+            )
         self._new_log_window(now)
         self.next_log = self.step + self.config.log_every
 
     def _checkpoint(self) -> None:
-        save_checkpoint(self.checkpoint_path, learner=self.learner, config=self.config,
-                        overrides=self.overrides, space=self.space_description,
-                        net_shape=self.net_shape, step=self.step, episodes=self.episodes,
-                        rng_state=self.rng.bit_generator.state, resumes=self.resumes)
+        save_checkpoint(
+            self.checkpoint_path,
+            learner=self.learner,
+            config=self.config,
+            overrides=self.overrides,
+            space=self.space_description,
+            net_shape=self.net_shape,
+            step=self.step,
+            episodes=self.episodes,
+            rng_state=self.rng.bit_generator.state,
+            resumes=self.resumes,
+        )
         if self.config.save_replay:
             self.replay.save(self.replay_path)
 
@@ -490,15 +583,25 @@ def _progress(config: TrainConfig, start: int) -> Any:
         return None
     from tqdm import tqdm
 
-    return tqdm(total=config.total_steps, initial=start, unit="step", dynamic_ncols=True,
-                desc=f"{config.algo}/{config.inputs}", file=sys.stderr)
+    return tqdm(
+        total=config.total_steps,
+        initial=start,
+        unit="step",
+        dynamic_ncols=True,
+        desc=f"{config.algo}/{config.inputs}",
+        file=sys.stderr,
+    )
 
 
 def cli(argv: list[str] | None = None) -> None:
     import tyro
 
-    config = tyro.cli(TrainConfig, args=argv, config=(tyro.conf.OmitArgPrefixes,),
-                      description="overtake-train: DQN / Double DQN / Dueling DQN on overtake")
+    config = tyro.cli(
+        TrainConfig,
+        args=argv,
+        config=(tyro.conf.OmitArgPrefixes,),
+        description="overtake-train: DQN / Double DQN / Dueling DQN on overtake",
+    )
     summary = run_command("overtake-train", main, config)
     print(json.dumps(summary, indent=2))
 

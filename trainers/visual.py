@@ -34,17 +34,29 @@ def training_blueprint(run: str) -> Any:
         rrb.Horizontal(
             rrb.Vertical(
                 rrb.TimeSeriesView(origin=f"{root}/episode", name=f"{run}: episodes"),
-                rrb.TimeSeriesView(origin=f"{root}/learning", name=f"{run}: learning")),
+                rrb.TimeSeriesView(origin=f"{root}/learning", name=f"{run}: learning"),
+            ),
             rrb.Vertical(
                 rrb.Horizontal(
                     rrb.Spatial2DView(origin=f"{root}/env0/camera", name="env 0 camera"),
-                    rrb.Spatial2DView(origin=f"{root}/env0/lidar", name="env 0 LIDAR")),
+                    rrb.Spatial2DView(origin=f"{root}/env0/lidar", name="env 0 LIDAR"),
+                ),
                 rrb.TimeSeriesView(origin=f"{root}/env0/q", name="env 0 Q-values"),
-                rrb.TimeSeriesView(origin=f"{root}/env0", name="env 0",
-                                   contents=[f"{root}/env0/speed_kmh", f"{root}/env0/action",
-                                             f"{root}/env0/reward",
-                                             f"{root}/env0/reward_terms/**"]))),
-        rrb.TimePanel(timeline="step"), collapse_panels=True)
+                rrb.TimeSeriesView(
+                    origin=f"{root}/env0",
+                    name="env 0",
+                    contents=[
+                        f"{root}/env0/speed_kmh",
+                        f"{root}/env0/action",
+                        f"{root}/env0/reward",
+                        f"{root}/env0/reward_terms/**",
+                    ],
+                ),
+            ),
+        ),
+        rrb.TimePanel(timeline="step"),
+        collapse_panels=True,
+    )
 
 
 class TrainingRecording:
@@ -70,8 +82,15 @@ class TrainingRecording:
             if value is not None:
                 self.stream.log(f"{self.root}/learning/{name}", rr.Scalars(float(value)))
 
-    def car_view(self, step: int, obs: dict[str, np.ndarray], action: int, q: np.ndarray,
-                 reward: float, terms: dict[str, float]) -> None:
+    def car_view(
+        self,
+        step: int,
+        obs: dict[str, np.ndarray],
+        action: int,
+        q: np.ndarray,
+        reward: float,
+        terms: dict[str, float],
+    ) -> None:
         """One environment's latest frame (``obs`` unbatched: ``lidar`` (R,) metres, ``camera``
         (H, W[, 3]) uint8, ``ego`` with speed in m/s first), the action it took, the Q-values
         of every action, and the reward it got for it with each term."""
@@ -83,11 +102,14 @@ class TrainingRecording:
         stream.set_time("step", sequence=step)
         lidar = obs.get("lidar")
         if lidar is not None:
-            stream.log(f"{base}/lidar/hits", rr.Points2D(lidar_hits(lidar), radii=[0.25],
-                                                         colors=[[255, 128, 0]]))
-            stream.log(f"{base}/lidar/car", rr.Boxes2D(centers=[[0.0, 0.0]],
-                                                       half_sizes=[[2.25, 0.9]],
-                                                       colors=[[230, 40, 40]]))
+            stream.log(
+                f"{base}/lidar/hits",
+                rr.Points2D(lidar_hits(lidar), radii=[0.25], colors=[[255, 128, 0]]),
+            )
+            stream.log(
+                f"{base}/lidar/car",
+                rr.Boxes2D(centers=[[0.0, 0.0]], half_sizes=[[2.25, 0.9]], colors=[[230, 40, 40]]),
+            )
         camera = obs.get("camera")
         if camera is not None:
             stream.log(f"{base}/camera", rr.Image(camera))

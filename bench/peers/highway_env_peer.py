@@ -79,9 +79,7 @@ class HighwayEnvResult(Rates):
     version: str
 
 
-def measure_highway_env(
-    decisions: int = 200, seed: int = 0, warmup: int = 10
-) -> HighwayEnvResult:
+def measure_highway_env(decisions: int = 200, seed: int = 0, warmup: int = 10) -> HighwayEnvResult:
     """Time `decisions` random decisions of highway-env after `warmup` untimed ones."""
     # highway-env skips drawing entirely under SDL's "dummy" driver and returns
     # all-zero images; "offscreen" draws without needing a display. SDL reads
@@ -93,8 +91,7 @@ def measure_highway_env(
         import highway_env
     except ImportError as error:
         raise RuntimeError(
-            "highway-env is not installed; install the bench extra with "
-            "`pip install -e '.[bench]'`"
+            "highway-env is not installed; install the bench extra with `pip install -e '.[bench]'`"
         ) from error
 
     env = gymnasium.make(ENV_ID, config=SCENE_CONFIG)
