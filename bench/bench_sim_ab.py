@@ -12,6 +12,14 @@ flipped every round, so that both see the same drift. Each child times one arena
 
 It prints, per arena count, the median over rounds of the working tree's simulated seconds per
 CPU second divided by the baseline's (above 1: the working tree is faster) and its spread.
+
+When even paired timings drown in the machine's noise, ``--mode instructions`` counts the CPU
+instructions a decision takes instead, with valgrind's callgrind (deterministic: the same code,
+inputs and environment give the same count, whatever else the machine does). Each side runs
+the same random decisions twice, D and 2D of them, in a child under callgrind; the difference
+divided by D is the instructions per decision, free of start-up and import costs.
+
+    .venv/bin/python -m bench.bench_sim_ab --baseline REV --mode instructions
 """
 
 from __future__ import annotations
@@ -25,7 +33,7 @@ import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import tyro
 
@@ -45,6 +53,12 @@ class SimABConfig:
     batch_arena_decisions: int = 16000
     """Timed arena-decisions of the batch per turn."""
     seed: int = 0
+    mode: Literal["time", "instructions"] = "time"
+    """time: CPU-time throughput in alternating turns; instructions: callgrind's counts."""
+    instruction_decisions: int = 60
+    """instructions mode: D, the decisions of one arena counted (the child runs D and 2D)."""
+    instruction_batch_steps: int = 6
+    """instructions mode: D for the batch, in vector steps."""
     json: Path | None = None
 
 
@@ -105,8 +119,100 @@ def _turn(config: SimABConfig, path: str | None) -> dict[str, float]:
     return result["sim_s_per_cpu_s"]
 
 
+# What an instructions-mode child runs: ``steps`` random decisions of ``arenas`` arenas, made
+# exactly as bench_sim makes them (no warm-up: start-up costs cancel in the difference).
+_COUNTED_CHILD = """
+import sys
+from bench.bench_sim import measure_overtake_batch, measure_overtake_single, pin_threads
+pin_threads(1)
+arenas, steps, seed = map(int, sys.argv[1:4])
+if arenas == 1:
+    measure_overtake_single(steps, 0, seed)
+else:
+    measure_overtake_batch(arenas, arenas * steps, 0, seed)
+"""
+
+
+def _instructions(path: str | None, arenas: int, steps: int, seed: int) -> int:
+    """Instructions callgrind counts for a child running ``steps`` steps of ``arenas``."""
+    env = dict(os.environ)
+    if path is not None:
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (path, env.get("PYTHONPATH")) if p)
+    with tempfile.TemporaryDirectory() as tmp:
+        done = subprocess.run(
+            [
+                "valgrind",
+                "--tool=callgrind",
+                f"--callgrind-out-file={tmp}/out",
+                sys.executable,
+                "-c",
+                _COUNTED_CHILD,
+                str(arenas),
+                str(steps),
+                str(seed),
+            ],
+            env=env,
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            check=True,
+            timeout=3600,
+        )
+    for line in done.stderr.splitlines():
+        if "Collected :" in line:
+            return int(line.rsplit(":", 1)[1].strip())
+    raise RuntimeError(f"callgrind reported no count:\n{done.stderr[-2000:]}")
+
+
+def count_instructions(config: SimABConfig, baseline_path: str) -> dict[str, Any]:
+    """Instructions per decision (1 arena) and per arena-decision (the batch), both sides."""
+    cases = {
+        "1": (1, config.instruction_decisions),
+        str(config.batch_arenas): (config.batch_arenas, config.instruction_batch_steps),
+    }
+    counts: dict[str, dict[str, float]] = {}
+    for side, path in (("baseline", baseline_path), ("working tree", None)):
+        counts[side] = {}
+        for key, (arenas, steps) in cases.items():
+            once = _instructions(path, arenas, steps, config.seed)
+            twice = _instructions(path, arenas, 2 * steps, config.seed)
+            counts[side][key] = (twice - once) / (steps * arenas)
+            print(
+                f"{side:>12}: {key} arena(s) {counts[side][key]:,.0f} instructions per "
+                "arena-decision",
+                flush=True,
+            )
+    summary = {
+        key: {"ratio": counts["working tree"][key] / counts["baseline"][key]} for key in cases
+    }
+    for key, value in summary.items():
+        print(f"{key} arena(s): working tree / baseline instructions = {value['ratio']:.4f}")
+    return {"instructions_per_arena_decision": counts, "summary": summary}
+
+
 def main(config: SimABConfig) -> dict[str, Any]:
     from bench.bench_server_ab import checkout
+
+    if config.mode == "instructions":
+        where = Path(tempfile.mkdtemp(prefix="overtake-sim-ab-"))
+        try:
+            result = count_instructions(config, str(checkout(config.baseline, where)))
+        finally:
+            subprocess.run(
+                ["git", "worktree", "remove", "--force", str(where / "tree")], cwd=ROOT, check=False
+            )
+            shutil.rmtree(where, ignore_errors=True)
+        report = {
+            "config": {
+                **config.__dict__,
+                "json": None if config.json is None else str(config.json),
+            },
+            **result,
+        }
+        if config.json is not None:
+            config.json.parent.mkdir(parents=True, exist_ok=True)
+            config.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+        return report
 
     where = Path(tempfile.mkdtemp(prefix="overtake-sim-ab-"))
     turns: dict[str, list[dict[str, float]]] = {side: [] for side in SIDES}
