@@ -21,7 +21,8 @@ from .units import KMH
 from .validation import check, check_flag, check_range
 
 
-@dataclass(frozen=True, slots=True)
+# Built every decision: a plain record (a frozen one pays a setattr call per field).
+@dataclass(slots=True)
 class StepFacts:
     """What one decision did, per agent (A, N): what reward terms are computed from."""
 

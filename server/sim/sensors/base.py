@@ -43,7 +43,8 @@ class SensorSpace:
         )
 
 
-@dataclass(frozen=True, slots=True)
+# Built every observation: a plain record (a frozen one pays a setattr call per field).
+@dataclass(slots=True)
 class ObserverViews:
     """Per observer (arena-major, agent-minor; O = arenas * agents): where it is and the
     vehicles it can see, (O,) and (O, V). x is relative to each arena's first agent."""

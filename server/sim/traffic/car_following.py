@@ -47,7 +47,8 @@ def idm_desired_gap(
     return min_gap + np.maximum(0.0, speed * time_headway + speed * closing_speed / two_sqrt_ab)
 
 
-@dataclass(frozen=True, slots=True)
+# Built every frame: a plain record (a frozen one pays a setattr call per field).
+@dataclass(slots=True)
 class Following:
     """Whom each vehicle follows this frame, (A, V) each: the nearer of the leaders in its
     lane and, while it changes lanes, in its target lane."""
