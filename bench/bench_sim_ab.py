@@ -1,24 +1,27 @@
-"""A/B of two versions of the simulator: simulated seconds per CPU second, measured in turns.
+"""A/B of two versions of the simulator: its CPU cost per decision, measured side by side.
 
 On a shared 2-vCPU VM the same code's throughput drifts by 10-30% between runs, so a change
-worth a few per cent cannot be seen by comparing two runs of ``bench.bench_sim``. Here short
-child processes measure the working tree's simulator and another git revision's (checked out in
-a temporary worktree and put first on that child's PYTHONPATH) in alternating turns, the order
-flipped every round, so that both see the same drift. Each child times one arena
-(``gymnasium.make``) and a batch of arenas (``gymnasium.make_vec``) exactly as
-``bench.bench_sim`` does, with the same seeds and random actions.
+worth a few per cent cannot be seen by comparing two runs of ``bench.bench_sim``. Two ways of
+comparing the working tree's simulator with another git revision's (checked out in a temporary
+worktree and put first on its processes' PYTHONPATH):
 
-    .venv/bin/python -m bench.bench_sim_ab --baseline REV [--rounds 6]
+``--mode time`` (the default): two worker processes, one per side, each holding the same
+environment (one arena through ``gymnasium.make``, then a batch through
+``gymnasium.make_vec``, exactly as ``bench.bench_sim`` builds them) with the same seed. The
+benchmark asks them in turn, order flipped every round, to drive a short chunk of random
+decisions; each reports the CPU seconds of its own process for it. Both sides run the very
+same episodes (the simulator is deterministic), so each round's pair of chunks did the same
+work, half a second apart: the drift of the machine falls on both alike. It prints, per arena
+count, the median over rounds of the working tree's CPU seconds per chunk divided by the
+baseline's (below 1: the working tree is faster) and the middle half of those ratios.
 
-It prints, per arena count, the median over rounds of the working tree's simulated seconds per
-CPU second divided by the baseline's (above 1: the working tree is faster) and its spread.
+``--mode instructions``: the CPU instructions a decision takes, counted by valgrind's
+callgrind (the same code, inputs and environment give nearly the same count, whatever else the
+machine does). Each side runs the same random decisions twice, D and 2D of them, in a child
+under callgrind; the difference divided by D is the instructions per decision, free of
+start-up and import costs.
 
-When even paired timings drown in the machine's noise, ``--mode instructions`` counts the CPU
-instructions a decision takes instead, with valgrind's callgrind (deterministic: the same code,
-inputs and environment give the same count, whatever else the machine does). Each side runs
-the same random decisions twice, D and 2D of them, in a child under callgrind; the difference
-divided by D is the instructions per decision, free of start-up and import costs.
-
+    .venv/bin/python -m bench.bench_sim_ab --baseline REV [--rounds 40]
     .venv/bin/python -m bench.bench_sim_ab --baseline REV --mode instructions
 """
 
@@ -45,79 +48,176 @@ SIDES = ("baseline", "working tree")
 class SimABConfig:
     baseline: str
     """The git revision whose simulator is compared with the working tree's."""
-    rounds: int = 6
-    """Turns per side; the order of the two sides flips every round."""
-    single_decisions: int = 1500
-    """Timed decisions of one arena per turn."""
-    batch_arenas: int = 64
-    batch_arena_decisions: int = 16000
-    """Timed arena-decisions of the batch per turn."""
-    seed: int = 0
     mode: Literal["time", "instructions"] = "time"
-    """time: CPU-time throughput in alternating turns; instructions: callgrind's counts."""
+    """time: CPU seconds of paired chunks in two workers; instructions: callgrind's counts."""
+    rounds: int = 40
+    """time mode: chunks per side and arena count; the order flips every round."""
+    single_chunk: int = 200
+    """time mode: decisions of one arena per chunk."""
+    batch_arenas: int = 64
+    batch_chunk: int = 4
+    """time mode: vector steps of the batch per chunk."""
+    warmup: int = 2
+    """time mode: untimed chunks per side before the rounds."""
     instruction_decisions: int = 60
     """instructions mode: D, the decisions of one arena counted (the child runs D and 2D)."""
     instruction_batch_steps: int = 6
     """instructions mode: D for the batch, in vector steps."""
+    seed: int = 0
     json: Path | None = None
 
 
-def measure_child(config: SimABConfig) -> dict[str, Any]:
-    """In a child process: both measurements of whichever overtake is first on the path, and
-    where that overtake's simulator was loaded from."""
-    from bench.bench_sim import measure_overtake_batch, measure_overtake_single, pin_threads
-
-    pin_threads(1)
-    single, _ = measure_overtake_single(config.single_decisions, 100, config.seed)
-    batch = measure_overtake_batch(
-        config.batch_arenas, config.batch_arena_decisions, 20, config.seed
-    )
-    import overtake.server
-
-    return {
-        "source": str(Path(overtake.server.__file__).resolve().parent),
-        "sim_s_per_cpu_s": {
-            "1": single.sim_seconds_per_cpu_second,
-            str(config.batch_arenas): batch.sim_seconds_per_cpu_second,
-        },
-    }
-
-
-def _turn(config: SimABConfig, path: str | None) -> dict[str, float]:
+def _side_env(path: str | None) -> dict[str, str]:
+    """The environment of a process measuring a side: the baseline's overtake first on its
+    path, or the working tree's as installed."""
     env = dict(os.environ)
     if path is not None:
         env["PYTHONPATH"] = os.pathsep.join(p for p in (path, env.get("PYTHONPATH")) if p)
-    argv = [
-        sys.executable,
-        "-m",
-        "bench.bench_sim_ab",
-        "--baseline",
-        config.baseline,
-        "--single-decisions",
-        str(config.single_decisions),
-        "--batch-arenas",
-        str(config.batch_arenas),
-        "--batch-arena-decisions",
-        str(config.batch_arena_decisions),
-        "--seed",
-        str(config.seed),
-    ]
-    done = subprocess.run(
-        argv,
-        env={**env, "OVERTAKE_SIM_AB_CHILD": "1"},
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        check=True,
-        timeout=600,
-    )
-    result = json.loads(done.stdout.strip().splitlines()[-1])
-    # The measured code must be the side's: the baseline's worktree, or this checkout.
-    expected = Path(path).resolve() if path is not None else ROOT
-    if not Path(result["source"]).is_relative_to(expected.parent if path else expected):
-        raise RuntimeError(f"the turn meant for {expected} measured {result['source']}")
-    return result["sim_s_per_cpu_s"]
+    return env
 
+
+# --- time mode: two workers, paired chunks ----------------------------------------------------
+
+# A worker: builds one environment as bench_sim does, then drives as many random decisions as
+# each line on stdin asks and answers with one JSON line: its CPU seconds and the arena-
+# decisions that advanced (a vector env's autoreset steps advance none).
+_WORKER = """
+import json, sys, time
+from bench.bench_sim import ENV_ID, PRESET, pin_threads
+pin_threads(1)
+import gymnasium, numpy as np
+import overtake.client, overtake.server
+arenas, seed = int(sys.argv[1]), int(sys.argv[2])
+rng = np.random.default_rng(seed)
+if arenas == 1:
+    env = gymnasium.make(ENV_ID, preset=PRESET)
+    env.reset(seed=seed)
+    def drive(steps):
+        for _ in range(steps):
+            _, _, terminated, truncated, _ = env.step(int(rng.integers(5)))
+            if terminated or truncated:
+                env.reset()
+        return steps
+else:
+    env = gymnasium.make_vec(ENV_ID, num_envs=arenas, vectorization_mode="vector_entry_point",
+                             preset=PRESET)
+    env.reset(seed=seed)
+    autoreset = np.zeros(arenas, dtype=bool)
+    def drive(steps):
+        global autoreset
+        advanced = 0
+        for _ in range(steps):
+            _, _, terminated, truncated, _ = env.step(rng.integers(5, size=arenas))
+            advanced += arenas - int(autoreset.sum())
+            autoreset = terminated | truncated
+        return advanced
+print(json.dumps({"source": overtake.server.__file__}), flush=True)
+for line in sys.stdin:
+    steps = int(line)
+    start = time.process_time()
+    advanced = drive(steps)
+    print(json.dumps({"cpu_s": time.process_time() - start, "decisions": advanced}),
+          flush=True)
+"""
+
+
+class Worker:
+    """A process holding one side's environment, driving chunks on request."""
+
+    def __init__(self, path: str | None, arenas: int, seed: int) -> None:
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", _WORKER, str(arenas), str(seed)],
+            env=_side_env(path),
+            cwd=ROOT,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        self.source = Path(self._answer()["source"]).resolve()
+        # The measured code must be the side's: the baseline's worktree, or this checkout.
+        expected = Path(path).resolve().parent if path is not None else ROOT
+        if not self.source.is_relative_to(expected):
+            self.close()
+            raise RuntimeError(f"the worker meant for {expected} loaded {self.source}")
+
+    def _answer(self) -> dict[str, Any]:
+        assert self.proc.stdout is not None
+        line = self.proc.stdout.readline()
+        if not line:
+            raise RuntimeError(f"a worker exited with {self.proc.wait()}")
+        return json.loads(line)
+
+    def chunk(self, steps: int) -> dict[str, Any]:
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(f"{steps}\n")
+        self.proc.stdin.flush()
+        return self._answer()
+
+    def close(self) -> None:
+        if self.proc.stdin is not None:
+            self.proc.stdin.close()
+        try:
+            self.proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+
+
+def time_paired(config: SimABConfig, baseline_path: str) -> dict[str, Any]:
+    """Per arena count: each round's CPU seconds of both sides for the same chunk."""
+    cases = {
+        "1": (1, config.single_chunk),
+        str(config.batch_arenas): (config.batch_arenas, config.batch_chunk),
+    }
+    results: dict[str, Any] = {}
+    for key, (arenas, steps) in cases.items():
+        workers = {
+            side: Worker(baseline_path if side == "baseline" else None, arenas, config.seed)
+            for side in SIDES
+        }
+        try:
+            for _ in range(config.warmup):
+                for worker in workers.values():
+                    worker.chunk(steps)
+            chunks: dict[str, list[dict[str, Any]]] = {side: [] for side in SIDES}
+            for index in range(config.rounds):
+                for side in SIDES if index % 2 == 0 else SIDES[::-1]:
+                    chunks[side].append(workers[side].chunk(steps))
+        finally:
+            for worker in workers.values():
+                worker.close()
+        for old, new in zip(chunks["baseline"], chunks["working tree"], strict=True):
+            if old["decisions"] != new["decisions"]:
+                raise RuntimeError("the two sides drove different decisions: not the same work")
+        ratios = sorted(
+            new["cpu_s"] / old["cpu_s"]
+            for old, new in zip(chunks["baseline"], chunks["working tree"], strict=True)
+        )
+        quartiles = statistics.quantiles(ratios, n=4)
+        decisions = sum(c["decisions"] for c in chunks["baseline"])
+        per_decision_us = {
+            side: 1e6 * sum(c["cpu_s"] for c in chunks[side]) / decisions for side in SIDES
+        }
+        results[key] = {
+            "median_ratio": statistics.median(ratios),
+            "quartiles": [quartiles[0], quartiles[2]],
+            "slower_rounds": sum(r > 1.0 for r in ratios),
+            "rounds": len(ratios),
+            "cpu_us_per_arena_decision": per_decision_us,
+            "chunks": chunks,
+        }
+        print(
+            f"{key} arena(s): working tree / baseline CPU time = "
+            f"{results[key]['median_ratio']:.3f} (median of {len(ratios)} paired chunks; middle "
+            f"half {quartiles[0]:.3f} to {quartiles[2]:.3f}; working tree slower in "
+            f"{results[key]['slower_rounds']}); CPU per arena-decision "
+            f"{per_decision_us['baseline']:.0f} vs {per_decision_us['working tree']:.0f} us",
+            flush=True,
+        )
+    return results
+
+
+# --- instructions mode ------------------------------------------------------------------------
 
 # What an instructions-mode child runs: ``steps`` random decisions of ``arenas`` arenas, made
 # exactly as bench_sim makes them (no warm-up: start-up costs cancel in the difference).
@@ -135,9 +235,6 @@ else:
 
 def _instructions(path: str | None, arenas: int, steps: int, seed: int) -> int:
     """Instructions callgrind counts for a child running ``steps`` steps of ``arenas``."""
-    env = dict(os.environ)
-    if path is not None:
-        env["PYTHONPATH"] = os.pathsep.join(p for p in (path, env.get("PYTHONPATH")) if p)
     with tempfile.TemporaryDirectory() as tmp:
         done = subprocess.run(
             [
@@ -151,7 +248,7 @@ def _instructions(path: str | None, arenas: int, steps: int, seed: int) -> int:
                 str(steps),
                 str(seed),
             ],
-            env=env,
+            env=_side_env(path),
             cwd=ROOT,
             capture_output=True,
             text=True,
@@ -193,61 +290,22 @@ def count_instructions(config: SimABConfig, baseline_path: str) -> dict[str, Any
 def main(config: SimABConfig) -> dict[str, Any]:
     from bench.bench_server_ab import checkout
 
-    if config.mode == "instructions":
-        where = Path(tempfile.mkdtemp(prefix="overtake-sim-ab-"))
-        try:
-            result = count_instructions(config, str(checkout(config.baseline, where)))
-        finally:
-            subprocess.run(
-                ["git", "worktree", "remove", "--force", str(where / "tree")], cwd=ROOT, check=False
-            )
-            shutil.rmtree(where, ignore_errors=True)
-        report = {
-            "config": {
-                **config.__dict__,
-                "json": None if config.json is None else str(config.json),
-            },
-            **result,
-        }
-        if config.json is not None:
-            config.json.parent.mkdir(parents=True, exist_ok=True)
-            config.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
-        return report
-
     where = Path(tempfile.mkdtemp(prefix="overtake-sim-ab-"))
-    turns: dict[str, list[dict[str, float]]] = {side: [] for side in SIDES}
     try:
         baseline_path = str(checkout(config.baseline, where))
         print(f"baseline {config.baseline} from {where / 'tree'}; working tree {ROOT}")
-        for index in range(config.rounds):
-            for side in SIDES if index % 2 == 0 else SIDES[::-1]:
-                figures = _turn(config, baseline_path if side == "baseline" else None)
-                turns[side].append(figures)
-                print(
-                    f"round {index + 1} {side:>12}: "
-                    + ", ".join(f"{k} arena(s) {v:,.1f} sim s/CPU s" for k, v in figures.items()),
-                    flush=True,
-                )
+        if config.mode == "instructions":
+            result = count_instructions(config, baseline_path)
+        else:
+            result = time_paired(config, baseline_path)
     finally:
         subprocess.run(
             ["git", "worktree", "remove", "--force", str(where / "tree")], cwd=ROOT, check=False
         )
         shutil.rmtree(where, ignore_errors=True)
-    summary = {}
-    for arenas in turns["baseline"][0]:
-        ratios = sorted(
-            new[arenas] / old[arenas]
-            for old, new in zip(turns["baseline"], turns["working tree"], strict=True)
-        )
-        summary[arenas] = {"median": statistics.median(ratios), "min": ratios[0], "max": ratios[-1]}
-        print(
-            f"{arenas} arena(s): working tree / baseline = {summary[arenas]['median']:.3f} "
-            f"(median of {len(ratios)} rounds; {ratios[0]:.3f} to {ratios[-1]:.3f})"
-        )
     report = {
         "config": {**config.__dict__, "json": None if config.json is None else str(config.json)},
-        "turns": turns,
-        "summary": summary,
+        "result": result,
     }
     if config.json is not None:
         config.json.parent.mkdir(parents=True, exist_ok=True)
@@ -256,11 +314,7 @@ def main(config: SimABConfig) -> dict[str, Any]:
 
 
 def cli() -> None:
-    config = tyro.cli(SimABConfig, description=__doc__)
-    if os.environ.get("OVERTAKE_SIM_AB_CHILD"):
-        print(json.dumps(measure_child(config)))
-    else:
-        main(config)
+    main(tyro.cli(SimABConfig, description=__doc__))
 
 
 if __name__ == "__main__":
