@@ -15,11 +15,13 @@ Each repeat starts both servers afresh and prints both medians and their differe
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
 import subprocess
 import tempfile
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -56,17 +58,28 @@ class ServerABConfig:
     json: Path | None = None
 
 
-def checkout(revision: str, where: Path) -> Path:
-    """``revision``'s package folders under ``where``/overtake, for PYTHONPATH=``where``."""
+@contextlib.contextmanager
+def baseline_checkout(revision: str) -> Iterator[Path]:
+    """A directory to put first on PYTHONPATH for ``revision``'s overtake: a temporary git
+    worktree of that revision, its package folders linked under ``overtake/``. The worktree
+    and the directory are removed afterwards."""
+    where = Path(tempfile.mkdtemp(prefix="overtake-ab-"))
     tree = where / "tree"
-    subprocess.run(
-        ["git", "worktree", "add", "--detach", "--quiet", str(tree), revision], cwd=ROOT, check=True
-    )
-    package = where / "path" / "overtake"
-    package.mkdir(parents=True)
-    for folder in PACKAGE_FOLDERS:
-        (package / folder).symlink_to(tree / folder, target_is_directory=True)
-    return where / "path"
+    try:
+        subprocess.run(
+            ["git", "worktree", "add", "--detach", "--quiet", str(tree), revision],
+            cwd=ROOT,
+            check=True,
+        )
+        package = where / "path" / "overtake"
+        package.mkdir(parents=True)
+        for folder in PACKAGE_FOLDERS:
+            (package / folder).symlink_to(tree / folder, target_is_directory=True)
+        print(f"baseline {revision} from {tree}; working tree {ROOT}", flush=True)
+        yield where / "path"
+    finally:
+        subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=ROOT, check=False)
+        shutil.rmtree(where, ignore_errors=True)
 
 
 def measure(config: ServerABConfig, baseline_path: Path) -> dict[str, Any]:
@@ -113,11 +126,8 @@ def measure(config: ServerABConfig, baseline_path: Path) -> dict[str, Any]:
 
 
 def main(config: ServerABConfig) -> dict[str, Any]:
-    where = Path(tempfile.mkdtemp(prefix="overtake-ab-"))
     results = []
-    try:
-        baseline_path = checkout(config.baseline, where)
-        print(f"baseline {config.baseline} from {where / 'tree'}; working tree {ROOT}")
+    with baseline_checkout(config.baseline) as baseline_path:
         for repeat in range(config.repeats):
             result = measure(config, baseline_path)
             results.append(result)
@@ -128,11 +138,6 @@ def main(config: ServerABConfig) -> dict[str, Any]:
                 f"{1e3 * result['baseline_minus_working_tree_ms']:+.1f} us",
                 flush=True,
             )
-    finally:
-        subprocess.run(
-            ["git", "worktree", "remove", "--force", str(where / "tree")], cwd=ROOT, check=False
-        )
-        shutil.rmtree(where, ignore_errors=True)
     differences = sorted(r["baseline_minus_working_tree_ms"] for r in results)
     print(
         f"median difference {1e3 * differences[len(differences) // 2]:+.1f} us "

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import statistics
 import subprocess
 import sys
@@ -288,21 +287,13 @@ def count_instructions(config: SimABConfig, baseline_path: str) -> dict[str, Any
 
 
 def main(config: SimABConfig) -> dict[str, Any]:
-    from bench.bench_server_ab import checkout
+    from bench.bench_server_ab import baseline_checkout
 
-    where = Path(tempfile.mkdtemp(prefix="overtake-sim-ab-"))
-    try:
-        baseline_path = str(checkout(config.baseline, where))
-        print(f"baseline {config.baseline} from {where / 'tree'}; working tree {ROOT}")
+    with baseline_checkout(config.baseline) as path:
         if config.mode == "instructions":
-            result = count_instructions(config, baseline_path)
+            result = count_instructions(config, str(path))
         else:
-            result = time_paired(config, baseline_path)
-    finally:
-        subprocess.run(
-            ["git", "worktree", "remove", "--force", str(where / "tree")], cwd=ROOT, check=False
-        )
-        shutil.rmtree(where, ignore_errors=True)
+            result = time_paired(config, str(path))
     report = {
         "config": {**config.__dict__, "json": None if config.json is None else str(config.json)},
         "result": result,

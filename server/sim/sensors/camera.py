@@ -19,7 +19,7 @@ import numpy as np
 
 from ..road import RoadConfig
 from ..validation import check, check_range
-from .base import Scene, SensorConfig, SensorSpace
+from .base import ObserverViews, Scene, SensorConfig, SensorSpace
 
 if TYPE_CHECKING:
     from ..config import SimConfig
@@ -198,39 +198,17 @@ class Camera:
         return SensorSpace.uniform(self.shape, np.uint8, 0, 255)
 
     def observe(self, scene: Scene) -> np.ndarray:
-        v = scene.views
         road_x = np.repeat(scene.state.x_m[:, 0], scene.agents)
-        image = self.render(
-            v.origin_x,
-            v.origin_y,
-            v.heading,
-            v.car_x,
-            v.car_y,
-            v.car_half_length,
-            v.car_half_width,
-            v.car_visible,
-            road_x=road_x,
-        )
+        image = self.render(scene.views, road_x)
         return image.reshape((scene.arenas, scene.agents) + image.shape[1:])
 
-    def render(
-        self,
-        cam_x: np.ndarray,
-        cam_y: np.ndarray,
-        heading: np.ndarray,
-        car_x: np.ndarray,
-        car_y: np.ndarray,
-        car_half_length: np.ndarray,
-        car_half_width: np.ndarray,
-        car_visible: np.ndarray,
-        road_x: np.ndarray,
-    ) -> np.ndarray:
-        """Images (O, H, W[, 3]) uint8 for O observers at the driver's seat of their car.
-
-        cam_x, cam_y, heading: (O,) the car's centre and heading; car_*: (O, V) the cars each
-        observer may see (``car_visible`` False for itself and inactive slots). The x values
-        are relative to a reference at ``road_x`` (O,) along the road, which places the dashes.
-        """
+    def render(self, views: ObserverViews, road_x: np.ndarray) -> np.ndarray:
+        """Images (O, H, W[, 3]) uint8 for the O observers of ``views``, at the driver's seat of
+        their car, each seeing its ``car_visible`` cars. The views' x values are relative to a
+        reference at ``road_x`` (O,) along the road, which places the dashes."""
+        cam_x, cam_y, heading = views.origin_x, views.origin_y, views.heading
+        car_x, car_y, car_visible = views.car_x, views.car_y, views.car_visible
+        car_half_length, car_half_width = views.car_half_length, views.car_half_width
         mount = self.config.mount_forward_m
         cos_h = np.cos(heading)
         sin_h = np.sin(heading)

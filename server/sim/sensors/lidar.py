@@ -18,7 +18,7 @@ import numpy as np
 
 from ..road import Road
 from ..validation import check, check_range
-from .base import Scene, SensorConfig, SensorSpace
+from .base import ObserverViews, Scene, SensorConfig, SensorSpace
 
 if TYPE_CHECKING:
     from ..config import SimConfig
@@ -82,40 +82,15 @@ class Lidar:
         return SensorSpace.uniform((self.ray_count,), np.float32, 0.0, self.max_range_m)
 
     def observe(self, scene: Scene) -> np.ndarray:
-        v = scene.views
-        scan = self.scan(
-            v.origin_x,
-            v.origin_y,
-            v.heading,
-            v.car_x,
-            v.car_y,
-            v.car_half_length,
-            v.car_half_width,
-            v.car_visible,
-            rail_left_y=self.rail_left_y_m,
-            rail_right_y=self.rail_right_y_m,
-        )
-        return scan.reshape(scene.arenas, scene.agents, -1)
+        return self.scan(scene.views).reshape(scene.arenas, scene.agents, -1)
 
-    def scan(
-        self,
-        origin_x: np.ndarray,
-        origin_y: np.ndarray,
-        heading: np.ndarray,
-        car_x: np.ndarray,
-        car_y: np.ndarray,
-        car_half_length: np.ndarray,
-        car_half_width: np.ndarray,
-        car_visible: np.ndarray,
-        rail_left_y: float,
-        rail_right_y: float,
-    ) -> np.ndarray:
-        """Distances (O, R) float32 in metres, clipped at the maximum range.
-
-        origin_x, origin_y, heading: (O,) for O observers. car_*: (O, V) per observer, the cars
-        it can see (``car_visible`` False for itself, inactive slots and anything to ignore).
-        Cars' x may be relative to any reference as long as origin_x uses the same one.
-        """
+    def scan(self, views: ObserverViews) -> np.ndarray:
+        """Distances (O, R) float32 in metres, clipped at the maximum range, for the O observers
+        of ``views`` (each sees its ``car_visible`` cars and both guard rails)."""
+        origin_x, origin_y, heading = views.origin_x, views.origin_y, views.heading
+        car_x, car_y, car_visible = views.car_x, views.car_y, views.car_visible
+        car_half_length, car_half_width = views.car_half_length, views.car_half_width
+        rail_left_y, rail_right_y = self.rail_left_y_m, self.rail_right_y_m
         observers = origin_x.shape[0]
         rays = self.ray_count
         cos_h = np.cos(heading)[:, None]
