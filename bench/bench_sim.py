@@ -275,8 +275,11 @@ def _cpu_model() -> str:
 
 
 def _source_revision() -> str:
-    """The git commit of overtake's checkout, marked when its code has uncommitted changes."""
-    root = Path(__file__).resolve().parents[1]
+    """The git commit of the overtake this process imported (another revision's, when one is
+    put first on PYTHONPATH), marked when its code has uncommitted changes."""
+    import overtake.server
+
+    root = Path(overtake.server.__file__).resolve().parents[1]
 
     def git(*args: str) -> str:
         return subprocess.run(
