@@ -33,7 +33,7 @@ from .episodes import (
 class DriveConfig:
     """Drive a baseline policy through episodes of a preset and report the metrics."""
 
-    policy: Literal["rule", "random"] = "rule"
+    policy: Literal["rule", "random", "idle", "planner"] = "rule"
     """which driver acts"""
     preset: str = "min2018"
     episodes: int = 4
@@ -69,7 +69,7 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
     )
     try:
         act = baseline_policy(
-            config.policy, envs.unwrapped.sim_config, config.seed, config.episodes
+            config.policy, envs.unwrapped.sim_config, config.seed, config.episodes, envs
         )
         rows, decisions, elapsed = run_episodes(envs, act, config.episodes, config.seed)
     finally:

@@ -3,15 +3,17 @@
 They need no simulator: a trainer anywhere can run them against any overtake environment,
 in-process or remote. Both take batches (B, ...) so one call drives a whole vector env.
 
-The rule-based driver is meant as a fair opponent for learned policies:
+The rule-based driver is meant as a fair opponent for learned policies. It reads the LIDAR and
+the ego vector, whose fields it is told (``ego_fields``, the preset's ``ego_vector.fields``):
 
-- it keeps the cruise target at the limit (``cruise_max_kmh``), raising it whenever it is lower;
-  adaptive cruise control and emergency braking beneath it handle the car ahead;
+- it accelerates (cruise up) whenever it is below the limit (``cruise_max_kmh``: its cruise
+  target if the ego vector has one, else its speed), unless it has a forward warning; adaptive
+  cruise control and emergency braking beneath it handle the car ahead;
 - when its own lane is blocked (a car within ``blocked_ahead_m``) it changes to a neighbouring
   lane that offers at least ``better_by_m`` more free distance ahead, if its LIDAR shows that
-  lane empty from ``gap_behind_m`` behind to ``gap_ahead_m`` ahead of the car's centre and the
-  action mask allows the move; with both sides good it takes the one with more room, left on a
-  tie (overtaking on the left).
+  lane empty from ``gap_behind_m`` behind to ``gap_ahead_m`` ahead of the car's centre, it has
+  no side warning there (if the ego vector has warnings) and the action mask allows the move;
+  with both sides good it takes the one with more room, left on a tie (overtaking on the left).
 
 Free distance in a lane is read from the LIDAR points in that lane's strip (``lane_width_m``
 wide, centred on the lane), in the car's frame: x forward, y left.
@@ -23,7 +25,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from overtake.protocol.vocabulary import CRUISE_UP, EGO_CRUISE_TARGET, KEEP, LANE_LEFT, LANE_RIGHT
+from overtake.protocol.vocabulary import CRUISE_UP, KEEP, LANE_LEFT, LANE_RIGHT
+
+# Min et al.'s ego vector (the simulator's default ``ego_vector.fields``).
+DEFAULT_EGO_FIELDS: tuple[str, ...] = (
+    "left_warning",
+    "right_warning",
+    "forward_warning",
+    "ahead_distance_m",
+    "ahead_speed_mps",
+    "speed_mps",
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -44,9 +56,25 @@ class RuleDriver:
         config: RuleDriverConfig = RuleDriverConfig(),
         ray_count: int = 360,
         max_range_m: float = 80.0,
+        ego_fields: tuple[str, ...] = DEFAULT_EGO_FIELDS,
     ) -> None:
         self.config = config
         self.max_range_m = max_range_m
+        # The ego vector's columns the driver reads (None where the preset has no such field).
+        target = "cruise_target_mps" if "cruise_target_mps" in ego_fields else "speed_mps"
+        if target not in ego_fields:
+            raise ValueError(
+                f"the rule-based driver reads its speed or cruise target from the ego vector; "
+                f"its fields are {list(ego_fields)}"
+            )
+        self._limit_column = ego_fields.index(target)
+
+        def column(name: str) -> int | None:
+            return ego_fields.index(name) if name in ego_fields else None
+
+        self._left_warning = column("left_warning")
+        self._right_warning = column("right_warning")
+        self._forward_warning = column("forward_warning")
         angles = np.arange(ray_count) * (2.0 * np.pi / ray_count)
         self._cos, self._sin = np.cos(angles), np.sin(angles)
 
@@ -69,19 +97,25 @@ class RuleDriver:
         return free, ~beside.any(axis=-1)
 
     def act(self, lidar: np.ndarray, ego: np.ndarray, action_mask: np.ndarray) -> np.ndarray:
-        """Actions (B,) for observations lidar (B, R), ego (B, 6) and action masks (B, 5)."""
+        """Actions (B,) for observations lidar (B, R), ego (B, E) and action masks (B, 5)."""
         cfg = self.config
         lidar, ego = np.atleast_2d(lidar), np.atleast_2d(ego)
         action_mask = np.atleast_2d(action_mask)
         free, clear = self.free_distance(lidar)
+        if self._right_warning is not None:
+            clear[:, 0] &= ego[:, self._right_warning] < 0.5
+        if self._left_warning is not None:
+            clear[:, 2] &= ego[:, self._left_warning] < 0.5
         own = free[:, 1]
         blocked = own < cfg.blocked_ahead_m
         room_left = np.where(clear[:, 2] & (action_mask[:, LANE_LEFT] > 0), free[:, 2], -np.inf)
         room_right = np.where(clear[:, 0] & (action_mask[:, LANE_RIGHT] > 0), free[:, 0], -np.inf)
         go_left = blocked & (room_left >= own + cfg.better_by_m) & (room_left >= room_right)
         go_right = blocked & ~go_left & (room_right >= own + cfg.better_by_m)
-        below_limit = ego[:, EGO_CRUISE_TARGET] < cfg.cruise_max_kmh / 3.6 - 1e-3
-        action = np.where(below_limit, CRUISE_UP, KEEP)
+        speed_up = ego[:, self._limit_column] < cfg.cruise_max_kmh / 3.6 - 1e-3
+        if self._forward_warning is not None:
+            speed_up &= ego[:, self._forward_warning] < 0.5
+        action = np.where(speed_up, CRUISE_UP, KEEP)
         action = np.where(go_right, LANE_RIGHT, action)
         return np.where(go_left, LANE_LEFT, action).astype(np.int64)
 

@@ -117,9 +117,33 @@ def run_episodes(
     return [row for row in rows if row is not None], decisions, time.perf_counter() - started
 
 
-def baseline_policy(policy: str, sim_config: dict[str, Any], seed: int, num_envs: int) -> Policy:
-    """The rule-based driver (tuned to the simulator's configuration) or random, as a policy
-    for :func:`run_episodes`."""
+# The reference policies ``baseline_policy`` builds.
+BASELINE_POLICIES = ("rule", "random", "idle", "planner")
+
+
+def baseline_policy(
+    policy: str, sim_config: dict[str, Any], seed: int, num_envs: int, envs: Any = None
+) -> Policy:
+    """A reference policy for :func:`run_episodes`:
+
+    - ``rule``: the rule-based driver (:class:`~overtake.client.drivers.RuleDriver`, tuned to
+      the simulator's configuration);
+    - ``random``: uniformly random among the allowed actions;
+    - ``idle``: never acts (action 0 throughout): the floor any policy should beat;
+    - ``planner``: the simulator's privileged planner, which reads the true state of every
+      car: an upper reference, not a policy anyone trains; it needs ``envs``, the in-process
+      vector environment being driven (a remote simulator keeps its state to itself).
+    """
+    if policy == "idle":
+        return lambda _obs, _info, _starting: np.zeros(num_envs, dtype=np.int64)
+    if policy == "planner":
+        plan = getattr(getattr(envs, "unwrapped", None), "planner_actions", None)
+        if plan is None:
+            raise UsageError(
+                "the planner reads the simulator's true state: run it in-process (without "
+                "--connect)"
+            )
+        return lambda _obs, _info, _starting: np.asarray(plan(), dtype=np.int64)
     if policy == "rule":
         if not sim_config["lidar"]["enabled"]:
             raise UsageError("the rule-based driver reads the LIDAR: keep lidar.enabled true")
@@ -130,11 +154,14 @@ def baseline_policy(policy: str, sim_config: dict[str, Any], seed: int, num_envs
             ),
             ray_count=sim_config["lidar"]["ray_count"],
             max_range_m=sim_config["lidar"]["max_range_m"],
+            ego_fields=tuple(sim_config["ego_vector"]["fields"]),
         )
     elif policy == "random":
         driver = RandomDriver(seed)
     else:
-        raise UsageError(f"unknown baseline policy {policy!r}: rule or random")
+        raise UsageError(
+            f"unknown baseline policy {policy!r}: one of {', '.join(BASELINE_POLICIES)}"
+        )
 
     def act(obs: dict[str, np.ndarray], info: dict[str, Any], _starting: np.ndarray) -> np.ndarray:
         lidar = obs.get("lidar", np.zeros((num_envs, 1), dtype=np.float32))

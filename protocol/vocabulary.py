@@ -18,7 +18,9 @@ KEEP, CRUISE_UP, CRUISE_DOWN, LANE_LEFT, LANE_RIGHT = range(ACTION_COUNT)
 # What a car does when its trainer sent no action in time: adaptive cruise and lane keeping.
 DEFAULT_ACTION = KEEP
 
-# The ego vector observation ("ego"), field by field: the agent's own state (m/s, lanes).
+# Every field the ego vector observation ("ego") can hold. A preset picks which, in which
+# order (``ego_vector.fields`` of its configuration, which every spec's ``config_json``
+# carries): speeds in m/s, distances in m, lanes counted from the right, warnings 0 or 1.
 EGO_FIELDS: tuple[str, ...] = (
     "speed_mps",
     "cruise_target_mps",
@@ -26,11 +28,15 @@ EGO_FIELDS: tuple[str, ...] = (
     "lane_count",
     "lane_change_progress",
     "lane_change_direction",
+    "left_warning",
+    "right_warning",
+    "forward_warning",
+    "ahead_distance_m",
+    "ahead_speed_mps",
 )
-EGO_SPEED = EGO_FIELDS.index("speed_mps")
-EGO_CRUISE_TARGET = EGO_FIELDS.index("cruise_target_mps")
 
-# The papers' episode metrics, the columns of every Steps' ``metrics`` and of info["metrics"].
+# The papers' episode metrics, the columns of every Steps' ``metrics`` and of info["metrics"],
+# and the traffic cars on the road on average over the episode (what a density label means).
 METRIC_FIELDS: tuple[str, ...] = (
     "avg_speed_kmh",
     "lane_changes",
@@ -40,9 +46,11 @@ METRIC_FIELDS: tuple[str, ...] = (
     "distance_m",
     "return",
     "decisions",
+    "traffic_cars",
 )
 
-# Traffic driver types (Ho 2018, Table 5); a vehicle's ``kind`` in world frames indexes this
-# tuple, and a kind equal to its length marks an agent's car.
-BEHAVIOUR_NAMES: tuple[str, ...] = ("steady", "road_max", "lane_changer")
+# Traffic driver types: Ho's three (2018, Table 5), and Min et al.'s cars that act at random
+# (2018, §IV.A). A vehicle's ``kind`` in world frames indexes this tuple, and a kind equal to
+# its length marks an agent's car.
+BEHAVIOUR_NAMES: tuple[str, ...] = ("steady", "road_max", "lane_changer", "random")
 AGENT_KIND = len(BEHAVIOUR_NAMES)

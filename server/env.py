@@ -27,6 +27,7 @@ from overtake.protocol.envs import ReportsEpisodeLength, arena_seeds, check_acti
 from overtake.protocol.vocabulary import ACTION_COUNT, METRIC_FIELDS
 
 from .sim import HighwaySim, SimConfig, StepResult, autoreset_round, make_config
+from .sim.planner import Planner
 from .sim.render import render_top_down
 
 try:  # Gymnasium >= 1.1 names the autoreset modes; 1.0 only has next-step autoreset.
@@ -129,6 +130,13 @@ class HighwayEnv(ReportsEpisodeLength, gym.Env):
         """The current action mask (the name sb3-contrib's MaskablePPO looks for)."""
         return self.sim.action_mask()[0, 0]
 
+    def planner_action(self) -> int:
+        """What the privileged planner (:mod:`overtake.server.sim.planner`), reading the true
+        state, would do now: a reference to compare policies with, not one to train."""
+        if not hasattr(self, "_planner"):
+            self._planner = Planner(self.sim)
+        return int(self._planner.act()[0, 0])
+
 
 class HighwayVectorEnv(gym.vector.VectorEnv):
     """``num_envs`` independent arenas stepped together by one simulation core."""
@@ -210,6 +218,13 @@ class HighwayVectorEnv(gym.vector.VectorEnv):
             result.truncated[:, 0],
             info,
         )
+
+    def planner_actions(self) -> np.ndarray:
+        """(num_envs,) what the privileged planner (:mod:`overtake.server.sim.planner`),
+        reading the true state, would do now in each arena."""
+        if not hasattr(self, "_planner"):
+            self._planner = Planner(self.sim)
+        return self._planner.act()[:, 0]
 
     def render(self) -> tuple[np.ndarray, ...] | None:
         if self.render_mode == "rgb_array":

@@ -26,6 +26,7 @@ for _name in BEHAVIOUR_NAMES:
     CALM_TRAFFIC[f"traffic.{_name}.lane_change_threshold_mps2"] = 10.0
     CALM_TRAFFIC[f"traffic.{_name}.politeness"] = 0.0
     CALM_TRAFFIC[f"traffic.{_name}.speed_change_rate_per_s"] = 0.0
+    CALM_TRAFFIC[f"traffic.{_name}.random_lane_change_rate_per_s"] = 0.0
 
 
 @dataclass(frozen=True)
@@ -107,11 +108,10 @@ def place(
 
 
 def retrack(sim: HighwaySim) -> None:
-    """Restart overtake and braking bookkeeping after positions were written by hand."""
+    """Restart overtake bookkeeping after positions were written by hand."""
     st, n = sim.state, sim.agents
     st.ahead[:] = st.x_m[:, None, :] > st.x_m[:, :n, None]
     st.credited[:] = False
-    st.braking[:] = False
 
 
 def keep(sim: HighwaySim, action: int = 0):

@@ -37,10 +37,29 @@ def test_default_preset_is_min2018_with_the_papers_numbers():
     assert config.road.lane_count == 5
     assert (config.ego.cruise_min_kmh, config.ego.cruise_max_kmh) == (40.0, 80.0)
     assert config.lidar.ray_count == 360 and config.lidar.max_range_m == 80.0
-    assert (config.camera.width_px, config.camera.height_px) == (84, 84)
+    assert (config.camera.width_px, config.camera.height_px) == (80, 80)
+    assert not config.camera.rgb
     assert config.episode.decision_period_s == pytest.approx(0.4)
     assert config.reward.collision == -10.0 and config.reward.lane_change == -0.25
-    assert config.reward.overtake == 0.5
+    assert config.reward.overtake == 0.5 and config.reward.warning == -0.1
+    assert config.reward.terms == ("speed", "collision", "lane_change", "overtake", "warning")
+    # Actions set cruise control from the current speed; warnings are the car's to heed.
+    assert config.ego.cruise_mode == "current" and not config.ego.lane_change_check
+    assert config.ego_vector.fields == (
+        "left_warning",
+        "right_warning",
+        "forward_warning",
+        "ahead_distance_m",
+        "ahead_speed_mps",
+        "speed_mps",
+    )
+    # At most 32 traffic cars (the authors' slider), all of Min et al.'s random kind.
+    assert config.traffic.density_vehicle_counts == (5, 10, 20)
+    assert config.traffic.random.share == 1.0
+    assert all(
+        getattr(config.traffic, name).share == 0.0
+        for name in ("steady", "road_max", "lane_changer")
+    )
 
 
 @pytest.mark.parametrize(
@@ -171,7 +190,7 @@ def test_later_overrides_win_and_none_is_allowed_where_typed():
     assert config.traffic.resolved_vehicle_count == 3
     config = apply_overrides(config, {"traffic.vehicle_count": None, "traffic.density": "light"})
     assert config.traffic.vehicle_count is None
-    assert config.traffic.resolved_vehicle_count == 20
+    assert config.traffic.resolved_vehicle_count == config.traffic.density_vehicle_counts[0]
 
 
 def test_density_sets_the_vehicle_count():
@@ -179,7 +198,11 @@ def test_density_sets_the_vehicle_count():
         d: make_config(overrides={"traffic.density": d}).traffic.resolved_vehicle_count
         for d in ("light", "medium", "heavy")
     }
-    assert counts == {"light": 20, "medium": 40, "heavy": 60}
+    assert counts == {"light": 5, "medium": 10, "heavy": 20}
+    ho_counts = make_config(
+        overrides={"traffic.density_vehicle_counts": [20, 40, 60], "traffic.density": "heavy"}
+    ).traffic.resolved_vehicle_count
+    assert ho_counts == 60
 
 
 def test_every_field_name_can_be_overridden_with_its_own_value():

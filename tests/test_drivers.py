@@ -15,6 +15,7 @@ from overtake.client import HIGHWAY_ENV_ID, RandomDriver, RuleDriver, RuleDriver
 from overtake.client.commands import UsageError
 from overtake.client.drive import DriveConfig, main
 from overtake.client.drive import cli as drive_cli
+from overtake.client.drivers import DEFAULT_EGO_FIELDS
 from overtake.client.episodes import parse_overrides
 from overtake.protocol.vocabulary import (
     ACTION_COUNT,
@@ -23,6 +24,7 @@ from overtake.protocol.vocabulary import (
     KEEP,
     LANE_LEFT,
     LANE_RIGHT,
+    METRIC_FIELDS,
 )
 
 from conftest import LANE_WIDTH, Car, scripted_sim
@@ -40,17 +42,27 @@ def scan(*points: tuple[float, float]) -> np.ndarray:
     return lidar
 
 
-def ego(cruise_kmh: float = 80.0) -> np.ndarray:
-    """A (1, 6) ego vector: driving at its cruise target in lane 2 of 5, not changing lanes."""
-    fields = {
-        "speed_mps": cruise_kmh / 3.6,
-        "cruise_target_mps": cruise_kmh / 3.6,
+def ego(
+    speed_kmh: float = 80.0,
+    warnings: tuple[bool, bool, bool] = (False, False, False),
+    fields: tuple[str, ...] = DEFAULT_EGO_FIELDS,
+) -> np.ndarray:
+    """A (1, E) ego vector of ``fields``: driving at ``speed_kmh`` (its cruise target too) in
+    lane 2 of 5, not changing lanes, with the left, right and forward ``warnings``."""
+    values = {
+        "speed_mps": speed_kmh / 3.6,
+        "cruise_target_mps": speed_kmh / 3.6,
         "lane_index": 2.0,
         "lane_count": 5.0,
         "lane_change_progress": 0.0,
         "lane_change_direction": 0.0,
+        "left_warning": float(warnings[0]),
+        "right_warning": float(warnings[1]),
+        "forward_warning": float(warnings[2]),
+        "ahead_distance_m": RANGE,
+        "ahead_speed_mps": speed_kmh / 3.6,
     }
-    return np.array([[fields[name] for name in EGO_FIELDS]], dtype=np.float32)
+    return np.array([[values[name] for name in fields]], dtype=np.float32)
 
 
 def mask(left: bool = True, right: bool = True) -> np.ndarray:
@@ -69,16 +81,33 @@ def act(lidar: np.ndarray, ego_vector: np.ndarray | None = None, action_mask=ALL
 
 
 @pytest.mark.parametrize(
-    "cruise_kmh, expected", [(40.0, CRUISE_UP), (75.0, CRUISE_UP), (79.9, CRUISE_UP), (80.0, KEEP)]
+    "speed_kmh, expected", [(40.0, CRUISE_UP), (75.0, CRUISE_UP), (79.9, CRUISE_UP), (80.0, KEEP)]
 )
-def test_rule_driver_raises_the_cruise_target_below_the_limit(cruise_kmh, expected):
-    assert act(scan(), ego(cruise_kmh)) == expected
+def test_rule_driver_accelerates_below_the_limit(speed_kmh, expected):
+    assert act(scan(), ego(speed_kmh)) == expected
+
+
+def test_rule_driver_does_not_accelerate_against_a_forward_warning():
+    assert act(scan(), ego(60.0, warnings=(False, False, True))) == KEEP
+    assert act(scan(), ego(60.0, warnings=(True, True, False))) == CRUISE_UP
 
 
 def test_rule_driver_limit_follows_its_config():
     driver = RuleDriver(RuleDriverConfig(cruise_max_kmh=60.0))
     assert driver.act(scan(), ego(60.0), ALL_ALLOWED).tolist() == [KEEP]
     assert driver.act(scan(), ego(55.0), ALL_ALLOWED).tolist() == [CRUISE_UP]
+
+
+def test_rule_driver_reads_a_cruise_target_where_the_ego_vector_has_one():
+    # The remembered-target set-up: the target, not the speed, is what it raises.
+    fields = EGO_FIELDS[:6]
+    driver = RuleDriver(ego_fields=fields)
+    slowed = ego(60.0, fields=fields)
+    slowed[0, fields.index("cruise_target_mps")] = 80.0 / 3.6
+    assert driver.act(scan(), slowed, ALL_ALLOWED).tolist() == [KEEP]
+    assert driver.act(scan(), ego(60.0, fields=fields), ALL_ALLOWED).tolist() == [CRUISE_UP]
+    with pytest.raises(ValueError, match="speed or cruise target"):
+        RuleDriver(ego_fields=("left_warning",))
 
 
 # --- lane changes ----------------------------------------------------------------------------
@@ -129,6 +158,12 @@ def test_car_well_behind_in_the_neighbour_lane_does_not_stop_the_change():
     assert act(scan((20.0, 0.0), (-25.0, LANE_WIDTH))) == LANE_LEFT
 
 
+def test_no_change_towards_a_side_warning():
+    blocked = scan((20.0, 0.0))
+    assert act(blocked, ego(80.0, warnings=(True, False, True))) == LANE_RIGHT
+    assert act(blocked, ego(80.0, warnings=(True, True, True))) == KEEP
+
+
 def test_masked_lane_changes_are_never_chosen():
     lidar = scan((20.0, 0.0))
     assert act(lidar, action_mask=mask(left=False)) == LANE_RIGHT
@@ -136,29 +171,31 @@ def test_masked_lane_changes_are_never_chosen():
     assert act(lidar, ego(60.0), mask(left=False, right=False)) == CRUISE_UP
 
 
-@pytest.mark.parametrize("cruise_kmh", [60.0, 80.0])
-def test_rule_driver_on_sensor_scans_of_scripted_scenes(cruise_kmh):
-    # The same decisions from the simulator's own LIDAR (rails included); a lane change takes
-    # precedence over raising the cruise target.
+@pytest.mark.parametrize("speed_kmh", [60.0, 80.0])
+def test_rule_driver_on_sensor_scans_of_scripted_scenes(speed_kmh):
+    # The same decisions from the simulator's own LIDAR (rails included) and ego vector
+    # (warnings included); a lane change takes precedence over accelerating.
     def decide(cars, ego_lane=2):
-        sim = scripted_sim(cars, ego_lane=ego_lane, ego_speed_kmh=cruise_kmh)
+        sim = scripted_sim(cars, ego_lane=ego_lane, ego_speed_kmh=speed_kmh)
         obs = sim.observe()
         return int(
             RuleDriver().act(obs["lidar"][:, 0], obs["ego"][:, 0], sim.action_mask()[:, 0])[0]
         )
 
-    no_change = CRUISE_UP if cruise_kmh < 80.0 else KEEP
+    free = CRUISE_UP if speed_kmh < 80.0 else KEEP
+    # Behind a slow car (a forward warning at 60 km/h: within 2 s) it never accelerates.
+    stuck = KEEP
     slow_ahead = Car(20.0, 2, 40.0)
-    assert decide([]) == no_change
+    assert decide([]) == free
     assert decide([slow_ahead]) == LANE_LEFT
     assert decide([slow_ahead, Car(0.0, 3, 60.0)]) == LANE_RIGHT
-    assert decide([slow_ahead, Car(0.0, 3, 60.0), Car(-5.0, 1, 60.0)]) == no_change
-    assert decide([slow_ahead, Car(30.0, 3, 60.0), Car(30.0, 1, 60.0)]) == no_change
+    assert decide([slow_ahead, Car(0.0, 3, 60.0), Car(-5.0, 1, 60.0)]) == stuck
+    assert decide([slow_ahead, Car(30.0, 3, 60.0), Car(30.0, 1, 60.0)]) == stuck
     assert decide([slow_ahead, Car(30.0, 3, 60.0), Car(40.0, 1, 60.0)]) == LANE_RIGHT
     # In the leftmost lane the only way is right; a car far enough ahead blocks nothing.
     assert decide([Car(20.0, 4, 40.0)], ego_lane=4) == LANE_RIGHT
-    assert decide([Car(20.0, 0, 40.0), Car(0.0, 1, 60.0)], ego_lane=0) == no_change
-    assert decide([Car(60.0, 2, 40.0)]) == no_change
+    assert decide([Car(20.0, 0, 40.0), Car(0.0, 1, 60.0)], ego_lane=0) == stuck
+    assert decide([Car(60.0, 2, 40.0)]) == free
 
 
 def test_rule_driver_takes_batches():
@@ -176,15 +213,13 @@ def test_random_driver_picks_only_allowed_actions_and_all_of_them():
     rng = np.random.default_rng(1)
     masks = (rng.random((2000, ACTION_COUNT)) < 0.6).astype(np.int8)
     masks[:, KEEP] = 1  # keep is always allowed
-    actions = driver.act(np.zeros((2000, 360)), np.zeros((2000, len(EGO_FIELDS))), masks)
+    actions = driver.act(np.zeros((2000, 360)), np.zeros((2000, 6)), masks)
     assert actions.shape == (2000,)
     assert masks[np.arange(2000), actions].all()
     assert set(actions.tolist()) == set(range(ACTION_COUNT))
     only_keep = np.zeros((50, ACTION_COUNT), dtype=np.int8)
     only_keep[:, KEEP] = 1
-    assert (
-        driver.act(np.zeros((50, 360)), np.zeros((50, len(EGO_FIELDS))), only_keep) == KEEP
-    ).all()
+    assert (driver.act(np.zeros((50, 360)), np.zeros((50, 6)), only_keep) == KEEP).all()
 
 
 def test_random_driver_is_reproducible_by_seed():
@@ -263,7 +298,9 @@ def test_drive_cli_writes_the_summary(policy, tmp_path, capsys):
         "distance_m",
         "return",
         "decisions",
+        "traffic_cars",
     )
+    assert metrics == METRIC_FIELDS
     assert set(summary) == set(metrics)
     for name in metrics:
         values = [episode[name] for episode in data["episodes"]]

@@ -10,6 +10,9 @@ from overtake.server.sim.units import KMH
 
 from conftest import Car, keep, scripted_sim
 
+# Min et al.'s terms, as the preset lists them; the tests of Ho's "passed" term add it.
+PAPER_TERMS = ("speed", "collision", "lane_change", "overtake", "warning")
+
 
 def terms_of(result) -> dict[str, float]:
     return {name: float(value[0, 0]) for name, value in result.reward_terms.items()}
@@ -41,7 +44,8 @@ def test_speed_term_uses_the_speed_after_the_decision_and_is_clipped(speed_kmh, 
         [],
         ego_speed_kmh=speed_kmh,
         cruise_kmh=cruise_kmh,
-        overrides={"reward.clip_speed_term": clip},
+        # A kept cruise target the car speeds up or slows down to within the decision.
+        overrides={"reward.clip_speed_term": clip, "ego.cruise_mode": "remembered"},
     )
     result = keep(sim)
     after_kmh = float(sim.state.speed_mps[0, 0]) / KMH
@@ -137,7 +141,11 @@ def drive_past_and_back(undo: bool, passed_reward: float = 0.0):
         ego_lane=2,
         ego_speed_kmh=80.0,
         cruise_kmh=80.0,
-        overrides={"reward.undo_overtake_when_passed_back": undo, "reward.passed": passed_reward},
+        overrides={
+            "reward.undo_overtake_when_passed_back": undo,
+            "reward.passed": passed_reward,
+            "reward.terms": [*PAPER_TERMS, "passed"],
+        },
     )
     st = sim.state
     overtake, passed, count, ahead = [], [], [], []
@@ -194,8 +202,14 @@ def test_being_passed_costs_the_passed_reward():
 
 
 def test_car_overtaken_in_the_same_lane_by_changing_lanes_counts():
-    # A slow car ahead in the ego's lane: move left, drive past it.
-    sim = scripted_sim([Car(30.0, 2, 40.0)], ego_lane=2, ego_speed_kmh=80.0, cruise_kmh=80.0)
+    # A slow car ahead in the ego's lane: move left, drive past it (back at its kept 80 km/h).
+    sim = scripted_sim(
+        [Car(30.0, 2, 40.0)],
+        ego_lane=2,
+        ego_speed_kmh=80.0,
+        cruise_kmh=80.0,
+        overrides={"ego.cruise_mode": "remembered"},
+    )
     total = 0.0
     sim.step(np.array([[3]]))
     for _ in range(20):
@@ -215,7 +229,7 @@ def test_recycled_cars_are_not_counted_as_passes():
         ego_lane=2,
         ego_speed_kmh=80.0,
         cruise_kmh=80.0,
-        overrides={"reward.passed": -1.0},
+        overrides={"reward.passed": -1.0, "reward.terms": [*PAPER_TERMS, "passed"]},
     )
     st = sim.state
     recycled = False
@@ -231,62 +245,77 @@ def test_recycled_cars_are_not_counted_as_passes():
 # --- emergency brakes ------------------------------------------------------------------------
 
 
-def test_braking_hard_for_a_much_slower_car_is_one_emergency_brake():
-    sim = scripted_sim([Car(30.0, 2, 40.0)], ego_lane=2, ego_speed_kmh=80.0, cruise_kmh=80.0)
-    hardest = 0.0
-    for _ in range(50):
+def braking_behind(leader_kmh: float, decisions: int, overrides=None):
+    """The ego at 80 km/h (its kept cruise target) closes on a car 30 m ahead in its lane;
+    returns the simulation and, per decision, the speed difference at its start (km/h) and
+    how fast its speed fell over the decision (m/s^2)."""
+    sim = scripted_sim(
+        [Car(30.0, 2, leader_kmh)],
+        ego_lane=2,
+        ego_speed_kmh=80.0,
+        cruise_kmh=80.0,
+        overrides={"ego.cruise_mode": "remembered", **(overrides or {})},
+    )
+    st = sim.state
+    differences, hardest = [], []
+    for _ in range(decisions):
+        differences.append(float(st.speed_mps[0, 0] - st.speed_mps[0, 1]) / KMH)
+        before = float(st.speed_mps[0, 0])
         result = keep(sim)
         assert not result.terminated[0, 0]
-        hardest = min(hardest, float(sim.state.accel_mps2[0, 0]))
-    assert hardest <= -4.0
-    assert sim.metrics()["emergency_brakes"][0, 0] == 1
+        hardest.append((float(st.speed_mps[0, 0]) - before) / 0.4)
+    return sim, np.array(differences), np.array(hardest)
+
+
+def test_braking_for_a_much_slower_car_counts_an_emergency_brake_per_decision():
+    sim, differences, slowing = braking_behind(40.0, 50)
+    brakes = int(sim.metrics()["emergency_brakes"][0, 0])
+    assert slowing.min() <= -4.0
     assert sim.state.speed_mps[0, 0] == pytest.approx(40.0 * KMH, rel=1e-3)
+    # Several decisions of braking with a difference of at least 20 km/h (Ho: 40 km/h here);
+    # none counts once the difference is below 20 km/h.
+    assert 1 < brakes <= int(np.sum((differences >= 20.0) & (slowing < 0.0)))
 
 
 @pytest.mark.parametrize("leader_kmh", [61.0, 65.0])
 def test_braking_with_less_than_20_kmh_difference_is_not_an_emergency_brake(leader_kmh):
-    sim = scripted_sim([Car(30.0, 2, leader_kmh)], ego_lane=2, ego_speed_kmh=80.0, cruise_kmh=80.0)
-    hardest = 0.0
-    for _ in range(50):
-        keep(sim)
-        hardest = min(hardest, float(sim.state.accel_mps2[0, 0]))
+    sim, _, slowing = braking_behind(leader_kmh, 50)
     if leader_kmh == 61.0:
-        assert hardest <= -4.0  # hard braking, but only 19 km/h faster than the car ahead
+        assert slowing.min() <= -1.0  # firm braking, but only 19 km/h faster than the car ahead
     assert sim.metrics()["emergency_brakes"][0, 0] == 0
 
 
 def test_emergency_brake_thresholds_follow_the_config():
-    sim = scripted_sim(
-        [Car(30.0, 2, 61.0)],
-        ego_lane=2,
-        ego_speed_kmh=80.0,
-        cruise_kmh=80.0,
-        overrides={"ego.emergency_speed_diff_kmh": 15.0},
-    )
-    for _ in range(50):
-        keep(sim)
-    assert sim.metrics()["emergency_brakes"][0, 0] == 1
+    sim, *_ = braking_behind(61.0, 50, {"ego.emergency_speed_diff_kmh": 15.0})
+    assert sim.metrics()["emergency_brakes"][0, 0] >= 1
+    strict, *_ = braking_behind(40.0, 50, {"ego.emergency_decel_mps2": 15.0})
+    assert strict.metrics()["emergency_brakes"][0, 0] == 0
 
 
-def test_two_separate_hard_brakings_count_twice():
-    sim = scripted_sim([Car(30.0, 2, 40.0)], ego_lane=2, ego_speed_kmh=80.0, cruise_kmh=80.0)
-    for _ in range(40):
-        keep(sim)
-    assert sim.metrics()["emergency_brakes"][0, 0] == 1
-    # Another slow car appears ahead once the ego has settled: a second onset.
+def test_a_second_slow_car_adds_emergency_brakes():
+    sim, *_ = braking_behind(40.0, 40)
+    first = int(sim.metrics()["emergency_brakes"][0, 0])
+    assert first >= 1
+    # Another slow car appears ahead once the ego has been brought back to 80 km/h.
     st = sim.state
     st.x_m[0, 1] = st.x_m[0, 0] + 30.0
     st.speed_mps[0, 0] = 80.0 * KMH
     for _ in range(40):
         keep(sim)
-    assert sim.metrics()["emergency_brakes"][0, 0] == 2
+    assert sim.metrics()["emergency_brakes"][0, 0] > first
 
 
 # --- episode metrics -------------------------------------------------------------------------
 
 
 def test_episode_metrics_at_the_end_of_an_episode():
-    env = HighwayEnv(overrides={"traffic.vehicle_count": 0, "episode.max_decisions": 20})
+    env = HighwayEnv(
+        overrides={
+            "traffic.vehicle_count": 0,
+            "episode.max_decisions": 20,
+            "ego.cruise_mode": "remembered",
+        }
+    )
     env.reset(seed=3)
     x0 = float(env.sim.state.x_m[0, 0])
     left_ok = bool(env.action_masks()[3])
@@ -319,7 +348,9 @@ def test_episode_metrics_at_the_end_of_an_episode():
         "distance_m",
         "return",
         "decisions",
+        "traffic_cars",
     }
+    assert metrics["traffic_cars"] == 0.0
 
 
 def test_metrics_restart_with_each_episode():

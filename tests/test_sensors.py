@@ -9,6 +9,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
+from overtake.protocol.vocabulary import EGO_FIELDS
 from overtake.server.sim import HighwaySim, make_config
 from overtake.server.sim.physics import headings
 from overtake.server.sim.sensors.camera import VEHICLE_HEIGHT_M
@@ -204,7 +205,7 @@ def test_lidar_ray_count_and_range_follow_the_config():
 
 CAR_GREY = 20
 MARKING_GREY = 240
-W = H = 84
+W = H = 80  # the preset's camera (the authors' code's 80x80)
 FOV_DEG = 70.0
 MOUNT_HEIGHT = 1.2
 MOUNT_FORWARD = 0.3
@@ -388,7 +389,7 @@ def test_cars_behind_are_not_drawn():
 def test_rgb_camera_has_three_channels_and_a_red_car():
     sim = scripted_sim([Car(20.0, 2, 60)], ego_lane=2, overrides={"camera.rgb": True})
     image = camera_of(sim)
-    assert image.shape == (84, 84, 3) and image.dtype == np.uint8
+    assert image.shape == (H, W, 3) and image.dtype == np.uint8
     expected_cols, expected_rows = projected_extent(20.0, 0.0)
     patch = image[np.ix_(expected_rows, expected_cols)]
     assert (patch == np.array([200, 30, 30], dtype=np.uint8)).all()
@@ -439,16 +440,56 @@ def test_observe_shapes_and_sensor_switches():
 
 
 def test_ego_vector_fields():
-    sim = scripted_sim([], ego_lane=1, ego_speed_kmh=54.0, cruise_kmh=72.0)
-    ego = sim.observe()["ego"][0, 0]
-    assert ego.dtype == np.float32
-    assert ego.tolist() == pytest.approx([15.0, 20.0, 1.0, 5.0, 0.0, 0.0], abs=1e-5)
+    # Every field the ego vector can hold, in the catalogue's order.
+    sim = scripted_sim(
+        [Car(40.0, 1, 45.0), Car(1.0, 2, 60.0)],
+        ego_lane=1,
+        ego_speed_kmh=54.0,
+        cruise_kmh=72.0,
+        overrides={"ego_vector.fields": list(EGO_FIELDS)},
+    )
+    assert sim.observation_spaces()["ego"].shape == (len(EGO_FIELDS),)
+    ego = dict(zip(EGO_FIELDS, sim.observe()["ego"][0, 0].tolist(), strict=True))
+    assert ego == pytest.approx(
+        {
+            "speed_mps": 15.0,
+            "cruise_target_mps": 20.0,
+            "lane_index": 1.0,
+            "lane_count": 5.0,
+            "lane_change_progress": 0.0,
+            "lane_change_direction": 0.0,
+            # A car beside in lane 2: a left warning; lane 0 is clear.
+            "left_warning": 1.0,
+            "right_warning": 0.0,
+            # 40 m ahead, 35.5 m bumper to bumper: beyond 2 s at 15 m/s + 2 m -> no warning.
+            "forward_warning": 0.0,
+            "ahead_distance_m": 40.0 - 2 * HALF_LENGTH,
+            "ahead_speed_mps": 45.0 / 3.6,
+        },
+        abs=1e-4,
+    )
     sim.step(np.array([[4]]))  # start a change to the right
-    ego = sim.observe()["ego"][0, 0]
-    assert ego[5] == -1.0
-    assert 0.0 < ego[4] < 1.0
+    ego = dict(zip(EGO_FIELDS, sim.observe()["ego"][0, 0].tolist(), strict=True))
+    assert ego["lane_change_direction"] == -1.0
+    assert 0.0 < ego["lane_change_progress"] < 1.0
     place(sim, 0, x=0.0, lane=3, speed_kmh=54.0)
-    assert sim.observe()["ego"][0, 0][2] == 3.0
+    ego = dict(zip(EGO_FIELDS, sim.observe()["ego"][0, 0].tolist(), strict=True))
+    assert ego["lane_index"] == 3.0
+    # Nobody ahead in lane 3: the sensor's range and the car's own speed.
+    assert ego["ahead_distance_m"] == 80.0 and ego["ahead_speed_mps"] == pytest.approx(15.0)
+
+
+def test_min2018_ego_vector_is_the_authors_six():
+    # Warnings left, right, forward; the distance to the car ahead and its speed; own speed.
+    sim = scripted_sim([Car(15.0, 2, 40.0)], ego_lane=4, ego_speed_kmh=72.0)
+    place(sim, 1, x=15.0, lane=4, speed_kmh=40.0)
+    ego = sim.observe()["ego"][0, 0]
+    assert ego.tolist() == pytest.approx(
+        [1.0, 0.0, 1.0, 15.0 - 2 * HALF_LENGTH, 40.0 / 3.6, 20.0], abs=1e-4
+    )
+    space = sim.observation_spaces()["ego"]
+    assert space.low.tolist() == [0.0] * 6
+    assert space.high.tolist() == [1.0, 1.0, 1.0, 80.0, 100.0, 100.0]
 
 
 # --- property tests against an independent ray caster ---------------------------------------
@@ -550,7 +591,7 @@ def test_agents_see_each_other():
     place(sim, 0, x=0.0, lane=2, speed_kmh=60.0)
     place(sim, 1, x=-20.0, lane=2, speed_kmh=60.0)
     obs = sim.observe()
-    assert obs["lidar"].shape == (1, 2, 360) and obs["camera"].shape == (1, 2, 84, 84)
+    assert obs["lidar"].shape == (1, 2, 360) and obs["camera"].shape == (1, 2, H, W)
     front, back = obs["lidar"][0, 0], obs["lidar"][0, 1]
     assert front[180] == pytest.approx(20.0 - HALF_LENGTH) and front[0] == MAX_RANGE
     assert back[0] == pytest.approx(20.0 - HALF_LENGTH) and back[180] == MAX_RANGE

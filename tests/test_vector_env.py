@@ -8,7 +8,7 @@ import pytest
 
 import overtake.client  # noqa: F401
 from overtake.protocol import HIGHWAY_ENV_ID
-from overtake.protocol.vocabulary import METRIC_FIELDS
+from overtake.protocol.vocabulary import EGO_FIELDS, METRIC_FIELDS
 from overtake.server.env import HighwayEnv, HighwayVectorEnv
 
 NUM = 4
@@ -31,7 +31,7 @@ def test_make_vec_builds_the_numpy_vector_env():
     assert envs.single_action_space == gym.spaces.Discrete(5)
     assert envs.action_space == gym.spaces.MultiDiscrete([5] * NUM)
     obs, info = envs.reset(seed=0)
-    assert obs["lidar"].shape == (NUM, 360) and obs["camera"].shape == (NUM, 84, 84)
+    assert obs["lidar"].shape == (NUM, 360) and obs["camera"].shape == (NUM, 80, 80)
     assert obs["ego"].shape == (NUM, 6)
     assert envs.observation_space.contains(obs)
     assert info["action_mask"].shape == (NUM, 5)
@@ -90,7 +90,15 @@ def test_vector_env_matches_single_envs_step_by_step_across_episode_ends():
 
 
 def test_autoreset_step_ignores_the_action_and_returns_zero_reward():
-    envs = make_vec(num_envs=2, **{"traffic.vehicle_count": 0, "episode.max_decisions": 3})
+    envs = make_vec(
+        num_envs=2,
+        **{
+            "traffic.vehicle_count": 0,
+            "episode.max_decisions": 3,
+            # The first six fields: speed, cruise target, lane, lanes, change progress, direction.
+            "ego_vector.fields": list(EGO_FIELDS[:6]),
+        },
+    )
     obs, _ = envs.reset(seed=[1, 2])
     for _ in range(3):
         obs, reward, terminated, truncated, info = envs.step(np.array([1, 0]))

@@ -47,8 +47,9 @@ class EvalConfig:
 
     checkpoint: Path | None = None
     """a checkpoint.pt written by overtake-train (evaluated greedily)"""
-    policy: Literal["rule", "random"] | None = None
-    """a baseline instead of a checkpoint"""
+    policy: Literal["rule", "random", "idle", "planner"] | None = None
+    """a reference policy instead of a checkpoint: the rule-based driver, random, idle (never
+    acts) or the privileged planner (reads the true state; in-process only)"""
     episodes: int = 10
     seed: int = 1_000
     """episode i uses seed + i (training uses other seeds by default)"""
@@ -149,7 +150,9 @@ def main(config: EvalConfig) -> dict[str, Any]:
     if config.table:
         return {"table": print_table(config.table)}
     if (config.checkpoint is None) == (config.policy is None):
-        raise UsageError("give exactly one of --checkpoint PATH or --policy rule|random")
+        raise UsageError(
+            "give exactly one of --checkpoint PATH or --policy rule|random|idle|planner"
+        )
     if config.episodes < 1:
         raise UsageError(f"--episodes must be >= 1, got {config.episodes}")
     checkpoint = load_checkpoint(config.checkpoint) if config.checkpoint is not None else None
@@ -170,7 +173,7 @@ def main(config: EvalConfig) -> dict[str, Any]:
             policy: Any = GreedyPolicy(checkpoint, config.episodes, envs.single_observation_space)
             name = config.name or f"{checkpoint.algo}/{checkpoint.inputs}@{checkpoint.step}"
         else:
-            policy = baseline_policy(str(config.policy), sim, config.seed, config.episodes)
+            policy = baseline_policy(str(config.policy), sim, config.seed, config.episodes, envs)
             name = config.name or str(config.policy)
         with torch.no_grad():
             rows, decisions, elapsed = run_episodes(envs, policy, config.episodes, config.seed)

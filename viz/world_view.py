@@ -24,11 +24,13 @@ from typing import Any
 import numpy as np
 
 from overtake.protocol.messages import WorldFrame
-from overtake.protocol.vocabulary import BEHAVIOUR_NAMES, EGO_SPEED
+from overtake.protocol.vocabulary import BEHAVIOUR_NAMES
 
 # One colour per behaviour, in the order of BEHAVIOUR_NAMES: steady blue, road-max green,
-# lane-changer orange.
-KIND_COLOURS = np.array([[80, 120, 255], [40, 200, 120], [240, 170, 30]], dtype=np.uint8)
+# lane-changer orange, random purple.
+KIND_COLOURS = np.array(
+    [[80, 120, 255], [40, 200, 120], [240, 170, 30], [200, 120, 230]], dtype=np.uint8
+)
 assert len(KIND_COLOURS) == len(BEHAVIOUR_NAMES)
 AGENT_COLOUR = np.array([230, 40, 40], dtype=np.uint8)
 HALF_SIZE_M = (2.25, 0.9)  # the default car (4.5 m x 1.8 m); frames do not carry sizes
@@ -158,7 +160,6 @@ class WorldRecording:
         )
         lidar = frame.observations.get("lidar")
         camera = frame.observations.get("camera")
-        ego = frame.observations.get("ego")
         for i in agents:
             base = f"{root}/agent{i}"
             origin = np.array([frame.x_m[i], frame.y_m[i]])
@@ -175,7 +176,7 @@ class WorldRecording:
                     )
             if camera is not None:
                 stream.log(f"{base}/camera", rr.Image(camera[i]))
-            speed_mps = float(ego[i, EGO_SPEED]) if ego is not None else float(frame.speed_mps[i])
+            speed_mps = float(frame.speed_mps[i])
             stream.log(f"{base}/speed_kmh", rr.Scalars(speed_mps * 3.6))
             stream.log(f"{base}/reward", rr.Scalars(float(frame.reward[i])))
             stream.log(f"{base}/action", rr.Scalars(float(frame.action_applied[i])))

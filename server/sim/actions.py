@@ -21,7 +21,7 @@ from overtake.protocol.vocabulary import (
     LANE_RIGHT,
 )
 
-from .assist import CruiseControl, EgoConfig, LaneChangeAssist
+from .assist import CruiseControl, DriverWarnings, EgoConfig, LaneChangeAssist
 from .state import SimState
 from .units import KMH
 
@@ -70,3 +70,12 @@ class DasActions:
         mask[..., LANE_LEFT] = left
         mask[..., LANE_RIGHT] = right
         return mask
+
+    def against_warnings(self, actions: np.ndarray, warnings: np.ndarray) -> np.ndarray:
+        """(A, N) bool: the actions that went against a warning the agent had (a lane change
+        towards a side warning, accelerating with a forward warning)."""
+        return (
+            ((actions == LANE_LEFT) & warnings[..., DriverWarnings.LEFT])
+            | ((actions == LANE_RIGHT) & warnings[..., DriverWarnings.RIGHT])
+            | ((actions == CRUISE_UP) & warnings[..., DriverWarnings.FORWARD])
+        )

@@ -3,25 +3,28 @@
 Min et al.'s agents act at the level of a driver-assistance system (DAS): adaptive cruise
 control holds the cruise target (the IDM of :mod:`.traffic.car_following`, with the car's own
 parameters), autonomous emergency braking takes over when the time to collision gets short,
-lane keeping holds the lane, and a lane change, once asked for, is a smooth lateral move that
-driver assistance starts only into a clear lane (Min et al.'s cars change lanes only without a
-side warning). :class:`EgoConfig` holds the car's body and all of these parameters.
+lane keeping holds the lane, and a lane change, once asked for, is a smooth lateral move.
+Warnings (:class:`DriverWarnings`, the authors' code's left, right and forward warnings) say
+when a lane change to a side, or more speed, is dangerous now; with ``ego.lane_change_check``
+driver assistance also refuses a lane change against a side warning. :class:`EgoConfig` holds
+the car's body and all of these parameters.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
+from .traffic.car_following import idm_accel
 from .units import KMH
-from .validation import check_range
+from .validation import check, check_flag, check_range
 
 if TYPE_CHECKING:
     from .state import SimState
     from .traffic.car_following import Following
-    from .vehicles import VehicleKinds
+    from .vehicles import VehicleKinds, VehicleParams
 
 
 @dataclass(frozen=True, slots=True)
@@ -31,10 +34,19 @@ class EgoConfig:
     cruise_min_kmh: float = 40.0
     cruise_max_kmh: float = 80.0
     cruise_step_kmh: float = 5.0
+    # What the cruise actions move (Min et al. §II.C): "current" sets the target to the current
+    # speed plus or minus the step (keep: the current speed), so the car stays as slow as a car
+    # ahead made it until the agent accelerates; "remembered" moves a target that is kept
+    # between decisions, so the car returns to it by itself.
+    cruise_mode: Literal["current", "remembered"] = "current"
     initial_speed_kmh: float = 60.0
     length_m: float = 4.5
     width_m: float = 1.8
-    # Adaptive cruise control is an IDM with these parameters and the cruise target as v0.
+    # Adaptive cruise control: a speed controller that closes the gap to the cruise target with
+    # this time constant (within max_accel_mps2 and comfort_decel_mps2), limited by an IDM's
+    # distance keeping to the car ahead with these parameters (chosen here: the paper's cruise
+    # control reaches v + 5 km/h about as fast as the car can accelerate).
+    cruise_time_constant_s: float = 0.5
     time_headway_s: float = 1.2
     min_gap_m: float = 2.0
     max_accel_mps2: float = 2.0
@@ -42,21 +54,28 @@ class EgoConfig:
     # Autonomous emergency braking: full braking when the time to collision falls below this.
     aeb_time_to_collision_s: float = 1.5
     aeb_decel_mps2: float = 8.0
-    # Ho's emergency brake: braking at least this hard (m/s^2) ...
-    emergency_decel_mps2: float = 4.0
-    # ... with at least this speed difference to the car ahead (Ho 2018, section 6.2).
+    # Ho's emergency brake (2018, §6.2), counted per decision: a brake applied (decelerating
+    # at least this hard, m/s^2, in some frame of the decision) ...
+    emergency_decel_mps2: float = 1.0
+    # ... while the car ahead is slower by at least this much.
     emergency_speed_diff_kmh: float = 20.0
     lane_change_duration_s: float = 2.0
-    # Driver assistance refuses to start a lane change into a lane that is not clear from
-    # lane_change_clear_behind_m behind to lane_change_clear_ahead_m ahead, bumper to bumper,
-    # counting cars already moving into it (the action mask says so): Min et al.'s cars change
-    # lanes only without a side warning. Each window grows by the closing speed of a car there
-    # times lane_change_closing_time_s: a car 10 m/s faster behind needs 10 m more. False lets
-    # every change start, whoever is beside.
-    lane_change_check: bool = True
+    # A side warning: a vehicle in the lane on that side, or moving into it, from
+    # lane_change_clear_behind_m behind the rear bumper to lane_change_clear_ahead_m ahead of
+    # the front bumper, each window growing by the speed at which a car there closes in times
+    # lane_change_closing_time_s (a car 10 m/s faster behind needs 10 m more); or no lane there.
     lane_change_clear_ahead_m: float = 2.0
     lane_change_clear_behind_m: float = 4.0
     lane_change_closing_time_s: float = 1.0
+    # The forward warning: a car ahead, no faster than the agent, closer than this many seconds
+    # at the current speed, plus min_gap_m (the "two-second rule"; chosen here: the authors'
+    # code warns when its cruise control follows a car ahead, and gives no distance).
+    forward_warning_time_s: float = 2.0
+    # True: driver assistance refuses to start a lane change against a side warning (the
+    # authors' "Side warning: no lane change"), and the action mask says so. False (Min et
+    # al.'s preset, as the issue asks): the car starts it and may collide; the warning is
+    # observed, and acting against it costs the reward's "warning" term.
+    lane_change_check: bool = False
 
     def __post_init__(self) -> None:
         check_range("ego.cruise_min_kmh", self.cruise_min_kmh, 0.0, 300.0)
@@ -70,6 +89,7 @@ class EgoConfig:
         )
         check_range("ego.length_m", self.length_m, 2.0, 20.0)
         check_range("ego.width_m", self.width_m, 1.0, 3.0)
+        check_range("ego.cruise_time_constant_s", self.cruise_time_constant_s, 0.05, 10.0)
         check_range("ego.time_headway_s", self.time_headway_s, 0.1, 5.0)
         check_range("ego.min_gap_m", self.min_gap_m, 0.5, 20.0)
         check_range("ego.max_accel_mps2", self.max_accel_mps2, 0.1, 10.0)
@@ -82,6 +102,14 @@ class EgoConfig:
         check_range("ego.lane_change_clear_ahead_m", self.lane_change_clear_ahead_m, 0.0, 100.0)
         check_range("ego.lane_change_clear_behind_m", self.lane_change_clear_behind_m, 0.0, 100.0)
         check_range("ego.lane_change_closing_time_s", self.lane_change_closing_time_s, 0.0, 10.0)
+        check_range("ego.forward_warning_time_s", self.forward_warning_time_s, 0.0, 10.0)
+        check(
+            self.cruise_mode in ("current", "remembered"),
+            "ego.cruise_mode",
+            self.cruise_mode,
+            "current or remembered",
+        )
+        check_flag("ego.lane_change_check", self.lane_change_check)
 
 
 class CruiseControl:
@@ -90,12 +118,48 @@ class CruiseControl:
     def __init__(self, ego: EgoConfig, agents: int) -> None:
         self.min_mps = ego.cruise_min_kmh * KMH
         self.max_mps = ego.cruise_max_kmh * KMH
+        self.from_current_speed = ego.cruise_mode == "current"
+        self.time_constant_s = ego.cruise_time_constant_s
+        self.max_accel_mps2 = ego.max_accel_mps2
+        self.comfort_decel_mps2 = ego.comfort_decel_mps2
         self.agents = agents
+        # An infinite desired speed leaves the IDM only its distance-keeping term.
+        self._no_free_road = np.array(np.inf)
+
+    def accelerate(
+        self, accel: np.ndarray, st: SimState, p: VehicleParams, following: Following
+    ) -> None:
+        """The agents' acceleration this frame (their columns of ``accel``, in place): towards
+        the cruise target, and no more than distance keeping to the car ahead allows (the IDM's
+        interaction term; its free-road term is the speed controller's job)."""
+        n = self.agents
+        speed = st.speed_mps[:, :n]
+        towards_target = np.clip(
+            (st.desired_speed_mps[:, :n] - speed) / self.time_constant_s,
+            -self.comfort_decel_mps2,
+            self.max_accel_mps2,
+        )
+        keep_distance = idm_accel(
+            speed,
+            self._no_free_road,
+            following.gap_m[:, :n],
+            following.closing_mps[:, :n],
+            p.headway[:, :n],
+            p.min_gap[:, :n],
+            p.max_accel[:, :n],
+            p.two_sqrt_ab[:, :n],
+        )
+        accel[:, :n] = np.minimum(towards_target, keep_distance)
 
     def adjust(self, st: SimState, change_mps: np.ndarray) -> None:
-        """Move each agent's target by ``change_mps`` (A, N), clipped to the cruise range."""
-        cruise = st.desired_speed_mps[:, : self.agents]
-        cruise += change_mps
+        """Set each agent's target to its current speed plus ``change_mps`` (A, N) ("current"
+        mode), or move the kept target by it ("remembered"); clipped to the cruise range."""
+        n = self.agents
+        cruise = st.desired_speed_mps[:, :n]
+        if self.from_current_speed:
+            np.add(st.speed_mps[:, :n], change_mps, out=cruise)
+        else:
+            cruise += change_mps
         np.minimum(np.maximum(cruise, self.min_mps, out=cruise), self.max_mps, out=cruise)
 
 
@@ -131,6 +195,11 @@ class LaneChangeAssist:
         self.kinds = kinds
         self.lane_count = lane_count
         self.agents = agents
+
+    def possible_lanes(self, st: SimState) -> tuple[np.ndarray, np.ndarray]:
+        """(A, N) bool each, left and right: a lane there."""
+        lane = st.lane[:, : self.agents]
+        return lane < self.lane_count - 1, lane > 0
 
     def possible(self, st: SimState) -> tuple[np.ndarray, np.ndarray]:
         """(A, N) bool each, left and right: a lane there and no change under way."""
@@ -220,3 +289,69 @@ class LaneChangeAssist:
         yields = conflict.any(axis=2)
         go_left &= ~yields
         go_right &= ~yields
+
+
+@dataclass(slots=True)
+class CarsAhead:
+    """Each agent's car ahead, (A, N): the nearest vehicle in front in a lane the agent is in
+    or moving into (or moving into the agent's), bumper to bumper."""
+
+    gap_m: np.ndarray  # inf where there is none
+    speed_mps: np.ndarray  # the agent's own speed where there is none
+    present: np.ndarray  # bool
+
+
+class DriverWarnings:
+    """The authors' code's warnings, per agent: left, right (a side warning: that lane is not
+    clear for a lane change, or there is none) and forward (a car ahead, no faster than the
+    agent, within ``forward_warning_time_s`` at the current speed, plus ``min_gap_m``)."""
+
+    LEFT, RIGHT, FORWARD = range(3)
+
+    def __init__(
+        self, ego: EgoConfig, kinds: VehicleKinds, lane_changes: LaneChangeAssist, agents: int
+    ) -> None:
+        self.forward_time_s = ego.forward_warning_time_s
+        self.min_gap_m = ego.min_gap_m
+        self.kinds = kinds
+        self.lane_changes = lane_changes
+        self.agents = agents
+        # (1, N, V): False where an agent would be compared with itself.
+        self._not_self = np.ones((1, agents, agents), dtype=bool)
+        self._not_self[0, np.arange(agents), np.arange(agents)] = False
+
+    def cars_ahead(self, st: SimState) -> CarsAhead:
+        n = self.agents
+        half = self.kinds.half_length[st.kind]  # (A, V)
+        dx = st.x_m[:, None, :] - st.x_m[:, :n, None]  # (A, N, V): other - agent
+        a_lane, a_target = st.lane[:, :n, None], st.target_lane[:, :n, None]
+        o_lane, o_target = st.lane[:, None, :], st.target_lane[:, None, :]
+        shares = (o_lane == a_lane) | (o_lane == a_target) | (o_target == a_lane)
+        shares |= o_target == a_target
+        ahead = shares & (dx > 0.0) & st.active[:, None, :]
+        ahead[:, :, :n] &= self._not_self
+        gap = np.where(ahead, dx - half[:, None, :] - half[:, :n, None], np.inf)
+        nearest = gap.argmin(axis=2)
+        gap_m = np.take_along_axis(gap, nearest[..., None], axis=2)[..., 0]
+        present = np.isfinite(gap_m)
+        speed = np.take_along_axis(st.speed_mps, nearest, axis=1)
+        return CarsAhead(
+            gap_m=gap_m, speed_mps=np.where(present, speed, st.speed_mps[:, :n]), present=present
+        )
+
+    def compute(self, st: SimState, ahead: CarsAhead | None = None) -> np.ndarray:
+        """(A, N, 3) bool: left, right and forward warnings now."""
+        n = self.agents
+        ahead = self.cars_ahead(st) if ahead is None else ahead
+        possible_left, possible_right = self.lane_changes.possible_lanes(st)
+        clear = self.lane_changes.side_clear(st)
+        warnings = np.empty(clear.shape[:2] + (3,), dtype=bool)
+        warnings[..., self.LEFT] = ~(possible_left & clear[..., 1])
+        warnings[..., self.RIGHT] = ~(possible_right & clear[..., 0])
+        speed = st.speed_mps[:, :n]
+        warnings[..., self.FORWARD] = (
+            ahead.present
+            & (ahead.gap_m < self.forward_time_s * speed + self.min_gap_m)
+            & (ahead.speed_mps <= speed)
+        )
+        return warnings

@@ -6,8 +6,8 @@ columns for vehicle slots (the agents' cars first, then traffic). One :meth:`Hig
 is one decision:
 
 1. the actions ask driver assistance for cruise targets and lane changes (:mod:`.actions`,
-   :mod:`.assist`), and traffic now and then picks a new desired speed
-   (:mod:`.traffic.manoeuvres`);
+   :mod:`.assist`; the warnings the agents had are noted for the reward), and traffic now and
+   then picks a new desired speed or wants a lane change (:mod:`.traffic.manoeuvres`);
 2. ``frames_per_decision`` physics frames run (:mod:`.physics`: car-following, emergency
    braking, traffic's MOBIL lane changes on the first frame, lateral moves, collisions);
 3. overtakes are counted (:mod:`.overtakes`) and traffic out of range is recycled around the
@@ -29,7 +29,7 @@ import numpy as np
 from overtake.protocol.vocabulary import METRIC_FIELDS
 
 from .actions import DasActions
-from .assist import LaneChangeAssist
+from .assist import DriverWarnings, LaneChangeAssist
 from .config import SimConfig
 from .episodes import EpisodeBook
 from .lane_index import LaneSorter, leaders
@@ -41,7 +41,7 @@ from .road import Road
 from .sensors.base import Scene, Sensor, SensorSpace
 from .spawning import Spawner
 from .state import SimState
-from .traffic.manoeuvres import SpeedChanges
+from .traffic.manoeuvres import RandomManoeuvres
 from .vehicles import VehicleKinds
 
 MAX_AGENTS_PER_LANE = 4
@@ -90,7 +90,8 @@ class HighwaySim:
         self.episodes = EpisodeBook(config.episode, config.ego, n)
         self.lane_changes = LaneChangeAssist(config.ego, kinds, road.lane_count, n)
         self.actions = DasActions(config.ego, n, self.lane_changes)
-        self.speed_changes = SpeedChanges(kinds)
+        self.warnings = DriverWarnings(config.ego, kinds, self.lane_changes, n)
+        self.manoeuvres = RandomManoeuvres(kinds)
         self.physics = Physics(config, kinds, road, n, self.vehicles, self.episodes)
         self.rewards = Rewards(config.reward)
         self.sensors: list[Sensor] = [
@@ -179,11 +180,13 @@ class HighwaySim:
 
     def _advance(self, st: SimState, actions: np.ndarray, uniforms: np.ndarray) -> StepResult:
         n = self.agents
+        # What the agents were warned of when they chose (the observation they acted on).
+        warned = self.warnings.compute(st) if self.rewards.needs_warnings else None
         started, applied = self.actions.apply(st, actions)
-        self.speed_changes.decide(st, uniforms)
+        random_movers = self.manoeuvres.decide(st, uniforms)
         params = self.kinds.params(st.kind)
         collided = np.zeros((st.x_m.shape[0], n), dtype=bool)
-        brakes = np.zeros((st.x_m.shape[0], n), dtype=np.int64)
+        brakes = np.zeros((st.x_m.shape[0], n), dtype=bool)
         # Who follows whom is sorted out once per decision. Within a decision lanes only lose
         # members (changes that finish), so a frame-0 leader is never farther than the true
         # one: keeping it for the decision's frames is conservative. Traffic that starts a
@@ -193,7 +196,14 @@ class HighwaySim:
         lead, valid = leaders(index)
         for frame in range(self.frames):
             self.physics.frame(
-                st, params, lead, valid, collided, brakes, mobil_index=index if frame == 0 else None
+                st,
+                params,
+                lead,
+                valid,
+                collided,
+                brakes,
+                mobil_index=index if frame == 0 else None,
+                random_movers=random_movers,
             )
         gained, undone, passed = self.tracker.track(st)
         self.spawner.recycle(st, uniforms)
@@ -207,6 +217,11 @@ class HighwaySim:
                 overtakes=gained,
                 overtakes_undone=undone,
                 passed_by=passed,
+                against_warning=(
+                    self.actions.against_warnings(actions, warned)
+                    if warned is not None
+                    else np.zeros_like(collided)
+                ),
             )
         )
         truncated = self.episodes.close_decision(
@@ -224,7 +239,7 @@ class HighwaySim:
 
     def observe(self) -> dict[str, np.ndarray]:
         """Every agent's observation, sensor by sensor: (A, N, *shape) each."""
-        scene = Scene(self.state, self.kinds, self.road, self.agents)
+        scene = Scene(self.state, self.kinds, self.road, self.agents, self.warnings)
         return {sensor.key: sensor.observe(scene) for sensor in self.sensors}
 
     def action_mask(self) -> np.ndarray:

@@ -1,9 +1,11 @@
 """Episodes: their length, and each agent's bookkeeping of the papers' metrics.
 
 Per agent and episode: decisions, distance, lane changes started, overtakes, collisions,
-emergency brakes (Ho 2018, §6.2: the onset of braking at least ``ego.emergency_decel_mps2``
-hard with at least ``ego.emergency_speed_diff_kmh`` of speed difference to the car ahead) and
-the return. :meth:`EpisodeBook.metrics_table` reports them as
+emergency brakes (Ho 2018, §6.2, "the speed difference to the car in front is at least 20 km/h
+and a brake is applied", counted per decision: a decision in which some frame braked at least
+``ego.emergency_decel_mps2`` while the car ahead was slower by at least
+``ego.emergency_speed_diff_kmh``), the return, and the traffic cars on the road on average.
+:meth:`EpisodeBook.metrics_table` reports them as
 :data:`~overtake.protocol.vocabulary.METRIC_FIELDS`, with the average speed derived from
 distance and time. An episode is truncated after ``episode.max_decisions``; it terminates on a
 collision (the caller's ``terminated``).
@@ -29,13 +31,13 @@ if TYPE_CHECKING:
 # The per-agent accumulators an episode starts from zero.
 EPISODE_COUNTERS = (
     "agent_decisions",
-    "braking",
     "distance_m",
     "lane_changes",
     "overtakes",
     "collisions",
     "emergency_brakes",
     "episode_return",
+    "traffic_cars_sum",
 )
 
 
@@ -83,20 +85,18 @@ class EpisodeBook:
         for name in EPISODE_COUNTERS:
             getattr(st, name)[arena, slot] = 0
 
-    def count_emergency_brakes(
-        self, st: SimState, following: Following, brakes: np.ndarray
-    ) -> None:
-        """After a frame: add to ``brakes`` (A, N) the agents whose hard braking began now with
-        a big speed difference to the car ahead."""
+    def note_emergency_brakes(self, st: SimState, following: Following, brakes: np.ndarray) -> None:
+        """After a frame: mark in ``brakes`` (A, N) bool the agents that braked (at least
+        ``ego.emergency_decel_mps2``) with a car ahead slower by at least
+        ``ego.emergency_speed_diff_kmh``; a decision with such a frame is one emergency brake."""
         n = self.agents
         braking = st.accel_mps2[:, :n] <= -self.brake_decel_mps2
-        onset = braking & ~st.braking
-        if onset.any():
-            big_difference = following.has_leader[:, :n] & (
-                following.closing_mps[:, :n] >= self.brake_speed_diff_kmh * KMH
+        if braking.any():
+            brakes |= (
+                braking
+                & following.has_leader[:, :n]
+                & (following.closing_mps[:, :n] >= self.brake_speed_diff_kmh * KMH)
             )
-            brakes += onset & big_difference
-        st.braking[:] = braking
 
     def close_decision(
         self,
@@ -114,6 +114,8 @@ class EpisodeBook:
         st.collisions += collided
         st.overtakes += overtakes
         st.emergency_brakes += emergency_brakes
+        n = self.agents
+        st.traffic_cars_sum += st.active[:, n:].sum(axis=1, keepdims=True)
         return st.agent_decisions >= self.max_decisions
 
     def metrics_table(self, st: SimState) -> np.ndarray:
@@ -121,6 +123,9 @@ class EpisodeBook:
         elapsed_s = st.agent_decisions * self.decision_period_s
         with np.errstate(divide="ignore", invalid="ignore"):
             avg_speed = np.where(elapsed_s > 0, st.distance_m / elapsed_s / KMH, 0.0)
+            traffic_cars = np.where(
+                st.agent_decisions > 0, st.traffic_cars_sum / st.agent_decisions, 0.0
+            )
         columns = {
             "avg_speed_kmh": avg_speed,
             "lane_changes": st.lane_changes,
@@ -130,6 +135,7 @@ class EpisodeBook:
             "distance_m": st.distance_m,
             "return": st.episode_return,
             "decisions": st.agent_decisions,
+            "traffic_cars": traffic_cars,
         }
         table = np.empty(elapsed_s.shape + (len(METRIC_FIELDS),))
         for i, name in enumerate(METRIC_FIELDS):

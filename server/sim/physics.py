@@ -1,7 +1,8 @@
 """Vehicle dynamics: one physics frame of every vehicle of every arena.
 
 Longitudinally every car follows its leader (:mod:`.traffic.car_following`; agents through
-their cruise control, under emergency braking), within its acceleration limits; traffic also
+their adaptive cruise control, :mod:`.assist`, under emergency braking), within its
+acceleration limits; traffic also
 never drives into traffic (a speed cap keeps it behind a traffic leader that brakes as hard as
 it can, the safety rule of Ho's simulator), while an agent ahead gets no such courtesy.
 Laterally a lane change is a minimum-jerk move between lane centres. A collision is an agent's
@@ -14,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .assist import EmergencyBraking
+from .assist import CruiseControl, EmergencyBraking
 from .traffic.car_following import follow, idm_accel
 from .traffic.lane_changes import Mobil
 
@@ -68,6 +69,7 @@ class Physics:
         self.max_decel_mps2 = config.traffic.max_decel_mps2
         self.lane_width_m = road.lane_width_m
         self.agents = agents
+        self.cruise_control = CruiseControl(config.ego, agents)
         self.emergency_braking = EmergencyBraking(config.ego, agents)
         self.mobil = Mobil(config.traffic, kinds, road.lane_count)
         self.episodes = episodes
@@ -84,12 +86,13 @@ class Physics:
         collided: np.ndarray,
         brakes: np.ndarray,
         mobil_index: LaneIndex | None,
+        random_movers: np.ndarray,
     ) -> None:
-        """One frame for every arena of ``st``; collisions and emergency brakes (A, N) are
-        added to ``collided`` and ``brakes`` in place.
+        """One frame for every arena of ``st``; collisions and emergency brakes (A, N) bool are
+        marked in ``collided`` and ``brakes``.
 
         ``lead``/``valid`` (A, 2V): each lane entry's leader; with ``mobil_index`` traffic also
-        considers lane changes this frame.
+        considers lane changes this frame, ``random_movers`` (A, V) whatever their incentive.
         """
         n, dt = self.agents, self.dt
         x_rel = st.x_m - st.x_m[:, :1]
@@ -105,10 +108,11 @@ class Physics:
             p.max_accel,
             p.two_sqrt_ab,
         )
+        self.cruise_control.accelerate(accel, st, p, following)
         self.emergency_braking.apply(accel, following)
         accel = np.maximum(np.minimum(accel, p.max_accel), -self.max_decel_mps2)
         if mobil_index is not None:
-            self.mobil.decide(st, p, mobil_index, x_rel, accel, following)
+            self.mobil.decide(st, p, mobil_index, x_rel, accel, following, random_movers)
 
         new_speed = np.maximum(speed + accel * dt, 0.0)
         # Traffic never drives into traffic: a speed cap keeps it behind a traffic leader even
@@ -141,7 +145,7 @@ class Physics:
         # negative: the exact test runs only on frames where one is.
         if (gap < 0.0).any():
             collided |= self._collisions(st, p)
-        self.episodes.count_emergency_brakes(st, following, brakes)
+        self.episodes.note_emergency_brakes(st, following, brakes)
 
     def _collisions(self, st: SimState, p: VehicleParams) -> np.ndarray:
         """(A, N) bool: agents whose box overlaps another vehicle's."""

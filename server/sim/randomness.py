@@ -11,15 +11,18 @@ from __future__ import annotations
 
 import numpy as np
 
-SPAWN_CANDIDATES = 5  # positions tried per traffic (re)spawn
+# Positions tried per traffic (re)spawn: the first half in the spawn window of its side, the
+# rest anywhere in the kept range on that side (when the window is full).
+SPAWN_CANDIDATES = 10
 # Columns of a vehicle's row: side, anchor agent, candidate lanes and offsets, behaviour,
-# desired speed, speed-change event and value.
+# desired speed, speed-change event and value, random lane-change event.
 U_SIDE, U_ANCHOR = 0, 1
 U_LANE = 2
 U_OFFSET = U_LANE + SPAWN_CANDIDATES
 U_BEHAVIOUR = U_OFFSET + SPAWN_CANDIDATES
 U_SPEED, U_CHANGE, U_NEW_SPEED = U_BEHAVIOUR + 1, U_BEHAVIOUR + 2, U_BEHAVIOUR + 3
-UNIFORMS_PER_VEHICLE = U_NEW_SPEED + 1
+U_RANDOM_LANE = U_NEW_SPEED + 1
+UNIFORMS_PER_VEHICLE = U_RANDOM_LANE + 1
 
 
 def draw_uniforms(rngs: list[np.random.Generator], rows: np.ndarray, vehicles: int) -> np.ndarray:

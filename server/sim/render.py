@@ -17,12 +17,14 @@ _GRASS = np.array([70, 120, 60], dtype=np.uint8)
 _ROAD = np.array([90, 90, 95], dtype=np.uint8)
 _MARK = np.array([240, 240, 240], dtype=np.uint8)
 _RAIL = np.array([180, 180, 170], dtype=np.uint8)
-# Traffic by behaviour (steady, road maximum, lane changer), the watched agent, other agents.
+# Traffic by behaviour (steady, road maximum, lane changer, random), other agents, the watched
+# agent.
 _KIND_COLOURS = np.array(
     [
         [60, 110, 220],
         [240, 150, 40],
         [170, 70, 200],
+        [60, 190, 190],
         [250, 250, 60],
         [230, 40, 40],
     ],

@@ -7,7 +7,9 @@ each term's weight and parameters are fields of :class:`RewardConfig`. Adding a 
 function and an entry in :data:`TERMS` here, its weight below, and its name in a preset.
 
 Min et al. (2018) Table I is the default: the speed term (Eq. 1, linear from 40 to 80 km/h),
-collision -10, lane change -0.25 (Eq. 3), overtake +0.5 (Eq. 4, once per car passed).
+collision -10, lane change -0.25 (Eq. 3), overtake +0.5 (Eq. 4, once per car passed); and,
+from the authors' code, -0.1 for acting against a warning (a lane change to a side with a side
+warning, or accelerating with a forward warning).
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ class StepFacts:
     overtakes: np.ndarray  # int64: cars passed (each counted once)
     overtakes_undone: np.ndarray  # int64: earlier overtakes taken back
     passed_by: np.ndarray  # int64: cars that passed the agent
+    against_warning: np.ndarray  # bool: the action went against a warning the agent had
 
 
 @dataclass(frozen=True, slots=True)
@@ -39,7 +42,7 @@ class RewardConfig:
     """Min et al. (2018) Table I by default; every term is reported on its own in info."""
 
     # The terms this preset rewards, in the order they are summed and reported.
-    terms: tuple[str, ...] = ("speed", "collision", "lane_change", "overtake", "passed")
+    terms: tuple[str, ...] = ("speed", "collision", "lane_change", "overtake", "warning")
     speed_min_kmh: float = 40.0
     speed_max_kmh: float = 80.0
     speed_reward_max: float = 1.0
@@ -48,8 +51,10 @@ class RewardConfig:
     collision: float = -10.0
     lane_change: float = -0.25
     overtake: float = 0.5
-    # Reward per car that passes the agent (Ho: -1; Min et al.: none).
+    # Reward per car that passes the agent (Ho: -1; Min et al.: none, not in their terms).
     passed: float = 0.0
+    # Acting against a warning (the authors' code's "violation reward").
+    warning: float = -0.1
     # When a car the agent overtook passes it back, take that overtake back (count and reward).
     undo_overtake_when_passed_back: bool = False
 
@@ -66,7 +71,8 @@ class RewardConfig:
         check_range(
             "reward.speed_max_kmh", self.speed_max_kmh, self.speed_min_kmh, 300.0, low_open=True
         )
-        for name in ("speed_reward_max", "collision", "lane_change", "overtake", "passed"):
+        weights = ("speed_reward_max", "collision", "lane_change", "overtake", "passed", "warning")
+        for name in weights:
             check_range(f"reward.{name}", getattr(self, name), -1000.0, 1000.0)
         for name in ("clip_speed_term", "undo_overtake_when_passed_back"):
             check_flag(f"reward.{name}", getattr(self, name))
@@ -97,6 +103,10 @@ def _passed(facts: StepFacts, rc: RewardConfig) -> np.ndarray:
     return rc.passed * facts.passed_by.astype(np.float64)
 
 
+def _warning(facts: StepFacts, rc: RewardConfig) -> np.ndarray:
+    return rc.warning * facts.against_warning
+
+
 # Every term the simulator can reward, by name.
 TERMS: dict[str, Callable[[StepFacts, RewardConfig], np.ndarray]] = {
     "speed": _speed,
@@ -104,6 +114,7 @@ TERMS: dict[str, Callable[[StepFacts, RewardConfig], np.ndarray]] = {
     "lane_change": _lane_change,
     "overtake": _overtake,
     "passed": _passed,
+    "warning": _warning,
 }
 
 
@@ -114,6 +125,8 @@ class Rewards:
         self.config = config
         self.names = config.terms
         self._terms = tuple(TERMS[name] for name in config.terms)
+        # The warnings at each decision's start are worked out only for a reward that uses them.
+        self.needs_warnings = "warning" in config.terms
 
     def compute(self, facts: StepFacts) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """The reward (A, N) float64 and each term's weighted value, by name."""

@@ -5,9 +5,11 @@
   spacing per lane; cars that would crowd an agent wait to spawn later.
 - Each decision traffic that fell out of every agent's range (``traffic.keep_ahead_m`` /
   ``keep_behind_m``) is recycled: a car left behind comes back ahead, in the spawn window
-  ``traffic.spawn_ahead_m``, and one left ahead comes back behind, so episodes can run
-  indefinitely. A spot is taken only if it keeps IDM-comfortable gaps to everyone in its lane;
-  a slot that finds none waits and tries again every few decisions.
+  ``traffic.spawn_ahead_m`` (the authors' code's 30-90 m), and one left ahead comes back
+  behind (``spawn_behind_m``, 30-60 m), so episodes can run indefinitely. A spot is taken only
+  if it keeps IDM-comfortable gaps to everyone in its lane; when the window has none, the rest
+  of the kept range on that side is tried, and a slot that still finds none tries again the
+  next decision: the road holds the density it is labelled with.
 - An agent joining or restarting on a shared road is placed behind the agents still on it, at
   the first spot with comfortable gaps.
 
@@ -30,7 +32,6 @@ from .traffic.car_following import idm_desired_gap
 from .units import KMH
 from .vehicles import VehicleKinds
 
-RESPAWN_RETRY_DECISIONS = 5  # an empty traffic slot looks for a free spot this often
 SPAWN_SEPARATION_M = 25.0  # spawns of one decision in one lane keep this far apart
 AGENT_SPACING_M = 30.0  # agents start this far apart; a joining car tries steps of it
 JOIN_STEPS_BACK = 8  # ... this many steps behind the agents on the road
@@ -55,6 +56,21 @@ class Spawner:
         self.vehicles = agents + self.traffic_slots
         self.tracker = tracker
         self.initial_speed_mps = config.ego.initial_speed_kmh * KMH
+        # (2, SPAWN_CANDIDATES) near and far edges (m from the anchor agent) per candidate.
+        traffic = config.traffic
+        half = SPAWN_CANDIDATES // 2
+
+        def windows(spawn: tuple[float, float], keep_m: float) -> np.ndarray:
+            far = keep_m - traffic.vehicle_length_m
+            return np.array(
+                [
+                    [spawn[0]] * SPAWN_CANDIDATES,
+                    [spawn[1]] * half + [far] * (SPAWN_CANDIDATES - half),
+                ]
+            )
+
+        self._ahead_windows = windows(traffic.spawn_ahead_m, traffic.keep_ahead_m)
+        self._behind_windows = windows(traffic.spawn_behind_m, traffic.keep_behind_m)
 
     def reset_arena(self, rng: np.random.Generator) -> SimState:
         """A new episode's state of one arena, drawn from ``rng``."""
@@ -156,10 +172,9 @@ class Spawner:
         anchors = (present | ~present.any(axis=1, keepdims=True))[:, :, None]
         kept = ((dx <= cfg.keep_ahead_m) & (dx >= -cfg.keep_behind_m) & anchors).any(axis=1)
         was_active = st.active[:, n:]
-        # Out-of-range cars move at once; empty slots (no free spot found earlier) retry now
-        # and then rather than every decision.
-        retry = (st.decisions % RESPAWN_RETRY_DECISIONS == 0)[:, None]
-        need = (was_active & ~kept) | (~was_active & retry)
+        # Out-of-range cars move at once; empty slots (no free spot found yet) try again every
+        # decision, so that the road holds its density.
+        need = (was_active & ~kept) | ~was_active
         arena, tcol = np.nonzero(need)
         if arena.size == 0:
             return
@@ -177,11 +192,11 @@ class Spawner:
         lane = np.minimum(
             (u[:, U_LANE : U_LANE + SPAWN_CANDIDATES] * lanes).astype(np.int64), lanes - 1
         )
-        window = np.where(
-            ahead_side[:, None], np.array(cfg.spawn_ahead_m), np.array(cfg.spawn_behind_m)
-        )
-        distance = window[:, :1] + u[:, U_OFFSET : U_OFFSET + SPAWN_CANDIDATES] * (
-            window[:, 1:] - window[:, :1]
+        # The spawn window, then, for the later half of the candidates, all of the kept range
+        # beyond its near edge: a full window must not leave the road short of cars.
+        window = np.where(ahead_side[:, None, None], self._ahead_windows, self._behind_windows)
+        distance = window[:, 0] + u[:, U_OFFSET : U_OFFSET + SPAWN_CANDIDATES] * (
+            window[:, 1] - window[:, 0]
         )
         x = st.x_m[arena, anchor][:, None] + np.where(ahead_side[:, None], distance, -distance)
         kind = self.kinds.behaviour_of(u[:, U_BEHAVIOUR])

@@ -34,13 +34,13 @@ class SimState:
     agent_decisions: np.ndarray  # (A, N) decisions in the agent's current episode
     ahead: np.ndarray  # (A, N, V) bool: vehicle was ahead of the agent last frame
     credited: np.ndarray  # (A, N, V) bool: the agent's overtake of it was counted
-    braking: np.ndarray  # (A, N) bool: emergency braking last frame
     distance_m: np.ndarray  # (A, N) episode accumulators
     lane_changes: np.ndarray
     overtakes: np.ndarray
     collisions: np.ndarray
     emergency_brakes: np.ndarray
     episode_return: np.ndarray
+    traffic_cars_sum: np.ndarray  # (A, N) traffic cars on the road, summed over decisions
 
     @classmethod
     def empty(cls, arenas: int, agents: int, vehicles: int) -> SimState:
@@ -62,13 +62,13 @@ class SimState:
             agent_decisions=_i64(a, n),
             ahead=_bool(a, n, v),
             credited=_bool(a, n, v),
-            braking=_bool(a, n),
             distance_m=_f64(a, n),
             lane_changes=_i64(a, n),
             overtakes=_i64(a, n),
             collisions=_i64(a, n),
             emergency_brakes=_i64(a, n),
             episode_return=_f64(a, n),
+            traffic_cars_sum=_f64(a, n),
         )
 
     def select(self, rows: np.ndarray) -> SimState:

@@ -64,6 +64,8 @@ class VehicleKinds:
         self.speed_hi = np.array([b.desired_speed_kmh[1] * KMH for b in behaviours] + [0.0])
         rates = np.array([b.speed_change_rate_per_s for b in behaviours] + [0.0])
         self.change_prob = 1.0 - np.exp(-rates * decision_period_s)  # per decision
+        lane_rates = np.array([b.random_lane_change_rate_per_s for b in behaviours] + [0.0])
+        self.random_lane_prob = 1.0 - np.exp(-lane_rates * decision_period_s)  # per decision
         shares = np.array([b.share for b in behaviours])
         self.behaviour_cdf = np.cumsum(shares / shares.sum())
         self.behaviour_count = len(behaviours)

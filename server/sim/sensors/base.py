@@ -10,7 +10,6 @@ sensors: what each observer sees is worked out only if some sensor asks for it.
 from __future__ import annotations
 
 import abc
-import functools
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -19,6 +18,7 @@ import numpy as np
 from ..physics import headings
 
 if TYPE_CHECKING:
+    from ..assist import CarsAhead, DriverWarnings
     from ..config import SimConfig
     from ..road import Road
     from ..state import SimState
@@ -60,17 +60,49 @@ class ObserverViews:
 
 
 class Scene:
-    """What the sensors of one observation look at: the state, the road and vehicle kinds."""
+    """What the sensors of one observation look at: the state, the road and vehicle kinds,
+    and, each worked out on first use, the observers' views, the cars ahead of the agents and
+    the driver-assistance warnings."""
 
-    def __init__(self, state: SimState, kinds: VehicleKinds, road: Road, agents: int) -> None:
+    def __init__(
+        self,
+        state: SimState,
+        kinds: VehicleKinds,
+        road: Road,
+        agents: int,
+        driver_warnings: DriverWarnings,
+    ) -> None:
         self.state = state
         self.kinds = kinds
         self.road = road
         self.agents = agents
         self.arenas = state.x_m.shape[0]
+        self._driver_warnings = driver_warnings
+        self._views: ObserverViews | None = None
+        self._ahead: CarsAhead | None = None
+        self._warnings: np.ndarray | None = None
 
-    @functools.cached_property
+    @property
     def views(self) -> ObserverViews:
+        if self._views is None:
+            self._views = self._observer_views()
+        return self._views
+
+    @property
+    def ahead(self) -> CarsAhead:
+        """Each agent's car ahead."""
+        if self._ahead is None:
+            self._ahead = self._driver_warnings.cars_ahead(self.state)
+        return self._ahead
+
+    @property
+    def warnings(self) -> np.ndarray:
+        """(A, N, 3) bool: each agent's left, right and forward warnings."""
+        if self._warnings is None:
+            self._warnings = self._driver_warnings.compute(self.state, self.ahead)
+        return self._warnings
+
+    def _observer_views(self) -> ObserverViews:
         st, n, arenas = self.state, self.agents, self.arenas
         x_rel = st.x_m - st.x_m[:, :1]
         kind = np.repeat(st.kind, n, axis=0)

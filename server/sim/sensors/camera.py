@@ -52,8 +52,9 @@ class CameraConfig(SensorConfig):
     """A front camera at the driver's seat, rendered in software (a pinhole perspective view)."""
 
     enabled: bool = True
-    width_px: int = 84
-    height_px: int = 84
+    # 80x80 grey, as the authors' code feeds its network (the paper gives no size).
+    width_px: int = 80
+    height_px: int = 80
     horizontal_fov_deg: float = 70.0
     rgb: bool = False
     mount_height_m: float = 1.2

@@ -9,6 +9,6 @@ Where traffic appears and disappears (the treadmill around the agents) is
 :mod:`overtake.server.sim.spawning`.
 """
 
-from .config import DENSITY_VEHICLE_COUNT, BehaviourConfig, Density, TrafficConfig
+from .config import DENSITIES, BehaviourConfig, Density, TrafficConfig
 
-__all__ = ["DENSITY_VEHICLE_COUNT", "BehaviourConfig", "Density", "TrafficConfig"]
+__all__ = ["DENSITIES", "BehaviourConfig", "Density", "TrafficConfig"]

@@ -39,11 +39,14 @@ class Mobil:
         x_rel: np.ndarray,
         accel: np.ndarray,
         following: Following,
+        random_movers: np.ndarray,
     ) -> None:
         """Start the lane changes MOBIL accepts (``target_lane`` and ``change_progress``).
 
         ``accel`` (A, V) is this frame's acceleration of every car in its current lane,
-        ``following`` whom each follows, ``index`` the lanes' order at the decision's start.
+        ``following`` whom each follows, ``index`` the lanes' order at the decision's start;
+        ``random_movers`` (A, V) the cars that change lanes whatever their incentive, where
+        the safety criterion allows (Min et al.'s random lane changes).
         """
         direction = np.where(st.decisions % 2 == 0, 1, -1)
         target = st.lane + direction[:, None]
@@ -113,6 +116,8 @@ class Mobil:
             & (~has_nf | (nf_accel_new >= -self.safe_decel_mps2))
         )
         incentive = accel_new - af[flat] + self.kinds.politeness[kind] * (nf_gain + of_gain)
-        accept = safe & (incentive > self.kinds.threshold[kind])
+        # A change for no reason must not make the mover itself brake hard either.
+        random = random_movers.reshape(-1)[flat] & (accel_new >= -self.safe_decel_mps2)
+        accept = safe & ((incentive > self.kinds.threshold[kind]) | random)
         st.target_lane.reshape(-1)[flat[accept]] = new_lane[accept]
         st.change_progress.reshape(-1)[flat[accept]] = 0.0

@@ -1,0 +1,222 @@
+"""Min et al.'s set-up as the paper describes it: cruise actions from the current speed, warnings
+that are observed and cost when ignored, random traffic that holds its density, emergency
+brakes per decision, and the reference policies (idle, planner)."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import overtake.client  # noqa: F401  (registers the environments)
+from overtake.client.commands import UsageError
+from overtake.client.episodes import baseline_policy, make_vector_env, run_episodes
+from overtake.protocol import HIGHWAY_ENV_ID
+from overtake.protocol.vocabulary import CRUISE_DOWN, CRUISE_UP, KEEP, LANE_LEFT, LANE_RIGHT
+from overtake.server.sim import HighwaySim, make_config
+from overtake.server.sim.physics import traffic_overlaps
+from overtake.server.sim.planner import Planner
+from overtake.server.sim.units import KMH
+
+from conftest import Car, keep, place, scripted_sim
+
+LEFT, RIGHT, FORWARD = range(3)
+
+
+def warnings_of(sim: HighwaySim) -> list[bool]:
+    return sim.warnings.compute(sim.state)[0, 0].tolist()
+
+
+# --- actions (§II.C) ---------------------------------------------------------------------------
+
+
+def test_cruise_actions_set_the_target_from_the_current_speed():
+    sim = scripted_sim([], ego_lane=2, ego_speed_kmh=60.0, cruise_kmh=80.0)
+    st = sim.state
+    sim.step(np.array([[CRUISE_UP]]))
+    speed_before = float(st.speed_mps[0, 0])
+    assert st.desired_speed_mps[0, 0] > speed_before  # v + 5 km/h, chased at once
+    sim.step(np.array([[KEEP]]))
+    # Keep: cruise control holds the speed the car has now (not the 80 km/h it started with).
+    assert st.desired_speed_mps[0, 0] == pytest.approx(float(st.speed_mps[0, 0]), abs=0.3)
+    held = float(st.speed_mps[0, 0])
+    for _ in range(10):
+        keep(sim)
+    assert st.speed_mps[0, 0] == pytest.approx(held, abs=1e-6)
+    sim.step(np.array([[CRUISE_DOWN]]))
+    assert st.speed_mps[0, 0] < held
+
+
+def test_up_is_a_5_kmh_step_over_the_speed_the_car_has():
+    sim = scripted_sim([], ego_lane=2, ego_speed_kmh=60.0)
+    st = sim.state
+    before = float(st.speed_mps[0, 0])
+    # The target is set before the decision's frames, from the speed at its start.
+    sim.actions.apply(st, np.array([[CRUISE_UP]]))
+    assert st.desired_speed_mps[0, 0] == pytest.approx(before + 5.0 * KMH)
+    sim.actions.apply(st, np.array([[CRUISE_DOWN]]))
+    assert st.desired_speed_mps[0, 0] == pytest.approx(before - 5.0 * KMH)
+
+
+def test_a_slowdown_sticks_until_the_agent_accelerates_and_the_remembered_variant_returns():
+    # A slow car ahead changes lanes away after the ego has slowed down behind it.
+    def after_the_slow_car_leaves(mode: str) -> float:
+        sim = scripted_sim(
+            [Car(25.0, 2, 45.0)],
+            ego_lane=2,
+            ego_speed_kmh=80.0,
+            cruise_kmh=80.0,
+            overrides={"ego.cruise_mode": mode},
+        )
+        st = sim.state
+        for _ in range(25):
+            keep(sim)
+        place(sim, 1, x=float(st.x_m[0, 1]), lane=4, speed_kmh=45.0)
+        for _ in range(40):
+            keep(sim)
+        return float(st.speed_mps[0, 0]) / KMH
+
+    assert after_the_slow_car_leaves("current") < 50.0
+    assert after_the_slow_car_leaves("remembered") == pytest.approx(80.0, abs=0.5)
+
+
+# --- warnings (the authors' code) --------------------------------------------------------------
+
+
+def test_side_and_forward_warnings():
+    assert warnings_of(scripted_sim([], ego_lane=2)) == [False, False, False]
+    # A car beside on the left; no lane right of lane 0.
+    assert warnings_of(scripted_sim([Car(0.0, 1, 60.0)], ego_lane=0)) == [True, True, False]
+    # A slower car 20 m ahead at 72 km/h is within 2 s (+2 m): a forward warning; a faster
+    # one is not, nor a slower one far ahead.
+    assert warnings_of(scripted_sim([Car(20.0, 2, 50.0)], ego_speed_kmh=72.0))[FORWARD]
+    assert not warnings_of(scripted_sim([Car(20.0, 2, 90.0)], ego_speed_kmh=72.0))[FORWARD]
+    assert not warnings_of(scripted_sim([Car(60.0, 2, 50.0)], ego_speed_kmh=72.0))[FORWARD]
+
+
+def test_a_lane_change_against_a_side_warning_starts_costs_and_can_collide():
+    sim = scripted_sim([Car(0.0, 3, 60.0)], ego_lane=2)
+    assert sim.action_mask()[0, 0, LANE_LEFT] == 1  # not refused (lane_change_check off)
+    result = sim.step(np.array([[LANE_LEFT]]))
+    assert result.action_applied[0, 0] == LANE_LEFT
+    assert result.reward_terms["warning"][0, 0] == -0.1
+    assert result.reward_terms["lane_change"][0, 0] == -0.25
+    collided = False
+    for _ in range(6):
+        collided |= bool(keep(sim).terminated[0, 0])
+    assert collided
+
+
+def test_accelerating_against_a_forward_warning_costs_and_heeding_it_does_not():
+    def first_decision(action: int) -> float:
+        sim = scripted_sim([Car(20.0, 2, 50.0)], ego_lane=2, ego_speed_kmh=72.0)
+        return float(sim.step(np.array([[action]])).reward_terms["warning"][0, 0])
+
+    assert first_decision(CRUISE_UP) == -0.1
+    assert first_decision(KEEP) == 0.0
+    assert first_decision(LANE_RIGHT) == 0.0  # the right side is clear
+
+
+def test_the_check_refuses_changes_against_a_side_warning_when_on():
+    sim = scripted_sim([Car(0.0, 3, 60.0)], ego_lane=2, overrides={"ego.lane_change_check": True})
+    assert sim.action_mask()[0, 0, LANE_LEFT] == 0
+    assert sim.step(np.array([[LANE_LEFT]])).action_applied[0, 0] == KEEP
+
+
+# --- traffic (§IV.A) ---------------------------------------------------------------------------
+
+
+def test_random_traffic_changes_lanes_for_no_reason_and_safely():
+    def lane_changes(rate: float) -> int:
+        overrides = {
+            "traffic.density": "heavy",
+            "camera.enabled": False,
+            "lidar.enabled": False,
+            # No change ever pays by MOBIL's incentive: only random ones remain.
+            "traffic.random.lane_change_threshold_mps2": 10.0,
+            "traffic.random.random_lane_change_rate_per_s": rate,
+        }
+        sim = HighwaySim(make_config(overrides=overrides), num_arenas=4)
+        sim.reset(seeds=[0, 1, 2, 3])
+        st = sim.state
+        changes = 0
+        for _ in range(150):
+            idle = st.target_lane[:, 1:] == st.lane[:, 1:]
+            keep(sim)
+            # Changes started this decision (a recycled car starts with none under way).
+            changes += int((idle & (st.target_lane[:, 1:] != st.lane[:, 1:])).sum())
+            # Random changes are taken only where safe: traffic never overlaps traffic.
+            assert not traffic_overlaps(sim.state, sim.kinds, sim.agents).any()
+        return changes
+
+    assert lane_changes(0.0) == 0
+    assert lane_changes(0.2) > 20
+
+
+@pytest.mark.parametrize("density, cars", [("light", 5), ("medium", 10), ("heavy", 20)])
+def test_each_density_holds_its_cars_on_the_road(density, cars):
+    envs = make_vector_env(
+        "min2018",
+        {
+            "traffic.density": density,
+            "camera.enabled": False,
+            "episode.max_decisions": 150,
+        },
+        4,
+        None,
+    )
+    rows, _, _ = run_episodes(envs, lambda o, i, s: np.full(4, CRUISE_UP), 4, 0)
+    envs.close()
+    on_road = np.mean([row["traffic_cars"] for row in rows])
+    assert cars * 0.9 <= on_road <= cars
+
+
+def test_random_driving_crashes_and_brakes_in_medium_traffic():
+    # Driving at random is dangerous now: collisions and emergency brakes happen.
+    envs = make_vector_env(
+        "min2018", {"camera.enabled": False, "episode.max_decisions": 400}, 16, None
+    )
+    act = baseline_policy("random", envs.unwrapped.sim_config, 0, 16, envs)
+    rows, _, _ = run_episodes(envs, act, 16, 100)
+    envs.close()
+    assert sum(row["collisions"] for row in rows) >= 1
+    assert sum(row["emergency_brakes"] for row in rows) >= 1
+
+
+# --- reference policies ------------------------------------------------------------------------
+
+
+def test_the_planner_passes_a_slow_car_where_the_side_is_free_and_waits_where_it_is_not():
+    slow = Car(25.0, 2, 45.0)
+    sim = scripted_sim([slow], ego_lane=2, ego_speed_kmh=80.0, calm=True)
+    assert Planner(sim).act()[0, 0] in (LANE_LEFT, LANE_RIGHT)
+    # Cars alongside on both sides: no change (it would collide), and no acceleration into
+    # the slow car ahead (its forward warning).
+    boxed = scripted_sim(
+        [slow, Car(0.0, 1, 80.0), Car(0.0, 3, 80.0)], ego_lane=2, ego_speed_kmh=80.0
+    )
+    assert Planner(boxed).act()[0, 0] == KEEP
+    # A free road: accelerate to the limit.
+    free = scripted_sim([], ego_lane=2, ego_speed_kmh=60.0)
+    assert Planner(free).act()[0, 0] == CRUISE_UP
+
+
+def test_idle_and_planner_are_reference_policies_in_process_only_for_the_planner():
+    envs = make_vector_env("min2018", {"camera.enabled": False}, 2, None)
+    idle = baseline_policy("idle", envs.unwrapped.sim_config, 0, 2, envs)
+    assert idle({}, {}, np.ones(2, dtype=bool)).tolist() == [KEEP, KEEP]
+    obs, info = envs.reset(seed=0)
+    planner = baseline_policy("planner", envs.unwrapped.sim_config, 0, 2, envs)
+    actions = planner(obs, info, np.ones(2, dtype=bool))
+    assert actions.shape == (2,) and actions.dtype == np.int64
+    envs.close()
+
+    class Remote:  # an environment with no true state to read
+        unwrapped = object()
+
+    with pytest.raises(UsageError, match="in-process"):
+        baseline_policy("planner", {}, 0, 1, Remote())
+    single = gym.make(HIGHWAY_ENV_ID, overrides={"camera.enabled": False})
+    single.reset(seed=0)
+    assert single.unwrapped.planner_action() in range(5)
+    single.close()
