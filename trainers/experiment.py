@@ -635,7 +635,7 @@ class Task:
         return self.cache.with_name(self.cache.name + ".out")
 
 
-def _start(task: Task, fd: int) -> Child:
+def _start(task: Task, fd: int, threads: int) -> Child:
     task.log_path.parent.mkdir(parents=True, exist_ok=True)
     log = open(task.log_path, "a", encoding="utf-8")  # noqa: SIM115 (open while it runs)
     log.write(f"--- {_utc()} overtake-experiment starts: {' '.join(task.command)}\n")
@@ -645,6 +645,9 @@ def _start(task: Task, fd: int) -> Child:
         stdin=subprocess.DEVNULL,
         stdout=log,
         stderr=subprocess.STDOUT,
+        # PyTorch sizes its thread pool from these at start (overtake-eval has no option for
+        # it): --jobs processes of as many threads each as there are cores would contend.
+        env={**os.environ, "OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)},
         # The lock's descriptor goes with it: the lock lives as long as the child.
         pass_fds=(fd,),
         preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None,
@@ -845,7 +848,7 @@ class ExperimentRun:
             else:
                 _say(f"evaluate {task.name}")
             pending.remove(task)
-            running.append(_start(task, fd))
+            running.append(_start(task, fd, self.plan.torch_threads))
 
     def _finished(self, child: Child) -> list[Task]:
         """Handle a child that ended; returns the tasks it makes ready (a finished run's
@@ -1332,11 +1335,13 @@ def cli(argv: list[str] | None = None) -> None:
         "(resumable: run the same command again to continue)",
     )
     # SIGTERM (a container stopping, `kill`) stops the children as Ctrl-C does.
-    signal.signal(signal.SIGTERM, _terminate)
+    previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         summary = run_command("overtake-experiment", main, config)
     except KeyboardInterrupt:
         sys.exit("overtake-experiment: stopped; run the same command again to continue")
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     if not config.list_experiments:
         print(Path(summary["table_md"]).read_text(encoding="utf-8"))
 
