@@ -1,0 +1,399 @@
+"""overtake-experiment: the registry, its checks, the command lines it runs, the curves' and
+the table's figures, and one tiny experiment run end to end: killed mid-training, started again
+(it continues from the checkpoints) and once more (it does nothing but write the outputs)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import tyro
+
+from overtake.client.commands import UsageError
+from overtake.protocol.transport import SecurityConfig
+from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
+from overtake.trainers.evaluate import EvalConfig
+from overtake.trainers.experiment import (
+    EXPERIMENTS,
+    LIVES_NAME,
+    ExperimentConfig,
+    Schedule,
+    cli,
+    command_args,
+    episode_statistics,
+    learning_curves,
+    main,
+    make_plan,
+    note_life,
+    reference_policies,
+    seed_statistics,
+    training_episodes,
+)
+from overtake.trainers.learner import DQNConfig
+from overtake.trainers.train import TrainConfig
+from overtake.viz.recording import RecordingConfig
+
+from remote_support import wait_until
+
+ROOT = Path(__file__).resolve().parent.parent
+
+# --- the registry and the checks ---------------------------------------------------------------
+
+
+def test_min2018_table3_lists_the_papers_rows_densities_and_references():
+    experiment = EXPERIMENTS["min2018-table3"]
+    rows = {(row.label, row.algo, row.inputs, row.seeds) for row in experiment.rows}
+    assert rows == {
+        ("dqn-both", "dqn", "both", 1),
+        ("ddqn-both", "ddqn", "both", 2),
+        ("dueling-both", "dueling", "both", 1),
+        ("ddqn-camera", "ddqn", "camera", 1),
+        ("ddqn-lidar", "ddqn", "lidar", 1),
+    }
+    assert experiment.densities == ("light", "medium", "heavy")
+    assert experiment.references == ("rule", "random", "idle", "planner")
+    assert experiment.total_steps >= 200_000 and experiment.eval_episodes >= 50
+
+
+def test_the_schedule_scales_the_papers_settings_to_the_budget():
+    schedule = Schedule.for_budget(200_000)
+    assert schedule == Schedule(
+        learning_starts=10_000,
+        epsilon_decay_steps=66_666,
+        target_update_steps=2_000,
+        replay_size=100_000,
+        checkpoint_every=10_000,
+    )
+    # At the paper's own budget: its settings, apart from the epsilon decay (a third).
+    paper = Schedule.for_budget(1_000_000)
+    defaults = DQNConfig()
+    assert paper.learning_starts == defaults.learning_starts
+    assert paper.target_update_steps == defaults.target_update_steps
+    assert paper.replay_size == defaults.replay_size
+
+
+@pytest.mark.parametrize(
+    ("changes", "expected"),
+    [
+        ({"experiment": "min2019-table9"}, r"unknown experiment 'min2019-table9': expected one "
+         r"of min2018-table3"),
+        ({"jobs": 0}, r"--jobs must be >= 1, got 0"),
+        ({"total_steps": 0}, r"--total-steps must be >= 1, got 0"),
+        ({"seeds": -1}, r"--seeds must be >= 1, got -1"),
+        ({"eval_episodes": 0}, r"--eval-episodes must be >= 1, got 0"),
+        ({"rows": ("ddqn-radar",)}, r"unknown row\(s\) ddqn-radar of min2018-table3: expected "
+         r"some of dqn-both, ddqn-both"),
+        ({"references": ("rule", "psychic")}, r"reference policy psychic unknown to "
+         r"overtake-eval --policy \(it has rule, random"),
+    ],
+)  # fmt: skip
+def test_bad_options_are_refused_naming_what_was_expected(changes, expected):
+    config = dataclasses.replace(ExperimentConfig(references=("rule",)), **changes)
+    with pytest.raises(UsageError, match=expected):
+        make_plan(config)
+
+
+def test_the_command_exits_with_the_message(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        cli(["--jobs", "0", "--references", "rule"])
+    assert exit_info.value.code == "overtake-experiment: --jobs must be >= 1, got 0"
+    with pytest.raises(SystemExit) as exit_info:
+        cli(["nope"])
+    assert "unknown experiment 'nope'" in str(exit_info.value.code)
+
+
+def test_reference_policies_are_read_from_overtake_eval():
+    assert {"rule", "random"} <= set(reference_policies())
+
+
+# --- the command lines --------------------------------------------------------------------------
+
+
+def parse(config_type: type, args: list[str]) -> Any:
+    return tyro.cli(config_type, args=args, config=(tyro.conf.OmitArgPrefixes,))
+
+
+def test_each_runs_command_line_parses_back_to_its_training_configuration(tmp_path):
+    config = ExperimentConfig(
+        out=tmp_path,
+        jobs=3,
+        set=("episode.max_decisions=40", "camera.rgb=true"),
+        connect="tcp/127.0.0.1:7447",
+        security=SecurityConfig(user="trainer", tls_root_ca=tmp_path / "ca.pem"),
+        references=("rule",),
+        record_training=True,
+    )
+    plan = make_plan(config)
+    assert [run.name for run in plan.runs] == [
+        "dqn-both-seed0",
+        "ddqn-both-seed0",
+        "ddqn-both-seed1",
+        "dueling-both-seed0",
+        "ddqn-camera-seed0",
+        "ddqn-lidar-seed0",
+    ]
+    for run in plan.runs:
+        assert parse(TrainConfig, command_args(run.train, TrainConfig())) == run.train
+    train = plan.runs[2].train
+    assert (train.algo, train.inputs, train.seed, train.run_dir) == (
+        "ddqn",
+        "both",
+        1,
+        tmp_path / "ddqn-both-seed1",
+    )
+    assert train.resume_if_found and not train.progress and train.connect == config.connect
+    assert train.dqn.learning_starts == Schedule.for_budget(200_000).learning_starts
+    assert train.recording == RecordingConfig(sink="file", record_every=10)
+
+
+def test_an_evaluations_command_line_parses_back_to_its_configuration(tmp_path):
+    evaluation = EvalConfig(
+        checkpoint=tmp_path / "run" / CHECKPOINT_NAME,
+        episodes=50,
+        seed=1_000,
+        traffic="heavy",
+        set=("episode.max_decisions=30",),
+        max_decisions=30,
+        json_out=tmp_path / "out.json",
+        name="ddqn-both",
+    )
+    assert parse(EvalConfig, command_args(evaluation, EvalConfig())) == evaluation
+
+
+# --- curves and statistics ----------------------------------------------------------------------
+
+
+def episode(step: int, speed: float) -> dict[str, Any]:
+    return {"kind": "episode", "step": step, "avg_speed_kmh": speed, "return": speed / 10}
+
+
+def append(path: Path, records: list[dict[str, Any]], cut: str = "") -> None:
+    with open(path, "a", encoding="utf-8") as handle:
+        handle.writelines(json.dumps(r) + "\n" for r in records)
+        handle.write(cut)
+
+
+def test_the_curves_leave_out_the_episodes_a_resume_redid(tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    metrics = run / "metrics.jsonl"
+    note_life(run, 0)
+    # First life: checkpoints at 100; episodes up to 150, and a line cut by the kill.
+    append(metrics, [episode(50, 1), {"kind": "train", "step": 100}, episode(100, 2)])
+    append(metrics, [episode(120, 3), episode(150, 4)], cut='{"kind": "epis')
+    note_life(run, 100)
+    append(metrics, [episode(130, 5), episode(200, 6)])
+    # A third life that starts over (no checkpoint was left): everything before goes.
+    assert [e["avg_speed_kmh"] for e in training_episodes(run)] == [1, 2, 5, 6]
+    note_life(run, 0)
+    append(metrics, [episode(60, 7)])
+    assert [e["avg_speed_kmh"] for e in training_episodes(run)] == [7]
+    assert len((run / LIVES_NAME).read_text().splitlines()) == 3
+
+
+def test_a_run_not_started_by_an_experiment_keeps_all_its_episodes(tmp_path):
+    append(tmp_path / "metrics.jsonl", [episode(10, 1), episode(20, 2)])
+    assert [e["step"] for e in training_episodes(tmp_path)] == [10, 20]
+
+
+def test_learning_curves_average_each_bin_over_the_rows_runs():
+    curves = learning_curves(
+        {
+            "a": [episode(10, 40), episode(20, 50), episode(90, 60)],
+            "b": [episode(30, 70)],
+        },
+        total_steps=100,
+        bins=2,
+    )
+    assert curves["bin_end_step"] == [50, 100]
+    speed = curves["avg_speed_kmh"]
+    assert speed["mean"] == [pytest.approx(160 / 3), 60.0]
+    assert speed["run_min"] == [45.0, 60.0] and speed["run_max"] == [70.0, 60.0]
+    empty = learning_curves({"a": []}, total_steps=100, bins=2)
+    assert empty["return"]["mean"] == [None, None]
+
+
+def metrics(speed: float, collisions: float, decisions: float) -> dict[str, float]:
+    return {
+        "avg_speed_kmh": speed,
+        "lane_changes": 1.0,
+        "overtakes": 2.0,
+        "collisions": collisions,
+        "emergency_brakes": 0.0,
+        "distance_m": 100.0,
+        "return": 3.0,
+        "decisions": decisions,
+    }
+
+
+def test_statistics_of_episodes_and_of_seeds():
+    stats = episode_statistics([metrics(50, 0, 1000), metrics(60, 1, 500)])
+    assert stats["avg_speed_kmh"] == {"mean": 55.0, "std": 5.0}
+    assert stats["collisions_per_1000_decisions"] == {"mean": 1.0, "std": 1.0}
+    assert stats["pooled_collisions_per_1000_decisions"] == pytest.approx(1000 / 1500)
+    assert stats["episodes"] == 2
+    other = episode_statistics([metrics(40, 0, 1000)])
+    seeds = seed_statistics([stats, other])
+    assert seeds["avg_speed_kmh"] == {"means": [55.0, 40.0], "std": 7.5}
+
+
+# --- a tiny experiment, end to end --------------------------------------------------------------
+
+BUDGET = 400
+ROWS = ("ddqn-lidar", "dqn-both")
+TINY = (
+    ["--rows", *ROWS, "--total-steps", str(BUDGET), "--num-envs", "2"]
+    + ["--learning-starts", "32", "--replay-size", "400", "--checkpoint-every", "50"]
+    + ["--references", "rule", "random", "--densities", "light", "--jobs", "2"]
+    + ["--eval-episodes", "2", "--eval-max-decisions", "30", "--curve-bins", "8"]
+    # Short episodes, so that the training logs some; a small camera and LIDAR, so that a
+    # step costs little.
+    + ["--set", "episode.max_decisions=30", "camera.width_px=36", "camera.height_px=36"]
+    + ["lidar.ray_count=36", "--progress-every-s", "600"]
+)
+
+
+def alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie, exited but not yet reaped, does not)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def end(pid: int) -> None:
+    """Kill ``pid`` if it still runs."""
+    if alive(pid):
+        os.kill(pid, signal.SIGKILL)
+
+
+def partial_checkpoint(out: Path) -> bool:
+    for row in ROWS:
+        path = out / f"{row}-seed0" / CHECKPOINT_NAME
+        if path.exists() and 0 < load_checkpoint(path).step < BUDGET:
+            return True
+    return False
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory) -> dict[str, Any]:
+    """The tiny experiment: started as a command and killed once a run has a checkpoint short
+    of the budget, started again in this process (it finishes), and once more."""
+    out = tmp_path_factory.mktemp("experiment") / "table"
+    args = ["--out", str(out), *TINY]
+    command = [sys.executable, "-m", "overtake.trainers.experiment", *args]
+    killed = subprocess.Popen(
+        command, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+    children: list[int] = []
+    try:
+        wait_until(lambda: partial_checkpoint(out), 120, "a checkpoint short of the budget")
+        os.kill(killed.pid, signal.SIGKILL)
+        killed.wait(timeout=30)
+        children = [int(p.read_text()) for p in out.rglob("*.pid")]
+        # The trainers die with the experiment (they get SIGTERM when it dies).
+        wait_until(lambda: not any(alive(pid) for pid in children), 30, "the trainers to end")
+    finally:
+        end(killed.pid)
+        killed.wait(timeout=30)
+        for pid in children:
+            end(pid)
+    at_kill = {
+        row: load_checkpoint(path).step
+        for row in ROWS
+        if (path := out / f"{row}-seed0" / CHECKPOINT_NAME).exists()
+    }
+    config = parse(ExperimentConfig, args)
+    second = main(config)
+    third = main(config)
+    return {"out": out, "at_kill": at_kill, "second": second, "third": third, "config": config}
+
+
+def test_a_killed_experiment_continues_each_run_from_its_checkpoint(tiny):
+    out, at_kill = tiny["out"], tiny["at_kill"]
+    assert any(0 < step < BUDGET for step in at_kill.values())
+    assert sorted(tiny["second"]["trained"]) == sorted(f"{row}-seed0" for row in ROWS)
+    for row, step in at_kill.items():
+        run = out / f"{row}-seed0"
+        assert load_checkpoint(run / CHECKPOINT_NAME).step == BUDGET
+        if step < BUDGET:
+            resumed = json.loads((run / "run-resume-1.json").read_text())
+            assert resumed["resumed_at_step"] == step
+        lives = [json.loads(line) for line in (run / LIVES_NAME).read_text().splitlines()]
+        assert [life["from_step"] for life in lives] == [0, step]
+    assert sorted(tiny["second"]["evaluated"]) == [
+        "ddqn-lidar-seed0@400 light",
+        "dqn-both-seed0@400 light",
+        "random light",
+        "rule light",
+    ]
+
+
+def test_running_it_again_trains_and_evaluates_nothing(tiny):
+    assert tiny["third"]["trained"] == [] and tiny["third"]["evaluated"] == []
+    assert not list(tiny["out"].rglob("*.pid")) and not list(tiny["out"].rglob("*.tmp"))
+
+
+def test_the_table_holds_every_row_and_reference_with_finite_figures(tiny):
+    out = tiny["out"]
+    result = json.loads((out / "table.json").read_text())
+    assert result["experiment"] == "min2018-table3"
+    assert result["config"]["total_steps"] == BUDGET
+    assert result["versions"]["torch"] and result["versions"]["matplotlib"]
+    assert result["commit"]
+    [light] = result["densities"].values()
+    assert [row["label"] for row in light["rows"]] == ["dqn-both", "ddqn-lidar"]
+    assert [ref["policy"] for ref in light["references"]] == ["rule", "random"]
+    for entry in light["rows"] + light["references"]:
+        assert entry["summary"]["episodes"] == 2
+        for name in ("avg_speed_kmh", "lane_changes", "collisions_per_1000_decisions", "return"):
+            assert math.isfinite(entry["summary"][name]["mean"])
+            assert math.isfinite(entry["summary"][name]["std"])
+    for row in light["rows"]:
+        [run] = row["runs"]
+        assert run["checkpoint_step"] == BUDGET
+        assert row["seeds"]["avg_speed_kmh"]["means"] == [run["summary"]["avg_speed_kmh"]["mean"]]
+    table = (out / "table.md").read_text()
+    assert "## Light traffic" in table
+    for name in ("| dqn-both | DQN | camera + LIDAR | 1 |", "| ddqn-lidar | Double DQN | LIDAR |"):
+        assert name in table
+    assert "| rule | reference policy |" in table and "| random | reference policy |" in table
+    assert "nan" not in table.lower()
+
+
+def test_the_curves_are_a_png_and_a_rerun_recording_of_every_row(tiny):
+    import rerun as rr
+
+    out = tiny["out"]
+    png = (out / "curves.png").read_bytes()
+    assert png.startswith(b"\x89PNG\r\n\x1a\n") and len(png) > 10_000
+    curves = json.loads((out / "table.json").read_text())["curves"]
+    for row in ROWS:
+        assert any(v is not None for v in curves[row]["avg_speed_kmh"]["mean"])
+    reader = rr.chunk.RrdReader(str(out / "curves.rrd"))
+    entities = {c.entity_path for c in reader.stream().to_chunks() if not c.is_static}
+    assert {f"/curves/{m}/{row}" for m in ("avg_speed_kmh", "return") for row in ROWS} <= entities
+
+
+def test_a_directory_refuses_a_run_with_other_training_settings(tiny):
+    config = dataclasses.replace(tiny["config"], total_steps=BUDGET * 2)
+    with pytest.raises(UsageError, match=r"total_steps 400 then, 800 now"):
+        main(config)
+
+
+def test_the_curves_plot_has_content(tiny):
+    # More than a blank canvas: many distinct colours.
+    from matplotlib.image import imread
+
+    image = imread(tiny["out"] / "curves.png")
+    assert len(np.unique(image.reshape(-1, image.shape[-1]), axis=0)) > 50
