@@ -232,6 +232,7 @@ def metrics(speed: float, collisions: float, decisions: float) -> dict[str, floa
         "distance_m": 100.0,
         "return": 3.0,
         "decisions": decisions,
+        "traffic_cars": 10.0,
     }
 
 

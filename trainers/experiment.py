@@ -750,7 +750,9 @@ class ExperimentRun:
             traffic=density,
             set=config.set,
             max_decisions=config.eval_max_decisions,
-            connect=config.connect,
+            # The planner reads the simulator's true state: it drives an in-process copy of
+            # the same preset and overrides even when the rows train on a server.
+            connect=None if base.policy == "planner" else config.connect,
             security=config.security,
             json_out=cache.with_name(cache.name + ".out"),
         )
