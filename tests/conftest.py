@@ -105,6 +105,7 @@ def place(
     st.active[arena, column] = True
     if kind is not None:
         st.kind[arena, column] = kind
+    sim.state_written([arena])
 
 
 def retrack(sim: HighwaySim) -> None:

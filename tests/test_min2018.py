@@ -123,6 +123,55 @@ def test_the_check_refuses_changes_against_a_side_warning_when_on():
     assert sim.step(np.array([[LANE_LEFT]])).action_applied[0, 0] == KEEP
 
 
+def test_the_kept_warnings_are_those_of_the_state_after_every_change_of_it():
+    """The state keeps the warnings the agents are shown (worked out once per decision); they
+    must be what the state says after decisions of all or some arenas, resets, respawns and
+    cars taken off and put back, and what the ego vector shows."""
+    sim = HighwaySim(make_config(), num_arenas=3, agents_per_arena=2)
+    sim.reset(seeds=[1, 2, 3])
+    rng = np.random.default_rng(0)
+
+    def assert_current() -> None:
+        fresh = sim.warnings.compute(sim.state)
+        np.testing.assert_array_equal(sim.state.warnings, fresh)
+        ego = sim.observe()["ego"]
+        fields = sim.config.ego_vector.fields
+        for i, name in enumerate(("left_warning", "right_warning", "forward_warning")):
+            np.testing.assert_array_equal(ego[..., fields.index(name)], fresh[..., i])
+
+    assert_current()
+    assert sim.state.warnings.any()  # the check means something: some agent is warned
+    for decision in range(60):
+        if decision % 3 == 2:
+            rows = np.array([0, 2])
+            result = sim.step(rng.integers(5, size=(2, 2)), arenas=rows)
+        else:
+            rows = np.arange(3)
+            result = sim.step(rng.integers(5, size=(3, 2)))
+        assert_current()
+        ended = result.terminated | result.truncated
+        for row, slot in zip(*np.nonzero(ended), strict=True):
+            sim.respawn_agents(int(rows[row]), [int(slot)])
+            assert_current()
+        if decision % 10 == 5:  # a respawn moves the car: its own warnings change
+            sim.respawn_agents(0, [0])
+            assert_current()
+        if decision == 20:
+            # Agent 1 right beside agent 0 (a side warning), then off the road and back.
+            st = sim.state
+            lane = int(st.lane[1, 0])
+            beside = lane + 1 if lane < 4 else lane - 1
+            place(sim, 1, x=float(st.x_m[1, 0]), lane=beside, speed_kmh=60.0, arena=1)
+            assert sim.state.warnings[1, 0, LEFT if beside > lane else RIGHT]
+            sim.remove_agents(1, [1])
+            assert_current()
+            sim.restore_agents(1, [1])
+            assert_current()
+        if decision == 40:
+            sim.reset([1], seeds=[9])
+            assert_current()
+
+
 # --- traffic (§IV.A) ---------------------------------------------------------------------------
 
 

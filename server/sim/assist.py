@@ -332,9 +332,9 @@ class DriverWarnings:
         ahead[:, :, :n] &= self._not_self
         gap = np.where(ahead, dx - half[:, None, :] - half[:, :n, None], np.inf)
         nearest = gap.argmin(axis=2)
-        gap_m = np.take_along_axis(gap, nearest[..., None], axis=2)[..., 0]
+        gap_m = gap.min(axis=2)
         present = np.isfinite(gap_m)
-        speed = np.take_along_axis(st.speed_mps, nearest, axis=1)
+        speed = st.speed_mps[np.arange(st.speed_mps.shape[0])[:, None], nearest]
         return CarsAhead(
             gap_m=gap_m, speed_mps=np.where(present, speed, st.speed_mps[:, :n]), present=present
         )

@@ -94,6 +94,9 @@ class HighwaySim:
         self.manoeuvres = RandomManoeuvres(kinds)
         self.physics = Physics(config, kinds, road, n, self.vehicles, self.episodes)
         self.rewards = Rewards(config.reward)
+        # The state holds the agents' warnings (worked out once per decision) where the reward
+        # needs them; otherwise a sensor that reads them works them out when it observes.
+        self.keeps_warnings = self.rewards.needs_warnings
         self.sensors: list[Sensor] = [
             section.build(config)
             for section in config.sensor_sections().values()
@@ -130,7 +133,9 @@ class HighwaySim:
             seed = None if seeds is None else seeds[i]
             if seed is not None:
                 self.rngs[row] = np.random.default_rng(seed)
-            self.state.assign(np.array([row]), self.spawner.reset_arena(self.rngs[row]))
+            fresh = self.spawner.reset_arena(self.rngs[row])
+            self._note_warnings(fresh)
+            self.state.assign(np.array([row]), fresh)
         self._needs_reset[rows] = False
 
     def agents_present(self) -> np.ndarray:
@@ -144,10 +149,12 @@ class HighwaySim:
         traffic; its slot keeps stepping unseen until it is restored or respawned.
         """
         self.state.active[arena, np.asarray(slots, dtype=np.int64)] = False
+        self._note_warnings_of(arena)
 
     def restore_agents(self, arena: int, slots: list[int] | np.ndarray) -> None:
         """Put removed cars back where the arena's last reset placed them (right after it)."""
         self.state.active[arena, np.asarray(slots, dtype=np.int64)] = True
+        self._note_warnings_of(arena)
 
     def respawn_agents(self, arena: int, slots: list[int] | np.ndarray) -> None:
         """Start new episodes for some agents of ``arena`` while the road goes on: each car
@@ -156,6 +163,26 @@ class HighwaySim:
         self.spawner.place_agents(self.state, arena, slots, self.rngs[arena])
         for slot in slots:
             self.episodes.restart(self.state, arena, int(slot))
+        self._note_warnings_of(arena)
+
+    def _note_warnings(self, st: SimState) -> None:
+        """Work out the warnings the agents of ``st`` are shown now, where the reward needs
+        them: with their next actions it looks back at them (:meth:`_advance`), and the
+        observation reads the same ones rather than working them out again."""
+        if self.keeps_warnings:
+            st.warnings[:] = self.warnings.compute(st)
+
+    def _note_warnings_of(self, arena: int) -> None:
+        """:meth:`_note_warnings` for one arena whose cars changed between decisions."""
+        self.state_written([arena])
+
+    def state_written(self, arenas: np.ndarray | list[int] | None = None) -> None:
+        """Call after writing cars' positions, lanes or speeds into :attr:`state` by hand (a
+        scripted scene): what the simulation keeps from them, the warnings the agents are
+        shown, is worked out again for ``arenas`` (all by default)."""
+        if self.keeps_warnings:
+            rows = np.arange(self.num_arenas) if arenas is None else np.asarray(arenas, np.int64)
+            self.state.warnings[rows] = self.warnings.compute(self.state.select(rows))
 
     # --- stepping -------------------------------------------------------------------------------
 
@@ -181,7 +208,7 @@ class HighwaySim:
     def _advance(self, st: SimState, actions: np.ndarray, uniforms: np.ndarray) -> StepResult:
         n = self.agents
         # What the agents were warned of when they chose (the observation they acted on).
-        warned = self.warnings.compute(st) if self.rewards.needs_warnings else None
+        warned = st.warnings.copy() if self.keeps_warnings else None
         started, applied = self.actions.apply(st, actions)
         random_movers = self.manoeuvres.decide(st, uniforms)
         params = self.kinds.params(st.kind)
@@ -207,6 +234,7 @@ class HighwaySim:
             )
         gained, undone, passed = self.tracker.track(st)
         self.spawner.recycle(st, uniforms)
+        self._note_warnings(st)
         st.decisions += 1
         st.agent_decisions += 1
         reward, terms = self.rewards.compute(
@@ -239,7 +267,14 @@ class HighwaySim:
 
     def observe(self) -> dict[str, np.ndarray]:
         """Every agent's observation, sensor by sensor: (A, N, *shape) each."""
-        scene = Scene(self.state, self.kinds, self.road, self.agents, self.warnings)
+        scene = Scene(
+            self.state,
+            self.kinds,
+            self.road,
+            self.agents,
+            self.warnings,
+            warnings=self.state.warnings if self.keeps_warnings else None,
+        )
         return {sensor.key: sensor.observe(scene) for sensor in self.sensors}
 
     def action_mask(self) -> np.ndarray:

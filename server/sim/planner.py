@@ -67,7 +67,8 @@ class Planner:
     def _greedy(self, sim: HighwaySim) -> np.ndarray:
         """(A, N) accelerate below the limit unless warned of a car ahead; else keep."""
         st, n = sim.state, sim.agents
-        forward = sim.warnings.compute(st)[..., DriverWarnings.FORWARD]
+        warnings = st.warnings if sim.keeps_warnings else sim.warnings.compute(st)
+        forward = warnings[..., DriverWarnings.FORWARD]
         return np.where(
             (st.speed_mps[:, :n] < self.limit_mps - 1e-3) & ~forward, CRUISE_UP, KEEP
         ).astype(np.int64)

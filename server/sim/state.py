@@ -41,6 +41,10 @@ class SimState:
     emergency_brakes: np.ndarray
     episode_return: np.ndarray
     traffic_cars_sum: np.ndarray  # (A, N) traffic cars on the road, summed over decisions
+    # (A, N, 3) bool: the left, right and forward warnings each agent was shown with its last
+    # observation (:class:`~.assist.DriverWarnings`); kept by the simulation only where the
+    # reward needs them (all False otherwise).
+    warnings: np.ndarray
 
     @classmethod
     def empty(cls, arenas: int, agents: int, vehicles: int) -> SimState:
@@ -69,6 +73,7 @@ class SimState:
             emergency_brakes=_i64(a, n),
             episode_return=_f64(a, n),
             traffic_cars_sum=_f64(a, n),
+            warnings=_bool(a, n, 3),
         )
 
     def select(self, rows: np.ndarray) -> SimState:

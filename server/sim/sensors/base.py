@@ -71,6 +71,7 @@ class Scene:
         road: Road,
         agents: int,
         driver_warnings: DriverWarnings,
+        warnings: np.ndarray | None = None,
     ) -> None:
         self.state = state
         self.kinds = kinds
@@ -80,7 +81,8 @@ class Scene:
         self._driver_warnings = driver_warnings
         self._views: ObserverViews | None = None
         self._ahead: CarsAhead | None = None
-        self._warnings: np.ndarray | None = None
+        # Given where the simulation already keeps them in its state.
+        self._warnings: np.ndarray | None = warnings
 
     @property
     def views(self) -> ObserverViews:
