@@ -17,14 +17,13 @@ from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
-from .traffic.car_following import idm_accel
 from .units import KMH
 from .validation import check, check_flag, check_range
 
 if TYPE_CHECKING:
     from .state import SimState
     from .traffic.car_following import Following
-    from .vehicles import VehicleKinds, VehicleParams
+    from .vehicles import VehicleKinds
 
 
 @dataclass(frozen=True, slots=True)
@@ -123,33 +122,26 @@ class CruiseControl:
         self.max_accel_mps2 = ego.max_accel_mps2
         self.comfort_decel_mps2 = ego.comfort_decel_mps2
         self.agents = agents
-        # An infinite desired speed leaves the IDM only its distance-keeping term.
-        self._no_free_road = np.array(np.inf)
 
-    def accelerate(
-        self, accel: np.ndarray, st: SimState, p: VehicleParams, following: Following
-    ) -> None:
+    def idm_desired_speed(self, st: SimState) -> np.ndarray:
+        """(A, V) the desired speeds the IDM is given this frame: traffic's own, and for the
+        agents none (infinite), which leaves the IDM only its distance-keeping term there (its
+        free-road term is the speed controller's job, :meth:`accelerate`)."""
+        desired = st.desired_speed_mps.copy()
+        desired[:, : self.agents] = np.inf
+        return desired
+
+    def accelerate(self, accel: np.ndarray, st: SimState) -> None:
         """The agents' acceleration this frame (their columns of ``accel``, in place): towards
-        the cruise target, and no more than distance keeping to the car ahead allows (the IDM's
-        interaction term; its free-road term is the speed controller's job)."""
+        the cruise target, and no more than distance keeping to the car ahead allows (the
+        IDM's interaction term, already in ``accel`` from :meth:`idm_desired_speed`)."""
         n = self.agents
-        speed = st.speed_mps[:, :n]
         towards_target = np.clip(
-            (st.desired_speed_mps[:, :n] - speed) / self.time_constant_s,
+            (st.desired_speed_mps[:, :n] - st.speed_mps[:, :n]) / self.time_constant_s,
             -self.comfort_decel_mps2,
             self.max_accel_mps2,
         )
-        keep_distance = idm_accel(
-            speed,
-            self._no_free_road,
-            following.gap_m[:, :n],
-            following.closing_mps[:, :n],
-            p.headway[:, :n],
-            p.min_gap[:, :n],
-            p.max_accel[:, :n],
-            p.two_sqrt_ab[:, :n],
-        )
-        accel[:, :n] = np.minimum(towards_target, keep_distance)
+        np.minimum(towards_target, accel[:, :n], out=accel[:, :n])
 
     def adjust(self, st: SimState, change_mps: np.ndarray) -> None:
         """Set each agent's target to its current speed plus ``change_mps`` (A, N) ("current"

@@ -100,7 +100,7 @@ class Physics:
         following = follow(x_rel, p.half_length, speed, lead, valid)
         accel = idm_accel(
             speed,
-            st.desired_speed_mps,
+            self.cruise_control.idm_desired_speed(st),
             following.gap_m,
             following.closing_mps,
             p.headway,
@@ -108,7 +108,7 @@ class Physics:
             p.max_accel,
             p.two_sqrt_ab,
         )
-        self.cruise_control.accelerate(accel, st, p, following)
+        self.cruise_control.accelerate(accel, st)
         self.emergency_braking.apply(accel, following)
         accel = np.maximum(np.minimum(accel, p.max_accel), -self.max_decel_mps2)
         if mobil_index is not None:

@@ -1,8 +1,9 @@
 """Car-following: the Intelligent Driver Model (Treiber et al.), and whom each car follows.
 
-Traffic follows its leader with an IDM of its behaviour's parameters; the agents' adaptive
-cruise control is the same IDM with the cruise target as desired speed. Everything is
-vectorised over (arenas, vehicles).
+Traffic follows its leader with an IDM of its behaviour's parameters; the agents' cruise
+control (:mod:`..assist`) keeps the IDM's distance-keeping term and replaces its free-road term
+with a speed controller towards the cruise target. Everything is vectorised over (arenas,
+vehicles).
 """
 
 from __future__ import annotations
