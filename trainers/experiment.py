@@ -842,6 +842,9 @@ class ExperimentRun:
             fd = lock(task.lock_path)
             if fd is None:
                 continue  # a process of an earlier invocation still holds it
+            if self._done_meanwhile(task, pending):
+                os.close(fd)
+                continue
             if task.run is not None:
                 step = checkpoint_step(task.run.run_dir)
                 note_life(task.run.run_dir, step or 0)
@@ -851,6 +854,26 @@ class ExperimentRun:
                 _say(f"evaluate {task.name}")
             pending.remove(task)
             running.append(_start(task, fd, self.plan.torch_threads))
+
+    def _done_meanwhile(self, task: Task, pending: list[Task]) -> bool:
+        """Whether another invocation in the same directory (one that held the task's lock
+        while this one planned) has done ``task`` since; if so, drop it from ``pending`` and
+        add what it makes ready. Two invocations side by side then share the work instead of
+        repeating it (one started with --jobs 1 to evaluate the references while another
+        trains, for instance)."""
+        if task.run is not None:
+            step = checkpoint_step(task.run.run_dir) or 0
+            if step < self.plan.total_steps:
+                return False
+            _say(f"train {task.name}: done at step {step:,} by another invocation")
+            pending.remove(task)
+            pending += [t for t in self.eval_tasks_of_run(task.run, step) if self.cached(t) is None]
+            return True
+        if self.cached(task) is None:
+            return False
+        _say(f"evaluate {task.name}: done by another invocation")
+        pending.remove(task)
+        return True
 
     def _finished(self, child: Child) -> list[Task]:
         """Handle a child that ended; returns the tasks it makes ready (a finished run's
