@@ -52,12 +52,13 @@ def scripted_sim(
     cruise_kmh: float | None = None,
     overrides: dict[str, Any] | None = None,
     calm: bool = True,
+    preset: str = "min2018",
 ) -> HighwaySim:
     """One arena, one agent at x = 0 in ``ego_lane``, and exactly ``cars`` as traffic."""
     all_overrides: dict[str, Any] = dict(CALM_TRAFFIC) if calm else {}
     all_overrides["traffic.vehicle_count"] = len(cars)
     all_overrides.update(overrides or {})
-    sim = HighwaySim(make_config(overrides=all_overrides), num_arenas=1)
+    sim = HighwaySim(make_config(preset, overrides=all_overrides), num_arenas=1)
     sim.reset(seeds=[0])
     st = sim.state
     cruise = ego_speed_kmh if cruise_kmh is None else cruise_kmh

@@ -326,14 +326,13 @@ def test_a_killed_experiment_continues_each_run_from_its_checkpoint(tiny):
     out, at_kill = tiny["out"], tiny["at_kill"]
     assert any(0 < step < BUDGET for step in at_kill.values())
     assert sorted(tiny["second"]["trained"]) == sorted(f"{row}-seed0" for row in ROWS)
-    final = {}
+    # A step stores one transition per environment that moved (none for an autoreset), so a
+    # run ends on the first step at or past the budget: up to num_envs - 1 past it, where
+    # depends on where its episodes ended, which a resume changes.
+    final = {row: load_checkpoint(out / f"{row}-seed0" / CHECKPOINT_NAME).step for row in ROWS}
+    assert all(BUDGET <= step < BUDGET + NUM_ENVS for step in final.values())
     for row, step in at_kill.items():
         run = out / f"{row}-seed0"
-        # A step stores one transition per environment that moved (none for an autoreset), so
-        # a run ends on the first step at or past the budget: up to num_envs - 1 past it, where
-        # depends on where its episodes ended, which a resume changes.
-        final[row] = load_checkpoint(run / CHECKPOINT_NAME).step
-        assert BUDGET <= final[row] < BUDGET + NUM_ENVS
         if step < BUDGET:
             resumed = json.loads((run / "run-resume-1.json").read_text())
             assert resumed["resumed_at_step"] == step

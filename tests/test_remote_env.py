@@ -22,6 +22,7 @@ from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, codec, keys
 from overtake.protocol.errors import ConnectError, ServerLost
 from overtake.protocol.messages import WorldFrame
 from overtake.server.env import HighwayVectorEnv
+from overtake.server.sim import PRESETS
 
 from remote_support import (
     RawClient,
@@ -60,12 +61,16 @@ def assert_same(a, b, where: str = "value") -> None:
 
 
 @pytest.mark.timeout(90)
-def test_remote_env_is_bit_identical_to_in_process_env(start_server):
-    server = start_server("e2e-bits")
+@pytest.mark.parametrize("preset", sorted(PRESETS))
+def test_remote_env_is_bit_identical_to_in_process_env(start_server, preset):
+    server = start_server(f"e2e-bits-{preset}")
     remote = gym.make(
-        REMOTE_HIGHWAY_ENV_ID, remote=remote_config(server.endpoint, server.name), overrides=SHORT
+        REMOTE_HIGHWAY_ENV_ID,
+        remote=remote_config(server.endpoint, server.name),
+        preset=preset,
+        overrides=SHORT,
     )
-    local = gym.make(HIGHWAY_ENV_ID, overrides=SHORT)
+    local = gym.make(HIGHWAY_ENV_ID, preset=preset, overrides=SHORT)
     try:
         assert remote.observation_space == local.observation_space
         assert remote.action_space == local.action_space
@@ -92,18 +97,24 @@ def test_remote_env_is_bit_identical_to_in_process_env(start_server):
 
 
 @pytest.mark.timeout(90)
-def test_remote_vector_env_is_bit_identical_to_in_process_vector_env(start_server):
-    server = start_server("e2e-vbits")
+@pytest.mark.parametrize("preset", sorted(PRESETS))
+def test_remote_vector_env_is_bit_identical_to_in_process_vector_env(start_server, preset):
+    server = start_server(f"e2e-vbits-{preset}")
     n = 4
     remote = gym.make_vec(
         REMOTE_HIGHWAY_ENV_ID,
         num_envs=n,
         vectorization_mode="vector_entry_point",
         remote=remote_config(server.endpoint, server.name),
+        preset=preset,
         overrides=SHORT,
     )
     local = gym.make_vec(
-        HIGHWAY_ENV_ID, num_envs=n, vectorization_mode="vector_entry_point", overrides=SHORT
+        HIGHWAY_ENV_ID,
+        num_envs=n,
+        vectorization_mode="vector_entry_point",
+        preset=preset,
+        overrides=SHORT,
     )
     try:
         assert remote.observation_space == local.observation_space

@@ -35,6 +35,9 @@ class DasActions:
     def __init__(self, ego: EgoConfig, agents: int, lane_changes: LaneChangeAssist) -> None:
         self.cruise_step_mps = ego.cruise_step_kmh * KMH
         self.cruise = CruiseControl(ego, agents)
+        # Under Ho's speed steps the speed actions act frame by frame in the physics
+        # (:class:`~.assist.SpeedSteps`): there is no cruise target to move.
+        self.moves_cruise_target = ego.speed_control == "cruise"
         self.lane_changes = lane_changes
 
     def check(self, actions: np.ndarray, expected: tuple[int, ...]) -> np.ndarray:
@@ -56,8 +59,9 @@ class DasActions:
     def apply(self, st: SimState, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Apply (A, N) actions to the agents of ``st``; returns the lane changes that started
         and the actions applied (a refused lane change becomes keep)."""
-        step = self.cruise_step_mps
-        self.cruise.adjust(st, step * (actions == CRUISE_UP) - step * (actions == CRUISE_DOWN))
+        if self.moves_cruise_target:
+            step = self.cruise_step_mps
+            self.cruise.adjust(st, step * (actions == CRUISE_UP) - step * (actions == CRUISE_DOWN))
         started = self.lane_changes.start(st, actions == LANE_LEFT, actions == LANE_RIGHT)
         lateral = (actions == LANE_LEFT) | (actions == LANE_RIGHT)
         applied = np.where(lateral & ~started, KEEP, actions)

@@ -13,7 +13,7 @@ the car's body and all of these parameters.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, ClassVar, Literal
 
 import numpy as np
 
@@ -75,6 +75,21 @@ class EgoConfig:
     # al.'s preset, as the issue asks): the car starts it and may collide; the warning is
     # observed, and acting against it costs the reward's "warning" term.
     lane_change_check: bool = False
+    # How the agents' speed is controlled: "cruise" (Min et al.: the actions move a cruise
+    # target that adaptive cruise control and emergency braking hold, above), or "speed_steps"
+    # (Ho 2018, §4 and his code): accelerate and decelerate change the speed by
+    # speed_step_kmh in every physics frame, keep holds it, within cruise_min_kmh and
+    # cruise_max_kmh; the frames between decisions follow ``skipped_frames``; and a safety
+    # rule stands in for cruise control: with a vehicle ahead closer than safety_gap_m the
+    # car cannot accelerate, and if that vehicle is slower it takes its speed at once (an
+    # emergency brake where the difference is large).
+    speed_control: Literal["cruise", "speed_steps"] = "cruise"
+    speed_step_kmh: float = 1.0
+    # What the frames after a decision's first do (speed_steps): "table3" as Ho's thesis
+    # (Table 3): accelerate -> accelerate, decelerate -> accelerate, left / right / keep ->
+    # keep; "repeat" as his code: the decision's speed action again (a lane change: keep).
+    skipped_frames: Literal["table3", "repeat"] = "table3"
+    safety_gap_m: float = 8.0
 
     def __post_init__(self) -> None:
         check_range("ego.cruise_min_kmh", self.cruise_min_kmh, 0.0, 300.0)
@@ -97,7 +112,7 @@ class EgoConfig:
         check_range("ego.aeb_decel_mps2", self.aeb_decel_mps2, 0.1, 15.0)
         check_range("ego.emergency_decel_mps2", self.emergency_decel_mps2, 0.1, 15.0)
         check_range("ego.emergency_speed_diff_kmh", self.emergency_speed_diff_kmh, 0.0, 300.0)
-        check_range("ego.lane_change_duration_s", self.lane_change_duration_s, 0.5, 10.0)
+        check_range("ego.lane_change_duration_s", self.lane_change_duration_s, 0.1, 10.0)
         check_range("ego.lane_change_clear_ahead_m", self.lane_change_clear_ahead_m, 0.0, 100.0)
         check_range("ego.lane_change_clear_behind_m", self.lane_change_clear_behind_m, 0.0, 100.0)
         check_range("ego.lane_change_closing_time_s", self.lane_change_closing_time_s, 0.0, 10.0)
@@ -109,6 +124,20 @@ class EgoConfig:
             "current or remembered",
         )
         check_flag("ego.lane_change_check", self.lane_change_check)
+        check(
+            self.speed_control in ("cruise", "speed_steps"),
+            "ego.speed_control",
+            self.speed_control,
+            "cruise or speed_steps",
+        )
+        check_range("ego.speed_step_kmh", self.speed_step_kmh, 0.0, 50.0, low_open=True)
+        check(
+            self.skipped_frames in ("table3", "repeat"),
+            "ego.skipped_frames",
+            self.skipped_frames,
+            "table3 or repeat",
+        )
+        check_range("ego.safety_gap_m", self.safety_gap_m, 0.0, 100.0)
 
 
 class CruiseControl:
@@ -153,6 +182,42 @@ class CruiseControl:
         else:
             cruise += change_mps
         np.minimum(np.maximum(cruise, self.min_mps, out=cruise), self.max_mps, out=cruise)
+
+
+class SpeedSteps:
+    """Ho's speed control (``ego.speed_control = "speed_steps"``): each frame the agent's speed
+    moves one step up, down or not at all, as its decision says for that frame, and the safety
+    rule of his simulator keeps it behind the vehicle ahead (no cruise control, no IDM)."""
+
+    # The speed command of each action (keep, accelerate, decelerate, left, right) in the
+    # decision's first frame, and in the frames after it under each ``skipped_frames`` rule.
+    FIRST: ClassVar[np.ndarray] = np.array([0, 1, -1, 0, 0], dtype=np.int64)
+    SKIPPED: ClassVar[dict[str, np.ndarray]] = {
+        "table3": np.array([0, 1, 1, 0, 0], dtype=np.int64),
+        "repeat": np.array([0, 1, -1, 0, 0], dtype=np.int64),
+    }
+
+    def __init__(self, ego: EgoConfig, agents: int) -> None:
+        self.step_mps = ego.speed_step_kmh * KMH
+        self.min_mps = ego.cruise_min_kmh * KMH
+        self.max_mps = ego.cruise_max_kmh * KMH
+        self.safety_gap_m = ego.safety_gap_m
+        self.skipped = self.SKIPPED[ego.skipped_frames]
+        self.agents = agents
+
+    def commands(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(A, N) speed commands (-1, 0, +1) of the decision's first frame and of the others."""
+        return self.FIRST[actions], self.skipped[actions]
+
+    def speeds(self, st: SimState, following: Following, command: np.ndarray) -> np.ndarray:
+        """The agents' (A, N) speeds at the end of this frame, given its commands."""
+        n = self.agents
+        speed = st.speed_mps[:, :n]
+        near = following.has_leader[:, :n] & (following.gap_m[:, :n] < self.safety_gap_m)
+        command = np.where(near & (command > 0), 0, command)
+        new = np.minimum(np.maximum(speed + command * self.step_mps, self.min_mps), self.max_mps)
+        leader_speed = following.leader_speed_mps[:, :n]
+        return np.where(near & (leader_speed < speed), leader_speed, new)
 
 
 class EmergencyBraking:

@@ -26,9 +26,11 @@ from .assist import EgoConfig
 from .episodes import EpisodeConfig
 from .rewards import RewardConfig
 from .road import RoadConfig
+from .sensors.action_history import ActionHistoryConfig
 from .sensors.base import SensorConfig
 from .sensors.camera import CameraConfig
 from .sensors.ego import EgoVectorConfig
+from .sensors.grid import OccupancyGridConfig
 from .sensors.lidar import LidarConfig
 from .traffic.config import TrafficConfig
 from .validation import ConfigError, check
@@ -51,6 +53,8 @@ class SimConfig:
     lidar: LidarConfig = field(default_factory=LidarConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
     ego_vector: EgoVectorConfig = field(default_factory=EgoVectorConfig)
+    grid: OccupancyGridConfig = field(default_factory=OccupancyGridConfig)
+    action_history: ActionHistoryConfig = field(default_factory=ActionHistoryConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
     episode: EpisodeConfig = field(default_factory=EpisodeConfig)
 

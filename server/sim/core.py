@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from overtake.protocol.vocabulary import METRIC_FIELDS
+from overtake.protocol.vocabulary import LANE_LEFT, LANE_RIGHT, METRIC_FIELDS
 
 from .actions import DasActions
 from .assist import DriverWarnings, LaneChangeAssist
@@ -84,7 +84,10 @@ class HighwaySim:
             config.traffic, config.ego, self.decision_period_s, self.dt
         )
         self.tracker = OvertakeTracker(
-            n, self.vehicles, config.reward.undo_overtake_when_passed_back
+            n,
+            self.vehicles,
+            config.reward.undo_overtake_when_passed_back,
+            every_pass=config.reward.overtakes_counted == "every_pass",
         )
         self.spawner = Spawner(config, kinds, road, n, self.tracker)
         self.episodes = EpisodeBook(config.episode, config.ego, n)
@@ -97,6 +100,12 @@ class HighwaySim:
         # The state holds the agents' warnings (worked out once per decision) where the reward
         # needs them; otherwise a sensor that reads them works them out when it observes.
         self.keeps_warnings = self.rewards.needs_warnings
+        # The agents' recent actions are kept where the reward or a sensor reads them.
+        self.keeps_recent_actions = (
+            self.rewards.needs_recent_actions or config.action_history.enabled
+        )
+        # Ho's speed steps: each frame's speed commands come from the decision's actions.
+        self.speed_steps = self.physics.speed_steps
         self.sensors: list[Sensor] = [
             section.build(config)
             for section in config.sensor_sections().values()
@@ -210,6 +219,8 @@ class HighwaySim:
         # What the agents were warned of when they chose (the observation they acted on).
         warned = st.warnings.copy() if self.keeps_warnings else None
         started, applied = self.actions.apply(st, actions)
+        alternated = self._remember_actions(st, applied)
+        commands = (None, None) if self.speed_steps is None else self.speed_steps.commands(actions)
         random_movers = self.manoeuvres.decide(st, uniforms)
         params = self.kinds.params(st.kind)
         collided = np.zeros((st.x_m.shape[0], n), dtype=bool)
@@ -231,6 +242,7 @@ class HighwaySim:
                 brakes,
                 mobil_index=index if frame == 0 else None,
                 random_movers=random_movers,
+                speed_command=commands[0] if frame == 0 else commands[1],
             )
         gained, undone, passed = self.tracker.track(st)
         self.spawner.recycle(st, uniforms)
@@ -250,6 +262,7 @@ class HighwaySim:
                     if warned is not None
                     else np.zeros_like(collided)
                 ),
+                alternated=np.zeros_like(collided) if alternated is None else alternated,
             )
         )
         truncated = self.episodes.close_decision(
@@ -262,6 +275,20 @@ class HighwaySim:
             truncated=truncated & ~collided,
             action_applied=applied,
         )
+
+    def _remember_actions(self, st: SimState, applied: np.ndarray) -> np.ndarray | None:
+        """Push the decision's applied actions onto the agents' recent actions, where they are
+        kept; returns which agents changed lanes opposite to a change among the recent ones
+        (Ho's alternation), or None where they are not kept."""
+        if not self.keeps_recent_actions:
+            return None
+        recent = st.recent_actions
+        alternated = ((applied == LANE_LEFT) & (recent == LANE_RIGHT).any(axis=-1)) | (
+            (applied == LANE_RIGHT) & (recent == LANE_LEFT).any(axis=-1)
+        )
+        recent[..., :-1] = recent[..., 1:]
+        recent[..., -1] = applied
+        return alternated
 
     # --- what agents see ------------------------------------------------------------------------
 

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from overtake.protocol.vocabulary import METRIC_FIELDS
+from overtake.protocol.vocabulary import KEEP, METRIC_FIELDS
 
 from .units import KMH
 from .validation import check, check_range
@@ -84,6 +84,7 @@ class EpisodeBook:
         """Start an agent's episode counters from zero."""
         for name in EPISODE_COUNTERS:
             getattr(st, name)[arena, slot] = 0
+        st.recent_actions[arena, slot] = KEEP
 
     def note_emergency_brakes(self, st: SimState, following: Following, brakes: np.ndarray) -> None:
         """After a frame: mark in ``brakes`` (A, N) bool the agents that braked (at least

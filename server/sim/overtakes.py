@@ -4,8 +4,9 @@ A pass is a car's centre moving from ahead of the agent's centre to behind it (a
 the agent) or the other way (the agent being passed), between two decisions. An overtake counts
 once per car: a car the agent passes, falls behind and passes again is not counted twice,
 unless ``reward.undo_overtake_when_passed_back`` takes the overtake back when that car passes
-the agent. A vehicle that just appeared (spawned, recycled, respawned) starts its tracking
-afresh, so an appearance is never a pass.
+the agent; with ``reward.overtakes_counted = "every_pass"`` (Ho) every crossing counts. A
+vehicle that just appeared (spawned, recycled, respawned) starts its tracking afresh, so an
+appearance is never a pass.
 """
 
 from __future__ import annotations
@@ -18,9 +19,12 @@ from .state import SimState
 class OvertakeTracker:
     """Overtake bookkeeping (``ahead`` and ``credited`` of the state) for every agent."""
 
-    def __init__(self, agents: int, vehicles: int, undo_when_passed_back: bool) -> None:
+    def __init__(
+        self, agents: int, vehicles: int, undo_when_passed_back: bool, every_pass: bool = False
+    ) -> None:
         self.agents = agents
         self.undo_when_passed_back = undo_when_passed_back
+        self.every_pass = every_pass
         # (1, N, V): False where an agent would be compared with itself.
         self._not_self = np.ones((1, agents, vehicles), dtype=bool)
         self._not_self[0, np.arange(agents), np.arange(agents)] = False
@@ -42,13 +46,14 @@ class OvertakeTracker:
         st.credited[arena, :n, slot] = False
 
     def track(self, st: SimState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(A, N) each: cars the agent passed (first time), overtakes undone, cars passing it."""
+        """(A, N) each: cars the agent passed (the first time, or every time with
+        ``every_pass``), overtakes undone, cars passing it."""
         n = self.agents
         ahead_now = st.x_m[:, None, :] > st.x_m[:, :n, None]
         live = st.active[:, None, :] & self._not_self
         overtook = st.ahead & ~ahead_now & live
         got_passed = ~st.ahead & ahead_now & live
-        gained = (overtook & ~st.credited).sum(axis=-1)
+        gained = (overtook if self.every_pass else overtook & ~st.credited).sum(axis=-1)
         st.credited |= overtook
         passed = got_passed.sum(axis=-1)
         undone = np.zeros_like(gained)

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .assist import CruiseControl, EmergencyBraking
+from .assist import CruiseControl, EmergencyBraking, SpeedSteps
 from .traffic.car_following import follow, idm_accel
 from .traffic.lane_changes import Mobil
 
@@ -71,6 +71,12 @@ class Physics:
         self.agents = agents
         self.cruise_control = CruiseControl(config.ego, agents)
         self.emergency_braking = EmergencyBraking(config.ego, agents)
+        # Ho's speed steps and safety rule replace cruise control's speeds for the agents.
+        self.speed_steps = (
+            SpeedSteps(config.ego, agents) if config.ego.speed_control == "speed_steps" else None
+        )
+        # Whether traffic's safety rule keeps it behind agents too, not only behind traffic.
+        self.yield_to_agents = config.traffic.yield_to_agents
         self.mobil = Mobil(config.traffic, kinds, road.lane_count)
         self.episodes = episodes
         # (1, N, V): False where an agent would be compared with itself.
@@ -87,12 +93,14 @@ class Physics:
         brakes: np.ndarray,
         mobil_index: LaneIndex | None,
         random_movers: np.ndarray,
+        speed_command: np.ndarray | None = None,
     ) -> None:
         """One frame for every arena of ``st``; collisions and emergency brakes (A, N) bool are
         marked in ``collided`` and ``brakes``.
 
         ``lead``/``valid`` (A, 2V): each lane entry's leader; with ``mobil_index`` traffic also
         considers lane changes this frame, ``random_movers`` (A, V) whatever their incentive.
+        ``speed_command`` (A, N): the agents' speed steps this frame (speed_steps control only).
         """
         n, dt = self.agents, self.dt
         x_rel = st.x_m - st.x_m[:, :1]
@@ -117,13 +125,19 @@ class Physics:
         new_speed = np.maximum(speed + accel * dt, 0.0)
         # Traffic never drives into traffic: a speed cap keeps it behind a traffic leader even
         # if that leader brakes as hard as it can (Ho's simulator has the same safety rule).
-        # An agent ahead gets no such courtesy: a reckless cut-in can be rear-ended.
+        # An agent ahead gets no such courtesy (a reckless cut-in can be rear-ended) unless
+        # ``traffic.yield_to_agents`` (Ho's simulator, where every car obeys the rule).
         gap, leader = following.gap_m, following.leader
-        capped = p.is_traffic & following.has_leader & p.is_traffic.reshape(-1)[leader]
+        capped = p.is_traffic & following.has_leader
+        if not self.yield_to_agents:
+            capped &= p.is_traffic.reshape(-1)[leader]
         cap = np.maximum(
             following.leader_speed_mps - self.max_decel_mps2 * dt + (gap - 0.2) / dt, 0.0
         )
         new_speed = np.where(capped, np.minimum(new_speed, cap), new_speed)
+        if self.speed_steps is not None:
+            assert speed_command is not None, "speed_steps control needs the frame's commands"
+            new_speed[:, :n] = self.speed_steps.speeds(st, following, speed_command)
         travelled = np.where(st.active, 0.5 * (speed + new_speed) * dt, 0.0)
         st.accel_mps2[:] = (new_speed - speed) / dt
         st.x_m += travelled

@@ -2,14 +2,25 @@
 and their parameters, with where every number comes from: the paper, the authors' code, or a
 choice made here where both are silent.
 
-Only Min et al. (2018) exists so far; Ho (2018) and Fayjie et al. (2018) are still to come.
+Min et al. (2018) and Ho (2018) so far; Fayjie et al. (2018) is still to come.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping
 
+from .assist import EgoConfig
 from .config import ConfigError, PlainValue, SimConfig, apply_overrides
+from .episodes import EpisodeConfig
+from .rewards import RewardConfig
+from .road import RoadConfig
+from .sensors.action_history import ActionHistoryConfig
+from .sensors.camera import CameraConfig
+from .sensors.ego import EgoVectorConfig
+from .sensors.grid import OccupancyGridConfig
+from .sensors.lidar import LidarConfig
+from .traffic.config import BehaviourConfig, TrafficConfig
 
 
 def min2018() -> SimConfig:
@@ -53,7 +64,107 @@ def min2018() -> SimConfig:
     return SimConfig(preset="min2018")
 
 
-PRESETS: dict[str, Callable[[], SimConfig]] = {"min2018": min2018}
+def ho2018() -> SimConfig:
+    """Ho (2018), "Reinforcement Learning for Self-Driving Cars" (NTU final-year thesis).
+
+    From the thesis:
+    - a 7-lane expressway (§1, §6.1); 20 / 40 / 60 traffic cars for light / medium / heavy
+      traffic (Table 4), held on the road; the three driver behaviours of Table 5 deployed at
+      random (§6.1; equal shares, chosen here): ``steady`` sticks to a speed of its own,
+      ``road_max`` to the maximum allowed speed, ``lane_changer`` drives at the maximum and
+      switches lanes to get past whoever blocks it;
+    - the actions accelerate, decelerate, keep ("maintain"), left, right (§4), a decision every
+      4th frame and, for the frames skipped between decisions, the rules of Table 3
+      (``ego.skipped_frames = "table3"``; "repeat" is his code's);
+    - the observation: the occupancy grid of the agent's lane and the lanes either side, 20 m
+      ahead and 10 m behind (§6.1), 36 cells long (Fig. 4's 36 x 3), and the last four actions
+      (§5's action stack); frames are stacked by the trainer (4, Table 6);
+    - the reward (§7.2, Table 6): +1 for every car the agent passes, -1 for every car that
+      passes it, each crossing counted; -0.00001 for a lane change opposite to one among the
+      last four actions; no constant or emergency-brake penalty (both 0 in Table 6);
+    - episodes of at most 4,000 frames (§6.1): 1,000 decisions of 4 frames;
+    - an emergency brake (§6.2): a brake applied with the car ahead slower by 20 km/h or more.
+
+    From the author's code (songyanho/Reinforcement-Learning-for-Self-Driving-Cars,
+    ../shared/notes/seed-repos.md):
+    - the agent's speed from 0 to 110 km/h, starting at 60, changed by 1 km/h per frame, frames
+      of 1/50 s (``ego.speed_control = "speed_steps"``); his safety rule instead of cruise
+      control: no accelerating with a car within 8 m ahead (his 8 cells in front of the
+      bumper; a cell is about a metre, the thesis' 20 m being 21 cells of his code), and a car
+      there that is slower is matched at once; no lane change into an occupied side
+      (``ego.lane_change_check``); traffic obeys the same rule behind the agent too
+      (``traffic.yield_to_agents``), so that, as in his simulator, nothing collides;
+    - traffic's speeds: a speed of its own drawn from 50-100 km/h (``steady``), 100 km/h for
+      the other two; only the lane switcher changes lanes; off-road cells read -1 in the grid.
+
+    Chosen here (the thesis and the code are silent, or use pixels):
+    - lanes 3.5 m wide, cars 4.5 m long; lane changes of 0.25 s (his code jumps a lane in one
+      frame; a quarter of a second keeps the move visible to the sensors and the collision
+      test, and a change still ends within the four decisions his alternation penalty looks
+      back over); traffic kept within 150 m ahead and 100 m behind the agent, spawned 30-90 m
+      ahead or 30-60 m behind it (Min et al.'s windows);
+    - traffic's car-following (IDM) and lane changes (MOBIL): the lane switcher with politeness
+      0 and threshold 0.1 m/s^2, the other two never leave their lane (threshold 10 m/s^2); a
+      time headway of 0.6 s (his cars close up to his 8-cell safety window at any speed): with
+      Min et al.'s 1.5 s only about 47 of 60 cars fit on the kept road, with 0.6 s 58.
+    """
+    never = 10.0  # m/s^2: a MOBIL advantage no lane change ever reaches
+    return SimConfig(
+        preset="ho2018",
+        road=RoadConfig(lane_count=7),
+        traffic=TrafficConfig(
+            density_vehicle_counts=(20, 40, 60),
+            steady=BehaviourConfig(
+                share=1.0,
+                desired_speed_kmh=(50.0, 100.0),
+                lane_change_threshold_mps2=never,
+            ),
+            road_max=BehaviourConfig(
+                share=1.0,
+                desired_speed_kmh=(100.0, 100.0),
+                lane_change_threshold_mps2=never,
+            ),
+            lane_changer=BehaviourConfig(
+                share=1.0,
+                desired_speed_kmh=(100.0, 100.0),
+                politeness=0.0,
+                lane_change_threshold_mps2=0.1,
+            ),
+            random=dataclasses.replace(TrafficConfig().random, share=0.0),
+            time_headway_s=0.6,
+            lane_change_duration_s=0.25,
+            yield_to_agents=True,
+        ),
+        ego=EgoConfig(
+            cruise_min_kmh=0.0,
+            cruise_max_kmh=110.0,
+            initial_speed_kmh=60.0,
+            speed_control="speed_steps",
+            speed_step_kmh=1.0,
+            skipped_frames="table3",
+            safety_gap_m=8.0,
+            lane_change_check=True,
+            lane_change_duration_s=0.25,
+        ),
+        lidar=LidarConfig(enabled=False),
+        camera=CameraConfig(enabled=False),
+        ego_vector=EgoVectorConfig(enabled=False),
+        grid=OccupancyGridConfig(
+            enabled=True, ahead_m=20.0, behind_m=10.0, cells=36, side_lanes=1, off_road_value=-1
+        ),
+        action_history=ActionHistoryConfig(enabled=True),
+        reward=RewardConfig(
+            terms=("overtake", "passed", "alternation"),
+            overtake=1.0,
+            passed=-1.0,
+            alternation=-0.00001,
+            overtakes_counted="every_pass",
+        ),
+        episode=EpisodeConfig(max_decisions=1000, frames_per_decision=4, physics_dt_s=0.02),
+    )
+
+
+PRESETS: dict[str, Callable[[], SimConfig]] = {"min2018": min2018, "ho2018": ho2018}
 DEFAULT_PRESET = "min2018"
 
 

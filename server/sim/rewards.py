@@ -9,13 +9,17 @@ function and an entry in :data:`TERMS` here, its weight below, and its name in a
 Min et al. (2018) Table I is the default: the speed term (Eq. 1, linear from 40 to 80 km/h),
 collision -10, lane change -0.25 (Eq. 3), overtake +0.5 (Eq. 4, once per car passed); and,
 from the authors' code, -0.1 for acting against a warning (a lane change to a side with a side
-warning, or accelerating with a forward warning).
+warning, or accelerating with a forward warning). Ho (2018, §7.2 and Table 6) rewards +1 for
+every car passed and -1 for every car that passes (``overtake`` and ``passed``, every crossing
+counted: ``overtakes_counted = "every_pass"``) and -0.00001 for a lane change opposite to one
+among the last four actions (``alternation``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -35,6 +39,7 @@ class StepFacts:
     overtakes_undone: np.ndarray  # int64: earlier overtakes taken back
     passed_by: np.ndarray  # int64: cars that passed the agent
     against_warning: np.ndarray  # bool: the action went against a warning the agent had
+    alternated: np.ndarray  # bool: a lane change opposite to one among the recent actions
 
 
 @dataclass(frozen=True, slots=True)
@@ -57,6 +62,13 @@ class RewardConfig:
     warning: float = -0.1
     # When a car the agent overtook passes it back, take that overtake back (count and reward).
     undo_overtake_when_passed_back: bool = False
+    # Which passes count as overtakes (count and reward): "once_per_car" (Min et al.: a car
+    # passed again after it passed the agent is not counted again), or "every_pass" (Ho: his
+    # score moves by one at every crossing, whichever car it is).
+    overtakes_counted: Literal["once_per_car", "every_pass"] = "once_per_car"
+    # A lane change to one side while a change to the other side is among the agent's last
+    # ACTION_HISTORY actions (Ho, Table 6: "line switching penalty", -0.00001).
+    alternation: float = -0.00001
 
     def __post_init__(self) -> None:
         check(
@@ -71,11 +83,25 @@ class RewardConfig:
         check_range(
             "reward.speed_max_kmh", self.speed_max_kmh, self.speed_min_kmh, 300.0, low_open=True
         )
-        weights = ("speed_reward_max", "collision", "lane_change", "overtake", "passed", "warning")
+        weights = (
+            "speed_reward_max",
+            "collision",
+            "lane_change",
+            "overtake",
+            "passed",
+            "warning",
+            "alternation",
+        )
         for name in weights:
             check_range(f"reward.{name}", getattr(self, name), -1000.0, 1000.0)
         for name in ("clip_speed_term", "undo_overtake_when_passed_back"):
             check_flag(f"reward.{name}", getattr(self, name))
+        check(
+            self.overtakes_counted in ("once_per_car", "every_pass"),
+            "reward.overtakes_counted",
+            self.overtakes_counted,
+            "once_per_car or every_pass",
+        )
 
 
 def _speed(facts: StepFacts, rc: RewardConfig) -> np.ndarray:
@@ -107,6 +133,10 @@ def _warning(facts: StepFacts, rc: RewardConfig) -> np.ndarray:
     return rc.warning * facts.against_warning
 
 
+def _alternation(facts: StepFacts, rc: RewardConfig) -> np.ndarray:
+    return rc.alternation * facts.alternated
+
+
 # Every term the simulator can reward, by name.
 TERMS: dict[str, Callable[[StepFacts, RewardConfig], np.ndarray]] = {
     "speed": _speed,
@@ -115,6 +145,7 @@ TERMS: dict[str, Callable[[StepFacts, RewardConfig], np.ndarray]] = {
     "overtake": _overtake,
     "passed": _passed,
     "warning": _warning,
+    "alternation": _alternation,
 }
 
 
@@ -127,6 +158,8 @@ class Rewards:
         self._terms = tuple(TERMS[name] for name in config.terms)
         # The warnings at each decision's start are worked out only for a reward that uses them.
         self.needs_warnings = "warning" in config.terms
+        # ... and the agents' recent actions only for one that uses them.
+        self.needs_recent_actions = "alternation" in config.terms
 
     def compute(self, facts: StepFacts) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """The reward (A, N) float64 and each term's weighted value, by name."""

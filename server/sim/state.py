@@ -13,6 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+# The actions each agent's recent past holds (Ho's action stack: the last four).
+ACTION_HISTORY = 4
+
 
 @dataclass
 class SimState:
@@ -45,6 +48,9 @@ class SimState:
     # observation (:class:`~.assist.DriverWarnings`); kept by the simulation only where the
     # reward needs them (all False otherwise).
     warnings: np.ndarray
+    # (A, N, ACTION_HISTORY) int64: each agent's last actions applied, oldest first (keep, 0,
+    # before its episode's first decisions); kept only where a sensor or the reward reads them.
+    recent_actions: np.ndarray
 
     @classmethod
     def empty(cls, arenas: int, agents: int, vehicles: int) -> SimState:
@@ -74,6 +80,7 @@ class SimState:
             episode_return=_f64(a, n),
             traffic_cars_sum=_f64(a, n),
             warnings=_bool(a, n, 3),
+            recent_actions=_i64(a, n, ACTION_HISTORY),
         )
 
     def select(self, rows: np.ndarray) -> SimState:

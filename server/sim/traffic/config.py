@@ -14,7 +14,7 @@ from typing import Literal
 
 from overtake.protocol.vocabulary import BEHAVIOUR_NAMES
 
-from ..validation import check, check_interval, check_range
+from ..validation import check, check_flag, check_interval, check_range
 
 Density = Literal["light", "medium", "heavy"]
 DENSITIES: tuple[str, ...] = ("light", "medium", "heavy")
@@ -120,6 +120,10 @@ class TrafficConfig:
     # MOBIL's safety criterion: a lane change may not make the new follower brake harder.
     safe_decel_mps2: float = 4.0
     lane_change_duration_s: float = 2.5
+    # Traffic's safety rule (a speed cap behind a leader that brakes as hard as it can) also
+    # keeps it behind the agents' cars (Ho's simulator: every car obeys it, nothing collides);
+    # False (Min et al.): only behind traffic, so an agent's reckless cut-in can be rear-ended.
+    yield_to_agents: bool = False
 
     def __post_init__(self) -> None:
         check(self.density in DENSITIES, "traffic.density", self.density, f"one of {DENSITIES}")
@@ -158,7 +162,8 @@ class TrafficConfig:
         check_range("traffic.comfort_decel_mps2", self.comfort_decel_mps2, 0.1, 10.0)
         check_range("traffic.max_decel_mps2", self.max_decel_mps2, self.comfort_decel_mps2, 15.0)
         check_range("traffic.safe_decel_mps2", self.safe_decel_mps2, 0.1, self.max_decel_mps2)
-        check_range("traffic.lane_change_duration_s", self.lane_change_duration_s, 0.5, 10.0)
+        check_range("traffic.lane_change_duration_s", self.lane_change_duration_s, 0.1, 10.0)
+        check_flag("traffic.yield_to_agents", self.yield_to_agents)
 
     @property
     def resolved_vehicle_count(self) -> int:
