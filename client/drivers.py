@@ -120,13 +120,77 @@ class RuleDriver:
         return np.where(go_left, LANE_LEFT, action).astype(np.int64)
 
 
+@dataclass(frozen=True, slots=True)
+class GridRuleDriverConfig:
+    """Thresholds of the rule-based driver on an occupancy grid (metres from the car's centre
+    along the road)."""
+
+    half_length_m: float = 2.25
+    blocked_ahead_m: float = 12.0
+    better_by_m: float = 4.0
+    clear_ahead_m: float = 4.0
+    clear_behind_m: float = 6.0
+
+
+class GridRuleDriver:
+    """The rule-based driver for presets that observe Ho's occupancy grid (``grid``: rows from
+    ``ahead_m`` ahead to ``behind_m`` behind, columns the lane to the left, its own, the lane to
+    the right; 1 occupied, 0 free, anything else off the road) and no speed:
+
+    - it accelerates in every decision (the simulator's safety rule keeps it behind the car
+      ahead);
+    - when a car in its own lane is within ``blocked_ahead_m`` of its front bumper, it changes
+      to a neighbouring lane that is on the road, free from ``clear_behind_m`` behind its centre
+      to ``clear_ahead_m`` ahead of its front, and offers at least ``better_by_m`` more free
+      room ahead (the one with more room, left on a tie), if the action mask allows it.
+    """
+
+    def __init__(
+        self,
+        config: GridRuleDriverConfig = GridRuleDriverConfig(),
+        ahead_m: float = 20.0,
+        behind_m: float = 10.0,
+        cells: int = 36,
+    ) -> None:
+        self.config = config
+        cell_m = (ahead_m + behind_m) / cells
+        top = ahead_m - cell_m * np.arange(cells)  # each row's far edge, m ahead of the centre
+        bottom = top - cell_m
+        front = config.half_length_m
+        # Free room ahead of the front bumper if a row is the first occupied one ahead.
+        self._room_if_first = np.where(bottom >= front, bottom - front, np.inf)
+        self._room_max = ahead_m - front
+        self._beside = (top > -config.clear_behind_m) & (bottom < front + config.clear_ahead_m)
+
+    def act(self, grid: np.ndarray, action_mask: np.ndarray) -> np.ndarray:
+        """Actions (B,) for grids (B, cells, 3) (the latest frame) and action masks (B, 5)."""
+        cfg = self.config
+        grid, action_mask = np.atleast_3d(grid), np.atleast_2d(action_mask)
+        occupied = grid == 1
+        room = np.where(occupied, self._room_if_first[None, :, None], np.inf).min(axis=1)
+        room = np.minimum(room, self._room_max)  # (B, 3): left, own, right
+        on_road = (grid == 0) | occupied
+        clear = ~(occupied & self._beside[None, :, None]).any(axis=1) & on_road.all(axis=1)
+        own = room[:, 1]
+        blocked = own < cfg.blocked_ahead_m
+        room_left = np.where(clear[:, 0] & (action_mask[:, LANE_LEFT] > 0), room[:, 0], -np.inf)
+        room_right = np.where(clear[:, 2] & (action_mask[:, LANE_RIGHT] > 0), room[:, 2], -np.inf)
+        go_left = blocked & (room_left >= own + cfg.better_by_m) & (room_left >= room_right)
+        go_right = blocked & ~go_left & (room_right >= own + cfg.better_by_m)
+        action = np.where(go_right, LANE_RIGHT, CRUISE_UP)
+        return np.where(go_left, LANE_LEFT, action).astype(np.int64)
+
+
 class RandomDriver:
     """Uniformly random among the actions the mask allows."""
 
     def __init__(self, seed: int | None = None) -> None:
         self.rng = np.random.default_rng(seed)
 
-    def act(self, lidar: np.ndarray, ego: np.ndarray, action_mask: np.ndarray) -> np.ndarray:
+    def act(
+        self, lidar: np.ndarray | None, ego: np.ndarray | None, action_mask: np.ndarray
+    ) -> np.ndarray:
+        """Actions (B,) for action masks (B, 5); the observations are not read (None will do)."""
         mask = np.atleast_2d(action_mask).astype(bool)
         scores = np.where(mask, self.rng.random(mask.shape), -1.0)
         return scores.argmax(axis=1).astype(np.int64)

@@ -22,7 +22,13 @@ from overtake.protocol.transport import SecurityConfig
 from overtake.protocol.vocabulary import METRIC_FIELDS
 
 from .commands import UsageError
-from .drivers import RandomDriver, RuleDriver, RuleDriverConfig
+from .drivers import (
+    GridRuleDriver,
+    GridRuleDriverConfig,
+    RandomDriver,
+    RuleDriver,
+    RuleDriverConfig,
+)
 from .remote import RemoteConfig
 
 Policy = Callable[[dict[str, np.ndarray], dict[str, Any], np.ndarray], np.ndarray]
@@ -144,10 +150,16 @@ def baseline_policy(
                 "--connect)"
             )
         return lambda _obs, _info, _starting: np.asarray(plan(), dtype=np.int64)
-    if policy == "rule":
-        if not sim_config["lidar"]["enabled"]:
-            raise UsageError("the rule-based driver reads the LIDAR: keep lidar.enabled true")
-        driver: RuleDriver | RandomDriver = RuleDriver(
+    if policy == "random":
+        randomly = RandomDriver(seed)
+        return lambda _obs, info, _starting: randomly.act(None, None, info["action_mask"])
+    if policy != "rule":
+        raise UsageError(
+            f"unknown baseline policy {policy!r}: one of {', '.join(BASELINE_POLICIES)}"
+        )
+    grid = sim_config.get("grid", {})
+    if sim_config["lidar"]["enabled"] and sim_config["ego_vector"]["enabled"]:
+        driver = RuleDriver(
             RuleDriverConfig(
                 cruise_max_kmh=sim_config["ego"]["cruise_max_kmh"],
                 lane_width_m=sim_config["road"]["lane_width_m"],
@@ -156,15 +168,23 @@ def baseline_policy(
             max_range_m=sim_config["lidar"]["max_range_m"],
             ego_fields=tuple(sim_config["ego_vector"]["fields"]),
         )
-    elif policy == "random":
-        driver = RandomDriver(seed)
-    else:
-        raise UsageError(
-            f"unknown baseline policy {policy!r}: one of {', '.join(BASELINE_POLICIES)}"
+        return lambda obs, info, _starting: driver.act(
+            obs["lidar"], obs["ego"], info["action_mask"]
         )
-
-    def act(obs: dict[str, np.ndarray], info: dict[str, Any], _starting: np.ndarray) -> np.ndarray:
-        lidar = obs.get("lidar", np.zeros((num_envs, 1), dtype=np.float32))
-        return driver.act(lidar, obs["ego"], info["action_mask"])
-
-    return act
+    if grid.get("enabled"):
+        if grid["side_lanes"] != 1:
+            raise UsageError(
+                "the rule-based driver on the occupancy grid reads the lanes either side of its "
+                f"own (grid.side_lanes = 1), got grid.side_lanes = {grid['side_lanes']}"
+            )
+        on_grid = GridRuleDriver(
+            GridRuleDriverConfig(half_length_m=sim_config["ego"]["length_m"] / 2),
+            ahead_m=grid["ahead_m"],
+            behind_m=grid["behind_m"],
+            cells=grid["cells"],
+        )
+        return lambda obs, info, _starting: on_grid.act(obs["grid"], info["action_mask"])
+    raise UsageError(
+        "the rule-based driver reads the LIDAR and the ego vector (lidar.enabled, "
+        "ego_vector.enabled) or the occupancy grid (grid.enabled): this configuration has neither"
+    )

@@ -9,6 +9,9 @@ import numpy as np
 import pytest
 
 import overtake.client  # noqa: F401  (registers the environments)
+from overtake.client.commands import UsageError
+from overtake.client.drivers import GridRuleDriver
+from overtake.client.episodes import baseline_policy, make_vector_env, run_episodes
 from overtake.protocol import HIGHWAY_ENV_ID
 from overtake.protocol.vocabulary import CRUISE_DOWN, CRUISE_UP, KEEP, LANE_LEFT, LANE_RIGHT
 from overtake.server.sim import HighwaySim, make_config
@@ -242,3 +245,70 @@ def test_ho_s_traffic_does_not_collide_with_random_driving():
         assert not sim.step(rng.integers(0, 5, size=(4, 1))).terminated.any()
         kinds |= set(sim.state.kind[:, 1:][sim.state.active[:, 1:]].tolist())
     assert kinds == {0, 1, 2}  # steady, road maximum, lane switcher: all three on the road
+
+
+# --- the reference policies on Ho's set-up ------------------------------------------------------
+
+
+def blank_grid() -> np.ndarray:
+    return np.zeros((1, 36, 3), dtype=np.int8)
+
+
+ALL_ALLOWED = np.ones((1, 5), dtype=np.int8)
+
+
+def test_the_grid_rule_driver_accelerates_on_a_free_road():
+    assert GridRuleDriver().act(blank_grid(), ALL_ALLOWED).tolist() == [CRUISE_UP]
+
+
+@pytest.mark.parametrize(
+    "left,right,expected",
+    [
+        ("free", "free", LANE_LEFT),  # both better: left on a tie
+        ("beside", "free", LANE_RIGHT),  # a car beside on the left
+        ("free", "off", LANE_LEFT),
+        ("off", "beside", CRUISE_UP),  # nowhere to go: the safety rule keeps it behind
+        ("blocked", "blocked", CRUISE_UP),  # no lane better by 4 m
+    ],
+)
+def test_the_grid_rule_driver_leaves_a_blocked_lane_for_a_freer_one(left, right, expected):
+    grid = blank_grid()
+    grid[0, 9:15, OWN_COLUMN] = 1  # a car 7.75-12.25 m ahead: 5.5 m of room
+    for column, state in ((LEFT_COLUMN, left), (RIGHT_COLUMN, right)):
+        if state == "beside":
+            grid[0, 22:28, column] = 1
+        elif state == "off":
+            grid[0, :, column] = -1
+        elif state == "blocked":
+            grid[0, 8:14, column] = 1  # a car about as near as the own lane's
+    assert GridRuleDriver().act(grid, ALL_ALLOWED).tolist() == [expected]
+
+
+def test_the_grid_rule_driver_obeys_the_action_mask():
+    grid = blank_grid()
+    grid[0, 9:15, OWN_COLUMN] = 1
+    mask = ALL_ALLOWED.copy()
+    mask[0, LANE_LEFT] = 0
+    assert GridRuleDriver().act(grid, mask).tolist() == [LANE_RIGHT]
+
+
+def test_every_reference_policy_drives_ho2018_without_further_flags():
+    short = {"episode.max_decisions": 60, "traffic.density": "medium"}
+    speeds = {}
+    for policy in ("idle", "random", "rule", "planner"):
+        envs = make_vector_env("ho2018", short, 3, None)
+        act = baseline_policy(policy, envs.unwrapped.sim_config, 0, 3, envs)
+        rows, decisions, _ = run_episodes(envs, act, 3, 100)
+        envs.close()
+        assert decisions == 3 * 60 and all(row["collisions"] == 0 for row in rows)
+        speeds[policy] = np.mean([row["avg_speed_kmh"] for row in rows])
+    # Idle holds its 60 km/h start (or less); the others accelerate towards 110 km/h.
+    assert speeds["idle"] <= 60.0 + 1e-6
+    assert min(speeds["random"], speeds["rule"], speeds["planner"]) > speeds["idle"] + 5.0
+
+
+def test_the_grid_rule_driver_needs_the_lanes_either_side():
+    envs = make_vector_env("ho2018", {"grid.side_lanes": 2}, 1, None)
+    with pytest.raises(UsageError, match="grid.side_lanes = 2"):
+        baseline_policy("rule", envs.unwrapped.sim_config, 0, 1, envs)
+    envs.close()

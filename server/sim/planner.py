@@ -2,7 +2,8 @@
 
 It reads the true state of every car (no sensor, no noise) and plans by simulating: each
 decision it copies every arena into a shadow simulation, once per option, and drives each copy
-``horizon_decisions`` ahead with the agents' own actions:
+``horizon_s`` of simulated time ahead (6 s: 15 of Min et al.'s decisions, 75 of Ho's) with the
+agents' own actions:
 
 - stay: keep the lane; accelerate whenever there is no forward warning (as below);
 - for each agent, change lanes left, or right, now, then the same (the others stay).
@@ -12,7 +13,7 @@ not used: the planner does not know them). An agent takes the option in which it
 farthest without colliding; a lane change must win by ``better_by_m``. With no lane change
 worth it, it accelerates below the limit unless a car ahead is within its forward warning
 (the reward's "warning" term costs the agents for that), and leaves braking to cruise control
-and emergency braking.
+and emergency braking (under Ho's speed steps: to his safety rule, warnings not heeded).
 
 ``overtake-eval --policy planner`` runs it beside the trained rows (in-process only: a remote
 simulator keeps its state to itself). Each decision costs ``1 + 2 * agents`` shadow copies
@@ -37,7 +38,7 @@ from .state import SimState
 class PlannerConfig:
     """How far ahead the planner simulates, and what a lane change must gain."""
 
-    horizon_decisions: int = 15
+    horizon_s: float = 6.0
     better_by_m: float = 3.0
     # An option ends worth its distance plus its final speed for this long: being stuck
     # behind a slow car at the horizon costs what it will cost after it.
@@ -52,6 +53,7 @@ class Planner:
         self.sim = sim
         self.config = config
         self.limit_mps = sim.config.ego.cruise_max_kmh / 3.6
+        self.horizon_decisions = max(1, round(config.horizon_s / sim.decision_period_s))
         arenas, n = sim.num_arenas, sim.agents
         self.options = 1 + 2 * n  # stay; then agent j left, agent j right
         # The copies need no sensors: the planner reads their state.
@@ -65,13 +67,15 @@ class Planner:
         self._rng = np.random.default_rng(config.seed)
 
     def _greedy(self, sim: HighwaySim) -> np.ndarray:
-        """(A, N) accelerate below the limit unless warned of a car ahead; else keep."""
+        """(A, N) accelerate below the limit unless warned of a car ahead; else keep. Under
+        Ho's speed steps the safety rule keeps the car behind the one ahead: no warning is
+        heeded (the preset's reward has no warning term)."""
         st, n = sim.state, sim.agents
-        warnings = st.warnings if sim.keeps_warnings else sim.warnings.compute(st)
-        forward = warnings[..., DriverWarnings.FORWARD]
-        return np.where(
-            (st.speed_mps[:, :n] < self.limit_mps - 1e-3) & ~forward, CRUISE_UP, KEEP
-        ).astype(np.int64)
+        below = st.speed_mps[:, :n] < self.limit_mps - 1e-3
+        if sim.speed_steps is None:
+            warnings = st.warnings if sim.keeps_warnings else sim.warnings.compute(st)
+            below &= ~warnings[..., DriverWarnings.FORWARD]
+        return np.where(below, CRUISE_UP, KEEP).astype(np.int64)
 
     def _copy_state(self) -> None:
         """Every option's copy of every arena, with common random draws across options."""
@@ -103,7 +107,7 @@ class Planner:
         # A lane change that cannot start (no lane, one under way) is no option at all.
         possible = result.action_applied == first
         crashed |= result.terminated
-        for _ in range(self.config.horizon_decisions - 1):
+        for _ in range(self.horizon_decisions - 1):
             crashed |= shadow.step(self._greedy(shadow)).terminated
         value = shadow.state.x_m[:, :n] - start
         value += self.config.terminal_time_s * shadow.state.speed_mps[:, :n]
