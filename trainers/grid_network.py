@@ -1,0 +1,97 @@
+"""Ho's Q-networks (2018, §5, Figs. 4-5) on the occupancy grid and the action stack.
+
+- ``baseline`` (Fig. 4, after Mnih et al. 2013): the last ``stack`` grids (B, S, cells, lanes)
+  as channels, one convolution of 16 filters 3x3 with stride 2 and ReLU, flattened, one linear
+  layer to the Q-values. The thesis gives no padding: 1 here, so that the three lanes survive.
+- ``proposed`` (Fig. 5; the sizes are his code's): two convolutions of 16 and 32 filters 3x3
+  (padding 1), each with ReLU and a 2x2 max pooling of stride 2 (rounding up, TensorFlow's
+  "same"), flattened; the action stack (the last four actions, as action indices, the way his
+  code feeds them) through two dense layers of 4 units with ReLU; both concatenated, a dense
+  layer of 100 units with ReLU, then the Q-values.
+
+With ``dueling`` the last layer becomes a value and an advantage head (Wang et al.), combined as
+in :func:`~.network.dueling_q`; Ho used plain Q-values. Grids arrive as the simulator sends
+them (int8: -1 off the road, 0 free, 1 occupied) and are read as numbers unchanged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import torch
+from torch import nn
+
+from .network import dueling_q
+
+GridNetworkKind = Literal["baseline", "proposed"]
+GRID_NETWORKS: tuple[str, ...] = ("baseline", "proposed")
+
+
+@dataclass(frozen=True)
+class GridNetworkShape:
+    """What a grid network is built for: one grid's (cells, lanes), the action stack's
+    length, the action count and the grids stacked per observation."""
+
+    grid_hw: tuple[int, int]
+    action_history: int
+    actions: int
+    stack: int = 4
+
+
+def _pooled(size: int) -> int:
+    """A length after a 2x2 max pooling of stride 2 that rounds up (TensorFlow's "same")."""
+    return (size + 1) // 2
+
+
+class GridQNetwork(nn.Module):
+    """Q-values (B, actions) from stacked grids (B, S, cells, lanes) and the action stack (B, K)."""
+
+    def __init__(
+        self, shape: GridNetworkShape, kind: GridNetworkKind = "proposed", dueling: bool = False
+    ) -> None:
+        super().__init__()
+        if kind not in GRID_NETWORKS:
+            raise ValueError(f"kind must be one of {GRID_NETWORKS}, got {kind!r}")
+        self.shape, self.kind, self.dueling = shape, kind, dueling
+        cells, lanes = shape.grid_hw
+        if kind == "baseline":
+            self.conv = nn.Sequential(
+                nn.Conv2d(shape.stack, 16, kernel_size=3, stride=2, padding=1),
+                nn.ReLU(),
+                nn.Flatten(),
+            )
+            features = 16 * ((cells - 1) // 2 + 1) * ((lanes - 1) // 2 + 1)
+            self.uses_actions = False
+            last = features
+        else:
+            self.conv = nn.Sequential(
+                nn.Conv2d(shape.stack, 16, kernel_size=3, padding=1),
+                nn.ReLU(),
+                nn.MaxPool2d(2, stride=2, ceil_mode=True),
+                nn.Conv2d(16, 32, kernel_size=3, padding=1),
+                nn.ReLU(),
+                nn.MaxPool2d(2, stride=2, ceil_mode=True),
+                nn.Flatten(),
+            )
+            features = 32 * _pooled(_pooled(cells)) * _pooled(_pooled(lanes))
+            self.action_net = nn.Sequential(
+                nn.Linear(shape.action_history, 4), nn.ReLU(), nn.Linear(4, 4), nn.ReLU()
+            )
+            self.uses_actions = True
+            self.fuse = nn.Sequential(nn.Linear(features + 4, 100), nn.ReLU())
+            last = 100
+        if dueling:
+            self.value = nn.Linear(last, 1)
+            self.advantage = nn.Linear(last, shape.actions)
+        else:
+            self.q = nn.Linear(last, shape.actions)
+
+    def forward(self, grid: torch.Tensor, actions: torch.Tensor | None = None) -> torch.Tensor:
+        hidden = self.conv(grid.float())
+        if self.uses_actions:
+            assert actions is not None, "the proposed network reads the action stack"
+            hidden = self.fuse(torch.cat([hidden, self.action_net(actions.float())], dim=1))
+        if self.dueling:
+            return dueling_q(self.value(hidden), self.advantage(hidden))
+        return self.q(hidden)
