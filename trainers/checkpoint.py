@@ -22,6 +22,7 @@ import torch
 
 from overtake.client.commands import UsageError
 
+from .grid_network import GridNetworkShape
 from .learner import ALGOS, DQNConfig, DQNLearner
 from .network import Inputs, NetworkShape
 
@@ -42,7 +43,7 @@ class Checkpoint:
     preset: str
     overrides: dict[str, Any]
     space: dict[str, Any]
-    net_shape: NetworkShape
+    net_shape: NetworkShape | GridNetworkShape
     dqn: DQNConfig
     step: int
     episodes: int
@@ -81,7 +82,7 @@ def save_checkpoint(
     config: Any,
     overrides: dict[str, Any],
     space: dict[str, Any],
-    net_shape: NetworkShape,
+    net_shape: NetworkShape | GridNetworkShape,
     step: int,
     episodes: int,
     rng_state: Mapping[str, Any],
@@ -147,15 +148,21 @@ def load_checkpoint(path: Path) -> Checkpoint:
             f"{path}: expected inputs one of {list(get_args(Inputs))}, got {header.get('inputs')!r}"
         )
     shape = dict(header["net_shape"])
-    shape["camera_hw"] = tuple(shape["camera_hw"])
-    shape["ego_high"] = tuple(shape["ego_high"])
+    net_shape: NetworkShape | GridNetworkShape
+    if header["inputs"] == "grid":
+        shape["grid_hw"] = tuple(shape["grid_hw"])
+        net_shape = GridNetworkShape(**shape)
+    else:
+        shape["camera_hw"] = tuple(shape["camera_hw"])
+        shape["ego_high"] = tuple(shape["ego_high"])
+        net_shape = NetworkShape(**shape)
     return Checkpoint(
         algo=header["algo"],
         inputs=header["inputs"],
         preset=header["preset"],
         overrides=header["overrides"],
         space=header["space"],
-        net_shape=NetworkShape(**shape),
+        net_shape=net_shape,
         dqn=DQNConfig(**header["dqn"]),
         step=int(header["step"]),
         episodes=int(header["episodes"]),

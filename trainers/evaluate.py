@@ -28,7 +28,7 @@ from overtake.protocol.transport import SecurityConfig
 
 from .checkpoint import load_checkpoint
 from .network import INPUT_SENSORS
-from .observations import frame_shapes
+from .observations import describe_space, frame_shapes
 from .replay import FrameStacker
 
 TABLE_METRICS = (
@@ -76,9 +76,17 @@ class EvalConfig:
 class GreedyPolicy:
     """A trained learner acting greedily on stacked frames (restarted at episode starts)."""
 
-    def __init__(self, checkpoint: Any, num_envs: int, space: Any) -> None:
+    def __init__(self, checkpoint: Any, num_envs: int, space: Any, preset: str) -> None:
+        trained_on = f"(the checkpoint was trained on preset {checkpoint.preset})"
+        shapes = frame_shapes(space, checkpoint.inputs, f"preset {preset} {trained_on}")
+        here = describe_space(space)
+        for name in shapes.shapes:
+            if here[name] != checkpoint.space.get(name):
+                raise UsageError(
+                    f"observation {name!r} of preset {preset} is {here[name]}, the checkpoint's "
+                    f"network was built for {checkpoint.space.get(name)} {trained_on}"
+                )
         self.learner = checkpoint.make_learner()
-        shapes = frame_shapes(space, checkpoint.inputs)
         self.names = tuple(shapes.shapes)
         self.stacker = FrameStacker(
             num_envs, shapes, checkpoint.dqn.stack, INPUT_SENSORS[checkpoint.inputs]
@@ -170,7 +178,9 @@ def main(config: EvalConfig) -> dict[str, Any]:
     try:
         sim = envs.unwrapped.sim_config
         if checkpoint is not None:
-            policy: Any = GreedyPolicy(checkpoint, config.episodes, envs.single_observation_space)
+            policy: Any = GreedyPolicy(
+                checkpoint, config.episodes, envs.single_observation_space, preset
+            )
             name = config.name or f"{checkpoint.algo}/{checkpoint.inputs}@{checkpoint.step}"
         else:
             policy = baseline_policy(str(config.policy), sim, config.seed, config.episodes, envs)

@@ -491,7 +491,9 @@ def command_args(config: Any, default: Any) -> list[str]:
 def train_command(train: TrainConfig) -> list[str]:
     """``overtake-train`` for ``train``, as this interpreter's module (found whether or not
     the environment's bin is on PATH)."""
-    return [sys.executable, "-m", "overtake.trainers.train", *command_args(train, TrainConfig())]
+    # overtake-train's defaults are the preset's training (TrainConfig.for_preset).
+    base = TrainConfig.for_preset(train.preset)
+    return [sys.executable, "-m", "overtake.trainers.train", *command_args(train, base)]
 
 
 def eval_command(evaluation: EvalConfig) -> list[str]:
@@ -1289,7 +1291,13 @@ def check_directory(plan: Plan) -> None:
         before = stored["runs"].get(run.name)
         now = training_identity(run.train)
         if before is not None and before != now:
-            differ = sorted(_differences(before, now))
+            # A setting added to the trainer since the directory was recorded, at its default
+            # (what the trainer did before the setting existed), is no difference.
+            default = training_identity(TrainConfig.for_preset(run.train.preset))
+            differ = sorted(_differences(before, now, added_at=default))
+            if not differ:
+                stored["runs"][run.name] = now
+                continue
             raise UsageError(
                 f"{run.run_dir} was trained with other settings ({', '.join(differ)}) than "
                 "this invocation asks for: give the same options as before, or choose "
@@ -1300,11 +1308,18 @@ def check_directory(plan: Plan) -> None:
     write_atomic(path, json.dumps(stored, indent=1))
 
 
-def _differences(before: dict[str, Any], now: dict[str, Any], prefix: str = "") -> Iterator[str]:
+def _differences(
+    before: dict[str, Any], now: dict[str, Any], prefix: str = "", added_at: Any = None
+) -> Iterator[str]:
+    """The settings that differ, named; one ``before`` lacks is none if ``now`` holds it at
+    its value in ``added_at`` (the defaults)."""
+    defaults = added_at if isinstance(added_at, dict) else {}
     for name in before.keys() | now.keys():
         a, b = before.get(name), now.get(name)
         if isinstance(a, dict) and isinstance(b, dict):
-            yield from _differences(a, b, f"{prefix}{name}.")
+            yield from _differences(a, b, f"{prefix}{name}.", defaults.get(name))
+        elif name not in before and name in defaults and b == defaults[name]:
+            continue
         elif a != b:
             yield f"{prefix}{name} {a!r} then, {b!r} now"
 

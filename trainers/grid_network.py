@@ -38,6 +38,17 @@ class GridNetworkShape:
     actions: int
     stack: int = 4
 
+    @classmethod
+    def from_space(cls, space, actions: int, stack: int) -> GridNetworkShape:
+        """From a single environment's Dict observation space (``grid`` and ``actions``)."""
+        cells, lanes = space["grid"].shape
+        return cls(
+            grid_hw=(int(cells), int(lanes)),
+            action_history=int(space["actions"].shape[0]),
+            actions=actions,
+            stack=stack,
+        )
+
 
 def _pooled(size: int) -> int:
     """A length after a 2x2 max pooling of stride 2 that rounds up (TensorFlow's "same")."""
@@ -46,6 +57,9 @@ def _pooled(size: int) -> int:
 
 class GridQNetwork(nn.Module):
     """Q-values (B, actions) from stacked grids (B, S, cells, lanes) and the action stack (B, K)."""
+
+    # The observations forward() takes, in order.
+    input_names: tuple[str, ...] = ("grid", "actions")
 
     def __init__(
         self, shape: GridNetworkShape, kind: GridNetworkKind = "proposed", dueling: bool = False
@@ -63,6 +77,7 @@ class GridQNetwork(nn.Module):
             )
             features = 16 * ((cells - 1) // 2 + 1) * ((lanes - 1) // 2 + 1)
             self.uses_actions = False
+            self.used_inputs: tuple[str, ...] = ("grid",)
             last = features
         else:
             self.conv = nn.Sequential(
@@ -79,6 +94,7 @@ class GridQNetwork(nn.Module):
                 nn.Linear(shape.action_history, 4), nn.ReLU(), nn.Linear(4, 4), nn.ReLU()
             )
             self.uses_actions = True
+            self.used_inputs = ("grid", "actions")
             self.fuse = nn.Sequential(nn.Linear(features + 4, 100), nn.ReLU())
             last = 100
         if dueling:

@@ -21,6 +21,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from .grid_network import GridNetworkShape, GridQNetwork
 from .network import Inputs, NetworkShape, QNetwork
 
 Algo = Literal["dqn", "ddqn", "dueling"]
@@ -58,9 +59,21 @@ class DQNConfig:
     grad_clip_norm: float = 10.0
     huber_delta: float = 1.0
     stack: int = 4
-    """frames (camera) and scans (LIDAR) stacked per observation"""
+    """frames (camera), scans (LIDAR) or grids stacked per observation"""
     lstm_cells: int = 256
     hidden_units: int = 512
+    network: Literal["multimodal", "baseline", "proposed"] = "multimodal"
+    """multimodal: Min et al.'s (camera / LIDAR inputs); baseline or proposed: Ho's networks
+    on the occupancy grid (grid inputs; Figs. 4 and 5)"""
+    optimizer: Literal["adam", "rmsprop"] = "adam"
+    rmsprop_alpha: float = 0.95
+    """RMSProp's squared-gradient smoothing (Mnih et al. 2015: 0.95)"""
+    rmsprop_eps: float = 0.01
+    """RMSProp's minimum squared gradient (Mnih et al. 2015: 0.01)"""
+    rmsprop_centered: bool = True
+    """RMSProp with a gradient momentum (a mean of the gradient, Mnih et al.'s 0.95 as alpha)"""
+    loss: Literal["huber", "mse"] = "huber"
+    """of the TD error: Huber (Mnih et al. 2015) or squared (Ho's code)"""
 
     def __post_init__(self) -> None:
         for name in (
@@ -84,11 +97,62 @@ class DQNConfig:
         for name in ("epsilon_start", "epsilon_end"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
+        if self.grad_clip_norm < 0.0:
+            raise ValueError(f"grad_clip_norm must be >= 0 (0: none), got {self.grad_clip_norm}")
+        choices = {
+            "network": ("multimodal", "baseline", "proposed"),
+            "optimizer": ("adam", "rmsprop"),
+            "loss": ("huber", "mse"),
+        }
+        for name, allowed in choices.items():
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
+        if not 0.0 < self.rmsprop_alpha < 1.0 or self.rmsprop_eps <= 0.0:
+            raise ValueError(
+                "rmsprop_alpha must be in (0, 1) and rmsprop_eps > 0, got "
+                f"{self.rmsprop_alpha} and {self.rmsprop_eps}"
+            )
 
     def epsilon(self, step: int) -> float:
         """The exploration rate after ``step`` environment steps."""
         fraction = min(max(step, 0) / self.epsilon_decay_steps, 1.0)
         return self.epsilon_start + fraction * (self.epsilon_end - self.epsilon_start)
+
+
+def build_network(
+    shape: NetworkShape | GridNetworkShape, inputs: Inputs, config: DQNConfig, dueling: bool
+) -> nn.Module:
+    """The Q-network ``config.network`` names, for ``inputs``: Min et al.'s multi-modal network
+    on camera and / or LIDAR, or one of Ho's on the occupancy grid."""
+    if inputs == "grid":
+        if config.network == "multimodal" or not isinstance(shape, GridNetworkShape):
+            raise ValueError(
+                "inputs grid (Ho's occupancy grid) need network baseline or proposed, got "
+                f"network={config.network!r}"
+            )
+        return GridQNetwork(shape, config.network, dueling=dueling)
+    if config.network != "multimodal" or not isinstance(shape, NetworkShape):
+        raise ValueError(
+            f"inputs {inputs} (Min et al.'s camera / LIDAR) need network multimodal, got "
+            f"network={config.network!r}"
+        )
+    return QNetwork(
+        shape, inputs, dueling=dueling, lstm_cells=config.lstm_cells, hidden=config.hidden_units
+    )
+
+
+def build_optimizer(parameters: Any, config: DQNConfig) -> torch.optim.Optimizer:
+    """Adam (Min et al.'s code) or RMSProp (Ho, Table 6, with Mnih et al.'s squared-gradient
+    settings)."""
+    if config.optimizer == "rmsprop":
+        return torch.optim.RMSprop(
+            parameters,
+            lr=config.learning_rate,
+            alpha=config.rmsprop_alpha,
+            eps=config.rmsprop_eps,
+            centered=config.rmsprop_centered,
+        )
+    return torch.optim.Adam(parameters, lr=config.learning_rate)
 
 
 def masked(q: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -124,7 +188,7 @@ class DQNLearner:
 
     def __init__(
         self,
-        shape: NetworkShape,
+        shape: NetworkShape | GridNetworkShape,
         inputs: Inputs,
         config: DQNConfig,
         *,
@@ -135,32 +199,26 @@ class DQNLearner:
         self.shape, self.inputs, self.config = shape, inputs, config
         self.double, self.dueling = double, dueling
         self.device = torch.device(device)
-        self.online = QNetwork(
-            shape, inputs, dueling=dueling, lstm_cells=config.lstm_cells, hidden=config.hidden_units
-        ).to(self.device)
+        self.online = build_network(shape, inputs, config, dueling).to(self.device)
         self.target = copy.deepcopy(self.online).eval()
         for p in self.target.parameters():
             p.requires_grad_(False)
-        self.optimizer = torch.optim.Adam(self.online.parameters(), lr=config.learning_rate)
-        self.loss_fn = nn.HuberLoss(delta=config.huber_delta)
+        self.optimizer = build_optimizer(self.online.parameters(), config)
+        self.loss_fn: nn.Module = (
+            nn.HuberLoss(delta=config.huber_delta) if config.loss == "huber" else nn.MSELoss()
+        )
         self.updates = 0
 
     # --- inputs ---------------------------------------------------------------------------
 
-    def _tensors(
-        self, obs: dict[str, np.ndarray], prefix: str = ""
-    ) -> tuple[torch.Tensor | None, torch.Tensor | None, torch.Tensor]:
-        def get(name: str) -> torch.Tensor | None:
-            value = obs.get(prefix + name)
-            return None if value is None else torch.as_tensor(value, device=self.device)
-
-        ego = get("ego")
-        assert ego is not None
-        return (
-            get("camera") if self.online.uses_camera else None,
-            get("lidar") if self.online.uses_lidar else None,
-            ego,
-        )
+    def _tensors(self, obs: dict[str, np.ndarray], prefix: str = "") -> list[torch.Tensor | None]:
+        """The network's inputs in the order it takes them (None for one it leaves out)."""
+        network: Any = self.online  # a QNetwork or a GridQNetwork: both name their inputs
+        used = set(network.used_inputs)
+        return [
+            torch.as_tensor(obs[prefix + name], device=self.device) if name in used else None
+            for name in network.input_names
+        ]
 
     # --- acting ---------------------------------------------------------------------------
 
@@ -204,7 +262,8 @@ class DQNLearner:
         loss = self.loss_fn(q_taken, target)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
-        nn.utils.clip_grad_norm_(self.online.parameters(), self.config.grad_clip_norm)
+        if self.config.grad_clip_norm > 0.0:
+            nn.utils.clip_grad_norm_(self.online.parameters(), self.config.grad_clip_norm)
         self.optimizer.step()
         self.updates += 1
         return {"loss": float(loss.item()), "q_taken": float(q_taken.mean().item())}

@@ -25,13 +25,22 @@ import numpy as np
 import torch
 from torch import nn
 
-Inputs = Literal["camera", "lidar", "both"]
-# The sensors each input configuration reads; both are stacked over the last frames (the ego
-# vector, read by every configuration, is not).
+Inputs = Literal["camera", "lidar", "both", "grid"]
+# The sensors each input configuration reads stacked over the last frames: Min et al.'s camera
+# and LIDAR, or Ho's occupancy grid (:mod:`.grid_network`) ...
 INPUT_SENSORS: dict[str, tuple[str, ...]] = {
     "camera": ("camera",),
     "lidar": ("lidar",),
     "both": ("camera", "lidar"),
+    "grid": ("grid",),
+}
+# ... and those it reads at the latest decision only: the ego vector for Min et al.'s networks,
+# the action stack (itself the last four actions) for Ho's.
+LATEST_SENSORS: dict[str, tuple[str, ...]] = {
+    "camera": ("ego",),
+    "lidar": ("ego",),
+    "both": ("ego",),
+    "grid": ("actions",),
 }
 INPUTS: tuple[str, ...] = tuple(INPUT_SENSORS)
 
@@ -83,6 +92,8 @@ class QNetwork(nn.Module):
     (B, E)."""
 
     ego_scale: torch.Tensor  # a buffer: 1 / each ego field's upper bound
+    # The observations forward() takes, in order (None for one the inputs leave out).
+    input_names: tuple[str, ...] = ("camera", "lidar", "ego")
 
     def __init__(
         self,
@@ -93,13 +104,16 @@ class QNetwork(nn.Module):
         hidden: int = 512,
     ) -> None:
         super().__init__()
-        if inputs not in INPUTS:
-            raise ValueError(f"inputs must be one of {INPUTS}, got {inputs!r}")
+        if inputs not in ("camera", "lidar", "both"):
+            raise ValueError(
+                f"Min et al.'s network reads camera, lidar or both, got inputs={inputs!r}"
+            )
         if inputs in ("lidar", "both") and shape.lidar_rays == 0:
             raise ValueError(f"inputs={inputs!r} needs the LIDAR, but the environment has none")
         self.shape, self.inputs, self.dueling = shape, inputs, dueling
         self.uses_camera = "camera" in INPUT_SENSORS[inputs]
         self.uses_lidar = "lidar" in INPUT_SENSORS[inputs]
+        self.used_inputs = ("ego", *INPUT_SENSORS[inputs])
         features = shape.ego_size
         if self.uses_camera:
             self.conv = nn.Sequential(

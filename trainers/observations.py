@@ -1,9 +1,9 @@
 """What the learner reads of the environment's observation space.
 
-:func:`frame_shapes` picks the observations a network of the given inputs uses (always the ego
-vector, plus camera and/or LIDAR) as the replay and the frame stacker store them, for training
-and evaluation alike; :func:`describe_space` is the space as plain data for the run record and
-the checkpoint.
+:func:`frame_shapes` picks the observations a network of the given inputs uses (the ego vector
+with camera and/or LIDAR, or the occupancy grid with the action stack) as the replay and the
+frame stacker store them, for training and evaluation alike; :func:`describe_space` is the space
+as plain data for the run record and the checkpoint.
 """
 
 from __future__ import annotations
@@ -16,19 +16,22 @@ import numpy as np
 from overtake.client.commands import UsageError
 from overtake.protocol import ACTION_COUNT
 
-from .network import INPUT_SENSORS, Inputs
+from .network import INPUT_SENSORS, LATEST_SENSORS, Inputs
 from .replay import FrameShapes
 
 
-def frame_shapes(space: gym.spaces.Dict, inputs: Inputs) -> FrameShapes:
-    """The per-frame observations the learner uses, as the replay stores them."""
-    wanted = {"ego", *INPUT_SENSORS[inputs]}
+def frame_shapes(
+    space: gym.spaces.Dict, inputs: Inputs, where: str = "this preset's environment"
+) -> FrameShapes:
+    """The per-frame observations the learner uses, as the replay stores them; ``where`` names
+    the environment in the error for one it does not send."""
+    wanted = {*LATEST_SENSORS[inputs], *INPUT_SENSORS[inputs]}
     missing = wanted - set(space.spaces)
     if missing:
         raise UsageError(
             f"--inputs {inputs} needs the observation(s) {sorted(missing)}, which "
-            "this preset's environment does not send (check camera.enabled / "
-            "lidar.enabled)"
+            f"{where} does not send (it sends {sorted(space.spaces)}; check the preset and "
+            "its sensors' *.enabled)"
         )
     boxes = {name: _box(space, name) for name in sorted(wanted)}
     return FrameShapes(

@@ -51,9 +51,11 @@ from .checkpoint import (
     plain_data,
     save_checkpoint,
 )
+from .grid_network import GridNetworkShape
 from .learner import ALGOS, Algo, DQNConfig, DQNLearner
 from .network import INPUT_SENSORS, Inputs, NetworkShape
 from .observations import describe_space, frame_shapes
+from .presets import PRESET_TRAINING
 from .replay import FrameStacker, ReplayMemory
 from .visual import TrainingRecording, training_blueprint
 
@@ -70,7 +72,8 @@ class TrainConfig:
     algo: Algo = "ddqn"
     """dqn, ddqn (Double DQN) or dueling (Dueling network with the Double DQN target)"""
     inputs: Inputs = "both"
-    """camera, lidar or both (Min et al.'s multi-modal network)"""
+    """camera, lidar or both (Min et al.'s multi-modal network), or grid (Ho's occupancy grid
+    and action stack); the default is the preset's"""
     preset: str = "min2018"
     traffic: Literal["light", "medium", "heavy"] | None = None
     """traffic density; None keeps the preset's"""
@@ -110,6 +113,19 @@ class TrainConfig:
     )
     """Rerun: episodes, learning curves and environment 0's view (default: trainer.rrd in the
     run directory)"""
+
+    @classmethod
+    def for_preset(cls, preset: str, **changes: Any) -> TrainConfig:
+        """The preset's training defaults (:mod:`.presets`: its paper's algorithm, inputs,
+        network and hyper-parameters; Min et al.'s for a preset without its own), with
+        ``changes`` (fields of TrainConfig) applied."""
+        base = cls(preset=preset)
+        defaults = PRESET_TRAINING.get(preset)
+        if defaults is not None:
+            base = dataclasses.replace(
+                base, algo=defaults.algo, inputs=defaults.inputs, dqn=defaults.dqn
+            )
+        return dataclasses.replace(base, **changes)
 
     def resolved_run_dir(self) -> Path:
         return self.run_dir or Path("runs") / f"{self.algo}-{self.inputs}-{self.seed}"
@@ -299,9 +315,10 @@ class TrainingRun:
         of its exploration."""
         config, dqn = self.config, self.dqn
         double, dueling = ALGOS[config.algo]
-        shapes = frame_shapes(self.space, config.inputs)
+        shapes = frame_shapes(self.space, config.inputs, f"preset {config.preset}'s environment")
         stacked = INPUT_SENSORS[config.inputs]
-        self.net_shape = NetworkShape.from_space(self.space, ACTION_COUNT, dqn.stack)
+        shape_of = GridNetworkShape if config.inputs == "grid" else NetworkShape
+        self.net_shape = shape_of.from_space(self.space, ACTION_COUNT, dqn.stack)
         torch.manual_seed(config.seed)
         self.learner = DQNLearner(
             self.net_shape, config.inputs, dqn, double=double, dueling=dueling, device=config.device
@@ -593,12 +610,26 @@ def _progress(config: TrainConfig, start: int) -> Any:
     )
 
 
+def preset_in(argv: list[str]) -> str:
+    """The ``--preset`` a command line names (its last), or the default preset."""
+    preset = TrainConfig().preset
+    for i, arg in enumerate(argv):
+        if arg == "--preset" and i + 1 < len(argv):
+            preset = argv[i + 1]
+        elif arg.startswith("--preset="):
+            preset = arg.split("=", 1)[1]
+    return preset
+
+
 def cli(argv: list[str] | None = None) -> None:
     import tyro
 
+    args = sys.argv[1:] if argv is None else argv
     config = tyro.cli(
         TrainConfig,
-        args=argv,
+        args=args,
+        # The defaults are the named preset's training (--help shows them).
+        default=TrainConfig.for_preset(preset_in(args)),
         config=(tyro.conf.OmitArgPrefixes,),
         description="overtake-train: DQN / Double DQN / Dueling DQN on overtake",
     )

@@ -1,0 +1,62 @@
+"""What each simulator preset trains with unless told otherwise: its paper's algorithm, inputs,
+network, optimiser and hyper-parameters. ``overtake-train --preset NAME`` starts from these
+(its ``--help`` shows them), and every one can be overridden by its flag.
+
+- ``min2018`` (Min et al. 2018 and the authors' code): Double DQN on camera and LIDAR with the
+  multi-modal network of Table II, Adam 2.5e-4 and the rest of :class:`.learner.DQNConfig`'s
+  defaults.
+- ``ho2018`` (Ho 2018, Table 6): DQN with a target network (the thesis calls it DDQN but
+  describes a target network only) on the occupancy grid with the proposed network of Fig. 5;
+  RMSProp with learning rate 0.0005 and gradient momentum 0.95 (Table 7's runs vary the rate:
+  ``--learning-rate``), discount 0.99, minibatch 32, replay 1,000,000, learning from 100,000
+  transitions, epsilon 1 to 0.1 over 2,000,000 decisions, a target copy every 10,000 (counted
+  here in environment steps), 4 stacked grids; the squared TD error of his code, no gradient
+  clipping. Chosen here: RMSProp's other settings as Mnih et al. (2015), whose table Table 6
+  follows (squared-gradient smoothing 0.95, minimum 0.01, centred), and an update every 4
+  steps.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .learner import Algo, DQNConfig
+from .network import Inputs
+
+
+@dataclass(frozen=True)
+class PresetTraining:
+    """A preset's training defaults."""
+
+    algo: Algo
+    inputs: Inputs
+    dqn: DQNConfig
+
+
+PRESET_TRAINING: dict[str, PresetTraining] = {
+    "min2018": PresetTraining(algo="ddqn", inputs="both", dqn=DQNConfig()),
+    "ho2018": PresetTraining(
+        algo="dqn",
+        inputs="grid",
+        dqn=DQNConfig(
+            network="proposed",
+            optimizer="rmsprop",
+            learning_rate=0.0005,
+            rmsprop_alpha=0.95,
+            rmsprop_eps=0.01,
+            rmsprop_centered=True,
+            batch_size=32,
+            replay_size=1_000_000,
+            learning_starts=100_000,
+            gamma=0.99,
+            epsilon_start=1.0,
+            epsilon_end=0.1,
+            epsilon_decay_steps=2_000_000,
+            target_update_steps=10_000,
+            train_every=4,
+            loss="mse",
+            grad_clip_norm=0.0,
+            stack=4,
+        ),
+    ),
+}
