@@ -37,10 +37,11 @@ from overtake.trainers.experiment import (
     note_life,
     reference_policies,
     seed_statistics,
+    train_command,
     training_episodes,
 )
 from overtake.trainers.learner import DQNConfig
-from overtake.trainers.train import TrainConfig
+from overtake.trainers.train import TrainConfig, parse_args
 from overtake.viz.recording import RecordingConfig
 
 from remote_support import wait_until
@@ -144,6 +145,7 @@ def test_each_runs_command_line_parses_back_to_its_training_configuration(tmp_pa
     ]
     for run in plan.runs:
         assert parse(TrainConfig, command_args(run.train, TrainConfig())) == run.train
+        assert parse_args(train_command(run.train)[3:]) == run.train
     train = plan.runs[2].train
     assert (train.algo, train.inputs, train.seed, train.run_dir) == (
         "ddqn",
@@ -154,6 +156,29 @@ def test_each_runs_command_line_parses_back_to_its_training_configuration(tmp_pa
     assert train.resume_if_found and not train.progress and train.connect == config.connect
     assert train.dqn.learning_starts == Schedule.for_budget(200_000).learning_starts
     assert train.recording == RecordingConfig(sink="file", record_every=10)
+
+
+def test_ho2018_table8_runs_train_ho_s_networks_with_the_presets_settings(tmp_path):
+    plan = make_plan(ExperimentConfig(experiment="ho2018-table8", out=tmp_path))
+    assert [run.name for run in plan.runs] == [
+        "baseline-seed0",
+        "proposed-lr0.0001-seed0",
+        "proposed-lr0.00025-seed0",
+        "proposed-lr0.0005-seed0",
+        "proposed-lr0.00075-seed0",
+    ]
+    for run in plan.runs:
+        # The command names the preset, whose training is overtake-train's default then.
+        command = train_command(run.train)[3:]
+        assert command[:2] == ["--preset", "ho2018"]
+        assert parse_args(command) == run.train
+        assert (run.train.algo, run.train.inputs) == ("dqn", "grid")
+        assert run.train.dqn.optimizer == "rmsprop" and run.train.dqn.loss == "mse"
+    assert [run.train.dqn.network for run in plan.runs] == ["baseline"] + ["proposed"] * 4
+    assert [run.train.dqn.learning_rate for run in plan.runs] == [
+        0.0005, 0.0001, 0.00025, 0.0005, 0.00075
+    ]  # fmt: skip
+    assert plan.eval_episodes == 200 and "planner" not in plan.references
 
 
 def test_an_evaluations_command_line_parses_back_to_its_configuration(tmp_path):

@@ -63,14 +63,19 @@ from overtake.viz.recording import RecordingConfig, close_recording, open_record
 
 from .checkpoint import CHECKPOINT_NAME, load_checkpoint, plain_data
 from .evaluate import EvalConfig
-from .learner import Algo, DQNConfig
+from .learner import Algo
 from .network import Inputs
 from .train import TrainConfig, git_commit, package_versions
 
 Density = Literal["light", "medium", "heavy"]
 
 ALGO_NAMES = {"dqn": "DQN", "ddqn": "Double DQN", "dueling": "Dueling DQN"}
-INPUT_NAMES = {"both": "camera + LIDAR", "camera": "camera", "lidar": "LIDAR"}
+INPUT_NAMES = {
+    "both": "camera + LIDAR",
+    "camera": "camera",
+    "lidar": "LIDAR",
+    "grid": "occupancy grid + actions",
+}
 
 # The table's columns: (metric, heading, decimals). Collisions per 1,000 decisions is each
 # episode's own rate, so that it has a spread like the others.
@@ -114,6 +119,10 @@ class Row:
     algo: Algo
     inputs: Inputs
     seeds: int = 1
+    network: Literal["multimodal", "baseline", "proposed"] | None = None
+    """None keeps the preset's network"""
+    learning_rate: float | None = None
+    """None keeps the preset's"""
 
 
 @dataclass(frozen=True)
@@ -135,6 +144,8 @@ class Experiment:
     eval_episodes: int
     train_traffic: Density | None = None
     """traffic of the training runs; None keeps the preset's"""
+    paper: str = ""
+    """the paper's own table (Markdown), quoted under ours in table.md"""
 
 
 @dataclass(frozen=True)
@@ -196,6 +207,41 @@ EXPERIMENTS: dict[str, Experiment] = {
         densities=("light", "medium", "heavy"),
         references=("rule", "random", "idle", "planner"),
         eval_episodes=50,
+        paper=(
+            "Min et al. (2018), Table III, 1,000,000 training steps: average speed 73.54 "
+            "km/h (multi-input), 69.48 (camera only), 71.88 (LIDAR only); lane changes "
+            "30.2 / 18.4 / 16.8; overtakes 42.2 / 32.2 / 35.8 per episode."
+        ),
+    ),
+    "ho2018-table8": Experiment(
+        name="ho2018-table8",
+        title="Ho (2018), Table 8: the baseline network and the proposed network at four "
+        "learning rates (Table 7), DQN with a target network on the occupancy grid",
+        rows=(
+            Row("baseline", "dqn", "grid", network="baseline"),
+            Row("proposed-lr0.0001", "dqn", "grid", network="proposed", learning_rate=0.0001),
+            Row("proposed-lr0.00025", "dqn", "grid", network="proposed", learning_rate=0.00025),
+            Row("proposed-lr0.0005", "dqn", "grid", network="proposed", learning_rate=0.0005),
+            Row("proposed-lr0.00075", "dqn", "grid", network="proposed", learning_rate=0.00075),
+        ),
+        preset="ho2018",
+        total_steps=200_000,
+        num_envs=4,
+        densities=("light", "medium", "heavy"),
+        # The planner plans 6 s (75 of Ho's decisions) ahead: 200 episodes of it take hours
+        # on 2 cores; add it with --references rule random idle planner.
+        references=("rule", "random", "idle"),
+        # §6.2: 200 evaluation episodes per traffic condition.
+        eval_episodes=200,
+        paper=(
+            "Ho (2018), Table 8, 2,000 training episodes of 4,000 frames (average speed km/h "
+            "and emergency brakes per episode, light / medium / heavy): baseline 71.98 / "
+            "64.28 / 60.62 and 2.99 / 4.70 / 6.72; experiment 1 (lr 0.0001) 103.42 / 87.96 / "
+            "72.94 and 8.56 / 22.67 / 23.92; experiment 2 (lr 0.00025) 102.64 / 86.39 / 72.76 "
+            "and 7.98 / 20.96 / 22.71; experiment 3 (lr 0.0005) 98.87 / 85.64 / 71.10 and "
+            "7.02 / 19.55 / 19.755; experiment 4 (lr 0.00075) 98.19 / 81.66 / 70.48 and "
+            "6.73 / 16.705 / 19.68."
+        ),
     ),
 }
 
@@ -409,14 +455,21 @@ def _run_plan(
     threads: int,
 ) -> RunPlan:
     run_dir = out / f"{row.label}-seed{seed}"
+    # The preset's training (its paper's network and hyper-parameters), scaled to the budget.
+    base = TrainConfig.for_preset(experiment.preset)
     dqn = dataclasses.replace(
-        DQNConfig(),
+        base.dqn,
         learning_starts=schedule.learning_starts,
         epsilon_decay_steps=schedule.epsilon_decay_steps,
         target_update_steps=schedule.target_update_steps,
         replay_size=schedule.replay_size,
     )
-    train = TrainConfig(
+    if row.network is not None:
+        dqn = dataclasses.replace(dqn, network=row.network)
+    if row.learning_rate is not None:
+        dqn = dataclasses.replace(dqn, learning_rate=row.learning_rate)
+    train = dataclasses.replace(
+        base,
         algo=row.algo,
         inputs=row.inputs,
         preset=experiment.preset,
@@ -491,9 +544,11 @@ def command_args(config: Any, default: Any) -> list[str]:
 def train_command(train: TrainConfig) -> list[str]:
     """``overtake-train`` for ``train``, as this interpreter's module (found whether or not
     the environment's bin is on PATH)."""
-    # overtake-train's defaults are the preset's training (TrainConfig.for_preset).
+    # overtake-train's defaults are the training of the preset it is given (--preset first).
     base = TrainConfig.for_preset(train.preset)
-    return [sys.executable, "-m", "overtake.trainers.train", *command_args(train, base)]
+    preset = [] if train.preset == TrainConfig().preset else ["--preset", train.preset]
+    args = [*preset, *command_args(train, base)]
+    return [sys.executable, "-m", "overtake.trainers.train", *args]
 
 
 def eval_command(evaluation: EvalConfig) -> list[str]:
@@ -1062,6 +1117,9 @@ def markdown_table(result: dict[str, Any]) -> str:
                     lines.append(f"| {run['run']} | " + " | ".join(cells) + " |")
                 cells = [f"± {row['seeds'][m]['std']:.{d}f}" for m, _, d in TABLE_COLUMNS]
                 lines.append(f"| {row['label']}: spread over seeds | " + " | ".join(cells) + " |")
+    experiment = EXPERIMENTS.get(result["experiment"])
+    if experiment is not None and experiment.paper:
+        lines += ["", "## The paper's figures", "", experiment.paper]
     return "\n".join(lines) + "\n"
 
 

@@ -621,18 +621,22 @@ def preset_in(argv: list[str]) -> str:
     return preset
 
 
-def cli(argv: list[str] | None = None) -> None:
+def parse_args(args: list[str]) -> TrainConfig:
+    """The configuration an ``overtake-train`` command line asks for: the named preset's
+    training (its defaults, which --help shows) with the options given."""
     import tyro
 
-    args = sys.argv[1:] if argv is None else argv
-    config = tyro.cli(
+    return tyro.cli(
         TrainConfig,
         args=args,
-        # The defaults are the named preset's training (--help shows them).
         default=TrainConfig.for_preset(preset_in(args)),
         config=(tyro.conf.OmitArgPrefixes,),
         description="overtake-train: DQN / Double DQN / Dueling DQN on overtake",
     )
+
+
+def cli(argv: list[str] | None = None) -> None:
+    config = parse_args(sys.argv[1:] if argv is None else argv)
     summary = run_command("overtake-train", main, config)
     print(json.dumps(summary, indent=2))
 
