@@ -32,6 +32,7 @@ from .sensors.camera import CameraConfig
 from .sensors.ego import EgoVectorConfig
 from .sensors.grid import OccupancyGridConfig
 from .sensors.lidar import LidarConfig
+from .sensors.lidar_map import LidarMapConfig
 from .traffic.config import TrafficConfig
 from .validation import ConfigError, check
 
@@ -55,6 +56,7 @@ class SimConfig:
     ego_vector: EgoVectorConfig = field(default_factory=EgoVectorConfig)
     grid: OccupancyGridConfig = field(default_factory=OccupancyGridConfig)
     action_history: ActionHistoryConfig = field(default_factory=ActionHistoryConfig)
+    lidar_map: LidarMapConfig = field(default_factory=LidarMapConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
     episode: EpisodeConfig = field(default_factory=EpisodeConfig)
 

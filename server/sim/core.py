@@ -263,6 +263,7 @@ class HighwaySim:
                     else np.zeros_like(collided)
                 ),
                 alternated=np.zeros_like(collided) if alternated is None else alternated,
+                applied=applied,
             )
         )
         truncated = self.episodes.close_decision(

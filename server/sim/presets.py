@@ -2,7 +2,7 @@
 and their parameters, with where every number comes from: the paper, the authors' code, or a
 choice made here where both are silent.
 
-Min et al. (2018) and Ho (2018) so far; Fayjie et al. (2018) is still to come.
+Min et al. (2018), Ho (2018) and Fayjie et al. (2018).
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from .sensors.camera import CameraConfig
 from .sensors.ego import EgoVectorConfig
 from .sensors.grid import OccupancyGridConfig
 from .sensors.lidar import LidarConfig
+from .sensors.lidar_map import LidarMapConfig
 from .traffic.config import BehaviourConfig, TrafficConfig
 
 
@@ -164,7 +165,70 @@ def ho2018() -> SimConfig:
     )
 
 
-PRESETS: dict[str, Callable[[], SimConfig]] = {"min2018": min2018, "ho2018": ho2018}
+def fayjie2018() -> SimConfig:
+    """Fayjie, Hossain, Oualid and Lee (2018), "Driverless Car: Autonomous Driving Using Deep
+    Reinforcement Learning in Urban Environment".
+
+    From the paper:
+    - a 5-lane highway with other cars on it (§III.C);
+    - the front camera in RGB at 80x80 and the LIDAR as an 80x80 grid map (§III.A, Figs. 7-8),
+      4 frames of each stacked by the trainer (§III.E);
+    - the actions keep going, left, right, accelerate, brake (§III.B; here keep, lane left,
+      lane right, accelerate, decelerate in the simulator's action order);
+    - the reward per action (§III.B): keep going the speed / 5, left -0.6, right -0.2,
+      accelerate +1, brake -0.4; a hit -6 (and the episode ends). Nothing brakes for the
+      agent: it "needs to learn how to accelerate when the front is empty and [...] brake
+      when there are other cars [...] in front".
+
+    Chosen here (the paper does not say; no public code of theirs is known):
+    - the speed in the keep-going reward in m/s, Unity's unit (0.2 per m/s: 4.4 per decision
+      at 80 km/h);
+    - speed control by steps (``ego.speed_control = "speed_steps"``) of 1 km/h per frame of
+      0.1 s (2.8 m/s^2) while accelerate or brake is the decision, 0-100 km/h from 60, no
+      safety rule and no emergency braking (``ego.safety_gap_m = 0``), and lane changes not
+      refused (2 s): the agent can hit a car ahead or beside;
+    - the LIDAR map's extent: 40 m ahead and 20 m either side of the car (0.5 m cells), drawn
+      from a 360-ray scan of 80 m (Min et al.'s LIDAR);
+    - traffic: cars that keep a speed of their own, 40-70 km/h, follow (IDM), overtake (MOBIL)
+      and keep behind the agent ("cooperative", §III.C: ``traffic.yield_to_agents``); 5 / 10 /
+      20 of them for light / medium / heavy, Min et al.'s windows;
+    - a decision every 0.4 s (4 frames of 0.1 s) and episodes of at most 1,000 decisions.
+    """
+    return SimConfig(
+        preset="fayjie2018",
+        road=RoadConfig(lane_count=5),
+        traffic=TrafficConfig(
+            density_vehicle_counts=(5, 10, 20),
+            steady=BehaviourConfig(share=1.0, desired_speed_kmh=(40.0, 70.0)),
+            random=dataclasses.replace(TrafficConfig().random, share=0.0),
+            yield_to_agents=True,
+        ),
+        ego=EgoConfig(
+            cruise_min_kmh=0.0,
+            cruise_max_kmh=100.0,
+            initial_speed_kmh=60.0,
+            speed_control="speed_steps",
+            speed_step_kmh=1.0,
+            skipped_frames="repeat",
+            safety_gap_m=0.0,
+            lane_change_check=False,
+        ),
+        lidar=LidarConfig(enabled=False),
+        camera=CameraConfig(enabled=True, width_px=80, height_px=80, rgb=True),
+        ego_vector=EgoVectorConfig(enabled=False),
+        lidar_map=LidarMapConfig(
+            enabled=True, cells=80, ahead_m=40.0, behind_m=0.0, half_width_m=20.0
+        ),
+        reward=RewardConfig(terms=("action", "collision"), collision=-6.0),
+        episode=EpisodeConfig(max_decisions=1000, frames_per_decision=4, physics_dt_s=0.1),
+    )
+
+
+PRESETS: dict[str, Callable[[], SimConfig]] = {
+    "min2018": min2018,
+    "ho2018": ho2018,
+    "fayjie2018": fayjie2018,
+}
 DEFAULT_PRESET = "min2018"
 
 

@@ -12,7 +12,9 @@ from the authors' code, -0.1 for acting against a warning (a lane change to a si
 warning, or accelerating with a forward warning). Ho (2018, §7.2 and Table 6) rewards +1 for
 every car passed and -1 for every car that passes (``overtake`` and ``passed``, every crossing
 counted: ``overtakes_counted = "every_pass"``) and -0.00001 for a lane change opposite to one
-among the last four actions (``alternation``).
+among the last four actions (``alternation``). Fayjie et al. (2018, §III.B) reward each
+action taken (``action``: keep going the speed / 5, accelerate +1, brake -0.4, left -0.6,
+right -0.2) and a hit -6 (``collision``).
 """
 
 from __future__ import annotations
@@ -22,6 +24,8 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+
+from overtake.protocol.vocabulary import KEEP
 
 from .units import KMH
 from .validation import check, check_flag, check_range
@@ -40,6 +44,7 @@ class StepFacts:
     passed_by: np.ndarray  # int64: cars that passed the agent
     against_warning: np.ndarray  # bool: the action went against a warning the agent had
     alternated: np.ndarray  # bool: a lane change opposite to one among the recent actions
+    applied: np.ndarray  # int64: the action the car took (a refused lane change: keep)
 
 
 @dataclass(frozen=True, slots=True)
@@ -69,6 +74,13 @@ class RewardConfig:
     # A lane change to one side while a change to the other side is among the agent's last
     # ACTION_HISTORY actions (Ho, Table 6: "line switching penalty", -0.00001).
     alternation: float = -0.00001
+    # Fayjie et al. (2018, §III.B): a reward per action taken. Keep going earns the speed
+    # (m/s, Unity's unit) times action_keep_per_mps (their "speed/5"); the others a constant.
+    action_keep_per_mps: float = 0.2
+    action_accelerate: float = 1.0
+    action_brake: float = -0.4
+    action_left: float = -0.6
+    action_right: float = -0.2
 
     def __post_init__(self) -> None:
         check(
@@ -91,6 +103,11 @@ class RewardConfig:
             "passed",
             "warning",
             "alternation",
+            "action_keep_per_mps",
+            "action_accelerate",
+            "action_brake",
+            "action_left",
+            "action_right",
         )
         for name in weights:
             check_range(f"reward.{name}", getattr(self, name), -1000.0, 1000.0)
@@ -137,6 +154,15 @@ def _alternation(facts: StepFacts, rc: RewardConfig) -> np.ndarray:
     return rc.alternation * facts.alternated
 
 
+def _action(facts: StepFacts, rc: RewardConfig) -> np.ndarray:
+    """Fayjie et al.'s reward per action: keep going earns its speed, the others a constant."""
+    constants = np.array(
+        [0.0, rc.action_accelerate, rc.action_brake, rc.action_left, rc.action_right]
+    )
+    keep = facts.applied == KEEP
+    return np.where(keep, rc.action_keep_per_mps * facts.speed_mps, constants[facts.applied])
+
+
 # Every term the simulator can reward, by name.
 TERMS: dict[str, Callable[[StepFacts, RewardConfig], np.ndarray]] = {
     "speed": _speed,
@@ -146,6 +172,7 @@ TERMS: dict[str, Callable[[StepFacts, RewardConfig], np.ndarray]] = {
     "passed": _passed,
     "warning": _warning,
     "alternation": _alternation,
+    "action": _action,
 }
 
 

@@ -1,0 +1,94 @@
+"""Fayjie et al.'s set-up (2018) as the ``fayjie2018`` preset: the RGB camera and the LIDAR as
+an 80x80 grid map, a reward per action and -6 for a hit, and nothing that brakes for the
+agent."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import overtake.client  # noqa: F401  (registers the environments)
+from overtake.protocol import HIGHWAY_ENV_ID
+from overtake.protocol.vocabulary import CRUISE_DOWN, CRUISE_UP, KEEP, LANE_LEFT, LANE_RIGHT
+from overtake.server.sim import HighwaySim, make_config
+from overtake.server.sim.units import KMH
+
+from conftest import Car, keep, scripted_sim
+
+OWN_LANE = 2
+
+
+def fayjie_sim(cars=(), *, ego_speed_kmh=60.0, **overrides) -> HighwaySim:
+    return scripted_sim(
+        list(cars),
+        ego_lane=OWN_LANE,
+        ego_speed_kmh=ego_speed_kmh,
+        preset="fayjie2018",
+        overrides=overrides,
+    )
+
+
+def test_the_preset_observes_the_rgb_camera_and_the_lidar_map():
+    env = gym.make(HIGHWAY_ENV_ID, preset="fayjie2018")
+    space = env.observation_space
+    assert sorted(space.spaces) == ["camera", "lidar_map"]
+    assert space["camera"].shape == (80, 80, 3) and space["lidar_map"].shape == (80, 80)
+    obs, _ = env.reset(seed=2)
+    assert space.contains(obs)
+    env.close()
+
+
+def test_the_lidar_map_draws_the_returns_where_they_are():
+    # A car 10 m ahead in the agent's lane: its rear bumper 7.75 m ahead is row
+    # floor((40 - 7.75) / 0.5) = 64, across the car's 1.8 m width about columns 38-41. The guard
+    # rails, 9.75 m either side of the centre of lane 2 of 5, are columns 20 and 59.
+    sim = fayjie_sim([Car(dx=10.0, lane=OWN_LANE, speed_kmh=60.0)])
+    image = sim.observe()["lidar_map"][0, 0]
+    assert set(np.unique(image).tolist()) == {0, 255}
+    assert (image[64, 38:42] == 255).all()
+    assert not image[:64, 30:50].any() and not image[66:, 30:50].any()  # nothing else ahead
+    assert image[:, 20].sum() > 0 and image[:, 59].sum() > 0
+    assert not image[:, 21:30].any() and not image[:, 50:59].any()
+    empty = fayjie_sim().observe()["lidar_map"][0, 0]
+    assert not empty[:, 30:50].any()
+
+
+@pytest.mark.parametrize(
+    "action,reward",
+    [
+        (KEEP, 0.2 * 60.0 * KMH),  # keep going: the speed (m/s) / 5
+        (CRUISE_UP, 1.0),
+        (CRUISE_DOWN, -0.4),
+        (LANE_LEFT, -0.6),
+        (LANE_RIGHT, -0.2),
+    ],
+)
+def test_each_action_has_its_reward(action, reward):
+    sim = fayjie_sim()
+    result = sim.step(np.array([[action]]))
+    assert result.action_applied[0, 0] == action
+    assert result.reward[0, 0] == pytest.approx(reward)
+    assert result.reward_terms["collision"][0, 0] == 0.0
+
+
+def test_nothing_brakes_for_the_agent_a_hit_costs_6_and_ends_the_episode():
+    sim = fayjie_sim([Car(dx=20.0, lane=OWN_LANE, speed_kmh=20.0)], ego_speed_kmh=80.0)
+    results = [keep(sim) for _ in range(12)]
+    hit = next(i for i, r in enumerate(results) if r.terminated[0, 0])
+    assert results[hit].reward_terms["collision"][0, 0] == -6.0
+    assert all(r.reward_terms["collision"][0, 0] == 0.0 for r in results[:hit])
+    # Braking in time avoids it: 1 km/h per 0.1 s frame (2.8 m/s^2) closes 60 km/h in 6 s and
+    # 50 m, less than the 55.5 m between the bumpers.
+    careful = fayjie_sim([Car(dx=60.0, lane=OWN_LANE, speed_kmh=20.0)], ego_speed_kmh=80.0)
+    assert not any(careful.step(np.array([[CRUISE_DOWN]])).terminated[0, 0] for _ in range(20))
+    assert float(careful.state.speed_mps[0, 0]) / KMH < 21.0
+
+
+@pytest.mark.parametrize("density,cars", [("light", 5), ("medium", 10), ("heavy", 20)])
+def test_the_density_holds_its_cars(density, cars):
+    sim = HighwaySim(make_config("fayjie2018", {"traffic.density": density}), num_arenas=4)
+    sim.reset(seeds=[1, 2, 3, 4])
+    for _ in range(200):
+        sim.step(np.zeros((4, 1), dtype=np.int64))
+    assert sim.metrics()["traffic_cars"].mean() >= 0.9 * cars
