@@ -92,3 +92,48 @@ def test_the_density_holds_its_cars(density, cars):
     for _ in range(200):
         sim.step(np.zeros((4, 1), dtype=np.int64))
     assert sim.metrics()["traffic_cars"].mean() >= 0.9 * cars
+
+
+# --- training (§III.A, Table I) -----------------------------------------------------------------
+
+
+def test_the_two_stream_network_has_three_convolutions_per_stream_and_four_dense_layers():
+    import torch
+
+    from overtake.trainers.two_stream_network import TwoStreamQNetwork, TwoStreamShape
+
+    network = TwoStreamQNetwork(TwoStreamShape((80, 80, 3), (80, 80), 5, 4))
+    for stream in (network.camera, network.lidar_map):
+        assert sum(isinstance(m, torch.nn.Conv2d) for m in stream) == 3
+        assert sum(isinstance(m, torch.nn.MaxPool2d) for m in stream) == 3
+    dense = [m for m in network.modules() if isinstance(m, torch.nn.Linear)]
+    assert len(dense) == 5  # one per stream, then 3 on the fused path: 4 on each input's way
+    camera = torch.randint(0, 256, (2, 4, 80, 80, 3), dtype=torch.uint8)
+    lidar_map = torch.randint(0, 256, (2, 4, 80, 80), dtype=torch.uint8)
+    assert network(camera, lidar_map).shape == (2, 5)
+    # Each stream matters.
+    assert not torch.equal(network(camera, lidar_map), network(camera, lidar_map.flip(0)))
+    assert not torch.equal(network(camera, lidar_map), network(camera.flip(0), lidar_map))
+
+
+def test_training_on_the_preset_uses_table_i_and_its_checkpoint_evaluates(tmp_path):
+    from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
+    from overtake.trainers.evaluate import EvalConfig
+    from overtake.trainers.evaluate import main as evaluate
+    from overtake.trainers.train import cli as train_cli
+
+    run_dir = tmp_path / "run"
+    train_cli(
+        ["--preset", "fayjie2018", "--run-dir", str(run_dir), "--total-steps", "80"]
+        + ["--num-envs", "2", "--learning-starts", "40", "--torch-threads", "1", "--no-progress"]
+        + ["--sink", "off", "--set", "episode.max_decisions=30"]
+    )
+    checkpoint = load_checkpoint(run_dir / CHECKPOINT_NAME)
+    assert (checkpoint.algo, checkpoint.inputs) == ("dqn", "camera-map")
+    dqn = checkpoint.dqn
+    assert (dqn.network, dqn.learning_rate, dqn.gamma) == ("two-stream", 0.001, 0.99)
+    assert (dqn.replay_size, dqn.batch_size, dqn.target_update_steps) == (15_000, 32, 6_000)
+    result = evaluate(
+        EvalConfig(checkpoint=run_dir / CHECKPOINT_NAME, episodes=2, max_decisions=10)
+    )
+    assert result["preset"] == "fayjie2018" and result["summary"]["episodes"] == 2

@@ -25,6 +25,7 @@ from overtake.client.commands import UsageError
 from .grid_network import GridNetworkShape
 from .learner import ALGOS, DQNConfig, DQNLearner
 from .network import Inputs, NetworkShape
+from .two_stream_network import TwoStreamShape
 
 CHECKPOINT_FORMAT = "overtake-dqn/1"
 CHECKPOINT_NAME = "checkpoint.pt"
@@ -43,7 +44,7 @@ class Checkpoint:
     preset: str
     overrides: dict[str, Any]
     space: dict[str, Any]
-    net_shape: NetworkShape | GridNetworkShape
+    net_shape: NetworkShape | GridNetworkShape | TwoStreamShape
     dqn: DQNConfig
     step: int
     episodes: int
@@ -82,7 +83,7 @@ def save_checkpoint(
     config: Any,
     overrides: dict[str, Any],
     space: dict[str, Any],
-    net_shape: NetworkShape | GridNetworkShape,
+    net_shape: NetworkShape | GridNetworkShape | TwoStreamShape,
     step: int,
     episodes: int,
     rng_state: Mapping[str, Any],
@@ -148,10 +149,14 @@ def load_checkpoint(path: Path) -> Checkpoint:
             f"{path}: expected inputs one of {list(get_args(Inputs))}, got {header.get('inputs')!r}"
         )
     shape = dict(header["net_shape"])
-    net_shape: NetworkShape | GridNetworkShape
+    net_shape: NetworkShape | GridNetworkShape | TwoStreamShape
     if header["inputs"] == "grid":
         shape["grid_hw"] = tuple(shape["grid_hw"])
         net_shape = GridNetworkShape(**shape)
+    elif header["inputs"] == "camera-map":
+        shape["camera_hwc"] = tuple(shape["camera_hwc"])
+        shape["map_hw"] = tuple(shape["map_hw"])
+        net_shape = TwoStreamShape(**shape)
     else:
         shape["camera_hw"] = tuple(shape["camera_hw"])
         shape["ego_high"] = tuple(shape["ego_high"])

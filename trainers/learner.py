@@ -21,8 +21,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from .grid_network import GridNetworkShape, GridQNetwork
+from .grid_network import GridNetworkKind, GridNetworkShape, GridQNetwork
 from .network import Inputs, NetworkShape, QNetwork
+from .two_stream_network import TwoStreamQNetwork, TwoStreamShape
 
 Algo = Literal["dqn", "ddqn", "dueling"]
 
@@ -62,9 +63,10 @@ class DQNConfig:
     """frames (camera), scans (LIDAR) or grids stacked per observation"""
     lstm_cells: int = 256
     hidden_units: int = 512
-    network: Literal["multimodal", "baseline", "proposed"] = "multimodal"
+    network: Literal["multimodal", "baseline", "proposed", "two-stream"] = "multimodal"
     """multimodal: Min et al.'s (camera / LIDAR inputs); baseline or proposed: Ho's networks
-    on the occupancy grid (grid inputs; Figs. 4 and 5)"""
+    on the occupancy grid (grid inputs; Figs. 4 and 5); two-stream: Fayjie et al.'s (camera-map
+    inputs)"""
     optimizer: Literal["adam", "rmsprop"] = "adam"
     rmsprop_alpha: float = 0.95
     """RMSProp's squared-gradient smoothing (Mnih et al. 2015: 0.95)"""
@@ -100,7 +102,7 @@ class DQNConfig:
         if self.grad_clip_norm < 0.0:
             raise ValueError(f"grad_clip_norm must be >= 0 (0: none), got {self.grad_clip_norm}")
         choices = {
-            "network": ("multimodal", "baseline", "proposed"),
+            "network": ("multimodal", "baseline", "proposed", "two-stream"),
             "optimizer": ("adam", "rmsprop"),
             "loss": ("huber", "mse"),
         }
@@ -120,17 +122,30 @@ class DQNConfig:
 
 
 def build_network(
-    shape: NetworkShape | GridNetworkShape, inputs: Inputs, config: DQNConfig, dueling: bool
+    shape: NetworkShape | GridNetworkShape | TwoStreamShape,
+    inputs: Inputs,
+    config: DQNConfig,
+    dueling: bool,
 ) -> nn.Module:
     """The Q-network ``config.network`` names, for ``inputs``: Min et al.'s multi-modal network
     on camera and / or LIDAR, or one of Ho's on the occupancy grid."""
+    if inputs == "camera-map":
+        if config.network != "two-stream" or not isinstance(shape, TwoStreamShape):
+            raise ValueError(
+                "inputs camera-map (Fayjie et al.'s camera and LIDAR map) need network "
+                f"two-stream, got network={config.network!r}"
+            )
+        return TwoStreamQNetwork(shape, dueling=dueling)
     if inputs == "grid":
-        if config.network == "multimodal" or not isinstance(shape, GridNetworkShape):
+        if config.network not in ("baseline", "proposed") or not isinstance(
+            shape, GridNetworkShape
+        ):
             raise ValueError(
                 "inputs grid (Ho's occupancy grid) need network baseline or proposed, got "
                 f"network={config.network!r}"
             )
-        return GridQNetwork(shape, config.network, dueling=dueling)
+        kind: GridNetworkKind = "baseline" if config.network == "baseline" else "proposed"
+        return GridQNetwork(shape, kind, dueling=dueling)
     if config.network != "multimodal" or not isinstance(shape, NetworkShape):
         raise ValueError(
             f"inputs {inputs} (Min et al.'s camera / LIDAR) need network multimodal, got "
@@ -188,7 +203,7 @@ class DQNLearner:
 
     def __init__(
         self,
-        shape: NetworkShape | GridNetworkShape,
+        shape: NetworkShape | GridNetworkShape | TwoStreamShape,
         inputs: Inputs,
         config: DQNConfig,
         *,

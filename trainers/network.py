@@ -25,14 +25,16 @@ import numpy as np
 import torch
 from torch import nn
 
-Inputs = Literal["camera", "lidar", "both", "grid"]
+Inputs = Literal["camera", "lidar", "both", "grid", "camera-map"]
 # The sensors each input configuration reads stacked over the last frames: Min et al.'s camera
-# and LIDAR, or Ho's occupancy grid (:mod:`.grid_network`) ...
+# and LIDAR, Ho's occupancy grid (:mod:`.grid_network`), or Fayjie et al.'s camera and LIDAR
+# map (:mod:`.two_stream_network`) ...
 INPUT_SENSORS: dict[str, tuple[str, ...]] = {
     "camera": ("camera",),
     "lidar": ("lidar",),
     "both": ("camera", "lidar"),
     "grid": ("grid",),
+    "camera-map": ("camera", "lidar_map"),
 }
 # ... and those it reads at the latest decision only: the ego vector for Min et al.'s networks,
 # the action stack (itself the last four actions) for Ho's.
@@ -41,6 +43,7 @@ LATEST_SENSORS: dict[str, tuple[str, ...]] = {
     "lidar": ("ego",),
     "both": ("ego",),
     "grid": ("actions",),
+    "camera-map": (),
 }
 INPUTS: tuple[str, ...] = tuple(INPUT_SENSORS)
 

@@ -14,6 +14,12 @@ network, optimiser and hyper-parameters. ``overtake-train --preset NAME`` starts
   clipping. Chosen here: RMSProp's other settings as Mnih et al. (2015), whose table Table 6
   follows (squared-gradient smoothing 0.95, minimum 0.01, centred), and an update every 4
   steps.
+- ``fayjie2018`` (Fayjie et al. 2018, §III.A and Table I): DQN with a target network copied
+  every 6,000 steps on the camera and the LIDAR map (``camera-map`` inputs, 4 frames each) with
+  the two-stream network (:mod:`.two_stream_network`), learning rate 0.001, discount 0.99,
+  epsilon 1 to 0.1, replay 15,000, minibatch 32. Chosen here: Adam (the paper names no
+  optimiser), epsilon falling over the first 50,000 of its 100,000+ steps, learning from 1,000
+  transitions, the Huber loss and an update every 4 steps.
 """
 
 from __future__ import annotations
@@ -56,6 +62,23 @@ PRESET_TRAINING: dict[str, PresetTraining] = {
             train_every=4,
             loss="mse",
             grad_clip_norm=0.0,
+            stack=4,
+        ),
+    ),
+    "fayjie2018": PresetTraining(
+        algo="dqn",
+        inputs="camera-map",
+        dqn=DQNConfig(
+            network="two-stream",
+            learning_rate=0.001,
+            gamma=0.99,
+            epsilon_start=1.0,
+            epsilon_end=0.1,
+            replay_size=15_000,
+            batch_size=32,
+            target_update_steps=6_000,
+            learning_starts=1_000,
+            epsilon_decay_steps=50_000,
             stack=4,
         ),
     ),

@@ -57,6 +57,7 @@ from .network import INPUT_SENSORS, Inputs, NetworkShape
 from .observations import describe_space, frame_shapes
 from .presets import PRESET_TRAINING
 from .replay import FrameStacker, ReplayMemory
+from .two_stream_network import TwoStreamShape
 from .visual import TrainingRecording, training_blueprint
 
 # Environment 0's view is logged every this many steps of the vector environment: about 6 MB
@@ -72,8 +73,8 @@ class TrainConfig:
     algo: Algo = "ddqn"
     """dqn, ddqn (Double DQN) or dueling (Dueling network with the Double DQN target)"""
     inputs: Inputs = "both"
-    """camera, lidar or both (Min et al.'s multi-modal network), or grid (Ho's occupancy grid
-    and action stack); the default is the preset's"""
+    """camera, lidar or both (Min et al.'s multi-modal network), grid (Ho's occupancy grid and
+    action stack) or camera-map (Fayjie et al.'s camera and LIDAR map); default the preset's"""
     preset: str = "min2018"
     traffic: Literal["light", "medium", "heavy"] | None = None
     """traffic density; None keeps the preset's"""
@@ -317,8 +318,13 @@ class TrainingRun:
         double, dueling = ALGOS[config.algo]
         shapes = frame_shapes(self.space, config.inputs, f"preset {config.preset}'s environment")
         stacked = INPUT_SENSORS[config.inputs]
-        shape_of = GridNetworkShape if config.inputs == "grid" else NetworkShape
-        self.net_shape = shape_of.from_space(self.space, ACTION_COUNT, dqn.stack)
+        self.net_shape: NetworkShape | GridNetworkShape | TwoStreamShape
+        if config.inputs == "grid":
+            self.net_shape = GridNetworkShape.from_space(self.space, ACTION_COUNT, dqn.stack)
+        elif config.inputs == "camera-map":
+            self.net_shape = TwoStreamShape.from_space(self.space, ACTION_COUNT, dqn.stack)
+        else:
+            self.net_shape = NetworkShape.from_space(self.space, ACTION_COUNT, dqn.stack)
         torch.manual_seed(config.seed)
         self.learner = DQNLearner(
             self.net_shape, config.inputs, dqn, double=double, dueling=dueling, device=config.device
