@@ -137,3 +137,27 @@ def test_training_on_the_preset_uses_table_i_and_its_checkpoint_evaluates(tmp_pa
         EvalConfig(checkpoint=run_dir / CHECKPOINT_NAME, episodes=2, max_decisions=10)
     )
     assert result["preset"] == "fayjie2018" and result["summary"]["episodes"] == 2
+
+
+def test_the_fig6_experiment_keeps_table_i_and_sums_the_reward_per_3000_steps(tmp_path):
+    from overtake.client.commands import UsageError
+    from overtake.trainers.experiment import ExperimentConfig, make_plan, window_rewards
+
+    plan = make_plan(ExperimentConfig(experiment="fayjie2018-fig6", out=tmp_path))
+    [run] = plan.runs
+    assert run.train.preset == "fayjie2018" and run.train.inputs == "camera-map"
+    # Table I as it is (the paper trained about this long), and a training line per window.
+    assert (run.train.dqn.replay_size, run.train.dqn.target_update_steps) == (15_000, 6_000)
+    assert run.train.log_every == 3_000 and plan.total_steps >= 100_000
+    with pytest.raises(UsageError, match="plots no reward per window"):
+        make_plan(ExperimentConfig(experiment="min2018-table3", reward_window_steps=10))
+    records = {
+        "a": [{"step": 3001, "reward_sum": 4.0}, {"step": 6002, "reward_sum": 10.0}],
+        "b": [{"step": 3000, "reward_sum": 2.0}, {"step": 6000, "reward_sum": None}],
+    }
+    assert window_rewards(records, 3_000) == {
+        "window_end_step": [3_000, 6_000],
+        "mean": [3.0, 10.0],
+        "run_min": [2.0, 10.0],
+        "run_max": [4.0, 10.0],
+    }

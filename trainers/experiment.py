@@ -75,6 +75,7 @@ INPUT_NAMES = {
     "camera": "camera",
     "lidar": "LIDAR",
     "grid": "occupancy grid + actions",
+    "camera-map": "camera + LIDAR map",
 }
 
 # The table's columns: (metric, heading, decimals). Collisions per 1,000 decisions is each
@@ -146,6 +147,12 @@ class Experiment:
     """traffic of the training runs; None keeps the preset's"""
     paper: str = ""
     """the paper's own table (Markdown), quoted under ours in table.md"""
+    scale_schedule: bool = True
+    """scale the paper's settings to the budget (Schedule.for_budget); False keeps the
+    preset's own (a paper that trained about as long as the budget)"""
+    reward_window_steps: int | None = None
+    """also plot the training reward summed over windows of this many steps (the runs log a
+    training line at each)"""
 
 
 @dataclass(frozen=True)
@@ -243,6 +250,26 @@ EXPERIMENTS: dict[str, Experiment] = {
             "6.73 / 16.705 / 19.68."
         ),
     ),
+    "fayjie2018-fig6": Experiment(
+        name="fayjie2018-fig6",
+        title="Fayjie et al. (2018), Fig. 6: the reward per 3,000 training steps, DQN with the "
+        "two-stream network on the camera and the LIDAR map",
+        rows=(Row("dqn-camera-map", "dqn", "camera-map"),),
+        preset="fayjie2018",
+        total_steps=120_000,
+        num_envs=4,
+        densities=("medium",),
+        references=("random", "idle"),
+        eval_episodes=20,
+        # Table I's settings as they are: the paper trained 100,000+ steps, this budget.
+        scale_schedule=False,
+        reward_window_steps=3_000,
+        paper=(
+            "Fayjie et al. (2018), Fig. 6: the cumulative reward per 3,000 steps over "
+            '100,000+ training steps, "gradually increasing" (a plot; the paper gives no '
+            "figures and no evaluation table)."
+        ),
+    ),
 }
 
 
@@ -284,6 +311,9 @@ class ExperimentConfig:
     target_update_steps: int | None = None
     replay_size: int | None = None
     checkpoint_every: int | None = None
+    reward_window_steps: int | None = None
+    """the training reward's window, for an experiment that plots it (Fayjie et al.'s 3,000);
+    None keeps the experiment's"""
     set: tuple[str, ...] = ()
     """simulator overrides (dotted.name=value) for training and evaluation alike"""
     connect: str | None = None
@@ -368,6 +398,7 @@ _POSITIVE = (
     "target_update_steps",
     "replay_size",
     "checkpoint_every",
+    "reward_window_steps",
     "torch_threads",
     "curve_bins",
 )
@@ -386,6 +417,13 @@ def make_plan(config: ExperimentConfig) -> Plan:
         raise UsageError(
             f"unknown experiment {config.experiment!r}: expected one of {', '.join(EXPERIMENTS)}"
         )
+    if config.reward_window_steps is not None:
+        if experiment.reward_window_steps is None:
+            raise UsageError(
+                f"--reward-window-steps: {experiment.name} plots no reward per window "
+                "(fayjie2018-fig6 does)"
+            )
+        experiment = dataclasses.replace(experiment, reward_window_steps=config.reward_window_steps)
     for name in _POSITIVE:
         _at_least_one(name, getattr(config, name))
     if config.learning_starts is not None and config.learning_starts < 0:
@@ -408,6 +446,15 @@ def make_plan(config: ExperimentConfig) -> Plan:
         )
     total_steps = config.total_steps or experiment.total_steps
     scaled = Schedule.for_budget(total_steps)
+    if not experiment.scale_schedule:
+        own = TrainConfig.for_preset(experiment.preset).dqn
+        scaled = dataclasses.replace(
+            scaled,
+            learning_starts=own.learning_starts,
+            epsilon_decay_steps=own.epsilon_decay_steps,
+            target_update_steps=own.target_update_steps,
+            replay_size=own.replay_size,
+        )
     schedule = Schedule(
         **{
             f.name: getattr(config, f.name)
@@ -483,6 +530,7 @@ def _run_plan(
         run_dir=run_dir,
         resume_if_found=True,
         checkpoint_every=schedule.checkpoint_every,
+        log_every=experiment.reward_window_steps or base.log_every,
         torch_threads=threads,
         progress=False,
         dqn=dqn,
@@ -614,6 +662,11 @@ def training_episodes(run_dir: Path) -> list[dict[str, Any]]:
     """The run's training episodes (metrics.jsonl's ``episode`` records) that its final model
     descends from: where a life resumed from step S, the earlier lives' episodes after S are
     left out (that training was lost with the kill and done again)."""
+    return training_records(run_dir, "episode")
+
+
+def training_records(run_dir: Path, kind: str) -> list[dict[str, Any]]:
+    """:func:`training_episodes` for metrics.jsonl's records of any ``kind``."""
     metrics = run_dir / "metrics.jsonl"
     data = metrics.read_bytes() if metrics.exists() else b""
     starts: list[tuple[int, int | None]] = [(0, None)]
@@ -633,9 +686,28 @@ def training_episodes(run_dir: Path) -> list[dict[str, Any]]:
                 record = json.loads(line)
             except ValueError:
                 continue  # the line a kill cut short
-            if isinstance(record, dict) and record.get("kind") == "episode":
+            if isinstance(record, dict) and record.get("kind") == kind:
                 kept.append(record)
     return kept
+
+
+def window_rewards(train_records_by_run: dict[str, list[dict[str, Any]]], window: int) -> Any:
+    """A row's reward per window of training steps (Fayjie et al.'s Fig. 6): each training
+    line's ``reward_sum`` (the runs log one per window), the mean over the row's runs of the
+    k-th window, and the lowest and highest of them."""
+    by_window: dict[int, list[float]] = {}
+    for records in train_records_by_run.values():
+        for record in records:
+            if record.get("reward_sum") is not None:
+                k = max(1, round(record["step"] / window))
+                by_window.setdefault(k, []).append(float(record["reward_sum"]))
+    windows = sorted(by_window)
+    return {
+        "window_end_step": [k * window for k in windows],
+        "mean": [float(np.mean(by_window[k])) for k in windows],
+        "run_min": [min(by_window[k]) for k in windows],
+        "run_max": [max(by_window[k]) for k in windows],
+    }
 
 
 def _utc() -> str:
@@ -1129,8 +1201,19 @@ def plot_curves(curves: dict[str, Any], title: str, path: Path) -> None:
     # The object-oriented API draws with the Agg canvas and touches no global pyplot state.
     from matplotlib.figure import Figure
 
-    figure = Figure(figsize=(7.0, 3.2 * len(CURVE_METRICS)), layout="constrained")
-    axes = figure.subplots(len(CURVE_METRICS), 1, sharex=True, squeeze=False)[:, 0]
+    windowed = [row for row, curve in curves.items() if "window_reward" in curve]
+    panels = len(CURVE_METRICS) + (1 if windowed else 0)
+    figure = Figure(figsize=(7.0, 3.2 * panels), layout="constrained")
+    axes = figure.subplots(panels, 1, sharex=True, squeeze=False)[:, 0]
+    if windowed:
+        ax = axes[-1]
+        for row in windowed:
+            window = curves[row]["window_reward"]
+            ax.plot(window["window_end_step"], window["mean"], marker=".", label=row)
+        steps = curves[windowed[0]]["window_reward"]["window_end_step"]
+        size = steps[0] if steps else 0
+        ax.set_ylabel(f"reward per {size:,} steps")
+        ax.grid(alpha=0.3)
     for ax, (metric, label) in zip(axes, CURVE_METRICS):
         for row, curve in curves.items():
             steps = np.array(curve["bin_end_step"], dtype=float)
@@ -1167,11 +1250,14 @@ def record_curves(curves: dict[str, Any], experiment: str, path: Path) -> None:
     import rerun as rr
     import rerun.blueprint as rrb
 
+    metrics = list(CURVE_METRICS)
+    if any("window_reward" in curve for curve in curves.values()):
+        metrics.append(("window_reward", "reward per window of training steps"))
     blueprint = rrb.Blueprint(
         rrb.Vertical(
             *(
                 rrb.TimeSeriesView(origin=f"/curves/{metric}", name=label)
-                for metric, label in CURVE_METRICS
+                for metric, label in metrics
             )
         ),
         rrb.TimePanel(timeline="step"),
@@ -1185,10 +1271,13 @@ def record_curves(curves: dict[str, Any], experiment: str, path: Path) -> None:
     stream = recording.stream
     try:
         for row, curve in curves.items():
-            for metric, _ in CURVE_METRICS:
+            for metric, _ in metrics:
+                if metric not in curve:
+                    continue
                 entity = f"curves/{metric}/{row}"
                 stream.log(entity, rr.SeriesLines(names=row), static=True)
-                for step, value in zip(curve["bin_end_step"], curve[metric]["mean"]):
+                steps = curve[metric].get("window_end_step", curve["bin_end_step"])
+                for step, value in zip(steps, curve[metric]["mean"]):
                     if value is not None:
                         stream.set_time("step", sequence=step)
                         stream.log(entity, rr.Scalars(value))
@@ -1231,6 +1320,11 @@ class Outputs:
                 plan.total_steps,
                 self.config.curve_bins,
             )
+            window = plan.experiment.reward_window_steps
+            if window:
+                curve["window_reward"] = window_rewards(
+                    {run.name: training_records(run.run_dir, "train") for run in runs}, window
+                )
             curves[row.label] = {"runs": len(runs), **curve}
         experiment = plan.experiment
         return {

@@ -506,6 +506,7 @@ class TrainingRun:
             )
             self.stacker.push(moving, sub)
             self.step += moving.size
+            self.reward_sum += float(reward[moving].sum())
         return int(moving.size)
 
     def _end_episodes(
@@ -548,6 +549,7 @@ class TrainingRun:
     def _new_log_window(self, now: float) -> None:
         """Start collecting what the next training log line averages."""
         self.losses, self.q_taken = [], []
+        self.reward_sum = 0.0
         self.timings = Timings()
         self.log_t, self.log_step = now, self.step
 
@@ -565,6 +567,9 @@ class TrainingRun:
             "updates": self.learner.updates,
             "loss": float(np.mean(self.losses)) if self.losses else None,
             "q_taken": float(np.mean(self.q_taken)) if self.q_taken else None,
+            # The rewards of the transitions stored since the last line (Fayjie et al.'s Fig.
+            # 6 plots them per 3,000 steps).
+            "reward_sum": self.reward_sum,
             "steps_per_s": sps,
             "replay": len(self.replay),
             **self.timings.shares(),
