@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from overtake.protocol.vocabulary import CRUISE_UP, KEEP, LANE_LEFT, LANE_RIGHT
+from overtake.protocol.vocabulary import CRUISE_DOWN, CRUISE_UP, KEEP, LANE_LEFT, LANE_RIGHT
 
 # Min et al.'s ego vector (the simulator's default ``ego_vector.fields``).
 DEFAULT_EGO_FIELDS: tuple[str, ...] = (
@@ -178,6 +178,74 @@ class GridRuleDriver:
         go_left = blocked & (room_left >= own + cfg.better_by_m) & (room_left >= room_right)
         go_right = blocked & ~go_left & (room_right >= own + cfg.better_by_m)
         action = np.where(go_right, LANE_RIGHT, CRUISE_UP)
+        return np.where(go_left, LANE_LEFT, action).astype(np.int64)
+
+
+@dataclass(frozen=True, slots=True)
+class MapRuleDriverConfig:
+    """Thresholds of the rule-based driver on a LIDAR map (metres ahead of the car's centre)."""
+
+    lane_width_m: float = 3.5
+    half_length_m: float = 2.25
+    brake_within_m: float = 30.0
+    accelerate_beyond_m: float = 37.0
+    better_by_m: float = 15.0
+    clear_ahead_m: float = 8.0
+
+
+class MapRuleDriver:
+    """The rule-based driver for presets that observe Fayjie et al.'s LIDAR map (``lidar_map``:
+    rows from ``ahead_m`` ahead to ``behind_m`` behind, columns from ``half_width_m`` left to as
+    far right, nonzero where the scan returned) and nothing of their own speed:
+
+    - it reads the free room ahead of its front bumper in its lane's strip and in the strips
+      of the lanes either side;
+    - when its lane is blocked within ``brake_within_m``, it changes to a neighbouring lane
+      with at least ``better_by_m`` more room whose strip is free for ``clear_ahead_m`` ahead of
+      the front bumper (the map shows nothing behind), if the action mask allows it, left on a
+      tie; otherwise it brakes;
+    - with more than ``accelerate_beyond_m`` free it accelerates, in between it keeps going.
+    """
+
+    def __init__(
+        self,
+        config: MapRuleDriverConfig = MapRuleDriverConfig(),
+        cells: int = 80,
+        ahead_m: float = 40.0,
+        behind_m: float = 0.0,
+        half_width_m: float = 20.0,
+    ) -> None:
+        self.config = config
+        row_m = (ahead_m + behind_m) / cells
+        column_m = 2.0 * half_width_m / cells
+        near = ahead_m - row_m * (np.arange(cells) + 1)  # each row's near edge, m ahead
+        self._room_if_first = np.where(
+            near >= config.half_length_m, near - config.half_length_m, np.inf
+        )
+        self._room_max = ahead_m - config.half_length_m
+        left = half_width_m - column_m * (np.arange(cells) + 0.5)  # column centres, m left
+        # (3, cells): the columns of the lane to the left, the own lane and the lane to the right.
+        offsets = np.array([1.0, 0.0, -1.0])[:, None] * config.lane_width_m
+        self._strips = np.abs(left[None, :] - offsets) < config.lane_width_m / 2
+
+    def act(self, lidar_map: np.ndarray, action_mask: np.ndarray) -> np.ndarray:
+        """Actions (B,) for maps (B, cells, cells) (the latest frame) and masks (B, 5)."""
+        cfg = self.config
+        hits = np.atleast_3d(lidar_map) > 0
+        action_mask = np.atleast_2d(action_mask)
+        in_strip = (hits[:, None, :, :] & self._strips[None, :, None, :]).any(axis=-1)
+        room = np.where(in_strip, self._room_if_first[None, None, :], np.inf).min(axis=-1)
+        room = np.minimum(room, self._room_max)  # (B, 3): left, own, right
+        clear = room > cfg.clear_ahead_m
+        own = room[:, 1]
+        blocked = own < cfg.brake_within_m
+        room_left = np.where(clear[:, 0] & (action_mask[:, LANE_LEFT] > 0), room[:, 0], -np.inf)
+        room_right = np.where(clear[:, 2] & (action_mask[:, LANE_RIGHT] > 0), room[:, 2], -np.inf)
+        go_left = blocked & (room_left >= own + cfg.better_by_m) & (room_left >= room_right)
+        go_right = blocked & ~go_left & (room_right >= own + cfg.better_by_m)
+        action = np.where(own > cfg.accelerate_beyond_m, CRUISE_UP, KEEP)
+        action = np.where(blocked, CRUISE_DOWN, action)
+        action = np.where(go_right, LANE_RIGHT, action)
         return np.where(go_left, LANE_LEFT, action).astype(np.int64)
 
 

@@ -25,6 +25,8 @@ from .commands import UsageError
 from .drivers import (
     GridRuleDriver,
     GridRuleDriverConfig,
+    MapRuleDriver,
+    MapRuleDriverConfig,
     RandomDriver,
     RuleDriver,
     RuleDriverConfig,
@@ -184,7 +186,21 @@ def baseline_policy(
             cells=grid["cells"],
         )
         return lambda obs, info, _starting: on_grid.act(obs["grid"], info["action_mask"])
+    lidar_map = sim_config.get("lidar_map", {})
+    if lidar_map.get("enabled"):
+        on_map = MapRuleDriver(
+            MapRuleDriverConfig(
+                lane_width_m=sim_config["road"]["lane_width_m"],
+                half_length_m=sim_config["ego"]["length_m"] / 2,
+            ),
+            cells=lidar_map["cells"],
+            ahead_m=lidar_map["ahead_m"],
+            behind_m=lidar_map["behind_m"],
+            half_width_m=lidar_map["half_width_m"],
+        )
+        return lambda obs, info, _starting: on_map.act(obs["lidar_map"], info["action_mask"])
     raise UsageError(
         "the rule-based driver reads the LIDAR and the ego vector (lidar.enabled, "
-        "ego_vector.enabled) or the occupancy grid (grid.enabled): this configuration has neither"
+        "ego_vector.enabled), the occupancy grid (grid.enabled) or the LIDAR map "
+        "(lidar_map.enabled): this configuration has none of them"
     )

@@ -161,3 +161,49 @@ def test_the_fig6_experiment_keeps_table_i_and_sums_the_reward_per_3000_steps(tm
         "run_min": [2.0, 10.0],
         "run_max": [4.0, 10.0],
     }
+
+
+# --- the rule-based driver on the LIDAR map -----------------------------------------------------
+
+
+def blank_map() -> np.ndarray:
+    return np.zeros((1, 80, 80), dtype=np.uint8)
+
+
+def car_at(image: np.ndarray, ahead_m: float, left_m: float) -> None:
+    """Draw a car's rear bumper row, 1.8 m wide, as the map would."""
+    row = int((40.0 - ahead_m) / 0.5)
+    columns = slice(int((20.0 - left_m - 0.9) / 0.5), int((20.0 - left_m + 0.9) / 0.5) + 1)
+    image[0, row, columns] = 255
+
+
+@pytest.mark.parametrize(
+    "cars,expected",
+    [
+        ([], CRUISE_UP),  # nothing in sight
+        ([(36.0, 0.0)], KEEP),  # something far ahead: keep going
+        ([(20.0, 0.0), (20.0, 3.5), (20.0, -3.5)], CRUISE_DOWN),  # blocked everywhere
+        ([(20.0, 0.0), (30.0, -3.5)], LANE_LEFT),  # the left lane is free
+        ([(20.0, 0.0), (30.0, 3.5)], CRUISE_DOWN),  # left not 15 m better, right taken below
+        ([(20.0, 0.0), (5.0, 3.5)], LANE_RIGHT),  # a car just ahead on the left
+    ],
+)
+def test_the_map_rule_driver_keeps_its_distance_and_changes_to_a_freer_lane(cars, expected):
+    from overtake.client.drivers import MapRuleDriver
+
+    image = blank_map()
+    if expected == CRUISE_DOWN and len(cars) == 2:
+        car_at(image, 25.0, -3.5)  # and the lane to the right no better
+    for ahead, left in cars:
+        car_at(image, ahead, left)
+    assert MapRuleDriver().act(image, np.ones((1, 5), dtype=np.int8)).tolist() == [expected]
+
+
+def test_the_rule_driver_drives_fayjie2018_from_its_map():
+    from overtake.client.episodes import baseline_policy, make_vector_env, run_episodes
+
+    envs = make_vector_env("fayjie2018", {"traffic.density": "light"}, 2, None)
+    act = baseline_policy("rule", envs.unwrapped.sim_config, 0, 2, envs)
+    rows, _, _ = run_episodes(envs, act, 2, 1000)
+    envs.close()
+    assert all(row["avg_speed_kmh"] > 80.0 for row in rows)  # idle holds 60, random about 55
