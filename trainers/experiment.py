@@ -259,7 +259,7 @@ EXPERIMENTS: dict[str, Experiment] = {
         total_steps=120_000,
         num_envs=4,
         densities=("medium",),
-        references=("random", "idle"),
+        references=("rule", "random", "idle"),
         eval_episodes=20,
         # Table I's settings as they are: the paper trained 100,000+ steps, this budget.
         scale_schedule=False,
