@@ -1,9 +1,12 @@
-"""Baseline drivers that act only on what an agent observes: the rule-based driver and random.
+"""Baseline drivers that act only on what an agent observes: rule-based drivers and random.
 
 They need no simulator: a trainer anywhere can run them against any overtake environment,
-in-process or remote. Both take batches (B, ...) so one call drives a whole vector env.
+in-process or remote. All take batches (B, ...) so one call drives a whole vector env. There is
+a rule-based driver per kind of observation (:class:`RuleDriver` for the LIDAR and ego vector
+of min2018, :class:`GridRuleDriver` for Ho's occupancy grid, :class:`MapRuleDriver` for Fayjie
+et al.'s LIDAR map); they choose lanes the same way (:func:`change_lanes`).
 
-The rule-based driver is meant as a fair opponent for learned policies. It reads the LIDAR and
+:class:`RuleDriver` is meant as a fair opponent for learned policies. It reads the LIDAR and
 the ego vector, whose fields it is told (``ego_fields``, the preset's ``ego_vector.fields``):
 
 - it accelerates (cruise up) whenever it is below the limit (``cruise_max_kmh``: its cruise
@@ -48,6 +51,27 @@ class RuleDriverConfig:
     better_by_m: float = 15.0
     gap_ahead_m: float = 10.0
     gap_behind_m: float = 15.0
+
+
+def change_lanes(
+    action: np.ndarray,
+    blocked: np.ndarray,
+    own: np.ndarray,
+    left: tuple[np.ndarray, np.ndarray],
+    right: tuple[np.ndarray, np.ndarray],
+    action_mask: np.ndarray,
+    better_by_m: float,
+) -> np.ndarray:
+    """``action`` (B,) with a lane change where the own lane is ``blocked``: to a side whose
+    (room, clear) pair is clear, that the mask allows and whose room beats the ``own`` lane's
+    by ``better_by_m``; the side with more room, left on a tie. Every rule driver chooses its
+    lane so."""
+    room_left = np.where(left[1] & (action_mask[:, LANE_LEFT] > 0), left[0], -np.inf)
+    room_right = np.where(right[1] & (action_mask[:, LANE_RIGHT] > 0), right[0], -np.inf)
+    go_left = blocked & (room_left >= own + better_by_m) & (room_left >= room_right)
+    go_right = blocked & ~go_left & (room_right >= own + better_by_m)
+    action = np.where(go_right, LANE_RIGHT, action)
+    return np.where(go_left, LANE_LEFT, action).astype(np.int64)
 
 
 class RuleDriver:
@@ -107,17 +131,18 @@ class RuleDriver:
         if self._left_warning is not None:
             clear[:, 2] &= ego[:, self._left_warning] < 0.5
         own = free[:, 1]
-        blocked = own < cfg.blocked_ahead_m
-        room_left = np.where(clear[:, 2] & (action_mask[:, LANE_LEFT] > 0), free[:, 2], -np.inf)
-        room_right = np.where(clear[:, 0] & (action_mask[:, LANE_RIGHT] > 0), free[:, 0], -np.inf)
-        go_left = blocked & (room_left >= own + cfg.better_by_m) & (room_left >= room_right)
-        go_right = blocked & ~go_left & (room_right >= own + cfg.better_by_m)
         speed_up = ego[:, self._limit_column] < cfg.cruise_max_kmh / 3.6 - 1e-3
         if self._forward_warning is not None:
             speed_up &= ego[:, self._forward_warning] < 0.5
-        action = np.where(speed_up, CRUISE_UP, KEEP)
-        action = np.where(go_right, LANE_RIGHT, action)
-        return np.where(go_left, LANE_LEFT, action).astype(np.int64)
+        return change_lanes(
+            np.where(speed_up, CRUISE_UP, KEEP),
+            own < cfg.blocked_ahead_m,
+            own,
+            (free[:, 2], clear[:, 2]),
+            (free[:, 0], clear[:, 0]),
+            action_mask,
+            cfg.better_by_m,
+        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -172,13 +197,15 @@ class GridRuleDriver:
         on_road = (grid == 0) | occupied
         clear = ~(occupied & self._beside[None, :, None]).any(axis=1) & on_road.all(axis=1)
         own = room[:, 1]
-        blocked = own < cfg.blocked_ahead_m
-        room_left = np.where(clear[:, 0] & (action_mask[:, LANE_LEFT] > 0), room[:, 0], -np.inf)
-        room_right = np.where(clear[:, 2] & (action_mask[:, LANE_RIGHT] > 0), room[:, 2], -np.inf)
-        go_left = blocked & (room_left >= own + cfg.better_by_m) & (room_left >= room_right)
-        go_right = blocked & ~go_left & (room_right >= own + cfg.better_by_m)
-        action = np.where(go_right, LANE_RIGHT, CRUISE_UP)
-        return np.where(go_left, LANE_LEFT, action).astype(np.int64)
+        return change_lanes(
+            np.full(own.shape, CRUISE_UP),
+            own < cfg.blocked_ahead_m,
+            own,
+            (room[:, 0], clear[:, 0]),
+            (room[:, 2], clear[:, 2]),
+            action_mask,
+            cfg.better_by_m,
+        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -239,14 +266,16 @@ class MapRuleDriver:
         clear = room > cfg.clear_ahead_m
         own = room[:, 1]
         blocked = own < cfg.brake_within_m
-        room_left = np.where(clear[:, 0] & (action_mask[:, LANE_LEFT] > 0), room[:, 0], -np.inf)
-        room_right = np.where(clear[:, 2] & (action_mask[:, LANE_RIGHT] > 0), room[:, 2], -np.inf)
-        go_left = blocked & (room_left >= own + cfg.better_by_m) & (room_left >= room_right)
-        go_right = blocked & ~go_left & (room_right >= own + cfg.better_by_m)
         action = np.where(own > cfg.accelerate_beyond_m, CRUISE_UP, KEEP)
-        action = np.where(blocked, CRUISE_DOWN, action)
-        action = np.where(go_right, LANE_RIGHT, action)
-        return np.where(go_left, LANE_LEFT, action).astype(np.int64)
+        return change_lanes(
+            np.where(blocked, CRUISE_DOWN, action),
+            blocked,
+            own,
+            (room[:, 0], clear[:, 0]),
+            (room[:, 2], clear[:, 2]),
+            action_mask,
+            cfg.better_by_m,
+        )
 
 
 class RandomDriver:
