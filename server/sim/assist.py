@@ -187,7 +187,9 @@ class CruiseControl:
 class SpeedSteps:
     """Ho's speed control (``ego.speed_control = "speed_steps"``): each frame the agent's speed
     moves one step up, down or not at all, as its decision says for that frame, and the safety
-    rule of his simulator keeps it behind the vehicle ahead (no cruise control, no IDM)."""
+    rule of his simulator keeps it behind the vehicle ahead. The speed it gives replaces the
+    one cruise control and the IDM work out (still computed: MOBIL reads the agents'
+    accelerations)."""
 
     # The speed command of each action (keep, accelerate, decelerate, left, right) in the
     # decision's first frame, and in the frames after it under each ``skipped_frames`` rule.
@@ -261,9 +263,9 @@ class LaneChangeAssist:
     def possible(self, st: SimState) -> tuple[np.ndarray, np.ndarray]:
         """(A, N) bool each, left and right: a lane there and no change under way."""
         n = self.agents
-        lane = st.lane[:, :n]
-        idle = st.target_lane[:, :n] == lane
-        return idle & (lane < self.lane_count - 1), idle & (lane > 0)
+        left, right = self.possible_lanes(st)
+        idle = st.target_lane[:, :n] == st.lane[:, :n]
+        return idle & left, idle & right
 
     def allowed(self, st: SimState) -> tuple[np.ndarray, np.ndarray]:
         """(A, N) bool each, left and right: a change that would start now if asked for."""

@@ -158,12 +158,12 @@ class HighwaySim:
         traffic; its slot keeps stepping unseen until it is restored or respawned.
         """
         self.state.active[arena, np.asarray(slots, dtype=np.int64)] = False
-        self._note_warnings_of(arena)
+        self.state_written([arena])
 
     def restore_agents(self, arena: int, slots: list[int] | np.ndarray) -> None:
         """Put removed cars back where the arena's last reset placed them (right after it)."""
         self.state.active[arena, np.asarray(slots, dtype=np.int64)] = True
-        self._note_warnings_of(arena)
+        self.state_written([arena])
 
     def respawn_agents(self, arena: int, slots: list[int] | np.ndarray) -> None:
         """Start new episodes for some agents of ``arena`` while the road goes on: each car
@@ -172,7 +172,7 @@ class HighwaySim:
         self.spawner.place_agents(self.state, arena, slots, self.rngs[arena])
         for slot in slots:
             self.episodes.restart(self.state, arena, int(slot))
-        self._note_warnings_of(arena)
+        self.state_written([arena])
 
     def _note_warnings(self, st: SimState) -> None:
         """Work out the warnings the agents of ``st`` are shown now, where the reward needs
@@ -180,10 +180,6 @@ class HighwaySim:
         observation reads the same ones rather than working them out again."""
         if self.keeps_warnings:
             st.warnings[:] = self.warnings.compute(st)
-
-    def _note_warnings_of(self, arena: int) -> None:
-        """:meth:`_note_warnings` for one arena whose cars changed between decisions."""
-        self.state_written([arena])
 
     def state_written(self, arenas: np.ndarray | list[int] | None = None) -> None:
         """Call after writing cars' positions, lanes or speeds into :attr:`state` by hand (a

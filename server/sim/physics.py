@@ -4,7 +4,9 @@ Longitudinally every car follows its leader (:mod:`.traffic.car_following`; agen
 their adaptive cruise control, :mod:`.assist`, under emergency braking), within its
 acceleration limits; traffic also
 never drives into traffic (a speed cap keeps it behind a traffic leader that brakes as hard as
-it can, the safety rule of Ho's simulator), while an agent ahead gets no such courtesy.
+it can, the safety rule of Ho's simulator), while an agent ahead gets no such courtesy unless
+``traffic.yield_to_agents`` (ho2018, fayjie2018). Under ``ego.speed_control = "speed_steps"``
+the agents' speeds are replaced by Ho's speed steps (:class:`.assist.SpeedSteps`).
 Laterally a lane change is a minimum-jerk move between lane centres. A collision is an agent's
 box overlapping another vehicle's. The frame's events go to the episode bookkeeping.
 """

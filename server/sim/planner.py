@@ -32,6 +32,7 @@ from overtake.protocol.vocabulary import CRUISE_UP, KEEP, LANE_LEFT, LANE_RIGHT
 from .assist import DriverWarnings
 from .core import HighwaySim
 from .state import SimState
+from .units import KMH
 
 
 @dataclass(frozen=True, slots=True)
@@ -52,16 +53,18 @@ class Planner:
     def __init__(self, sim: HighwaySim, config: PlannerConfig = PlannerConfig()) -> None:
         self.sim = sim
         self.config = config
-        self.limit_mps = sim.config.ego.cruise_max_kmh / 3.6
+        self.limit_mps = sim.config.ego.cruise_max_kmh * KMH
         self.horizon_decisions = max(1, round(config.horizon_s / sim.decision_period_s))
         arenas, n = sim.num_arenas, sim.agents
         self.options = 1 + 2 * n  # stay; then agent j left, agent j right
-        # The copies need no sensors: the planner reads their state.
-        shadow_config = dataclasses.replace(
-            sim.config,
-            lidar=dataclasses.replace(sim.config.lidar, enabled=False),
-            camera=dataclasses.replace(sim.config.camera, enabled=False),
-        )
+        # The copies need no sensors: the planner reads their state (SimConfig wants one on:
+        # the ego vector, the cheapest, which nothing reads).
+        off = {
+            name: dataclasses.replace(section, enabled=False)
+            for name, section in sim.config.sensor_sections().items()
+        }
+        off["ego_vector"] = dataclasses.replace(sim.config.ego_vector, enabled=True)
+        shadow_config = dataclasses.replace(sim.config, **off)
         self.shadow = HighwaySim(shadow_config, self.options * arenas, n)
         self.shadow._needs_reset[:] = False
         self._rng = np.random.default_rng(config.seed)

@@ -1,11 +1,11 @@
 """Fayjie et al.'s LIDAR as a grid map (2018, §III.A and Fig. 8): the scan's returns drawn into
 a bird's-eye image of the area ahead of the car.
 
-The map is ``cells`` by ``cells`` square cells in the car's frame: rows from ``ahead_m`` ahead
-(row 0) to ``behind_m`` behind (the last row), columns from ``half_width_m`` to the left
-(column 0) to as far to the right. A cell is 255 where some ray of the scan (the ``lidar``
-section's rays and range, whether or not the ``lidar`` observation is on) ends on a car or a
-guard rail inside it, and 0 elsewhere. The paper gives neither the extent nor the resolution:
+The map is ``cells`` by ``cells`` cells in the car's frame (square ones with the defaults):
+rows from ``ahead_m`` ahead (row 0) to ``behind_m`` behind (the last row), columns from
+``half_width_m`` to the left (column 0) to as far to the right. A cell is 255 where some ray of
+the scan (the ``lidar`` section's rays and range, whether or not the ``lidar`` observation is
+on) ends on a car or a guard rail inside it, and 0 elsewhere. The paper gives neither the extent nor the resolution:
 40 m ahead and 20 m either side (0.5 m cells) are chosen here, the range of a car's reaction at
 highway speed and the whole width of a 5-lane road.
 """
@@ -17,7 +17,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..road import Road
 from ..validation import check, check_flag, check_range
 from .base import Scene, SensorConfig, SensorSpace
 from .lidar import Lidar
@@ -55,14 +54,7 @@ class LidarMapConfig(SensorConfig):
         check_range("lidar_map.half_width_m", self.half_width_m, 0.0, 500.0, low_open=True)
 
     def build(self, config: SimConfig) -> LidarMap:
-        road = Road(config.road)
-        scanner = Lidar(
-            config.lidar.ray_count,
-            config.lidar.max_range_m,
-            road.rail_left_y_m,
-            road.rail_right_y_m,
-        )
-        return LidarMap(self, scanner)
+        return LidarMap(self, config.lidar.build(config))
 
 
 class LidarMap:
