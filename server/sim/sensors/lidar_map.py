@@ -5,9 +5,9 @@ The map is ``cells`` by ``cells`` cells in the car's frame (square ones with the
 rows from ``ahead_m`` ahead (row 0) to ``behind_m`` behind (the last row), columns from
 ``half_width_m`` to the left (column 0) to as far to the right. A cell is 255 where some ray of
 the scan (the ``lidar`` section's rays and range, whether or not the ``lidar`` observation is
-on) ends on a car or a guard rail inside it, and 0 elsewhere. The paper gives neither the extent nor the resolution:
-40 m ahead and 20 m either side (0.5 m cells) are chosen here, the range of a car's reaction at
-highway speed and the whole width of a 5-lane road.
+on) ends on a car or a guard rail inside it, and 0 elsewhere. The paper gives neither the
+extent nor the resolution: 40 m ahead and 20 m either side (0.5 m cells) are chosen here, the
+range of a car's reaction at highway speed and the whole width of a 5-lane road.
 """
 
 from __future__ import annotations
