@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -59,7 +60,7 @@ class Planner:
         self.options = 1 + 2 * n  # stay; then agent j left, agent j right
         # The copies need no sensors: the planner reads their state (SimConfig wants one on:
         # the ego vector, the cheapest, which nothing reads).
-        off = {
+        off: dict[str, Any] = {
             name: dataclasses.replace(section, enabled=False)
             for name, section in sim.config.sensor_sections().items()
         }
