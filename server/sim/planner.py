@@ -23,6 +23,7 @@ times the horizon in simulated decisions, without sensors.
 from __future__ import annotations
 
 import dataclasses
+import typing
 from dataclasses import dataclass
 from typing import Any
 
@@ -61,7 +62,7 @@ class Planner:
         # The copies need no sensors: the planner reads their state (SimConfig wants one on:
         # the ego vector, the cheapest, which nothing reads).
         off: dict[str, Any] = {
-            name: dataclasses.replace(section, enabled=False)
+            name: dataclasses.replace(typing.cast(Any, section), enabled=False)
             for name, section in sim.config.sensor_sections().items()
         }
         off["ego_vector"] = dataclasses.replace(sim.config.ego_vector, enabled=True)
