@@ -1,4 +1,5 @@
-"""``overtake-eval``: a checkpoint, the rule-based driver or random, over fixed-seed episodes.
+"""``overtake-eval``: a checkpoint or a reference policy (rule, random, idle, planner) over
+fixed-seed episodes.
 
 Every policy drives the same episodes: episode i uses seed ``seed + i``, at the chosen traffic,
 in-process or on a server. The table has the papers' metrics (mean and spread over episodes):

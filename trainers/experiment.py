@@ -97,8 +97,8 @@ CURVE_METRICS: tuple[tuple[str, str], ...] = (
 LIVES_NAME = "experiment-lives.jsonl"
 PLAN_NAME = "experiment.json"
 LOCK_NAME = ".lock"
-# How often the scheduler wakes without a child ending, and how often it prints the runs'
-# progress (training steps read from their metrics.jsonl).
+# How often the scheduler wakes without a child ending (it prints the runs' progress every
+# --progress-every-s).
 POLL_S = 1.0
 STOP_TIMEOUT_S = 30.0
 
@@ -149,7 +149,8 @@ class Experiment:
     """the paper's own table (Markdown), quoted under ours in table.md"""
     scale_schedule: bool = True
     """scale the paper's settings to the budget (Schedule.for_budget); False keeps the
-    preset's own (a paper that trained about as long as the budget)"""
+    preset's own learning start, epsilon decay, target period and replay (a paper that trained
+    about as long as the budget); checkpoints are scaled either way"""
     reward_window_steps: int | None = None
     """also plot the training reward summed over windows of this many steps (the runs log a
     training line at each)"""
@@ -306,7 +307,8 @@ class ExperimentConfig:
     num_envs: int | None = None
     """environments per training run; None keeps the experiment's"""
     learning_starts: int | None = None
-    """None: scaled to the budget (see Schedule.for_budget), as are the next four"""
+    """None: the experiment's schedule (scaled to the budget, Schedule.for_budget, or the
+    preset's own where the experiment keeps it), as are the next four"""
     epsilon_decay_steps: int | None = None
     target_update_steps: int | None = None
     replay_size: int | None = None

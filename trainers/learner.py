@@ -7,8 +7,10 @@
 
 Invalid actions (the action mask, e.g. a lane change with no lane on that side) are never
 chosen: not when acting (greedy or random) and not in the target's max or argmax.
-Huber loss, gradient norm clipping, a target network copied every ``target_update_steps``
-environment steps, epsilon-greedy with a linear schedule.
+The loss is Huber's or the squared error (``loss``), gradients are clipped by norm unless
+``grad_clip_norm`` is 0, the optimiser is Adam or RMSProp (``optimizer``); a target network
+copied every ``target_update_steps`` environment steps, epsilon-greedy with a linear schedule.
+The network is each preset's (:func:`build_network`).
 """
 
 from __future__ import annotations
@@ -128,7 +130,8 @@ def build_network(
     dueling: bool,
 ) -> nn.Module:
     """The Q-network ``config.network`` names, for ``inputs``: Min et al.'s multi-modal network
-    on camera and / or LIDAR, or one of Ho's on the occupancy grid."""
+    on camera and / or LIDAR, one of Ho's on the occupancy grid, or Fayjie et al.'s two-stream
+    network on the camera and the LIDAR map."""
     if inputs == "camera-map":
         if config.network != "two-stream" or not isinstance(shape, TwoStreamShape):
             raise ValueError(
@@ -228,7 +231,7 @@ class DQNLearner:
 
     def _tensors(self, obs: dict[str, np.ndarray], prefix: str = "") -> list[torch.Tensor | None]:
         """The network's inputs in the order it takes them (None for one it leaves out)."""
-        network: Any = self.online  # a QNetwork or a GridQNetwork: both name their inputs
+        network: Any = self.online  # every network class names its inputs
         used = set(network.used_inputs)
         return [
             torch.as_tensor(obs[prefix + name], device=self.device) if name in used else None
