@@ -134,8 +134,9 @@ def baseline_policy(
 ) -> Policy:
     """A reference policy for :func:`run_episodes`:
 
-    - ``rule``: the rule-based driver (:class:`~overtake.client.drivers.RuleDriver`, tuned to
-      the simulator's configuration);
+    - ``rule``: the rule-based driver that reads what the preset observes (the LIDAR and ego
+      vector, Ho's grid or Fayjie et al.'s LIDAR map: :mod:`overtake.client.drivers`), tuned
+      to the simulator's configuration;
     - ``random``: uniformly random among the allowed actions;
     - ``idle``: never acts (action 0 throughout): the floor any policy should beat;
     - ``planner``: the simulator's privileged planner, which reads the true state of every
@@ -159,6 +160,7 @@ def baseline_policy(
         raise UsageError(
             f"unknown baseline policy {policy!r}: one of {', '.join(BASELINE_POLICIES)}"
         )
+    # .get: a server older than these sensors sends a configuration without their sections.
     grid = sim_config.get("grid", {})
     if sim_config["lidar"]["enabled"] and sim_config["ego_vector"]["enabled"]:
         driver = RuleDriver(
