@@ -419,6 +419,9 @@ class ArenaGroup:
     _pending_restart: Steps | None = field(default=None, repr=False)
     restarts: int = 0
     epoch: int = 0  # the server's epoch (Connection.epoch) when the group was opened
+    trainer_step: int = -1
+    """Sent with every Actions (-1: not given): the trainer's step count, which the server
+    repeats in its world frames so that recordings of the road share the trainer's timeline."""
 
     @classmethod
     def open(cls, connection: Connection, request: OpenRequest | JoinRequest) -> ArenaGroup:
@@ -523,6 +526,7 @@ class ArenaGroup:
                         round=self.round,
                         agents=np.asarray(agents, dtype=np.int32),
                         actions=np.asarray(actions, dtype=np.int64),
+                        trainer_step=self.trainer_step,
                     ),
                 )
                 steps = conn.next_steps(self.server, self.group_id, self.round + 1, self.epoch)

@@ -109,6 +109,14 @@ class _RemoteHandles:
         """The server's resolved configuration as plain nested data."""
         return self._remote.sim_config
 
+    def label_step(self, step: int) -> None:
+        """Send ``step`` (the trainer's count of environment steps, >= 0) with the following
+        actions: the server repeats it in its world frames, so a spectator's recording of
+        these arenas lies on the trainer's ``step`` timeline and opens beside its curves."""
+        if step < 0:
+            raise ValueError(f"a step count must be >= 0, got {step}")
+        self._remote.group.trainer_step = int(step)
+
 
 class RemoteHighwayEnv(_RemoteHandles, ReportsEpisodeLength, gym.Env):
     """One agent on one arena of a remote simulator server."""

@@ -18,8 +18,8 @@ from pathlib import Path
 from typing import Any
 
 from overtake.protocol.transport import SecurityConfig
-from overtake.viz.recording import RecordingConfig, close_recording, open_recording
-from overtake.viz.world_view import WorldRecording, world_blueprint
+from overtake.viz.recording import APPLICATION_ID, RecordingConfig, close_recording, open_recording
+from overtake.viz.world_view import WorldRecording
 
 from .commands import run_command
 from .remote import RemoteConfig
@@ -54,14 +54,9 @@ def main(config: SpectateConfig, stop: threading.Event | None = None) -> int:
     """Log frames until ``stop`` is set, or the time or frame limit; returns frames logged."""
     stop = stop or threading.Event()
     remote = RemoteConfig(connect=(config.connect,), security=config.security)
-    # A laid-out view for one arena; for many, Rerun's own layout.
-    blueprint = (
-        world_blueprint(config.server, config.arena)
-        if config.server is not None and config.arena is not None
-        else None
-    )
     with Spectator(remote, server=config.server, arena=config.arena) as spectator:
-        recording = open_recording("overtake-spectate", config.recording, DEFAULT_RRD, blueprint)
+        # The layout follows the arenas as they appear (WorldRecording sends it).
+        recording = open_recording(APPLICATION_ID, config.recording, DEFAULT_RRD)
         view = WorldRecording(recording.stream, rays=config.rays) if recording is not None else None
         logged = received = 0
         deadline = None if config.seconds is None else time.monotonic() + config.seconds

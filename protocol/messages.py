@@ -30,7 +30,7 @@ from .vocabulary import ACTION_COUNT, ACTION_NAMES
 
 # The wire contract: protocol version (major, minor). A peer of another major version is
 # refused; a newer minor may add optional fields, which an older peer ignores.
-PROTOCOL_VERSION: tuple[int, int] = (1, 1)
+PROTOCOL_VERSION: tuple[int, int] = (1, 2)
 PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
     (
         "1.0",
@@ -41,6 +41,13 @@ PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
         "1.1",
         "World frames carry each agent's reward terms (reward_terms, reward_term_names); "
         "a 1.0 peer's frames decode with none.",
+    ),
+    (
+        "1.2",
+        "Actions carry the trainer's step count (trainer_step) and world frames repeat it, so "
+        "a spectator's recording shares the trainers' step timeline; world frames carry each "
+        "vehicle's half length and width and each agent's heading. Older peers' messages decode "
+        "with -1 and None.",
     ),
 )
 
@@ -403,9 +410,16 @@ class Actions(Message):
     round: int
     agents: np.ndarray  # int32 (k,), distinct
     actions: np.ndarray  # int64 (k,) in [0, ACTION_COUNT)
+    # The trainer's count of environment steps when it chose these actions (-1: not given):
+    # world frames repeat it so that recordings of the road share the trainer's timeline.
+    trainer_step: int = field(default=-1, metadata={"since": 2})
 
     def check(self) -> None:
         check_name("trainer", self.trainer)
+        if self.trainer_step < -1:
+            raise DecodeError(
+                f"trainer_step must be >= 0 (or -1: not given), got {self.trainer_step}"
+            )
         check_array("agents", self.agents, "int32", (None,))
         check_array("actions", self.actions, "int64", (self.agents.shape[0],))
         if self.actions.size and (self.actions.min() < 0 or self.actions.max() >= ACTION_COUNT):
@@ -479,6 +493,13 @@ class WorldFrame(Message):
     # Since 1.1 (a 1.0 peer's frames decode with these defaults):
     reward_terms: np.ndarray | None = field(default=None, metadata={"since": 1})  # (N, terms)
     reward_term_names: tuple[str, ...] = field(default=(), metadata={"since": 1})
+    # The step count the arena's trainer sent with its last actions (-1: none sent one).
+    trainer_step: int = field(default=-1, metadata={"since": 2})
+    half_length_m: np.ndarray | None = field(default=None, metadata={"since": 2})  # float32 (V,)
+    half_width_m: np.ndarray | None = field(default=None, metadata={"since": 2})  # float32 (V,)
+    # Each agent's heading, radians from the road's direction, left positive (its LIDAR turns
+    # with it while it changes lanes).
+    agent_heading_rad: np.ndarray | None = field(default=None, metadata={"since": 2})  # f32 (N,)
 
     def check(self) -> None:
         check_name("server", self.server)
@@ -502,6 +523,13 @@ class WorldFrame(Message):
             )
         for name in self.reward_term_names:
             check_name("reward term name", name)
+        if (self.half_length_m is None) != (self.half_width_m is None):
+            raise DecodeError("half_length_m and half_width_m must come together or not at all")
+        if self.half_length_m is not None:
+            check_array("half_length_m", self.half_length_m, "float32", (v,))
+            check_array("half_width_m", self.half_width_m, "float32", (v,))
+        if self.agent_heading_rad is not None:
+            check_array("agent_heading_rad", self.agent_heading_rad, "float32", (n,))
         for name, value in self.observations.items():
             check_name("observation name", name)
             if value.ndim < 1 or value.shape[0] != n:

@@ -44,6 +44,7 @@ from overtake.protocol.vocabulary import (
 )
 
 from .sim import PRESETS, ConfigError, HighwaySim, SimConfig, autoreset_round, make_config
+from .sim.physics import headings
 
 
 def behaviour_spec(sim: HighwaySim) -> BehaviourSpec:
@@ -107,6 +108,8 @@ class Group:
     rate_rounds_per_s: float = 0.0
     _last_round_t: float = field(default_factory=time.monotonic)
     last_observations: dict[str, np.ndarray] | None = None  # of the last round, for spectators
+    # The step count a member last sent with its actions (-1: none has), for world frames.
+    trainer_step: int = -1
     # (A, N) per agent slot: whose episode ended last round, and what it got then.
     ended: np.ndarray = field(init=False)
     last_reward: np.ndarray = field(init=False)
@@ -263,6 +266,8 @@ class Group:
                 f"{np.flatnonzero(member.slots).tolist()}"
             )
         member.pending = actions
+        if actions.trainer_step >= 0:
+            self.trainer_step = actions.trainer_step
         if self.deadline is None:
             self.deadline = time.monotonic() + deadline_s
 
@@ -442,6 +447,7 @@ class Group:
     def world_frame(self, arena: int, observations: dict[str, np.ndarray]) -> WorldFrame:
         sim, st = self.sim, self.sim.state
         n = sim.agents
+        body = np.clip(st.kind[arena], 0, AGENT_KIND)
         return WorldFrame(
             server=self.server,
             group=self.group_id,
@@ -462,4 +468,10 @@ class Group:
             action_applied=self.last_applied[arena].astype(np.int64),
             reward_terms=self.last_terms[arena].astype(np.float64),
             reward_term_names=sim.reward_terms,
+            trainer_step=self.trainer_step,
+            half_length_m=sim.kinds.half_length[body].astype(np.float32),
+            half_width_m=sim.kinds.half_width[body].astype(np.float32),
+            agent_heading_rad=headings(st, sim.kinds, sim.road.lane_width_m, n)[arena].astype(
+                np.float32
+            ),
         )

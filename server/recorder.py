@@ -15,17 +15,14 @@ import threading
 from pathlib import Path
 
 from overtake.protocol.messages import WorldFrame
-from overtake.viz.recording import Recording, RecordingConfig, open_recording
-from overtake.viz.world_view import WorldRecording, server_blueprint
+from overtake.viz.recording import APPLICATION_ID, Recording, RecordingConfig, open_recording
+from overtake.viz.world_view import WorldRecording
 
 log = logging.getLogger("overtake.server.recorder")
 
 # Frames waiting for the logging thread; beyond this they are dropped (about a second of a
 # 64-arena server at 16 rounds/s).
 QUEUE_FRAMES = 1024
-# The blueprint lays out the arenas that appeared last, this many: a server that runs for days
-# sees trainers come and go, and a tab per arena beyond a few dozen would be of no use anyway.
-BLUEPRINT_ARENAS = 16
 
 
 def default_rrd(server: str) -> Path:
@@ -38,15 +35,13 @@ class ServerRecorder:
     def __init__(self, config: RecordingConfig, server: str) -> None:
         self.config = config
         self.where = config.describe(default_rrd(server))
-        recording = open_recording("overtake-server", config, default_rrd(server))
+        recording = open_recording(APPLICATION_ID, config, default_rrd(server))
         if recording is None:
             raise ValueError("a ServerRecorder needs a sink other than off")
         self.recording: Recording = recording
         self.view = WorldRecording(recording.stream)
         self.logged = 0
         self.dropped = 0
-        self.blueprint_arenas: list[int] = []
-        self._arenas_seen: set[int] = set()  # a layout is sent once per arena, when it is new
         self._queue: queue.Queue[WorldFrame | None] = queue.Queue(maxsize=QUEUE_FRAMES)
         self._thread = threading.Thread(target=self._run, name="overtake-recorder", daemon=True)
         self._thread.start()
@@ -83,30 +78,12 @@ class ServerRecorder:
             frame = self._queue.get()
             if frame is None:
                 return
-            if frame.arena not in self._arenas_seen:
-                self._arenas_seen.add(frame.arena)
-                self._lay_out(frame.server, frame.arena)
             try:
                 self.view.log(frame)
                 self.logged += 1
             except Exception:
                 # A frame Rerun refuses is that frame's loss, not the recording's.
                 log.exception("could not log a world frame of arena %d", frame.arena)
-
-    def _lay_out(self, server: str, arena: int) -> None:
-        """A blueprint with ``arena`` added, and the oldest dropped beyond BLUEPRINT_ARENAS
-        (arenas open while the server runs). It becomes the default, not the active one: a
-        viewer's own arrangement is left as it is."""
-        self.blueprint_arenas = (self.blueprint_arenas + [arena])[-BLUEPRINT_ARENAS:]
-        try:
-            self.recording.stream.send_blueprint(
-                server_blueprint(server, sorted(self.blueprint_arenas)),
-                make_active=False,
-                make_default=True,
-            )
-        except Exception:
-            # Without it the viewer falls back to its own layout; the frames still go in.
-            log.exception("could not send the recording's layout")
 
     def close(self, timeout_s: float = 30.0) -> None:
         """Log what is queued (for at most ``timeout_s``), then close the recording (an .rrd

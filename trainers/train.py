@@ -40,7 +40,13 @@ from overtake.client.commands import UsageError, run_command
 from overtake.client.episodes import make_vector_env, parse_overrides
 from overtake.protocol import ACTION_COUNT
 from overtake.protocol.transport import SecurityConfig
-from overtake.viz.recording import Recording, RecordingConfig, close_recording, open_recording
+from overtake.viz.recording import (
+    APPLICATION_ID,
+    Recording,
+    RecordingConfig,
+    close_recording,
+    open_recording,
+)
 
 from .checkpoint import (
     CHECKPOINT_NAME,
@@ -254,6 +260,16 @@ def prepare_run_dir(config: TrainConfig, run_dir: Path) -> Checkpoint | None:
     return resumed
 
 
+def _ego_fields(sim_config: Any) -> tuple[str, ...]:
+    """The fields of the ego vector observation, in order, from the environment's resolved
+    configuration (none where it has no ego vector or does not say)."""
+    try:
+        ego = sim_config["ego_vector"]
+        return tuple(ego["fields"]) if ego.get("enabled", True) else ()
+    except (KeyError, TypeError, AttributeError):
+        return ()
+
+
 class TrainingRun:
     """One life of a training run (its start or one resume) in its run directory.
 
@@ -288,6 +304,9 @@ class TrainingRun:
         resumed: Checkpoint | None,
     ) -> None:
         self.config, self.dqn, self.envs = config, config.dqn, envs
+        # Remote arenas hear the step count with each action: a spectator's recording of them
+        # then lies on this run's `step` timeline (in-process environments have no spectators).
+        self._label_step = getattr(envs.unwrapped, "label_step", None)
         self.run_dir, self.overrides = run_dir, overrides
         self.checkpoint_path, self.replay_path = run_dir / CHECKPOINT_NAME, run_dir / REPLAY_NAME
         self.space = envs.single_observation_space
@@ -405,16 +424,26 @@ class TrainingRun:
     def _open_recording(self) -> None:
         run_name = self.run_dir.name or "run"
         self.recording = open_recording(
-            "overtake-train",
+            APPLICATION_ID,
             self.config.recording,
             self._life_file("trainer", ".rrd"),
             training_blueprint(run_name),
         )
         self.view = (
-            TrainingRecording(self.recording.stream, run_name)
+            # Coloured by algorithm: DQN, Double DQN and Dueling keep their colours in every
+            # recording that holds several runs.
+            TrainingRecording(
+                self.recording.stream,
+                run_name,
+                colour_index=list(ALGOS).index(self.config.algo),
+                ego_fields=_ego_fields(getattr(self.envs.unwrapped, "sim_config", None)),
+            )
             if self.recording is not None
             else None
         )
+        group = getattr(self.envs.unwrapped, "group", None)
+        if self.view is not None and group is not None:
+            self.view.arenas(group.server, group.arena_ids)
 
     def _start_episodes(self) -> None:
         """Reset every environment and start its frame stack and its replay ring."""
@@ -437,6 +466,8 @@ class TrainingRun:
         actions, q = self.learner.act(self.stacker.observation(), self.mask, epsilon, self.rng)
         t1 = time.perf_counter()
         seen = self.obs
+        if self._label_step is not None:
+            self._label_step(self.step)
         self.obs, reward, terminated, truncated, info = self.envs.step(actions)
         t2 = time.perf_counter()
         self._record_car_view(seen, actions, q, reward, info)

@@ -1,13 +1,21 @@
-"""What a trainer shows in Rerun, on the ``step`` timeline (environment steps):
+"""What a trainer shows in Rerun, on the ``step`` timeline (environment steps).
 
-- ``trainer/<run>/episode/<metric>``: every episode's return and the papers' metrics (average
-  speed, lane changes, overtakes, collisions, emergency brakes, ...), as the episode ends;
-- ``trainer/<run>/learning/<name>``: loss, epsilon, the mean Q of the actions taken in the
+Summaries are logged metric first, run second, so that runs sharing a recording (the demo's
+DQN, Double DQN and Dueling trainers, ``--recording-id``) fall into the same plots, one line
+per run, on one step axis:
+
+- ``training/episode/<metric>/<run>``: every episode's return and the papers' metrics (average
+  speed, lane changes, overtakes, collisions, emergency brakes, distance, ...), as the episode
+  ends;
+- ``training/learning/<name>/<run>``: loss, epsilon, the mean Q of the actions taken in the
   updates, and steps per second, once per log line (``--log-every``);
 - ``trainer/<run>/env0/...``: what the first environment's car sees and does, every
-  ``--record-every`` steps: its camera frame, its LIDAR hits around the car (metres, x ahead,
-  y to the left), speed, the action taken, the Q-value of every action and of the chosen one,
-  the reward and each reward term.
+  ``--record-every`` steps: its camera frame, its LIDAR hits around the car (drawn as a map:
+  x ahead, the car's left up), speed (km/h), the action taken (a point on the series of its
+  name), the Q-value of every action, the reward and each reward term.
+
+:func:`~overtake.viz.training_layout.training_blueprint` lays out one run, or several side by
+side; plots are grouped by unit (never distance beside collisions, nor steps/s beside epsilon).
 
 Summaries are logged at most once per episode or log line; the car's view is decimated, and
 with the default decimation the training loop loses nothing measurable (``bench/RESULTS.md``,
@@ -16,63 +24,71 @@ with the default decimation the training loop loses nothing measurable (``bench/
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from overtake.protocol import ACTION_NAMES
-from overtake.viz.world_view import lidar_hits
+from overtake.viz.training_layout import training_blueprint
+from overtake.viz.world_view import ACTION_COLOURS, LIDAR_HIT_COLOUR, lidar_hits, to_drawing
+
+__all__ = ["LEARNING_SERIES", "TrainingRecording", "training_blueprint"]
 
 LEARNING_SERIES = ("loss", "epsilon", "q_taken", "steps_per_s")
 
-
-def training_blueprint(run: str) -> Any:
-    import rerun.blueprint as rrb
-
-    root = f"/trainer/{run}"
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Vertical(
-                rrb.TimeSeriesView(origin=f"{root}/episode", name=f"{run}: episodes"),
-                rrb.TimeSeriesView(origin=f"{root}/learning", name=f"{run}: learning"),
-            ),
-            rrb.Vertical(
-                rrb.Horizontal(
-                    rrb.Spatial2DView(origin=f"{root}/env0/camera", name="env 0 camera"),
-                    rrb.Spatial2DView(origin=f"{root}/env0/lidar", name="env 0 LIDAR"),
-                ),
-                rrb.TimeSeriesView(origin=f"{root}/env0/q", name="env 0 Q-values"),
-                rrb.TimeSeriesView(
-                    origin=f"{root}/env0",
-                    name="env 0",
-                    contents=[
-                        f"{root}/env0/speed_kmh",
-                        f"{root}/env0/action",
-                        f"{root}/env0/reward",
-                        f"{root}/env0/reward_terms/**",
-                    ],
-                ),
-            ),
-        ),
-        rrb.TimePanel(timeline="step"),
-        collapse_panels=True,
-    )
+# One colour per run, in the order a layout lists them (more runs repeat the colours).
+RUN_COLOURS = np.array(
+    [[80, 160, 255], [240, 120, 40], [60, 200, 110], [220, 80, 200], [230, 210, 60]],
+    dtype=np.uint8,
+)
 
 
 class TrainingRecording:
-    """Logs one training run's episodes and learning statistics to a RecordingStream."""
+    """Logs one training run's episodes, learning statistics and first car to a stream."""
 
-    def __init__(self, stream: Any, run: str) -> None:
+    def __init__(
+        self, stream: Any, run: str, colour_index: int = 0, ego_fields: Sequence[str] = ()
+    ) -> None:
+        """``ego_fields`` names the ego vector's fields in order (the preset's
+        ``ego_vector.fields``): the car's speed is read from its ``speed_mps``, when it has
+        one."""
         import rerun as rr
 
-        self.rr, self.stream, self.root = rr, stream, f"trainer/{run}"
-        self._series_named = False
+        self.rr, self.stream, self.run = rr, stream, run
+        self.speed_field = (
+            list(ego_fields).index("speed_mps") if "speed_mps" in ego_fields else None
+        )
+        self.root = f"trainer/{run}"
+        self.colour = RUN_COLOURS[colour_index % len(RUN_COLOURS)]
+        self._styled: set[str] = set()
+
+    def _series(self, section: str, name: str) -> str:
+        """The entity of ``name``'s line for this run, styled (named, coloured) once."""
+        path = f"training/{section}/{name}/{self.run}"
+        if path not in self._styled:
+            self.stream.log(
+                path,
+                self.rr.SeriesLines(names=f"{self.run}: {name}", colors=[self.colour]),
+                static=True,
+            )
+            self._styled.add(path)
+        return path
+
+    def arenas(self, server: str, arena_ids: Sequence[int]) -> None:
+        """Which server's arenas this run drives (remote runs): a layout of a recording that
+        also holds a spectator's view of the roads puts them beside this run's curves."""
+        self.stream.log(
+            f"{self.root}/arenas",
+            self.rr.AnyValues(server=[server], arenas=[int(a) for a in arena_ids]),
+            static=True,
+        )
 
     def episode(self, step: int, metrics: dict[str, float]) -> None:
         rr = self.rr
         self.stream.set_time("step", sequence=step)
         for name, value in metrics.items():
-            self.stream.log(f"{self.root}/episode/{name}", rr.Scalars(float(value)))
+            self.stream.log(self._series("episode", name), rr.Scalars(float(value)))
 
     def learning(self, step: int, entry: dict[str, Any]) -> None:
         rr = self.rr
@@ -80,7 +96,25 @@ class TrainingRecording:
         for name in LEARNING_SERIES:
             value = entry.get(name)
             if value is not None:
-                self.stream.log(f"{self.root}/learning/{name}", rr.Scalars(float(value)))
+                self.stream.log(self._series("learning", name), rr.Scalars(float(value)))
+
+    def _style_car(self, base: str) -> None:
+        rr, stream = self.rr, self.stream
+        for index, name in enumerate(ACTION_NAMES):
+            stream.log(f"{base}/q/{name}", rr.SeriesLines(names=name), static=True)
+            stream.log(
+                f"{base}/action/{name}",
+                rr.SeriesPoints(
+                    names=name, colors=[ACTION_COLOURS[index]], markers="circle", marker_sizes=3.0
+                ),
+                static=True,
+            )
+        stream.log(
+            f"{base}/lidar/car",
+            rr.Boxes2D(centers=[[0.0, 0.0]], half_sizes=[[2.25, 0.9]], colors=[[230, 40, 40]]),
+            static=True,
+        )
+        self._styled.add(base)
 
     def car_view(
         self,
@@ -92,34 +126,28 @@ class TrainingRecording:
         terms: dict[str, float],
     ) -> None:
         """One environment's latest frame (``obs`` unbatched: ``lidar`` (R,) metres, ``camera``
-        (H, W[, 3]) uint8, ``ego`` with speed in m/s first), the action it took, the Q-values
+        (H, W[, 3]) uint8, ``ego`` the ego vector), the action it took, the Q-values
         of every action, and the reward it got for it with each term."""
         rr, stream, base = self.rr, self.stream, f"{self.root}/env0"
-        if not self._series_named:
-            for name in ACTION_NAMES:
-                stream.log(f"{base}/q/{name}", rr.SeriesLines(names=name), static=True)
-            self._series_named = True
+        if base not in self._styled:
+            self._style_car(base)
         stream.set_time("step", sequence=step)
         lidar = obs.get("lidar")
         if lidar is not None:
             stream.log(
                 f"{base}/lidar/hits",
-                rr.Points2D(lidar_hits(lidar), radii=[0.25], colors=[[255, 128, 0]]),
-            )
-            stream.log(
-                f"{base}/lidar/car",
-                rr.Boxes2D(centers=[[0.0, 0.0]], half_sizes=[[2.25, 0.9]], colors=[[230, 40, 40]]),
+                rr.Points2D(to_drawing(lidar_hits(lidar)), radii=[0.3], colors=[LIDAR_HIT_COLOUR]),
             )
         camera = obs.get("camera")
         if camera is not None:
             stream.log(f"{base}/camera", rr.Image(camera))
         ego = obs.get("ego")
-        if ego is not None:
-            stream.log(f"{base}/speed_kmh", rr.Scalars(float(ego[0]) * 3.6))
-        stream.log(f"{base}/action", rr.Scalars(float(action)))
-        for name, value in zip(ACTION_NAMES, q):
+        if ego is not None and self.speed_field is not None:
+            stream.log(f"{base}/speed_kmh", rr.Scalars(float(ego[self.speed_field]) * 3.6))
+        stream.log(f"{base}/action/{ACTION_NAMES[action]}", rr.Scalars(float(action)))
+        for name, value in zip(ACTION_NAMES, q, strict=True):
             stream.log(f"{base}/q/{name}", rr.Scalars(float(value)))
         stream.log(f"{base}/q_chosen", rr.Scalars(float(q[action])))
-        stream.log(f"{base}/reward", rr.Scalars(float(reward)))
+        stream.log(f"{base}/reward/total", rr.Scalars(float(reward)))
         for name, value in terms.items():
-            stream.log(f"{base}/reward_terms/{name}", rr.Scalars(float(value)))
+            stream.log(f"{base}/reward/{name}", rr.Scalars(float(value)))

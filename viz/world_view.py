@@ -1,30 +1,44 @@
 """World frames in Rerun: what a spectator, or a server logging directly, shows of an arena.
 
-Per arena, under ``world/<server>/arena<id>``, on the ``round`` (decision) and ``sim_time``
-timelines:
+Per arena, under ``world/<server>/arena<id>``:
 
-- ``road/lanes``: lane lines around the cars (x along the road, y from the right edge, metres);
-- ``cars``: every vehicle as a box, traffic coloured by behaviour, agents in red and labelled;
-- ``agent<i>/lidar/hits`` and ``agent<i>/lidar/rays``: each agent's LIDAR, drawn from its car
-  (rays at angle 2*pi*k/R from the road's direction; a car changing lanes is turned by a few
-  degrees, which the drawing ignores);
+- ``road/lanes``, ``road/cars``, ``road/agent<i>/lidar/{hits,rays}``: the road from above,
+  drawn the way a driver reads a map: centred on the followed car (agent 0, or the first agent
+  on the road) and moving with it, forward to the right and the driver's left *up*. Drawing
+  coordinates are metres: x ahead of the followed car, y = minus the distance from the road's
+  right edge (Rerun draws +y downward, so the road's left, +y in the simulator, must be
+  negated to come out on top). Every car is a box of its own size, traffic coloured by
+  behaviour, agents red and labelled; LIDAR rays leave each agent at angle 2*pi*k/R from the
+  car's heading (a car changing lanes turns by a few degrees; its box is drawn straight);
 - ``agent<i>/camera``: its camera image;
-- ``agent<i>/speed_kmh``, ``agent<i>/reward``, ``agent<i>/action``: scalars;
-- ``agent<i>/reward_terms/<term>``: each term of the reward (frames of protocol 1.1 on).
+- ``agent<i>/speed_kmh``: speed (km/h);
+- ``agent<i>/reward/total`` and ``agent<i>/reward/<term>``: the reward and each of its terms
+  (frames of protocol 1.1 on);
+- ``agent<i>/action/<name>``: the action applied, as a point at its index on the series of
+  its name (a scatter with a legend, not a line).
+
+Timelines: ``round`` (the group's decisions), ``sim_time``, and ``step`` when the arena's
+trainer sends its step count (protocol 1.2): a recording of the road then opens on the same
+timeline as the trainer's curves.
 
 Traffic is coloured by its behaviour (:data:`~overtake.protocol.vocabulary.BEHAVIOUR_NAMES`).
-Spectators (client) and servers draw the same view of the :class:`WorldFrame` s they share.
+Spectators (client) and servers draw the same view of the :class:`WorldFrame` s they share, and
+lay each arena out as it first appears (:func:`arena_layout`).
 """
 
 from __future__ import annotations
 
 import functools
+import logging
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from overtake.protocol.messages import WorldFrame
-from overtake.protocol.vocabulary import BEHAVIOUR_NAMES
+from overtake.protocol.vocabulary import ACTION_NAMES, BEHAVIOUR_NAMES
+
+log = logging.getLogger("overtake.viz")
 
 # One colour per behaviour, in the order of BEHAVIOUR_NAMES: steady blue, road-max green,
 # lane-changer orange, random purple.
@@ -33,8 +47,27 @@ KIND_COLOURS = np.array(
 )
 assert len(KIND_COLOURS) == len(BEHAVIOUR_NAMES)
 AGENT_COLOUR = np.array([230, 40, 40], dtype=np.uint8)
-HALF_SIZE_M = (2.25, 0.9)  # the default car (4.5 m x 1.8 m); frames do not carry sizes
-LANE_LINE_SPAN_M = 120.0  # lane lines drawn this far either side of the cars
+# One colour per action, in the order of ACTION_NAMES, for the action scatter.
+ACTION_COLOURS = np.array(
+    [[200, 200, 200], [40, 200, 120], [240, 80, 60], [80, 160, 255], [240, 170, 30]],
+    dtype=np.uint8,
+)
+assert len(ACTION_COLOURS) == len(ACTION_NAMES)
+LANE_COLOUR = [200, 200, 200]
+HALF_SIZE_M = (2.25, 0.9)  # the default car, for frames of peers before protocol 1.2
+# The road view's window around the followed car (metres): more ahead than behind, as a
+# driver looks. At 950 px wide a car is about 35 px long.
+ROAD_BEHIND_M = 40.0
+ROAD_AHEAD_M = 80.0
+# Lane lines are drawn this far behind and ahead of the followed car: beyond the road view's
+# window, which a wide, low view (an overview of many arenas) shows more of.
+LINES_BEHIND_M = 150.0
+LINES_AHEAD_M = 250.0
+# Lane markings: dashes of DASH_M in every DASH_PERIOD_M, fixed to the road so they pass by.
+DASH_PERIOD_M = 12.0
+DASH_M = 6.0
+LIDAR_HIT_COLOUR = [255, 128, 0]
+LIDAR_RAY_COLOUR = [255, 200, 120]
 
 
 @functools.cache
@@ -44,142 +77,295 @@ def _ray_directions(rays: int) -> np.ndarray:
 
 
 def lidar_hits(
-    distances_m: np.ndarray, origin_m: np.ndarray | tuple[float, float] = (0.0, 0.0)
+    distances_m: np.ndarray,
+    origin_m: np.ndarray | tuple[float, float] = (0.0, 0.0),
+    heading_rad: float = 0.0,
 ) -> np.ndarray:
-    """(R, 2) points where a LIDAR scan's R rays end: ray k at angle 2*pi*k/R counter-clockwise
-    from the x axis (the road's direction), ``distances_m[k]`` from ``origin_m``."""
-    return np.asarray(origin_m) + distances_m[:, None] * _ray_directions(distances_m.shape[0])
+    """(R, 2) points, in road coordinates (x ahead, y left), where a LIDAR scan's R rays end:
+    ray k at angle heading + 2*pi*k/R counter-clockwise from the road's direction,
+    ``distances_m[k]`` from ``origin_m``."""
+    directions = _ray_directions(distances_m.shape[0])
+    if heading_rad:
+        c, s = np.cos(heading_rad), np.sin(heading_rad)
+        directions = directions @ np.array([[c, s], [-s, c]])
+    return np.asarray(origin_m) + distances_m[:, None] * directions
 
 
-def _top_down(server: str, arena: int, name: str) -> Any:
+def to_drawing(points_m: np.ndarray) -> np.ndarray:
+    """Road coordinates (x ahead, y left) to Rerun's 2-D drawing, where +y points down: y is
+    negated, so the driver's left comes out on top."""
+    return points_m * np.array([1.0, -1.0])
+
+
+@dataclass(frozen=True)
+class ArenaShape:
+    """What an arena's layout needs to know, read from its first frame."""
+
+    server: str
+    arena: int
+    lane_count: int
+    lane_width_m: float
+    lidar_range_m: float | None  # None: no LIDAR
+    camera: bool
+
+    @property
+    def root(self) -> str:
+        return f"/world/{self.server}/arena{self.arena}"
+
+    def as_values(self, rr: Any) -> Any:
+        return rr.AnyValues(
+            server=[self.server],
+            arena=[self.arena],
+            lane_count=[self.lane_count],
+            lane_width_m=[self.lane_width_m],
+            lidar_range_m=[-1.0 if self.lidar_range_m is None else self.lidar_range_m],
+            camera=[self.camera],
+        )
+
+    @classmethod
+    def from_values(cls, values: dict[str, Any]) -> ArenaShape:
+        """The shape :meth:`as_values` logged, from its columns' first values."""
+        lidar = float(values["lidar_range_m"])
+        return cls(
+            server=str(values["server"]),
+            arena=int(values["arena"]),
+            lane_count=int(values["lane_count"]),
+            lane_width_m=float(values["lane_width_m"]),
+            lidar_range_m=None if lidar < 0 else lidar,
+            camera=bool(values["camera"]),
+        )
+
+    @classmethod
+    def of(cls, frame: WorldFrame) -> ArenaShape:
+        lidar = frame.observations.get("lidar")
+        return cls(
+            server=frame.server,
+            arena=frame.arena,
+            lane_count=frame.lane_count,
+            lane_width_m=frame.lane_width_m,
+            # A scan of rays that hit nothing reads the range: the longest reading is the best
+            # estimate the frame gives (it is not part of the frame).
+            lidar_range_m=float(np.max(lidar)) if lidar is not None and lidar.size else None,
+            camera="camera" in frame.observations,
+        )
+
+
+def road_view(shape: ArenaShape, name: str) -> Any:
+    """The road around the followed car, every car and the agents' LIDAR."""
     import rerun.blueprint as rrb
 
-    root = f"/world/{server}/arena{arena}"
+    road_width = shape.lane_count * shape.lane_width_m
     return rrb.Spatial2DView(
-        origin=root,
+        origin=f"{shape.root}/road",
         name=name,
-        contents=[f"{root}/road/**", f"{root}/cars", f"{root}/agent*/lidar/**"],
+        visual_bounds=rrb.VisualBounds2D(
+            x_range=[-ROAD_BEHIND_M, ROAD_AHEAD_M], y_range=[-road_width - 1.0, 1.0]
+        ),
     )
 
 
-def _arena_layout(server: str, arena: int, name: str | None = None) -> Any:
-    """One arena: the road from above, and agent 0's camera and scalars beside it."""
+def arena_layout(shape: ArenaShape, name: str | None = None) -> Any:
+    """One arena: the road from above on top; below, agent 0's camera, its LIDAR (the same
+    road, zoomed out to the LIDAR's range) and its plots, one per unit."""
     import rerun.blueprint as rrb
 
-    root = f"/world/{server}/arena{arena}"
-    return rrb.Horizontal(
-        _top_down(server, arena, "top-down"),
-        rrb.Vertical(
-            rrb.Spatial2DView(origin=f"{root}/agent0/camera", name="agent 0 camera"),
-            rrb.TimeSeriesView(
-                origin=f"{root}/agent0",
-                name="agent 0",
+    root, agent = shape.root, f"{shape.root}/agent0"
+    title = name or f"arena {shape.arena}"
+    below: list[Any] = []
+    if shape.camera:
+        below.append(rrb.Spatial2DView(origin=f"{agent}/camera", name="agent 0: camera"))
+    if shape.lidar_range_m is not None:
+        reach = shape.lidar_range_m
+        below.append(
+            rrb.Spatial2DView(
+                origin=f"{root}/road",
                 contents=[
-                    f"{root}/agent0/speed_kmh",
-                    f"{root}/agent0/reward",
-                    f"{root}/agent0/action",
-                    f"{root}/agent0/reward_terms/**",
+                    f"{root}/road/lanes",
+                    f"{root}/road/cars",
+                    f"{root}/road/agent0/lidar/**",
                 ],
-            ),
-            row_shares=[2, 1],
-        ),
-        column_shares=[2, 1],
-        name=name,
+                name=f"agent 0: LIDAR ({reach:.0f} m)",
+                visual_bounds=rrb.VisualBounds2D(x_range=[-reach, reach], y_range=[-reach, reach]),
+            )
+        )
+    below.append(
+        rrb.Vertical(
+            rrb.TimeSeriesView(origin=f"{agent}/speed_kmh", name="agent 0: speed (km/h)"),
+            rrb.TimeSeriesView(origin=f"{agent}/reward", name="agent 0: reward and its terms"),
+            rrb.TimeSeriesView(origin=f"{agent}/action", name="agent 0: action"),
+        )
+    )
+    return rrb.Vertical(
+        road_view(shape, f"{title}: road (agent 0 at 0 m, left up)"),
+        rrb.Horizontal(*below),
+        row_shares=[1, 2],
+        name=title,
     )
 
 
-def world_blueprint(server: str, arena: int) -> Any:
-    """A spectator's layout of one arena."""
+def world_blueprint(shapes: list[ArenaShape], timeline: str = "round") -> Any:
+    """A layout of ``shapes``' arenas: one arena fills the window; several get an overview tab
+    (every road, one above the other) and a tab each."""
     import rerun.blueprint as rrb
 
-    return rrb.Blueprint(
-        _arena_layout(server, arena), rrb.TimePanel(timeline="round"), collapse_panels=True
-    )
-
-
-def server_blueprint(server: str, arenas: list[int]) -> Any:
-    """A server's layout: every arena from above in a grid, then a tab per arena."""
-    import rerun.blueprint as rrb
-
-    return rrb.Blueprint(
-        rrb.Tabs(
-            rrb.Grid(
-                *(_top_down(server, arena, f"arena {arena}") for arena in arenas), name="all arenas"
+    if len(shapes) == 1:
+        root: Any = arena_layout(shapes[0])
+    else:
+        root = rrb.Tabs(
+            rrb.Vertical(
+                *(road_view(s, f"{s.server} arena {s.arena}") for s in shapes), name="all roads"
             ),
-            *(_arena_layout(server, arena, f"arena {arena}") for arena in arenas),
-        ),
-        rrb.TimePanel(timeline="round"),
-        collapse_panels=True,
+            *(arena_layout(s, f"{s.server} arena {s.arena}") for s in shapes),
+        )
+    return rrb.Blueprint(
+        root, rrb.TimePanel(timeline=timeline, state="collapsed"), collapse_panels=True
     )
+
+
+# The blueprint lays out the arenas that appeared last, this many: a server that runs for days
+# sees trainers come and go, and a tab per arena beyond a few dozen would be of no use anyway.
+BLUEPRINT_ARENAS = 16
 
 
 class WorldRecording:
-    """Logs :class:`WorldFrame` s to a RecordingStream; ``rays`` draws every LIDAR ray too."""
+    """Logs :class:`WorldFrame` s to a RecordingStream; ``rays`` draws every LIDAR ray too.
 
-    def __init__(self, stream: Any, rays: bool = True) -> None:
+    With ``lay_out`` it sends a layout (:func:`world_blueprint`) each time an arena appears,
+    of the last :data:`BLUEPRINT_ARENAS` arenas; it becomes the default, not the active one, so
+    a viewer's own arrangement is left as it is."""
+
+    def __init__(self, stream: Any, rays: bool = True, lay_out: bool = True) -> None:
         import rerun as rr
 
-        self.rr, self.stream, self.rays = rr, stream, rays
+        self.rr, self.stream, self.rays, self.lay_out = rr, stream, rays, lay_out
+        self.shapes: dict[tuple[str, int], ArenaShape] = {}
+        self._styled: set[str] = set()
+        self._on_step = False
+
+    def _arena_appears(self, frame: WorldFrame) -> None:
+        shape = ArenaShape.of(frame)
+        self.shapes[(shape.server, shape.arena)] = shape
+        # What a layout needs, kept in the recording: a later one (overtake-layout) reads it.
+        self.stream.log(f"{shape.root}/shape", shape.as_values(self.rr), static=True)
+        while len(self.shapes) > BLUEPRINT_ARENAS:
+            del self.shapes[next(iter(self.shapes))]
+        if not self.lay_out:
+            return
+        try:
+            self.stream.send_blueprint(
+                world_blueprint(list(self.shapes.values()), "step" if self._on_step else "round"),
+                make_active=False,
+                make_default=True,
+            )
+        except Exception:
+            # Without it the viewer falls back to its own layout; the frames still go in.
+            log.exception("could not send the recording's layout")
+
+    def _style(self, base: str) -> None:
+        """Series styles, logged once per agent (static): actions as coloured points."""
+        rr, stream = self.rr, self.stream
+        for index, name in enumerate(ACTION_NAMES):
+            stream.log(
+                f"{base}/action/{name}",
+                rr.SeriesPoints(
+                    names=name, colors=[ACTION_COLOURS[index]], markers="circle", marker_sizes=3.0
+                ),
+                static=True,
+            )
+        self._styled.add(base)
 
     def log(self, frame: WorldFrame) -> None:
         rr, stream = self.rr, self.stream
         root = f"world/{frame.server}/arena{frame.arena}"
+        if frame.trainer_step >= 0 and not self._on_step:
+            self._on_step = True
+            self.shapes.clear()  # lay out again, on the step timeline
+        if (frame.server, frame.arena) not in self.shapes:
+            self._arena_appears(frame)
         stream.set_time("round", sequence=frame.round)
         stream.set_time("sim_time", duration=frame.sim_time_s)
+        if frame.trainer_step >= 0:
+            stream.set_time("step", sequence=frame.trainer_step)
         n = frame.agent_active.shape[0]
         active = np.flatnonzero(frame.active)
         agents = active[active < n]
-        x, y = frame.x_m[active], frame.y_m[active]
+        followed_x = float(frame.x_m[agents[0]]) if agents.size else 0.0
+        origin = np.array([followed_x, 0.0])
+        centres = to_drawing(np.stack([frame.x_m[active], frame.y_m[active]], axis=1) - origin)
+        if frame.half_length_m is not None and frame.half_width_m is not None:
+            half_sizes = np.stack([frame.half_length_m[active], frame.half_width_m[active]], axis=1)
+        else:
+            # One half-size for N centres would draw ONE box: repeat it per car.
+            half_sizes = np.tile(np.array(HALF_SIZE_M), (active.size, 1))
         is_agent = frame.kind[active] == frame.agent_kind
         colours = np.where(
             is_agent[:, None],
             AGENT_COLOUR,
             KIND_COLOURS[np.clip(frame.kind[active], 0, len(KIND_COLOURS) - 1)],
         )
-        labels = [f"agent {i}" if i < n else "" for i in active]
         stream.log(
-            f"{root}/cars",
+            f"{root}/road/cars",
             rr.Boxes2D(
-                centers=np.stack([x, y], axis=1),
-                half_sizes=[HALF_SIZE_M],
+                centers=centres,
+                half_sizes=half_sizes,
                 colors=colours,
-                labels=labels,
+                radii=[0.12],
+                labels=[f"agent {i}" if i < n else "" for i in active],
+                show_labels=True,
             ),
         )
-        low, high = (
-            (x.min() - LANE_LINE_SPAN_M, x.max() + LANE_LINE_SPAN_M)
-            if x.size
-            else (-LANE_LINE_SPAN_M, LANE_LINE_SPAN_M)
-        )
-        edges = np.arange(frame.lane_count + 1) * frame.lane_width_m
-        stream.log(
-            f"{root}/road/lanes",
-            rr.LineStrips2D(
-                [[[low, e], [high, e]] for e in edges], colors=[[200, 200, 200]], radii=[0.05]
-            ),
-        )
+        stream.log(f"{root}/road/lanes", self._lane_lines(frame, followed_x))
         lidar = frame.observations.get("lidar")
         camera = frame.observations.get("camera")
         for i in agents:
             base = f"{root}/agent{i}"
-            origin = np.array([frame.x_m[i], frame.y_m[i]])
+            if base not in self._styled:
+                self._style(base)
+            car = np.array([frame.x_m[i], frame.y_m[i]]) - origin
             if lidar is not None:
-                hits = lidar_hits(lidar[i], origin)
+                heading = (
+                    float(frame.agent_heading_rad[i])
+                    if frame.agent_heading_rad is not None
+                    else 0.0
+                )
+                hits = to_drawing(lidar_hits(lidar[i], car, heading))
                 stream.log(
-                    f"{base}/lidar/hits", rr.Points2D(hits, radii=[0.25], colors=[[255, 128, 0]])
+                    f"{root}/road/agent{i}/lidar/hits",
+                    rr.Points2D(hits, radii=[0.3], colors=[LIDAR_HIT_COLOUR]),
                 )
                 if self.rays:
-                    strips = np.stack([np.broadcast_to(origin, hits.shape), hits], axis=1)
+                    start = np.broadcast_to(to_drawing(car), hits.shape)
                     stream.log(
-                        f"{base}/lidar/rays",
-                        rr.LineStrips2D(strips, radii=[0.02], colors=[[255, 200, 120]]),
+                        f"{root}/road/agent{i}/lidar/rays",
+                        rr.LineStrips2D(
+                            np.stack([start, hits], axis=1),
+                            radii=[0.03],
+                            colors=[LIDAR_RAY_COLOUR],
+                        ),
                     )
             if camera is not None:
                 stream.log(f"{base}/camera", rr.Image(camera[i]))
-            speed_mps = float(frame.speed_mps[i])
-            stream.log(f"{base}/speed_kmh", rr.Scalars(speed_mps * 3.6))
-            stream.log(f"{base}/reward", rr.Scalars(float(frame.reward[i])))
-            stream.log(f"{base}/action", rr.Scalars(float(frame.action_applied[i])))
+            stream.log(f"{base}/speed_kmh", rr.Scalars(float(frame.speed_mps[i]) * 3.6))
+            stream.log(f"{base}/reward/total", rr.Scalars(float(frame.reward[i])))
             if frame.reward_terms is not None:
                 for name, value in zip(frame.reward_term_names, frame.reward_terms[i], strict=True):
-                    stream.log(f"{base}/reward_terms/{name}", rr.Scalars(float(value)))
+                    stream.log(f"{base}/reward/{name}", rr.Scalars(float(value)))
+            applied = int(frame.action_applied[i])
+            if 0 <= applied < len(ACTION_NAMES):
+                stream.log(f"{base}/action/{ACTION_NAMES[applied]}", rr.Scalars(float(applied)))
+
+    def _lane_lines(self, frame: WorldFrame, followed_x: float) -> Any:
+        """The road's edges as solid lines, the lines between lanes dashed and fixed to the
+        road (they pass by as the car drives), around the followed car."""
+        rr = self.rr
+        low, high = -LINES_BEHIND_M, LINES_AHEAD_M
+        width = frame.lane_count * frame.lane_width_m
+        edges = [np.array([[low, 0.0], [high, 0.0]]), np.array([[low, -width], [high, -width]])]
+        first = np.floor((followed_x + low) / DASH_PERIOD_M) * DASH_PERIOD_M - followed_x
+        starts = np.arange(first, high, DASH_PERIOD_M)
+        dashes = [
+            np.array([[s, -k * frame.lane_width_m], [s + DASH_M, -k * frame.lane_width_m]])
+            for k in range(1, frame.lane_count)
+            for s in starts
+        ]
+        return rr.LineStrips2D(edges + dashes, colors=[LANE_COLOUR], radii=[0.08])

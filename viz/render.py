@@ -1,0 +1,238 @@
+"""``overtake-render``: a recording's layout drawn to PNG by Rerun's own viewer, headless.
+
+It starts the viewer binary from the rerun-sdk wheel with ``--headless`` (it draws with Mesa's
+software Vulkan where there is no GPU; on a machine without a display it runs under
+``xvfb-run``), opens the recordings, and saves one screenshot per tab asked for: the pictures
+show what a user opening the files would see, not what the logged values say. The viewer is
+stopped by its PID when done.
+
+Needs, on Debian or Ubuntu: ``apt-get install xvfb mesa-vulkan-drivers`` (headless machines).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import tempfile
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .recording import viewer_binary
+
+log = logging.getLogger("overtake.render")
+
+VIEWER_START_TIMEOUT_S = 60.0
+# After a file opens (or a tab is chosen) the viewer loads and draws asynchronously, and the
+# control API says nothing about when it is done: what the screenshot waits for is that two
+# screenshots taken this far apart are the same (the picture has stopped changing).
+SETTLE_INTERVAL_S = 1.0
+SETTLE_TIMEOUT_S = 60.0
+
+
+class RenderError(RuntimeError):
+    """The viewer could not be started or could not draw; the message says why."""
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """Draw Rerun recordings to PNG with Rerun's own viewer, headless."""
+
+    recordings: tuple[Path, ...]
+    """.rrd (and .rbl) files opened together, as `rerun FILE...` would"""
+    out: Path = Path("render.png")
+    """the PNG; with --tabs, one per tab: <stem>-<tab>.png beside it"""
+    tabs: tuple[str, ...] = ()
+    """tabs of the layout to draw, by their titles (default: the layout as it opens)"""
+    timeline_time: int | None = None
+    """move the time cursor to this point of the layout's timeline (default: the end)"""
+    width: int = 1600
+    """window width in pixels"""
+    height: int = 1000
+    """window height in pixels"""
+    extra_args: tuple[str, ...] = field(default_factory=tuple)
+    """more arguments for the viewer"""
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@contextlib.contextmanager
+def headless_viewer(width: int, height: int) -> Iterator[Any]:
+    """A headless Rerun viewer and a :class:`rerun.experimental.ViewerClient` on it."""
+    import rerun as rr
+
+    port = _free_port()
+    command = [
+        viewer_binary(),
+        "--headless",
+        "--hide-welcome-screen",
+        "--window-size",
+        f"{width}x{height}",
+        "--port",
+        str(port),
+    ]
+    if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
+        xvfb = shutil.which("xvfb-run")
+        if xvfb is None:
+            raise RenderError(
+                "no display, and xvfb-run is not installed: install it (Debian/Ubuntu: "
+                "apt-get install xvfb mesa-vulkan-drivers) or run with a DISPLAY"
+            )
+        command = [xvfb, "-a", *command]
+    output = tempfile.TemporaryFile()  # noqa: SIM115 - lives as long as the viewer
+    viewer = subprocess.Popen(
+        command,
+        stdin=subprocess.DEVNULL,
+        stdout=output,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
+
+    def said() -> str:
+        output.seek(0)
+        return output.read().decode(errors="replace").strip()[-800:]
+
+    try:
+        deadline = time.monotonic() + VIEWER_START_TIMEOUT_S
+        client = None
+        while client is None:
+            if viewer.poll() is not None:
+                raise RenderError(f"the viewer exited with code {viewer.returncode}: {said()}")
+            if time.monotonic() > deadline:
+                raise RenderError(
+                    f"the viewer did not answer within {VIEWER_START_TIMEOUT_S:.0f} s: {said()}"
+                )
+            try:
+                client = rr.experimental.ViewerClient.connect(
+                    f"rerun+http://127.0.0.1:{port}/proxy"
+                )
+                client.get_state()
+            except Exception:
+                client = None
+                time.sleep(0.2)  # polling a port: there is nothing to wait on
+        yield client
+    finally:
+        # xvfb-run starts Xvfb and the viewer in our new session: end the whole group.
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(viewer.pid, signal.SIGTERM)
+        try:
+            viewer.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(viewer.pid, signal.SIGKILL)
+            viewer.wait()
+        output.close()
+
+
+def settled_screenshot(client: Any, path: Path) -> None:
+    """Save a screenshot once the picture has stopped changing."""
+    deadline = time.monotonic() + SETTLE_TIMEOUT_S
+    previous = client.take_screenshot()
+    while True:
+        time.sleep(SETTLE_INTERVAL_S)  # the viewer draws on its own; there is no event to await
+        current = client.take_screenshot()
+        if current == previous or time.monotonic() > deadline:
+            break
+        previous = current
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(current)
+
+
+def _tabs_containers(blueprint: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
+    return [
+        (path, parts["ContainerBlueprint"])
+        for path, parts in blueprint.items()
+        if parts.get("ContainerBlueprint", {}).get("container_kind") == "Tabs"
+    ]
+
+
+def loaded_blueprint(client: Any) -> Any:
+    """The active recording's layout, once the viewer has read it (it loads asynchronously)."""
+    deadline = time.monotonic() + SETTLE_TIMEOUT_S
+    while True:
+        with contextlib.suppress(Exception):
+            found = client.get_blueprint()
+            if any(
+                _title(found.blueprint, child)
+                for _, tabs in _tabs_containers(found.blueprint)
+                for child in tabs.get("contents", [])
+            ):
+                return found
+        if time.monotonic() > deadline:
+            raise RenderError(f"the viewer showed no layout with tabs within {SETTLE_TIMEOUT_S} s")
+        time.sleep(SETTLE_INTERVAL_S)  # loading happens in the viewer; nothing to wait on
+
+
+def choose_tab(client: Any, title: str) -> None:
+    """Make the tab titled ``title`` the active one in the recording's layout."""
+    found = loaded_blueprint(client)
+    blueprint = found.blueprint
+    titles: list[str] = []
+    for _, tabs in _tabs_containers(blueprint):
+        for child in tabs.get("contents", []):
+            name = _title(blueprint, child)
+            titles.append(name)
+            if name == title:
+                tabs["active_tab"] = child
+                client.set_blueprint(blueprint, store_id=found.store_id)
+                return
+    raise RenderError(f"the layout has no tab titled {title!r}; its tabs: {titles}")
+
+
+def _title(blueprint: dict[str, Any], child: str) -> str:
+    parts = blueprint.get(child, {})
+    record = parts.get("ContainerBlueprint") or parts.get("ViewBlueprint") or {}
+    return str(record.get("display_name", ""))
+
+
+def main(config: RenderConfig) -> list[Path]:
+    """Draw the recordings; returns the PNGs written."""
+    missing = [str(p) for p in config.recordings if not p.is_file()]
+    if missing:
+        raise RenderError(f"no such recording: {', '.join(missing)}")
+    written: list[Path] = []
+    with headless_viewer(config.width, config.height) as client:
+        client.open([str(p.resolve()) for p in config.recordings])
+        if config.timeline_time is not None:
+            client.set_time(sequence=config.timeline_time, play_state="paused")
+        if not config.tabs:
+            settled_screenshot(client, config.out)
+            return [config.out]
+        for tab in config.tabs:
+            choose_tab(client, tab)
+            slug = "".join(c if c.isalnum() else "-" for c in tab.lower()).strip("-")
+            path = config.out.with_name(f"{config.out.stem}-{slug}{config.out.suffix}")
+            settled_screenshot(client, path)
+            written.append(path)
+    return written
+
+
+def cli(argv: list[str] | None = None) -> None:
+    import tyro
+
+    config = tyro.cli(
+        RenderConfig,
+        args=argv,
+        description="overtake-render: a recording's layout drawn to PNG by Rerun's viewer",
+    )
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    try:
+        for path in main(config):
+            print(path)
+    except RenderError as error:
+        raise SystemExit(f"overtake-render: {error}") from None
+
+
+if __name__ == "__main__":
+    cli()

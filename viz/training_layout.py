@@ -1,0 +1,105 @@
+"""Layouts of what trainers record (:mod:`overtake.trainers.visual` logs it): the curves of
+one or several runs, a plot per unit with every run a line in each, and each run's first car.
+
+Entity paths: ``training/episode/<metric>/<run>``, ``training/learning/<name>/<run>`` and
+``trainer/<run>/env0/...``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+# Plots of the episodes and of learning, one per unit: (title, the series in it).
+EPISODE_PLOTS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("episode return", ("return",)),
+    ("average speed (km/h)", ("avg_speed_kmh",)),
+    ("lane changes and overtakes per episode", ("lane_changes", "overtakes")),
+    ("collisions and emergency brakes per episode", ("collisions", "emergency_brakes")),
+    ("distance per episode (m)", ("distance_m",)),
+)
+# The few a comparison at a glance needs (the "compare" tab of a joined recording).
+KEY_PLOTS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
+    ("episode return", "episode", ("return",)),
+    ("average speed (km/h)", "episode", ("avg_speed_kmh",)),
+    ("collisions and emergency brakes per episode", "episode", ("collisions", "emergency_brakes")),
+    ("loss", "learning", ("loss",)),
+)
+LEARNING_PLOTS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("loss", ("loss",)),
+    ("mean Q of the actions taken", ("q_taken",)),
+    ("epsilon", ("epsilon",)),
+    ("steps per second", ("steps_per_s",)),
+)
+
+
+def _plot(title: str, section: str, series: tuple[str, ...]) -> Any:
+    import rerun.blueprint as rrb
+
+    return rrb.TimeSeriesView(
+        origin=f"/training/{section}",
+        contents=[f"/training/{section}/{name}/**" for name in series],
+        name=title,
+    )
+
+
+def curves_layout(runs: Sequence[str]) -> Any:
+    """Episodes and learning, a plot per unit; every run a line in each (one step axis)."""
+    import rerun.blueprint as rrb
+
+    return rrb.Horizontal(
+        rrb.Vertical(
+            *(_plot(title, "episode", series) for title, series in EPISODE_PLOTS),
+            name="episodes",
+        ),
+        rrb.Vertical(
+            *(_plot(title, "learning", series) for title, series in LEARNING_PLOTS),
+            name="learning",
+        ),
+        name=f"training: {', '.join(runs)}",
+    )
+
+
+def key_curves_layout() -> Any:
+    """The plots of :data:`KEY_PLOTS` in a row, every run a line in each."""
+    import rerun.blueprint as rrb
+
+    return rrb.Horizontal(*(_plot(title, section, series) for title, section, series in KEY_PLOTS))
+
+
+def car_layout(run: str) -> Any:
+    """What run ``run``'s first environment sees and does."""
+    import rerun.blueprint as rrb
+
+    root = f"/trainer/{run}/env0"
+    return rrb.Vertical(
+        rrb.Horizontal(
+            rrb.Spatial2DView(origin=f"{root}/camera", name=f"{run}: camera"),
+            rrb.Spatial2DView(origin=f"{root}/lidar", name=f"{run}: LIDAR (m, left up)"),
+        ),
+        rrb.TimeSeriesView(origin=f"{root}/speed_kmh", name=f"{run}: speed (km/h)"),
+        rrb.TimeSeriesView(origin=f"{root}/q", name=f"{run}: Q-values"),
+        rrb.TimeSeriesView(origin=f"{root}/reward", name=f"{run}: reward and its terms"),
+        rrb.TimeSeriesView(origin=f"{root}/action", name=f"{run}: action"),
+        row_shares=[3, 1, 1, 1, 1],
+        name=f"{run}: env 0",
+    )
+
+
+def training_blueprint(runs: str | Sequence[str], extra_tabs: Sequence[Any] = ()) -> Any:
+    """One run's layout, or several runs' side by side: the curves (every run in each plot),
+    then each run's car view, as tabs. ``extra_tabs`` (for example the road's) follow."""
+    import rerun.blueprint as rrb
+
+    names = [runs] if isinstance(runs, str) else list(runs)
+    return rrb.Blueprint(
+        rrb.Tabs(
+            curves_layout(names),
+            rrb.Horizontal(*(car_layout(run) for run in names), name="cars")
+            if len(names) > 1
+            else car_layout(names[0]),
+            *extra_tabs,
+        ),
+        rrb.TimePanel(timeline="step", state="collapsed"),
+        collapse_panels=True,
+    )
