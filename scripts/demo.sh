@@ -45,6 +45,9 @@ for pid in "${trainer_pids[@]}"; do wait "$pid"; done
 trainer_pids=()
 kill -TERM "$spectator_pid" && wait "$spectator_pid" || true
 spectator_pid=""
+# One file, one layout: the roads each trainer drove beside the three trainers' curves.
+.venv/bin/overtake-layout --recordings runs/demo/world.rrd runs/demo/{dqn,ddqn,dueling}/trainer.rrd \
+  --out runs/demo/demo.rrd
 .venv/bin/overtake-status --connect "$endpoint"
 for algo in dqn ddqn dueling; do
   .venv/bin/overtake-eval --connect "$endpoint" --checkpoint "runs/demo/$algo/checkpoint.pt" \
@@ -56,4 +59,4 @@ echo
 echo "The three trainers beside the rule-based driver (2 episodes of 200 decisions, seeds 1000-1001):"
 .venv/bin/overtake-eval --table runs/demo/eval-{dqn,ddqn,dueling,rule}.json
 echo "tables written to runs/demo/*.json; training runs in runs/demo/{dqn,ddqn,dueling} (server log: runs/demo/server.log)"
-echo "open the Rerun recording (the arenas and the three trainers): .venv/bin/rerun runs/demo/world.rrd runs/demo/dqn/trainer.rrd runs/demo/ddqn/trainer.rrd runs/demo/dueling/trainer.rrd"
+echo "open the Rerun recording (the roads and the three trainers, laid out): .venv/bin/rerun runs/demo/demo.rrd"

@@ -3,4 +3,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh dev
+# Xvfb and software Vulkan where they can be installed: one test draws a recording with Rerun's
+# own viewer (it skips, saying why, where they are missing).
+scripts/setup-viewer.sh
 exec .venv/bin/python -m pytest "$@"

@@ -1137,3 +1137,78 @@ def test_only_fields_added_in_a_later_minor_may_be_missing_from_an_older_peer():
 def test_negative_version_numbers_are_refused(version):
     with pytest.raises(DecodeError, match="non-negative"):
         decode(pack([*version, "ack", {"message": "m"}]))
+
+
+def _world_frame(**extra) -> WorldFrame:
+    return WorldFrame(
+        server="s",
+        group=0,
+        arena=1,
+        round=2,
+        sim_time_s=0.4,
+        lane_count=5,
+        lane_width_m=3.5,
+        agent_kind=4,
+        agent_active=np.ones(1, bool),
+        x_m=np.zeros(3),
+        y_m=np.zeros(3),
+        speed_mps=np.zeros(3, np.float32),
+        kind=np.array([4, 0, 1], np.int8),
+        active=np.ones(3, bool),
+        observations={},
+        reward=np.ones(1),
+        action_applied=np.zeros(1, np.int64),
+        **extra,
+    )
+
+
+def test_step_counts_sizes_and_headings_of_a_1_1_peer_decode_as_not_given():
+    # 1.2 added the trainer's step count to Actions and world frames, and the vehicles' sizes
+    # and agents' headings to world frames: a 1.1 peer's messages decode with none...
+    actions = Actions(
+        trainer="t",
+        ticket=b"k",
+        group=0,
+        round=3,
+        agents=np.zeros(1, np.int32),
+        actions=np.ones(1, np.int64),
+        trainer_step=1234,
+    )
+    assert decode(encode(actions)).trainer_step == 1234
+    *_, body = msgpack.unpackb(encode(actions), raw=False)
+    assert body.pop("trainer_step") == 1234
+    assert decode(pack([MAJOR, 1, "actions", body])).trainer_step == -1
+    frame = _world_frame(
+        trainer_step=99,
+        half_length_m=np.array([2.25, 2.5, 6.0], np.float32),
+        half_width_m=np.array([0.9, 0.9, 1.25], np.float32),
+        agent_heading_rad=np.array([0.05], np.float32),
+    )
+    assert decode(encode(frame)) == frame
+    *_, body = msgpack.unpackb(encode(frame), raw=False)
+    for name in ("trainer_step", "half_length_m", "half_width_m", "agent_heading_rad"):
+        body.pop(name)
+    old = decode(pack([MAJOR, 1, "world", body]))
+    assert old.trainer_step == -1 and old.half_length_m is None and old.agent_heading_rad is None
+    # ...while a peer of this minor version must send them.
+    with pytest.raises(DecodeError, match="trainer_step"):
+        decode(pack([MAJOR, MINOR, "world", body]))
+
+
+def test_bad_step_counts_sizes_and_headings_are_refused_saying_what_came():
+    with pytest.raises(DecodeError, match=r"trainer_step must be >= 0 \(or -1: not given\), got -2"):
+        Actions(
+            trainer="t",
+            ticket=b"k",
+            group=0,
+            round=3,
+            agents=np.zeros(1, np.int32),
+            actions=np.ones(1, np.int64),
+            trainer_step=-2,
+        )
+    with pytest.raises(DecodeError, match="half_length_m and half_width_m must come together"):
+        _world_frame(half_length_m=np.ones(3, np.float32))
+    with pytest.raises(DecodeError, match=r"half_width_m must have shape \(3\), got \(2,\)"):
+        _world_frame(half_length_m=np.ones(3, np.float32), half_width_m=np.ones(2, np.float32))
+    with pytest.raises(DecodeError, match=r"agent_heading_rad must have shape \(1\), got \(3,\)"):
+        _world_frame(agent_heading_rad=np.zeros(3, np.float32))

@@ -55,29 +55,37 @@ def test_server_records_its_arenas_with_reward_terms_decimated(start_server, tmp
 
     reader = rr.chunk.RrdReader(str(rrd))
     root = f"/world/recorder/arena{arena}"
-    hits = logged_by_round(reader, f"{root}/agent0/lidar/hits", "Points2D:positions")
-    cars = logged_by_round(reader, f"{root}/cars", "Boxes2D:centers")
-    rewards = logged_by_round(reader, f"{root}/agent0/reward", "Scalars:scalars")
+    hits = logged_by_round(reader, f"{root}/road/agent0/lidar/hits", "Points2D:positions")
+    cars = logged_by_round(reader, f"{root}/road/cars", "Boxes2D:centers")
+    sizes = logged_by_round(reader, f"{root}/road/cars", "Boxes2D:half_sizes")
+    rewards = logged_by_round(reader, f"{root}/agent0/reward/total", "Scalars:scalars")
     terms = {
-        name: logged_by_round(reader, f"{root}/agent0/reward_terms/{name}", "Scalars:scalars")
+        name: logged_by_round(reader, f"{root}/agent0/reward/{name}", "Scalars:scalars")
         for name in seen[max(seen)][2]
     }
     # Every third round, and only those.
     assert sorted(hits) == [r for r in sorted(seen) if r % 3 == 0]
-    angles = np.arange(360) * (2 * np.pi / 360)
     for round_, points in hits.items():
         lidar, reward, reward_terms = seen[round_]
-        points = np.asarray(points)
-        origin = points - np.stack([lidar * np.cos(angles), lidar * np.sin(angles)], axis=1)
-        assert np.allclose(origin, cars[round_][0], atol=1e-3)  # from the agent's box
+        points, agent = np.asarray(points), np.asarray(cars[round_][0])
+        # The road is drawn around agent 0 (x = 0), and every car gets a box of its own: one
+        # half-size for N centres would draw one box, the traffic invisible.
+        assert agent[0] == pytest.approx(0.0)
+        assert len(sizes[round_]) == len(cars[round_]) > 1
+        assert np.allclose(sizes[round_][0], [2.25, 0.9])
+        # Each hit lies its reading away from the agent's box (whatever the car's heading),
+        # and the ray to the left (a quarter of the scan) is drawn upward: -y, as on a map.
+        assert np.allclose(np.linalg.norm(points - agent, axis=1), lidar, atol=1e-3)
+        assert points[len(lidar) // 4][1] < agent[1]
         assert rewards[round_][0] == pytest.approx(reward)
         for name, value in reward_terms.items():
             assert terms[name][round_][0] == pytest.approx(value), (round_, name)
     assert any(terms["lane_change"][r][0] != 0 for r in hits)  # the lane change was logged
     assert sum(v[0] for v in terms["speed"].values()) > 0
-    # The recording lays its arena out (a tab with the road, agent 0's camera and scalars).
+    # The recording lays its arena out (the road, agent 0's camera, LIDAR and plots).
     assert any(
-        {root, f"{root}/agent0/camera"} <= blueprint_texts(reader, store)
+        {f"{root}/road", f"{root}/agent0/camera", f"{root}/agent0/speed_kmh"}
+        <= blueprint_texts(reader, store)
         for store in reader.blueprints()
     )
 
@@ -202,7 +210,7 @@ def test_server_recorder_drops_and_counts_what_it_cannot_keep_up_with(tmp_path, 
     assert recorder.logged == sum(kept) == len(logged_rounds)
     assert logged_rounds == sorted(logged_rounds)  # in order, none twice
     reader = rr.chunk.RrdReader(str(tmp_path / "s.rrd"))
-    assert {c.entity_path for c in reader.stream().to_chunks()} >= {"/world/s/arena0/cars"}
+    assert {c.entity_path for c in reader.stream().to_chunks()} >= {"/world/s/arena0/road/cars"}
 
 
 def blueprint_texts(reader, store) -> set[str]:
@@ -229,8 +237,9 @@ def blueprint_texts(reader, store) -> set[str]:
 
 def test_server_recording_lays_out_each_arena_as_it_appears(tmp_path, monkeypatch):
     from overtake.server import recorder as recorder_module
+    from overtake.viz import world_view
 
-    monkeypatch.setattr(recorder_module, "BLUEPRINT_ARENAS", 2)
+    monkeypatch.setattr(world_view, "BLUEPRINT_ARENAS", 2)
     recorder = recorder_module.ServerRecorder(
         RecordingConfig(sink="file", rrd=tmp_path / "s.rrd"), "s"
     )
@@ -243,12 +252,15 @@ def test_server_recording_lays_out_each_arena_as_it_appears(tmp_path, monkeypatc
     # 7; 7 and 3; then 3 and 9, the oldest (7) dropped. Arenas seen before send none again.
     layouts = [blueprint_texts(reader, store) for store in reader.blueprints()]
     laid_out = sorted(
-        sorted(a for a in (3, 7, 9) if f"/world/s/arena{a}" in texts) for texts in layouts
+        sorted(a for a in (3, 7, 9) if f"/world/s/arena{a}/road" in texts) for texts in layouts
     )
     assert laid_out == [[3, 7], [3, 9], [7]]
     both = next(
-        texts for texts in layouts if "/world/s/arena7" in texts and "/world/s/arena3" in texts
+        texts
+        for texts in layouts
+        if "/world/s/arena7/road" in texts and "/world/s/arena3/road" in texts
     )
-    assert {"arena 3", "arena 7", "all arenas", "/world/s/arena3/agent0/camera"} <= both
+    assert {"s arena 3", "s arena 7", "all roads", "/world/s/arena3/agent0/speed_kmh"} <= both
+    assert "/world/s/arena3/agent0/camera" not in both  # the frames carry no camera
     # Arena 7 is recorded all the same.
-    assert "/world/s/arena7/cars" in {c.entity_path for c in reader.stream().to_chunks()}
+    assert "/world/s/arena7/road/cars" in {c.entity_path for c in reader.stream().to_chunks()}

@@ -794,9 +794,14 @@ def test_training_writes_a_rerun_recording_of_its_episodes_and_learning(tmp_path
     assert reader.recordings() and reader.blueprints()
 
     def series(entity: str) -> tuple[list[int], list[float]]:
+        """The scalars logged at ``entity`` (or, ending in ``/*``, any entity under it)."""
         steps, values = [], []
         for chunk in reader.stream().to_chunks():
-            if chunk.entity_path != entity or chunk.is_static:
+            path = chunk.entity_path
+            wanted = (
+                path.startswith(entity[:-1]) if entity.endswith("/*") else path == entity
+            )
+            if not wanted or chunk.is_static:
                 continue
             batch = chunk.to_record_batch()
             steps += batch.column("step").to_pylist()
@@ -805,14 +810,15 @@ def test_training_writes_a_rerun_recording_of_its_episodes_and_learning(tmp_path
         return [steps[i] for i in order], [values[i] for i in order]
 
     returns = [r for r in records if r["kind"] == "episode"]
-    steps, values = series("/trainer/run/episode/return")
+    # Metric first, run second: runs sharing a recording fall into the same plots.
+    steps, values = series("/training/episode/return/run")
     assert steps == [r["step"] for r in returns]
     assert values == pytest.approx([r["return"] for r in returns])
     trained = [r for r in records if r["kind"] == "train" and r["loss"] is not None]
-    steps, values = series("/trainer/run/learning/loss")
+    steps, values = series("/training/learning/loss/run")
     assert steps == [r["step"] for r in trained] and len(steps) >= 2
     assert values == pytest.approx([r["loss"] for r in trained])
-    _, epsilons = series("/trainer/run/learning/epsilon")
+    _, epsilons = series("/training/learning/epsilon/run")
     assert epsilons == sorted(epsilons, reverse=True) and epsilons[0] <= 1.0
 
     # Environment 0's view, every 3rd step of the vector env, skipping autoreset steps: the
@@ -822,8 +828,8 @@ def test_training_writes_a_rerun_recording_of_its_episodes_and_learning(tmp_path
         for i, (seen, action, reward, resetting) in enumerate(envs.log)
         if i % 3 == 0 and not resetting
     ]
-    _, rewards = series("/trainer/run/env0/reward")
-    _, actions = series("/trainer/run/env0/action")
+    _, rewards = series("/trainer/run/env0/reward/total")
+    _, actions = series("/trainer/run/env0/action/*")  # a series per action, its index the value
     _, chosen_q = series("/trainer/run/env0/q_chosen")
     hits = []
     for chunk in reader.stream().to_chunks():
@@ -839,6 +845,7 @@ def test_training_writes_a_rerun_recording_of_its_episodes_and_learning(tmp_path
     angles = np.arange(5) * (2 * np.pi / 5)
     for points, (seen, _, _) in zip(hits, expected):
         assert np.hypot(points[:, 0], points[:, 1]) == pytest.approx(seen, rel=1e-5)
+        # Drawn as a map: x ahead, the car's left up (Rerun's +y points down).
         assert np.allclose(
-            points, np.stack([seen * np.cos(angles), seen * np.sin(angles)], 1), atol=1e-4
+            points, np.stack([seen * np.cos(angles), -seen * np.sin(angles)], 1), atol=1e-4
         )

@@ -12,8 +12,10 @@ Needs, on Debian or Ubuntu: ``apt-get install xvfb mesa-vulkan-drivers`` (headle
 from __future__ import annotations
 
 import contextlib
+import fnmatch
 import logging
 import os
+import re
 import shutil
 import signal
 import socket
@@ -50,7 +52,10 @@ class RenderConfig:
     out: Path = Path("render.png")
     """the PNG; with --tabs, one per tab: <stem>-<tab>.png beside it"""
     tabs: tuple[str, ...] = ()
-    """tabs of the layout to draw, by their titles (default: the layout as it opens)"""
+    """tabs of the layout to draw, by their titles or shell patterns of them ("demo arena *"),
+    the first that matches (default: the layout as it opens)"""
+    views: tuple[str, ...] = ()
+    """single views to draw, by their titles or patterns (after the tabs): <stem>-<view>.png"""
     timeline_time: int | None = None
     """move the time cursor to this point of the layout's timeline (default: the end)"""
     width: int = 1600
@@ -135,13 +140,13 @@ def headless_viewer(width: int, height: int) -> Iterator[Any]:
         output.close()
 
 
-def settled_screenshot(client: Any, path: Path) -> None:
-    """Save a screenshot once the picture has stopped changing."""
+def settled_screenshot(client: Any, path: Path, view_id: str | None = None) -> None:
+    """Save a screenshot (of the window, or of one view) once it has stopped changing."""
     deadline = time.monotonic() + SETTLE_TIMEOUT_S
-    previous = client.take_screenshot()
+    previous = client.take_screenshot(view_id)
     while True:
         time.sleep(SETTLE_INTERVAL_S)  # the viewer draws on its own; there is no event to await
-        current = client.take_screenshot()
+        current = client.take_screenshot(view_id)
         if current == previous or time.monotonic() > deadline:
             break
         previous = current
@@ -157,20 +162,26 @@ def _tabs_containers(blueprint: dict[str, Any]) -> list[tuple[str, dict[str, Any
     ]
 
 
-def loaded_blueprint(client: Any) -> Any:
-    """The active recording's layout, once the viewer has read it (it loads asynchronously)."""
+def loaded_blueprint(client: Any, tabs: bool = True) -> Any:
+    """The active recording's layout once the viewer has read it (it loads asynchronously):
+    one with titled tabs, or with ``tabs=False`` one with views."""
     deadline = time.monotonic() + SETTLE_TIMEOUT_S
     while True:
         with contextlib.suppress(Exception):
             found = client.get_blueprint()
+            if not tabs and any("ViewBlueprint" in parts for parts in found.blueprint.values()):
+                return found
             if any(
                 _title(found.blueprint, child)
-                for _, tabs in _tabs_containers(found.blueprint)
-                for child in tabs.get("contents", [])
+                for _, container in _tabs_containers(found.blueprint)
+                for child in container.get("contents", [])
             ):
                 return found
         if time.monotonic() > deadline:
-            raise RenderError(f"the viewer showed no layout with tabs within {SETTLE_TIMEOUT_S} s")
+            what = "tabs" if tabs else "views"
+            raise RenderError(
+                f"the viewer showed no layout with {what} within {SETTLE_TIMEOUT_S} s"
+            )
         time.sleep(SETTLE_INTERVAL_S)  # loading happens in the viewer; nothing to wait on
 
 
@@ -183,7 +194,7 @@ def choose_tab(client: Any, title: str) -> None:
         for child in tabs.get("contents", []):
             name = _title(blueprint, child)
             titles.append(name)
-            if name == title:
+            if fnmatch.fnmatchcase(name, title):
                 tabs["active_tab"] = child
                 client.set_blueprint(blueprint, store_id=found.store_id)
                 return
@@ -206,16 +217,33 @@ def main(config: RenderConfig) -> list[Path]:
         client.open([str(p.resolve()) for p in config.recordings])
         if config.timeline_time is not None:
             client.set_time(sequence=config.timeline_time, play_state="paused")
-        if not config.tabs:
+        if not config.tabs and not config.views:
             settled_screenshot(client, config.out)
             return [config.out]
         for tab in config.tabs:
             choose_tab(client, tab)
-            slug = "".join(c if c.isalnum() else "-" for c in tab.lower()).strip("-")
-            path = config.out.with_name(f"{config.out.stem}-{slug}{config.out.suffix}")
+            path = _beside(config.out, tab)
             settled_screenshot(client, path)
             written.append(path)
+        if config.views:
+            loaded_blueprint(client, tabs=False)
+            views = {view.name: view.view_id for view in client.get_state().views}
+            for title in config.views:
+                found = [name for name in views if fnmatch.fnmatchcase(name, title)]
+                if not found:
+                    raise RenderError(
+                        f"the layout has no view titled {title!r}; its views: {sorted(views)}"
+                    )
+                path = _beside(config.out, title)
+                settled_screenshot(client, path, view_id=views[found[0]])
+                written.append(path)
     return written
+
+
+def _beside(out: Path, title: str) -> Path:
+    """``out`` with ``title`` (made file-name safe) added to its stem."""
+    slug = re.sub(r"[^a-z0-9]+", "-", title.lower()).strip("-")
+    return out.with_name(f"{out.stem}-{slug}{out.suffix}")
 
 
 def cli(argv: list[str] | None = None) -> None:

@@ -239,6 +239,7 @@ class WorldRecording:
 
         self.rr, self.stream, self.rays, self.lay_out = rr, stream, rays, lay_out
         self.shapes: dict[tuple[str, int], ArenaShape] = {}
+        self._seen: set[tuple[str, int]] = set()
         self._styled: set[str] = set()
         self._on_step = False
 
@@ -279,8 +280,10 @@ class WorldRecording:
         root = f"world/{frame.server}/arena{frame.arena}"
         if frame.trainer_step >= 0 and not self._on_step:
             self._on_step = True
-            self.shapes.clear()  # lay out again, on the step timeline
-        if (frame.server, frame.arena) not in self.shapes:
+            self._seen.clear()  # lay out again, on the step timeline
+        if (frame.server, frame.arena) not in self._seen:
+            # Once per arena: one that left the layout (beyond BLUEPRINT_ARENAS) stays out.
+            self._seen.add((frame.server, frame.arena))
             self._arena_appears(frame)
         stream.set_time("round", sequence=frame.round)
         stream.set_time("sim_time", duration=frame.sim_time_s)
