@@ -525,7 +525,7 @@ class WorldFrame(Message):
             check_name("reward term name", name)
         if (self.half_length_m is None) != (self.half_width_m is None):
             raise DecodeError("half_length_m and half_width_m must come together or not at all")
-        if self.half_length_m is not None:
+        if self.half_length_m is not None and self.half_width_m is not None:
             check_array("half_length_m", self.half_length_m, "float32", (v,))
             check_array("half_width_m", self.half_width_m, "float32", (v,))
         if self.agent_heading_rad is not None:

@@ -1196,7 +1196,9 @@ def test_step_counts_sizes_and_headings_of_a_1_1_peer_decode_as_not_given():
 
 
 def test_bad_step_counts_sizes_and_headings_are_refused_saying_what_came():
-    with pytest.raises(DecodeError, match=r"trainer_step must be >= 0 \(or -1: not given\), got -2"):
+    with pytest.raises(
+        DecodeError, match=r"trainer_step must be >= 0 \(or -1: not given\), got -2"
+    ):
         Actions(
             trainer="t",
             ticket=b"k",

@@ -798,9 +798,7 @@ def test_training_writes_a_rerun_recording_of_its_episodes_and_learning(tmp_path
         steps, values = [], []
         for chunk in reader.stream().to_chunks():
             path = chunk.entity_path
-            wanted = (
-                path.startswith(entity[:-1]) if entity.endswith("/*") else path == entity
-            )
+            wanted = path.startswith(entity[:-1]) if entity.endswith("/*") else path == entity
             if not wanted or chunk.is_static:
                 continue
             batch = chunk.to_record_batch()

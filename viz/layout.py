@@ -93,11 +93,12 @@ def read_contents(paths: Sequence[Path]) -> Contents:
             if parts[0] == "trainer" and len(parts) == 3 and parts[2] == "arenas":
                 values = _first_values(chunk)
                 arenas = values.get("arenas")
-                arena_list = arenas if isinstance(arenas, list) else [arenas]
-                contents.run_arenas[parts[1]] = (
-                    str(values.get("server")),
-                    [int(a) for a in arena_list],
-                )
+                if arenas is not None and values.get("server") is not None:
+                    arena_list = arenas if isinstance(arenas, list) else [arenas]
+                    contents.run_arenas[parts[1]] = (
+                        str(values["server"]),
+                        [int(a) for a in arena_list],
+                    )
             if parts[0] == "world" and len(parts) == 4 and parts[3] == "shape":
                 shape = ArenaShape.from_values(_first_values(chunk))
                 if (shape.server, shape.arena) not in seen_shapes:
