@@ -68,7 +68,7 @@ def test_spectate_logs_the_arena_and_the_lidar_the_trainer_received(start_server
     entities = {chunk.entity_path for chunk in reader.stream().to_chunks()}
     for name in (
         "road/cars",
-        "road/lanes",
+        "road/lanes/marks",
         "road/agent0/lidar/hits",
         "road/agent0/lidar/rays",
         "agent0/camera",

@@ -33,9 +33,14 @@ log = logging.getLogger("overtake.render")
 
 VIEWER_START_TIMEOUT_S = 60.0
 # After a file opens (or a tab is chosen) the viewer loads and draws asynchronously, and the
-# control API says nothing about when it is done: what the screenshot waits for is that two
-# screenshots taken this far apart are the same (the picture has stopped changing).
+# control API says nothing about when it is done: what the screenshot waits for is that
+# screenshots taken this far apart have stopped changing (settled_screenshot).
 SETTLE_INTERVAL_S = 1.0
+SETTLE_SAME = 3
+# The viewer greets with notifications ("software rasterizer detected", the adapter, the port)
+# drawn over the right of the window; they fade after a few seconds. No screenshot is taken
+# before the viewer has run this long.
+NOTIFICATIONS_S = 12.0
 SETTLE_TIMEOUT_S = 60.0
 
 
@@ -73,8 +78,9 @@ def _free_port() -> int:
 
 
 @contextlib.contextmanager
-def headless_viewer(width: int, height: int) -> Iterator[Any]:
-    """A headless Rerun viewer and a :class:`rerun.experimental.ViewerClient` on it."""
+def headless_viewer(width: int, height: int) -> Iterator[tuple[Any, float]]:
+    """A headless Rerun viewer: a :class:`rerun.experimental.ViewerClient` on it, and the
+    monotonic time before which its greeting notifications may still cover the window."""
     import rerun as rr
 
     port = _free_port()
@@ -108,8 +114,9 @@ def headless_viewer(width: int, height: int) -> Iterator[Any]:
         output.seek(0)
         return output.read().decode(errors="replace").strip()[-800:]
 
+    started = time.monotonic()
     try:
-        deadline = time.monotonic() + VIEWER_START_TIMEOUT_S
+        deadline = started + VIEWER_START_TIMEOUT_S
         client = None
         while client is None:
             if viewer.poll() is not None:
@@ -126,7 +133,7 @@ def headless_viewer(width: int, height: int) -> Iterator[Any]:
             except Exception:
                 client = None
                 time.sleep(0.2)  # polling a port: there is nothing to wait on
-        yield client
+        yield client, started + NOTIFICATIONS_S
     finally:
         # xvfb-run starts Xvfb and the viewer in our new session: end the whole group.
         with contextlib.suppress(ProcessLookupError):
@@ -140,16 +147,22 @@ def headless_viewer(width: int, height: int) -> Iterator[Any]:
         output.close()
 
 
-def settled_screenshot(client: Any, path: Path, view_id: str | None = None) -> None:
-    """Save a screenshot (of the window, or of one view) once it has stopped changing."""
+def settled_screenshot(
+    client: Any, path: Path, view_id: str | None = None, not_before: float = 0.0
+) -> None:
+    """Save a screenshot (of the window, or of one view) once it has stopped changing: the
+    same picture SETTLE_SAME times in a row, SETTLE_INTERVAL_S apart (a view still loading or
+    moving to its bounds can hold still for one interval)."""
+    quiet = not_before - time.monotonic()
+    if quiet > 0:
+        time.sleep(quiet)  # the greeting notifications fade on a timer of the viewer's
     deadline = time.monotonic() + SETTLE_TIMEOUT_S
-    previous = client.take_screenshot(view_id)
-    while True:
+    current = client.take_screenshot(view_id)
+    same = 1
+    while same < SETTLE_SAME and time.monotonic() < deadline:
         time.sleep(SETTLE_INTERVAL_S)  # the viewer draws on its own; there is no event to await
-        current = client.take_screenshot(view_id)
-        if current == previous or time.monotonic() > deadline:
-            break
-        previous = current
+        previous, current = current, client.take_screenshot(view_id)
+        same = same + 1 if current == previous else 1
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_bytes(current)
 
@@ -213,17 +226,17 @@ def main(config: RenderConfig) -> list[Path]:
     if missing:
         raise RenderError(f"no such recording: {', '.join(missing)}")
     written: list[Path] = []
-    with headless_viewer(config.width, config.height) as client:
+    with headless_viewer(config.width, config.height) as (client, quiet_from):
         client.open([str(p.resolve()) for p in config.recordings])
         if config.timeline_time is not None:
             client.set_time(sequence=config.timeline_time, play_state="paused")
         if not config.tabs and not config.views:
-            settled_screenshot(client, config.out)
+            settled_screenshot(client, config.out, not_before=quiet_from)
             return [config.out]
         for tab in config.tabs:
             choose_tab(client, tab)
             path = _beside(config.out, tab)
-            settled_screenshot(client, path)
+            settled_screenshot(client, path, not_before=quiet_from)
             written.append(path)
         if config.views:
             loaded_blueprint(client, tabs=False)
@@ -235,7 +248,7 @@ def main(config: RenderConfig) -> list[Path]:
                         f"the layout has no view titled {title!r}; its views: {sorted(views)}"
                     )
                 path = _beside(config.out, title)
-                settled_screenshot(client, path, view_id=views[found[0]])
+                settled_screenshot(client, path, view_id=views[found[0]], not_before=quiet_from)
                 written.append(path)
     return written
 

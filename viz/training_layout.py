@@ -10,19 +10,22 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-# Plots of the episodes and of learning, one per unit: (title, the series in it).
+# Plots of the episodes and of learning, one per quantity (title, the series in it): a run
+# keeps its colour in every plot, so one plot holding two quantities could not tell them apart.
 EPISODE_PLOTS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("episode return", ("return",)),
     ("average speed (km/h)", ("avg_speed_kmh",)),
-    ("lane changes and overtakes per episode", ("lane_changes", "overtakes")),
-    ("collisions and emergency brakes per episode", ("collisions", "emergency_brakes")),
+    ("lane changes per episode", ("lane_changes",)),
+    ("overtakes per episode", ("overtakes",)),
+    ("collisions per episode", ("collisions",)),
+    ("emergency brakes per episode", ("emergency_brakes",)),
     ("distance per episode (m)", ("distance_m",)),
 )
 # The few a comparison at a glance needs (the "compare" tab of a joined recording).
 KEY_PLOTS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
     ("episode return", "episode", ("return",)),
     ("average speed (km/h)", "episode", ("avg_speed_kmh",)),
-    ("collisions and emergency brakes per episode", "episode", ("collisions", "emergency_brakes")),
+    ("collisions per episode", "episode", ("collisions",)),
     ("loss", "learning", ("loss",)),
 )
 LEARNING_PLOTS: tuple[tuple[str, tuple[str, ...]], ...] = (

@@ -2,9 +2,10 @@
 
 Per arena, under ``world/<server>/arena<id>``:
 
-- ``road/lanes``, ``road/cars``, ``road/agent<i>/lidar/{hits,rays}``: the road from above,
-  drawn the way a driver reads a map: centred on the followed car (agent 0, or the first agent
-  on the road) and moving with it, forward to the right and the driver's left *up*. Drawing
+- ``road/lanes/{edges,marks}``, ``road/cars``, ``road/agent<i>/lidar/{hits,rays}``: the road
+  from above, drawn the way a driver reads a map: centred on the followed car (agent 0, or
+  the first agent on the road) and moving with it, forward to the right and the driver's left
+  *up*. Drawing
   coordinates are metres: x ahead of the followed car, y = minus the distance from the road's
   right edge (Rerun draws +y downward, so the road's left, +y in the simulator, must be
   negated to come out on top). Every car is a box of its own size, traffic coloured by
@@ -180,7 +181,7 @@ def arena_layout(shape: ArenaShape, name: str | None = None) -> Any:
             rrb.Spatial2DView(
                 origin=f"{root}/road",
                 contents=[
-                    f"{root}/road/lanes",
+                    f"{root}/road/lanes/**",
                     f"{root}/road/cars",
                     f"{root}/road/agent0/lidar/**",
                 ],
@@ -285,6 +286,7 @@ class WorldRecording:
             # Once per arena: one that left the layout (beyond BLUEPRINT_ARENAS) stays out.
             self._seen.add((frame.server, frame.arena))
             self._arena_appears(frame)
+            self._lane_lines(root, frame)
         stream.set_time("round", sequence=frame.round)
         stream.set_time("sim_time", duration=frame.sim_time_s)
         if frame.trainer_step >= 0:
@@ -317,7 +319,11 @@ class WorldRecording:
                 show_labels=True,
             ),
         )
-        stream.log(f"{root}/road/lanes", self._lane_lines(frame, followed_x))
+        # The dashes (static, around x = 0) move back as the car moves on: they are the road's.
+        stream.log(
+            f"{root}/road/lanes/marks",
+            rr.Transform3D(translation=[-(followed_x % DASH_PERIOD_M), 0.0, 0.0]),
+        )
         lidar = frame.observations.get("lidar")
         camera = frame.observations.get("camera")
         for i in agents:
@@ -357,18 +363,21 @@ class WorldRecording:
             if 0 <= applied < len(ACTION_NAMES):
                 stream.log(f"{base}/action/{ACTION_NAMES[applied]}", rr.Scalars(float(applied)))
 
-    def _lane_lines(self, frame: WorldFrame, followed_x: float) -> Any:
-        """The road's edges as solid lines, the lines between lanes dashed and fixed to the
-        road (they pass by as the car drives), around the followed car."""
-        rr = self.rr
+    def _lane_lines(self, root: str, frame: WorldFrame) -> None:
+        """The road's edges as solid lines and the lines between lanes dashed, logged once
+        per arena (static): the dashes are fixed to the road, and each frame only moves them
+        (:meth:`log`, a translation) as the followed car drives on."""
+        rr, stream = self.rr, self.stream
         low, high = -LINES_BEHIND_M, LINES_AHEAD_M
         width = frame.lane_count * frame.lane_width_m
         edges = [np.array([[low, 0.0], [high, 0.0]]), np.array([[low, -width], [high, -width]])]
-        first = np.floor((followed_x + low) / DASH_PERIOD_M) * DASH_PERIOD_M - followed_x
-        starts = np.arange(first, high, DASH_PERIOD_M)
+        starts = np.arange(low - DASH_PERIOD_M, high + DASH_PERIOD_M, DASH_PERIOD_M)
         dashes = [
-            np.array([[s, -k * frame.lane_width_m], [s + DASH_M, -k * frame.lane_width_m]])
+            np.array([[x, -k * frame.lane_width_m], [x + DASH_M, -k * frame.lane_width_m]])
             for k in range(1, frame.lane_count)
-            for s in starts
+            for x in starts
         ]
-        return rr.LineStrips2D(edges + dashes, colors=[LANE_COLOUR], radii=[0.08])
+        line = {"colors": [LANE_COLOUR], "radii": [0.08]}
+        stream.log(f"{root}/road/lanes/edges", rr.LineStrips2D(edges, **line), static=True)
+        if dashes:
+            stream.log(f"{root}/road/lanes/marks", rr.LineStrips2D(dashes, **line), static=True)
