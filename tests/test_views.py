@@ -168,11 +168,14 @@ def colour_runs(image: np.ndarray, colour: np.ndarray, tolerance: int = 40) -> i
     return int(1 + np.count_nonzero(np.diff(columns) > 3))
 
 
-@pytest.mark.skipif(
+needs_viewer = pytest.mark.skipif(
     shutil.which("xvfb-run") is None,
     reason="drawing with Rerun's viewer headless needs xvfb-run and Mesa's software Vulkan "
     "(apt-get install xvfb mesa-vulkan-drivers; scripts/setup-viewer.sh)",
 )
+
+
+@needs_viewer
 @pytest.mark.timeout(180)
 def test_the_viewer_draws_every_car_of_the_road(tmp_path):
     """The test that would have caught invisible traffic: the picture Rerun's own viewer draws
@@ -197,3 +200,110 @@ def test_the_viewer_draws_every_car_of_the_road(tmp_path):
     steady = KIND_COLOURS[0]
     assert colour_runs(image, steady) == len(TRAFFIC)
     assert colour_runs(image, np.array([230, 40, 40])) >= 1  # the agent
+
+
+def test_a_road_recording_shared_with_trainers_lays_out_their_plots_too(tmp_path):
+    """Live, the viewer shows the last layout it received: a spectator's or server's that
+    shares the trainers' recording id must show their plots as well as the roads."""
+    rrd = tmp_path / "world.rrd"
+    recording = open_recording(APPLICATION_ID, RecordingConfig(rrd=rrd, recording_id="shared"), rrd)
+    view = WorldRecording(recording.stream, rays=False, with_training=True)
+    for round_ in range(3):
+        view.log(road_frame(round_, 3, 100 * round_))
+    recording.close()
+    reader = rr.chunk.RrdReader(str(rrd))
+    texts = set().union(*(blueprint_texts(reader, store) for store in reader.blueprints()))
+    assert {
+        "compare",
+        "s arena 3",
+        "/world/s/arena3/road",
+        "episode return",
+        "/training/episode/return/**",
+        "training: every run",
+        "step",
+    } <= texts
+    alone = tmp_path / "alone.rrd"
+    recording = open_recording(APPLICATION_ID, RecordingConfig(rrd=alone), alone)
+    view = WorldRecording(recording.stream, rays=False)
+    view.log(road_frame(0, 3, 0))
+    recording.close()
+    reader = rr.chunk.RrdReader(str(alone))
+    texts = set().union(*(blueprint_texts(reader, store) for store in reader.blueprints()))
+    assert "/world/s/arena3/road" in texts and "/training/episode/return/**" not in texts
+
+
+def strings_in(value) -> set[str]:
+    if isinstance(value, str):
+        return {value}
+    if isinstance(value, dict):
+        return set().union(set(), *(strings_in(v) for v in value.values()))
+    if isinstance(value, (list, tuple)):
+        return set().union(set(), *(strings_in(v) for v in value))
+    return set()
+
+
+@needs_viewer
+@pytest.mark.timeout(180)
+def test_a_live_viewer_shows_one_layout_for_a_spectator_and_a_trainer(start_server, tmp_path):
+    """Streamed live (``--sink grpc``) by a trainer and a spectator sharing a recording id,
+    Rerun's viewer holds one recording and shows one layout: the roads and the trainer's
+    plots, not the layout the viewer would make up, nor the trainer's alone."""
+    import threading
+    import time
+
+    import gymnasium as gym
+
+    import overtake.client  # noqa: F401  (registers the environments)
+    from overtake.client.spectate import SpectateConfig
+    from overtake.client.spectate import main as spectate
+    from overtake.protocol import REMOTE_HIGHWAY_ENV_ID
+    from overtake.viz.recording import close_recording
+    from overtake.viz.render import headless_viewer
+    from overtake.viz.training_layout import training_blueprint
+
+    from remote_support import remote_config, wait_until
+
+    server = start_server("live", world_rate_hz=50)
+    with headless_viewer(1200, 800) as (client, _):
+        streamed = RecordingConfig(sink="grpc", viewer_url=str(client.url), recording_id="live")
+        # The trainer first, as overtake-train does: its own layout goes with its stream.
+        trainer = open_recording(
+            APPLICATION_ID, streamed, tmp_path / "unused.rrd", training_blueprint("dqn")
+        )
+        view = TrainingRecording(trainer.stream, "dqn")
+        env = gym.make(REMOTE_HIGHWAY_ENV_ID, remote=remote_config(server.endpoint, server.name))
+        watcher = threading.Thread(
+            target=spectate,
+            args=(
+                SpectateConfig(
+                    connect=server.endpoint,
+                    server=server.name,
+                    frames=10,
+                    seconds=60,
+                    recording=streamed,
+                ),
+            ),
+        )
+        try:
+            env.reset(seed=1)
+            watcher.start()
+            deadline = time.monotonic() + 60
+            step = 0
+            while watcher.is_alive() and time.monotonic() < deadline:
+                env.unwrapped.label_step(step)
+                env.step(1)
+                view.episode(step, {"return": float(step)})
+                step += 1
+            watcher.join(timeout=30)
+        finally:
+            env.close()
+            close_recording(trainer)
+        arena = env.unwrapped.group.arena_ids[0]
+
+        def layout() -> set[str]:
+            return strings_in(client.get_blueprint().blueprint)
+
+        wait_until(lambda: "compare" in layout(), 30, "the joined layout in the viewer")
+        shown = layout()
+        assert {f"/world/live/arena{arena}/road", "/training/episode/return/**"} <= shown
+        assert len(client.get_state().recordings) == 1  # one recording, not two

@@ -204,20 +204,34 @@ def arena_layout(shape: ArenaShape, name: str | None = None) -> Any:
     )
 
 
-def world_blueprint(shapes: list[ArenaShape], timeline: str = "round") -> Any:
+def world_blueprint(
+    shapes: list[ArenaShape], timeline: str = "round", with_training: bool = False
+) -> Any:
     """A layout of ``shapes``' arenas: one arena fills the window; several get an overview tab
-    (every road, one above the other) and a tab each."""
+    (every road, one above the other) and a tab each.
+
+    ``with_training`` (a recording shared with trainers, ``--recording-id``): the overview
+    also holds the key training plots and a "training" tab every plot, every run that shares
+    the recording a line in each. A live viewer shows the layout it received last, and the
+    roads' (sent as arenas open, after the trainers have started) then shows everything."""
     import rerun.blueprint as rrb
 
-    if len(shapes) == 1:
-        root: Any = arena_layout(shapes[0])
-    else:
-        root = rrb.Tabs(
+    from .training_layout import curves_layout, key_curves_layout
+
+    roads = [road_view(s, f"{s.server} arena {s.arena}") for s in shapes]
+    arenas = [arena_layout(s, f"{s.server} arena {s.arena}") for s in shapes]
+    if with_training:
+        root: Any = rrb.Tabs(
             rrb.Vertical(
-                *(road_view(s, f"{s.server} arena {s.arena}") for s in shapes), name="all roads"
+                *roads, key_curves_layout(), row_shares=[1] * len(roads) + [2], name="compare"
             ),
-            *(arena_layout(s, f"{s.server} arena {s.arena}") for s in shapes),
+            curves_layout(["every run"]),
+            *arenas,
         )
+    elif len(shapes) == 1:
+        root = arena_layout(shapes[0])
+    else:
+        root = rrb.Tabs(rrb.Vertical(*roads, name="all roads"), *arenas)
     return rrb.Blueprint(
         root, rrb.TimePanel(timeline=timeline, state="collapsed"), collapse_panels=True
     )
@@ -232,13 +246,19 @@ class WorldRecording:
     """Logs :class:`WorldFrame` s to a RecordingStream; ``rays`` draws every LIDAR ray too.
 
     With ``lay_out`` it sends a layout (:func:`world_blueprint`) each time an arena appears,
-    of the last :data:`BLUEPRINT_ARENAS` arenas; it becomes the default, not the active one, so
-    a viewer's own arrangement is left as it is."""
+    of the last :data:`BLUEPRINT_ARENAS` arenas, as the active and the default one: a live
+    viewer shows it at once (an arrangement of the viewer's own is replaced when an arena
+    opens; Rerun's "reset to default" brings the layout back at any time)."""
 
-    def __init__(self, stream: Any, rays: bool = True, lay_out: bool = True) -> None:
+    def __init__(
+        self, stream: Any, rays: bool = True, lay_out: bool = True, with_training: bool = False
+    ) -> None:
+        """``with_training``: the layout also shows the trainers' plots (see
+        :func:`world_blueprint`); for a recording shared with trainers."""
         import rerun as rr
 
         self.rr, self.stream, self.rays, self.lay_out = rr, stream, rays, lay_out
+        self.with_training = with_training
         self.shapes: dict[tuple[str, int], ArenaShape] = {}
         self._seen: set[tuple[str, int]] = set()
         self._styled: set[str] = set()
@@ -255,8 +275,14 @@ class WorldRecording:
             return
         try:
             self.stream.send_blueprint(
-                world_blueprint(list(self.shapes.values()), "step" if self._on_step else "round"),
-                make_active=False,
+                world_blueprint(
+                    list(self.shapes.values()),
+                    "step" if self._on_step else "round",
+                    with_training=self.with_training,
+                ),
+                # Active: a live viewer has made a layout of its own from the first data by
+                # then, and would keep it over a default one.
+                make_active=True,
                 make_default=True,
             )
         except Exception:
