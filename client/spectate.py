@@ -57,7 +57,16 @@ def main(config: SpectateConfig, stop: threading.Event | None = None) -> int:
     with Spectator(remote, server=config.server, arena=config.arena) as spectator:
         # The layout follows the arenas as they appear (WorldRecording sends it).
         recording = open_recording(APPLICATION_ID, config.recording, DEFAULT_RRD)
-        view = WorldRecording(recording.stream, rays=config.rays) if recording is not None else None
+        # Shared with trainers (--recording-id): the layout shows their plots too.
+        view = (
+            WorldRecording(
+                recording.stream,
+                rays=config.rays,
+                with_training=config.recording.recording_id is not None,
+            )
+            if recording is not None
+            else None
+        )
         logged = received = 0
         deadline = None if config.seconds is None else time.monotonic() + config.seconds
         try:

@@ -39,7 +39,8 @@ class ServerRecorder:
         if recording is None:
             raise ValueError("a ServerRecorder needs a sink other than off")
         self.recording: Recording = recording
-        self.view = WorldRecording(recording.stream)
+        # Shared with trainers (--recording-id): the layout shows their plots too.
+        self.view = WorldRecording(recording.stream, with_training=config.recording_id is not None)
         self.logged = 0
         self.dropped = 0
         self._queue: queue.Queue[WorldFrame | None] = queue.Queue(maxsize=QUEUE_FRAMES)
