@@ -101,7 +101,12 @@ class TrainingRecording:
     def _style_car(self, base: str) -> None:
         rr, stream = self.rr, self.stream
         for index, name in enumerate(ACTION_NAMES):
-            stream.log(f"{base}/q/{name}", rr.SeriesLines(names=name), static=True)
+            # The colours of the action scatter: a Q-value's line and its action's points match.
+            stream.log(
+                f"{base}/q/{name}",
+                rr.SeriesLines(names=name, colors=[ACTION_COLOURS[index]]),
+                static=True,
+            )
             stream.log(
                 f"{base}/action/{name}",
                 rr.SeriesPoints(
