@@ -543,6 +543,31 @@ def start_trainer(tmp_path):
         trainer.stop()
 
 
+def strings_in(value: Any) -> set[str]:
+    """Every string in a nest of lists, tuples and dicts (a blueprint, a column's values)."""
+    if isinstance(value, str):
+        return {value}
+    if isinstance(value, dict):
+        value = list(value.values())
+    if isinstance(value, (list, tuple)):
+        return set().union(set(), *(strings_in(item) for item in value))
+    return set()
+
+
+def blueprint_texts(reader: Any, store: Any) -> set[str]:
+    """Every text value in one blueprint store of an ``rr.chunk.RrdReader`` (view names,
+    origins, entity paths)."""
+    import pyarrow as pa
+
+    texts: set[str] = set()
+    for chunk in reader.stream(store=store).to_chunks():
+        batch = chunk.to_record_batch()
+        for column, column_field in zip(batch.columns, batch.schema, strict=True):
+            if not pa.types.is_temporal(column_field.type):  # timelines hold no text
+                texts |= strings_in(column.to_pylist())
+    return texts
+
+
 def logged_by_round(reader: Any, entity: str, column: str) -> dict[int, list]:
     """From an ``rr.chunk.RrdReader``: round -> the value of ``column`` logged for ``entity``
     in that round (the last one logged there)."""

@@ -623,10 +623,10 @@ def test_newer_minor_version_may_add_fields_the_current_minor_may_not():
     assert "'message'" in str(err.value)  # what was expected
 
 
-def test_world_frame_of_a_1_0_peer_decodes_without_reward_terms():
-    # 1.1 added the reward terms to world frames: a spectator of this version still reads an
-    # older server's frames, and gets none...
-    frame = WorldFrame(
+def _world_frame(agents: int = 1, **extra) -> WorldFrame:
+    """A small valid frame: ``agents`` agents and two traffic cars."""
+    vehicles = agents + 2
+    return WorldFrame(
         server="s",
         group=0,
         arena=1,
@@ -634,18 +634,25 @@ def test_world_frame_of_a_1_0_peer_decodes_without_reward_terms():
         sim_time_s=0.4,
         lane_count=5,
         lane_width_m=3.5,
-        agent_kind=9,
-        agent_active=np.ones(1, bool),
-        x_m=np.zeros(2),
-        y_m=np.zeros(2),
-        speed_mps=np.zeros(2, np.float32),
-        kind=np.zeros(2, np.int8),
-        active=np.ones(2, bool),
+        agent_kind=4,
+        agent_active=np.ones(agents, bool),
+        x_m=np.zeros(vehicles),
+        y_m=np.zeros(vehicles),
+        speed_mps=np.zeros(vehicles, np.float32),
+        kind=np.array([4] * agents + [0, 1], np.int8),
+        active=np.ones(vehicles, bool),
         observations={},
-        reward=np.ones(1),
-        action_applied=np.zeros(1, np.int64),
-        reward_terms=np.array([[0.5, -0.25]]),
-        reward_term_names=("speed", "lane_change"),
+        reward=np.ones(agents),
+        action_applied=np.zeros(agents, np.int64),
+        **extra,
+    )
+
+
+def test_world_frame_of_a_1_0_peer_decodes_without_reward_terms():
+    # 1.1 added the reward terms to world frames: a spectator of this version still reads an
+    # older server's frames, and gets none...
+    frame = _world_frame(
+        reward_terms=np.array([[0.5, -0.25]]), reward_term_names=("speed", "lane_change")
     )
     *_, body = msgpack.unpackb(encode(frame), raw=False)
     assert body.pop("reward_term_names") == ["speed", "lane_change"]
@@ -659,29 +666,10 @@ def test_world_frame_of_a_1_0_peer_decodes_without_reward_terms():
 
 
 def test_world_frame_reward_terms_must_match_their_names():
-    base = dict(
-        server="s",
-        group=0,
-        arena=1,
-        round=2,
-        sim_time_s=0.4,
-        lane_count=5,
-        lane_width_m=3.5,
-        agent_kind=9,
-        agent_active=np.ones(2, bool),
-        x_m=np.zeros(2),
-        y_m=np.zeros(2),
-        speed_mps=np.zeros(2, np.float32),
-        kind=np.zeros(2, np.int8),
-        active=np.ones(2, bool),
-        observations={},
-        reward=np.ones(2),
-        action_applied=np.zeros(2, np.int64),
-    )
     with pytest.raises(DecodeError, match=r"reward_terms must have shape \(2, 3\)"):
-        WorldFrame(**base, reward_terms=np.zeros((2, 2)), reward_term_names=("a", "b", "c"))
+        _world_frame(2, reward_terms=np.zeros((2, 2)), reward_term_names=("a", "b", "c"))
     with pytest.raises(DecodeError, match="without reward_terms"):
-        WorldFrame(**base, reward_term_names=("a",))
+        _world_frame(2, reward_term_names=("a",))
 
 
 def test_newer_minor_version_still_needs_every_known_field():
@@ -1137,29 +1125,6 @@ def test_only_fields_added_in_a_later_minor_may_be_missing_from_an_older_peer():
 def test_negative_version_numbers_are_refused(version):
     with pytest.raises(DecodeError, match="non-negative"):
         decode(pack([*version, "ack", {"message": "m"}]))
-
-
-def _world_frame(**extra) -> WorldFrame:
-    return WorldFrame(
-        server="s",
-        group=0,
-        arena=1,
-        round=2,
-        sim_time_s=0.4,
-        lane_count=5,
-        lane_width_m=3.5,
-        agent_kind=4,
-        agent_active=np.ones(1, bool),
-        x_m=np.zeros(3),
-        y_m=np.zeros(3),
-        speed_mps=np.zeros(3, np.float32),
-        kind=np.array([4, 0, 1], np.int8),
-        active=np.ones(3, bool),
-        observations={},
-        reward=np.ones(1),
-        action_applied=np.zeros(1, np.int64),
-        **extra,
-    )
 
 
 def test_step_counts_sizes_and_headings_of_a_1_1_peer_decode_as_not_given():

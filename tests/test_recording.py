@@ -9,7 +9,6 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
-import pyarrow as pa
 import pytest
 import rerun as rr
 
@@ -24,7 +23,14 @@ from overtake.viz.recording import (
     viewer_binary,
 )
 
-from remote_support import free_port, logged_by_round, remote_config, stop_process, wait_until
+from remote_support import (
+    blueprint_texts,
+    free_port,
+    logged_by_round,
+    remote_config,
+    stop_process,
+    wait_until,
+)
 
 
 @pytest.mark.timeout(120)
@@ -211,28 +217,6 @@ def test_server_recorder_drops_and_counts_what_it_cannot_keep_up_with(tmp_path, 
     assert logged_rounds == sorted(logged_rounds)  # in order, none twice
     reader = rr.chunk.RrdReader(str(tmp_path / "s.rrd"))
     assert {c.entity_path for c in reader.stream().to_chunks()} >= {"/world/s/arena0/road/cars"}
-
-
-def blueprint_texts(reader, store) -> set[str]:
-    """Every text value in one blueprint store of an .rrd (view names, origins, ...)."""
-    texts: set[str] = set()
-
-    def collect(value) -> None:
-        if isinstance(value, str):
-            texts.add(value)
-        elif isinstance(value, (list, tuple)):
-            for item in value:
-                collect(item)
-        elif isinstance(value, dict):
-            for item in value.values():
-                collect(item)
-
-    for chunk in reader.stream(store=store).to_chunks():
-        batch = chunk.to_record_batch()
-        for column, column_field in zip(batch.columns, batch.schema):
-            if not pa.types.is_temporal(column_field.type):  # timelines hold no text
-                collect(column.to_pylist())
-    return texts
 
 
 def test_server_recording_lays_out_each_arena_as_it_appears(tmp_path, monkeypatch):

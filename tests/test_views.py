@@ -7,7 +7,6 @@ import io
 import shutil
 
 import numpy as np
-import pyarrow as pa
 import pytest
 import rerun as rr
 
@@ -17,6 +16,8 @@ from overtake.viz.layout import LayoutConfig, LayoutError, read_contents
 from overtake.viz.layout import main as join
 from overtake.viz.recording import APPLICATION_ID, RecordingConfig, open_recording
 from overtake.viz.world_view import KIND_COLOURS, WorldRecording
+
+from remote_support import blueprint_texts, remote_config, strings_in, wait_until
 
 AGENT_X_M = 1000.0
 # Traffic around the agent (x ahead of it in metres, lane): far enough apart to tell apart
@@ -80,25 +81,6 @@ def record_run(path, run: str, arena: int, algo_index: int) -> None:
             step, {"lidar": np.full(36, 40.0, np.float32)}, 1, np.arange(5.0), 0.5, {"speed": 0.5}
         )
     recording.close()
-
-
-def blueprint_texts(reader, store) -> set[str]:
-    """Every text value in one blueprint store (view names, origins, entity paths)."""
-    texts: set[str] = set()
-
-    def collect(value) -> None:
-        if isinstance(value, str):
-            texts.add(value)
-        elif isinstance(value, (list, tuple)):
-            for item in value:
-                collect(item)
-
-    for chunk in reader.stream(store=store).to_chunks():
-        batch = chunk.to_record_batch()
-        for column, column_field in zip(batch.columns, batch.schema, strict=True):
-            if not pa.types.is_temporal(column_field.type):
-                collect(column.to_pylist())
-    return texts
 
 
 def test_layout_joins_a_spectator_and_two_trainers_into_one_laid_out_recording(tmp_path):
@@ -232,16 +214,6 @@ def test_a_road_recording_shared_with_trainers_lays_out_their_plots_too(tmp_path
     assert "/world/s/arena3/road" in texts and "/training/episode/return/**" not in texts
 
 
-def strings_in(value) -> set[str]:
-    if isinstance(value, str):
-        return {value}
-    if isinstance(value, dict):
-        return set().union(set(), *(strings_in(v) for v in value.values()))
-    if isinstance(value, (list, tuple)):
-        return set().union(set(), *(strings_in(v) for v in value))
-    return set()
-
-
 @needs_viewer
 @pytest.mark.timeout(180)
 def test_a_live_viewer_shows_one_layout_for_a_spectator_and_a_trainer(start_server, tmp_path):
@@ -260,8 +232,6 @@ def test_a_live_viewer_shows_one_layout_for_a_spectator_and_a_trainer(start_serv
     from overtake.viz.recording import close_recording
     from overtake.viz.render import headless_viewer
     from overtake.viz.training_layout import training_blueprint
-
-    from remote_support import remote_config, wait_until
 
     server = start_server("live", world_rate_hz=50)
     with headless_viewer(1200, 800) as (client, _):
