@@ -277,3 +277,14 @@ def test_a_live_viewer_shows_one_layout_for_a_spectator_and_a_trainer(start_serv
         shown = layout()
         assert {f"/world/live/arena{arena}/road", "/training/episode/return/**"} <= shown
         assert len(client.get_state().recordings) == 1  # one recording, not two
+
+
+def test_layout_names_the_file_whose_arena_shape_it_cannot_read(tmp_path):
+    bad = tmp_path / "bad.rrd"
+    recording = open_recording(APPLICATION_ID, RecordingConfig(rrd=bad), bad)
+    recording.stream.log("world/s/arena3/shape", rr.AnyValues(server=["s"]), static=True)
+    recording.close()
+    with pytest.raises(
+        LayoutError, match=r"bad.rrd: /world/s/arena3/shape is not an arena's shape"
+    ):
+        read_contents([bad])

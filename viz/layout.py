@@ -100,7 +100,13 @@ def read_contents(paths: Sequence[Path]) -> Contents:
                         [int(a) for a in arena_list],
                     )
             if parts[0] == "world" and len(parts) == 4 and parts[3] == "shape":
-                shape = ArenaShape.from_values(_first_values(chunk))
+                try:
+                    shape = ArenaShape.from_values(_first_values(chunk))
+                except (KeyError, TypeError, ValueError) as error:
+                    raise LayoutError(
+                        f"{path}: {chunk.entity_path} is not an arena's shape (server, arena, "
+                        f"lane_count, lane_width_m, lidar_range_m, camera): {error!r}"
+                    ) from None
                 if (shape.server, shape.arena) not in seen_shapes:
                     seen_shapes.add((shape.server, shape.arena))
                     contents.shapes.append(shape)
