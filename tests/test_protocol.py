@@ -1127,18 +1127,23 @@ def test_negative_version_numbers_are_refused(version):
         decode(pack([*version, "ack", {"message": "m"}]))
 
 
-def test_step_counts_sizes_and_headings_of_a_1_1_peer_decode_as_not_given():
-    # 1.2 added the trainer's step count to Actions and world frames, and the vehicles' sizes
-    # and agents' headings to world frames: a 1.1 peer's messages decode with none...
-    actions = Actions(
+def _one_action(trainer_step: int) -> Actions:
+    """One agent's action, sent at ``trainer_step``."""
+    return Actions(
         trainer="t",
         ticket=b"k",
         group=0,
         round=3,
         agents=np.zeros(1, np.int32),
         actions=np.ones(1, np.int64),
-        trainer_step=1234,
+        trainer_step=trainer_step,
     )
+
+
+def test_step_counts_sizes_and_headings_of_a_1_1_peer_decode_as_not_given():
+    # 1.2 added the trainer's step count to Actions and world frames, and the vehicles' sizes
+    # and agents' headings to world frames: a 1.1 peer's messages decode with none...
+    actions = _one_action(1234)
     assert decode(encode(actions)).trainer_step == 1234
     *_, body = msgpack.unpackb(encode(actions), raw=False)
     assert body.pop("trainer_step") == 1234
@@ -1164,15 +1169,7 @@ def test_bad_step_counts_sizes_and_headings_are_refused_saying_what_came():
     with pytest.raises(
         DecodeError, match=r"trainer_step must be >= 0 \(or -1: not given\), got -2"
     ):
-        Actions(
-            trainer="t",
-            ticket=b"k",
-            group=0,
-            round=3,
-            agents=np.zeros(1, np.int32),
-            actions=np.ones(1, np.int64),
-            trainer_step=-2,
-        )
+        _one_action(-2)
     with pytest.raises(DecodeError, match="half_length_m and half_width_m must come together"):
         _world_frame(half_length_m=np.ones(3, np.float32))
     with pytest.raises(DecodeError, match=r"half_width_m must have shape \(3\), got \(2,\)"):
