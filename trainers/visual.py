@@ -15,7 +15,7 @@ per run, on one step axis:
   name), the Q-value of every action, the reward and each reward term.
 
 :func:`~overtake.viz.training_layout.training_blueprint` lays out one run, or several side by
-side; plots are grouped by unit (never distance beside collisions, nor steps/s beside epsilon).
+side; one plot per quantity (never distance beside collisions, nor steps/s beside epsilon).
 
 Summaries are logged at most once per episode or log line; the car's view is decimated, and
 with the default decimation the training loop loses nothing measurable (``bench/RESULTS.md``,

@@ -1,5 +1,5 @@
 """Layouts of what trainers record (:mod:`overtake.trainers.visual` logs it): the curves of
-one or several runs, a plot per unit with every run a line in each, and each run's first car.
+one or several runs, a plot per quantity with every run a line in each, and each run's first car.
 
 Entity paths: ``training/episode/<metric>/<run>``, ``training/learning/<name>/<run>`` and
 ``trainer/<run>/env0/...``.
@@ -47,7 +47,7 @@ def _plot(title: str, section: str, series: tuple[str, ...]) -> Any:
 
 
 def curves_layout(runs: Sequence[str]) -> Any:
-    """Episodes and learning, a plot per unit; every run a line in each (one step axis)."""
+    """Episodes and learning, a plot per quantity; every run a line in each (one step axis)."""
     import rerun.blueprint as rrb
 
     return rrb.Horizontal(
