@@ -6,7 +6,16 @@ from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_en
 from overtake.protocol.transport import SecurityConfig
 
 from .drivers import RandomDriver, RuleDriver, RuleDriverConfig
-from .environment import ActionTuple, BehaviorSpec, DecisionSteps, RemoteEnvironment, TerminalSteps
+from .environment import (
+    ActionSpec,
+    ActionTuple,
+    BehaviorSpec,
+    DecisionSteps,
+    ObservationSpec,
+    RemoteEnvironment,
+    TerminalSteps,
+    UnsupportedRequest,
+)
 from .remote import RemoteConfig
 
 register_environments()
@@ -14,9 +23,11 @@ register_environments()
 __all__ = [
     "HIGHWAY_ENV_ID",
     "REMOTE_HIGHWAY_ENV_ID",
+    "ActionSpec",
     "ActionTuple",
     "BehaviorSpec",
     "DecisionSteps",
+    "ObservationSpec",
     "RandomDriver",
     "RemoteConfig",
     "RemoteEnvironment",
@@ -24,4 +35,5 @@ __all__ = [
     "RuleDriverConfig",
     "SecurityConfig",
     "TerminalSteps",
+    "UnsupportedRequest",
 ]

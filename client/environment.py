@@ -1,57 +1,173 @@
-"""``RemoteEnvironment``: the low-level API in the shape of ML-Agents' ``BaseEnv``.
+"""``RemoteEnvironment``: the low-level API of ML-Agents' ``BaseEnv`` over an overtake server.
 
-It is duck-typed on ``mlagents_envs.base_env`` (``behavior_specs``, ``get_steps``,
-``set_actions``, ``set_action_for_agent``, ``step``, ``reset``, ``close``; ``DecisionSteps``,
-``TerminalSteps``, ``BehaviorSpec``, ``ActionTuple``) closely enough for ML-Agents' own
-wrappers to drive it, without depending on mlagents-envs. One environment holds one group of
-arenas (one behaviour); agent ids are ids within the group.
+It follows ``mlagents_envs.base_env`` (mlagents-envs 1.1.0) closely enough that ML-Agents' own
+wrappers drive it unchanged (``UnityToGymWrapper``, ``UnityParallelEnv``, ``UnityAECEnv``; see
+:mod:`overtake.client.mlagents` and tests/test_mlagents.py, which run them), without depending
+on mlagents-envs: ``behavior_specs``, ``get_steps``, ``set_actions``, ``set_action_for_agent``,
+``step``, ``reset``, ``close``; ``DecisionSteps`` / ``TerminalSteps`` (indexing by agent id,
+``agent_id_to_index``, ``group_id``, ``group_reward``, ``empty``), ``BehaviorSpec``,
+``ObservationSpec`` (``dimension_property``, ``observation_type``), ``ActionSpec``
+(``is_discrete``, ``is_continuous``, ...) and ``ActionTuple``. One environment holds one group
+of arenas (one behaviour); agent ids are ids within the group, and several agents per arena
+share a road.
+
+Observations come as ML-Agents delivers Unity's: float32, camera pixels scaled to [0, 1], and
+2-D observations (the grey camera, the LIDAR map, Ho's grid) as images of one channel (height,
+width, 1). The raw observations (uint8 pixels, the reward terms, the metrics) are in
+:attr:`RemoteEnvironment.steps`.
 
 As in ML-Agents, an agent whose episode ended is in ``TerminalSteps`` (``interrupted`` when it
 hit the time limit), and after the next :meth:`RemoteEnvironment.step` it is back in
 ``DecisionSteps`` with the first observation of its new episode. Action masks follow ML-Agents:
-``True`` marks an action that can NOT be taken.
+``True`` marks an action that can NOT be taken. What overtake has not got (continuous actions,
+side channels) is refused with :class:`UnsupportedRequest`, which says what is supported.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
+from enum import Enum, IntFlag
 from typing import Any, NamedTuple
 
 import numpy as np
 
 from overtake.protocol.envs import arena_seeds
-from overtake.protocol.messages import JoinRequest, OpenRequest, Scalar, Steps
+from overtake.protocol.messages import (
+    BehaviourSpec as WireBehaviourSpec,
+)
+from overtake.protocol.messages import (
+    JoinRequest,
+    OpenRequest,
+    Scalar,
+    Steps,
+)
 from overtake.protocol.vocabulary import ACTION_COUNT, DEFAULT_ACTION
 
 from .remote import ArenaGroup, Connection, RemoteConfig
 
 
+class UnsupportedRequest(ValueError):
+    """A caller (an ML-Agents wrapper, a trainer) asked for something overtake does not offer:
+    continuous actions, a side channel, an unknown behaviour. The message names what was asked
+    and what is supported."""
+
+
+class DimensionProperty(IntFlag):
+    """What a dimension of an observation is (ML-Agents' ``DimensionProperty``, same values)."""
+
+    UNSPECIFIED = 0
+    NONE = 1
+    TRANSLATIONAL_EQUIVARIANCE = 2
+    VARIABLE_SIZE = 4
+
+
+class ObservationType(Enum):
+    """What an observation carries (ML-Agents' ``ObservationType``, same values)."""
+
+    DEFAULT = 0
+    GOAL_SIGNAL = 1
+
+
 class ObservationSpec(NamedTuple):
+    """One observation of an agent, as ML-Agents describes it: images are (height, width,
+    channels) with two translationally equivariant dimensions, vectors (size,)."""
+
     shape: tuple[int, ...]
-    dimension_property: tuple[int, ...]
-    observation_type: int
+    dimension_property: tuple[DimensionProperty, ...]
+    observation_type: ObservationType
     name: str
 
 
+class ActionTuple:
+    """Actions for several agents (ML-Agents' ``ActionTuple``): ``continuous`` is (agents,
+    continuous size) float32 and ``discrete`` (agents, branches) int32; whichever is not given
+    is an (agents, 0) array once the other is added."""
+
+    def __init__(
+        self, continuous: np.ndarray | None = None, discrete: np.ndarray | None = None
+    ) -> None:
+        self._continuous: np.ndarray | None = None
+        self._discrete: np.ndarray | None = None
+        if continuous is not None:
+            self.add_continuous(continuous)
+        if discrete is not None:
+            self.add_discrete(discrete)
+
+    @property
+    def continuous(self) -> np.ndarray | None:
+        return self._continuous
+
+    @property
+    def discrete(self) -> np.ndarray | None:
+        return self._discrete
+
+    @property
+    def discrete_dtype(self) -> type[np.int32]:
+        return np.int32
+
+    def add_continuous(self, continuous: np.ndarray) -> None:
+        continuous = np.asarray(continuous, dtype=np.float32)
+        if self._discrete is None:
+            self._discrete = np.zeros((continuous.shape[0], 0), dtype=np.int32)
+        self._continuous = continuous
+
+    def add_discrete(self, discrete: np.ndarray) -> None:
+        discrete = np.asarray(discrete, dtype=np.int32)
+        if self._continuous is None:
+            self._continuous = np.zeros((discrete.shape[0], 0), dtype=np.float32)
+        self._discrete = discrete
+
+
 class ActionSpec(NamedTuple):
+    """The actions of a behaviour (ML-Agents' ``ActionSpec``); overtake's are one discrete
+    branch of :data:`~overtake.protocol.vocabulary.ACTION_COUNT` actions."""
+
     continuous_size: int
     discrete_branches: tuple[int, ...]
+
+    def __str__(self) -> str:
+        return f"Continuous: {self.continuous_size}, Discrete: {self.discrete_branches}"
+
+    def is_discrete(self) -> bool:
+        return self.discrete_size > 0 and self.continuous_size == 0
+
+    def is_continuous(self) -> bool:
+        return self.discrete_size == 0 and self.continuous_size > 0
 
     @property
     def discrete_size(self) -> int:
         return len(self.discrete_branches)
 
     def empty_action(self, n_agents: int) -> ActionTuple:
-        return ActionTuple(discrete=np.zeros((n_agents, self.discrete_size), dtype=np.int32))
+        return ActionTuple(
+            continuous=np.zeros((n_agents, self.continuous_size), dtype=np.float32),
+            discrete=np.zeros((n_agents, self.discrete_size), dtype=np.int32),
+        )
 
     def random_action(self, n_agents: int) -> ActionTuple:
         rng = np.random.default_rng()
+        discrete = np.zeros((n_agents, self.discrete_size), dtype=np.int32)
+        for branch, size in enumerate(self.discrete_branches):
+            discrete[:, branch] = rng.integers(0, size, size=n_agents)
         return ActionTuple(
-            discrete=np.column_stack(
-                [rng.integers(0, b, size=n_agents) for b in self.discrete_branches]
-            ).astype(np.int32)
+            continuous=rng.uniform(-1.0, 1.0, size=(n_agents, self.continuous_size)),
+            discrete=discrete,
         )
+
+    @staticmethod
+    def create_discrete(discrete_branches: tuple[int, ...]) -> ActionSpec:
+        return ActionSpec(0, tuple(discrete_branches))
+
+    # ML-Agents' other constructors, for code that builds specs; no overtake behaviour has
+    # continuous actions, and RemoteEnvironment refuses them.
+    @staticmethod
+    def create_continuous(continuous_size: int) -> ActionSpec:
+        return ActionSpec(continuous_size, ())
+
+    @staticmethod
+    def create_hybrid(continuous_size: int, discrete_branches: tuple[int, ...]) -> ActionSpec:
+        return ActionSpec(continuous_size, tuple(discrete_branches))
 
 
 class BehaviorSpec(NamedTuple):
@@ -59,22 +175,47 @@ class BehaviorSpec(NamedTuple):
     action_spec: ActionSpec
 
 
-class ActionTuple:
-    """Actions for several agents: ``discrete`` is (agents, branches) int32."""
+def mlagents_observation_spec(name: str, shape: tuple[int, ...]) -> ObservationSpec:
+    """The ML-Agents spec of one of overtake's observations: a 2-D one (the grey camera, the
+    LIDAR map, Ho's grid) becomes an image of one channel, as ML-Agents' visual observations
+    are (height, width, channels)."""
+    if len(shape) == 2:
+        shape = (*shape, 1)
+    prop: tuple[DimensionProperty, ...]
+    if len(shape) == 3:
+        prop = (
+            DimensionProperty.TRANSLATIONAL_EQUIVARIANCE,
+            DimensionProperty.TRANSLATIONAL_EQUIVARIANCE,
+            DimensionProperty.NONE,
+        )
+    else:
+        prop = (DimensionProperty.NONE,) * len(shape)
+    return ObservationSpec(
+        shape=tuple(shape),
+        dimension_property=prop,
+        observation_type=ObservationType.DEFAULT,
+        name=name,
+    )
 
-    def __init__(
-        self, continuous: np.ndarray | None = None, discrete: np.ndarray | None = None
-    ) -> None:
-        self.continuous = (
-            np.zeros((0, 0), dtype=np.float32)
-            if continuous is None
-            else np.asarray(continuous, dtype=np.float32)
-        )
-        self.discrete = (
-            np.zeros((0, 0), dtype=np.int32)
-            if discrete is None
-            else np.asarray(discrete, dtype=np.int32)
-        )
+
+def mlagents_observations(batch: np.ndarray) -> np.ndarray:
+    """(agents, ...) of one observation as ML-Agents hands it to trainers: float32, pixels
+    (uint8) scaled to [0, 1] as Unity's cameras are, 2-D observations given a channel axis."""
+    if batch.dtype == np.uint8:
+        out = batch.astype(np.float32) / np.float32(255.0)
+    else:
+        out = batch.astype(np.float32, copy=False)
+    if out.ndim == 3:
+        out = out[..., None]
+    return out
+
+
+def behavior_spec(spec: WireBehaviourSpec) -> BehaviorSpec:
+    """ML-Agents' BehaviorSpec of a behaviour the server described."""
+    return BehaviorSpec(
+        observation_specs=[mlagents_observation_spec(o.name, o.shape) for o in spec.observations],
+        action_spec=ActionSpec.create_discrete(spec.action_branches),
+    )
 
 
 @dataclass(frozen=True)
@@ -82,7 +223,7 @@ class DecisionStep:
     obs: list[np.ndarray]
     reward: float
     agent_id: int
-    action_mask: list[np.ndarray]
+    action_mask: list[np.ndarray] | None
     group_id: int
     group_reward: float
 
@@ -109,6 +250,15 @@ class _AgentSteps(Mapping):
     def agent_id_to_index(self) -> dict[int, int]:
         return self._index
 
+    def _row(self, agent_id: int) -> int:
+        try:
+            return self._index[int(agent_id)]
+        except KeyError:
+            raise KeyError(
+                f"agent_id {agent_id} is not present in {type(self).__name__}; "
+                f"present: {sorted(self._index)}"
+            ) from None
+
     def __len__(self) -> int:
         return len(self.agent_id)
 
@@ -116,8 +266,14 @@ class _AgentSteps(Mapping):
         yield from (int(a) for a in self.agent_id)
 
 
+def _empty_obs(spec: BehaviorSpec) -> list[np.ndarray]:
+    return [np.zeros((0, *o.shape), dtype=np.float32) for o in spec.observation_specs]
+
+
 class DecisionSteps(_AgentSteps):
-    """Agents that need an action: ``obs`` is one (agents, ...) array per observation spec."""
+    """Agents that need an action: ``obs`` is one (agents, ...) array per observation spec;
+    ``action_mask`` one (agents, branch size) bool array per branch, True where the action can
+    NOT be taken (ML-Agents' convention)."""
 
     def __init__(
         self,
@@ -133,14 +289,25 @@ class DecisionSteps(_AgentSteps):
         self._index_agents()
 
     def __getitem__(self, agent_id: int) -> DecisionStep:
-        i = self._index[int(agent_id)]
+        i = self._row(agent_id)
         return DecisionStep(
             obs=[o[i] for o in self.obs],
             reward=float(self.reward[i]),
             agent_id=int(agent_id),
-            action_mask=[m[i] for m in self.action_mask or []],
+            action_mask=None if self.action_mask is None else [m[i] for m in self.action_mask],
             group_id=int(self.group_id[i]),
             group_reward=float(self.group_reward[i]),
+        )
+
+    @staticmethod
+    def empty(spec: BehaviorSpec) -> DecisionSteps:
+        return DecisionSteps(
+            obs=_empty_obs(spec),
+            reward=np.zeros(0, dtype=np.float32),
+            agent_id=np.zeros(0, dtype=np.int32),
+            action_mask=None,
+            group_id=np.zeros(0, dtype=np.int32),
+            group_reward=np.zeros(0, dtype=np.float32),
         )
 
 
@@ -161,7 +328,7 @@ class TerminalSteps(_AgentSteps):
         self._index_agents()
 
     def __getitem__(self, agent_id: int) -> TerminalStep:
-        i = self._index[int(agent_id)]
+        i = self._row(agent_id)
         return TerminalStep(
             obs=[o[i] for o in self.obs],
             reward=float(self.reward[i]),
@@ -170,6 +337,25 @@ class TerminalSteps(_AgentSteps):
             group_id=int(self.group_id[i]),
             group_reward=float(self.group_reward[i]),
         )
+
+    @staticmethod
+    def empty(spec: BehaviorSpec) -> TerminalSteps:
+        return TerminalSteps(
+            obs=_empty_obs(spec),
+            reward=np.zeros(0, dtype=np.float32),
+            interrupted=np.zeros(0, dtype=bool),
+            agent_id=np.zeros(0, dtype=np.int32),
+            group_id=np.zeros(0, dtype=np.int32),
+            group_reward=np.zeros(0, dtype=np.float32),
+        )
+
+
+class _NoSideChannels:
+    """Stands where a ``UnityEnvironment`` keeps its side-channel manager: ML-Agents'
+    PettingZoo wrappers read ``env._side_channel_manager._side_channels_dict`` to list the
+    channels. overtake has none (simulator settings are ``overrides`` at open)."""
+
+    _side_channels_dict: dict[Any, Any] = {}  # noqa: RUF012 - never written
 
 
 class RemoteEnvironment:
@@ -193,7 +379,15 @@ class RemoteEnvironment:
         seed: int | None = None,
         join: int | None = None,
         config: RemoteConfig | None = None,
+        side_channels: Sequence[Any] | None = None,
     ) -> None:
+        if side_channels:
+            raise UnsupportedRequest(
+                "overtake has no side channels; got "
+                f"{[type(c).__name__ for c in side_channels]}. Simulator settings are "
+                "overrides given at open (overrides={'traffic.density': 'heavy'}), the seed "
+                "is reset(seed=...)"
+            )
         if config is None:
             config = RemoteConfig.from_connect(connect)
         elif connect is not None:
@@ -222,17 +416,11 @@ class RemoteEnvironment:
         assert spec is not None
         self.behavior_name = spec.name
         self._obs_names = [o.name for o in spec.observations]
-        self._spec = BehaviorSpec(
-            observation_specs=[
-                ObservationSpec(
-                    shape=o.shape, dimension_property=(), observation_type=0, name=o.name
-                )
-                for o in spec.observations
-            ],
-            action_spec=ActionSpec(continuous_size=0, discrete_branches=spec.action_branches),
-        )
+        self._spec = behavior_spec(spec)
+        self._side_channel_manager = _NoSideChannels()
         self._actions: dict[int, int] = {}
         self._steps: Steps = self.group.last  # type: ignore[assignment]
+        self._closed = False
 
     # --- BaseEnv ------------------------------------------------------------------------------
 
@@ -250,6 +438,8 @@ class RemoteEnvironment:
             raise KeyError(
                 f"unknown behaviour {behavior_name!r}; this environment has {self.behavior_name!r}"
             )
+        if self._closed:
+            raise RuntimeError(f"the environment of behaviour {behavior_name!r} is closed")
 
     def get_steps(self, behavior_name: str) -> tuple[DecisionSteps, TerminalSteps]:
         self._check_name(behavior_name)
@@ -258,7 +448,7 @@ class RemoteEnvironment:
         deciding = ~ended
         group = np.zeros(len(s.agents), dtype=np.int32)
         decision = DecisionSteps(
-            obs=[s.observations[name][deciding] for name in self._obs_names],
+            obs=[mlagents_observations(s.observations[name][deciding]) for name in self._obs_names],
             reward=s.reward[deciding].astype(np.float32),
             agent_id=s.agents[deciding],
             action_mask=[s.action_mask[deciding] == 0],
@@ -266,7 +456,7 @@ class RemoteEnvironment:
             group_reward=np.zeros(int(deciding.sum()), dtype=np.float32),
         )
         terminal = TerminalSteps(
-            obs=[s.observations[name][ended] for name in self._obs_names],
+            obs=[mlagents_observations(s.observations[name][ended]) for name in self._obs_names],
             reward=s.reward[ended].astype(np.float32),
             interrupted=s.truncated[ended],
             agent_id=s.agents[ended],
@@ -276,29 +466,36 @@ class RemoteEnvironment:
         return decision, terminal
 
     def set_actions(self, behavior_name: str, action: Any) -> None:
-        """Actions for every agent in the current DecisionSteps, in their order."""
+        """Actions for every agent in the current DecisionSteps, in their order: an
+        ActionTuple (overtake's or ML-Agents' own) with ``discrete`` of shape (agents, 1), or
+        a plain array of (agents,) or (agents, 1)."""
         self._check_name(behavior_name)
-        decision, _ = self.get_steps(behavior_name)
-        values = getattr(action, "discrete", action)
-        values = np.asarray(values)
+        deciding = self._steps.agents[~self._steps.ended]
+        values = np.asarray(_discrete_part(action))
         if values.ndim == 2 and values.shape[1] == 1:
             values = values[:, 0]
-        if values.shape != (len(decision),):
+        if values.shape != (len(deciding),):
             raise ValueError(
-                f"expected {len(decision)} discrete action(s) (one per agent in "
-                f"DecisionSteps, shape ({len(decision)}, 1)), got shape "
-                f"{np.shape(getattr(action, 'discrete', action))}"
+                f"expected {len(deciding)} discrete action(s) (one per agent in "
+                f"DecisionSteps, shape ({len(deciding)}, 1)), got shape "
+                f"{np.shape(_discrete_part(action))}"
             )
-        self._actions = {}
-        for agent, value in zip(decision.agent_id, values):
-            self.set_action_for_agent(behavior_name, int(agent), int(value))
+        actions = {}
+        for agent, value in zip(deciding, values):
+            actions[int(agent)] = _checked_action(value)
+        self._actions = actions
 
     def set_action_for_agent(self, behavior_name: str, agent_id: int, action: Any) -> None:
+        """The action of one agent in the current DecisionSteps: an ActionTuple of one row, or
+        a number."""
         self._check_name(behavior_name)
-        value = getattr(action, "discrete", action)
-        value = int(np.asarray(value).reshape(-1)[0])
-        if not 0 <= value < ACTION_COUNT:
-            raise ValueError(f"action must be in [0, {ACTION_COUNT}), got {value}")
+        values = np.asarray(_discrete_part(action)).reshape(-1)
+        if values.size != 1:
+            raise ValueError(
+                f"expected one discrete action for agent {agent_id} (an ActionTuple of shape "
+                f"(1, 1) or a number), got shape {np.shape(_discrete_part(action))}"
+            )
+        value = _checked_action(values[0])
         if agent_id not in set(int(a) for a in self._steps.agents[~self._steps.ended]):
             raise KeyError(
                 f"agent {agent_id} is not in DecisionSteps; agents deciding now: "
@@ -322,6 +519,11 @@ class RemoteEnvironment:
         self._actions = {}
 
     def close(self) -> None:
+        """Free the arenas and leave the network; again is a no-op (ML-Agents' PettingZoo
+        wrappers close on garbage collection and at exit as well)."""
+        if self._closed:
+            return
+        self._closed = True
         try:
             self.group.close()
         finally:
@@ -332,3 +534,47 @@ class RemoteEnvironment:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _discrete_part(action: Any) -> Any:
+    """The discrete actions of an ActionTuple (any class with ``continuous`` and ``discrete``,
+    ML-Agents' included) or of a plain array; continuous actions are refused."""
+    if not hasattr(action, "discrete"):
+        return action
+    continuous = getattr(action, "continuous", None)
+    if continuous is not None and np.size(continuous) > 0:
+        raise UnsupportedRequest(
+            f"overtake's actions are discrete only (one branch of {ACTION_COUNT}: keep, "
+            f"accelerate, decelerate, left, right); got continuous actions of shape "
+            f"{np.shape(continuous)}"
+        )
+    if action.discrete is None:
+        raise ValueError("the ActionTuple holds no discrete actions")
+    return action.discrete
+
+
+def _checked_action(value: Any) -> int:
+    if not 0 <= int(value) < ACTION_COUNT:
+        raise ValueError(f"action must be in [0, {ACTION_COUNT}), got {int(value)}")
+    return int(value)
+
+
+def _register_with_ml_agents() -> None:
+    """Make ML-Agents' own ``isinstance`` checks see overtake's steps as theirs.
+
+    ``UnityToGymWrapper`` tells an ended episode by ``isinstance(steps, TerminalSteps)`` with
+    ML-Agents' class, which a look-alike fails. ML-Agents' step classes are
+    ``collections.abc.Mapping`` ABCs and ``BaseEnv`` an ABC, so where mlagents-envs is
+    installed ours are registered as their virtual subclasses (no ML-Agents code changes, no
+    dependency where it is absent; importing its ``base_env`` costs about 2 ms).
+    """
+    try:
+        from mlagents_envs import base_env
+    except ImportError:
+        return
+    base_env.DecisionSteps.register(DecisionSteps)
+    base_env.TerminalSteps.register(TerminalSteps)
+    base_env.BaseEnv.register(RemoteEnvironment)
+
+
+_register_with_ml_agents()

@@ -6,4 +6,7 @@ scripts/setup.sh dev
 # Xvfb and software Vulkan where they can be installed: one test draws a recording with Rerun's
 # own viewer (it skips, saying why, where they are missing).
 scripts/setup-viewer.sh
+# ML-Agents' Python API: tests/test_mlagents.py runs ML-Agents' own wrappers on overtake (it
+# skips, saying why, where the API cannot be installed).
+scripts/setup-mlagents.sh || echo "mlagents-envs could not be installed: tests/test_mlagents.py will skip" >&2
 exec .venv/bin/python -m pytest "$@"

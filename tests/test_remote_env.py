@@ -18,6 +18,7 @@ import pytest
 
 import overtake.client  # noqa: F401  (registers the environments)
 from overtake.client import ActionTuple, DecisionSteps, RemoteEnvironment, TerminalSteps
+from overtake.client.environment import DimensionProperty, ObservationType, UnsupportedRequest
 from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, codec, keys
 from overtake.protocol.errors import ConnectError, ServerLost
 from overtake.protocol.messages import WorldFrame
@@ -35,6 +36,14 @@ from remote_support import (
 
 SHORT = {"episode.max_decisions": 60}
 EMPTY_ROAD = {"episode.max_decisions": 20, "traffic.vehicle_count": 0}
+
+
+def as_mlagents(batch: np.ndarray) -> np.ndarray:
+    """An in-process observation batch as ML-Agents delivers it: float32, pixels in [0, 1],
+    2-D observations with a channel axis (written out here, not taken from the client)."""
+    out = batch.astype(np.float32) / np.float32(255.0) if batch.dtype == np.uint8 else batch
+    out = out.astype(np.float32)
+    return out[..., None] if out.ndim == 3 else out
 
 
 def assert_same(a, b, where: str = "value") -> None:
@@ -171,11 +180,20 @@ def test_remote_environment_follows_ml_agents_base_env(start_server):
         ((name, spec),) = env.behavior_specs.items()
         local_space = local.single_observation_space
         assert [o.name for o in spec.observation_specs] == list(local_space.spaces)
+        # ML-Agents' shapes: the grey camera (80, 80) is an image of one channel.
         assert [o.shape for o in spec.observation_specs] == [
-            local_space[k].shape for k in local_space.spaces
+            (*local_space[k].shape, 1) if len(local_space[k].shape) == 2 else local_space[k].shape
+            for k in local_space.spaces
         ]
+        camera = next(o for o in spec.observation_specs if o.name == "camera")
+        assert camera.dimension_property[:2] == (
+            DimensionProperty.TRANSLATIONAL_EQUIVARIANCE,
+            DimensionProperty.TRANSLATIONAL_EQUIVARIANCE,
+        )
+        assert all(o.observation_type == ObservationType.DEFAULT for o in spec.observation_specs)
         assert spec.action_spec.continuous_size == 0
         assert spec.action_spec.discrete_branches == (5,)
+        assert spec.action_spec.is_discrete() and not spec.action_spec.is_continuous()
 
         local_obs, local_info = local.reset(seed=5)  # the remote arenas opened with seed 5 + i
 
@@ -186,7 +204,7 @@ def test_remote_environment_follows_ml_agents_base_env(start_server):
             assert len(decision.obs) == len(spec.observation_specs)
             for obs, o_spec in zip(decision.obs, spec.observation_specs):
                 assert obs.shape == (len(agents),) + o_spec.shape
-                assert_same(obs, local_obs[o_spec.name][agents], o_spec.name)
+                assert_same(obs, as_mlagents(local_obs[o_spec.name][agents]), o_spec.name)
             (mask,) = decision.action_mask
             assert mask.dtype == bool
             # ML-Agents' mask: True marks an action that can NOT be taken.
@@ -203,6 +221,12 @@ def test_remote_environment_follows_ml_agents_base_env(start_server):
 
         with pytest.raises(KeyError):
             env.get_steps("no-such-behaviour")
+        with pytest.raises(KeyError, match="not present in DecisionSteps"):
+            decision[7]
+        with pytest.raises(UnsupportedRequest, match="discrete only"):
+            env.set_actions(
+                name, ActionTuple(continuous=np.zeros((2, 2)), discrete=np.zeros((2, 1)))
+            )
         with pytest.raises(ValueError):
             env.set_actions(name, ActionTuple(discrete=np.zeros((3, 1), dtype=np.int32)))
         with pytest.raises(ValueError):
@@ -242,7 +266,7 @@ def test_remote_environment_follows_ml_agents_base_env(start_server):
                 assert terminal[0].interrupted and terminal[1].agent_id == 1
                 assert_same(terminal.reward, local_reward.astype(np.float32), "reward")
                 for obs, o_spec in zip(terminal.obs, spec.observation_specs):
-                    assert_same(obs, local_obs[o_spec.name], o_spec.name)
+                    assert_same(obs, as_mlagents(local_obs[o_spec.name]), o_spec.name)
             else:
                 check_decisions(decision, [0, 1])
                 assert_same(decision.reward, local_reward.astype(np.float32), "reward")
