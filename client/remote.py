@@ -25,6 +25,7 @@ import socket
 import threading
 import time
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
@@ -419,6 +420,8 @@ class ArenaGroup:
     _pending_restart: Steps | None = field(default=None, repr=False)
     restarts: int = 0
     epoch: int = 0  # the server's epoch (Connection.epoch) when the group was opened
+    server_minor: int = 2
+    """The server's minor protocol version (Opened.server_minor; a 1.2 server says none)."""
     trainer_step: int = -1
     """Sent with every Actions (-1: not given): the trainer's step count, which the server
     repeats in its world frames so that recordings of the road share the trainer's timeline."""
@@ -463,6 +466,7 @@ class ArenaGroup:
         self.server, self.group_id, self.arena_ids = opened.server, opened.group, opened.arenas
         conn.track(self.server, self.group_id)
         self.ticket, self.spec = opened.ticket, opened.spec
+        self.server_minor = opened.server_minor
         self.round = opened.steps.round
         self.last = opened.steps
 
@@ -500,8 +504,11 @@ class ArenaGroup:
         self.last = steps
         return steps
 
-    def step(self, agents: np.ndarray, actions: np.ndarray) -> Steps:
-        """Send our actions for this round and wait for the next round's Steps."""
+    def step(self, agents: np.ndarray, actions: np.ndarray, retire: Sequence[int] = ()) -> Steps:
+        """Send our actions for this round and wait for the next round's Steps.
+
+        ``retire``: agent ids whose cars leave the road before this round and stay off until
+        their arena is reset (protocol 1.3; see :attr:`server_minor`)."""
         if self._pending_restart is not None:
             # The server was restarted: the step after the broken episodes starts the new ones.
             pending, self._pending_restart = self._pending_restart, None
@@ -527,6 +534,7 @@ class ArenaGroup:
                         agents=np.asarray(agents, dtype=np.int32),
                         actions=np.asarray(actions, dtype=np.int64),
                         trainer_step=self.trainer_step,
+                        retire=np.asarray(retire, dtype=np.int32) if len(retire) else None,
                     ),
                 )
                 steps = conn.next_steps(self.server, self.group_id, self.round + 1, self.epoch)

@@ -56,6 +56,7 @@ class _Remote:
         overrides: Mapping[str, Scalar] | None,
         arenas: int,
         seed: int | None,
+        agents_per_arena: int = 1,
     ) -> None:
         if remote is None:
             remote = RemoteConfig.from_connect(
@@ -72,8 +73,8 @@ class _Remote:
                     preset=preset,
                     overrides=dict(overrides or {}),
                     arenas=arenas,
-                    agents_per_arena=1,
-                    claim=1,
+                    agents_per_arena=agents_per_arena,
+                    claim=agents_per_arena,
                     seed=seed,
                 ),
             )

@@ -101,3 +101,60 @@ def check_actions(actions: Any, count: int, *, single: bool) -> np.ndarray:
             f"got {values.tolist()}"
         )
     return values.astype(np.int64)
+
+
+# --- PettingZoo's Parallel API: several learning cars on one road -----------------------------
+
+
+def agent_names(count: int) -> list[str]:
+    """The PettingZoo agent names of a road with ``count`` learning cars: car_0, car_1, ..."""
+    return [f"car_{i}" for i in range(count)]
+
+
+def check_parallel_actions(actions: Any, live: list[str], possible: list[str]) -> list[int]:
+    """One action in [0, ACTION_COUNT) for each of the ``live`` agents, in their order.
+
+    Missing live agents, agents that are not live (finished, or unknown) and actions that are
+    not integers in range are refused, naming the agents."""
+    if not hasattr(actions, "keys"):
+        raise ValueError(
+            f"expected a dict of actions keyed by agent (live: {live}), "
+            f"got {type(actions).__name__}"
+        )
+    unknown = sorted(set(actions) - set(live), key=str)
+    missing = [a for a in live if a not in actions]
+    if unknown or missing:
+        problems = []
+        if missing:
+            problems.append(f"missing {missing}")
+        if unknown:
+            finished = [a for a in unknown if a in possible]
+            problems.append(
+                f"got actions for {unknown}"
+                + (f" (finished this episode: {finished})" if finished else "")
+            )
+        raise ValueError(f"expected one action for each live agent {live}; " + "; ".join(problems))
+    chosen = []
+    for agent in live:
+        value = actions[agent]
+        if not _is_integer(value):
+            raise ValueError(
+                f"action of {agent!r} must be an integer in [0, {ACTION_COUNT}) "
+                f"({', '.join(ACTION_NAMES)}), got {value!r}"
+            )
+        if not 0 <= int(value) < ACTION_COUNT:
+            raise ValueError(
+                f"action of {agent!r} must be in [0, {ACTION_COUNT}) "
+                f"({', '.join(ACTION_NAMES)}), got {int(value)}"
+            )
+        chosen.append(int(value))
+    return chosen
+
+
+def _is_integer(value: Any) -> bool:
+    """An int, a numpy integer or a 0-d integer array (what action spaces sample); not a bool."""
+    if isinstance(value, (bool, np.bool_)):
+        return False
+    if isinstance(value, (int, np.integer)):
+        return True
+    return isinstance(value, np.ndarray) and value.shape == () and value.dtype.kind in "iu"

@@ -30,7 +30,7 @@ from .vocabulary import ACTION_COUNT, ACTION_NAMES
 
 # The wire contract: protocol version (major, minor). A peer of another major version is
 # refused; a newer minor may add optional fields, which an older peer ignores.
-PROTOCOL_VERSION: tuple[int, int] = (1, 2)
+PROTOCOL_VERSION: tuple[int, int] = (1, 3)
 PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
     (
         "1.0",
@@ -48,6 +48,13 @@ PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
         "a spectator's recording shares the trainers' step timeline; world frames carry each "
         "vehicle's half length and width and each agent's heading. Older peers' messages decode "
         "with -1 and None.",
+    ),
+    (
+        "1.3",
+        "Actions may take some of the trainer's cars off the road until their arena is reset "
+        "(retire: PettingZoo's finished agents); Opened says the server's minor version "
+        "(server_minor), so a trainer can tell a server that would ignore retire. A 1.2 "
+        "peer's Actions decode with no retired cars, its Opened with server_minor 2.",
     ),
 )
 
@@ -362,6 +369,8 @@ class Opened(Message):
     ticket: bytes  # proves later requests come from this trainer
     spec: BehaviourSpec
     steps: Steps  # this trainer's agents and their current observations
+    # The minor protocol version the server speaks; a server of 1.2 or older sends none (2).
+    server_minor: int = field(default=2, metadata={"since": 3})
 
     def check(self) -> None:
         check_name("server", self.server)
@@ -413,9 +422,21 @@ class Actions(Message):
     # The trainer's count of environment steps when it chose these actions (-1: not given):
     # world frames repeat it so that recordings of the road share the trainer's timeline.
     trainer_step: int = field(default=-1, metadata={"since": 2})
+    # int32 (m,), distinct, none of them in ``agents``: cars of this trainer that leave the
+    # road before this round and stay off (not restarted) until their arena is reset.
+    retire: np.ndarray | None = field(default=None, metadata={"since": 3})
 
     def check(self) -> None:
         check_name("trainer", self.trainer)
+        if self.retire is not None:
+            check_array("retire", self.retire, "int32", (None,))
+            if np.unique(self.retire).size != self.retire.size:
+                raise DecodeError(f"retire must be distinct, got {self.retire.tolist()}")
+            both = np.intersect1d(self.retire, self.agents)
+            if both.size:
+                raise DecodeError(
+                    f"agents {both.tolist()} both act and retire; a retired car takes no action"
+                )
         if self.trainer_step < -1:
             raise DecodeError(
                 f"trainer_step must be >= 0 (or -1: not given), got {self.trainer_step}"

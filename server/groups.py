@@ -112,6 +112,8 @@ class Group:
     trainer_step: int = -1
     # (A, N) per agent slot: whose episode ended last round, and what it got then.
     ended: np.ndarray = field(init=False)
+    # (A, N): cars their trainer took off the road (Actions.retire) until it resets the arena.
+    retired: np.ndarray = field(init=False)
     last_reward: np.ndarray = field(init=False)
     last_applied: np.ndarray = field(init=False)
     last_terms: np.ndarray = field(init=False)  # (A, N, reward terms)
@@ -119,6 +121,7 @@ class Group:
     def __post_init__(self) -> None:
         shape = (self.sim.num_arenas, self.sim.agents)
         self.ended = np.zeros(shape, dtype=bool)
+        self.retired = np.zeros(shape, dtype=bool)
         self.last_reward = np.zeros(shape)
         self.last_applied = np.full(shape, -1, dtype=np.int64)
         self.last_terms = np.zeros(shape + (len(self.sim.reward_terms),))
@@ -200,6 +203,7 @@ class Group:
         else:
             self.sim.respawn_agents(arena_index, slots)
         self.ended[arena_index, slots] = False
+        self.retired[arena_index, slots] = False
         self.last_reward[arena_index, slots] = 0.0
         self.last_applied[arena_index, slots] = -1
         self.last_terms[arena_index, slots] = 0.0
@@ -213,6 +217,7 @@ class Group:
             self.sim.remove_agents(int(arena), [int(slot)])
         # A car that ended its episode just before its trainer left must not come back.
         self.ended &= ~member.slots
+        self.retired &= ~member.slots
         self.last_reward[member.slots] = 0.0
         self.last_applied[member.slots] = -1
         self.last_terms[member.slots] = 0.0
@@ -265,6 +270,20 @@ class Group:
                 f"{actions.trainer!r} owns "
                 f"{np.flatnonzero(member.slots).tolist()}"
             )
+        if actions.retire is not None and actions.retire.size:
+            retire = actions.retire
+            if retire.min() < 0 or retire.max() >= total:
+                raise errors.BadAction(
+                    f"agent ids in group {self.group_id} are 0..{total - 1}, asked to retire "
+                    f"{retire[(retire < 0) | (retire >= total)].tolist()}"
+                )
+            theirs = ~member.slots.reshape(-1)[retire]
+            if theirs.any():
+                raise errors.NotOwner(
+                    f"agents {retire[theirs].tolist()} of group {self.group_id} belong to "
+                    f"another trainer or to nobody; {actions.trainer!r} may retire only its "
+                    f"own, {np.flatnonzero(member.slots).tolist()}"
+                )
         member.pending = actions
         if actions.trainer_step >= 0:
             self.trainer_step = actions.trainer_step
@@ -286,13 +305,16 @@ class Group:
         late = np.zeros((arenas, n), dtype=bool)
         acted = np.zeros((arenas, n), dtype=bool)
         for member in self.members.values():
+            if member.pending is not None and member.pending.retire is not None:
+                self._retire(member.pending.retire)
+        for member in self.members.values():
             if member.pending is not None:
                 actions.reshape(-1)[member.pending.agents] = member.pending.actions
                 acted.reshape(-1)[member.pending.agents] = True
                 member.pending = None
             # Whoever has no action (its trainer late, or left it out) keeps its lane.
             late |= member.slots & ~acted
-        late &= ~self.ended
+        late &= ~self.ended & ~self.retired
         self.late_agents += int(late.sum())
 
         result = autoreset_round(sim, actions, self.ended & self.owned(), sim.agents_present())
@@ -315,6 +337,17 @@ class Group:
         return self._steps_for_members(
             result.reward, result.terminated, result.truncated, result.action_applied, late, terms
         )
+
+    def _retire(self, agents: np.ndarray) -> None:
+        """Take cars off the road before a round; they stay off, not restarted, until their
+        arena is reset (a car that just ended is not restarted either)."""
+        slots = np.zeros(self.shape, dtype=bool)
+        slots.reshape(-1)[agents] = True
+        fresh = slots & ~self.retired
+        for arena in np.flatnonzero(fresh.any(axis=1)):
+            self.sim.remove_agents(int(arena), np.flatnonzero(fresh[arena]))
+        self.retired |= slots
+        self.ended &= ~slots
 
     def reset(
         self,
@@ -346,6 +379,7 @@ class Group:
             else:
                 self.sim.respawn_agents(arena, np.flatnonzero(mine))
             self.ended[arena, mine] = False
+            self.retired[arena, mine] = False
             self.last_reward[arena, mine] = 0.0
             self.last_applied[arena, mine] = -1
             self.last_terms[arena, mine] = 0.0

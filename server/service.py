@@ -27,6 +27,7 @@ import zenoh
 
 from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import (
+    PROTOCOL_VERSION,
     Ack,
     Actions,
     CloseRequest,
@@ -435,6 +436,7 @@ class SimulatorServer:
             ticket=member.ticket,
             spec=group.spec,
             steps=group.current_steps(trainer),
+            server_minor=PROTOCOL_VERSION[1],
         )
 
     def _group(self, group_id: int) -> Group:

@@ -1,5 +1,7 @@
 """Arena groups without the network: membership, rounds, deadlines, shared roads, resets."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -232,3 +234,55 @@ def test_respawn_takes_the_nearest_free_spot_over_all_lanes(seed):
     # generator draws, b lands 30 m back rather than farther back in the first lane tried.
     st = group.sim.state
     assert st.x_m[0, 1] == st.x_m[0, 0] - 30.0
+
+
+def _retiring(group: Group, trainer: str, agents, actions, retire) -> Actions:
+    return dataclasses.replace(
+        _actions(group, trainer, agents, actions), retire=np.asarray(retire, dtype=np.int32)
+    )
+
+
+def test_a_retired_car_stays_off_the_road_and_is_not_late_until_its_arena_resets():
+    group = _shared(agents=3)
+    group.claim("a", 0, 1, fresh=False)  # a drives cars 0 and 1
+    group.claim("b", 0, 1, fresh=False)  # b drives car 2
+    # a retires car 1: it leaves before the round and is not restarted or counted late.
+    group.accept(_retiring(group, "a", [0], [1], [1]), deadline_s=1.0)
+    group.accept(_actions(group, "b", [2], [0]), deadline_s=1.0)
+    steps = group.step()
+    assert group.sim.agents_present()[0].tolist() == [True, False, True]
+    assert steps["a"].late.tolist() == [False, False] and group.late_agents == 0
+    assert steps["a"].action_applied.tolist()[1] == -1 and steps["a"].reward[1] == 0.0
+    for _ in range(3):
+        group.accept(_actions(group, "a", [0], [0]), deadline_s=1.0)
+        group.accept(_actions(group, "b", [2], [0]), deadline_s=1.0)
+        group.step()
+    assert group.sim.agents_present()[0].tolist() == [True, False, True]
+    assert group.late_agents == 0
+    # Retiring another trainer's car, or a car of no group slot, is refused by name.
+    with pytest.raises(errors.NotOwner, match=r"agents \[2\] .* may retire only its own"):
+        group.accept(_retiring(group, "a", [0], [0], [2]), deadline_s=1.0)
+    with pytest.raises(errors.BadAction, match=r"asked to retire \[9\]"):
+        group.accept(_retiring(group, "a", [0], [0], [9]), deadline_s=1.0)
+    # a's reset (shared road: a respawn) brings its retired car back.
+    group.reset("a", group.members["a"].ticket, (0,), (None,))
+    assert group.sim.agents_present()[0].tolist() == [True, True, True]
+    assert not group.retired.any()
+
+
+def test_a_car_retired_just_after_its_episode_ended_is_not_restarted():
+    group = _shared(agents=2, overrides=QUIET)
+    group.claim("a", 0, 1, fresh=False)
+    st = group.sim.state
+    # Car 1 right behind car 0, much faster: it rear-ends car 0 (both of a's cars end).
+    st.lane[0, :2] = st.target_lane[0, :2] = 1
+    st.y_m[0, :2] = 1.5 * group.sim.road.lane_width_m
+    st.x_m[0, :2] = [10.0, 5.0]
+    st.speed_mps[0, :2] = [10.0, 30.0]
+    group.accept(_actions(group, "a", [0, 1], [0, 0]), deadline_s=1.0)
+    assert group.step()["a"].terminated.tolist() == [True, True]
+    group.accept(_retiring(group, "a", [0], [0], [1]), deadline_s=1.0)
+    steps = group.step()
+    # Car 0 restarted (Gymnasium's autoreset); car 1 left instead.
+    assert group.sim.agents_present()[0].tolist() == [True, False]
+    assert not steps["a"].ended.any() and not group.ended.any()

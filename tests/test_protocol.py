@@ -1176,3 +1176,35 @@ def test_bad_step_counts_sizes_and_headings_are_refused_saying_what_came():
         _world_frame(half_length_m=np.ones(3, np.float32), half_width_m=np.ones(2, np.float32))
     with pytest.raises(DecodeError, match=r"agent_heading_rad must have shape \(1\), got \(3,\)"):
         _world_frame(agent_heading_rad=np.zeros(3, np.float32))
+
+
+def test_retired_cars_and_the_server_minor_of_a_1_2_peer_decode_as_none_and_2():
+    # 1.3 added Actions.retire (cars leaving the road until their arena resets) and
+    # Opened.server_minor: a 1.2 peer's messages decode with no retired cars and minor 2...
+    actions = dataclasses.replace(_one_action(7), retire=np.array([4, 2], np.int32))
+    assert decode(encode(actions)).retire.tolist() == [4, 2]
+    *_, body = msgpack.unpackb(encode(actions), raw=False)
+    body.pop("retire")
+    assert decode(pack([MAJOR, 2, "actions", body])).retire is None
+    opened = dataclasses.replace(sample_opened(), server_minor=MINOR)
+    assert decode(encode(opened)).server_minor == MINOR
+    *_, opened_body = msgpack.unpackb(encode(opened), raw=False)
+    opened_body.pop("server_minor")
+    assert decode(pack([MAJOR, 2, "opened", opened_body])).server_minor == 2
+    # ...while a peer of this minor version must send them.
+    with pytest.raises(DecodeError, match="retire"):
+        decode(pack([MAJOR, MINOR, "actions", body]))
+
+
+@pytest.mark.parametrize(
+    ("retire", "expected"),
+    [
+        (np.array([0], np.int32), r"agents \[0\] both act and retire"),
+        (np.array([2, 2], np.int32), r"retire must be distinct, got \[2, 2\]"),
+        (np.array([2], np.int64), "retire must be int32, got int64"),
+        (np.array([[2]], np.int32), r"retire must have shape \(n\), got \(1, 1\)"),
+    ],
+)
+def test_bad_retire_lists_are_refused_saying_what_came(retire, expected):
+    with pytest.raises(DecodeError, match=expected):
+        dataclasses.replace(_one_action(7), retire=retire)
