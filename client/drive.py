@@ -11,7 +11,7 @@ import json
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -20,6 +20,7 @@ from overtake.protocol.vocabulary import METRIC_FIELDS
 
 from .commands import UsageError, run_command
 from .episodes import (
+    RealTime,
     baseline_policy,
     make_vector_env,
     metric_summary,
@@ -34,8 +35,16 @@ class DriveConfig:
     """Drive a baseline policy through episodes of a preset and report the metrics."""
 
     policy: Literal["rule", "random", "idle", "planner"] = "rule"
-    """which driver acts"""
-    preset: str = "min2018"
+    """which driver acts (unless --onnx is given)"""
+    onnx: Path | None = None
+    """drive a policy exported by overtake-export (ONNX Runtime, no PyTorch) instead of
+    --policy"""
+    realtime: bool = False
+    """advance the simulator on the wall clock, one decision period (0.4 s for min2018) per
+    decision: an action not ready in time is late (the car keeps its lane and speed), and the
+    latency of every decision is reported"""
+    preset: str | None = None
+    """the simulator preset; None: the ONNX model's own (--onnx), else min2018"""
     episodes: int = 4
     """episodes to drive, all at once (one arena each)"""
     seed: int = 0
@@ -59,36 +68,64 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
     """Drive the episodes; returns {metric: {"mean": .., "std": ..}} and prints the table."""
     if config.episodes < 1:
         raise UsageError(f"--episodes must be >= 1, got {config.episodes}")
+    preset = config.preset or "min2018"
+    if config.preset is None and config.onnx is not None:
+        from .onnx_policy import read_metadata
+
+        preset = read_metadata(config.onnx)["preset"]
     overrides = parse_overrides(config.set)
     if config.traffic is not None:
         overrides["traffic.density"] = config.traffic
     if config.max_decisions is not None:
         overrides["episode.max_decisions"] = config.max_decisions
-    envs = make_vector_env(
-        config.preset, overrides, config.episodes, config.connect, config.security
-    )
+    envs = make_vector_env(preset, overrides, config.episodes, config.connect, config.security)
+    clock = RealTime(period_s=envs.unwrapped.decision_period_s) if config.realtime else None
     try:
-        act = baseline_policy(
-            config.policy, envs.unwrapped.sim_config, config.seed, config.episodes, envs
+        if config.onnx is not None:
+            from .onnx_policy import OnnxPolicy
+
+            act: Any = OnnxPolicy(
+                config.onnx, config.episodes, envs.single_observation_space, preset
+            )
+        else:
+            act = baseline_policy(
+                config.policy, envs.unwrapped.sim_config, config.seed, config.episodes, envs
+            )
+        rows, decisions, elapsed = run_episodes(
+            envs, act, config.episodes, config.seed, realtime=clock
         )
-        rows, decisions, elapsed = run_episodes(envs, act, config.episodes, config.seed)
     finally:
         envs.close()
 
     table = metric_table(rows)
     summary = metric_summary(rows)
-    _print_table(config, table, summary, decisions, elapsed)
+    _print_table(config, preset, table, summary, decisions, elapsed)
+    timing: dict[str, float] = {}
+    if clock is not None:
+        timing = {
+            "period_s": clock.period_s,
+            "decisions": clock.decisions,
+            "late": clock.late,
+            "latency_p50_ms": clock.percentile_ms(50),
+            "latency_p99_ms": clock.percentile_ms(99),
+        }
+        print(
+            f"real time, one decision every {clock.period_s:g} s: {clock.late} of "
+            f"{clock.decisions} decisions late; decision latency p50 "
+            f"{timing['latency_p50_ms']:.2f} ms, p99 {timing['latency_p99_ms']:.2f} ms"
+        )
     if config.json_out is not None:
         config.json_out.parent.mkdir(parents=True, exist_ok=True)
         config.json_out.write_text(
             json.dumps(
                 {
-                    "policy": config.policy,
-                    "preset": config.preset,
+                    "policy": _policy_name(config),
+                    "preset": preset,
                     "seed": config.seed,
                     "overrides": overrides,
                     "episodes": [dict(zip(METRIC_FIELDS, r)) for r in table.tolist()],
                     "summary": summary,
+                    "realtime": timing or None,
                 },
                 indent=2,
             )
@@ -96,8 +133,13 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
     return summary
 
 
+def _policy_name(config: DriveConfig) -> str:
+    return f"onnx:{config.onnx}" if config.onnx is not None else config.policy
+
+
 def _print_table(
     config: DriveConfig,
+    preset: str,
     table: np.ndarray,
     summary: dict[str, dict[str, float]],
     decisions: int,
@@ -118,7 +160,7 @@ def _print_table(
     line = "  ".join(h.rjust(w) for h, w in zip(headers, widths))
     where = "in-process" if config.connect is None else f"on {config.connect}"
     print(
-        f"policy={config.policy} preset={config.preset} episodes={config.episodes} "
+        f"policy={_policy_name(config)} preset={preset} episodes={config.episodes} "
         f"seed={config.seed} ({where})"
     )
     print(line)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
 
 import gymnasium as gym
@@ -96,14 +97,37 @@ def metric_summary(rows: list[dict[str, float]]) -> dict[str, dict[str, float]]:
     }
 
 
+@dataclass
+class RealTime:
+    """The wall clock that :func:`run_episodes` drives the simulator on, and what it saw.
+
+    The simulator advances every ``period_s`` of wall time, as a car on the road would: the
+    observation of one decision arrives at a tick, and the action must be ready by the next.
+    An action that is not ready then is late: the simulator has already advanced with the
+    default action (keep) at every tick that passed, the late action is dropped, and the policy
+    answers the newest observation next. ``late`` counts the decisions (per environment) the
+    simulator took without the policy; ``latencies_s`` holds each policy call's wall time.
+    """
+
+    period_s: float
+    decisions: int = 0
+    late: int = 0
+    latencies_s: list[float] = field(default_factory=list)
+
+    def percentile_ms(self, q: float) -> float:
+        return float(np.percentile(self.latencies_s, q) * 1e3) if self.latencies_s else 0.0
+
+
 def run_episodes(
-    envs: Any, act: Policy, episodes: int, seed: int
+    envs: Any, act: Policy, episodes: int, seed: int, realtime: RealTime | None = None
 ) -> tuple[list[dict[str, float]], int, float]:
     """One episode per environment of ``envs`` (seeds seed, seed + 1, ...), all stepped
     together; returns each episode's metrics, the decisions taken and the seconds it took.
 
     ``act(obs, info, starting)`` returns the actions; ``starting`` marks the environments whose
     observation is the first of an episode (a policy that stacks frames restarts there).
+    ``realtime``: advance on the wall clock instead of waiting for the policy (see
+    :class:`RealTime`).
     """
     obs, info = envs.reset(seed=seed)
     starting = np.ones(episodes, dtype=bool)
@@ -111,8 +135,11 @@ def run_episodes(
     rows: list[dict[str, float] | None] = [None] * episodes
     started = time.perf_counter()
     decisions = 0
-    while any(row is None for row in rows):
-        actions = act(obs, info, starting)
+    keep = np.zeros(episodes, dtype=np.int64)
+    next_tick = started + (realtime.period_s if realtime else 0.0)
+
+    def step(actions: np.ndarray) -> None:
+        nonlocal obs, info, starting, resetting, decisions
         obs, _, terminated, truncated, info = envs.step(actions)
         decisions += episodes
         ended = terminated | truncated
@@ -122,6 +149,30 @@ def run_episodes(
         # Gymnasium's next-step autoreset: an env that ended is reset by the following step,
         # whose observation is then the first of the new episode.
         starting, resetting = resetting, ended
+
+    while any(row is None for row in rows):
+        asked = time.perf_counter()
+        actions = act(obs, info, starting)
+        if realtime is None:
+            step(actions)
+            continue
+        answered = time.perf_counter()
+        realtime.latencies_s.append(answered - asked)
+        if answered <= next_tick:
+            time.sleep(next_tick - answered)  # pacing to the wall clock, not synchronisation
+            step(actions)
+            realtime.decisions += episodes
+        else:
+            # Every tick that passed while the policy thought went by with keep.
+            missed = int((answered - next_tick) // realtime.period_s) + 1
+            for _ in range(missed):
+                if all(row is not None for row in rows):
+                    break
+                step(keep)
+                realtime.decisions += episodes
+                realtime.late += episodes
+            next_tick += (missed - 1) * realtime.period_s
+        next_tick += realtime.period_s
     return [row for row in rows if row is not None], decisions, time.perf_counter() - started
 
 

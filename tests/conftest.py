@@ -2,6 +2,13 @@
 
 from __future__ import annotations
 
+import os
+
+# ML-Agents' protobuf code (mlagents-envs 1.1.0, tests/test_mlagents.py) predates protobuf 4,
+# which ONNX needs: protobuf's pure-Python implementation reads both. It is picked when protobuf
+# is first imported, so before any test module imports it.
+os.environ.setdefault("PROTOCOL_BUFFERS_PYTHON_IMPLEMENTATION", "python")
+
 from dataclasses import dataclass
 from typing import Any
 

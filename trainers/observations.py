@@ -8,16 +8,15 @@ as plain data for the run record and the checkpoint.
 
 from __future__ import annotations
 
-from typing import Any
-
 import gymnasium as gym
-import numpy as np
 
 from overtake.client.commands import UsageError
+from overtake.client.frames import FrameShapes, describe_space
+
+__all__ = ["describe_space", "frame_shapes"]
 from overtake.protocol import ACTION_COUNT
 
 from .network import INPUT_SENSORS, LATEST_SENSORS, Inputs
-from .replay import FrameShapes
 
 
 def frame_shapes(
@@ -44,16 +43,3 @@ def _box(space: gym.spaces.Dict, name: str) -> gym.spaces.Box:
     if not isinstance(box, gym.spaces.Box):
         raise UsageError(f"observation {name!r} must be a Box space, got {box}")
     return box
-
-
-def describe_space(space: gym.spaces.Dict) -> dict[str, Any]:
-    """Each observation's shape, dtype and bounds, as JSON-ready data."""
-    return {
-        name: {
-            "shape": list(box.shape),
-            "dtype": box.dtype.name,
-            "low": float(np.min(box.low)),
-            "high": float(np.max(box.high)),
-        }
-        for name, box in ((key, _box(space, key)) for key in space.spaces)
-    }

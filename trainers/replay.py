@@ -16,68 +16,15 @@ transition ever crosses an episode boundary or mixes old and new data.
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-Frames = Mapping[str, np.ndarray]  # name -> (k, ...) one frame per listed environment
+# Frame stacking is shared with policies that act without PyTorch (overtake.client.frames).
+from overtake.client.frames import Frames, FrameShapes, FrameStacker
 
-
-@dataclass(frozen=True)
-class FrameShapes:
-    """Per-frame observations the replay stores: name -> (shape, dtype)."""
-
-    shapes: Mapping[str, tuple[tuple[int, ...], np.dtype]]
-    actions: int
-
-    @property
-    def frame_bytes(self) -> int:
-        return sum(
-            int(np.prod(shape)) * np.dtype(dtype).itemsize for shape, dtype in self.shapes.values()
-        )
-
-
-class FrameStacker:
-    """The last ``stack`` frames of each stacked observation, per environment (acting side).
-
-    ``stacked`` observations (camera, lidar) come out as (N, stack, ...), oldest first; the
-    others (ego) as the latest frame only.
-    """
-
-    def __init__(
-        self, num_envs: int, shapes: FrameShapes, stack: int, stacked: tuple[str, ...]
-    ) -> None:
-        self.stack, self.stacked = stack, stacked
-        self.frames = {
-            name: np.zeros((num_envs, stack) + tuple(shape), dtype=dtype)
-            for name, (shape, dtype) in shapes.shapes.items()
-            if name in stacked
-        }
-        self.latest = {
-            name: np.zeros((num_envs,) + tuple(shape), dtype=dtype)
-            for name, (shape, dtype) in shapes.shapes.items()
-            if name not in stacked
-        }
-
-    def reset(self, envs: np.ndarray, frames: Frames) -> None:
-        """Start episodes in ``envs``: every slot of their stacks holds the first frame."""
-        for name, stack in self.frames.items():
-            stack[envs] = frames[name][:, None]
-        for name, latest in self.latest.items():
-            latest[envs] = frames[name]
-
-    def push(self, envs: np.ndarray, frames: Frames) -> None:
-        for name, stack in self.frames.items():
-            stack[envs, :-1] = stack[envs, 1:]
-            stack[envs, -1] = frames[name]
-        for name, latest in self.latest.items():
-            latest[envs] = frames[name]
-
-    def observation(self) -> dict[str, np.ndarray]:
-        return {**self.frames, **self.latest}
+__all__ = ["FrameShapes", "FrameStacker", "Frames", "ReplayMemory"]
 
 
 class ReplayMemory:

@@ -1,0 +1,89 @@
+"""Frames as policies see them: the last few observations of each environment, stacked.
+
+The environment sends one frame per decision; a policy acting on stacked frames keeps the last
+``stack`` of them per environment (:class:`FrameStacker`), and the replay of
+:mod:`overtake.trainers.replay` rebuilds the same stacks when it samples. Both follow one rule
+at an episode's start: the slots before the first frame hold copies of that first frame (a
+LIDAR of zeros would read as a wall at 0 m). This lives in the client, without PyTorch, so that
+an exported policy (:mod:`overtake.client.onnx_policy`) stacks exactly as its trainer did.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+Frames = Mapping[str, np.ndarray]  # name -> (k, ...) one frame per listed environment
+
+
+@dataclass(frozen=True)
+class FrameShapes:
+    """Per-frame observations the replay stores: name -> (shape, dtype)."""
+
+    shapes: Mapping[str, tuple[tuple[int, ...], np.dtype]]
+    actions: int
+
+    @property
+    def frame_bytes(self) -> int:
+        return sum(
+            int(np.prod(shape)) * np.dtype(dtype).itemsize for shape, dtype in self.shapes.values()
+        )
+
+
+class FrameStacker:
+    """The last ``stack`` frames of each stacked observation, per environment (acting side).
+
+    ``stacked`` observations (camera, lidar) come out as (N, stack, ...), oldest first; the
+    others (ego) as the latest frame only.
+    """
+
+    def __init__(
+        self, num_envs: int, shapes: FrameShapes, stack: int, stacked: tuple[str, ...]
+    ) -> None:
+        self.stack, self.stacked = stack, stacked
+        self.frames = {
+            name: np.zeros((num_envs, stack) + tuple(shape), dtype=dtype)
+            for name, (shape, dtype) in shapes.shapes.items()
+            if name in stacked
+        }
+        self.latest = {
+            name: np.zeros((num_envs,) + tuple(shape), dtype=dtype)
+            for name, (shape, dtype) in shapes.shapes.items()
+            if name not in stacked
+        }
+
+    def reset(self, envs: np.ndarray, frames: Frames) -> None:
+        """Start episodes in ``envs``: every slot of their stacks holds the first frame."""
+        for name, stack in self.frames.items():
+            stack[envs] = frames[name][:, None]
+        for name, latest in self.latest.items():
+            latest[envs] = frames[name]
+
+    def push(self, envs: np.ndarray, frames: Frames) -> None:
+        for name, stack in self.frames.items():
+            stack[envs, :-1] = stack[envs, 1:]
+            stack[envs, -1] = frames[name]
+        for name, latest in self.latest.items():
+            latest[envs] = frames[name]
+
+    def observation(self) -> dict[str, np.ndarray]:
+        return {**self.frames, **self.latest}
+
+
+def describe_space(space: gym.spaces.Dict) -> dict[str, Any]:
+    """Each observation's shape, dtype and bounds, as JSON-ready data."""
+    described: dict[str, Any] = {}
+    for name, box in space.spaces.items():
+        if not isinstance(box, gym.spaces.Box):
+            raise ValueError(f"observation {name!r} must be a Box space, got {box}")
+        described[name] = {
+            "shape": list(box.shape),
+            "dtype": box.dtype.name,
+            "low": float(np.min(box.low)),
+            "high": float(np.max(box.high)),
+        }
+    return described
