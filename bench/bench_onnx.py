@@ -113,7 +113,8 @@ def main(config: OnnxBenchConfig) -> list[dict[str, Any]]:
         f"{os.cpu_count()} cores), {config.decisions} decisions per network"
     )
     print(
-        "| preset (network) | PyTorch p50 / p99 ms | ONNX Runtime p50 / p99 ms | PyTorch / ONNX p50 | same actions |"
+        "| preset (network) | PyTorch p50 / p99 ms | ONNX Runtime p50 / p99 ms "
+        "| PyTorch / ONNX p50 | same actions |"
     )
     print("|---|---:|---:|---:|---:|")
     for r in rows:
