@@ -217,8 +217,8 @@ EXPERIMENTS: dict[str, Experiment] = {
         eval_episodes=50,
         paper=(
             "Min et al. (2018), Table III, 1,000,000 training steps: average speed 73.54 "
-            "km/h (multi-input), 69.48 (camera only), 71.88 (LIDAR only); lane changes "
-            "30.2 / 18.4 / 16.8; overtakes 42.2 / 32.2 / 35.8 per episode."
+            "km/h (multi-input), 71.88 (camera only), 69.48 (LIDAR only); lane changes "
+            "30.2 / 16.8 / 18.4; overtakes 42.2 / 35.8 / 32.2 per episode."
         ),
     ),
     "ho2018-table8": Experiment(
