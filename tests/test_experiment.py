@@ -415,6 +415,16 @@ def test_the_curves_are_a_png_and_a_rerun_recording_of_every_row(tiny):
     reader = rr.chunk.RrdReader(str(out / "curves.rrd"))
     entities = {c.entity_path for c in reader.stream().to_chunks() if not c.is_static}
     assert {f"/curves/{m}/{row}" for m in ("avg_speed_kmh", "return") for row in ROWS} <= entities
+    # A row is drawn in one colour in every plot, and rows in different colours.
+    colors: dict[str, set[int]] = {}
+    for chunk in rr.chunk.RrdReader(str(out / "curves.rrd")).stream().to_chunks():
+        if chunk.is_static and chunk.entity_path.startswith("/curves/"):
+            batch = chunk.to_record_batch().to_pydict()
+            row = chunk.entity_path.rsplit("/", 1)[1]
+            colors.setdefault(row, set()).update(batch["SeriesLines:colors"][0])
+    assert set(colors) == set(ROWS)
+    assert all(len(c) == 1 for c in colors.values()), colors
+    assert len({next(iter(c)) for c in colors.values()}) == len(ROWS)
 
 
 def test_a_directory_refuses_a_run_with_other_training_settings(tiny):

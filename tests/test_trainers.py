@@ -546,6 +546,27 @@ def test_resume_if_found_continues_a_run_and_starts_one_where_there_is_none(tmp_
         train(replace(config, algo="dqn", total_steps=200), envs=PickTheFreeLane(1))
 
 
+def test_the_steps_after_the_last_log_line_get_a_line_of_their_own(tmp_path):
+    # 130 steps logged every 50: lines at 50 and 100, and one for the last 30 steps, so a
+    # curve of the reward per window keeps its last point and the windows add up to all of it.
+    run_dir = tmp_path / "run"
+    config = TrainConfig(
+        inputs="lidar",
+        num_envs=1,
+        total_steps=130,
+        seed=3,
+        run_dir=run_dir,
+        progress=False,
+        log_every=50,
+        dqn=tiny_dqn(learning_starts=20),
+    )
+    train(config, envs=PickTheFreeLane(1, seed=1))
+    records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    lines = [r for r in records if r["kind"] == "train"]
+    assert [r["step"] for r in lines] == [50, 100, 130]
+    assert all(r["reward_sum"] != 0 for r in lines)
+
+
 def test_resume_without_a_checkpoint_and_a_broken_checkpoint_say_what_is_wrong(tmp_path):
     config = TrainConfig(
         inputs="lidar", run_dir=tmp_path / "none", resume=True, progress=False, dqn=tiny_dqn()

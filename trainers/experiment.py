@@ -217,8 +217,8 @@ EXPERIMENTS: dict[str, Experiment] = {
         eval_episodes=50,
         paper=(
             "Min et al. (2018), Table III, 1,000,000 training steps: average speed 73.54 "
-            "km/h (multi-input), 69.48 (camera only), 71.88 (LIDAR only); lane changes "
-            "30.2 / 18.4 / 16.8; overtakes 42.2 / 32.2 / 35.8 per episode."
+            "km/h (multi-input), 71.88 (camera only), 69.48 (LIDAR only); lane changes "
+            "30.2 / 16.8 / 18.4; overtakes 42.2 / 35.8 / 32.2 per episode."
         ),
     ),
     "ho2018-table8": Experiment(
@@ -1247,6 +1247,21 @@ def _floats(values: list[float | None]) -> np.ndarray:
     return np.array([math.nan if v is None else v for v in values], dtype=float)
 
 
+# matplotlib's default cycle (tab10), so that curves.rrd and curves.png colour rows alike.
+ROW_COLORS = (
+    (31, 119, 180),
+    (255, 127, 14),
+    (44, 160, 44),
+    (214, 39, 40),
+    (148, 103, 189),
+    (140, 86, 75),
+    (227, 119, 194),
+    (127, 127, 127),
+    (188, 189, 34),
+    (23, 190, 207),
+)
+
+
 def record_curves(curves: dict[str, Any], experiment: str, path: Path) -> None:
     """curves.rrd: ``curves/<metric>/<row>`` on the ``step`` timeline, one entity per row."""
     import rerun as rr
@@ -1255,10 +1270,17 @@ def record_curves(curves: dict[str, Any], experiment: str, path: Path) -> None:
     metrics = list(CURVE_METRICS)
     if any("window_reward" in curve for curve in curves.values()):
         metrics.append(("window_reward", "reward per window of training steps"))
+    # Without a range the viewer shows a narrow window around the time cursor; a learning curve
+    # is read whole.
+    whole_run = rrb.archetypes.TimeAxis(
+        view_range=rr.TimeRange(
+            start=rr.TimeRangeBoundary.infinite(), end=rr.TimeRangeBoundary.infinite()
+        )
+    )
     blueprint = rrb.Blueprint(
         rrb.Vertical(
             *(
-                rrb.TimeSeriesView(origin=f"/curves/{metric}", name=label)
+                rrb.TimeSeriesView(origin=f"/curves/{metric}", name=label, axis_x=whole_run)
                 for metric, label in metrics
             )
         ),
@@ -1272,12 +1294,15 @@ def record_curves(curves: dict[str, Any], experiment: str, path: Path) -> None:
     assert recording is not None  # sink=file always opens one
     stream = recording.stream
     try:
-        for row, curve in curves.items():
+        for index, (row, curve) in enumerate(curves.items()):
+            color = ROW_COLORS[index % len(ROW_COLORS)]
             for metric, _ in metrics:
                 if metric not in curve:
                     continue
                 entity = f"curves/{metric}/{row}"
-                stream.log(entity, rr.SeriesLines(names=row), static=True)
+                # One colour per row in every plot, as in curves.png; the viewer's own pick
+                # hashes the entity path and colours a row differently from plot to plot.
+                stream.log(entity, rr.SeriesLines(names=row, colors=color), static=True)
                 steps = curve[metric].get("window_end_step", curve["bin_end_step"])
                 for step, value in zip(steps, curve[metric]["mean"]):
                     if value is not None:

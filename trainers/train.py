@@ -384,6 +384,10 @@ class TrainingRun:
             self._start_episodes()
             while self.step < self.config.total_steps:
                 self._iteration()
+            if self.step > self.log_step:
+                # The steps since the last line, a partial window: a learning curve (Fayjie
+                # et al.'s reward per 3,000 steps) keeps its last point.
+                self._log_training(self.dqn.epsilon(self.step))
             self._checkpoint()
         finally:
             if self.bar is not None:

@@ -230,6 +230,9 @@ def main(config: RenderConfig) -> list[Path]:
         client.open([str(p.resolve()) for p in config.recordings])
         if config.timeline_time is not None:
             client.set_time(sequence=config.timeline_time, play_state="paused")
+        else:
+            # A file opens playing from its start; the default is its end.
+            client.set_time(play_state="following")
         if not config.tabs and not config.views:
             settled_screenshot(client, config.out, not_before=quiet_from)
             return [config.out]
