@@ -82,7 +82,7 @@ def describe_space(space: gym.spaces.Dict) -> dict[str, Any]:
             raise ValueError(f"observation {name!r} must be a Box space, got {box}")
         described[name] = {
             "shape": list(box.shape),
-            "dtype": box.dtype.name,
+            "dtype": np.dtype(box.dtype).name,
             "low": float(np.min(box.low)),
             "high": float(np.max(box.high)),
         }

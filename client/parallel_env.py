@@ -75,7 +75,7 @@ class RemoteHighwayParallelEnv(_RemoteHandles, ParallelEnv[AgentID, dict[str, np
         self.agents: list[AgentID] = []
         self._index = {name: i for i, name in enumerate(self.possible_agents)}
         self._observation_space = spaces_from_spec(spec)
-        self._action_space = spaces.Discrete(ACTION_COUNT)
+        self._action_space: spaces.Discrete = spaces.Discrete(ACTION_COUNT)
         self._retire_next: list[int] = []
         self.decision_period_s = spec.decision_period_s
         self.max_episode_steps = spec.max_episode_steps

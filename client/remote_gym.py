@@ -39,7 +39,7 @@ def spaces_from_spec(spec: BehaviourSpec) -> spaces.Dict:
     """The Dict observation space a behaviour spec describes."""
     return spaces.Dict(
         {
-            o.name: spaces.Box(low=o.low, high=o.high, shape=o.shape, dtype=np.dtype(o.dtype))
+            o.name: spaces.Box(low=o.low, high=o.high, shape=o.shape, dtype=np.dtype(o.dtype).type)
             for o in spec.observations
         }
     )

@@ -52,7 +52,7 @@ def observation_space(sim: HighwaySim) -> spaces.Dict:
     """The Dict observation space of one agent of ``sim``: one Box per sensor."""
     return spaces.Dict(
         {
-            key: spaces.Box(low=box.low, high=box.high, shape=box.shape, dtype=box.dtype)
+            key: spaces.Box(low=box.low, high=box.high, shape=box.shape, dtype=box.dtype.type)
             for key, box in sim.observation_spaces().items()
         }
     )
@@ -116,7 +116,8 @@ class HighwayEnv(ReportsEpisodeLength, gym.Env):
             info,
         )
 
-    def render(self) -> np.ndarray | None:
+    # gymnasium 1.2 (which the rllib extra pins) types render with a TypeVar, 1.4 does not.
+    def render(self) -> np.ndarray | None:  # type: ignore[override, unused-ignore]
         if self.render_mode == "rgb_array":
             return render_top_down(self.sim)
         return None
@@ -226,7 +227,7 @@ class HighwayVectorEnv(gym.vector.VectorEnv):
             self._planner = Planner(self.sim)
         return self._planner.act()[:, 0]
 
-    def render(self) -> tuple[np.ndarray, ...] | None:
+    def render(self) -> tuple[np.ndarray, ...] | None:  # type: ignore[override, unused-ignore]
         if self.render_mode == "rgb_array":
             return tuple(render_top_down(self.sim, arena=i) for i in range(self.num_envs))
         return None

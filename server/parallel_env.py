@@ -67,7 +67,7 @@ class HighwayParallelEnv(ParallelEnv[AgentID, dict[str, np.ndarray], int]):
         self.agents: list[AgentID] = []
         self._index = {name: i for i, name in enumerate(self.possible_agents)}
         self._observation_space = observation_space(self.sim)
-        self._action_space = spaces.Discrete(ACTION_COUNT)
+        self._action_space: spaces.Discrete = spaces.Discrete(ACTION_COUNT)
         self._on_road = np.zeros(agents, dtype=bool)
         self.decision_period_s = self.config.episode.decision_period_s
         self.max_episode_steps = self.config.episode.max_decisions

@@ -9,6 +9,7 @@ as plain data for the run record and the checkpoint.
 from __future__ import annotations
 
 import gymnasium as gym
+import numpy as np
 
 from overtake.client.commands import UsageError
 from overtake.client.frames import FrameShapes, describe_space
@@ -34,7 +35,8 @@ def frame_shapes(
         )
     boxes = {name: _box(space, name) for name in sorted(wanted)}
     return FrameShapes(
-        {name: (box.shape, box.dtype) for name, box in boxes.items()}, actions=ACTION_COUNT
+        {name: (box.shape, np.dtype(box.dtype)) for name, box in boxes.items()},
+        actions=ACTION_COUNT,
     )
 
 
