@@ -15,18 +15,15 @@ and ``reset`` starts the next one on whichever server reopened the arena.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
-from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from overtake.protocol import errors
-from overtake.protocol.envs import agent_names, check_parallel_actions
+from overtake.protocol.envs import ParallelAgents, check_parallel_actions
 from overtake.protocol.messages import Scalar, Steps
-from overtake.protocol.vocabulary import ACTION_COUNT
 
 from .remote import RemoteConfig
 from .remote_gym import _Remote, _RemoteHandles, spaces_from_spec
@@ -35,7 +32,9 @@ AgentID = str
 RETIRE_SINCE_MINOR = 3  # the protocol minor version that lets a trainer retire its cars
 
 
-class RemoteHighwayParallelEnv(_RemoteHandles, ParallelEnv[AgentID, dict[str, np.ndarray], int]):
+class RemoteHighwayParallelEnv(
+    _RemoteHandles, ParallelAgents, ParallelEnv[AgentID, dict[str, np.ndarray], int]
+):
     """``agents`` learning cars on one road of a remote simulator server."""
 
     metadata: dict[str, Any] = {  # noqa: RUF012
@@ -71,34 +70,11 @@ class RemoteHighwayParallelEnv(_RemoteHandles, ParallelEnv[AgentID, dict[str, np
                 "whose episode ended must leave the road): upgrade the server"
             )
         spec = self._remote.spec
-        self.possible_agents = agent_names(agents)
-        self.agents: list[AgentID] = []
-        self._index = {name: i for i, name in enumerate(self.possible_agents)}
-        self._observation_space = spaces_from_spec(spec)
-        self._action_space: spaces.Discrete = spaces.Discrete(ACTION_COUNT)
+        self._init_agents(agents, spaces_from_spec(spec))
         self._retire_next: list[int] = []
         self.decision_period_s = spec.decision_period_s
         self.max_episode_steps = spec.max_episode_steps
         self.metadata = {**self.metadata, "render_fps": 1.0 / self.decision_period_s}
-
-    # The same space object for an agent every time (PettingZoo's API test checks identity).
-    @functools.cache  # noqa: B019  (one entry per agent name; envs are few)
-    def observation_space(self, agent: AgentID) -> spaces.Space:
-        self._slot(agent)
-        return self._observation_space
-
-    @functools.cache  # noqa: B019
-    def action_space(self, agent: AgentID) -> spaces.Space:
-        self._slot(agent)
-        return self._action_space
-
-    def _slot(self, agent: AgentID) -> int:
-        try:
-            return self._index[agent]
-        except KeyError:
-            raise KeyError(
-                f"no agent {agent!r} on this road; its agents are {self.possible_agents}"
-            ) from None
 
     def reset(
         self, seed: int | None = None, options: dict[str, Any] | None = None

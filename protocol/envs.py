@@ -111,6 +111,38 @@ def agent_names(count: int) -> list[str]:
     return [f"car_{i}" for i in range(count)]
 
 
+class ParallelAgents:
+    """The agents of a shared road as PettingZoo's Parallel API names them, and their spaces:
+    one observation and one action space object for every agent (PettingZoo's API test checks
+    that an agent gets the same object every time), and a clear error for a name that is not
+    on this road. Both the in-process and the remote ParallelEnv are built on it."""
+
+    possible_agents: list[str]
+
+    def _init_agents(self, count: int, observation_space: gym.spaces.Dict) -> None:
+        self.possible_agents = agent_names(count)
+        self.agents: list[str] = []
+        self._index = {name: i for i, name in enumerate(self.possible_agents)}
+        self._observation_space = observation_space
+        self._action_space = gym.spaces.Discrete(ACTION_COUNT)
+
+    def observation_space(self, agent: str) -> gym.spaces.Space:
+        self._slot(agent)
+        return self._observation_space
+
+    def action_space(self, agent: str) -> gym.spaces.Space:
+        self._slot(agent)
+        return self._action_space
+
+    def _slot(self, agent: str) -> int:
+        try:
+            return self._index[agent]
+        except KeyError:
+            raise KeyError(
+                f"no agent {agent!r} on this road; its agents are {self.possible_agents}"
+            ) from None
+
+
 def check_parallel_actions(actions: Any, live: list[str], possible: list[str]) -> list[int]:
     """One action in [0, ACTION_COUNT) for each of the ``live`` agents, in their order.
 

@@ -18,16 +18,14 @@ With one agent it is ``HighwayEnv`` bit for bit (same seed, same actions).
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from overtake.protocol.envs import agent_names, arena_seeds, check_parallel_actions
-from overtake.protocol.vocabulary import ACTION_COUNT, DEFAULT_ACTION
+from overtake.protocol.envs import ParallelAgents, arena_seeds, check_parallel_actions
+from overtake.protocol.vocabulary import DEFAULT_ACTION
 
 from .env import _resolve_config, observation_space
 from .sim import HighwaySim, SimConfig, autoreset_round
@@ -36,7 +34,7 @@ from .sim.render import render_top_down
 AgentID = str
 
 
-class HighwayParallelEnv(ParallelEnv[AgentID, dict[str, np.ndarray], int]):
+class HighwayParallelEnv(ParallelAgents, ParallelEnv[AgentID, dict[str, np.ndarray], int]):
     """``agents`` learning cars on one simulated road (Min et al. 2018 by default)."""
 
     # PettingZoo's convention: a class attribute, replaced per instance with its frame rate.
@@ -63,34 +61,11 @@ class HighwayParallelEnv(ParallelEnv[AgentID, dict[str, np.ndarray], int]):
         self.config = _resolve_config(preset, overrides, config)
         self.render_mode = render_mode
         self.sim = HighwaySim(self.config, num_arenas=1, agents_per_arena=agents)
-        self.possible_agents = agent_names(agents)
-        self.agents: list[AgentID] = []
-        self._index = {name: i for i, name in enumerate(self.possible_agents)}
-        self._observation_space = observation_space(self.sim)
-        self._action_space: spaces.Discrete = spaces.Discrete(ACTION_COUNT)
+        self._init_agents(agents, observation_space(self.sim))
         self._on_road = np.zeros(agents, dtype=bool)
         self.decision_period_s = self.config.episode.decision_period_s
         self.max_episode_steps = self.config.episode.max_decisions
         self.metadata = {**self.metadata, "render_fps": 1.0 / self.decision_period_s}
-
-    # The same space object for an agent every time (PettingZoo's API test checks identity).
-    @functools.cache  # noqa: B019  (one entry per agent name; envs are few)
-    def observation_space(self, agent: AgentID) -> spaces.Space:
-        self._slot(agent)
-        return self._observation_space
-
-    @functools.cache  # noqa: B019
-    def action_space(self, agent: AgentID) -> spaces.Space:
-        self._slot(agent)
-        return self._action_space
-
-    def _slot(self, agent: AgentID) -> int:
-        try:
-            return self._index[agent]
-        except KeyError:
-            raise KeyError(
-                f"no agent {agent!r} on this road; its agents are {self.possible_agents}"
-            ) from None
 
     def reset(
         self, seed: int | None = None, options: dict[str, Any] | None = None
