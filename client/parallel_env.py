@@ -22,7 +22,7 @@ import numpy as np
 from pettingzoo import ParallelEnv
 
 from overtake.protocol import errors
-from overtake.protocol.envs import ParallelAgents, check_parallel_actions
+from overtake.protocol.envs import ParallelAgents, check_parallel_actions, check_render_mode
 from overtake.protocol.messages import Scalar, Steps
 
 from .remote import RemoteConfig
@@ -53,11 +53,7 @@ class RemoteHighwayParallelEnv(
         remote: RemoteConfig | None = None,
         render_mode: str | None = None,
     ) -> None:
-        if render_mode is not None:
-            raise ValueError(
-                "the remote environment does not render; watch it with a "
-                f"spectator (render_mode must be None, got {render_mode!r})"
-            )
+        check_render_mode(render_mode, self.metadata["render_modes"])
         self._remote = _Remote(
             connect, remote, preset, overrides, arenas=1, seed=None, agents_per_arena=agents
         )

@@ -21,7 +21,12 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector.utils import batch_space
 
-from overtake.protocol.envs import ReportsEpisodeLength, arena_seeds, check_actions
+from overtake.protocol.envs import (
+    ReportsEpisodeLength,
+    arena_seeds,
+    check_actions,
+    check_render_mode,
+)
 from overtake.protocol.messages import BehaviourSpec, OpenRequest, Scalar, Steps
 from overtake.protocol.vocabulary import ACTION_COUNT
 
@@ -133,11 +138,7 @@ class RemoteHighwayEnv(_RemoteHandles, ReportsEpisodeLength, gym.Env):
         remote: RemoteConfig | None = None,
         render_mode: str | None = None,
     ) -> None:
-        if render_mode is not None:
-            raise ValueError(
-                "the remote environment does not render; watch it with a "
-                f"spectator (render_mode must be None, got {render_mode!r})"
-            )
+        check_render_mode(render_mode, self.metadata["render_modes"])
         self._remote = _Remote(connect, remote, preset, overrides, arenas=1, seed=None)
         spec = self._remote.spec
         self.observation_space = spaces_from_spec(spec)
@@ -208,8 +209,7 @@ class RemoteHighwayVectorEnv(_RemoteHandles, gym.vector.VectorEnv):
         remote: RemoteConfig | None = None,
         render_mode: str | None = None,
     ) -> None:
-        if render_mode is not None:
-            raise ValueError(f"the remote environment does not render (got {render_mode!r})")
+        check_render_mode(render_mode, self.metadata["render_modes"])
         self._remote = _Remote(connect, remote, preset, overrides, arenas=num_envs, seed=None)
         spec = self._remote.spec
         self.num_envs = num_envs

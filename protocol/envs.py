@@ -103,6 +103,19 @@ def check_actions(actions: Any, count: int, *, single: bool) -> np.ndarray:
     return values.astype(np.int64)
 
 
+def check_render_mode(render_mode: str | None, modes: Sequence[str]) -> None:
+    """Refuse a render mode the environment has not got, naming those it has; an environment
+    with none is remote, and its world is watched with a spectator instead."""
+    if render_mode is None or render_mode in modes:
+        return
+    if not modes:
+        raise ValueError(
+            "the remote environment does not render; watch it with a spectator "
+            f"(render_mode must be None, got {render_mode!r})"
+        )
+    raise ValueError(f"render_mode must be one of {list(modes)} or None, got {render_mode!r}")
+
+
 # --- PettingZoo's Parallel API: several learning cars on one road -----------------------------
 
 
@@ -124,7 +137,7 @@ class ParallelAgents:
         self.agents: list[str] = []
         self._index = {name: i for i, name in enumerate(self.possible_agents)}
         self._observation_space = observation_space
-        self._action_space = gym.spaces.Discrete(ACTION_COUNT)
+        self._action_space: gym.spaces.Discrete = gym.spaces.Discrete(ACTION_COUNT)
 
     def observation_space(self, agent: str) -> gym.spaces.Space:
         self._slot(agent)

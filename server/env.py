@@ -23,7 +23,12 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector.utils import batch_space
 
-from overtake.protocol.envs import ReportsEpisodeLength, arena_seeds, check_actions
+from overtake.protocol.envs import (
+    ReportsEpisodeLength,
+    arena_seeds,
+    check_actions,
+    check_render_mode,
+)
 from overtake.protocol.vocabulary import ACTION_COUNT, METRIC_FIELDS
 
 from .sim import HighwaySim, SimConfig, StepResult, autoreset_round, make_config
@@ -71,11 +76,7 @@ class HighwayEnv(ReportsEpisodeLength, gym.Env):
         config: SimConfig | None = None,
         render_mode: str | None = None,
     ) -> None:
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(
-                f"render_mode must be one of {self.metadata['render_modes']} or "
-                f"None, got {render_mode!r}"
-            )
+        check_render_mode(render_mode, self.metadata["render_modes"])
         self.config = _resolve_config(preset, overrides, config)
         self.render_mode = render_mode
         self.sim = HighwaySim(self.config, num_arenas=1, agents_per_arena=1)
@@ -152,11 +153,7 @@ class HighwayVectorEnv(gym.vector.VectorEnv):
         config: SimConfig | None = None,
         render_mode: str | None = None,
     ) -> None:
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(
-                f"render_mode must be one of {self.metadata['render_modes']} or "
-                f"None, got {render_mode!r}"
-            )
+        check_render_mode(render_mode, self.metadata["render_modes"])
         self.config = _resolve_config(preset, overrides, config)
         self.num_envs = num_envs
         self.render_mode = render_mode

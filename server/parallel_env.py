@@ -24,7 +24,12 @@ from typing import Any
 import numpy as np
 from pettingzoo import ParallelEnv
 
-from overtake.protocol.envs import ParallelAgents, arena_seeds, check_parallel_actions
+from overtake.protocol.envs import (
+    ParallelAgents,
+    arena_seeds,
+    check_parallel_actions,
+    check_render_mode,
+)
 from overtake.protocol.vocabulary import DEFAULT_ACTION
 
 from .env import _resolve_config, observation_space
@@ -53,11 +58,7 @@ class HighwayParallelEnv(ParallelAgents, ParallelEnv[AgentID, dict[str, np.ndarr
         config: SimConfig | None = None,
         render_mode: str | None = None,
     ) -> None:
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(
-                f"render_mode must be one of {self.metadata['render_modes']} or None, "
-                f"got {render_mode!r}"
-            )
+        check_render_mode(render_mode, self.metadata["render_modes"])
         self.config = _resolve_config(preset, overrides, config)
         self.render_mode = render_mode
         self.sim = HighwaySim(self.config, num_arenas=1, agents_per_arena=agents)

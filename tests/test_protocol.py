@@ -1208,3 +1208,14 @@ def test_retired_cars_and_the_server_minor_of_a_1_2_peer_decode_as_none_and_2():
 def test_bad_retire_lists_are_refused_saying_what_came(retire, expected):
     with pytest.raises(DecodeError, match=expected):
         dataclasses.replace(_one_action(7), retire=retire)
+
+
+def test_an_unsupported_render_mode_is_refused_naming_what_there_is():
+    from overtake.protocol.envs import check_render_mode
+
+    check_render_mode(None, [])
+    check_render_mode("rgb_array", ["rgb_array"])
+    with pytest.raises(ValueError, match=r"one of \['rgb_array'\] or None, got 'human'"):
+        check_render_mode("human", ["rgb_array"])
+    with pytest.raises(ValueError, match="does not render; watch it with a spectator"):
+        check_render_mode("rgb_array", [])
