@@ -15,10 +15,11 @@ for the round and placed back afterwards) while the road goes on for the others.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import secrets
 import time
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -92,6 +93,10 @@ class Member:
     pending: Actions | None = None  # its actions for the current round
 
 
+# Group steps taken in this process, in order: what next_to_step compares.
+_GROUP_STEPS = itertools.count(1)
+
+
 @dataclass
 class Group:
     group_id: int
@@ -110,6 +115,9 @@ class Group:
     last_observations: dict[str, np.ndarray] | None = None  # of the last round, for spectators
     # The step count a member last sent with its actions (-1: none has), for world frames.
     trainer_step: int = -1
+    # The process's count of group steps at this group's last step (0: not yet stepped); the
+    # server steps the ready group with the lowest first (next_to_step).
+    last_stepped: int = 0
     # (A, N) per agent slot: whose episode ended last round, and what it got then.
     ended: np.ndarray = field(init=False)
     # (A, N): cars their trainer took off the road (Actions.retire) until it resets the arena.
@@ -299,6 +307,7 @@ class Group:
 
     def step(self) -> dict[str, Steps]:
         """Run one round; returns each member's :class:`Steps`."""
+        self.last_stepped = next(_GROUP_STEPS)
         sim = self.sim
         arenas, n = self.shape
         actions = np.full((arenas, n), DEFAULT_ACTION, dtype=np.int64)
@@ -509,3 +518,17 @@ class Group:
                 np.float32
             ),
         )
+
+
+def next_to_step(groups: Iterable[Group], now: float) -> Group | None:
+    """Of the groups ready to step at ``now``, the one stepped longest ago (None: none is
+    ready). The server steps one group at a time and handles what arrived between two, so a
+    group that became ready waits behind the groups that were ready before it and no longer.
+    Stepping every ready group in a fixed order per pass let answers that arrive while a pass
+    runs miss it in a fixed pattern: with the server busy, two of four equal trainers got
+    exactly half the steps of the others."""
+    chosen: Group | None = None
+    for group in groups:
+        if group.ready(now) and (chosen is None or group.last_stepped < chosen.last_stepped):
+            chosen = group
+    return chosen

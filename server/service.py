@@ -51,7 +51,7 @@ from overtake.protocol.transport import (
 from overtake.viz.recording import RecordingConfig
 
 from .errors import StartError
-from .groups import Group
+from .groups import Group, next_to_step
 from .recorder import ServerRecorder
 
 log = logging.getLogger("overtake.server")
@@ -242,20 +242,23 @@ class SimulatorServer:
             )
         try:
             while not self._stopping.is_set():
-                timeout = self._next_timeout()
-                try:
-                    event = self._events.get(timeout=timeout)
-                except queue.Empty:
-                    event = _WAKE
-                self._handle(event)
-                # Take what else has arrived before stepping (arrivals together step once),
-                # but not without bound: a flood must not keep the groups from stepping.
+                # Take what has arrived before stepping (arrivals together make a group ready
+                # at once), but not without bound: a flood must not keep the groups from
+                # stepping.
                 for _ in range(MAX_EVENTS_PER_PASS):
                     try:
                         self._handle(self._events.get_nowait())
                     except queue.Empty:
                         break
-                self._step_ready_groups()
+                group = next_to_step(self.groups.values(), time.monotonic())
+                if group is not None:
+                    self._step_group(group)
+                    continue
+                try:
+                    event = self._events.get(timeout=self._next_timeout())
+                except queue.Empty:
+                    event = _WAKE
+                self._handle(event)
         finally:
             self.close()
 
@@ -480,34 +483,31 @@ class SimulatorServer:
             group = actions.group if isinstance(actions, Actions) else None
             self._send(trainer, ErrorReply(code=error.code, message=str(error), group=group))
 
-    def _step_ready_groups(self) -> None:
-        now = time.monotonic()
-        for group in list(self.groups.values()):
-            if not group.ready(now):
-                continue
-            try:
-                steps = group.step()
-                for trainer, message in steps.items():
-                    self._send(trainer, message)
-                self._publish_world(group, now)
-                if self.recorder is not None and self.recorder.wants(group.round):
-                    self._record(group)
-            except Exception as error:
-                # One group's failure is that group's end, not the server's.
-                log.exception("group %d failed to step; closing it", group.group_id)
-                reply = ErrorReply(
-                    code=errors.ProtocolError.code,
-                    group=group.group_id,
-                    message=f"server {self.name} closed group "
-                    f"{group.group_id} after an internal error: "
-                    f"{type(error).__name__}: {error}",
-                )
-                for trainer in list(group.members):
-                    try:
-                        self._send(trainer, reply)
-                    except Exception:  # pragma: no cover - the session itself is failing
-                        log.exception("could not tell %s", trainer)
-                    self._leave(group, trainer, "internal error")
+    def _step_group(self, group: Group) -> None:
+        """Step one group, send each member its observations, publish and record it."""
+        try:
+            steps = group.step()
+            for trainer, message in steps.items():
+                self._send(trainer, message)
+            self._publish_world(group, time.monotonic())
+            if self.recorder is not None and self.recorder.wants(group.round):
+                self._record(group)
+        except Exception as error:
+            # One group's failure is that group's end, not the server's.
+            log.exception("group %d failed to step; closing it", group.group_id)
+            reply = ErrorReply(
+                code=errors.ProtocolError.code,
+                group=group.group_id,
+                message=f"server {self.name} closed group "
+                f"{group.group_id} after an internal error: "
+                f"{type(error).__name__}: {error}",
+            )
+            for trainer in list(group.members):
+                try:
+                    self._send(trainer, reply)
+                except Exception:  # pragma: no cover - the session itself is failing
+                    log.exception("could not tell %s", trainer)
+                self._leave(group, trainer, "internal error")
 
     def _record(self, group: Group) -> None:
         """Hand the recorder this round's frames; a failure here costs the recording a

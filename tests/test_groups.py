@@ -7,7 +7,7 @@ import pytest
 
 from overtake.protocol import errors
 from overtake.protocol.messages import Actions
-from overtake.server.groups import Group
+from overtake.server.groups import Group, next_to_step
 from overtake.server.sim import HighwaySim, make_config
 
 QUIET = {"traffic.vehicle_count": 0}
@@ -286,3 +286,48 @@ def test_a_car_retired_just_after_its_episode_ended_is_not_restarted():
     # Car 0 restarted (Gymnasium's autoreset); car 1 left instead.
     assert group.sim.agents_present()[0].tolist() == [True, False]
     assert not steps["a"].ended.any() and not group.ended.any()
+
+
+def _serve_on_virtual_time(pick_pass, steps: int) -> list[int]:
+    """Four groups of one trainer each on a server whose group step takes 1 time unit, each
+    trainer answering 0.5 units after its observations leave (the server is the bottleneck, as
+    on 2 cores). ``pick_pass(groups, now)`` gives the groups the server steps next, in order;
+    answers arriving meanwhile wait for the next pick. Returns the steps each group got."""
+    groups = [Group.open(i, "srv", [i], "min2018", dict(QUIET), 1, seed=i) for i in range(4)]
+    for group in groups:
+        group.claim(f"t{group.group_id}", 0, 1, fresh=True)
+    answers = {group.group_id: 0.0 for group in groups}  # when each trainer's actions arrive
+    now, done = 0.0, 0
+    while done < steps:
+        for group in groups:
+            at = answers.get(group.group_id)
+            if at is not None and at <= now:
+                del answers[group.group_id]
+                group.accept(_actions(group, f"t{group.group_id}", [0], [0]), deadline_s=1e9)
+        chosen = pick_pass(groups, now)
+        if not chosen:
+            now = min(answers.values())
+            continue
+        for group in chosen:
+            group.step()
+            now += 1.0
+            answers[group.group_id] = now + 0.5
+            done += 1
+    return [group.rounds_done for group in groups]
+
+
+def test_groups_of_equal_trainers_get_equal_shares_of_a_busy_server():
+    def one_at_a_time(groups, now):
+        group = next_to_step(groups, now)
+        return [] if group is None else [group]
+
+    shares = _serve_on_virtual_time(one_at_a_time, steps=120)
+    assert max(shares) - min(shares) <= 1, shares
+
+    # What the server did before, every ready group per pass in a fixed order, gives two of
+    # the four trainers half the steps of the other two in this very model.
+    def every_ready_in_order(groups, now):
+        return [g for g in groups if g.ready(now)]
+
+    before = sorted(_serve_on_virtual_time(every_ready_in_order, steps=120))
+    assert before[2] >= 1.8 * before[1], before
