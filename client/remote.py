@@ -9,7 +9,7 @@ environments are built on these two.
 
 Which server serves an open request: the client asks every server on the network for its
 status and picks the one with the most free arenas that can take the whole request (ties: the
-fewest groups, then the name), unless ``server`` names one. A server that turns out full in
+fewest groups, then at random), unless ``server`` names one. A server that turns out full in
 the meantime passes the request on to the next.
 """
 
@@ -275,7 +275,10 @@ class Connection:
         if not roomy:
             listing = ", ".join(f"{s.server} ({s.arenas_free} free)" for s in statuses)
             raise errors.ServerFull(f"no server has {arenas} free arena(s): {listing}")
-        roomy.sort(key=lambda s: (-s.arenas_free, len(s.groups), s.server))
+        # Ties broken at random: trainers started together see the same statuses, and a tie
+        # broken by name sent them all to the same server.
+        tie_break = {s.server: secrets.randbits(32) for s in roomy}
+        roomy.sort(key=lambda s: (-s.arenas_free, len(s.groups), tie_break[s.server]))
         return [s.server for s in roomy]
 
     # --- steps ----------------------------------------------------------------------------
