@@ -111,6 +111,11 @@ class ServerConfig:
     """Zenoh routers (or peers) to connect to, e.g. ``tcp/router:7447``."""
     max_arenas: int = 256
     """Arenas this server holds at once; an open request beyond it is refused as full."""
+    max_arenas_per_trainer: int | None = None
+    """Arenas one trainer may hold here at once (opened or joined); beyond it an open or join
+    is refused as full, and the trainer's client tries the next server. Default: no limit
+    below --max-arenas. On a server others share, set it so that one trainer (or a stranger
+    who reached the port) cannot take all of it."""
     step_deadline_s: float = 30.0
     """How long a round waits for late trainers once another trainer of the group has acted.
     Generous, since a learner may pause for network updates; late agents get the default
@@ -365,8 +370,28 @@ class SimulatorServer:
             )
         self._alive_trainers.add(trainer)
 
+    def _arenas_of(self, trainer: str) -> int:
+        """Arenas in which ``trainer`` holds cars."""
+        return sum(
+            int(member.slots.any(axis=1).sum())
+            for group in self.groups.values()
+            if (member := group.members.get(trainer)) is not None
+        )
+
+    def _check_trainer_limit(self, trainer: str, more: int) -> None:
+        limit = self.config.max_arenas_per_trainer
+        if limit is None:
+            return
+        held = self._arenas_of(trainer)
+        if held + more > limit:
+            raise errors.ServerFull(
+                f"server {self.name} lets one trainer hold at most {limit} arena(s) "
+                f"(--max-arenas-per-trainer); {trainer} holds {held}, asked for {more} more"
+            )
+
     def _open(self, request: OpenRequest) -> Opened:
         self._require_alive(request.trainer)
+        self._check_trainer_limit(request.trainer, request.arenas)
         free = self.config.max_arenas - len(self._arena_index)
         if request.arenas > free:
             raise errors.ServerFull(
@@ -419,6 +444,9 @@ class SimulatorServer:
                 f"arenas are {_span(sorted(self._arena_index))}"
             )
         group = self.groups[where[0]]
+        member = group.members.get(request.trainer)
+        if member is None or not member.slots[where[1]].any():
+            self._check_trainer_limit(request.trainer, 1)
         group.claim(request.trainer, where[1], request.agents, fresh=False)
         log.info(
             "trainer %s joined arena %d (group %d) with %d agent(s)",
@@ -480,6 +508,11 @@ class SimulatorServer:
             log.warning("dropped actions in %s's name: %s", trainer, error)
         except errors.ProtocolError as error:
             log.info("refused actions from %s: %s", trainer, error)
+            if trainer not in self._alive_trainers:
+                # Nobody of that name is connected: no reply to a key nobody reads. Each new
+                # key a reply goes to costs Zenoh memory for good (bench/fuzz_wire.py), so a
+                # stranger inventing names must not make the server write to them.
+                return
             group = actions.group if isinstance(actions, Actions) else None
             self._send(trainer, ErrorReply(code=error.code, message=str(error), group=group))
 

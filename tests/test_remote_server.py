@@ -8,6 +8,7 @@ trainer subprocesses run ``tests/trainer_script.py`` and report one event per li
 from __future__ import annotations
 
 import math
+import queue
 import secrets
 import signal
 import subprocess
@@ -660,3 +661,79 @@ def test_equally_loaded_servers_are_picked_at_random_so_trainers_spread_out(monk
     picks = [tuple(connection.candidates(arenas=1)) for _ in range(40)]
     assert {p[0] for p in picks} == {"sim-a", "sim-b"}
     assert all(p[2] == "sim-c" for p in picks)  # the busiest stays last
+
+
+@pytest.mark.timeout(60)
+def test_one_trainer_holds_at_most_its_share_of_arenas(start_server):
+    from overtake.client.remote import ArenaGroup
+    from overtake.protocol.errors import ServerFull
+
+    server = start_server("e2e-share", max_arenas=8, extra=("--max-arenas-per-trainer", "3"))
+    config = remote_config(server.endpoint, server.name)
+    greedy, other = Connection(config), Connection(config)
+
+    def open_request(connection: Connection, arenas: int) -> OpenRequest:
+        return OpenRequest(
+            trainer=connection.trainer,
+            preset="min2018",
+            overrides={},
+            arenas=arenas,
+            agents_per_arena=2,
+            claim=1,
+            seed=1,
+        )
+
+    try:
+        ArenaGroup.open(greedy, open_request(greedy, 2))
+        # 2 held, 2 more asked: refused as full, naming the limit, what it holds and asks.
+        with pytest.raises(ServerFull, match=r"at most 3 arena.*holds 2, asked for 2"):
+            ArenaGroup.open(greedy, open_request(greedy, 2))
+        # Another trainer is not held back by the first one's share.
+        theirs = ArenaGroup.open(other, open_request(other, 3))
+        # Joining an arena it has no car in counts as one more: room for one, not for two.
+        join = JoinRequest(trainer=greedy.trainer, arena=theirs.arena_ids[0], agents=1)
+        ArenaGroup.open(greedy, join)
+        with pytest.raises(ServerFull, match=r"holds 3, asked for 1"):
+            ArenaGroup.open(
+                greedy, JoinRequest(trainer=greedy.trainer, arena=theirs.arena_ids[1], agents=1)
+            )
+        assert server.status().arenas_used == 5
+    finally:
+        greedy.close()
+        other.close()
+
+
+@pytest.mark.timeout(60)
+def test_refused_actions_are_answered_only_to_a_connected_trainer(start_server):
+    # A reply to a name nobody holds reaches nobody, and each new key costs Zenoh memory for
+    # good: a stranger inventing names must not make the server write to them.
+    server = start_server("e2e-no-reflect")
+    with RawClient(server.endpoint) as raw:
+        raw.token(keys.trainer_alive("present"))
+        wait_until(
+            lambda: _refusal_reaches(raw, server.name, "present"), 10.0, "the server sees us"
+        )
+        ghost = raw.collect(keys.trainer_steps("ghost", server.name))
+        present = raw.collect(keys.trainer_steps("present", server.name))
+        wrong_version = msgpack.packb([9, 0, "actions", {}])
+        raw.put(keys.server_actions(server.name, "ghost"), wrong_version)
+        raw.put(keys.server_actions(server.name, "present"), wrong_version)
+        # Both replies would leave the server in this order on one queue: once ours is here,
+        # a reply to the ghost would be too. (Replies to the readiness probes may come first.)
+        while True:
+            _, payload = present.get(timeout=10.0)
+            reply = codec.decode(payload)
+            assert isinstance(reply, ErrorReply)
+            if reply.code == "version_mismatch":
+                break
+        assert ghost.empty()
+
+
+def _refusal_reaches(raw: RawClient, server: str, trainer: str) -> bool:
+    inbox = raw.collect(keys.trainer_steps(trainer, server))
+    raw.put(keys.server_actions(server, trainer), b"\x00garbage")
+    try:
+        inbox.get(timeout=1.0)
+        return True
+    except queue.Empty:
+        return False
