@@ -16,9 +16,11 @@ not its to send. Every example Hypothesis draws is one frame to one key:
   closes for the honest trainer's arena (its ticket unknown to the stranger); floods of open
   requests (the stranger's arenas, freed when it leaves); a few oversized frames (MiB).
 
-Afterwards, and every ``--check-every`` frames on the way: the server answers a status request;
-the honest trainer is still stepping (its longest gap between steps is reported); the
-server's resident memory is reported (``/proc``). The run fails (exit 1) on a server that died
+Then a flood: ``--flood-puts`` unreadable actions and ``--flood-queries`` unreadable requests
+as fast as this process sends them, with the server's peak memory and how soon it answers
+after. Afterwards, and every ``--check-every`` frames on the way: the server answers a status
+request; the honest trainer is still stepping (its longest gap between steps is reported);
+the server's resident memory is reported (``/proc``). The run fails (exit 1) on a server that died
 or stopped answering, or an honest trainer that stalled or failed.
 
     .venv/bin/python -m bench.fuzz_wire [--frames 100000] [--seed 0] [--json PATH]
@@ -53,6 +55,10 @@ class FuzzConfig:
     """frames to send (Hypothesis examples)"""
     seed: int = 0
     """Hypothesis's seed: the same frames again"""
+    flood_puts: int = 1_000_000
+    """then unreadable actions sent as fast as this process can"""
+    flood_queries: int = 20_000
+    """and unreadable requests"""
     check_every: int = 5_000
     """frames between two checks that the server and the honest trainer are well"""
     max_arenas_per_trainer: int = 16
@@ -229,6 +235,53 @@ class Stranger:
                 key, congestion_control=zenoh.CongestionControl.BLOCK
             )
         publisher.put(frame)
+
+    def flood(self, puts: int, queries: int, server_pid: int) -> dict[str, Any]:
+        """As fast as this process can: ``puts`` unreadable actions on a made-up trainer's
+        key, then ``queries`` unreadable requests; the server's peak resident memory meanwhile
+        and how long it takes to answer a status request afterwards (what it had queued)."""
+        import threading
+
+        peak = [rss_mib(server_pid)]
+        watching = threading.Event()
+
+        def watch() -> None:
+            while not watching.wait(0.05):
+                peak[0] = max(peak[0], rss_mib(server_pid))
+
+        watcher = threading.Thread(target=watch, daemon=True)
+        watcher.start()
+        publisher = self.session.declare_publisher(
+            self.keys.server_actions(self.server, "flooder"),
+            congestion_control=self.zenoh.CongestionControl.BLOCK,
+        )
+        garbage = b"\x00flood"
+        t0 = time.perf_counter()
+        for _ in range(puts):
+            publisher.put(garbage)
+        t1 = time.perf_counter()
+        for _ in range(queries):
+            self.session.get(
+                self.keys.server_request(self.server),
+                handler=lambda reply: None,
+                payload=garbage,
+                timeout=5.0,
+            )
+        t2 = time.perf_counter()
+        answered = self.arenas_used() is not None
+        t3 = time.perf_counter()
+        watching.set()
+        watcher.join()
+        publisher.undeclare()
+        return {
+            "puts": puts,
+            "puts_per_s": round(puts / max(t1 - t0, 1e-9)),
+            "queries": queries,
+            "queries_per_s": round(queries / max(t2 - t1, 1e-9)),
+            "status_answered": answered,
+            "status_after_s": round(t3 - t2, 3),
+            "server_rss_mib_peak": round(peak[0], 1),
+        }
 
     def arenas_used(self) -> int | None:
         """The server's arenas in use, from a status request (None: no answer)."""
@@ -419,6 +472,10 @@ def main(config: FuzzConfig) -> dict[str, Any]:
         hypothesis_seed(config.seed)(send_one)()
         if count % config.check_every:
             check(count)
+        flood = stranger.flood(config.flood_puts, config.flood_queries, server.pid)
+        print(json.dumps({"flood": flood}), flush=True)
+        if not flood["status_answered"]:
+            failures.append("the server did not answer after the flood")
         time.sleep(2.0)  # let the last frames' effects show: the honest trainer keeps stepping
         check(count)
         first, last = checks[0]["honest_steps"] or 0, checks[-1]["honest_steps"] or 0
@@ -437,6 +494,7 @@ def main(config: FuzzConfig) -> dict[str, Any]:
             "honest_steps": last,
             "honest_longest_gap_s": longest,
             "honest_log_lines": 0,
+            "flood": flood,
             "failures": failures,
             "checks": checks,
         }
@@ -460,7 +518,10 @@ def main(config: FuzzConfig) -> dict[str, Any]:
         f"(max {result['server_rss_mib_max']}); honest trainer {result['honest_steps']} steps, "
         f"longest gap {result['honest_longest_gap_s']:.3f} s, "
         f"{result['honest_log_lines']} lines of its log (frames it dropped); "
-        + ("FAILED: " + "; ".join(failures) if failures else "no failure")
+        + f"flood: {flood['puts']:,} puts at {flood['puts_per_s']:,}/s and "
+        f"{flood['queries']:,} queries at {flood['queries_per_s']:,}/s, server RSS peak "
+        f"{flood['server_rss_mib_peak']} MiB, status answered {flood['status_after_s']} s "
+        "after; " + ("FAILED: " + "; ".join(failures) if failures else "no failure")
     )
     if config.json is not None:
         config.json.write_text(json.dumps(result, indent=2))

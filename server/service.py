@@ -86,6 +86,15 @@ _Event = _Query | _ActionsPut | _Liveliness | _Wake
 _WAKE = _Wake()
 # Events handled before the ready groups step: bounds what a flood of messages can delay.
 MAX_EVENTS_PER_PASS = 256
+# What a flood may queue before the loop reads it (bench/fuzz_wire.py: a million unreadable
+# actions on one key queued 150 MiB). Actions waiting per key (per trainer name): a trainer in
+# lock step has one at a time, so only a flood on its key reaches the bound. Requests waiting
+# in all (their sender is not known before decoding): beyond it a request goes unanswered and
+# its sender's timeout says so.
+MAX_QUEUED_ACTIONS_PER_KEY = 64
+MAX_QUEUED_REQUESTS = 1024
+# At most one warning about dropped frames per this many seconds.
+DROPPED_REPORT_INTERVAL_S = 5.0
 
 
 # With its sink on, a server logs every arena one round in this many: logging every round
@@ -165,6 +174,13 @@ class SimulatorServer:
         self.config = config
         self.name = config.name
         self._events: queue.SimpleQueue[_Event] = queue.SimpleQueue()
+        # Frames queued and not yet handled, counted by Zenoh's threads and the loop alike.
+        self._queue_lock = threading.Lock()
+        self._queued_actions: dict[str, int] = {}
+        self._queued_requests = 0
+        self._dropped = 0
+        self._dropped_reported = 0
+        self._dropped_report_t = 0.0
         self._stopping = threading.Event()
         self._own_session = session is None
         self.session = session if session is not None else open_session(config.transport())
@@ -201,18 +217,10 @@ class SimulatorServer:
             )
         s = self.session
         self._declared.append(
-            s.declare_queryable(
-                keys.server_request(self.name),
-                lambda q: self._events.put(_Query(q, q.payload.to_bytes() if q.payload else b"")),
-            )
+            s.declare_queryable(keys.server_request(self.name), self._enqueue_query)
         )
         self._declared.append(
-            s.declare_subscriber(
-                keys.server_actions_all(self.name),
-                lambda sample: self._events.put(
-                    _ActionsPut(str(sample.key_expr), sample.payload.to_bytes())
-                ),
-            )
+            s.declare_subscriber(keys.server_actions_all(self.name), self._enqueue_actions)
         )
         self._declared.append(
             s.liveliness().declare_subscriber(
@@ -224,6 +232,52 @@ class SimulatorServer:
             )
         )
         self._token = s.liveliness().declare_token(keys.server_alive(self.name))
+
+    def _enqueue_query(self, query: zenoh.Query) -> None:
+        """Zenoh's thread: queue a request, unless a flood already filled the queue."""
+        with self._queue_lock:
+            if self._queued_requests >= MAX_QUEUED_REQUESTS:
+                self._dropped += 1
+                return
+            self._queued_requests += 1
+        self._events.put(_Query(query, query.payload.to_bytes() if query.payload else b""))
+
+    def _enqueue_actions(self, sample: zenoh.Sample) -> None:
+        """Zenoh's thread: queue actions, unless their key already has its share queued."""
+        key = str(sample.key_expr)
+        with self._queue_lock:
+            waiting = self._queued_actions.get(key, 0)
+            if waiting >= MAX_QUEUED_ACTIONS_PER_KEY:
+                self._dropped += 1
+                return
+            self._queued_actions[key] = waiting + 1
+        self._events.put(_ActionsPut(key, sample.payload.to_bytes()))
+
+    def _dequeued(self, event: _Event) -> None:
+        """The loop took ``event``: it no longer counts against its queue's bound."""
+        with self._queue_lock:
+            if isinstance(event, _Query):
+                self._queued_requests -= 1
+            elif isinstance(event, _ActionsPut):
+                left = self._queued_actions[event.key] - 1
+                if left:
+                    self._queued_actions[event.key] = left
+                else:
+                    del self._queued_actions[event.key]
+            dropped = self._dropped
+        now = time.monotonic()
+        if dropped > self._dropped_reported and now - self._dropped_report_t >= (
+            DROPPED_REPORT_INTERVAL_S
+        ):
+            log.warning(
+                "dropped %d frame(s) of a flood (%d in all): more than %d actions waiting on "
+                "one key, or %d requests waiting",
+                dropped - self._dropped_reported,
+                dropped,
+                MAX_QUEUED_ACTIONS_PER_KEY,
+                MAX_QUEUED_REQUESTS,
+            )
+            self._dropped_reported, self._dropped_report_t = dropped, now
 
     # --- main loop ------------------------------------------------------------------------------
 
@@ -290,6 +344,7 @@ class SimulatorServer:
         return min(max(min(deadlines) - time.monotonic(), 0.0), 1.0)
 
     def _handle(self, event: _Event) -> None:
+        self._dequeued(event)
         try:
             if isinstance(event, _Query):
                 self._on_query(event.query, event.payload)

@@ -11,8 +11,21 @@ from bench.fuzz_wire import TARGETS, FuzzConfig, main
 
 @pytest.mark.timeout(120)
 def test_hostile_frames_on_every_key_harm_nobody(tmp_path):
-    result = main(FuzzConfig(frames=1_500, check_every=500, seed=1, json=tmp_path / "fuzz.json"))
+    config = FuzzConfig(
+        frames=1_500,
+        check_every=500,
+        seed=1,
+        flood_puts=200_000,
+        flood_queries=2_000,
+        json=tmp_path / "fuzz.json",
+    )
+    result = main(config)
     assert result["failures"] == []
+    # A flood of 200,000 frames on one key queues at most the server's bound of them: no
+    # more than a few MiB (unbounded, a million of them queued 150 MiB).
+    flood = result["flood"]
+    assert flood["status_answered"]
+    assert flood["server_rss_mib_peak"] - result["checks"][-2]["server_rss_mib"] < 20.0
     assert set(result["sent"]) == set(TARGETS) and min(result["sent"].values()) > 100
     # The honest trainer stepped all along, and the stranger's opens stayed within its limit.
     steps = [check["honest_steps"] for check in result["checks"]]
