@@ -95,11 +95,7 @@ class RemoteHighwayParallelEnv(
         dict[AgentID, dict[str, Any]],
     ]:
         """Every live car acts at once; a car whose episode ends leaves the road."""
-        if not self.agents:
-            raise RuntimeError(
-                "every car's episode has ended (agents is empty): call reset() first"
-            )
-        live = list(self.agents)
+        live = self._live_agents()
         chosen = check_parallel_actions(actions, live, self.possible_agents)
         restarts = self.group.restarts
         steps = self.group.step(

@@ -147,6 +147,14 @@ class ParallelAgents:
         self._slot(agent)
         return self._action_space
 
+    def _live_agents(self) -> list[str]:
+        """The cars that act this step; none left means the episode is over for all."""
+        if not self.agents:
+            raise RuntimeError(
+                "every car's episode has ended (agents is empty): call reset() first"
+            )
+        return list(self.agents)
+
     def _slot(self, agent: str) -> int:
         try:
             return self._index[agent]

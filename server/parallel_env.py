@@ -98,11 +98,7 @@ class HighwayParallelEnv(ParallelAgents, ParallelEnv[AgentID, dict[str, np.ndarr
         dict[AgentID, dict[str, Any]],
     ]:
         """Every live car acts at once; a car whose episode ends leaves the road."""
-        if not self.agents:
-            raise RuntimeError(
-                "every car's episode has ended (agents is empty): call reset() first"
-            )
-        live = list(self.agents)
+        live = self._live_agents()
         chosen = np.full((1, len(self.possible_agents)), DEFAULT_ACTION, dtype=np.int64)
         picked = check_parallel_actions(actions, live, self.possible_agents)
         chosen[0, [self._index[a] for a in live]] = picked
