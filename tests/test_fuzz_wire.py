@@ -21,11 +21,9 @@ def test_hostile_frames_on_every_key_harm_nobody(tmp_path):
     )
     result = main(config)
     assert result["failures"] == []
-    # A flood of 200,000 frames on one key queues at most the server's bound of them: no
-    # more than a few MiB (unbounded, a million of them queued 150 MiB).
-    flood = result["flood"]
-    assert flood["status_answered"]
-    assert flood["server_rss_mib_peak"] - result["checks"][-2]["server_rss_mib"] < 20.0
+    # After a flood of 200,000 frames the server answers again (what it queued is bounded:
+    # tests/test_remote_server.py::test_a_flood_queues_at_most_its_bound).
+    assert result["flood"]["status_answered"]
     assert set(result["sent"]) == set(TARGETS) and min(result["sent"].values()) > 100
     # The honest trainer stepped all along, and the stranger's opens stayed within its limit.
     steps = [check["honest_steps"] for check in result["checks"]]

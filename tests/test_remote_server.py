@@ -737,3 +737,35 @@ def _refusal_reaches(raw: RawClient, server: str, trainer: str) -> bool:
         return True
     except queue.Empty:
         return False
+
+
+def test_a_flood_queues_at_most_its_bound():
+    # What Zenoh's threads queue for the loop: at most MAX_QUEUED_ACTIONS_PER_KEY actions per
+    # key and MAX_QUEUED_REQUESTS requests; the rest is dropped and counted. Exercised on the
+    # queueing alone (no session): a flood cannot be timed against the loop reliably.
+    from types import SimpleNamespace
+
+    from overtake.server import service
+
+    server = service.SimulatorServer.__new__(service.SimulatorServer)
+    server._events = queue.SimpleQueue()
+    server._queue_lock = threading.Lock()
+    server._queued_actions, server._queued_requests = {}, 0
+    server._dropped = server._dropped_reported = 0
+    server._dropped_report_t = 0.0
+
+    def sample(key: str) -> SimpleNamespace:
+        return SimpleNamespace(key_expr=key, payload=SimpleNamespace(to_bytes=lambda: b"x"))
+
+    bound = service.MAX_QUEUED_ACTIONS_PER_KEY
+    for _ in range(bound + 100):
+        server._enqueue_actions(sample("overtake/server/s/actions/flooder"))
+    server._enqueue_actions(sample("overtake/server/s/actions/honest"))  # another key: let in
+    assert server._events.qsize() == bound + 1 and server._dropped == 100
+    # The loop taking one makes room for one more on that key.
+    server._dequeued(server._events.get_nowait())
+    server._enqueue_actions(sample("overtake/server/s/actions/flooder"))
+    assert server._events.qsize() == bound + 1 and server._dropped == 100
+    for _ in range(service.MAX_QUEUED_REQUESTS + 5):
+        server._enqueue_query(SimpleNamespace(payload=None))
+    assert server._queued_requests == service.MAX_QUEUED_REQUESTS and server._dropped == 105
