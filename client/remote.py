@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import logging
+import math
 import os
 import queue
 import secrets
@@ -60,6 +61,9 @@ from overtake.protocol.transport import (
 log = logging.getLogger("overtake.client")
 
 M = TypeVar("M", bound=Message)
+
+# Messages dropped (unreadable, or not for us) are logged at most once per this many seconds.
+DROPPED_LOG_INTERVAL_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -162,6 +166,7 @@ class Connection:
             keys.ALL_SERVERS_ALIVE, self._on_server_alive, history=True
         )
         self._publishers: dict[str, zenoh.Publisher] = {}
+        self._drop_logged_t, self._drops_unlogged = -math.inf, 0
         self.closed = False
 
     def _on_server_alive(self, sample: zenoh.Sample) -> None:
@@ -357,19 +362,19 @@ class Connection:
         try:
             message = codec.decode(payload, Steps)
         except errors.ProtocolError as error:
-            log.warning("dropped an unreadable message from server %s: %s", sender, error)
+            self._drop("dropped an unreadable message from server %s: %s", sender, error)
             return
         if isinstance(message, ErrorReply):
             if (sender, message.group) not in self._stepping:
                 # Not about a group we step (perhaps garbage sent in our name): say so only.
-                log.warning("server %s refused a message in our name: %s", sender, message.message)
+                self._drop("server %s refused a message in our name: %s", sender, message.message)
                 return
             self._errors.setdefault((sender, message.group), deque()).append(
                 errors.error_from_code(message.code, f"server {sender}: {message.message}")
             )
             return
         if message.server != sender or (sender, message.group) not in self._stepping:
-            log.warning(
+            self._drop(
                 "dropped steps of group %d from %s on server %s's key",
                 message.group,
                 message.server,
@@ -377,6 +382,20 @@ class Connection:
             )
             return
         self._buffered.setdefault((sender, message.group), deque()).append(message)
+
+    def _drop(self, message: str, *args: Any) -> None:
+        """Log a message this connection dropped, at most once per DROPPED_LOG_INTERVAL_S,
+        with how many went unlogged meanwhile: a flood of garbage in our name (bench/fuzz_wire)
+        would otherwise write a line per frame."""
+        now = time.monotonic()
+        if now - self._drop_logged_t < DROPPED_LOG_INTERVAL_S:
+            self._drops_unlogged += 1
+            return
+        if self._drops_unlogged:
+            message += " (and %d more dropped unlogged in the last %.0f s)"
+            args += (self._drops_unlogged, now - self._drop_logged_t)
+        log.warning(message, *args)
+        self._drop_logged_t, self._drops_unlogged = now, 0
 
     def track(self, server: str, group: int) -> None:
         """Start accepting Steps and errors for ``group`` (after opening or joining it)."""

@@ -769,3 +769,25 @@ def test_a_flood_queues_at_most_its_bound():
     for _ in range(service.MAX_QUEUED_REQUESTS + 5):
         server._enqueue_query(SimpleNamespace(payload=None))
     assert server._queued_requests == service.MAX_QUEUED_REQUESTS and server._dropped == 105
+
+
+def test_a_flood_of_garbage_in_a_trainers_name_is_logged_once_per_interval(caplog):
+    # One line per dropped frame would fill a trainer's log under a flood (48,000 lines in
+    # bench/fuzz_wire's run): the first is logged, the rest counted into the next line.
+    import logging
+
+    from overtake.client import remote
+
+    connection = Connection.__new__(Connection)  # no session: only the filing is exercised
+    connection._stepping = set()
+    connection._drop_logged_t, connection._drops_unlogged = -math.inf, 0
+    key = keys.trainer_steps("me", "sim-a")
+    with caplog.at_level(logging.WARNING, logger="overtake.client"):
+        for _ in range(100):
+            connection._file(key, b"\x00garbage")
+        assert len(caplog.records) == 1
+        assert "unreadable message from server sim-a" in caplog.records[0].getMessage()
+        connection._drop_logged_t -= remote.DROPPED_LOG_INTERVAL_S  # the interval has passed
+        connection._file(key, b"\x00garbage")
+    assert len(caplog.records) == 2
+    assert "and 99 more dropped unlogged" in caplog.records[1].getMessage()
