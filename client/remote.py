@@ -64,6 +64,10 @@ M = TypeVar("M", bound=Message)
 
 # Messages dropped (unreadable, or not for us) are logged at most once per this many seconds.
 DROPPED_LOG_INTERVAL_S = 5.0
+# A request a busy server did not queue is asked again after this pause, doubled each time
+# up to the maximum (a flood of requests usually drains within a second: bench/fuzz_wire.py).
+BUSY_FIRST_PAUSE_S = 0.05
+BUSY_MAX_PAUSE_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -195,7 +199,22 @@ class Connection:
     # --- requests --------------------------------------------------------------------------
 
     def request(self, server: str, message: Message, expect: type[M]) -> M:
-        """Send a request to one server; its reply, or the error it names."""
+        """Send a request to one server; its reply, or the error it names. A server too busy
+        to queue it (a flood) is asked again, waiting longer each time, until the request
+        timeout; a busy server did not queue the request, so asking again is safe."""
+        give_up = time.monotonic() + self.config.request_timeout_s
+        pause_s = BUSY_FIRST_PAUSE_S
+        while True:
+            try:
+                return self._request_once(server, message, expect)
+            except errors.ServerBusy:
+                if time.monotonic() + pause_s > give_up:
+                    raise
+                log.info("server %s is busy; asking again in %.2f s", server, pause_s)
+                time.sleep(pause_s)
+                pause_s = min(pause_s * 2, BUSY_MAX_PAUSE_S)
+
+    def _request_once(self, server: str, message: Message, expect: type[M]) -> M:
         replies = list(
             self.session.get(
                 keys.server_request(server),
@@ -478,7 +497,7 @@ class ArenaGroup:
                     epoch = conn.epoch(server)
                     opened = conn.request(server, request, Opened)
                     break
-                except (errors.ServerFull, errors.ServerLost) as error:
+                except (errors.ServerFull, errors.ServerBusy, errors.ServerLost) as error:
                     last_error = error
             else:
                 assert last_error is not None

@@ -37,6 +37,10 @@ def format_status(statuses: list[StatusReply]) -> str:
             f"group(s), step deadline {s.step_deadline_s:g} s, up {s.uptime_s:.0f} s, "
             f"overtake {s.package_version}"
         )
+        lines.append(
+            f"  queued: {s.queued_actions} actions, {s.queued_requests} requests; "
+            f"{s.dropped_frames} frames dropped at the queues' bounds"
+        )
         for g in s.groups:
             lines.append(
                 f"  group {g.group}: {g.preset}, arenas {list(g.arenas)}, "

@@ -41,6 +41,12 @@ class ServerFull(ProtocolError):
     code = "server_full"
 
 
+class ServerBusy(ProtocolError):
+    """Too many requests wait at the server (a flood): this one was not queued; ask again."""
+
+    code = "server_busy"
+
+
 class UnknownArena(ProtocolError):
     """The arena (or group) does not exist on this server: never opened, or closed since."""
 
@@ -97,6 +103,7 @@ ERRORS_BY_CODE: dict[str, type[ProtocolError]] = {
         UnknownPreset,
         BadConfig,
         ServerFull,
+        ServerBusy,
         UnknownArena,
         NotOwner,
         WrongTicket,

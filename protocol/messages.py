@@ -30,7 +30,7 @@ from .vocabulary import ACTION_COUNT, ACTION_NAMES
 
 # The wire contract: protocol version (major, minor). A peer of another major version is
 # refused; a newer minor may add optional fields, which an older peer ignores.
-PROTOCOL_VERSION: tuple[int, int] = (1, 3)
+PROTOCOL_VERSION: tuple[int, int] = (1, 4)
 PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
     (
         "1.0",
@@ -55,6 +55,13 @@ PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
         "(retire: PettingZoo's finished agents); Opened says the server's minor version "
         "(server_minor), so a trainer can tell a server that would ignore retire. A 1.2 "
         "peer's Actions decode with no retired cars, its Opened with server_minor 2.",
+    ),
+    (
+        "1.4",
+        "Status replies say what waits in the server's queues (queued_actions, "
+        "queued_requests) and how many frames a flood lost at their bounds (dropped_frames); "
+        "a request beyond the bound is answered server_busy at once instead of not at all. "
+        "A 1.3 server's status decodes with zeros.",
     ),
 )
 
@@ -255,6 +262,12 @@ class StatusReply(Message):
     step_deadline_s: float
     uptime_s: float
     groups: tuple[GroupStatus, ...]
+    queued_actions: int = field(default=0, metadata={"since": 4})
+    """Actions frames received and not yet handled, over all trainers' keys."""
+    queued_requests: int = field(default=0, metadata={"since": 4})
+    """Requests received and not yet answered."""
+    dropped_frames: int = field(default=0, metadata={"since": 4})
+    """Frames dropped at the queues' bounds since the server started (a flood's)."""
 
     def check(self) -> None:
         check_name("server", self.server)

@@ -102,6 +102,15 @@ DROPPED_REPORT_INTERVAL_S = 5.0
 SERVER_RECORD_EVERY = 10
 
 
+def busy_reply(server: str) -> ErrorReply:
+    """The answer to a request that finds MAX_QUEUED_REQUESTS already waiting."""
+    return ErrorReply(
+        code=errors.ServerBusy.code,
+        message=f"server {server} is busy: {MAX_QUEUED_REQUESTS} requests are waiting "
+        "already, so this one was not queued; ask again",
+    )
+
+
 def default_server_name() -> str:
     host = "".join(c if c.isalnum() or c in "-_." else "-" for c in socket.gethostname())
     return f"sim-{host[:40] or 'host'}-{os.getpid()}"
@@ -181,6 +190,7 @@ class SimulatorServer:
         self._dropped = 0
         self._dropped_reported = 0
         self._dropped_report_t = 0.0
+        self._busy_frame = codec.encode(busy_reply(config.name))
         self._stopping = threading.Event()
         self._own_session = session is None
         self.session = session if session is not None else open_session(config.transport())
@@ -234,12 +244,19 @@ class SimulatorServer:
         self._token = s.liveliness().declare_token(keys.server_alive(self.name))
 
     def _enqueue_query(self, query: zenoh.Query) -> None:
-        """Zenoh's thread: queue a request, unless a flood already filled the queue."""
+        """Zenoh's thread: queue a request, unless a flood already filled the queue; then it
+        is answered busy at once (a prepared frame: no decoding, nothing kept), so that an
+        honest asker caught in the flood hears why and asks again instead of timing out."""
         with self._queue_lock:
-            if self._queued_requests >= MAX_QUEUED_REQUESTS:
+            full = self._queued_requests >= MAX_QUEUED_REQUESTS
+            if full:
                 self._dropped += 1
-                return
-            self._queued_requests += 1
+            else:
+                self._queued_requests += 1
+        if full:
+            with contextlib.suppress(Exception), query:
+                query.reply(keys.server_request(self.name), self._busy_frame)
+            return
         self._events.put(_Query(query, query.payload.to_bytes() if query.payload else b""))
 
     def _enqueue_actions(self, sample: zenoh.Sample) -> None:
@@ -402,6 +419,10 @@ class SimulatorServer:
         raise errors.DecodeError(f"not a request: {request.TYPE}")  # pragma: no cover
 
     def status(self) -> StatusReply:
+        with self._queue_lock:
+            queued_actions = sum(self._queued_actions.values())
+            # The status request being answered has left the queue already.
+            queued_requests, dropped = self._queued_requests, self._dropped
         return StatusReply(
             server=self.name,
             package_version=_package_version(),
@@ -410,6 +431,9 @@ class SimulatorServer:
             step_deadline_s=self.config.step_deadline_s,
             uptime_s=time.monotonic() - self._started,
             groups=tuple(g.status() for g in self.groups.values()),
+            queued_actions=queued_actions,
+            queued_requests=queued_requests,
+            dropped_frames=dropped,
         )
 
     def _require_alive(self, trainer: str) -> None:

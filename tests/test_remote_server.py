@@ -24,7 +24,7 @@ import pytest
 import overtake.client  # noqa: F401  (registers the environments)
 from overtake.client import RemoteEnvironment
 from overtake.client.remote import Connection
-from overtake.protocol import REMOTE_HIGHWAY_ENV_ID, codec, keys
+from overtake.protocol import REMOTE_HIGHWAY_ENV_ID, codec, errors, keys
 from overtake.protocol.codec import version_text
 from overtake.protocol.errors import ServerLost
 from overtake.protocol.messages import (
@@ -32,8 +32,10 @@ from overtake.protocol.messages import (
     Actions,
     ErrorReply,
     JoinRequest,
+    Message,
     OpenRequest,
     StatusReply,
+    StatusRequest,
     WorldFrame,
 )
 from overtake.server.errors import StartError
@@ -92,6 +94,14 @@ def test_two_trainers_step_their_own_arenas_concurrently(start_server, start_tra
     status = server.status()
     assert sorted(g.rounds for g in status.groups) == [steps, steps]
     assert all(g.late_agents == 0 for g in status.groups)
+    # Both are idle now: nothing waits in the server's queues, and nothing was dropped.
+    assert (status.queued_actions, status.queued_requests, status.dropped_frames) == (0, 0, 0)
+    from overtake.client.status import format_status
+
+    text = format_status([status])
+    assert f"{server.name}: 2/" in text and "0 frames dropped at the queues' bounds" in text
+    for ready in (ready_a, ready_b):
+        assert f"trainers [{ready['trainer']!r}], {steps} rounds" in text
 
     a.send("exit")
     b.send("exit")
@@ -753,6 +763,22 @@ def test_a_flood_queues_at_most_its_bound():
     server._queued_actions, server._queued_requests = {}, 0
     server._dropped = server._dropped_reported = 0
     server._dropped_report_t = 0.0
+    server.name = "s"
+    server._busy_frame = codec.encode(service.busy_reply("s"))
+
+    class FakeQuery:
+        payload = None
+        replies: list[bytes] = []
+
+        def __enter__(self) -> FakeQuery:
+            return self
+
+        def __exit__(self, *_: object) -> None:
+            pass
+
+        def reply(self, key: str, payload: bytes) -> None:
+            assert key == keys.server_request("s")
+            self.replies.append(payload)
 
     def sample(key: str) -> SimpleNamespace:
         return SimpleNamespace(key_expr=key, payload=SimpleNamespace(to_bytes=lambda: b"x"))
@@ -767,8 +793,16 @@ def test_a_flood_queues_at_most_its_bound():
     server._enqueue_actions(sample("overtake/server/s/actions/flooder"))
     assert server._events.qsize() == bound + 1 and server._dropped == 100
     for _ in range(service.MAX_QUEUED_REQUESTS + 5):
-        server._enqueue_query(SimpleNamespace(payload=None))
+        server._enqueue_query(FakeQuery())
     assert server._queued_requests == service.MAX_QUEUED_REQUESTS and server._dropped == 105
+    # Those beyond the bound were answered at once, busy, with the bound named (protocol 1.4);
+    # those queued were not answered yet.
+    assert len(FakeQuery.replies) == 5
+    busy = codec.decode(FakeQuery.replies[0])
+    assert isinstance(busy, ErrorReply) and busy.code == errors.ServerBusy.code
+    assert f"{service.MAX_QUEUED_REQUESTS} requests are waiting" in busy.message
+    with pytest.raises(errors.ServerBusy, match="server s is busy"):
+        raise errors.error_from_code(busy.code, busy.message)
 
 
 def test_a_flood_of_garbage_in_a_trainers_name_is_logged_once_per_interval(caplog):
@@ -791,3 +825,43 @@ def test_a_flood_of_garbage_in_a_trainers_name_is_logged_once_per_interval(caplo
         connection._file(key, b"\x00garbage")
     assert len(caplog.records) == 2
     assert "and 99 more dropped unlogged" in caplog.records[1].getMessage()
+
+
+def test_a_request_a_busy_server_did_not_queue_is_asked_again_until_the_timeout(monkeypatch):
+    # Protocol 1.4: beyond its bound of waiting requests a server answers server_busy at
+    # once; the client asks again with growing pauses, and names the cause when time is up.
+    from overtake.client import remote
+
+    connection = Connection.__new__(Connection)  # no session: only the asking is exercised
+    connection.config = remote_config("tcp/127.0.0.1:1", request_timeout_s=5.0)
+    ok = Ack(message="ok")
+    answers: list[object] = [errors.ServerBusy("server s is busy")] * 2 + [ok]
+    asked: list[Message] = []
+
+    def once(server: str, message: Message, expect: type) -> object:
+        asked.append(message)
+        answer = answers.pop(0)
+        if isinstance(answer, Exception):
+            raise answer
+        return answer
+
+    pauses: list[float] = []
+    monkeypatch.setattr(connection, "_request_once", once)
+    monkeypatch.setattr(remote.time, "sleep", pauses.append)
+    assert connection.request("s", StatusRequest(), Ack) is ok
+    assert len(asked) == 3 and pauses == [remote.BUSY_FIRST_PAUSE_S, 2 * remote.BUSY_FIRST_PAUSE_S]
+
+    # Always busy: it gives up before the request timeout would pass, with the server's words.
+    clock = [0.0]
+    monkeypatch.setattr(remote.time, "monotonic", lambda: clock[0])
+    pauses.clear()
+
+    def sleep(seconds: float) -> None:
+        pauses.append(seconds)
+        clock[0] += seconds
+
+    monkeypatch.setattr(remote.time, "sleep", sleep)
+    answers[:] = [errors.ServerBusy("server s is busy")] * 100
+    with pytest.raises(errors.ServerBusy, match="server s is busy"):
+        connection.request("s", StatusRequest(), Ack)
+    assert 4.0 < clock[0] <= 5.0 and max(pauses) == remote.BUSY_MAX_PAUSE_S
