@@ -766,9 +766,10 @@ def test_a_flood_queues_at_most_its_bound():
     server.name = "s"
     server._busy_frame = codec.encode(service.busy_reply("s"))
 
+    replies: list[bytes] = []
+
     class FakeQuery:
         payload = None
-        replies: list[bytes] = []
 
         def __enter__(self) -> FakeQuery:
             return self
@@ -778,7 +779,7 @@ def test_a_flood_queues_at_most_its_bound():
 
         def reply(self, key: str, payload: bytes) -> None:
             assert key == keys.server_request("s")
-            self.replies.append(payload)
+            replies.append(payload)
 
     def sample(key: str) -> SimpleNamespace:
         return SimpleNamespace(key_expr=key, payload=SimpleNamespace(to_bytes=lambda: b"x"))
@@ -797,8 +798,8 @@ def test_a_flood_queues_at_most_its_bound():
     assert server._queued_requests == service.MAX_QUEUED_REQUESTS and server._dropped == 105
     # Those beyond the bound were answered at once, busy, with the bound named (protocol 1.4);
     # those queued were not answered yet.
-    assert len(FakeQuery.replies) == 5
-    busy = codec.decode(FakeQuery.replies[0])
+    assert len(replies) == 5
+    busy = codec.decode(replies[0])
     assert isinstance(busy, ErrorReply) and busy.code == errors.ServerBusy.code
     assert f"{service.MAX_QUEUED_REQUESTS} requests are waiting" in busy.message
     with pytest.raises(errors.ServerBusy, match="server s is busy"):

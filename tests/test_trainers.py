@@ -868,3 +868,58 @@ def test_training_writes_a_rerun_recording_of_its_episodes_and_learning(tmp_path
         assert np.allclose(
             points, np.stack([seen * np.cos(angles), -seen * np.sin(angles)], 1), atol=1e-4
         )
+
+
+@pytest.mark.timeout(120)
+def test_sigterm_ends_a_training_run_with_a_checkpoint_and_a_whole_recording(tmp_path):
+    # docker compose stop, a cluster's preemption, Ctrl-C: the run ends after the step under
+    # way as it would at --total-steps, so nothing since the last periodic checkpoint is lost
+    # and the .rrd gets its footer (a killed writer's fails `rerun rrd verify`).
+    import signal
+
+    from remote_support import wait_until
+
+    run_dir = tmp_path / "run"
+    trainer = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "overtake.trainers.train",
+            *("--preset", "ho2018", "--total-steps", "1000000", "--seed", "3"),
+            *("--run-dir", str(run_dir), "--no-progress", "--log-every", "40"),
+            *("--checkpoint-every", "1000000", "--learning-starts", "64", "--replay-size", "500"),
+            *("--hidden-units", "32", "--torch-threads", "1"),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        metrics = run_dir / "metrics.jsonl"
+        wait_until(
+            lambda: metrics.exists() and metrics.read_text().count("\n") >= 2, 90, "two log lines"
+        )
+        assert not (run_dir / CHECKPOINT_NAME).exists()  # none periodic: the stop writes it
+        trainer.send_signal(signal.SIGTERM)
+        out, err = trainer.communicate(timeout=60)
+    finally:
+        if trainer.poll() is None:
+            trainer.kill()
+            trainer.wait()
+    assert trainer.returncode == 0, err
+    assert "SIGTERM: finishing the step under way, writing a checkpoint" in err
+    summary = json.loads(out[out.index("{") :])
+    assert summary["stopped"] is True and 80 <= summary["steps"] < 1_000_000
+    assert load_checkpoint(run_dir / CHECKPOINT_NAME).step == summary["steps"]
+    verified = subprocess.run(
+        [
+            str(Path(sys.executable).with_name("rerun")),
+            "rrd",
+            "verify",
+            str(run_dir / "trainer.rrd"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert verified.returncode == 0, verified.stderr

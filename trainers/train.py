@@ -24,9 +24,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import platform
+import signal
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from importlib import metadata
@@ -65,6 +68,8 @@ from .presets import PRESET_TRAINING
 from .replay import FrameStacker, ReplayMemory
 from .two_stream_network import TwoStreamShape
 from .visual import TrainingRecording, training_blueprint
+
+log = logging.getLogger("overtake.trainer")
 
 # Environment 0's view is logged every this many steps of the vector environment: about 6 MB
 # of .rrd per 10,000 steps with the camera, and no loss in steps per second measurable above
@@ -209,12 +214,17 @@ class Timings:
         }
 
 
-def main(config: TrainConfig, envs: Any = None) -> dict[str, Any]:
+def main(
+    config: TrainConfig, envs: Any = None, stop: threading.Event | None = None
+) -> dict[str, Any]:
     """Train; returns a summary (steps, episodes, last metrics, run directory).
 
     ``envs``: a ready Gymnasium vector environment (next-step autoreset, the overtake
     observation keys and ``info["action_mask"]``) to train on instead of the one the
     configuration describes; the caller keeps it and closes it.
+    ``stop``: once set, the run ends after the step under way as it would at
+    ``total_steps`` (a last log line, a checkpoint, the recording closed), and the summary
+    says ``stopped``; ``cli`` sets it on SIGTERM and SIGINT.
     """
     if config.total_steps < 1 or config.num_envs < 1:
         raise UsageError("--total-steps and --num-envs must be >= 1")
@@ -234,7 +244,7 @@ def main(config: TrainConfig, envs: Any = None) -> dict[str, Any]:
             f"configuration says num_envs={config.num_envs}"
         )
     try:
-        return TrainingRun(config, envs, run_dir, overrides, resumed).run()
+        return TrainingRun(config, envs, run_dir, overrides, resumed, stop).run()
     finally:
         if own_envs:
             envs.close()
@@ -302,8 +312,10 @@ class TrainingRun:
         run_dir: Path,
         overrides: dict[str, Any],
         resumed: Checkpoint | None,
+        stop: threading.Event | None = None,
     ) -> None:
         self.config, self.dqn, self.envs = config, config.dqn, envs
+        self.stop = stop if stop is not None else threading.Event()
         # Remote arenas hear the step count with each action: a spectator's recording of them
         # then lies on this run's `step` timeline (in-process environments have no spectators).
         self._label_step = getattr(envs.unwrapped, "label_step", None)
@@ -382,7 +394,7 @@ class TrainingRun:
         try:
             self._open_recording()
             self._start_episodes()
-            while self.step < self.config.total_steps:
+            while self.step < self.config.total_steps and not self.stop.is_set():
                 self._iteration()
             if self.step > self.log_step:
                 # The steps since the last line, a partial window: a learning curve (Fayjie
@@ -400,6 +412,7 @@ class TrainingRun:
             "episodes": self.episodes,
             "updates": self.learner.updates,
             "last_episode": self.last_episode,
+            "stopped": self.step < self.config.total_steps,
         }
 
     def _write_run_record(self) -> None:
@@ -683,7 +696,25 @@ def parse_args(args: list[str]) -> TrainConfig:
 
 def cli(argv: list[str] | None = None) -> None:
     config = parse_args(sys.argv[1:] if argv is None else argv)
-    summary = run_command("overtake-train", main, config)
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        name = signal.Signals(signum).name
+        if stop.is_set():  # asked twice: stop now (the recording and logs still close)
+            raise SystemExit(
+                f"overtake-train: stopped at once by a second {name}; the run continues "
+                "with --resume from its last checkpoint"
+            )
+        log.warning(
+            "%s: finishing the step under way, writing a checkpoint and stopping "
+            "(send it again to stop at once); continue the run with --resume",
+            name,
+        )
+        stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    summary = run_command("overtake-train", lambda c: main(c, stop=stop), config)
     print(json.dumps(summary, indent=2))
 
 
