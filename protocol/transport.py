@@ -287,6 +287,13 @@ def _tls_cause(host: str, port: int, security: SecurityConfig) -> str | None:
                         "--tls-mtls with --tls-certificate and --tls-private-key signed "
                         "by a CA it trusts"
                     )
+                if "EXPIRED" in str(error).upper():
+                    return (
+                        f"{where} refused this side's certificate: it has expired "
+                        f"({error.reason or error}); make a new one for "
+                        f"--tls-certificate {security.tls_certificate} with the same CA "
+                        "(scripts/make-certs.sh)"
+                    )
                 return (
                     f"{where} refused this side's certificate "
                     f"({error.reason or error}): it is not signed by a CA it trusts"
@@ -295,6 +302,12 @@ def _tls_cause(host: str, port: int, security: SecurityConfig) -> str | None:
                 pass
     except ssl.SSLCertVerificationError as error:
         reason = error.verify_message or str(error)
+        if "expired" in reason.lower() or "not yet valid" in reason.lower():
+            return (
+                f"the TLS certificate of {where} {reason.lower().removeprefix('certificate ')}"
+                ": the router needs a new one from its CA (scripts/make-certs.sh), or this "
+                "machine's clock is wrong"
+            )
         if "mismatch" in reason.lower():
             return (
                 f"the TLS certificate of {where} does not name {host!r} ({reason}): connect "
