@@ -91,7 +91,9 @@ class RemoteConfig:
     security: SecurityConfig = field(default_factory=SecurityConfig)
     """usrpwd credentials and TLS certificates (the password from a file or the environment)"""
     trainer_name: str | None = None
-    """A readable prefix for this trainer's id in server logs and status."""
+    """A readable prefix for this trainer's id in server logs and status. Default: the usrpwd
+    user, else "trainer". A router that isolates trainers (overtake-router
+    --isolate-trainers) lets a user's session use only ids that begin with its user name."""
 
     @classmethod
     def from_connect(cls, connect: str | tuple[str, ...] | list[str] | None) -> RemoteConfig:
@@ -144,7 +146,9 @@ class Connection:
 
     def __init__(self, config: RemoteConfig) -> None:
         self.config = config
-        self.trainer = _trainer_id(config.trainer_name)
+        self.trainer = _trainer_id(
+            config.trainer_name or config.security.user or os.environ.get(USER_ENV)
+        )
         try:
             self.session = open_session(config.transport())
         except zenoh.ZError as error:

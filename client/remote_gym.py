@@ -111,6 +111,11 @@ class _RemoteHandles:
         return self._remote.group
 
     @property
+    def trainer(self) -> str:
+        """This trainer's name on the network (the servers' status lists it)."""
+        return self._remote.connection.trainer
+
+    @property
     def sim_config(self) -> dict[str, Any]:
         """The server's resolved configuration as plain nested data."""
         return self._remote.sim_config

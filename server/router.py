@@ -2,8 +2,10 @@
 
 It does what the compose file's router service (zenohd, from the official eclipse/zenoh image)
 does: it relays between simulator servers, trainers and spectators, and holds no overtake logic
-at all. It reads the same Zenoh JSON5 file (``--config docker/zenoh-router.json5``); --listen,
---connect and the credential and TLS options override what the file says. Multicast scouting
+beyond, with --isolate-trainers, the access control that keeps trainers apart
+(``overtake.server.access``). It reads the same Zenoh JSON5 file
+(``--config docker/zenoh-router.json5``); --listen, --connect and the credential and TLS
+options override what the file says. Multicast scouting
 and gossip are always off, as everywhere in overtake: every endpoint is explicit.
 
 ``python -m overtake.server.router`` is the same command. SIGINT or SIGTERM stops it cleanly.
@@ -31,6 +33,7 @@ from overtake.protocol.transport import (
     warn_if_unguarded,
 )
 
+from .access import isolation_rules, users_in
 from .errors import StartError
 
 log = logging.getLogger("overtake.router")
@@ -51,6 +54,14 @@ class RouterConfig:
     security: SecurityConfig = field(default_factory=SecurityConfig)
     """usrpwd (--credentials-file: the users it admits) and TLS (--tls-certificate and
     --tls-private-key for tls/ endpoints; --tls-mtls with --tls-root-ca to check clients')"""
+    isolate_trainers: bool = False
+    """Zenoh access control (needs usrpwd): each trainer user reaches only its own arenas'
+    steps and actions, and no world frames; --server-users may serve, --spectator-users may
+    watch; every other user of the credentials is a trainer (overtake.server.access)"""
+    server_users: tuple[str, ...] = ()
+    """with --isolate-trainers: the users overtake-server runs as"""
+    spectator_users: tuple[str, ...] = ()
+    """with --isolate-trainers: the users that may watch every arena (overtake-spectate)"""
     log_level: str = "info"
 
 
@@ -88,9 +99,42 @@ def zenoh_config(config: RouterConfig) -> tuple[zenoh.Config, TransportConfig]:
     config.security.check(() if file_has_identity else listen, connect)
     for key, value in config.security.zenoh_settings():
         conf.insert_json5(key, value)
+    if config.isolate_trainers:
+        conf.insert_json5("access_control", json.dumps(isolation_for(config, conf)))
+    elif config.server_users or config.spectator_users:
+        raise errors.ConnectError("--server-users and --spectator-users need --isolate-trainers")
     return conf, TransportConfig(
         mode="router", listen=listen, connect=connect, security=config.security
     )
+
+
+def isolation_for(config: RouterConfig, conf: zenoh.Config) -> dict[str, Any]:
+    """The access control --isolate-trainers asks for, from the users of the credentials."""
+    path = config.security.credentials_file
+    if path is None:
+        dictionary = json.loads(conf.get_json("transport/auth/usrpwd/dictionary_file"))
+        path = Path(dictionary) if dictionary else None
+    if path is None:
+        raise errors.ConnectError(
+            "--isolate-trainers tells users apart by their usrpwd names: give "
+            "--credentials-file (the user:password lines the router admits)"
+        )
+    try:
+        users = users_in(path.read_text())
+    except OSError as error:
+        raise errors.ConnectError(f"cannot read the credentials {path}: {error}") from None
+    unknown = [u for u in (*config.server_users, *config.spectator_users) if u not in users]
+    if unknown:
+        raise errors.ConnectError(
+            f"--server-users / --spectator-users {unknown} are not in {path} (it lists {users})"
+        )
+    roles = {*config.server_users, *config.spectator_users}
+    try:
+        return isolation_rules(
+            config.server_users, config.spectator_users, [u for u in users if u not in roles]
+        )
+    except ValueError as error:
+        raise errors.ConnectError(f"--isolate-trainers: {error}") from None
 
 
 def usrpwd_source(config: RouterConfig, conf: zenoh.Config) -> str | None:
@@ -114,6 +158,13 @@ def log_start(
     auth = f"usrpwd: the users of {source}" if source else "no usrpwd check"
     if mtls:
         auth += "; mutual TLS"
+    acl = json.loads(conf.get_json("access_control"))
+    if acl.get("enabled"):
+        trainers = [s["usernames"][0] for s in acl["subjects"] if s["id"].startswith("trainer ")]
+        auth += (
+            f"; trainers isolated: servers {list(config.server_users)}, spectators "
+            f"{list(config.spectator_users)}, trainers {trainers}"
+        )
     log.info("router %s listening on %s (%s)", zid, ", ".join(transport.listen), auth)
     warn_if_unguarded(transport, log, usrpwd=source is not None, mtls=mtls)
 

@@ -725,6 +725,150 @@ def test_strangers_are_refused_and_told_why(tmp_path: Path, background, certific
     assert "scripts/make-certs.sh" in str(refused.value)
 
 
+@pytest.mark.timeout(180)
+def test_isolated_trainers_reach_only_their_own_arenas(tmp_path: Path, background):
+    # overtake-router --isolate-trainers: Zenoh access control by usrpwd user. Bob's session
+    # asks for everything (every trainer's steps, every action, the world frames) and gets
+    # only his own trainer's steps; the spectator user watches the world; the same
+    # subscriptions on a router without isolation see Alice's steps (the test can fail).
+    import gymnasium as gym
+
+    import overtake.client  # noqa: F401  (registers the environments)
+    from overtake.client.spectator import Spectator
+    from overtake.protocol import REMOTE_HIGHWAY_ENV_ID as REMOTE_ENV
+    from overtake.protocol import keys
+    from overtake.protocol.transport import open_session
+
+    credentials = tmp_path / "credentials.txt"
+    credentials.write_text("simserver:s3rver\nwatcher:w4tch\nalice:al1ce\nbob:b0b\n")
+    passwords = {}
+    for user, password in (line.split(":") for line in credentials.read_text().split()):
+        passwords[user] = tmp_path / f"{user}.pw"
+        passwords[user].write_text(password + "\n")
+
+    def security(user: str) -> SecurityConfig:
+        return SecurityConfig(user=user, password_file=passwords[user])
+
+    def remote(user: str) -> RemoteConfig:
+        return RemoteConfig(
+            connect=(endpoint,),
+            connect_timeout_s=10.0,
+            request_timeout_s=5.0,
+            step_timeout_s=20.0,
+            security=security(user),
+        )
+
+    def seen_by_bob() -> tuple[set[str], int]:
+        """The keys of every sample Bob's spying session received while Alice and Bob each
+        stepped a remote arena, and the world frames the spectator user received."""
+        spy = open_session(
+            TransportConfig(mode="client", connect=(endpoint,), security=security("bob"))
+        )
+        received: list[str] = []
+        try:
+            # Everything, every trainer's steps, the world, and (allowed) bob's own steps.
+            wanted_keys = ("overtake/**", "overtake/trainer/*/steps/*", keys.world_all())
+            for wanted in (*wanted_keys, "overtake/trainer/bob-$*/steps/*"):
+                spy.declare_subscriber(wanted, lambda sample: received.append(str(sample.key_expr)))
+            bob_env = gym.make_vec(REMOTE_ENV, num_envs=1, preset="ho2018", remote=remote("bob"))
+            alice_env = gym.make_vec(
+                REMOTE_ENV, num_envs=1, preset="ho2018", remote=remote("alice")
+            )
+            with Spectator(remote("watcher")) as spectator:
+                bob_env.reset(seed=1)
+                alice_env.reset(seed=2)
+                mine = f"overtake/trainer/{bob_env.unwrapped.trainer}/steps/sim-iso"
+
+                def bob_steps_seen() -> int:
+                    bob_env.step([0])
+                    return received.count(mine)
+
+                # Bob's own steps reach his spy: its subscriptions are in place.
+                wait_until(bob_steps_seen, 30, "bob's spy receiving bob's own steps")
+                for _ in range(30):
+                    alice_env.step([0])
+                # The router sends the spy what it is allowed in order on one link: once a
+                # step of bob's after alice's has arrived, so has anything of alice's.
+                before = received.count(mine)
+                wait_until(lambda: bob_steps_seen() > before, 30, "bob's step after alice's")
+                assert spectator.next_frame(30.0) is not None
+                world_frames = spectator.frames_received
+            assert alice_env.unwrapped.trainer.startswith(
+                "alice-"
+            ) and bob_env.unwrapped.trainer.startswith("bob-")
+            alice_env.close()
+            bob_env.close()
+        finally:
+            spy.close()
+        return set(received), world_frames
+
+    credentials_args = ("--credentials-file", str(credentials))
+    roles = ("--isolate-trainers", "--server-users", "simserver", "--spectator-users", "watcher")
+    for isolate in (True, False):
+        endpoint = f"tcp/{LOOPBACK}:{free_port()}"
+        router = start_router(
+            background,
+            f"router-isolate-{isolate}",
+            [endpoint],
+            *credentials_args,
+            *(roles if isolate else ()),
+        )
+        server = start_server(
+            background,
+            f"server-{isolate}",
+            endpoint,
+            *("--name", "sim-iso", "--user", "simserver", "--password-file"),
+            str(passwords["simserver"]),
+            listen=False,
+        )
+        wait_for_server("sim-iso", remote("simserver"), server)
+        seen, world_frames = seen_by_bob()
+        assert world_frames > 0  # the spectator user watches the world either way
+        if isolate:
+            assert "trainers isolated: servers ['simserver'], spectators ['watcher'], " in (
+                router.log_text()
+            )
+            assert seen and all(key.startswith("overtake/trainer/bob-") for key in seen), seen
+        else:
+            assert any(key.startswith("overtake/trainer/alice-") for key in seen), seen
+            assert any("/world/" in key for key in seen), seen
+        router.stop()
+        server.stop()
+
+
+def test_isolation_settings_are_checked_with_the_user_named(tmp_path: Path):
+    credentials = tmp_path / "credentials.txt"
+    credentials.write_text("simserver:a\nalice:b\nbob-the-builder:c\n")
+
+    def router(**changes) -> RouterConfig:
+        return RouterConfig(
+            security=SecurityConfig(credentials_file=credentials),
+            isolate_trainers=True,
+            server_users=("simserver",),
+            **changes,
+        )
+
+    with pytest.raises(errors.ConnectError, match="'bob-the-builder' cannot be isolated"):
+        zenoh_config(router())
+    credentials.write_text("simserver:a\nalice:b\n")
+    conf, _ = zenoh_config(router())
+    acl = json.loads(conf.get_json("access_control"))
+    assert acl["enabled"] and acl["default_permission"] == "deny"
+    assert [s["usernames"] for s in acl["subjects"]] == [["simserver"], ["alice"]]
+    with pytest.raises(errors.ConnectError, match=r"\['nobody'\] are not in"):
+        zenoh_config(router(spectator_users=("nobody",)))
+    with pytest.raises(errors.ConnectError, match="give --credentials-file"):
+        zenoh_config(RouterConfig(isolate_trainers=True, server_users=("simserver",)))
+    with pytest.raises(errors.ConnectError, match="need --isolate-trainers"):
+        zenoh_config(RouterConfig(server_users=("simserver",)))
+    # The example for zenohd in docker/ is what the router makes for its users.
+    example = (ROOT / "docker" / "zenoh-router-isolated.json5").read_text()
+    from overtake.server.access import isolation_rules
+
+    body = json.loads(re.sub(r"^\s*//.*$", "", example, flags=re.M))
+    assert body["access_control"] == isolation_rules(["simserver"], ["watcher"], ["alice", "bob"])
+
+
 # --- the compose topology, without Docker ------------------------------------------------------
 
 
