@@ -64,8 +64,32 @@ class SoakConfig:
     learning_starts: int = 500
     checkpoint_every: int = 2000
     """environment steps between each trainer's checkpoints: several during the soak"""
+    learners: bool = True
+    """trainers that learn (overtake-train); --no-learners: processes stepping their arenas
+    with random actions as fast as the server answers (the wire and the server alone)"""
+    record: bool = True
+    """the server's own recording and the spectator's to .rrd files; --no-record: neither
+    records (the spectator still receives every world frame)"""
     run_dir: Path = Path("runs/soak")
     """where the processes' files, samples.jsonl and summary.json go (emptied first)"""
+
+
+def random_trainer(endpoint: str, preset: str, arenas: int, seed: int) -> None:
+    """--no-learners: step ``arenas`` remote arenas with random actions until SIGTERM."""
+    from bench.bench_remote import REMOTE_ENV_ID, make_env
+    from overtake.client.remote import RemoteConfig
+
+    stop = []
+    signal.signal(signal.SIGTERM, lambda *_: stop.append(True))
+    env = make_env(REMOTE_ENV_ID, arenas, preset=preset, remote=RemoteConfig(connect=(endpoint,)))
+    rng = np.random.default_rng(seed)
+    env.reset(seed=seed)
+    while not stop:
+        actions = rng.integers(0, 5, size=arenas)
+        _, _, terminated, truncated, _ = env.step(int(actions[0]) if arenas == 1 else actions)
+        if arenas == 1 and (terminated or truncated):
+            env.reset()
+    env.close()
 
 
 def resident_mib(pid: int) -> float | None:
@@ -216,7 +240,11 @@ def main(config: SoakConfig) -> dict[str, Any]:
             [
                 python,
                 *("-m", "overtake.server", "--listen", endpoint, "--name", SERVER_NAME),
-                *("--sink", "file", "--rrd", str(run_dir / "server.rrd")),
+                *(
+                    ("--sink", "file", "--rrd", str(run_dir / "server.rrd"))
+                    if config.record
+                    else ("--sink", "off")
+                ),
             ],
             run_dir / "server.log",
         )
@@ -226,14 +254,24 @@ def main(config: SoakConfig) -> dict[str, Any]:
             [
                 python,
                 *("-m", "overtake.client.spectate", "--connect", endpoint),
-                *("--sink", "file", "--rrd", str(run_dir / "spectator.rrd")),
+                *(
+                    ("--sink", "file", "--rrd", str(run_dir / "spectator.rrd"))
+                    if config.record
+                    else ("--sink", "off")
+                ),
             ],
             run_dir / "spectator.log",
         )
         for index in range(config.trainers):
             trainer_dir = run_dir / f"trainer-{index}"
+            random_argv = [
+                *(python, "-m", "bench.soak", "--random-trainer", endpoint),
+                *(config.preset, str(config.arenas), str(index)),
+            ]
             processes[f"trainer-{index}"] = start(
-                [
+                random_argv
+                if not config.learners
+                else [
                     python,
                     *("-m", "overtake.trainers.train", "--connect", endpoint),
                     *("--preset", config.preset, "--algo", ALGOS[index % len(ALGOS)]),
@@ -297,7 +335,7 @@ def main(config: SoakConfig) -> dict[str, Any]:
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
         "stopped": stopped,
         **summarise(samples, config),
-        "outputs": check_outputs(run_dir, config.trainers),
+        "outputs": check_outputs(run_dir, config.trainers if config.learners else 0),
     }
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     print(json.dumps(summary, indent=2))
@@ -305,4 +343,8 @@ def main(config: SoakConfig) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    main(tyro.cli(SoakConfig))
+    if len(sys.argv) > 1 and sys.argv[1] == "--random-trainer":
+        endpoint, preset, arenas, seed = sys.argv[2:6]
+        random_trainer(endpoint, preset, int(arenas), int(seed))
+    else:
+        main(tyro.cli(SoakConfig))
