@@ -233,6 +233,13 @@ def main(config: SoakConfig) -> dict[str, Any]:
         f"files in {run_dir}",
         flush=True,
     )
+
+    def sink(name: str) -> tuple[str, ...]:
+        """The recording options of the server or the spectator: its own .rrd, or none."""
+        if not config.record:
+            return ("--sink", "off")
+        return ("--sink", "file", "--rrd", str(run_dir / f"{name}.rrd"))
+
     connection = None
     samples: list[dict[str, Any]] = []
     try:
@@ -240,11 +247,7 @@ def main(config: SoakConfig) -> dict[str, Any]:
             [
                 python,
                 *("-m", "overtake.server", "--listen", endpoint, "--name", SERVER_NAME),
-                *(
-                    ("--sink", "file", "--rrd", str(run_dir / "server.rrd"))
-                    if config.record
-                    else ("--sink", "off")
-                ),
+                *sink("server"),
             ],
             run_dir / "server.log",
         )
@@ -254,11 +257,7 @@ def main(config: SoakConfig) -> dict[str, Any]:
             [
                 python,
                 *("-m", "overtake.client.spectate", "--connect", endpoint),
-                *(
-                    ("--sink", "file", "--rrd", str(run_dir / "spectator.rrd"))
-                    if config.record
-                    else ("--sink", "off")
-                ),
+                *sink("spectator"),
             ],
             run_dir / "spectator.log",
         )

@@ -51,7 +51,6 @@ from overtake.protocol.messages import (
 )
 from overtake.protocol.transport import (
     DEFAULT_ENDPOINT,
-    USER_ENV,
     SecurityConfig,
     TransportConfig,
     connect_failure_cause,
@@ -114,12 +113,13 @@ class RemoteConfig:
 
 def _trainer_id(prefix: str | None) -> str:
     host = "".join(c if c.isalnum() or c in "-_." else "-" for c in socket.gethostname())[:24]
-    head = "".join(c if c.isalnum() or c in "-_." else "-" for c in (prefix or "trainer"))[:16]
+    head = "".join(c if c.isalnum() or c in "-_." else "-" for c in (prefix or "trainer"))
+    head = head[: keys.TRAINER_PREFIX_CHARS]
     return f"{head}-{host or 'host'}-{os.getpid()}-{secrets.token_hex(3)}"
 
 
 def likely_causes(config: RemoteConfig) -> str:
-    user = config.security.user or os.environ.get(USER_ENV)
+    user = config.security.user_name()
     return (
         "Likely causes: no overtake-server (or Zenoh router) is running there; a wrong host "
         "or port; the server listens on loopback only (start it with --listen "
@@ -146,9 +146,7 @@ class Connection:
 
     def __init__(self, config: RemoteConfig) -> None:
         self.config = config
-        self.trainer = _trainer_id(
-            config.trainer_name or config.security.user or os.environ.get(USER_ENV)
-        )
+        self.trainer = _trainer_id(config.trainer_name or config.security.user_name())
         try:
             self.session = open_session(config.transport())
         except zenoh.ZError as error:

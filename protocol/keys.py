@@ -23,6 +23,10 @@ ROOT = "overtake"
 ALL_SERVER_REQUESTS = f"{ROOT}/server/*/request"
 ALL_TRAINERS_ALIVE = f"{ROOT}/alive/trainer/*"
 ALL_SERVERS_ALIVE = f"{ROOT}/alive/server/*"
+ALL_SERVER_ACTIONS = f"{ROOT}/server/*/actions/*"
+# A trainer's name begins with a prefix of at most this many characters (its usrpwd user, or
+# what it chose), then "-": what a router's access control matches (users_trainer_keys).
+TRAINER_PREFIX_CHARS = 16
 
 
 def server_request(server: str) -> str:
@@ -60,6 +64,18 @@ def world(server: str, arena: int | None = None) -> str:
 
 def world_all() -> str:
     return f"{ROOT}/server/*/world/*"
+
+
+def users_trainer_keys(prefix: str) -> tuple[str, str, str]:
+    """Key expressions of every trainer whose name begins with ``prefix`` and "-": its
+    actions to any server, its steps from any server, its liveliness token."""
+    check_name("trainer prefix", prefix)
+    own = f"{prefix}-$*"
+    return (
+        f"{ROOT}/server/*/actions/{own}",
+        f"{ROOT}/trainer/{own}/steps/*",
+        f"{ROOT}/alive/trainer/{own}",
+    )
 
 
 def server_alive(server: str) -> str:

@@ -61,9 +61,13 @@ class SecurityConfig:
     tls_verify_name: bool = True
     """TLS: check that the router's certificate names the host or address connected to"""
 
+    def user_name(self) -> str | None:
+        """The usrpwd user this process presents: --user, else $OVERTAKE_ZENOH_USER."""
+        return self.user or os.environ.get(USER_ENV) or None
+
     def usrpwd(self) -> tuple[str, str] | None:
         """The (user, password) to present, or None; reads the password file or environment."""
-        user = self.user or os.environ.get(USER_ENV) or None
+        user = self.user_name()
         if user is None:
             if self.password_file is not None:
                 raise ConnectError(
@@ -360,7 +364,7 @@ def connect_failure_cause(config: TransportConfig) -> str | None:
         elif _speaks_tls(host, port):
             causes.append(f"{where} is a TLS listener: connect to tls/{where} (with --tls-root-ca)")
             continue
-        credentials = config.security.user or os.environ.get(USER_ENV)
+        credentials = config.security.user_name()
         if credentials:
             causes.append(
                 f"{where} accepted the link but refused the Zenoh session: most "

@@ -38,14 +38,12 @@ ALL_MESSAGES = (
     "declare_liveliness_subscriber",
     "liveliness_query",
 )
-# A trainer's name is "<user>-<host>-<pid>-<random>" with the user cut to this many characters
-# (overtake.client.remote): a longer user name would not be the prefix of its trainers' names.
-TRAINER_USER_CHARS = 16
-_TRAINER_USER = re.compile(rf"[A-Za-z0-9_.]{{1,{TRAINER_USER_CHARS}}}")
+# A trainer's name is "<user>-<host>-<pid>-<random>" with the user cut to
+# keys.TRAINER_PREFIX_CHARS: a longer user name would not be the prefix of its trainers' names.
+_TRAINER_USER = re.compile(rf"[A-Za-z0-9_.]{{1,{keys.TRAINER_PREFIX_CHARS}}}")
 
-_ROOT = keys.ROOT
+_EVERYTHING = f"{keys.ROOT}/**"
 _REQUESTS = keys.ALL_SERVER_REQUESTS
-_ACTIONS_ALL = f"{_ROOT}/server/*/actions/*"
 _SERVERS_ALIVE = keys.ALL_SERVERS_ALIVE
 _WORLD_ALL = keys.world_all()
 
@@ -54,7 +52,7 @@ def check_trainer_user(user: str) -> None:
     if not _TRAINER_USER.fullmatch(user):
         raise ValueError(
             f"trainer user {user!r} cannot be isolated: a trainer's user name must be 1 to "
-            f"{TRAINER_USER_CHARS} letters, digits, '_' or '.' (no '-', which separates it "
+            f"{keys.TRAINER_PREFIX_CHARS} letters, digits, '_' or '.' (no '-', which separates it "
             "from the rest of its trainers' names)"
         )
 
@@ -82,73 +80,63 @@ def isolation_rules(
         raise ValueError(f"user(s) {twice} named in more than one role")
     for user in trainers:
         check_trainer_user(user)
-    rules = [
-        _rule("server", ("ingress", "egress"), ALL_MESSAGES, f"{_ROOT}/**"),
-    ]
+    rules = [_rule("server", ("ingress", "egress"), ALL_MESSAGES, _EVERYTHING)]
     subjects = [{"id": "servers", "usernames": list(servers)}]
     policies = [{"id": "servers", "rules": ["server"], "subjects": ["servers"]}]
+
+    def grant(role: str, usernames: list[str], granted: list[dict[str, Any]]) -> None:
+        rules.extend(granted)
+        subjects.append({"id": role, "usernames": usernames})
+        policies.append({"id": role, "rules": [r["id"] for r in granted], "subjects": [role]})
+
     if spectators:
-        rules += [
-            _rule("spectator-asks", ("ingress",), ("query",), _REQUESTS),
-            _rule("spectator-watches", ("ingress",), ("declare_subscriber",), _WORLD_ALL),
-            _rule("spectator-receives", ("egress",), ("reply",), _REQUESTS),
-            _rule("spectator-receives-world", ("egress",), ("put",), _WORLD_ALL),
-            _rule(
-                "spectator-servers-alive",
-                ("ingress",),
-                ("declare_liveliness_subscriber", "liveliness_query"),
-                _SERVERS_ALIVE,
-            ),
-            _rule("spectator-sees-servers", ("egress",), ("liveliness_token",), _SERVERS_ALIVE),
-        ]
-        subjects.append({"id": "spectators", "usernames": list(spectators)})
-        policies.append(
-            {
-                "id": "spectators",
-                "rules": [r["id"] for r in rules if r["id"].startswith("spectator-")],
-                "subjects": ["spectators"],
-            }
+        grant(
+            "spectators",
+            list(spectators),
+            [
+                _rule("spectator-asks", ("ingress",), ("query",), _REQUESTS),
+                _rule("spectator-watches", ("ingress",), ("declare_subscriber",), _WORLD_ALL),
+                _rule("spectator-receives", ("egress",), ("reply",), _REQUESTS),
+                _rule("spectator-receives-world", ("egress",), ("put",), _WORLD_ALL),
+                _rule(
+                    "spectator-servers-alive",
+                    ("ingress",),
+                    ("declare_liveliness_subscriber", "liveliness_query"),
+                    _SERVERS_ALIVE,
+                ),
+                _rule("spectator-sees-servers", ("egress",), ("liveliness_token",), _SERVERS_ALIVE),
+            ],
         )
     for user in trainers:
-        own = f"{user}-$*"  # this user's trainers' names: "<user>-" then anything
-        mine = [
-            # What the trainer's session sends.
-            _rule(f"{user}/asks", ("ingress",), ("query",), _REQUESTS),
-            _rule(f"{user}/acts", ("ingress",), ("put",), f"{_ROOT}/server/*/actions/{own}"),
-            _rule(
-                f"{user}/listens",
-                ("ingress",),
-                ("declare_subscriber",),
-                f"{_ROOT}/trainer/{own}/steps/*",
-            ),
-            _rule(
-                f"{user}/is-alive",
-                ("ingress", "egress"),
-                ("liveliness_token",),
-                f"{_ROOT}/alive/trainer/{own}",
-            ),
-            _rule(
-                f"{user}/watches-servers",
-                ("ingress",),
-                ("declare_liveliness_subscriber", "liveliness_query"),
-                _SERVERS_ALIVE,
-            ),
-            # What reaches it.
-            _rule(f"{user}/answers", ("egress",), ("reply",), _REQUESTS),
-            _rule(f"{user}/steps", ("egress",), ("put",), f"{_ROOT}/trainer/{own}/steps/*"),
-            _rule(f"{user}/servers-alive", ("egress",), ("liveliness_token",), _SERVERS_ALIVE),
-            # The servers' declarations, so that its publisher matches their subscriber.
-            _rule(f"{user}/servers-listen", ("egress",), ("declare_subscriber",), _ACTIONS_ALL),
-            _rule(f"{user}/servers-answer", ("egress",), ("declare_queryable",), _REQUESTS),
-        ]
-        rules += mine
-        subjects.append({"id": f"trainer {user}", "usernames": [user]})
-        policies.append(
-            {
-                "id": f"trainer {user}",
-                "rules": [r["id"] for r in mine],
-                "subjects": [f"trainer {user}"],
-            }
+        actions, steps, alive = keys.users_trainer_keys(user)
+        grant(
+            f"trainer {user}",
+            [user],
+            [
+                # What the trainer's session sends.
+                _rule(f"{user}/asks", ("ingress",), ("query",), _REQUESTS),
+                _rule(f"{user}/acts", ("ingress",), ("put",), actions),
+                _rule(f"{user}/listens", ("ingress",), ("declare_subscriber",), steps),
+                _rule(f"{user}/is-alive", ("ingress", "egress"), ("liveliness_token",), alive),
+                _rule(
+                    f"{user}/watches-servers",
+                    ("ingress",),
+                    ("declare_liveliness_subscriber", "liveliness_query"),
+                    _SERVERS_ALIVE,
+                ),
+                # What reaches it.
+                _rule(f"{user}/answers", ("egress",), ("reply",), _REQUESTS),
+                _rule(f"{user}/steps", ("egress",), ("put",), steps),
+                _rule(f"{user}/servers-alive", ("egress",), ("liveliness_token",), _SERVERS_ALIVE),
+                # The servers' declarations, so that its publisher matches their subscriber.
+                _rule(
+                    f"{user}/servers-listen",
+                    ("egress",),
+                    ("declare_subscriber",),
+                    keys.ALL_SERVER_ACTIONS,
+                ),
+                _rule(f"{user}/servers-answer", ("egress",), ("declare_queryable",), _REQUESTS),
+            ],
         )
     return {
         "enabled": True,

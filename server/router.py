@@ -110,10 +110,7 @@ def zenoh_config(config: RouterConfig) -> tuple[zenoh.Config, TransportConfig]:
 
 def isolation_for(config: RouterConfig, conf: zenoh.Config) -> dict[str, Any]:
     """The access control --isolate-trainers asks for, from the users of the credentials."""
-    path = config.security.credentials_file
-    if path is None:
-        dictionary = json.loads(conf.get_json("transport/auth/usrpwd/dictionary_file"))
-        path = Path(dictionary) if dictionary else None
+    path = credentials_path(config, conf)
     if path is None:
         raise errors.ConnectError(
             "--isolate-trainers tells users apart by their usrpwd names: give "
@@ -137,15 +134,23 @@ def isolation_for(config: RouterConfig, conf: zenoh.Config) -> dict[str, Any]:
         raise errors.ConnectError(f"--isolate-trainers: {error}") from None
 
 
-def usrpwd_source(config: RouterConfig, conf: zenoh.Config) -> str | None:
-    """Where the users the router admits come from: --credentials-file, or the
+def credentials_path(config: RouterConfig, conf: zenoh.Config) -> Path | None:
+    """The users the router admits: --credentials-file, or the
     ``transport/auth/usrpwd/dictionary_file`` of the --config file; None: no usrpwd check."""
     if config.security.credentials_file is not None:
-        return f"--credentials-file {config.security.credentials_file}"
+        return config.security.credentials_file
     dictionary = json.loads(conf.get_json("transport/auth/usrpwd/dictionary_file"))
-    if dictionary:
-        return f"dictionary_file {dictionary} of --config {config.config}"
-    return None
+    return Path(dictionary) if dictionary else None
+
+
+def usrpwd_source(config: RouterConfig, conf: zenoh.Config) -> str | None:
+    """Where the users the router admits come from, in words (None: no usrpwd check)."""
+    path = credentials_path(config, conf)
+    if path is None:
+        return None
+    if config.security.credentials_file is not None:
+        return f"--credentials-file {path}"
+    return f"dictionary_file {path} of --config {config.config}"
 
 
 def log_start(
@@ -159,12 +164,14 @@ def log_start(
     if mtls:
         auth += "; mutual TLS"
     acl = json.loads(conf.get_json("access_control"))
-    if acl.get("enabled"):
+    if config.isolate_trainers:
         trainers = [s["usernames"][0] for s in acl["subjects"] if s["id"].startswith("trainer ")]
         auth += (
             f"; trainers isolated: servers {list(config.server_users)}, spectators "
             f"{list(config.spectator_users)}, trainers {trainers}"
         )
+    elif acl.get("enabled"):
+        auth += f"; the access control of --config {config.config}"
     log.info("router %s listening on %s (%s)", zid, ", ".join(transport.listen), auth)
     warn_if_unguarded(transport, log, usrpwd=source is not None, mtls=mtls)
 
