@@ -267,4 +267,8 @@ class RemoteHighwayVectorEnv(_RemoteHandles, gym.vector.VectorEnv):
         return (dict(steps.observations), steps.reward, steps.terminated, steps.truncated, info)
 
     def close_extras(self, **kwargs: Any) -> None:
-        self._remote.close()
+        # A constructor that raised (no server, every server full) leaves nothing to close;
+        # gymnasium's __del__ calls close all the same.
+        remote = getattr(self, "_remote", None)
+        if remote is not None:
+            remote.close()

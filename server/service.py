@@ -714,11 +714,12 @@ class SimulatorServer:
                 pub.undeclare()
         self._last_world.pop(group.group_id, None)
         log.info(
-            "trainer %s left group %d (%s); arenas %s freed",
+            "trainer %s left group %d (%s); arenas %s freed after %d rounds",
             trainer,
             group.group_id,
             why,
             _span(group.arena_ids),
+            group.rounds_done,
         )
 
 

@@ -897,19 +897,35 @@ def test_router_server_and_three_trainers_then_eval(tmp_path: Path, background):
             text=True,
         )
         trainers[algo] = (proc, run_dir, out, err)
+    summaries = []
     try:
         for proc, run_dir, out, err in trainers.values():
             code = proc.wait(timeout=COMMAND_TIMEOUT_S)
             out.seek(0)
             err.seek(0)
-            check_trained(
-                subprocess.CompletedProcess(proc.args, code, out.read(), err.read()), run_dir
+            summaries.append(
+                check_trained(
+                    subprocess.CompletedProcess(proc.args, code, out.read(), err.read()), run_dir
+                )
             )
     finally:
         for proc, _, out, err in trainers.values():
             stop_process(proc)
             out.close()
             err.close()
+
+    # Every step a trainer took through the router is one round the server played for it,
+    # no more, no less (the server says how many as each trainer leaves).
+    for summary in summaries:
+        assert summary["server_losses"] == 0
+        server.wait_log(f"trainer {summary['trainer']} left group")
+        rounds = re.search(
+            rf"trainer {re.escape(summary['trainer'])} left group \d+ \(closed\); arenas \S+ "
+            r"freed after (\d+) rounds",
+            server.log_text(),
+        )
+        assert rounds is not None, server.log_text()[-2000:]
+        assert int(rounds[1]) == summary["env_steps_called"] > 0
 
     report = tmp_path / "eval.json"
     done = run(

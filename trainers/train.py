@@ -409,11 +409,25 @@ class TrainingRun:
         return {
             "run_dir": str(self.run_dir),
             "steps": self.step,
+            "resumed_at_step": self.resumed_at_step,
+            # Calls of envs.step in this life, autoreset steps included: on a server, its
+            # rounds for this trainer (plus two per server loss; see _remote_facts).
+            "env_steps_called": self.iteration,
+            **self._remote_facts(),
             "episodes": self.episodes,
             "updates": self.learner.updates,
             "last_episode": self.last_episode,
             "stopped": self.step < self.config.total_steps,
         }
+
+    def _remote_facts(self) -> dict[str, Any]:
+        """With --connect: this trainer's name on the network, and how often its server was
+        lost and its arenas reopened (each loss ends the episodes under way as truncated)."""
+        remote = self.envs.unwrapped
+        group = getattr(remote, "group", None)
+        if group is None:
+            return {}
+        return {"trainer": remote.trainer, "server_losses": group.restarts}
 
     def _write_run_record(self) -> None:
         """run.json (run-resume-N.json): what this life of the run is, to reproduce it."""
@@ -431,6 +445,7 @@ class TrainingRun:
             "seed": config.seed,
             "resumes": self.resumes,
             "resumed_at_step": self.resumed_at_step,
+            "trainer": getattr(self.envs.unwrapped, "trainer", None),
             "host": platform.node(),
             "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
             "replay_bytes": self.replay.nbytes,
