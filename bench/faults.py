@@ -45,8 +45,9 @@ Figures per case (``summary.json`` in ``--run-dir``, one line each printed):
   the loss ended as truncated;
 - ``checkpoints``: each trainer's checkpoint loads right after a kill (before the restart
   reads it) and at the end;
-- ``recordings``: every .rrd passes ``rerun rrd verify``; a file whose writer was killed has
-  no footer, so it is checked with ``rerun rrd print`` (everything flushed before the kill
+- ``recordings``: every .rrd passes ``rerun rrd verify`` (the server's, written without a
+  footer, with ``--check-footers false``); a trainer's file whose writer was killed has no
+  footer, so it is checked with ``rerun rrd print`` (everything flushed before the kill
   reads back) and repaired on a copy with ``rerun rrd migrate``, which must then verify.
 
     .venv/bin/python -m bench.faults [--targets trainer server router] [--rounds 1]
@@ -325,10 +326,16 @@ def leave_rounds(server: Proc) -> dict[str, int]:
     return rounds
 
 
-def check_recording(path: Path) -> dict[str, Any]:
+def check_recording(path: Path, footer: bool) -> dict[str, Any]:
+    """``footer``: whether its writer writes Rerun's footer on closing (a trainer's); the
+    server's world recording is written without one (overtake.viz.recording, on footers)."""
     rerun = str(Path(sys.executable).with_name("rerun"))
     out: dict[str, Any] = {"mib": round(path.stat().st_size / 2**20, 2)}
-    verify = subprocess.run([rerun, "rrd", "verify", str(path)], capture_output=True, text=True)
+    verify = subprocess.run(
+        [rerun, "rrd", "verify", "--check-footers", str(footer).lower(), str(path)],
+        capture_output=True,
+        text=True,
+    )
     if verify.returncode == 0:
         return {**out, "verified": True}
     printed = subprocess.run([rerun, "rrd", "print", str(path)], capture_output=True, text=True)
@@ -537,7 +544,7 @@ def run_case(config: FaultConfig, target: str, fault: str, index: int, rng: rand
             except Exception as error:
                 result["checkpoints"][path.parent.name] = f"unreadable: {error}"
         result["recordings"] = {
-            str(p.relative_to(case_dir)): check_recording(p)
+            str(p.relative_to(case_dir)): check_recording(p, footer=not p.name.startswith("server"))
             for p in sorted(case_dir.rglob("*.rrd"))
         }
     finally:

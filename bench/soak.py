@@ -191,7 +191,8 @@ def summarise(samples: list[dict[str, Any]], config: SoakConfig) -> dict[str, An
 
 
 def check_outputs(run_dir: Path, trainers: int) -> dict[str, Any]:
-    """Every checkpoint loads, every .rrd passes ``rerun rrd verify``."""
+    """Every checkpoint loads, every .rrd passes ``rerun rrd verify`` (the footer-less world
+    recordings with ``--check-footers false``)."""
     from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
 
     rerun = str(Path(sys.executable).with_name("rerun"))
@@ -203,8 +204,14 @@ def check_outputs(run_dir: Path, trainers: int) -> dict[str, Any]:
         except Exception as error:  # a broken one is a finding, reported with the rest
             out["checkpoints"][path.parent.name] = f"unreadable: {error}"
     for rrd in sorted(run_dir.rglob("*.rrd")):
+        # The server's and the spectator's world recordings (in run_dir itself) are written
+        # without a footer (see overtake.viz.recording on footers); the trainers' have one.
+        footers = "false" if rrd.parent == run_dir else "true"
         done = subprocess.run(
-            [rerun, "rrd", "verify", str(rrd)], capture_output=True, text=True, timeout=600
+            [rerun, "rrd", "verify", "--check-footers", footers, str(rrd)],
+            capture_output=True,
+            text=True,
+            timeout=600,
         )
         out["recordings"][str(rrd.relative_to(run_dir))] = {
             "verified": done.returncode == 0,

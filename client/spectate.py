@@ -56,7 +56,8 @@ def main(config: SpectateConfig, stop: threading.Event | None = None) -> int:
     remote = RemoteConfig(connect=(config.connect,), security=config.security)
     with Spectator(remote, server=config.server, arena=config.arena) as spectator:
         # The layout follows the arenas as they appear (WorldRecording sends it).
-        recording = open_recording(APPLICATION_ID, config.recording, DEFAULT_RRD)
+        # No footer: a spectator may record for days (see overtake.viz.recording on footers).
+        recording = open_recording(APPLICATION_ID, config.recording, DEFAULT_RRD, footer=False)
         # Shared with trainers (--recording-id): the layout shows their plots too.
         view = (
             WorldRecording(

@@ -35,7 +35,8 @@ class ServerRecorder:
     def __init__(self, config: RecordingConfig, server: str) -> None:
         self.config = config
         self.where = config.describe(default_rrd(server))
-        recording = open_recording(APPLICATION_ID, config, default_rrd(server))
+        # No footer: the server may record for days (see overtake.viz.recording on footers).
+        recording = open_recording(APPLICATION_ID, config, default_rrd(server), footer=False)
         if recording is None:
             raise ValueError("a ServerRecorder needs a sink other than off")
         self.recording: Recording = recording

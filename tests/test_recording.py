@@ -55,7 +55,7 @@ def test_server_records_its_arenas_with_reward_terms_decimated(start_server, tmp
         arena = group.arena_ids[0]
     finally:
         env.close()
-    server.stop()  # SIGTERM: the server closes the recording, which gets its footer
+    server.stop()  # SIGTERM: the server closes the recording (written without a footer)
     assert server.proc.returncode == 0, server.log_text()[-2000:]
     assert "recorded" in server.log_text() and "0 dropped" in server.log_text()
 

@@ -39,6 +39,13 @@ WEB_VIEWER_START_TIMEOUT_S = 20.0
 FILE_FLUSH_TICK_S = 5.0
 STREAM_FLUSH_TICK_S = 1.0
 FLUSH_BYTES = 8 * 2**20
+# Footers: an .rrd's footer holds a manifest of every chunk in the file, and the SDK builds it
+# in memory until the file is closed, a row per chunk padded to every timeline and component of
+# the recording (a server's world recording of 4 arenas: about 4 KiB a chunk, 800 chunks and
+# 3.5 MiB a minute, without end). Processes that write for days (a server's and a spectator's
+# world recording) write without one (``footer=False``): the file holds the same data
+# (RrdReader.stream, overtake-layout, whose joined copy has a footer, `rerun rrd verify
+# --check-footers false`); what it lacks is the index for random access into a large file.
 # Closing waits this long for logged data to reach its sink; a viewer that has gone away must
 # not hold up the end of a training run.
 FLUSH_TIMEOUT_S = 10.0
@@ -217,9 +224,16 @@ def _start_web_viewer(config: RecordingConfig) -> tuple[subprocess.Popen, Any]:
 
 
 def open_recording(
-    application: str, config: RecordingConfig, default_rrd: Path, blueprint: Any = None
+    application: str,
+    config: RecordingConfig,
+    default_rrd: Path,
+    blueprint: Any = None,
+    footer: bool = True,
 ) -> Recording | None:
-    """A recording with the configured sink, or None for sink=off."""
+    """A recording with the configured sink, or None for sink=off.
+
+    ``footer=False``: an .rrd without Rerun's footer, for a process that may write for days
+    (see the note on footers above)."""
     if config.sink == "off":
         return None
     import rerun as rr
@@ -236,7 +250,7 @@ def open_recording(
     if config.sink == "file":
         path = config.rrd or default_rrd
         path.parent.mkdir(parents=True, exist_ok=True)
-        stream.save(str(path), default_blueprint=blueprint)
+        stream.save(str(path), default_blueprint=blueprint, write_footer=footer)
     elif config.sink == "grpc":
         stream.set_sinks(rr.GrpcSink(config.viewer_url), default_blueprint=blueprint)
     else:
