@@ -38,7 +38,15 @@ from typing import Any
 import numpy as np
 import tyro
 
-from bench.bench_remote import REMOTE_ENV_ID, free_port, make_env, process_usage, stop_process
+from bench.bench_remote import (
+    REMOTE_ENV_ID,
+    free_port,
+    latency_summary,
+    make_env,
+    process_usage,
+    random_action,
+    stop_process,
+)
 
 
 @dataclass(frozen=True)
@@ -105,8 +113,7 @@ def worker_main(endpoint: str, trainers: int, arenas: int, preset: str, rate_hz:
                 if next_t > now:
                     time.sleep(next_t - now)
                 t0 = time.perf_counter()
-                action = rng.integers(0, 5, size=arenas)
-                _, _, terminated, truncated, _ = env.step(action if arenas > 1 else int(action[0]))
+                _, _, terminated, truncated, _ = env.step(random_action(rng, arenas))
                 times[index].append(time.perf_counter() - t0)
                 if arenas == 1 and (terminated or truncated):
                     env.reset()
@@ -135,11 +142,10 @@ def start_topology(config: LoadConfig) -> tuple[str, list[subprocess.Popen[bytes
 
     procs: list[subprocess.Popen[bytes]] = []
     server_args = ["--log-level", "warning", "--max-arenas", str(config.max_arenas)]
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     if config.servers == 1:
-        endpoint = f"tcp/127.0.0.1:{free_port()}"
         listen = [("--listen", endpoint)]  # trainers connect to the server itself
     else:
-        endpoint = f"tcp/127.0.0.1:{free_port()}"
         procs.append(
             subprocess.Popen(
                 [str(Path(sys.executable).with_name("overtake-router")), "--listen", endpoint],
@@ -178,7 +184,8 @@ class StatusSampler:
         self.connection = Connection(RemoteConfig(connect=(endpoint,), request_timeout_s=5.0))
         self.most_actions = self.most_requests = 0
         self.dropped = 0
-        self.arenas_per_server: dict[str, int] = {}
+        # The most each server held at once (at a level's end the trainers are closing).
+        self.most_arenas: dict[str, int] = {}
         self.done = threading.Event()
         self.thread = threading.Thread(target=self._run, daemon=True)
         self.thread.start()
@@ -189,7 +196,9 @@ class StatusSampler:
                 self.most_actions = max(self.most_actions, status.queued_actions)
                 self.most_requests = max(self.most_requests, status.queued_requests)
                 self.dropped = max(self.dropped, status.dropped_frames)
-                self.arenas_per_server[status.server] = status.arenas_used
+                self.most_arenas[status.server] = max(
+                    self.most_arenas.get(status.server, 0), status.arenas_used
+                )
 
     def close(self) -> None:
         self.done.set()
@@ -237,8 +246,9 @@ def run_level(config: LoadConfig, endpoint: str, servers: list[int], trainers: i
             sampler.close()
         for worker in workers:
             stop_process(worker)
+    assert sampler is not None  # made before the workers were told to go
     times = [t for out in outputs for t in out["times"]]
-    ms = np.concatenate([np.asarray(t) for t in times]) * 1e3
+    latency = latency_summary([s for t in times for s in t])
     rates = [len(t) / config.seconds for t in times]
     return {
         "trainers": trainers,
@@ -248,14 +258,14 @@ def run_level(config: LoadConfig, endpoint: str, servers: list[int], trainers: i
         "done_steps_per_s": round(sum(rates), 1),
         "rate_min": round(min(rates), 2),
         "rate_max": round(max(rates), 2),
-        "p50_ms": round(float(np.percentile(ms, 50)), 2),
-        "p99_ms": round(float(np.percentile(ms, 99)), 2),
-        "max_ms": round(float(ms.max()), 1),
+        "p50_ms": round(latency["p50_ms"], 2),
+        "p99_ms": round(latency["p99_ms"], 2),
+        "max_ms": round(latency["max_ms"], 1),
         "server_cpu": [round(c / wall, 2) for c in cpu],
-        "arenas_per_server": dict(sorted(sampler.arenas_per_server.items())) if sampler else {},
-        "most_queued_actions": sampler.most_actions if sampler else None,
-        "most_queued_requests": sampler.most_requests if sampler else None,
-        "dropped_frames": sampler.dropped if sampler else None,
+        "most_arenas_per_server": dict(sorted(sampler.most_arenas.items())),
+        "most_queued_actions": sampler.most_actions,
+        "most_queued_requests": sampler.most_requests,
+        "dropped_frames": sampler.dropped,
         "errors": [e for out in outputs for e in out["errors"]],
         "refused": [e for out in outputs for e in out["refused"]],
     }

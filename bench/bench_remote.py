@@ -492,6 +492,15 @@ def make_env(env_id: str, arenas: int, **kwargs: Any) -> Any:
     )
 
 
+def random_action(rng: Any, arenas: int) -> Any:
+    """A random action for what :func:`make_env` made: an int for one arena, an array for a
+    vector of them (``rng``: a numpy Generator)."""
+    from overtake.protocol import ACTION_COUNT
+
+    actions = rng.integers(0, ACTION_COUNT, size=arenas)
+    return int(actions[0]) if arenas == 1 else actions
+
+
 def start_server(
     endpoint: str, timeout_s: float, extra: tuple[str, ...] = (), env: dict[str, str] | None = None
 ) -> subprocess.Popen[bytes]:

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import tyro
 
-from bench.bench_remote import REMOTE_ENV_ID, free_port, make_env, stop_process
+from bench.bench_remote import REMOTE_ENV_ID, free_port, make_env, random_action, stop_process
 
 ROOT = Path(__file__).resolve().parents[1]
 MODES = ("plain", "usrpwd", "usrpwd+isolation", "tls", "mutual tls")
@@ -111,11 +111,11 @@ def measure(mode: str, where: Path, config: SecurityBenchConfig, seed: int) -> d
             rng = np.random.default_rng(seed)
             env.reset(seed=seed)
             for _ in range(50):  # warm-up
-                env.step(_actions(rng, config.arenas))
+                env.step(random_action(rng, config.arenas))
             times: list[float] = []
             started = time.perf_counter()
             while time.perf_counter() - started < config.seconds:
-                actions = _actions(rng, config.arenas)
+                actions = random_action(rng, config.arenas)
                 t0 = time.perf_counter()
                 _, _, terminated, truncated, _ = env.step(actions)
                 times.append(time.perf_counter() - t0)
@@ -133,11 +133,6 @@ def measure(mode: str, where: Path, config: SecurityBenchConfig, seed: int) -> d
         "p50_ms": float(np.percentile(ms, 50)),
         "p99_ms": float(np.percentile(ms, 99)),
     }
-
-
-def _actions(rng: np.random.Generator, arenas: int) -> Any:
-    actions = rng.integers(0, 5, size=arenas)
-    return int(actions[0]) if arenas == 1 else actions
 
 
 def main(config: SecurityBenchConfig) -> dict[str, Any]:

@@ -73,6 +73,7 @@ from typing import Any
 import tyro
 
 from bench.bench_remote import free_port
+from bench.soak import checkpoint_step, rerun_rrd, stop_all, verify_rrd
 
 TARGETS = ("trainer", "server", "router")
 FAULTS = ("none", "kill", "kill-checkpoint", "stop", "cut", "loss", "delay")
@@ -228,15 +229,9 @@ class Proc:
         self.popen.wait()
 
     def stop(self, timeout_s: float) -> dict[str, Any]:
-        """SIGTERM; SIGKILL only past ``timeout_s``."""
+        """SIGTERM; SIGKILL only past ``timeout_s``: its exit status and whether it was killed."""
         assert self.popen is not None
-        if self.popen.poll() is None:
-            self.signal(signal.SIGTERM)
-        try:
-            return {"exit": self.popen.wait(timeout=timeout_s), "killed": False}
-        except subprocess.TimeoutExpired:
-            self.signal(signal.SIGKILL)
-            return {"exit": self.popen.wait(), "killed": True}
+        return stop_all({self.name: self.popen}, timeout_s)[self.name]
 
 
 class Observer:
@@ -329,22 +324,15 @@ def leave_rounds(server: Proc) -> dict[str, int]:
 def check_recording(path: Path, footer: bool) -> dict[str, Any]:
     """``footer``: whether its writer writes Rerun's footer on closing (a trainer's); the
     server's world recording is written without one (overtake.viz.recording, on footers)."""
-    rerun = str(Path(sys.executable).with_name("rerun"))
     out: dict[str, Any] = {"mib": round(path.stat().st_size / 2**20, 2)}
-    verify = subprocess.run(
-        [rerun, "rrd", "verify", "--check-footers", str(footer).lower(), str(path)],
-        capture_output=True,
-        text=True,
-    )
+    verify = verify_rrd(path, footer)
     if verify.returncode == 0:
         return {**out, "verified": True}
-    printed = subprocess.run([rerun, "rrd", "print", str(path)], capture_output=True, text=True)
+    printed = rerun_rrd("print", str(path))
     copy = path.with_name(path.stem + ".repaired.rrd")
     shutil.copy(path, copy)
-    migrate = subprocess.run([rerun, "rrd", "migrate", str(copy)], capture_output=True, text=True)
-    verified_copy = subprocess.run(
-        [rerun, "rrd", "verify", str(copy)], capture_output=True, text=True
-    )
+    migrate = rerun_rrd("migrate", str(copy))
+    verified_copy = verify_rrd(copy, footer=True)
     for leftover in (copy, copy.with_name(copy.stem + ".backup.rrd")):
         leftover.unlink(missing_ok=True)
     return {
@@ -399,7 +387,7 @@ def back_after(samples: list[Sample], names: set[str], t_heal: float) -> float |
 
 
 def run_case(config: FaultConfig, target: str, fault: str, index: int, rng: random.Random):
-    from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
+    from overtake.trainers.checkpoint import CHECKPOINT_NAME, partial_path
 
     case_dir = config.run_dir / f"{target}-{fault}-{index}"
     case_dir.mkdir(parents=True)
@@ -458,23 +446,18 @@ def run_case(config: FaultConfig, target: str, fault: str, index: int, rng: rand
         time.sleep(rng.uniform(*config.before_s))  # the random moment of the fault
 
         t_fault = time.monotonic()
+        partial = partial_path(checkpoints[0])
         if fault == "kill-checkpoint":
-            tmp = checkpoints[0].with_name(CHECKPOINT_NAME + ".tmp")
             deadline = time.monotonic() + 120
-            while not tmp.exists() and time.monotonic() < deadline:
+            while not partial.exists() and time.monotonic() < deadline:
                 time.sleep(0.0005)
-            result["killed_during_write"] = tmp.exists()
+            result["killed_during_write"] = partial.exists()
             t_fault = time.monotonic()
         if fault in ("kill", "kill-checkpoint"):
             victim.kill()
             if victim is trainers[0]:
-                try:
-                    result["checkpoint_after_kill"] = load_checkpoint(checkpoints[0]).step
-                except Exception as error:
-                    result["checkpoint_after_kill"] = f"unreadable: {error}"
-                result["tmp_left_behind"] = (
-                    checkpoints[0].with_name(CHECKPOINT_NAME + ".tmp").exists()
-                )
+                result["checkpoint_after_kill"] = checkpoint_step(checkpoints[0])
+                result["tmp_left_behind"] = partial.exists()
             victim.start()
         elif fault == "stop":
             victim.signal(signal.SIGSTOP)
@@ -518,31 +501,26 @@ def run_case(config: FaultConfig, target: str, fault: str, index: int, rng: rand
 
         server_rounds = leave_rounds(server)
         steps = {}
-        for _i, trainer in enumerate(trainers):
+        for trainer in trainers:
             summary = last_json(trainer.lives[-1])
             if summary is None or "trainer" not in summary:
                 steps[trainer.name] = "no summary"
                 continue
-            counted = summary["env_steps_called"]
+            counted, losses = summary["env_steps_called"], summary["server_losses"]
             # Each server loss adds two steps the server never played: the broken episode's
             # truncation and the first observation of the reopened arenas.
-            played = counted - 2 * summary["server_losses"]
+            played = counted - 2 * losses
             served = server_rounds.get(summary["trainer"])
             if target == "server" and fault.startswith("kill"):
                 served = None  # the killed server's rounds died with it
             steps[trainer.name] = {
                 "counted": counted,
-                "server_losses": summary.get("server_losses"),
+                "server_losses": losses,
                 "served": served,
                 "unmatched": None if served is None else played - served,
             }
         result["steps"] = steps
-        result["checkpoints"] = {}
-        for path in checkpoints:
-            try:
-                result["checkpoints"][path.parent.name] = load_checkpoint(path).step
-            except Exception as error:
-                result["checkpoints"][path.parent.name] = f"unreadable: {error}"
+        result["checkpoints"] = {path.parent.name: checkpoint_step(path) for path in checkpoints}
         result["recordings"] = {
             str(p.relative_to(case_dir)): check_recording(p, footer=not p.name.startswith("server"))
             for p in sorted(case_dir.rglob("*.rrd"))
@@ -599,11 +577,11 @@ def main(config: FaultConfig) -> dict[str, Any]:
         raise SystemExit(
             f"unknown fault or target {sorted(unknown)}: expected {FAULTS} / {TARGETS}"
         )
+    if os.geteuid() != 0:
+        raise SystemExit("bench.faults: its network namespaces need root")
     if config.run_dir.exists():
         shutil.rmtree(config.run_dir)
     config.run_dir.mkdir(parents=True)
-    if os.geteuid() != 0:
-        raise SystemExit("bench.faults: its network namespaces need root")
     missing, no_delay = link_faults_missing(), netem_missing()
     rng = random.Random(config.seed)
     results: list[dict[str, Any]] = []
@@ -657,7 +635,7 @@ def markdown_table(results: list[dict[str, Any]]) -> str:
             else (f"n/a ({v['server_losses']})" if isinstance(v, dict) else str(v))
             for v in r["steps"].values()
         )
-        rrd = [v for v in r["recordings"].values()]
+        rrd = list(r["recordings"].values())
         repaired = sum(1 for v in rrd if not v["verified"] and v.get("repaired"))
         lines.append(
             f"| {r['target']} | {r['fault']} | {r['fault_s']} | {r.get('status_answered_after_s')} "

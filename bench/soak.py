@@ -76,7 +76,7 @@ class SoakConfig:
 
 def random_trainer(endpoint: str, preset: str, arenas: int, seed: int) -> None:
     """--no-learners: step ``arenas`` remote arenas with random actions until SIGTERM."""
-    from bench.bench_remote import REMOTE_ENV_ID, make_env
+    from bench.bench_remote import REMOTE_ENV_ID, make_env, random_action
     from overtake.client.remote import RemoteConfig
 
     stop = []
@@ -85,8 +85,7 @@ def random_trainer(endpoint: str, preset: str, arenas: int, seed: int) -> None:
     rng = np.random.default_rng(seed)
     env.reset(seed=seed)
     while not stop:
-        actions = rng.integers(0, 5, size=arenas)
-        _, _, terminated, truncated, _ = env.step(int(actions[0]) if arenas == 1 else actions)
+        _, _, terminated, truncated, _ = env.step(random_action(rng, arenas))
         if arenas == 1 and (terminated or truncated):
             env.reset()
     env.close()
@@ -190,29 +189,39 @@ def summarise(samples: list[dict[str, Any]], config: SoakConfig) -> dict[str, An
     }
 
 
-def check_outputs(run_dir: Path, trainers: int) -> dict[str, Any]:
-    """Every checkpoint loads, every .rrd passes ``rerun rrd verify`` (the footer-less world
-    recordings with ``--check-footers false``)."""
-    from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
+def checkpoint_step(path: Path) -> int | str:
+    """The step of the checkpoint at ``path``, or why it does not load."""
+    from overtake.trainers.checkpoint import load_checkpoint
 
+    try:
+        return load_checkpoint(path).step
+    except Exception as error:  # a broken one is a finding, reported with the rest
+        return f"unreadable: {error}"
+
+
+def rerun_rrd(*args: str) -> subprocess.CompletedProcess[str]:
+    """``rerun rrd ARGS`` (the CLI beside this Python)."""
     rerun = str(Path(sys.executable).with_name("rerun"))
+    return subprocess.run([rerun, "rrd", *args], capture_output=True, text=True, timeout=600)
+
+
+def verify_rrd(path: Path, footer: bool) -> subprocess.CompletedProcess[str]:
+    """``rerun rrd verify``; ``footer=False`` for a file written without Rerun's footer (the
+    server's and the spectator's world recordings: overtake.viz.recording, on footers)."""
+    return rerun_rrd("verify", "--check-footers", str(footer).lower(), str(path))
+
+
+def check_outputs(run_dir: Path, trainers: int) -> dict[str, Any]:
+    """Every checkpoint loads, every .rrd passes ``rerun rrd verify``."""
+    from overtake.trainers.checkpoint import CHECKPOINT_NAME
+
     out: dict[str, Any] = {"checkpoints": {}, "recordings": {}}
     for index in range(trainers):
         path = run_dir / f"trainer-{index}" / CHECKPOINT_NAME
-        try:
-            out["checkpoints"][path.parent.name] = load_checkpoint(path).step
-        except Exception as error:  # a broken one is a finding, reported with the rest
-            out["checkpoints"][path.parent.name] = f"unreadable: {error}"
+        out["checkpoints"][path.parent.name] = checkpoint_step(path)
     for rrd in sorted(run_dir.rglob("*.rrd")):
-        # The server's and the spectator's world recordings (in run_dir itself) are written
-        # without a footer (see overtake.viz.recording on footers); the trainers' have one.
-        footers = "false" if rrd.parent == run_dir else "true"
-        done = subprocess.run(
-            [rerun, "rrd", "verify", "--check-footers", footers, str(rrd)],
-            capture_output=True,
-            text=True,
-            timeout=600,
-        )
+        # The server's and the spectator's (in run_dir itself) have no footer; the trainers' do.
+        done = verify_rrd(rrd, footer=rrd.parent != run_dir)
         out["recordings"][str(rrd.relative_to(run_dir))] = {
             "verified": done.returncode == 0,
             "mib": round(rrd.stat().st_size / 2**20, 1),

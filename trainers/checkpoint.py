@@ -76,6 +76,11 @@ class Checkpoint:
         return learner
 
 
+def partial_path(path: Path) -> Path:
+    """Where a checkpoint for ``path`` is written before it is renamed over ``path``."""
+    return path.with_name(path.name + ".tmp")
+
+
 def save_checkpoint(
     path: Path,
     *,
@@ -110,7 +115,7 @@ def save_checkpoint(
         "rng_state": json.dumps(rng_state),
         "torch_rng_state": torch.get_rng_state(),
     }
-    tmp = path.with_name(path.name + ".tmp")
+    tmp = partial_path(path)
     with open(tmp, "wb") as handle:
         torch.save(payload, handle)
         handle.flush()

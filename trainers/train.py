@@ -410,8 +410,9 @@ class TrainingRun:
             "run_dir": str(self.run_dir),
             "steps": self.step,
             "resumed_at_step": self.resumed_at_step,
-            # Calls of envs.step in this life, autoreset steps included: on a server, its
-            # rounds for this trainer (plus two per server loss; see _remote_facts).
+            # Calls of envs.step in this life, autoreset steps included: on a server, the
+            # rounds it played for this trainer, plus two per server loss (the truncated step
+            # and the reopened arenas' first, which no server played).
             "env_steps_called": self.iteration,
             **self._remote_facts(),
             "episodes": self.episodes,
@@ -445,7 +446,7 @@ class TrainingRun:
             "seed": config.seed,
             "resumes": self.resumes,
             "resumed_at_step": self.resumed_at_step,
-            "trainer": getattr(self.envs.unwrapped, "trainer", None),
+            "trainer": self._remote_facts().get("trainer"),
             "host": platform.node(),
             "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
             "replay_bytes": self.replay.nbytes,
