@@ -71,17 +71,27 @@ def _first_values(chunk: Any) -> dict[str, Any]:
     return out
 
 
+def open_reader(path: Path) -> Any:
+    """An ``rr.chunk.RrdReader`` of ``path``. The server's and the spectator's recordings are
+    written without a footer on purpose (overtake.viz.recording, on footers): the reader's
+    warning that such a file is of a "legacy format" is not for the user of this command."""
+    import warnings
+
+    import rerun as rr
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="RRD file has no footer", category=Warning)
+        return rr.chunk.RrdReader(str(path))
+
+
 def read_contents(paths: Sequence[Path]) -> Contents:
     """Runs, arenas and who drives which, from the recordings' entity paths and static
     metadata."""
-    import rerun as rr
-
     contents = Contents()
     seen_shapes: set[tuple[str, int]] = set()
     for path in paths:
         try:
-            reader = rr.chunk.RrdReader(str(path))
-            chunks = reader.stream().to_chunks()
+            chunks = open_reader(path).stream().to_chunks()
         except Exception as error:
             raise LayoutError(f"cannot read the recording {path}: {error}") from None
         for chunk in chunks:
@@ -166,7 +176,7 @@ def main(config: LayoutConfig) -> Contents:
         raise LayoutError(f"no such recording: {', '.join(missing)}")
     contents = read_contents(config.recordings)
     blueprint = combined_blueprint(contents)
-    readers = [rr.chunk.RrdReader(str(p)) for p in config.recordings]
+    readers = [open_reader(p) for p in config.recordings]
     recordings = [store for reader in readers for store in reader.recordings()]
     if not recordings:
         raise LayoutError("the files hold no recording (only layouts?)")
