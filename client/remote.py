@@ -468,6 +468,9 @@ class ArenaGroup:
     trainer_step: int = -1
     """Sent with every Actions (-1: not given): the trainer's step count, which the server
     repeats in its world frames so that recordings of the road share the trainer's timeline."""
+    _in_flight: bool = field(default=False, repr=False)
+    _early: Steps | None = field(default=None, repr=False)
+    _lost: errors.ServerLost | None = field(default=None, repr=False)
 
     @classmethod
     def open(cls, connection: Connection, request: OpenRequest | JoinRequest) -> ArenaGroup:
@@ -520,6 +523,10 @@ class ArenaGroup:
 
     def reset(self, arenas: tuple[int, ...], seeds: tuple[int | None, ...]) -> Steps:
         """New episodes in ``arenas`` (indices in the group); the Steps of all our agents."""
+        if self._in_flight:
+            raise RuntimeError(
+                f"group {self.group_id}: reset while a step is in flight; receive it first"
+            )
         conn = self.connection
         self._pending_restart = None
         if self._server_restarted():
@@ -552,11 +559,22 @@ class ArenaGroup:
 
         ``retire``: agent ids whose cars leave the road before this round and stay off until
         their arena is reset (protocol 1.3; see :attr:`server_minor`)."""
+        self.send(agents, actions, retire)
+        return self.receive()
+
+    def send(self, agents: np.ndarray, actions: np.ndarray, retire: Sequence[int] = ()) -> None:
+        """The first half of :meth:`step`: our actions for this round go out, and the server
+        plays the round while the caller does something else; :meth:`receive` takes its
+        Steps. A lost server is reported by :meth:`receive`, as :meth:`step` reports it."""
+        if self._in_flight:
+            raise RuntimeError(
+                f"group {self.group_id}: actions sent twice for round {self.round}; "
+                "receive the round's Steps first"
+            )
+        self._in_flight = True
+        self._early, self._lost = None, None
         if self._pending_restart is not None:
-            # The server was restarted: the step after the broken episodes starts the new ones.
-            pending, self._pending_restart = self._pending_restart, None
-            self.last = pending
-            return pending
+            return  # the reopened arenas' first Steps are here already: nothing to send
         conn = self.connection
         try:
             if self._server_restarted():
@@ -565,8 +583,8 @@ class ArenaGroup:
                 )
             # Behind (the group played our round at the deadline)? Then that round's Steps are
             # here already, marked late; our actions would be stale, so they are not sent.
-            steps = conn.arrived(self.server, self.group_id, self.round + 1)
-            if steps is None:
+            self._early = conn.arrived(self.server, self.group_id, self.round + 1)
+            if self._early is None:
                 conn.send_actions(
                     self.server,
                     Actions(
@@ -580,12 +598,39 @@ class ArenaGroup:
                         retire=np.asarray(retire, dtype=np.int32) if len(retire) else None,
                     ),
                 )
-                steps = conn.next_steps(self.server, self.group_id, self.round + 1, self.epoch)
         except errors.ServerLost as error:
-            return self._survive(error)
+            self._lost = error
+
+    def receive(self) -> Steps:
+        """The second half of :meth:`step`: wait for the Steps of the round :meth:`send`
+        sent."""
+        if not self._in_flight:
+            raise RuntimeError(f"group {self.group_id}: no actions sent to receive Steps for")
+        self._in_flight = False
+        if self._pending_restart is not None:
+            # The server was restarted: the step after the broken episodes starts the new ones.
+            pending, self._pending_restart = self._pending_restart, None
+            self.last = pending
+            return pending
+        lost, steps = self._lost, self._early
+        self._lost, self._early = None, None
+        if lost is not None:
+            return self._survive(lost)
+        if steps is None:
+            try:
+                steps = self.connection.next_steps(
+                    self.server, self.group_id, self.round + 1, self.epoch
+                )
+            except errors.ServerLost as error:
+                return self._survive(error)
         self.round = steps.round
         self.last = steps
         return steps
+
+    @property
+    def in_flight(self) -> bool:
+        """Actions were sent and their Steps not yet received."""
+        return self._in_flight
 
     def _server_restarted(self) -> bool:
         return self.connection.epoch(self.server) != self.epoch

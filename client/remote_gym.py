@@ -12,6 +12,8 @@ server or another one), and the next step (or reset) starts the new episodes.
 
 from __future__ import annotations
 
+import dataclasses
+import itertools
 import json
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -40,6 +42,34 @@ except ImportError:  # pragma: no cover - Gymnasium 1.0
     _NEXT_STEP = "NextStep"
 
 
+def _joined(parts: Sequence[Steps]) -> Steps:
+    """One Steps of several groups' Steps, rows in the order given (server, group and round
+    are the first part's: the rows are what the vector environment reads)."""
+    if len(parts) == 1:
+        return parts[0]
+    first = parts[0]
+
+    def rows(name: str) -> np.ndarray:
+        return np.concatenate([getattr(p, name) for p in parts])
+
+    return dataclasses.replace(
+        first,
+        agents=rows("agents"),
+        observations={
+            name: np.concatenate([p.observations[name] for p in parts])
+            for name in first.observations
+        },
+        reward=rows("reward"),
+        terminated=rows("terminated"),
+        truncated=rows("truncated"),
+        action_applied=rows("action_applied"),
+        late=rows("late"),
+        action_mask=rows("action_mask"),
+        reward_terms=rows("reward_terms"),
+        metrics=rows("metrics"),
+    )
+
+
 def spaces_from_spec(spec: BehaviourSpec) -> spaces.Dict:
     """The Dict observation space a behaviour spec describes."""
     return spaces.Dict(
@@ -51,7 +81,8 @@ def spaces_from_spec(spec: BehaviourSpec) -> spaces.Dict:
 
 
 class _Remote:
-    """The connection and group both Gymnasium environments are built on."""
+    """The connection and the groups both Gymnasium environments are built on: one group, or
+    ``parts`` groups of consecutive arenas (see :class:`RemoteHighwayVectorEnv`)."""
 
     def __init__(
         self,
@@ -62,7 +93,10 @@ class _Remote:
         arenas: int,
         seed: int | None,
         agents_per_arena: int = 1,
+        parts: int = 1,
     ) -> None:
+        if not 1 <= parts <= arenas:
+            raise ValueError(f"parts must be between 1 and the {arenas} arena(s), got {parts}")
         if remote is None:
             remote = RemoteConfig.from_connect(
                 connect if connect is None or isinstance(connect, str) else tuple(connect)
@@ -70,22 +104,30 @@ class _Remote:
         elif connect is not None:
             raise ValueError("pass either connect or remote (a RemoteConfig), not both")
         self.connection = Connection(remote)
+        self.groups: list[ArenaGroup] = []
+        # Consecutive arenas per part, the first parts one larger where they do not divide.
+        sizes = [len(a) for a in np.array_split(np.arange(arenas), parts)]
         try:
-            self.group = ArenaGroup.open(
-                self.connection,
-                OpenRequest(
-                    trainer=self.connection.trainer,
-                    preset=preset,
-                    overrides=dict(overrides or {}),
-                    arenas=arenas,
-                    agents_per_arena=agents_per_arena,
-                    claim=agents_per_arena,
-                    seed=seed,
-                ),
-            )
+            for start, size in zip(np.cumsum([0, *sizes[:-1]]), sizes, strict=True):
+                self.groups.append(
+                    ArenaGroup.open(
+                        self.connection,
+                        OpenRequest(
+                            trainer=self.connection.trainer,
+                            preset=preset,
+                            overrides=dict(overrides or {}),
+                            arenas=size,
+                            agents_per_arena=agents_per_arena,
+                            claim=agents_per_arena,
+                            seed=None if seed is None else seed + int(start),
+                        ),
+                    )
+                )
         except BaseException:
-            self.connection.close()
+            self.close()
             raise
+        self.group = self.groups[0]
+        self.part_sizes = tuple(sizes)
         spec = self.group.spec
         assert spec is not None
         self.spec = spec
@@ -95,7 +137,8 @@ class _Remote:
 
     def close(self) -> None:
         try:
-            self.group.close()
+            for group in self.groups:
+                group.close()
         finally:
             self.connection.close()
 
@@ -107,8 +150,15 @@ class _RemoteHandles:
 
     @property
     def group(self) -> ArenaGroup:
-        """The arenas on the server (ids, server name, restarts survived)."""
+        """The arenas on the server (ids, server name, restarts survived); with ``parts``,
+        the first part's (:attr:`groups` has them all)."""
         return self._remote.group
+
+    @property
+    def groups(self) -> tuple[ArenaGroup, ...]:
+        """Every group of this environment's arenas, one per part, in the order of the
+        environment indices."""
+        return tuple(self._remote.groups)
 
     @property
     def trainer(self) -> str:
@@ -126,7 +176,8 @@ class _RemoteHandles:
         these arenas lies on the trainer's ``step`` timeline and opens beside its curves."""
         if step < 0:
             raise ValueError(f"a step count must be >= 0, got {step}")
-        self._remote.group.trainer_step = int(step)
+        for group in self._remote.groups:
+            group.trainer_step = int(step)
 
 
 class RemoteHighwayEnv(_RemoteHandles, ReportsEpisodeLength, gym.Env):
@@ -201,7 +252,16 @@ class RemoteHighwayEnv(_RemoteHandles, ReportsEpisodeLength, gym.Env):
 
 
 class RemoteHighwayVectorEnv(_RemoteHandles, gym.vector.VectorEnv):
-    """``num_envs`` arenas of a remote server, stepped together (one message each way)."""
+    """``num_envs`` arenas of a remote server, stepped together (one message each way).
+
+    ``parts`` > 1 opens the arenas as that many groups of consecutive environment indices
+    (:attr:`part_slices`), each stepped by the server on its own, so that a trainer can overlap
+    its work with the simulation, in the manner of EnvPool's ``send`` / ``recv``:
+    :meth:`send` one part's actions, work on another part, :meth:`recv` the first. The
+    arenas and their episodes are those of one group: reset with the same seed and given the
+    same actions, every part of every step is the same as with ``parts=1`` (each arena has its
+    own random stream). :meth:`step` sends every part, then receives every part.
+    """
 
     metadata = {"render_modes": [], "autoreset_mode": _NEXT_STEP}  # noqa: RUF012
 
@@ -213,11 +273,16 @@ class RemoteHighwayVectorEnv(_RemoteHandles, gym.vector.VectorEnv):
         overrides: Mapping[str, Scalar] | None = None,
         remote: RemoteConfig | None = None,
         render_mode: str | None = None,
+        parts: int = 1,
     ) -> None:
         check_render_mode(render_mode, self.metadata["render_modes"])
-        self._remote = _Remote(connect, remote, preset, overrides, arenas=num_envs, seed=None)
+        self._remote = _Remote(
+            connect, remote, preset, overrides, arenas=num_envs, seed=None, parts=parts
+        )
         spec = self._remote.spec
         self.num_envs = num_envs
+        bounds = np.cumsum([0, *self._remote.part_sizes])
+        self.part_slices = tuple(slice(int(a), int(b)) for a, b in itertools.pairwise(bounds))
         self.render_mode = None
         self.single_observation_space = spaces_from_spec(spec)
         self.single_action_space = spaces.Discrete(ACTION_COUNT)
@@ -225,6 +290,7 @@ class RemoteHighwayVectorEnv(_RemoteHandles, gym.vector.VectorEnv):
         self.action_space = spaces.MultiDiscrete(np.full(num_envs, ACTION_COUNT))
         self.decision_period_s = spec.decision_period_s
         self.max_episode_steps = spec.max_episode_steps
+        self._part_restarts: dict[int, int] = {}
 
     def _info(self, steps: Steps) -> dict[str, Any]:
         info: dict[str, Any] = {
@@ -254,17 +320,52 @@ class RemoteHighwayVectorEnv(_RemoteHandles, gym.vector.VectorEnv):
         seeds = arena_seeds(seed, self.num_envs)
         if seed is not None:
             self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seeds[0])
-        steps = self.group.reset(tuple(range(self.num_envs)), tuple(seeds))
-        return dict(steps.observations), self._info(steps)
+        steps = [
+            group.reset(tuple(range(part.stop - part.start)), tuple(seeds[part]))
+            for group, part in zip(self._remote.groups, self.part_slices, strict=True)
+        ]
+        whole = _joined(steps)
+        return dict(whole.observations), self._info(whole)
 
     def step(self, actions):
         actions = check_actions(actions, self.num_envs, single=False)
-        restarts = self.group.restarts
-        steps = self.group.step(self.group.agents, actions)
-        info = self._info(steps)
-        if self.group.restarts != restarts:
+        restarts = [group.restarts for group in self._remote.groups]
+        for group, part in zip(self._remote.groups, self.part_slices, strict=True):
+            group.send(group.agents, actions[part])
+        whole = _joined([group.receive() for group in self._remote.groups])
+        info = self._info(whole)
+        if [group.restarts for group in self._remote.groups] != restarts:
             info["server_restarted"] = np.ones(self.num_envs, dtype=bool)
+        return (dict(whole.observations), whole.reward, whole.terminated, whole.truncated, info)
+
+    def send(self, part: int, actions: np.ndarray) -> None:
+        """Part ``part``'s actions (one per environment of :attr:`part_slices` [part]) go
+        out; the server plays its round while the caller works. :meth:`recv` takes it."""
+        part_slice = self._part_slice(part)
+        actions = check_actions(actions, part_slice.stop - part_slice.start, single=False)
+        group = self._remote.groups[part]
+        self._part_restarts[part] = group.restarts
+        group.send(group.agents, actions)
+
+    def recv(self, part: int):
+        """The step of part ``part`` that :meth:`send` started: ``(observations, rewards,
+        terminated, truncated, info)`` of its environments, as :meth:`step` returns them for
+        all."""
+        part_slice = self._part_slice(part)
+        group = self._remote.groups[part]
+        steps = group.receive()
+        info = self._info(steps)
+        if group.restarts != self._part_restarts.get(part, group.restarts):
+            info["server_restarted"] = np.ones(part_slice.stop - part_slice.start, dtype=bool)
         return (dict(steps.observations), steps.reward, steps.terminated, steps.truncated, info)
+
+    def _part_slice(self, part: int) -> slice:
+        if not 0 <= part < len(self.part_slices):
+            raise ValueError(
+                f"part must be between 0 and {len(self.part_slices) - 1} "
+                f"(this environment has {len(self.part_slices)} part(s)), got {part}"
+            )
+        return self.part_slices[part]
 
     def close_extras(self, **kwargs: Any) -> None:
         # A constructor that raised (no server, every server full) leaves nothing to close;

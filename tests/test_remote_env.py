@@ -164,6 +164,77 @@ def test_remote_vector_env_is_bit_identical_to_in_process_vector_env(start_serve
         local.close()
 
 
+@pytest.mark.timeout(90)
+def test_vector_env_in_parts_is_the_same_env_stepped_part_by_part(start_server):
+    """parts=2: two groups on the server; reset with a seed and given the same actions, step()
+    and every order of send / recv return exactly the one-group environment's values."""
+    server = start_server("e2e-parts")
+    n = 5  # parts of 3 and 2 environments
+    make = lambda parts: gym.make_vec(  # noqa: E731
+        REMOTE_HIGHWAY_ENV_ID,
+        num_envs=n,
+        vectorization_mode="vector_entry_point",
+        remote=remote_config(server.endpoint, server.name),
+        overrides=SHORT,
+        parts=parts,
+    )
+    whole, split = make(1), make(2)
+    try:
+        assert split.unwrapped.part_slices == (slice(0, 3), slice(3, 5))
+        assert sorted(len(g.arenas) for g in server.status().groups) == [2, 3, 5]
+        assert_same(split.reset(seed=11), whole.reset(seed=11), "reset")
+        rng = np.random.default_rng(4)
+        ended_total = 0
+        for step in range(90):
+            actions = rng.integers(0, 5, size=n)
+            want = whole.step(actions)
+            if step % 3 == 0:
+                got = split.step(actions)
+            else:
+                # Part 1 goes out first on odd steps, part 0 on even ones; the results are
+                # each part's rows of the whole step, whatever the order.
+                order = (1, 0) if step % 2 else (0, 1)
+                for part in order:
+                    split.unwrapped.send(part, actions[split.unwrapped.part_slices[part]])
+                halves = {part: split.unwrapped.recv(part) for part in reversed(order)}
+                got = tuple(
+                    {k: np.concatenate([halves[0][i][k], halves[1][i][k]]) for k in want[i]}
+                    if isinstance(want[i], dict) and i == 0
+                    else np.concatenate([halves[0][i], halves[1][i]])
+                    for i in range(4)
+                ) + (want[4],)
+                for name in ("action_mask", "action_applied"):
+                    assert_same(
+                        np.concatenate([halves[0][4][name], halves[1][4][name]]),
+                        want[4][name],
+                        f"step {step} info[{name!r}]",
+                    )
+            assert_same(got, want, f"step {step}")
+            ended_total += int((want[2] | want[3]).sum())
+        assert ended_total >= n  # the episodes ended and were autoreset on the way
+        with pytest.raises(RuntimeError, match="sent twice"):
+            split.unwrapped.send(0, np.zeros(3, dtype=np.int64))
+            split.unwrapped.send(0, np.zeros(3, dtype=np.int64))
+        split.unwrapped.recv(0)
+        with pytest.raises(RuntimeError, match="no actions sent"):
+            split.unwrapped.recv(1)
+        with pytest.raises(ValueError, match="between 0 and 1"):
+            split.unwrapped.send(2, np.zeros(2, dtype=np.int64))
+        with pytest.raises(ValueError, match="3"):
+            split.unwrapped.send(0, np.zeros(2, dtype=np.int64))  # part 0 has 3 environments
+    finally:
+        whole.close()
+        split.close()
+    with pytest.raises(ValueError, match="parts must be between 1 and the 2 arena"):
+        gym.make_vec(
+            REMOTE_HIGHWAY_ENV_ID,
+            num_envs=2,
+            vectorization_mode="vector_entry_point",
+            remote=remote_config(server.endpoint, server.name),
+            parts=3,
+        )
+
+
 # --- 2. RemoteEnvironment: ML-Agents' low-level API -----------------------------------------
 
 
