@@ -59,10 +59,11 @@ def make_vector_env(
     num_envs: int,
     connect: str | None,
     security: SecurityConfig | None = None,
+    parts: int = 1,
 ) -> Any:
     """``num_envs`` arenas of ``preset`` as one vector environment: in this process, or on a
     simulator server reached at ``connect`` (with ``security``'s credentials and
-    certificates)."""
+    certificates), there in ``parts`` groups (see ``RemoteHighwayVectorEnv``)."""
     register_environments()
     if connect is None:
         return gym.make_vec(
@@ -80,6 +81,7 @@ def make_vector_env(
         preset=preset,
         overrides=overrides,
         remote=remote,
+        parts=parts,
     )
 
 

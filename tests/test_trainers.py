@@ -691,6 +691,52 @@ def test_each_algorithm_trains_against_a_real_server(tmp_path, start_server, alg
     assert run["config"]["connect"] == server.endpoint
 
 
+def test_overlapped_remote_training_is_deterministic_and_lock_step_stays(tmp_path, start_server):
+    """With --connect and 4 environments the arenas are two groups stepped in turn; two runs
+    of one seed store the same episodes and learn the same losses; --no-overlap is one group."""
+    server = start_server("train-overlap")
+
+    def run(name: str, overlap: bool) -> tuple[dict, list[dict]]:
+        summary = train(
+            TrainConfig(
+                algo="ddqn",
+                inputs="lidar",
+                num_envs=4,
+                total_steps=240,
+                seed=9,
+                connect=server.endpoint,
+                run_dir=tmp_path / name,
+                progress=False,
+                overlap=overlap,
+                log_every=40,
+                set=("episode.max_decisions=25",),
+                dqn=DQNConfig(**SMOKE_DQN),
+            )
+        )
+        lines = [
+            {
+                k: v
+                for k, v in json.loads(line).items()
+                if k not in ("wall_s", "steps_per_s") and not k.startswith("time_")
+            }
+            for line in (tmp_path / name / "metrics.jsonl").read_text().splitlines()
+        ]
+        return summary, lines
+
+    first, first_lines = run("a", overlap=True)
+    assert first["parts"] == 2 and first["steps"] == 240 and first["updates"] >= 30
+    # Every send was a round of one of the two groups; two parts of 2 arenas each.
+    assert first["env_steps_called"] >= 240 // 2
+    episodes = [line for line in first_lines if line["kind"] == "episode"]
+    assert len(episodes) >= 4 and {line["env"] for line in episodes} == {0, 1, 2, 3}
+    again, again_lines = run("b", overlap=True)
+    assert again_lines == first_lines
+    assert again["updates"] == first["updates"]
+    lock, lock_lines = run("c", overlap=False)
+    assert lock["parts"] == 1 and lock["steps"] == 240
+    assert lock_lines != first_lines  # the learner acted at other times
+
+
 def test_baselines_evaluate_on_the_same_seeds(tmp_path):
     rule = evaluate(EvalConfig(policy="rule", episodes=2, max_decisions=40, seed=5))
     again = evaluate(EvalConfig(policy="rule", episodes=2, max_decisions=40, seed=5))

@@ -97,6 +97,11 @@ class TrainConfig:
     """usrpwd credentials and TLS certificates for --connect"""
     num_envs: int = 1
     """environments (arenas) stepped together"""
+    overlap: bool = True
+    """with --connect and 2+ environments: the arenas in two halves (two groups on the
+    server), one simulated while the learner acts and learns on the other, in a fixed order
+    (deterministic for a seed, but not the lock-step run's transitions: README, "Overlap");
+    --no-overlap steps them all together, as in-process training does"""
     total_steps: int = 1_000_000
     """environment steps (transitions, summed over environments) to train for"""
     seed: int = 0
@@ -125,6 +130,11 @@ class TrainConfig:
     )
     """Rerun: episodes, learning curves and environment 0's view (default: trainer.rrd in the
     run directory)"""
+
+    @property
+    def parts(self) -> int:
+        """Groups the remote arenas are opened in: 2 with overlap, else 1."""
+        return 2 if self.connect is not None and self.overlap and self.num_envs >= 2 else 1
 
     @classmethod
     def for_preset(cls, preset: str, **changes: Any) -> TrainConfig:
@@ -236,7 +246,12 @@ def main(
     own_envs = envs is None
     if own_envs:
         envs = make_vector_env(
-            config.preset, overrides, config.num_envs, config.connect, config.security
+            config.preset,
+            overrides,
+            config.num_envs,
+            config.connect,
+            config.security,
+            parts=config.parts,
         )
     elif envs.num_envs != config.num_envs:
         raise ValueError(
@@ -298,6 +313,7 @@ class TrainingRun:
     obs: dict[str, np.ndarray]
     mask: np.ndarray
     starting: np.ndarray
+    everyone: np.ndarray
     started: float
     losses: list[float]
     q_taken: list[float]
@@ -341,6 +357,12 @@ class TrainingRun:
         )
         self.last_episode: dict[str, float] = {}
         self.iteration = 0
+        # Overlap: the environments' parts (a remote vector env opened in parts), stepped in
+        # turn: part p's actions go out, then the part sent longest ago comes back.
+        slices = getattr(envs.unwrapped, "part_slices", None) or (slice(0, config.num_envs),)
+        self.parts = tuple(np.arange(config.num_envs)[s] for s in slices)
+        self.in_flight: dict[int, tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]] = {}
+        self.sends = 0
 
     def _build_learner(self) -> None:
         """The learner (seeded), its replay memory and frame stacker, and the random generator
@@ -394,8 +416,10 @@ class TrainingRun:
         try:
             self._open_recording()
             self._start_episodes()
+            iteration = self._iteration if len(self.parts) == 1 else self._part_iteration
             while self.step < self.config.total_steps and not self.stop.is_set():
-                self._iteration()
+                iteration()
+            self._finish_parts()
             if self.step > self.log_step:
                 # The steps since the last line, a partial window: a learning curve (Fayjie
                 # et al.'s reward per 3,000 steps) keeps its last point.
@@ -410,10 +434,12 @@ class TrainingRun:
             "run_dir": str(self.run_dir),
             "steps": self.step,
             "resumed_at_step": self.resumed_at_step,
-            # Calls of envs.step in this life, autoreset steps included: on a server, the
-            # rounds it played for this trainer, plus two per server loss (the truncated step
-            # and the reopened arenas' first, which no server played).
-            "env_steps_called": self.iteration,
+            # Calls of envs.step in this life (with overlap: of send, one part each), autoreset
+            # steps included: on a server, the rounds it played for this trainer's groups,
+            # plus two per server loss (the truncated step and the reopened arenas' first,
+            # which no server played).
+            "env_steps_called": self.iteration if len(self.parts) == 1 else self.sends,
+            "parts": len(self.parts),
             **self._remote_facts(),
             "episodes": self.episodes,
             "updates": self.learner.updates,
@@ -425,10 +451,10 @@ class TrainingRun:
         """With --connect: this trainer's name on the network, and how often its server was
         lost and its arenas reopened (each loss ends the episodes under way as truncated)."""
         remote = self.envs.unwrapped
-        group = getattr(remote, "group", None)
-        if group is None:
+        groups = getattr(remote, "groups", None)
+        if not groups:
             return {}
-        return {"trainer": remote.trainer, "server_losses": group.restarts}
+        return {"trainer": remote.trainer, "server_losses": sum(g.restarts for g in groups)}
 
     def _write_run_record(self) -> None:
         """run.json (run-resume-N.json): what this life of the run is, to reproduce it."""
@@ -474,17 +500,23 @@ class TrainingRun:
             if self.recording is not None
             else None
         )
-        group = getattr(self.envs.unwrapped, "group", None)
-        if self.view is not None and group is not None:
-            self.view.arenas(group.server, group.arena_ids)
+        groups = getattr(self.envs.unwrapped, "groups", None)
+        if self.view is not None and groups:
+            # Every part's arenas where they share environment 0's server (the usual case;
+            # with several servers behind a router the parts may open on different ones).
+            server = groups[0].server
+            arenas = [a for g in groups if g.server == server for a in g.arena_ids]
+            self.view.arenas(server, tuple(arenas))
 
     def _start_episodes(self) -> None:
         """Reset every environment and start its frame stack and its replay ring."""
-        self.obs, info = self.envs.reset(seed=self.env_seed)
-        everyone = np.arange(self.config.num_envs)
+        obs, info = self.envs.reset(seed=self.env_seed)
+        # Own, writable copies: parts write their rows into them as their Steps come back.
+        self.obs = {k: np.array(v) for k, v in obs.items()}
+        everyone = self.everyone = np.arange(self.config.num_envs)
         self.stacker.reset(everyone, self.obs)
         self.replay.start(everyone, self.obs, info["action_mask"])
-        self.mask = info["action_mask"]
+        self.mask = np.array(info["action_mask"])
         self.starting = np.zeros(self.config.num_envs, dtype=bool)
         now = time.perf_counter()
         self._new_log_window(now)
@@ -520,6 +552,70 @@ class TrainingRun:
         if self.step >= self.next_checkpoint:
             self._checkpoint()
             self.next_checkpoint = self.step + self.config.checkpoint_every
+
+    def _part_iteration(self) -> None:
+        """Overlap: act for one part and send its actions; then take the Steps of the part
+        sent longest ago (the server simulated it meanwhile), store them and learn; log and
+        checkpoint when due. With two parts the server plays one while the learner acts and
+        learns on the other."""
+        t0 = time.perf_counter()
+        part = self.sends % len(self.parts)
+        envs = self.parts[part]
+        rows = slice(int(envs[0]), int(envs[-1]) + 1)
+        epsilon = self.dqn.epsilon(self.step)
+        stacked = {k: v[rows] for k, v in self.stacker.observation().items()}
+        actions, q = self.learner.act(stacked, self.mask[rows], epsilon, self.rng)
+        t1 = time.perf_counter()
+        if self._label_step is not None:
+            self._label_step(self.step)
+        seen = {k: v[rows].copy() for k, v in self.obs.items()} if part == 0 else {}
+        self.envs.unwrapped.send(part, actions)
+        self.in_flight[part] = (actions, q, seen)
+        self.sends += 1
+        t2 = time.perf_counter()
+        stored = 0
+        oldest = self.sends % len(self.parts)  # the next to send is the one sent longest ago
+        if oldest in self.in_flight and len(self.in_flight) == len(self.parts):
+            stored, waited = self._receive_part(oldest)
+            t2 += waited
+        t3 = time.perf_counter()
+        self._learn()
+        t4 = time.perf_counter()
+        self.timings.act += t1 - t0
+        self.timings.env += t2 - t1
+        self.timings.replay += t3 - t2
+        self.timings.update += t4 - t3
+        if self.bar is not None and stored:
+            self.bar.update(stored)
+        if self.step >= self.next_log:
+            self._log_training(epsilon)
+        if self.step >= self.next_checkpoint:
+            self._checkpoint()
+            self.next_checkpoint = self.step + self.config.checkpoint_every
+
+    def _receive_part(self, part: int) -> tuple[int, float]:
+        """Take part ``part``'s Steps and store them; returns the transitions stored and the
+        seconds spent waiting for them."""
+        envs = self.parts[part]
+        rows = slice(int(envs[0]), int(envs[-1]) + 1)
+        actions, q, seen = self.in_flight.pop(part)
+        start = time.perf_counter()
+        obs, reward, terminated, truncated, info = self.envs.unwrapped.recv(part)
+        waited = time.perf_counter() - start
+        for name, value in obs.items():
+            self.obs[name][rows] = value
+        if part == 0:
+            self._record_car_view(seen, actions, q, reward, info)
+        stored = self._store_part(envs, actions, reward, terminated, info["action_mask"])
+        self._end_part_episodes(envs, terminated, truncated, info)
+        return stored, waited
+
+    def _finish_parts(self) -> None:
+        """Take the Steps of the parts still in flight at the end of the run, without storing
+        them (the run has its steps): the server's rounds and the trainer's sends agree."""
+        for part in sorted(self.in_flight):
+            self.envs.unwrapped.recv(part)
+        self.in_flight.clear()
 
     def _record_car_view(
         self,
@@ -557,18 +653,45 @@ class TrainingRun:
         transition. The others add one transition each.
         """
         self.mask = mask
-        moving = np.flatnonzero(~self.starting)
-        fresh = np.flatnonzero(self.starting)
+        return self._store(self.everyone, actions, reward, terminated, mask)
+
+    def _store_part(
+        self,
+        envs: np.ndarray,
+        actions: np.ndarray,
+        reward: np.ndarray,
+        terminated: np.ndarray,
+        mask: np.ndarray,
+    ) -> int:
+        """:meth:`_store_step` for the environments ``envs`` (one part's rows)."""
+        self.mask[envs] = mask
+        return self._store(envs, actions, reward, terminated, mask)
+
+    def _store(
+        self,
+        envs: np.ndarray,
+        actions: np.ndarray,
+        reward: np.ndarray,
+        terminated: np.ndarray,
+        mask: np.ndarray,
+    ) -> int:
+        """Store a step of the environments ``envs`` (their rows of ``self.obs``; the other
+        arrays have a row per environment of ``envs``)."""
+        starting = self.starting[envs]
+        moving = np.flatnonzero(~starting)
+        fresh = np.flatnonzero(starting)
         if fresh.size:
-            sub = {k: v[fresh] for k, v in self.obs.items()}
-            self.stacker.reset(fresh, sub)
-            self.replay.start(fresh, sub, mask[fresh])
+            ids = envs[fresh]
+            sub = {k: v[ids] for k, v in self.obs.items()}
+            self.stacker.reset(ids, sub)
+            self.replay.start(ids, sub, mask[fresh])
         if moving.size:
-            sub = {k: v[moving] for k, v in self.obs.items()}
+            ids = envs[moving]
+            sub = {k: v[ids] for k, v in self.obs.items()}
             self.replay.add(
-                moving, actions[moving], reward[moving], terminated[moving], sub, mask[moving]
+                ids, actions[moving], reward[moving], terminated[moving], sub, mask[moving]
             )
-            self.stacker.push(moving, sub)
+            self.stacker.push(ids, sub)
             self.step += moving.size
             self.reward_sum += float(reward[moving].sum())
         return int(moving.size)
@@ -578,7 +701,17 @@ class TrainingRun:
     ) -> None:
         """Log the episodes this step ended (their metrics) and mark their environments for
         the autoreset step that follows."""
-        ended = (terminated | truncated) & ~self.starting
+        self._end_part_episodes(self.everyone, terminated, truncated, info)
+
+    def _end_part_episodes(
+        self,
+        envs: np.ndarray,
+        terminated: np.ndarray,
+        truncated: np.ndarray,
+        info: dict[str, Any],
+    ) -> None:
+        """:meth:`_end_episodes` for the environments ``envs``."""
+        ended = (terminated | truncated) & ~self.starting[envs]
         for i in np.flatnonzero(ended):
             self.episodes += 1
             self.last_episode = {name: float(values[i]) for name, values in info["metrics"].items()}
@@ -587,7 +720,7 @@ class TrainingRun:
                     "kind": "episode",
                     "step": self.step,
                     "episode": self.episodes,
-                    "env": int(i),
+                    "env": int(envs[i]),
                     "wall_s": round(time.perf_counter() - self.started, 3),
                     "terminated": bool(terminated[i]),
                     **self.last_episode,
@@ -595,7 +728,7 @@ class TrainingRun:
             )
             if self.view is not None:
                 self.view.episode(self.step, self.last_episode)
-        self.starting = ended
+        self.starting[envs] = ended
 
     def _learn(self) -> None:
         """One update per ``train_every`` steps stored (once the replay holds ``warm``
