@@ -1,13 +1,16 @@
 """Training throughput: environment steps per second with learning, in-process and remote.
 
 One run measures, for each input configuration asked for, ``overtake-train``'s own loop
-(``overtake.trainers.train.main``) twice on the same settings: with the simulator in this
-process, and with it in an ``overtake.server`` subprocess on 127.0.0.1 (a free port). Only the
-steps after learning has started count (the loop then acts, steps, stores and updates, as in a
-real run). Where the time goes comes from the loop's own clock (``metrics.jsonl``: act =
-network forward for acting, env = the environment's step, replay = storing, update = sampling
-and gradient steps); the remote run's env share is simulation plus transport, and its
-transport part is estimated as remote env time minus in-process env time per step.
+(``overtake.trainers.train.main``) three times on the same settings: with the simulator in
+this process, and with it in an ``overtake.server`` subprocess on 127.0.0.1 (a free port),
+once with overlap (the arenas in two halves, one simulated while the learner works on the
+other: overtake-train's default with --connect) and once in lock-step (--no-overlap). Only
+the steps after learning has started count (the loop then acts, steps, stores and updates, as
+in a real run). Where the time goes comes from the loop's own clock (``metrics.jsonl``: act =
+network forward for acting, env = the environment's step, or with overlap the wait for a
+half's Steps, replay = storing, update = sampling and gradient steps); the lock-step run's env
+share is simulation plus transport, and its transport part is estimated as remote env time
+minus in-process env time per step.
 
     .venv/bin/python -m bench.bench_train [--steps 2000] [--json PATH]
 """
@@ -40,9 +43,15 @@ class TrainBenchConfig:
 
 
 def run_once(
-    config: TrainBenchConfig, inputs: str, connect: str | None, run_dir: Path, recording: Any = None
+    config: TrainBenchConfig,
+    inputs: str,
+    connect: str | None,
+    run_dir: Path,
+    recording: Any = None,
+    overlap: bool = True,
 ) -> dict[str, Any]:
-    """One ``overtake-train`` run; ``recording``: its RecordingConfig (None: the default)."""
+    """One ``overtake-train`` run; ``recording``: its RecordingConfig (None: the default);
+    ``overlap``: remote arenas in two halves (overtake-train's default) or lock-step."""
     from overtake.trainers.learner import DQNConfig
     from overtake.trainers.train import TrainConfig, main
 
@@ -58,6 +67,7 @@ def run_once(
             seed=0,
             run_dir=run_dir,
             connect=connect,
+            overlap=overlap,
             progress=False,
             log_every=config.learning_starts,
             checkpoint_every=10 * total,
@@ -83,7 +93,7 @@ def run_once(
     }
     return {
         "inputs": inputs,
-        "where": "remote" if connect else "in-process",
+        "where": ("remote" if overlap else "remote lock-step") if connect else "in-process",
         "steps_timed": steps,
         "steps_per_s": steps / seconds,
         "wall_s": wall,
@@ -100,10 +110,16 @@ def main(config: TrainBenchConfig) -> dict[str, Any]:
     try:
         with tempfile.TemporaryDirectory() as tmp:
             for inputs in config.inputs:
-                for connect in (None, endpoint):
-                    where = "remote" if connect else "inproc"
+                for connect, overlap in ((None, False), (endpoint, True), (endpoint, False)):
+                    where = ("overlap" if overlap else "lockstep") if connect else "inproc"
                     results.append(
-                        run_once(config, inputs, connect, Path(tmp) / f"{inputs}-{where}")
+                        run_once(
+                            config,
+                            inputs,
+                            connect,
+                            Path(tmp) / f"{inputs}-{where}",
+                            overlap=overlap,
+                        )
                     )
     finally:
         stop_process(server)
@@ -112,23 +128,25 @@ def main(config: TrainBenchConfig) -> dict[str, Any]:
         f"{config.steps} timed steps after {config.learning_starts} (one update per 4 steps)"
     )
     print(
-        f"{'inputs':>6} {'where':>10} {'steps/s':>8}  ms/step: {'env':>6} {'act':>6} "
+        f"{'inputs':>6} {'where':>16} {'steps/s':>8}  ms/step: {'env':>6} {'act':>6} "
         f"{'replay':>6} {'update':>7}"
     )
     for r in results:
         ms = r["ms_per_step"]
         print(
-            f"{r['inputs']:>6} {r['where']:>10} {r['steps_per_s']:8.1f}           "
+            f"{r['inputs']:>6} {r['where']:>16} {r['steps_per_s']:8.1f}           "
             f"{ms['time_env']:6.2f} {ms['time_act']:6.2f} {ms['time_replay']:6.2f} "
             f"{ms['time_update']:7.2f}"
         )
     by = {(r["inputs"], r["where"]): r for r in results}
     for inputs in config.inputs:
         local, remote = by[(inputs, "in-process")], by[(inputs, "remote")]
-        transport = remote["ms_per_step"]["time_env"] - local["ms_per_step"]["time_env"]
-        ratio = remote["steps_per_s"] / local["steps_per_s"]
+        lock = by[(inputs, "remote lock-step")]
+        transport = lock["ms_per_step"]["time_env"] - local["ms_per_step"]["time_env"]
         print(
-            f"{inputs}: remote / in-process steps/s {ratio:.2f}x; "
+            f"{inputs}: remote (overlap) / in-process steps/s "
+            f"{remote['steps_per_s'] / local['steps_per_s']:.2f}x, remote lock-step / "
+            f"in-process {lock['steps_per_s'] / local['steps_per_s']:.2f}x; lock-step "
             f"transport and serving ~{transport:.2f} ms per step"
         )
     report = {
