@@ -45,10 +45,10 @@ Figures per case (``summary.json`` in ``--run-dir``, one line each printed):
   the loss ended as truncated;
 - ``checkpoints``: each trainer's checkpoint loads right after a kill (before the restart
   reads it) and at the end;
-- ``recordings``: every .rrd passes ``rerun rrd verify`` (the server's, written without a
-  footer, with ``--check-footers false``); a trainer's file whose writer was killed has no
-  footer, so it is checked with ``rerun rrd print`` (everything flushed before the kill
-  reads back) and repaired on a copy with ``rerun rrd migrate``, which must then verify.
+- ``recordings``: every .rrd passes ``rerun rrd verify --check-footers false`` (the server's
+  and the trainers' are written without a footer; a killed writer's file has everything
+  flushed before the kill); one that does not is read with ``rerun rrd print`` and repaired on
+  a copy with ``rerun rrd migrate``, which must then verify.
 
     .venv/bin/python -m bench.faults [--targets trainer server router] [--rounds 1]
 """
@@ -321,11 +321,11 @@ def leave_rounds(server: Proc) -> dict[str, int]:
     return rounds
 
 
-def check_recording(path: Path, footer: bool) -> dict[str, Any]:
-    """``footer``: whether its writer writes Rerun's footer on closing (a trainer's); the
-    server's world recording is written without one (overtake.viz.recording, on footers)."""
+def check_recording(path: Path) -> dict[str, Any]:
+    """The server's and the trainers' recordings are written without Rerun's footer
+    (overtake.viz.recording, on footers): verified without one."""
     out: dict[str, Any] = {"mib": round(path.stat().st_size / 2**20, 2)}
-    verify = verify_rrd(path, footer)
+    verify = verify_rrd(path, footer=False)
     if verify.returncode == 0:
         return {**out, "verified": True}
     printed = rerun_rrd("print", str(path))
@@ -522,7 +522,7 @@ def run_case(config: FaultConfig, target: str, fault: str, index: int, rng: rand
         result["steps"] = steps
         result["checkpoints"] = {path.parent.name: checkpoint_step(path) for path in checkpoints}
         result["recordings"] = {
-            str(p.relative_to(case_dir)): check_recording(p, footer=not p.name.startswith("server"))
+            str(p.relative_to(case_dir)): check_recording(p)
             for p in sorted(case_dir.rglob("*.rrd"))
         }
     finally:

@@ -150,13 +150,20 @@ def summarise(samples: list[dict[str, Any]], config: SoakConfig) -> dict[str, An
         )
     memory = {}
     for name in judged[0]["rss_mib"]:
-        values = np.array([s["rss_mib"][name] for s in judged if s["rss_mib"].get(name)])
+        points = [(s["t_s"], s["rss_mib"][name]) for s in judged if s["rss_mib"].get(name)]
+        minutes = np.array([t for t, _ in points]) / 60.0
+        values = np.array([v for _, v in points])
+        # The trend apart from the noise: a least-squares line through the samples (a process
+        # whose memory breathes by a few percent has a spread but no slope; a leak has both).
+        slope = float(np.polyfit(minutes, values, 1)[0]) if len(values) > 2 else 0.0
         memory[name] = {
             "first_mib": round(float(values[0]), 1),
             "last_mib": round(float(values[-1]), 1),
             "max_mib": round(float(values.max()), 1),
             "spread": round(float((values.max() - values.min()) / values.min()), 4),
             "last_over_first": round(float(values[-1] / values[0]), 4),
+            "slope_mib_per_min": round(slope, 3),
+            "trend_per_day": round(slope * 60 * 24 / float(values.mean()), 3),
         }
     rates = {}
     for trainer in judged[0]["rounds"]:
@@ -207,7 +214,8 @@ def rerun_rrd(*args: str) -> subprocess.CompletedProcess[str]:
 
 def verify_rrd(path: Path, footer: bool) -> subprocess.CompletedProcess[str]:
     """``rerun rrd verify``; ``footer=False`` for a file written without Rerun's footer (the
-    server's and the spectator's world recordings: overtake.viz.recording, on footers)."""
+    server's, the spectator's and the trainers' recordings: overtake.viz.recording, on
+    footers)."""
     return rerun_rrd("verify", "--check-footers", str(footer).lower(), str(path))
 
 
@@ -220,8 +228,8 @@ def check_outputs(run_dir: Path, trainers: int) -> dict[str, Any]:
         path = run_dir / f"trainer-{index}" / CHECKPOINT_NAME
         out["checkpoints"][path.parent.name] = checkpoint_step(path)
     for rrd in sorted(run_dir.rglob("*.rrd")):
-        # The server's and the spectator's (in run_dir itself) have no footer; the trainers' do.
-        done = verify_rrd(rrd, footer=rrd.parent != run_dir)
+        # Every long-lived writer's (server, spectator, trainers) is written without a footer.
+        done = verify_rrd(rrd, footer=False)
         out["recordings"][str(rrd.relative_to(run_dir))] = {
             "verified": done.returncode == 0,
             "mib": round(rrd.stat().st_size / 2**20, 1),

@@ -482,11 +482,14 @@ class TrainingRun:
 
     def _open_recording(self) -> None:
         run_name = self.run_dir.name or "run"
+        # No footer: a run may write for days, and the SDK would hold the footer's index in
+        # memory until the end (overtake.viz.recording, on footers; bench/recording_memory.py).
         self.recording = open_recording(
             APPLICATION_ID,
             self.config.recording,
             self._life_file("trainer", ".rrd"),
             training_blueprint(run_name),
+            footer=False,
         )
         self.view = (
             # Coloured by algorithm: DQN, Double DQN and Dueling keep their colours in every

@@ -42,8 +42,9 @@ FLUSH_BYTES = 8 * 2**20
 # Footers: an .rrd's footer holds a manifest of every chunk in the file, and the SDK builds it
 # in memory until the file is closed, a row per chunk padded to every timeline and component of
 # the recording (a server's world recording of 4 arenas: about 4 KiB a chunk, 800 chunks and
-# 3.5 MiB a minute, without end). Processes that write for days (a server's and a spectator's
-# world recording) write without one (``footer=False``): the file holds the same data
+# 3.5 MiB a minute, without end; a trainer's, 0.33 MiB a minute). Processes that write for days
+# (a server's and a spectator's world recording, a trainer's) write without one
+# (``footer=False``): the file holds the same data
 # (RrdReader.stream, overtake-layout, whose joined copy has a footer, `rerun rrd verify
 # --check-footers false`); what it lacks is the index for random access into a large file.
 # Closing waits this long for logged data to reach its sink; a viewer that has gone away must
