@@ -625,6 +625,13 @@ def check_stop_and_down(stack: Stack, figures: dict[str, Any]) -> None:
     say(f"stop {figures['stop_s']} s (no SIGKILL), down {figures['down_s']} s, runs volume kept")
 
 
+def save_logs(stack: Stack) -> None:
+    """Every container's log, to compose.log in the run directory."""
+    logs = stack.compose("logs", "--no-color", "--timestamps", check=False)
+    if logs.stdout:
+        (stack.config.run_dir / "compose.log").write_text(logs.stdout + logs.stderr)
+
+
 def main(config: ComposeE2EConfig) -> dict[str, Any]:
     figures: dict[str, Any] = {"engine": engine_version()}
     if config.run_dir.exists():
@@ -663,15 +670,15 @@ def main(config: ComposeE2EConfig) -> dict[str, Any]:
         check_restart(stack, figures)
         check_scale(stack, figures)
         check_trainers_finish(stack, figures)
+        save_logs(stack)  # before down removes the containers
         check_stop_and_down(stack, figures)
         figures["result"] = "passed"
     except BaseException as error:
         figures["result"] = f"failed: {error}"
         raise
     finally:
-        logs = stack.compose("logs", "--no-color", "--timestamps", check=False)
-        if logs.stdout:
-            (config.run_dir / "compose.log").write_text(logs.stdout + logs.stderr)
+        if not (config.run_dir / "compose.log").exists():
+            save_logs(stack)
         (config.run_dir / "summary.json").write_text(json.dumps(figures, indent=2) + "\n")
         if placed is not None:
             placed.unlink(missing_ok=True)
