@@ -544,17 +544,7 @@ class TrainingRun:
         t3 = time.perf_counter()
         self._learn()
         t4 = time.perf_counter()
-        self.timings.act += t1 - t0
-        self.timings.env += t2 - t1
-        self.timings.replay += t3 - t2
-        self.timings.update += t4 - t3
-        if self.bar is not None:
-            self.bar.update(stored)
-        if self.step >= self.next_log:
-            self._log_training(epsilon)
-        if self.step >= self.next_checkpoint:
-            self._checkpoint()
-            self.next_checkpoint = self.step + self.config.checkpoint_every
+        self._account(epsilon, stored, (t0, t1, t2, t3, t4))
 
     def _part_iteration(self) -> None:
         """Overlap: act for one part and send its actions; then take the Steps of the part
@@ -584,6 +574,14 @@ class TrainingRun:
         t3 = time.perf_counter()
         self._learn()
         t4 = time.perf_counter()
+        self._account(epsilon, stored, (t0, t1, t2, t3, t4))
+
+    def _account(
+        self, epsilon: float, stored: int, times: tuple[float, float, float, float, float]
+    ) -> None:
+        """An iteration's time split (act, env, replay, update, from its five clock readings)
+        and progress; a log line and a checkpoint when due."""
+        t0, t1, t2, t3, t4 = times
         self.timings.act += t1 - t0
         self.timings.env += t2 - t1
         self.timings.replay += t3 - t2
