@@ -18,10 +18,7 @@ their arena-steps per second, each round's ratio and the median.
 from __future__ import annotations
 
 import json
-import os
-import platform
 import statistics
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +28,7 @@ import numpy as np
 import tyro
 
 from bench.bench_remote import free_port, start_server, stop_process
+from bench.bench_sim import machine_description
 
 
 @dataclass(frozen=True)
@@ -143,11 +141,7 @@ def main(config: OverlapBenchConfig) -> dict[str, Any]:
     ratios = [o / lock for o, lock in zip(rates["overlap"], rates["lock-step"], strict=True)]
     report = {
         "config": {k: str(v) for k, v in vars(config).items()},
-        "machine": {
-            "cpus": os.cpu_count(),
-            "platform": platform.platform(),
-            "python": sys.version.split()[0],
-        },
+        "machine": machine_description(),
         "arena_steps_per_s": {m: [round(r, 1) for r in v] for m, v in rates.items()},
         "overlap_over_lock_step": [round(r, 3) for r in ratios],
         "median_ratio": round(statistics.median(ratios), 3),

@@ -627,11 +627,6 @@ class ArenaGroup:
         self.last = steps
         return steps
 
-    @property
-    def in_flight(self) -> bool:
-        """Actions were sent and their Steps not yet received."""
-        return self._in_flight
-
     def _server_restarted(self) -> bool:
         return self.connection.epoch(self.server) != self.epoch
 

@@ -3,7 +3,9 @@
 The spaces are rebuilt from the server's behaviour spec, so they equal the in-process
 environment's; observations, rewards, flags and info are the same too, bit for bit for the same
 preset, seed and actions. The vector environment opens its N arenas as one group (one message
-each way per step) with Gymnasium 1.x next-step autoreset, as the in-process vector env does.
+each way per step), or as ``parts`` groups stepped in turn (``send`` / ``recv``, for a trainer
+that overlaps its work with the simulation), with Gymnasium 1.x next-step autoreset, as the
+in-process vector env does.
 
 A server restart is survived: the step that finds the server gone returns the last observation
 with ``truncated`` set (``info["server_restarted"]``), the arenas are reopened (on the restarted
@@ -126,7 +128,6 @@ class _Remote:
         except BaseException:
             self.close()
             raise
-        self.group = self.groups[0]
         self.part_sizes = tuple(sizes)
         spec = self.group.spec
         assert spec is not None
@@ -134,6 +135,11 @@ class _Remote:
         self.sim_config: dict[str, Any] = json.loads(spec.config_json)
         self.reward_terms = spec.reward_terms
         self.metric_fields = spec.metric_fields
+
+    @property
+    def group(self) -> ArenaGroup:
+        """The first part's group (the only one without parts)."""
+        return self.groups[0]
 
     def close(self) -> None:
         try:

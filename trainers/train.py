@@ -359,10 +359,12 @@ class TrainingRun:
         self.iteration = 0
         # Overlap: the environments' parts (a remote vector env opened in parts), stepped in
         # turn: part p's actions go out, then the part sent longest ago comes back.
-        slices = getattr(envs.unwrapped, "part_slices", None) or (slice(0, config.num_envs),)
-        self.parts = tuple(np.arange(config.num_envs)[s] for s in slices)
+        self.part_rows: tuple[slice, ...] = getattr(envs.unwrapped, "part_slices", None) or (
+            slice(0, config.num_envs),
+        )
+        self.parts = tuple(np.arange(config.num_envs)[s] for s in self.part_rows)
         self.in_flight: dict[int, tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]] = {}
-        self.sends = 0
+        self.env_calls = 0  # envs.step, or with overlap send: one each, autoreset steps included
 
     def _build_learner(self) -> None:
         """The learner (seeded), its replay memory and frame stacker, and the random generator
@@ -438,7 +440,7 @@ class TrainingRun:
             # steps included: on a server, the rounds it played for this trainer's groups,
             # plus two per server loss (the truncated step and the reopened arenas' first,
             # which no server played).
-            "env_steps_called": self.iteration if len(self.parts) == 1 else self.sends,
+            "env_steps_called": self.env_calls,
             "parts": len(self.parts),
             **self._remote_facts(),
             "episodes": self.episodes,
@@ -537,10 +539,11 @@ class TrainingRun:
         if self._label_step is not None:
             self._label_step(self.step)
         self.obs, reward, terminated, truncated, info = self.envs.step(actions)
+        self.env_calls += 1
         t2 = time.perf_counter()
         self._record_car_view(seen, actions, q, reward, info)
-        stored = self._store_step(actions, reward, terminated, info["action_mask"])
-        self._end_episodes(terminated, truncated, info)
+        stored = self._store(self.everyone, actions, reward, terminated, info["action_mask"])
+        self._end_episodes(self.everyone, terminated, truncated, info)
         t3 = time.perf_counter()
         self._learn()
         t4 = time.perf_counter()
@@ -552,9 +555,8 @@ class TrainingRun:
         checkpoint when due. With two parts the server plays one while the learner acts and
         learns on the other."""
         t0 = time.perf_counter()
-        part = self.sends % len(self.parts)
-        envs = self.parts[part]
-        rows = slice(int(envs[0]), int(envs[-1]) + 1)
+        part = self.env_calls % len(self.parts)
+        rows = self.part_rows[part]
         epsilon = self.dqn.epsilon(self.step)
         stacked = {k: v[rows] for k, v in self.stacker.observation().items()}
         actions, q = self.learner.act(stacked, self.mask[rows], epsilon, self.rng)
@@ -564,10 +566,10 @@ class TrainingRun:
         seen = {k: v[rows].copy() for k, v in self.obs.items()} if part == 0 else {}
         self.envs.unwrapped.send(part, actions)
         self.in_flight[part] = (actions, q, seen)
-        self.sends += 1
+        self.env_calls += 1
         t2 = time.perf_counter()
         stored = 0
-        oldest = self.sends % len(self.parts)  # the next to send is the one sent longest ago
+        oldest = self.env_calls % len(self.parts)  # the next to send is the one sent longest ago
         if oldest in self.in_flight and len(self.in_flight) == len(self.parts):
             stored, waited = self._receive_part(oldest)
             t2 += waited
@@ -597,8 +599,7 @@ class TrainingRun:
     def _receive_part(self, part: int) -> tuple[int, float]:
         """Take part ``part``'s Steps and store them; returns the transitions stored and the
         seconds spent waiting for them."""
-        envs = self.parts[part]
-        rows = slice(int(envs[0]), int(envs[-1]) + 1)
+        envs, rows = self.parts[part], self.part_rows[part]
         actions, q, seen = self.in_flight.pop(part)
         start = time.perf_counter()
         obs, reward, terminated, truncated, info = self.envs.unwrapped.recv(part)
@@ -607,8 +608,8 @@ class TrainingRun:
             self.obs[name][rows] = value
         if part == 0:
             self._record_car_view(seen, actions, q, reward, info)
-        stored = self._store_part(envs, actions, reward, terminated, info["action_mask"])
-        self._end_part_episodes(envs, terminated, truncated, info)
+        stored = self._store(envs, actions, reward, terminated, info["action_mask"])
+        self._end_episodes(envs, terminated, truncated, info)
         return stored, waited
 
     def _finish_parts(self) -> None:
@@ -644,30 +645,6 @@ class TrainingRun:
             )
         self.iteration += 1
 
-    def _store_step(
-        self, actions: np.ndarray, reward: np.ndarray, terminated: np.ndarray, mask: np.ndarray
-    ) -> int:
-        """Store what a step returned; returns how many transitions that added.
-
-        Gymnasium next-step autoreset: environments that ended last step were reset by this
-        one (its action ignored, reward 0); their observation starts a new episode, no
-        transition. The others add one transition each.
-        """
-        self.mask = mask
-        return self._store(self.everyone, actions, reward, terminated, mask)
-
-    def _store_part(
-        self,
-        envs: np.ndarray,
-        actions: np.ndarray,
-        reward: np.ndarray,
-        terminated: np.ndarray,
-        mask: np.ndarray,
-    ) -> int:
-        """:meth:`_store_step` for the environments ``envs`` (one part's rows)."""
-        self.mask[envs] = mask
-        return self._store(envs, actions, reward, terminated, mask)
-
     def _store(
         self,
         envs: np.ndarray,
@@ -676,8 +653,15 @@ class TrainingRun:
         terminated: np.ndarray,
         mask: np.ndarray,
     ) -> int:
-        """Store a step of the environments ``envs`` (their rows of ``self.obs``; the other
-        arrays have a row per environment of ``envs``)."""
+        """Store what a step of the environments ``envs`` returned (their rows of
+        ``self.obs``; the other arrays have a row per environment of ``envs``); returns how
+        many transitions that added.
+
+        Gymnasium next-step autoreset: environments that ended last step were reset by this
+        one (its action ignored, reward 0); their observation starts a new episode, no
+        transition. The others add one transition each.
+        """
+        self.mask[envs] = mask
         starting = self.starting[envs]
         moving = np.flatnonzero(~starting)
         fresh = np.flatnonzero(starting)
@@ -698,20 +682,14 @@ class TrainingRun:
         return int(moving.size)
 
     def _end_episodes(
-        self, terminated: np.ndarray, truncated: np.ndarray, info: dict[str, Any]
-    ) -> None:
-        """Log the episodes this step ended (their metrics) and mark their environments for
-        the autoreset step that follows."""
-        self._end_part_episodes(self.everyone, terminated, truncated, info)
-
-    def _end_part_episodes(
         self,
         envs: np.ndarray,
         terminated: np.ndarray,
         truncated: np.ndarray,
         info: dict[str, Any],
     ) -> None:
-        """:meth:`_end_episodes` for the environments ``envs``."""
+        """Log the episodes this step of the environments ``envs`` ended (their metrics) and
+        mark those environments for the autoreset step that follows."""
         ended = (terminated | truncated) & ~self.starting[envs]
         for i in np.flatnonzero(ended):
             self.episodes += 1
