@@ -3,8 +3,9 @@
 One run measures, for each input configuration asked for, ``overtake-train``'s own loop
 (``overtake.trainers.train.main``) three times on the same settings: with the simulator in
 this process, and with it in an ``overtake.server`` subprocess on 127.0.0.1 (a free port),
-once with overlap (the arenas in two halves, one simulated while the learner works on the
-other: overtake-train's default with --connect) and once in lock-step (--no-overlap). Only
+with overlap in one part (the learner updates while the server simulates: overtake-train's
+default with --connect) and in two (the arenas in halves, one simulated while the learner
+acts and learns on the other), and in lock-step (--no-overlap). Only
 the steps after learning has started count (the loop then acts, steps, stores and updates, as
 in a real run). Where the time goes comes from the loop's own clock (``metrics.jsonl``: act =
 network forward for acting, env = the environment's step, or with overlap the wait for a
@@ -39,6 +40,8 @@ class TrainBenchConfig:
     algo: str = "ddqn"
     inputs: tuple[str, ...] = ("both", "lidar")
     torch_threads: int = 2
+    parts: tuple[int, ...] = (1, 2, 0)
+    """the remote runs: overlapped in that many parts, 0 for lock-step"""
     json: Path | None = None
 
 
@@ -48,10 +51,11 @@ def run_once(
     connect: str | None,
     run_dir: Path,
     recording: Any = None,
-    overlap: bool = True,
+    overlap_parts: int = 1,
 ) -> dict[str, Any]:
     """One ``overtake-train`` run; ``recording``: its RecordingConfig (None: the default);
-    ``overlap``: remote arenas in two halves (overtake-train's default) or lock-step."""
+    ``overlap_parts``: remote arenas overlapped in that many parts (1, overtake-train's
+    default: learning during the round trip), or 0 for lock-step."""
     from overtake.trainers.learner import DQNConfig
     from overtake.trainers.train import TrainConfig, main
 
@@ -67,7 +71,8 @@ def run_once(
             seed=0,
             run_dir=run_dir,
             connect=connect,
-            overlap=overlap,
+            overlap=overlap_parts > 0,
+            overlap_parts=max(overlap_parts, 1),
             progress=False,
             log_every=config.learning_starts,
             checkpoint_every=10 * total,
@@ -93,13 +98,20 @@ def run_once(
     }
     return {
         "inputs": inputs,
-        "where": ("remote" if overlap else "remote lock-step") if connect else "in-process",
+        "where": where_label(connect, overlap_parts),
         "steps_timed": steps,
         "steps_per_s": steps / seconds,
         "wall_s": wall,
         "shares": shares,
         "ms_per_step": {k: 1000 * v * seconds / steps for k, v in shares.items()},
     }
+
+
+def where_label(connect: str | None, overlap_parts: int) -> str:
+    """How a run's simulator was reached: in-process, remote lock-step, remote overlap/k."""
+    if connect is None:
+        return "in-process"
+    return f"remote overlap/{overlap_parts}" if overlap_parts else "remote lock-step"
 
 
 def main(config: TrainBenchConfig) -> dict[str, Any]:
@@ -110,15 +122,15 @@ def main(config: TrainBenchConfig) -> dict[str, Any]:
     try:
         with tempfile.TemporaryDirectory() as tmp:
             for inputs in config.inputs:
-                for connect, overlap in ((None, False), (endpoint, True), (endpoint, False)):
-                    where = ("overlap" if overlap else "lockstep") if connect else "inproc"
+                for connect, parts in ((None, 0), *((endpoint, k) for k in config.parts)):
+                    where = f"overlap{parts}" if parts else ("lockstep" if connect else "inproc")
                     results.append(
                         run_once(
                             config,
                             inputs,
                             connect,
                             Path(tmp) / f"{inputs}-{where}",
-                            overlap=overlap,
+                            overlap_parts=parts,
                         )
                     )
     finally:
@@ -140,15 +152,16 @@ def main(config: TrainBenchConfig) -> dict[str, Any]:
         )
     by = {(r["inputs"], r["where"]): r for r in results}
     for inputs in config.inputs:
-        local, remote = by[(inputs, "in-process")], by[(inputs, "remote")]
-        lock = by[(inputs, "remote lock-step")]
-        transport = lock["ms_per_step"]["time_env"] - local["ms_per_step"]["time_env"]
-        print(
-            f"{inputs}: remote (overlap) / in-process steps/s "
-            f"{remote['steps_per_s'] / local['steps_per_s']:.2f}x, remote lock-step / "
-            f"in-process {lock['steps_per_s'] / local['steps_per_s']:.2f}x; lock-step "
-            f"transport and serving ~{transport:.2f} ms per step"
+        local = by[(inputs, "in-process")]
+        ratios = ", ".join(
+            f"{where} {by[(inputs, where)]['steps_per_s'] / local['steps_per_s']:.2f}x"
+            for where in (where_label("remote", k) for k in config.parts)
         )
+        print(f"{inputs}: steps/s against in-process: {ratios}")
+        if (inputs, "remote lock-step") in by:
+            lock = by[(inputs, "remote lock-step")]
+            transport = lock["ms_per_step"]["time_env"] - local["ms_per_step"]["time_env"]
+            print(f"{inputs}: lock-step transport and serving ~{transport:.2f} ms per step")
     report = {
         "config": {k: str(v) for k, v in vars(config).items()},
         "machine": {

@@ -692,11 +692,13 @@ def test_each_algorithm_trains_against_a_real_server(tmp_path, start_server, alg
 
 
 def test_overlapped_remote_training_is_deterministic_and_lock_step_stays(tmp_path, start_server):
-    """With --connect and 4 environments the arenas are two groups stepped in turn; two runs
-    of one seed store the same episodes and learn the same losses; --no-overlap is one group."""
+    """With --connect the learner updates while the server simulates (one group), or with
+    --overlap-parts 2 the 4 arenas are two groups stepped in turn; two runs of one seed store
+    the same episodes and learn the same losses either way; --no-overlap is one group again,
+    stepped and then learned from."""
     server = start_server("train-overlap")
 
-    def run(name: str, overlap: bool) -> tuple[dict, list[dict]]:
+    def run(name: str, overlap: bool, parts: int = 1) -> tuple[dict, list[dict]]:
         summary = train(
             TrainConfig(
                 algo="ddqn",
@@ -708,6 +710,7 @@ def test_overlapped_remote_training_is_deterministic_and_lock_step_stays(tmp_pat
                 run_dir=tmp_path / name,
                 progress=False,
                 overlap=overlap,
+                overlap_parts=parts,
                 log_every=40,
                 set=("episode.max_decisions=25",),
                 dqn=DQNConfig(**SMOKE_DQN),
@@ -723,18 +726,25 @@ def test_overlapped_remote_training_is_deterministic_and_lock_step_stays(tmp_pat
         ]
         return summary, lines
 
-    first, first_lines = run("a", overlap=True)
-    assert first["parts"] == 2 and first["steps"] == 240 and first["updates"] >= 30
+    one, one_lines = run("one-a", overlap=True)
+    assert one["parts"] == 1 and one["steps"] == 240 and one["updates"] >= 30
+    # One send per vector step, plus the last one in flight when the run ended.
+    assert one["env_steps_called"] >= 240 // 4 + 1
+    assert run("one-b", overlap=True)[1] == one_lines
+    halves, halves_lines = run("two-a", overlap=True, parts=2)
+    assert halves["parts"] == 2 and halves["steps"] == 240 and halves["updates"] >= 30
     # Every send was a round of one of the two groups; two parts of 2 arenas each.
-    assert first["env_steps_called"] >= 240 // 2
-    episodes = [line for line in first_lines if line["kind"] == "episode"]
+    assert halves["env_steps_called"] >= 240 // 2
+    episodes = [line for line in halves_lines if line["kind"] == "episode"]
     assert len(episodes) >= 4 and {line["env"] for line in episodes} == {0, 1, 2, 3}
-    again, again_lines = run("b", overlap=True)
-    assert again_lines == first_lines
-    assert again["updates"] == first["updates"]
-    lock, lock_lines = run("c", overlap=False)
+    again, again_lines = run("two-b", overlap=True, parts=2)
+    assert again_lines == halves_lines
+    assert again["updates"] == halves["updates"]
+    assert halves_lines != one_lines
+    lock, lock_lines = run("lock", overlap=False, parts=2)
     assert lock["parts"] == 1 and lock["steps"] == 240
-    assert lock_lines != first_lines  # the learner acted at other times
+    # The learner updated at other times: before the step's transitions were stored.
+    assert lock_lines != one_lines and lock_lines != halves_lines
 
 
 def test_baselines_evaluate_on_the_same_seeds(tmp_path):

@@ -98,10 +98,14 @@ class TrainConfig:
     num_envs: int = 1
     """environments (arenas) stepped together"""
     overlap: bool = True
-    """with --connect and 2+ environments: the arenas in two halves (two groups on the
-    server), one simulated while the learner acts and learns on the other, in a fixed order
+    """with --connect: learn while the server simulates (each iteration sends a part's
+    actions, learns, then takes the Steps of the part sent longest ago), in a fixed order
     (deterministic for a seed, but not the lock-step run's transitions: README, "Overlap");
-    --no-overlap steps them all together, as in-process training does"""
+    --no-overlap steps all arenas, then learns, as in-process training does"""
+    overlap_parts: int = 1
+    """with overlap: the groups the arenas are opened in on the server, stepped in turn (2 or
+    more also overlap acting with simulation, at the cost of one network call per part);
+    capped by --num-envs"""
     total_steps: int = 1_000_000
     """environment steps (transitions, summed over environments) to train for"""
     seed: int = 0
@@ -133,8 +137,15 @@ class TrainConfig:
 
     @property
     def parts(self) -> int:
-        """Groups the remote arenas are opened in: 2 with overlap, else 1."""
-        return 2 if self.connect is not None and self.overlap and self.num_envs >= 2 else 1
+        """Groups the remote arenas are opened in (1 without overlap or in-process)."""
+        if self.connect is None or not self.overlap:
+            return 1
+        return min(self.overlap_parts, self.num_envs)
+
+    @property
+    def overlapped(self) -> bool:
+        """Whether the loop learns while the server simulates (remote, with overlap)."""
+        return self.connect is not None and self.overlap
 
     @classmethod
     def for_preset(cls, preset: str, **changes: Any) -> TrainConfig:
@@ -418,7 +429,7 @@ class TrainingRun:
         try:
             self._open_recording()
             self._start_episodes()
-            iteration = self._iteration if len(self.parts) == 1 else self._part_iteration
+            iteration = self._part_iteration if self.config.overlapped else self._iteration
             while self.step < self.config.total_steps and not self.stop.is_set():
                 iteration()
             self._finish_parts()
@@ -550,15 +561,18 @@ class TrainingRun:
         self._account(epsilon, stored, (t0, t1, t2, t3, t4))
 
     def _part_iteration(self) -> None:
-        """Overlap: act for one part and send its actions; then take the Steps of the part
-        sent longest ago (the server simulated it meanwhile), store them and learn; log and
-        checkpoint when due. With two parts the server plays one while the learner acts and
-        learns on the other."""
+        """Overlap: act for one part and send its actions; learn while the server simulates;
+        then take the Steps of the part sent longest ago and store them; log and checkpoint
+        when due. With one part the update runs during the round trip (it sees the
+        transitions up to the previous iteration); with two the server also plays one part
+        while the learner acts on the other."""
         t0 = time.perf_counter()
         part = self.env_calls % len(self.parts)
         rows = self.part_rows[part]
         epsilon = self.dqn.epsilon(self.step)
-        stacked = {k: v[rows] for k, v in self.stacker.observation().items()}
+        stacked = self.stacker.observation()
+        if len(self.parts) > 1:
+            stacked = {k: v[rows] for k, v in stacked.items()}
         actions, q = self.learner.act(stacked, self.mask[rows], epsilon, self.rng)
         t1 = time.perf_counter()
         if self._label_step is not None:
@@ -568,15 +582,18 @@ class TrainingRun:
         self.in_flight[part] = (actions, q, seen)
         self.env_calls += 1
         t2 = time.perf_counter()
-        stored = 0
+        self._learn()
+        t3 = time.perf_counter()
+        stored, waited = 0, 0.0
         oldest = self.env_calls % len(self.parts)  # the next to send is the one sent longest ago
         if oldest in self.in_flight and len(self.in_flight) == len(self.parts):
             stored, waited = self._receive_part(oldest)
-            t2 += waited
-        t3 = time.perf_counter()
-        self._learn()
         t4 = time.perf_counter()
-        self._account(epsilon, stored, (t0, t1, t2, t3, t4))
+        # In _account's order (act, env, replay, update): the wait for the Steps counts as the
+        # environment's time, the rest of receiving as the replay's.
+        env_end = t2 + waited
+        replay_end = env_end + (t4 - t3 - waited)
+        self._account(epsilon, stored, (t0, t1, env_end, replay_end, t4))
 
     def _account(
         self, epsilon: float, stored: int, times: tuple[float, float, float, float, float]

@@ -4,8 +4,9 @@ The ground is ray-cast per pixel once (the rays are fixed to the car), then shad
 where each ray meets the road: asphalt, lane markings (dashed between lanes, solid at the
 edges), shoulder and grass, sky above the horizon. Cars are boxes ``VEHICLE_HEIGHT_M`` tall,
 drawn as the screen rectangle that bounds their eight projected corners, so they grow as they
-come closer. All cars share one colour, so their union is all that is needed: one batched
-matrix product of per-car row and column masks draws every car of every observer at once.
+come closer. All cars share one colour, so their union is all that is needed. Projections are
+numpy over all observers and cars; the per-pixel shading and filling are compiled loops
+(:mod:`..kernels`).
 
 Image rows run top to bottom, columns left to right; (H, W) uint8 for grey, (H, W, 3) for RGB.
 """
@@ -17,6 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..kernels import paint_boxes, paint_ground
 from ..road import RoadConfig
 from ..validation import check, check_range
 from .base import ObserverViews, Scene, SensorConfig, SensorSpace
@@ -101,10 +103,19 @@ class Camera:
         self.lane_width = road.lane_width_m
         self.road_right_y = 0.0
         self.road_left_y = road.lane_count * road.lane_width_m
-        self.barrier_offset = road.barrier_offset_m
         # Grey images are drawn in grey values directly; RGB ones as classes, then coloured.
         self._stage_value = np.arange(len(_GREY), dtype=np.uint8) if camera.rgb else _GREY
         self._rgb_palette = _RGB.astype(np.uint8)
+        half_road = 0.5 * road.lane_count
+        # paint_ground's edges (lane widths from the road's middle, float32 as the lanes are)
+        # and surface values.
+        self._edges = (
+            np.float32(half_road),
+            np.float32(half_road + road.barrier_offset_m * (1.0 / road.lane_width_m)),
+            np.float32(half_road + 0.5),
+            np.float32(half_road - 0.5),
+            self._stage_value[[GRASS, SHOULDER, ROAD, MARKING]].copy(),
+        )
 
         # Rows below the horizon see the ground at a depth that depends on the row alone (the
         # camera only pitches): t is the ray length to the ground per unit forward component.
@@ -141,8 +152,6 @@ class Camera:
         drop = (np.array([0.0, VEHICLE_HEIGHT_M]) - camera.mount_height_m)[:, None, None, None]
         self._drop_sin = drop * self._sin_p  # (2, 1, 1, 1)
         self._drop_cos = drop * self._cos_p
-        self._rows = np.arange(self.height, dtype=np.float64)
-        self._cols = np.arange(self.width, dtype=np.float64)
 
     def _ground(
         self,
@@ -167,28 +176,14 @@ class Camera:
         pair = np.empty(base.shape + (2,), dtype=np.float32)
         pair[..., 0], pair[..., 1] = base, slope
         lanes = np.matmul(pair, self._col_basis)  # (O, R, W)
-        # Distance from the road's middle, in lane widths: road within L/2, rails beyond.
-        half_road = 0.5 * self.lane_count
-        from_middle = np.abs(lanes - np.float32(half_road))
-        ground = image[:, self.first_ground_row :, :]
-        ground[...] = value[GRASS]
-        np.copyto(
-            ground,
-            value[SHOULDER],
-            where=from_middle <= np.float32(half_road + self.barrier_offset * inv_w),
-        )
-        np.copyto(ground, value[ROAD], where=from_middle <= np.float32(half_road))
-        # Lane lines: pixels within a line's half width of the nearest line on the road. The
-        # edge lines are solid; inner lines are dashed by where the row meets the road along
-        # the camera's axis (during a lane change far lanes' dashes shift by a metre or two).
-        near_line = np.abs(lanes - np.rint(lanes)) <= self._row_line_half32
-        near_line &= from_middle <= np.float32(half_road + 0.5)
+        # Which rows meet the road between two dashes: inner lines are dashed by where the row
+        # meets the road along the camera's axis (during a lane change far lanes' dashes shift
+        # by a metre or two); the edge lines are solid.
         world_x = (road_x + eye_x)[:, None] + cos_h[:, None] * self.row_forward
         gap = ~(self.row_dash_solid | ((world_x % DASH_PERIOD_M) < DASH_LENGTH_M))  # (O, R)
-        if gap.any():
-            inner = from_middle < np.float32(half_road - 0.5)
-            near_line &= ~(inner & gap[..., None])
-        np.copyto(ground, value[MARKING], where=near_line)
+        # Road within L/2 lane widths of the middle, shoulder to the rails, grass beyond; lane
+        # lines where a pixel is within a line's half width of the nearest line on the road.
+        paint_ground(image, self.first_ground_row, lanes, self._row_line_half32, gap, *self._edges)
         return image
 
     @property
@@ -252,16 +247,14 @@ class Camera:
             first, last = np.ceil(lo - 0.5), np.floor(hi - 0.5)
             sliver = last < first
             middle = np.floor(0.5 * (lo + hi))
-            shape = (observers, seen_count, 1)
+            shape = (observers, seen_count)
             return np.where(sliver, middle, first).reshape(shape), np.where(
                 sliver, middle, last
             ).reshape(shape)
 
         col_lo, col_hi = bounds(col, self.width / 2.0)
         row_lo, row_hi = bounds(row, self.height / 2.0)
-        shown = seen.reshape(-1)[pick].reshape(observers, seen_count, 1)
-        cols = (self._cols >= col_lo) & (self._cols <= col_hi) & shown  # (O, K, W)
-        rows = (self._rows >= row_lo) & (self._rows <= row_hi)  # (O, K, H)
-        covered = np.matmul(rows.astype(np.float32).transpose(0, 2, 1), cols.astype(np.float32))
-        image = np.where(covered > 0.0, self._stage_value[CAR], surface)
+        shown = seen.reshape(-1)[pick].reshape(observers, seen_count)
+        image = surface
+        paint_boxes(image, shown, row_lo, row_hi, col_lo, col_hi, self._stage_value[CAR])
         return self._rgb_palette[image] if self.config.rgb else image

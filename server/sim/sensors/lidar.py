@@ -5,8 +5,9 @@ Ray ``r`` of ``R`` leaves the observer's centre at heading + r * 360/R degrees, 
 Vehicles are axis-aligned rectangles on the road; the guard rails are two lines parallel to it.
 
 The naive test of every ray against every car costs O(R * V) per observer. A car covers only a
-few degrees of the scan, so each car's angular extent is computed first and only the
-(car, ray) pairs inside it are intersected: a ragged batch built with ``np.repeat``.
+few degrees of the scan, so each car's angular extent is computed first (numpy, over all
+observers and cars) and only the (car, ray) pairs inside it are intersected, in a compiled loop
+(:func:`..kernels.lidar_hits`).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..kernels import lidar_hits
 from ..road import Road
 from ..validation import check, check_range
 from .base import ObserverViews, Scene, SensorConfig, SensorSpace
@@ -126,32 +128,7 @@ class Lidar:
         count = np.minimum(np.maximum(last - first + 1, 0), rays)
         first = np.where(inside, 0, first)
         count = np.where(inside, rays, count)
-        count = np.where(in_range, count, 0).ravel()
-
-        total = int(count.sum())
-        if total:
-            pair = np.repeat(np.arange(count.size), count)
-            starts = np.cumsum(count) - count
-            ray = (first.ravel()[pair] + (np.arange(total) - starts[pair])) % rays
-            obs = pair // car_x.shape[1]
-            # A ray exactly parallel to a slab: a tiny component keeps the slab test exact
-            # enough (the hit distance changes by far less than a millimetre) without 0/0.
-            dx = ray_dx[obs, ray]
-            dy = ray_dy[obs, ray]
-            dx = np.where(dx == 0.0, 1e-12, dx)
-            dy = np.where(dy == 0.0, 1e-12, dy)
-            tx1 = x_lo.ravel()[pair] / dx
-            tx2 = x_hi.ravel()[pair] / dx
-            ty1 = y_lo.ravel()[pair] / dy
-            ty2 = y_hi.ravel()[pair] / dy
-            tx_lo = np.minimum(tx1, tx2)
-            tx_hi = np.maximum(tx1, tx2)
-            ty_lo = np.minimum(ty1, ty2)
-            ty_hi = np.maximum(ty1, ty2)
-            enter = np.maximum(tx_lo, ty_lo)
-            leave = np.minimum(tx_hi, ty_hi)
-            hit = (leave >= enter) & (leave >= 0.0)
-            hit_dist = np.where(hit, np.maximum(enter, 0.0), np.inf)
-            flat = dist.reshape(-1)
-            np.minimum.at(flat, obs * rays + ray, hit_dist)
+        count = np.where(in_range, count, 0)
+        if count.any():
+            lidar_hits(count, first, x_lo, x_hi, y_lo, y_hi, ray_dx, ray_dy, dist)
         return dist.astype(np.float32).reshape(observers, rays)
