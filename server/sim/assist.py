@@ -141,7 +141,13 @@ class EgoConfig:
 
 
 class CruiseControl:
-    """The agents' cruise targets (``desired_speed_mps`` of their columns), within limits."""
+    """The agents' cruise targets (``desired_speed_mps`` of their columns), within limits.
+
+    Each frame an agent accelerates towards its target (``(target - speed) / time constant``,
+    between ``-comfort_decel_mps2`` and ``max_accel_mps2``), and no more than the IDM's
+    distance keeping to the car ahead allows (the IDM without its free-road term): in the
+    physics frame's compiled loop, :func:`.kernels.follow_and_accelerate`, with these
+    parameters."""
 
     def __init__(self, ego: EgoConfig, agents: int) -> None:
         self.min_mps = ego.cruise_min_kmh * KMH
@@ -151,26 +157,6 @@ class CruiseControl:
         self.max_accel_mps2 = ego.max_accel_mps2
         self.comfort_decel_mps2 = ego.comfort_decel_mps2
         self.agents = agents
-
-    def idm_desired_speed(self, st: SimState) -> np.ndarray:
-        """(A, V) the desired speeds the IDM is given this frame: traffic's own, and for the
-        agents none (infinite), which leaves the IDM only its distance-keeping term there (its
-        free-road term is the speed controller's job, :meth:`accelerate`)."""
-        desired = st.desired_speed_mps.copy()
-        desired[:, : self.agents] = np.inf
-        return desired
-
-    def accelerate(self, accel: np.ndarray, st: SimState) -> None:
-        """The agents' acceleration this frame (their columns of ``accel``, in place): towards
-        the cruise target, and no more than distance keeping to the car ahead allows (the
-        IDM's interaction term, already in ``accel`` from :meth:`idm_desired_speed`)."""
-        n = self.agents
-        towards_target = np.clip(
-            (st.desired_speed_mps[:, :n] - st.speed_mps[:, :n]) / self.time_constant_s,
-            -self.comfort_decel_mps2,
-            self.max_accel_mps2,
-        )
-        np.minimum(towards_target, accel[:, :n], out=accel[:, :n])
 
     def adjust(self, st: SimState, change_mps: np.ndarray) -> None:
         """Set each agent's target to its current speed plus ``change_mps`` (A, N) ("current"
@@ -223,22 +209,14 @@ class SpeedSteps:
 
 
 class EmergencyBraking:
-    """Autonomous emergency braking: full braking when the time to collision gets short."""
+    """Autonomous emergency braking: an agent closing in on its leader brakes at
+    ``decel_mps2`` once the gap is under ``time_to_collision_s`` of closing (applied in the
+    physics frame's compiled loop, :func:`.kernels.follow_and_accelerate`)."""
 
     def __init__(self, ego: EgoConfig, agents: int) -> None:
         self.time_to_collision_s = ego.aeb_time_to_collision_s
         self.decel_mps2 = ego.aeb_decel_mps2
         self.agents = agents
-
-    def apply(self, accel: np.ndarray, following: Following) -> None:
-        """Brake the agents that close in on their leader too fast (``accel`` in place)."""
-        n = self.agents
-        agent_closing = following.closing_mps[:, :n]
-        aeb = (agent_closing > 0.0) & (
-            following.gap_m[:, :n] < agent_closing * self.time_to_collision_s
-        )
-        if aeb.any():
-            accel[:, :n] = np.where(aeb, np.minimum(accel[:, :n], -self.decel_mps2), accel[:, :n])
 
 
 class LaneChangeAssist:

@@ -136,3 +136,173 @@ def paint_boxes(
             for r in range(int(r0), int(r1) + 1):
                 for c in range(int(c0), int(c1) + 1):
                     image[o, r, c] = value
+
+
+@njit(cache=True, nogil=True)
+def follow_and_accelerate(
+    x_m: np.ndarray,
+    speed: np.ndarray,
+    desired_speed: np.ndarray,
+    lead: np.ndarray,
+    valid: np.ndarray,
+    half_length: np.ndarray,
+    headway: np.ndarray,
+    min_gap: np.ndarray,
+    max_accel: np.ndarray,
+    two_sqrt_ab: np.ndarray,
+    agents: int,
+    cruise: np.ndarray,
+    aeb: np.ndarray,
+    max_decel_mps2: float,
+    no_gap_m: float,
+    gap: np.ndarray,
+    leader: np.ndarray,
+    has_leader: np.ndarray,
+    leader_speed: np.ndarray,
+    closing: np.ndarray,
+    accel: np.ndarray,
+) -> None:
+    """One frame's car-following of every vehicle, (A, V) arrays: whom it follows (the nearer
+    of its two lane entries' leaders, ``lead``/``valid`` (A, 2V) flat indices) into ``gap``,
+    ``leader``, ``has_leader``, ``leader_speed`` and ``closing``, and its acceleration into
+    ``accel``: the IDM (agents without a free-road term), the agents' cruise control
+    (``cruise``: time constant, comfortable deceleration, maximum acceleration) and emergency
+    braking (``aeb``: time to collision, deceleration), within the vehicle's limits.
+
+    The loop form of :func:`.traffic.car_following.follow`, :func:`~.traffic.car_following.
+    idm_accel`, :class:`.assist.CruiseControl` and :class:`.assist.EmergencyBraking`.
+    """
+    arenas, vehicles = x_m.shape
+    time_constant_s, comfort_decel, cruise_max_accel = cruise[0], cruise[1], cruise[2]
+    time_to_collision_s, aeb_decel = aeb[0], aeb[1]
+    for a in range(arenas):
+        origin = x_m[a, 0]
+        for v in range(vehicles):
+            front = (x_m[a, v] - origin) + half_length[a, v]
+            first = no_gap_m
+            second = no_gap_m
+            if valid[a, v]:
+                k = lead[a, v]
+                c = k - a * vehicles
+                first = ((x_m[a, c] - origin) - half_length[a, c]) - front
+            if valid[a, vehicles + v]:
+                k = lead[a, vehicles + v]
+                c = k - a * vehicles
+                second = ((x_m[a, c] - origin) - half_length[a, c]) - front
+            g = min(first, second)
+            k = lead[a, vehicles + v] if second < first else lead[a, v]
+            own = speed[a, v]
+            followed = speed[a, k - a * vehicles] if g < no_gap_m else own
+            close = own - followed
+            gap[a, v] = g
+            leader[a, v] = k
+            has_leader[a, v] = g < no_gap_m
+            leader_speed[a, v] = followed
+            closing[a, v] = close
+            # IDM: agents' desired speed is infinite (their cruise control drives them).
+            desired_gap = min_gap[a, v] + max(
+                0.0, own * headway[a, v] + own * close / two_sqrt_ab[a, v]
+            )
+            ratio = own / (np.inf if v < agents else desired_speed[a, v])
+            ratio *= ratio
+            interaction = desired_gap / max(g, 0.1)
+            acc = max_accel[a, v] * (1.0 - ratio * ratio - interaction * interaction)
+            if v < agents:
+                towards = min(
+                    max((desired_speed[a, v] - own) / time_constant_s, -comfort_decel),
+                    cruise_max_accel,
+                )
+                acc = min(towards, acc)
+                if close > 0.0 and g < close * time_to_collision_s:
+                    acc = min(acc, -aeb_decel)
+            accel[a, v] = max(min(acc, max_accel[a, v]), -max_decel_mps2)
+
+
+@njit(cache=True, nogil=True)
+def capped_speeds(
+    speed: np.ndarray,
+    accel: np.ndarray,
+    gap: np.ndarray,
+    leader: np.ndarray,
+    has_leader: np.ndarray,
+    leader_speed: np.ndarray,
+    is_traffic: np.ndarray,
+    yield_to_agents: bool,
+    max_decel_mps2: float,
+    dt: float,
+    new_speed: np.ndarray,
+) -> None:
+    """Every vehicle's speed at the end of the frame into ``new_speed`` (A, V): ``accel``
+    integrated, not below 0, and for traffic behind a traffic leader (any leader with
+    ``yield_to_agents``) no faster than stopping behind it allows if it brakes as hard as it
+    can (the safety rule; :meth:`.physics.Physics.frame`)."""
+    arenas, vehicles = speed.shape
+    for a in range(arenas):
+        for v in range(vehicles):
+            s = max(speed[a, v] + accel[a, v] * dt, 0.0)
+            if is_traffic[a, v] and has_leader[a, v]:
+                c = leader[a, v] - a * vehicles
+                if yield_to_agents or is_traffic[a, c]:
+                    cap = max(
+                        leader_speed[a, v] - max_decel_mps2 * dt + (gap[a, v] - 0.2) / dt, 0.0
+                    )
+                    s = min(s, cap)
+            new_speed[a, v] = s
+
+
+@njit(cache=True, nogil=True)
+def min_jerk(progress: float) -> float:
+    """Minimum-jerk lateral profile: 0 -> 1 with zero speed and acceleration at both ends."""
+    p = min(max(progress, 0.0), 1.0)
+    return p * p * p * (10.0 - 15.0 * p + 6.0 * p * p)
+
+
+@njit(cache=True, nogil=True)
+def integrate(
+    speed: np.ndarray,
+    new_speed: np.ndarray,
+    active: np.ndarray,
+    x_m: np.ndarray,
+    accel_mps2: np.ndarray,
+    distance_m: np.ndarray,
+    lane: np.ndarray,
+    target_lane: np.ndarray,
+    change_progress: np.ndarray,
+    change_rate: np.ndarray,
+    y_m: np.ndarray,
+    lane_width_m: float,
+    dt: float,
+) -> None:
+    """Move every vehicle by one frame, in place: along the road at the mean of its old and
+    new speeds (``speed`` becomes ``new_speed``, ``accel_mps2`` the frame's change, the agents'
+    ``distance_m`` (A, N) grows), and sideways on its minimum-jerk lane change; a change that
+    completes puts the car in its target lane. Where no vehicle of the batch changes lanes,
+    nothing moves sideways."""
+    arenas, vehicles = speed.shape
+    agents = distance_m.shape[1]
+    changing = False
+    for a in range(arenas):
+        for v in range(vehicles):
+            old, new = speed[a, v], new_speed[a, v]
+            travelled = 0.5 * (old + new) * dt if active[a, v] else 0.0
+            accel_mps2[a, v] = (new - old) / dt
+            x_m[a, v] += travelled
+            speed[a, v] = new
+            if v < agents:
+                distance_m[a, v] += travelled
+            if target_lane[a, v] != lane[a, v]:
+                changing = True
+    if not changing:
+        return
+    for a in range(arenas):
+        for v in range(vehicles):
+            target = target_lane[a, v]
+            progress = 0.0
+            if target != lane[a, v]:
+                progress = change_progress[a, v] + change_rate[a, v]
+            if progress >= 1.0:
+                lane[a, v] = target
+                progress = 0.0
+            change_progress[a, v] = progress
+            shift = (target - lane[a, v]) * min_jerk(progress)
+            y_m[a, v] = (lane[a, v] + 0.5 + shift) * lane_width_m

@@ -18,7 +18,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .assist import CruiseControl, EmergencyBraking, SpeedSteps
-from .traffic.car_following import follow, idm_accel
+from .kernels import capped_speeds, follow_and_accelerate, integrate
+from .lane_index import NO_GAP_M
+from .traffic.car_following import Following
 from .traffic.lane_changes import Mobil
 
 if TYPE_CHECKING:
@@ -30,14 +32,9 @@ if TYPE_CHECKING:
     from .vehicles import VehicleKinds, VehicleParams
 
 
-def min_jerk(progress: np.ndarray) -> np.ndarray:
-    """Minimum-jerk lateral profile: 0 -> 1 with zero speed and acceleration at both ends."""
-    p = np.minimum(np.maximum(progress, 0.0), 1.0)
-    return p * p * p * (10.0 - 15.0 * p + 6.0 * p * p)
-
-
 def min_jerk_rate(progress: np.ndarray) -> np.ndarray:
-    """d(min_jerk)/d(progress)."""
+    """The rate of the minimum-jerk lateral profile (:func:`.kernels.min_jerk`) in its
+    progress."""
     p = np.minimum(np.maximum(progress, 0.0), 1.0)
     return 30.0 * p * p * (1.0 - p) * (1.0 - p)
 
@@ -81,6 +78,17 @@ class Physics:
         self.yield_to_agents = config.traffic.yield_to_agents
         self.mobil = Mobil(config.traffic, kinds, road.lane_count)
         self.episodes = episodes
+        # The kernels' parameters of cruise control and emergency braking.
+        self._cruise = np.array(
+            [
+                self.cruise_control.time_constant_s,
+                self.cruise_control.comfort_decel_mps2,
+                self.cruise_control.max_accel_mps2,
+            ]
+        )
+        self._aeb = np.array(
+            [self.emergency_braking.time_to_collision_s, self.emergency_braking.decel_mps2]
+        )
         # (1, N, V): False where an agent would be compared with itself.
         self._not_self = np.ones((1, agents, vehicles), dtype=bool)
         self._not_self[0, np.arange(agents), np.arange(agents)] = False
@@ -105,56 +113,81 @@ class Physics:
         ``speed_command`` (A, N): the agents' speed steps this frame (speed_steps control only).
         """
         n, dt = self.agents, self.dt
-        x_rel = st.x_m - st.x_m[:, :1]
-        speed = st.speed_mps
-        following = follow(x_rel, p.half_length, speed, lead, valid)
-        accel = idm_accel(
-            speed,
-            self.cruise_control.idm_desired_speed(st),
-            following.gap_m,
-            following.closing_mps,
+        shape = st.x_m.shape
+        following = Following(
+            gap_m=np.empty(shape),
+            leader=np.empty(shape, dtype=np.int64),
+            has_leader=np.empty(shape, dtype=bool),
+            leader_speed_mps=np.empty(shape),
+            closing_mps=np.empty(shape),
+        )
+        accel = np.empty(shape)
+        # Car-following, the agents' cruise control and emergency braking, within limits.
+        follow_and_accelerate(
+            st.x_m,
+            st.speed_mps,
+            st.desired_speed_mps,
+            lead,
+            valid,
+            p.half_length,
             p.headway,
             p.min_gap,
             p.max_accel,
             p.two_sqrt_ab,
+            n,
+            self._cruise,
+            self._aeb,
+            self.max_decel_mps2,
+            NO_GAP_M,
+            following.gap_m,
+            following.leader,
+            following.has_leader,
+            following.leader_speed_mps,
+            following.closing_mps,
+            accel,
         )
-        self.cruise_control.accelerate(accel, st)
-        self.emergency_braking.apply(accel, following)
-        accel = np.maximum(np.minimum(accel, p.max_accel), -self.max_decel_mps2)
         if mobil_index is not None:
+            x_rel = st.x_m - st.x_m[:, :1]
             self.mobil.decide(st, p, mobil_index, x_rel, accel, following, random_movers)
 
-        new_speed = np.maximum(speed + accel * dt, 0.0)
         # Traffic never drives into traffic: a speed cap keeps it behind a traffic leader even
         # if that leader brakes as hard as it can (Ho's simulator has the same safety rule).
         # An agent ahead gets no such courtesy (a reckless cut-in can be rear-ended) unless
         # ``traffic.yield_to_agents`` (Ho's simulator, where every car obeys the rule).
-        gap, leader = following.gap_m, following.leader
-        capped = p.is_traffic & following.has_leader
-        if not self.yield_to_agents:
-            capped &= p.is_traffic.reshape(-1)[leader]
-        cap = np.maximum(
-            following.leader_speed_mps - self.max_decel_mps2 * dt + (gap - 0.2) / dt, 0.0
+        new_speed = np.empty(shape)
+        capped_speeds(
+            st.speed_mps,
+            accel,
+            following.gap_m,
+            following.leader,
+            following.has_leader,
+            following.leader_speed_mps,
+            p.is_traffic,
+            self.yield_to_agents,
+            self.max_decel_mps2,
+            dt,
+            new_speed,
         )
-        new_speed = np.where(capped, np.minimum(new_speed, cap), new_speed)
         if self.speed_steps is not None:
             assert speed_command is not None, "speed_steps control needs the frame's commands"
             new_speed[:, :n] = self.speed_steps.speeds(st, following, speed_command)
-        travelled = np.where(st.active, 0.5 * (speed + new_speed) * dt, 0.0)
-        st.accel_mps2[:] = (new_speed - speed) / dt
-        st.x_m += travelled
-        st.speed_mps[:] = new_speed
-        st.distance_m += travelled[:, :n]
-
-        # Lateral: minimum-jerk moves between lane centres.
-        changing = st.target_lane != st.lane
-        if changing.any():
-            progress = np.where(changing, st.change_progress + p.change_rate, 0.0)
-            finished = progress >= 1.0
-            st.lane[:] = np.where(finished, st.target_lane, st.lane)
-            st.change_progress[:] = np.where(finished, 0.0, progress)
-            shift = (st.target_lane - st.lane) * min_jerk(st.change_progress)
-            st.y_m[:] = (st.lane + 0.5 + shift) * self.lane_width_m
+        # Along the road, and laterally minimum-jerk moves between lane centres.
+        integrate(
+            st.speed_mps,
+            new_speed,
+            st.active,
+            st.x_m,
+            st.accel_mps2,
+            st.distance_m,
+            st.lane,
+            st.target_lane,
+            st.change_progress,
+            p.change_rate,
+            st.y_m,
+            self.lane_width_m,
+            dt,
+        )
+        gap = following.gap_m
         st.frame += 1
 
         # Two boxes can only overlap if they share a lane, and then some gap in that lane is

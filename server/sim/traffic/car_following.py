@@ -2,8 +2,9 @@
 
 Traffic follows its leader with an IDM of its behaviour's parameters; the agents' cruise
 control (:mod:`..assist`) keeps the IDM's distance-keeping term and replaces its free-road term
-with a speed controller towards the cruise target. Everything is vectorised over (arenas,
-vehicles).
+with a speed controller towards the cruise target. The physics frame does this in one compiled
+loop (:func:`..kernels.follow_and_accelerate`); :func:`idm_accel` here, vectorised over
+(arenas, vehicles), is MOBIL's, for the accelerations a lane change would bring.
 """
 
 from __future__ import annotations
@@ -11,8 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
-from ..lane_index import NO_GAP_M
 
 
 def idm_accel(
@@ -59,30 +58,3 @@ class Following:
     has_leader: np.ndarray  # bool
     leader_speed_mps: np.ndarray  # own speed where there is no leader
     closing_mps: np.ndarray  # own speed minus the leader's
-
-
-def follow(
-    x_rel: np.ndarray,
-    half_length: np.ndarray,
-    speed: np.ndarray,
-    lead: np.ndarray,
-    valid: np.ndarray,
-) -> Following:
-    """Gaps to the leaders of every lane entry (``lead``/``valid`` (A, 2V) from
-    :func:`~overtake.server.sim.lane_index.leaders`), nearer of a vehicle's two entries."""
-    vehicles = x_rel.shape[1]
-    rear = (x_rel - half_length).reshape(-1)
-    front = x_rel + half_length
-    entry_gap = np.where(valid, rear[lead] - np.concatenate([front, front], axis=1), NO_GAP_M)
-    first, second = entry_gap[:, :vehicles], entry_gap[:, vehicles:]
-    gap = np.minimum(first, second)
-    leader = np.where(second < first, lead[:, vehicles:], lead[:, :vehicles])  # flat index
-    has_leader = gap < NO_GAP_M
-    leader_speed = np.where(has_leader, speed.reshape(-1)[leader], speed)
-    return Following(
-        gap_m=gap,
-        leader=leader,
-        has_leader=has_leader,
-        leader_speed_mps=leader_speed,
-        closing_mps=speed - leader_speed,
-    )
