@@ -18,50 +18,94 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
-def lidar_hits(
-    count: np.ndarray,
-    first: np.ndarray,
-    x_lo: np.ndarray,
-    x_hi: np.ndarray,
-    y_lo: np.ndarray,
-    y_hi: np.ndarray,
-    ray_dx: np.ndarray,
-    ray_dy: np.ndarray,
+def lidar_scan(
+    origin_x: np.ndarray,
+    origin_y: np.ndarray,
+    heading: np.ndarray,
+    cos_h: np.ndarray,
+    sin_h: np.ndarray,
+    rel_x: np.ndarray,
+    rel_y: np.ndarray,
+    half_length: np.ndarray,
+    half_width: np.ndarray,
+    visible: np.ndarray,
+    centre: np.ndarray,
+    corner_angle: np.ndarray,
+    ray_cos: np.ndarray,
+    ray_sin: np.ndarray,
+    rail_left_y: float,
+    rail_right_y: float,
+    max_range_m: float,
     dist: np.ndarray,
 ) -> None:
-    """Intersect each (observer, car) box with the rays it covers, keeping the nearest hit.
+    """The LIDAR's distances (O, R) into ``dist`` (float32): the guard rails, then each
+    visible car box (``rel_x``/``rel_y`` (O, V) relative to its observer) intersected with only
+    the rays its angular extent covers, the nearest hit kept (0 from inside a box).
 
-    ``count``, ``first``, ``x_lo`` ... ``y_hi``: (O, V), the rays ``first .. first+count-1``
-    (mod R) a car covers and its box relative to the observer; ``ray_dx``/``ray_dy`` (O, R) the
-    rays' world directions; ``dist`` (O, R) float64 is lowered in place to each hit's entry
-    distance (0 from inside a box). The slab test of :meth:`.sensors.lidar.Lidar.scan`.
+    The bearings of the cars' centres (``centre`` (O, V)) and corners (``corner_angle``
+    (O, V, 4)) come in from numpy's arctan2, whose rounding (SIMD on some CPUs) a compiled
+    arctan2 would not match bit for bit; ``cos_h``/``sin_h`` likewise. See
+    :meth:`.sensors.lidar.Lidar.scan`.
     """
-    observers, vehicles = count.shape
-    rays = dist.shape[1]
+    observers, vehicles = rel_x.shape
+    rays = ray_cos.shape[0]
+    step = 2.0 * np.pi / rays
+    max_range_sq = max_range_m**2
+    ray_dx = np.empty(rays)
+    ray_dy = np.empty(rays)
+    best = np.empty(rays)
     for o in range(observers):
+        for r in range(rays):
+            dx = cos_h[o] * ray_cos[r] - sin_h[o] * ray_sin[r]
+            dy = sin_h[o] * ray_cos[r] + cos_h[o] * ray_sin[r]
+            ray_dx[r], ray_dy[r] = dx, dy
+            # Guard rails: the rail on the side the ray points to (a ray exactly along the
+            # road gets a vanishing sideways component and so an out-of-range distance).
+            safe_dy = 1e-12 if abs(dy) < 1e-12 else dy
+            rail_y = rail_left_y if safe_dy > 0.0 else rail_right_y
+            best[r] = min((rail_y - origin_y[o]) / safe_dy, max_range_m)
         for v in range(vehicles):
-            n = count[o, v]
-            if n == 0:
+            if not visible[o, v]:
                 continue
-            xl, xh, yl, yh = x_lo[o, v], x_hi[o, v], y_lo[o, v], y_hi[o, v]
-            for j in range(n):
-                ray = (first[o, v] + j) % rays
+            x_lo, x_hi = rel_x[o, v] - half_length[o, v], rel_x[o, v] + half_length[o, v]
+            y_lo, y_hi = rel_y[o, v] - half_width[o, v], rel_y[o, v] + half_width[o, v]
+            near_x = max(x_lo, min(0.0, x_hi))  # the box's nearest point
+            near_y = max(y_lo, min(0.0, y_hi))
+            if near_x * near_x + near_y * near_y > max_range_sq:
+                continue
+            if near_x == 0.0 and near_y == 0.0:
+                first, count = 0, rays  # inside the box: every ray
+            else:
+                # Angular extent: the corners' bearings relative to the centre's (wrapped, so a
+                # car behind, across the +-pi seam, is handled like any other).
+                lo, hi = np.inf, -np.inf
+                for k in range(4):
+                    offset = (corner_angle[o, v, k] - centre[o, v] + np.pi) % (2.0 * np.pi) - np.pi
+                    lo, hi = min(lo, offset), max(hi, offset)
+                relative = (centre[o, v] - heading[o]) / step
+                first = int(np.ceil(relative + lo / step))
+                last = int(np.floor(relative + hi / step))
+                count = min(max(last - first + 1, 0), rays)
+            for j in range(count):
+                ray = (first + j) % rays
                 # A ray exactly parallel to a slab: a tiny component keeps the test exact
                 # enough (the hit moves by far less than a millimetre) without 0/0.
-                dx = ray_dx[o, ray]
-                dy = ray_dy[o, ray]
+                dx = ray_dx[ray]
+                dy = ray_dy[ray]
                 if dx == 0.0:
                     dx = 1e-12
                 if dy == 0.0:
                     dy = 1e-12
-                tx1, tx2 = xl / dx, xh / dx
-                ty1, ty2 = yl / dy, yh / dy
+                tx1, tx2 = x_lo / dx, x_hi / dx
+                ty1, ty2 = y_lo / dy, y_hi / dy
                 enter = max(min(tx1, tx2), min(ty1, ty2))
                 leave = min(max(tx1, tx2), max(ty1, ty2))
                 if leave >= enter and leave >= 0.0:
                     hit = max(enter, 0.0)
-                    if hit < dist[o, ray]:
-                        dist[o, ray] = hit
+                    if hit < best[ray]:
+                        best[ray] = hit
+        for r in range(rays):
+            dist[o, r] = best[r]
 
 
 @njit(cache=True, nogil=True)

@@ -5,9 +5,9 @@ Ray ``r`` of ``R`` leaves the observer's centre at heading + r * 360/R degrees, 
 Vehicles are axis-aligned rectangles on the road; the guard rails are two lines parallel to it.
 
 The naive test of every ray against every car costs O(R * V) per observer. A car covers only a
-few degrees of the scan, so each car's angular extent is computed first (numpy, over all
-observers and cars) and only the (car, ray) pairs inside it are intersected, in a compiled loop
-(:func:`..kernels.lidar_hits`).
+few degrees of the scan, so each car's angular extent is computed first and only the rays inside
+it are intersected with its box, in a compiled loop (:func:`..kernels.lidar_scan`; the bearings
+come from numpy's arctan2).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..kernels import lidar_hits
+from ..kernels import lidar_scan
 from ..road import Road
 from ..validation import check, check_range
 from .base import ObserverViews, Scene, SensorConfig, SensorSpace
@@ -56,11 +56,6 @@ class LidarConfig(SensorConfig):
         return Lidar(self.ray_count, self.max_range_m, road.rail_left_y_m, road.rail_right_y_m)
 
 
-def _wrap(angle: np.ndarray) -> np.ndarray:
-    """Angle wrapped to [-pi, pi)."""
-    return (angle + np.pi) % TWO_PI - np.pi
-
-
 class Lidar:
     """The ``lidar`` observation: (rays,) float32 distances (m) per agent."""
 
@@ -90,45 +85,31 @@ class Lidar:
         """Distances (O, R) float32 in metres, clipped at the maximum range, for the O observers
         of ``views`` (each sees its ``car_visible`` cars and both guard rails)."""
         origin_x, origin_y, heading = views.origin_x, views.origin_y, views.heading
-        car_x, car_y, car_visible = views.car_x, views.car_y, views.car_visible
+        car_x, car_y = views.car_x, views.car_y
         car_half_length, car_half_width = views.car_half_length, views.car_half_width
-        rail_left_y, rail_right_y = self.rail_left_y_m, self.rail_right_y_m
-        observers = origin_x.shape[0]
-        rays = self.ray_count
-        cos_h = np.cos(heading)[:, None]
-        sin_h = np.sin(heading)[:, None]
-        ray_dx = cos_h * self._cos - sin_h * self._sin  # (O, R) world direction of each ray
-        ray_dy = sin_h * self._cos + cos_h * self._sin
-
-        # Guard rails: the rail on the side the ray points to (a ray exactly along the road
-        # gets a vanishing sideways component and so an out-of-range distance).
-        safe_dy = np.where(np.abs(ray_dy) < 1e-12, 1e-12, ray_dy)
-        rail_y = np.where(safe_dy > 0.0, rail_left_y, rail_right_y)
-        dist = np.minimum((rail_y - origin_y[:, None]) / safe_dy, self.max_range_m)
-
-        # Each car's rectangle relative to its observer, and which rays can reach it.
         rel_x = car_x - origin_x[:, None]
         rel_y = car_y - origin_y[:, None]
-        x_lo, x_hi = rel_x - car_half_length, rel_x + car_half_length
-        y_lo, y_hi = rel_y - car_half_width, rel_y + car_half_width
-        near_x = np.maximum(x_lo, np.minimum(0.0, x_hi))  # nearest point of the box
-        near_y = np.maximum(y_lo, np.minimum(0.0, y_hi))
-        inside = (near_x == 0.0) & (near_y == 0.0)
-        in_range = car_visible & (near_x * near_x + near_y * near_y <= self.max_range_m**2)
-
-        # Angular extent: the corners' bearings relative to the centre's (wrapped, so a car
-        # behind, across the +-pi seam, is handled like any other).
         corner_x = rel_x[..., None] + car_half_length[..., None] * self._corner_l
         corner_y = rel_y[..., None] + car_half_width[..., None] * self._corner_w
-        centre = np.arctan2(rel_y, rel_x)
-        offsets = _wrap(np.arctan2(corner_y, corner_x) - centre[..., None])
-        relative = (centre - heading[:, None]) / self.step_rad
-        first = np.ceil(relative + offsets.min(axis=-1) / self.step_rad).astype(np.int64)
-        last = np.floor(relative + offsets.max(axis=-1) / self.step_rad).astype(np.int64)
-        count = np.minimum(np.maximum(last - first + 1, 0), rays)
-        first = np.where(inside, 0, first)
-        count = np.where(inside, rays, count)
-        count = np.where(in_range, count, 0)
-        if count.any():
-            lidar_hits(count, first, x_lo, x_hi, y_lo, y_hi, ray_dx, ray_dy, dist)
-        return dist.astype(np.float32).reshape(observers, rays)
+        dist = np.empty((origin_x.shape[0], self.ray_count), dtype=np.float32)
+        lidar_scan(
+            origin_x,
+            origin_y,
+            heading,
+            np.cos(heading),
+            np.sin(heading),
+            rel_x,
+            rel_y,
+            np.broadcast_to(car_half_length, rel_x.shape),
+            np.broadcast_to(car_half_width, rel_x.shape),
+            np.broadcast_to(views.car_visible, rel_x.shape),
+            np.arctan2(rel_y, rel_x),
+            np.arctan2(corner_y, corner_x),
+            self._cos,
+            self._sin,
+            self.rail_left_y_m,
+            self.rail_right_y_m,
+            self.max_range_m,
+            dist,
+        )
+        return dist
