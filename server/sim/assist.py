@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, ClassVar, Literal
 
 import numpy as np
 
+from . import kernels
 from .units import KMH
 from .validation import check, check_flag, check_range
 
@@ -353,28 +354,23 @@ class DriverWarnings:
         self.kinds = kinds
         self.lane_changes = lane_changes
         self.agents = agents
-        # (1, N, V): False where an agent would be compared with itself.
-        self._not_self = np.ones((1, agents, agents), dtype=bool)
-        self._not_self[0, np.arange(agents), np.arange(agents)] = False
 
     def cars_ahead(self, st: SimState) -> CarsAhead:
-        n = self.agents
-        half = self.kinds.half_length[st.kind]  # (A, V)
-        dx = st.x_m[:, None, :] - st.x_m[:, :n, None]  # (A, N, V): other - agent
-        a_lane, a_target = st.lane[:, :n, None], st.target_lane[:, :n, None]
-        o_lane, o_target = st.lane[:, None, :], st.target_lane[:, None, :]
-        shares = (o_lane == a_lane) | (o_lane == a_target) | (o_target == a_lane)
-        shares |= o_target == a_target
-        ahead = shares & (dx > 0.0) & st.active[:, None, :]
-        ahead[:, :, :n] &= self._not_self
-        gap = np.where(ahead, dx - half[:, None, :] - half[:, :n, None], np.inf)
-        nearest = gap.argmin(axis=2)
-        gap_m = gap.min(axis=2)
-        present = np.isfinite(gap_m)
-        speed = st.speed_mps[np.arange(st.speed_mps.shape[0])[:, None], nearest]
-        return CarsAhead(
-            gap_m=gap_m, speed_mps=np.where(present, speed, st.speed_mps[:, :n]), present=present
+        """Each agent's car ahead (:class:`CarsAhead`), in a compiled loop."""
+        shape = st.x_m.shape[:1] + (self.agents,)
+        gap_m, speed = np.empty(shape), np.empty(shape)
+        kernels.cars_ahead(
+            st.x_m,
+            st.speed_mps,
+            st.lane,
+            st.target_lane,
+            st.active,
+            self.kinds.half_length[st.kind],
+            self.agents,
+            gap_m,
+            speed,
         )
+        return CarsAhead(gap_m=gap_m, speed_mps=speed, present=np.isfinite(gap_m))
 
     def compute(self, st: SimState, ahead: CarsAhead | None = None) -> np.ndarray:
         """(A, N, 3) bool: left, right and forward warnings now."""

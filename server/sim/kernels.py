@@ -350,3 +350,43 @@ def integrate(
             change_progress[a, v] = progress
             shift = (target - lane[a, v]) * min_jerk(progress)
             y_m[a, v] = (lane[a, v] + 0.5 + shift) * lane_width_m
+
+
+@njit(cache=True, nogil=True)
+def cars_ahead(
+    x_m: np.ndarray,
+    speed: np.ndarray,
+    lane: np.ndarray,
+    target_lane: np.ndarray,
+    active: np.ndarray,
+    half_length: np.ndarray,
+    agents: int,
+    gap_m: np.ndarray,
+    speed_ahead: np.ndarray,
+) -> None:
+    """Each agent's nearest vehicle in front, (A, N) into ``gap_m`` (bumper to bumper, inf
+    where there is none) and ``speed_ahead`` (its speed; the agent's own where there is none):
+    among the other active vehicles ahead that share a lane with the agent, current or target
+    on either side (:meth:`.assist.DriverWarnings.cars_ahead`; of equal gaps the lowest
+    column)."""
+    arenas, vehicles = x_m.shape
+    for a in range(arenas):
+        for n in range(agents):
+            own_lane, own_target = lane[a, n], target_lane[a, n]
+            best, best_v = np.inf, 0
+            for v in range(vehicles):
+                if v == n or not active[a, v]:
+                    continue
+                dx = x_m[a, v] - x_m[a, n]
+                if not dx > 0.0:
+                    continue
+                o_lane, o_target = lane[a, v], target_lane[a, v]
+                shares = (o_lane == own_lane) | (o_lane == own_target)
+                shares |= (o_target == own_lane) | (o_target == own_target)
+                if not shares:
+                    continue
+                gap = dx - half_length[a, v] - half_length[a, n]
+                if gap < best:
+                    best, best_v = gap, v
+            gap_m[a, n] = best
+            speed_ahead[a, n] = speed[a, best_v] if best < np.inf else speed[a, n]
