@@ -390,3 +390,48 @@ def cars_ahead(
                     best, best_v = gap, v
             gap_m[a, n] = best
             speed_ahead[a, n] = speed[a, best_v] if best < np.inf else speed[a, n]
+
+
+@njit(cache=True, nogil=True)
+def colour(classes: np.ndarray, palette: np.ndarray) -> np.ndarray:
+    """(O, H, W, 3) uint8: each pixel's surface class (O, H, W) looked up in ``palette``."""
+    observers, height, width = classes.shape
+    image = np.empty((observers, height, width, 3), dtype=np.uint8)
+    for o in range(observers):
+        for r in range(height):
+            for c in range(width):
+                k = classes[o, r, c]
+                image[o, r, c, 0] = palette[k, 0]
+                image[o, r, c, 1] = palette[k, 1]
+                image[o, r, c, 2] = palette[k, 2]
+    return image
+
+
+@njit(cache=True, nogil=True)
+def lidar_grid(
+    distance: np.ndarray,
+    ray_cos: np.ndarray,
+    ray_sin: np.ndarray,
+    hit_below_m: float,
+    ahead_m: float,
+    half_width_m: float,
+    row_m: float,
+    column_m: float,
+    cells: int,
+) -> np.ndarray:
+    """(O, cells * cells) uint8: 255 in each cell of the car-centred grid that a ray's hit
+    (``distance`` (O, R) below ``hit_below_m``) falls in, rows from ``ahead_m`` in front
+    backwards, columns from ``half_width_m`` on the left rightwards
+    (:class:`.sensors.lidar_map.LidarMap`)."""
+    observers, rays = distance.shape
+    image = np.zeros((observers, cells * cells), dtype=np.uint8)
+    for o in range(observers):
+        for r in range(rays):
+            d = np.float64(distance[o, r])
+            if not d < hit_below_m:
+                continue
+            row = np.floor((ahead_m - d * ray_cos[r]) / row_m)
+            column = np.floor((half_width_m - d * ray_sin[r]) / column_m)
+            if 0 <= row < cells and 0 <= column < cells:
+                image[o, int(row) * cells + int(column)] = 255
+    return image

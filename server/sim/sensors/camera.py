@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..kernels import paint_boxes, paint_ground
+from ..kernels import colour, paint_boxes, paint_ground
 from ..road import RoadConfig
 from ..validation import check, check_range
 from .base import ObserverViews, Scene, SensorConfig, SensorSpace
@@ -235,7 +235,7 @@ class Camera:
         observers, vehicles = seen.shape
         seen_count = int(seen.sum(axis=1).max()) if seen.size else 0
         if seen_count == 0:
-            return self._rgb_palette[surface] if self.config.rgb else surface
+            return colour(surface, self._rgb_palette) if self.config.rgb else surface
         order = np.argsort(~seen, axis=1, kind="stable")[:, :seen_count]
         pick = (order + np.arange(observers)[:, None] * vehicles).reshape(-1)
 
@@ -257,4 +257,4 @@ class Camera:
         shown = seen.reshape(-1)[pick].reshape(observers, seen_count)
         image = surface
         paint_boxes(image, shown, row_lo, row_hi, col_lo, col_hi, self._stage_value[CAR])
-        return self._rgb_palette[image] if self.config.rgb else image
+        return colour(image, self._rgb_palette) if self.config.rgb else image

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..kernels import lidar_grid
 from ..validation import check, check_flag, check_range
 from .base import Scene, SensorConfig, SensorSpace
 from .lidar import Lidar
@@ -77,14 +78,15 @@ class LidarMap:
 
     def observe(self, scene: Scene) -> np.ndarray:
         distance = self.scanner.scan(scene.views)  # (O, R), in the car's frame
-        observers = distance.shape[0]
-        hit = distance < self.scanner.max_range_m - 1e-3
-        forward = distance * self._cos  # metres ahead
-        left = distance * self._sin  # metres to the left
-        row = np.floor((self.ahead_m - forward) / self.row_m).astype(np.int64)
-        column = np.floor((self.half_width_m - left) / self.column_m).astype(np.int64)
-        inside = hit & (row >= 0) & (row < self.cells) & (column >= 0) & (column < self.cells)
-        image = np.zeros((observers, self.cells * self.cells), dtype=np.uint8)
-        observer = np.broadcast_to(np.arange(observers)[:, None], distance.shape)
-        image[observer[inside], row[inside] * self.cells + column[inside]] = 255
+        image = lidar_grid(
+            distance,
+            self._cos,
+            self._sin,
+            self.scanner.max_range_m - 1e-3,
+            self.ahead_m,
+            self.half_width_m,
+            self.row_m,
+            self.column_m,
+            self.cells,
+        )
         return image.reshape(scene.arenas, scene.agents, self.cells, self.cells)
