@@ -9,7 +9,12 @@ What is measured, in one run so that every ratio is taken under the same machine
   ``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")``;
 * the peer, highway-env's ``highway-fast-v0`` on a comparable scene (5 lanes, 40 vehicles,
   DiscreteMetaAction, a LIDAR and an 84x84 grayscale image per decision), through
-  :func:`bench.peers.highway_env_peer.measure_highway_env`.
+  :func:`bench.peers.highway_env_peer.measure_highway_env`: the peer every figure in
+  ``bench/RESULTS.md`` since the first run is a ratio to;
+* and highway-env on each preset's own scene (its lanes, traffic cars, physics and decision
+  rates, and the closest observation: :func:`bench.peers.highway_env_peer.matched_scene`),
+  "x own scene": ho2018 simulates 50 physics frames a second, 10 times highway-fast-v0's 5,
+  and min2018 and fayjie2018 drive 10 traffic cars, not 40.
 
 Every measurement drives uniformly random actions from a seeded generator, runs untimed warm-up
 decisions, then times a fixed number of decisions. Episode ends are handled inside the timed
@@ -316,7 +321,28 @@ def machine_description() -> dict[str, Any]:
     }
 
 
-def _format_table(rows: list[Measurement], ratios: Mapping[tuple[str, int], float]) -> str:
+def _preset_config(preset: Any) -> SimConfig:
+    """A preset's SimConfig (PRESETS holds configurations or their factories)."""
+    return preset() if callable(preset) else preset
+
+
+def _peer_row(name: str, result: Any) -> Measurement:
+    return Measurement(
+        name,
+        1,
+        result.decisions,
+        None,
+        result.simulated_seconds,
+        result.wall_seconds,
+        result.cpu_seconds,
+    )
+
+
+def _format_table(
+    rows: list[Measurement],
+    ratios: Mapping[tuple[str, int], float],
+    matched: Mapping[tuple[str, int], float],
+) -> str:
     header = (
         "overtake preset / peer",
         "arenas",
@@ -328,10 +354,12 @@ def _format_table(rows: list[Measurement], ratios: Mapping[tuple[str, int], floa
         "sim s/wall s",
         "sim s/CPU s",
         "x highway-env",
+        "x own scene",
     )
     lines = []
     for row in rows:
-        ratio = ratios.get((row.simulator, row.arenas), 1.0)
+        ratio = ratios.get((row.simulator, row.arenas))
+        own = matched.get((row.simulator, row.arenas))
         lines.append(
             (
                 row.simulator,
@@ -344,6 +372,7 @@ def _format_table(rows: list[Measurement], ratios: Mapping[tuple[str, int], floa
                 f"{row.sim_seconds_per_wall_second:,.1f}",
                 f"{row.sim_seconds_per_cpu_second:,.1f}",
                 "-" if ratio is None else f"{ratio:,.1f}x",
+                "-" if own is None else f"{own:,.1f}x",
             )
         )
     widths = [max(len(cells[i]) for cells in (header, *lines)) for i in range(len(header))]
@@ -363,7 +392,7 @@ def main(config: BenchConfig) -> dict[str, Any]:
     """Run every measurement, print the report and return it as a JSON-able dict."""
     threads = pin_threads(config.blas_threads)
     from bench.peers.highway_env_peer import ENV_ID as PEER_ENV_ID
-    from bench.peers.highway_env_peer import measure_highway_env
+    from bench.peers.highway_env_peer import matched_scene, measure_highway_env
 
     machine = machine_description()
     print("overtake simulation benchmark")
@@ -377,7 +406,9 @@ def main(config: BenchConfig) -> dict[str, Any]:
     if config.quick:
         print(f"quick mode: timed counts divided by {QUICK_DIVISOR}; figures are noisier")
 
-    rows, scenes = [], {}
+    from overtake.server.sim import PRESETS as SIM_PRESETS
+
+    rows, scenes, matched = [], {}, {}
     for preset in config.presets:
         single, scenes[preset] = measure_overtake_single(
             config.timed(config.single_decisions), config.single_warmup, config.seed, preset
@@ -395,42 +426,62 @@ def main(config: BenchConfig) -> dict[str, Any]:
                     preset,
                 )
             )
+        # highway-env on this preset's own scene (lanes, cars, rates, closest observation).
+        scene = matched_scene(_preset_config(SIM_PRESETS[preset]))
+        result = measure_highway_env(
+            config.timed(config.highway_env_decisions),
+            config.seed,
+            config.highway_env_warmup,
+            scene,
+        )
+        print(f"highway-env {result.version} {PEER_ENV_ID} on {preset}'s scene: {scene}")
+        matched[preset] = _peer_row(f"highway-env ({preset}'s scene)", result)
+        rows.append(matched[preset])
     peer = measure_highway_env(
         config.timed(config.highway_env_decisions), config.seed, config.highway_env_warmup
     )
     print(f"highway-env {peer.version} {PEER_ENV_ID}: {dict(peer.config)}")
-    peer_row = Measurement(
-        "highway-env",
-        1,
-        peer.decisions,
-        None,
-        peer.simulated_seconds,
-        peer.wall_seconds,
-        peer.cpu_seconds,
-    )
+    peer_row = _peer_row("highway-env", peer)
     rows.append(peer_row)
 
+    overtake_rows = [row for row in rows if row.simulator in config.presets]
     ratios = {
         (row.simulator, row.arenas): row.sim_seconds_per_cpu_second
         / peer_row.sim_seconds_per_cpu_second
-        for row in rows
-        if row is not peer_row
+        for row in overtake_rows
+    }
+    matched_ratios = {
+        (row.simulator, row.arenas): row.sim_seconds_per_cpu_second
+        / matched[row.simulator].sim_seconds_per_cpu_second
+        for row in overtake_rows
     }
     print()
-    print("Throughput, summed over arenas (x highway-env: ratio of simulated seconds per CPU s)")
-    print(_format_table(rows, ratios))
+    print(
+        "Throughput, summed over arenas (x highway-env: ratio of simulated seconds per CPU s to "
+        "highway-fast-v0's; x own scene: to highway-env's on the preset's scene)"
+    )
+    print(_format_table(rows, ratios, matched_ratios))
     print()
     bars = []
     for preset in config.presets:
         for arenas, bar in BARS.items():
-            ratio = ratios[(preset, arenas)]
+            ratio, own = ratios[(preset, arenas)], matched_ratios[(preset, arenas)]
             passed = ratio >= bar
             bars.append(
-                {"preset": preset, "arenas": arenas, "bar": bar, "ratio": ratio, "passed": passed}
+                {
+                    "preset": preset,
+                    "arenas": arenas,
+                    "bar": bar,
+                    "ratio": ratio,
+                    "passed": passed,
+                    "ratio_own_scene": own,
+                    "passed_own_scene": own >= bar,
+                }
             )
             print(
                 f"bar: {preset}, {arenas} arena{'s' if arenas > 1 else ''}, simulated s per CPU "
-                f"s >= {bar:g}x highway-env: {ratio:.1f}x -> {'PASS' if passed else 'FAIL'}"
+                f"s >= {bar:g}x highway-env: {ratio:.1f}x -> {'PASS' if passed else 'FAIL'} "
+                f"(on its own scene {own:.1f}x -> {'PASS' if own >= bar else 'FAIL'})"
             )
 
     report = {
@@ -442,6 +493,8 @@ def main(config: BenchConfig) -> dict[str, Any]:
         "machine": machine,
         "threads": threads,
         "overtake": {"env_id": ENV_ID, "scenes": scenes},
+        "highway_env_own_scenes": {preset: row.as_dict() for preset, row in matched.items()},
+        "ratios_own_scene": {f"{p} {a}": v for (p, a), v in matched_ratios.items()},
         "highway_env": {
             "env_id": PEER_ENV_ID,
             "version": peer.version,

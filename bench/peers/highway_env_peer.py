@@ -13,6 +13,13 @@ autoreset time too.
 
 One decision advances the simulation by 1 / policy_frequency seconds, read from
 the configuration the environment actually uses rather than assumed.
+
+:func:`matched_scene` gives a second, per-preset peer: highway-env on the preset's own scene
+(its lanes, traffic cars, physics and decision rates, episode length) with the observation
+highway-env has closest to the preset's default sensors (chosen here: a LIDAR of as many
+cells as the preset's rays and an 80x80 grey image where the preset has a LIDAR or a camera;
+highway-env's occupancy grid for Ho's grid; highway-env has no RGB observation, so fayjie2018's
+RGB camera is compared with a grey image).
 """
 
 from __future__ import annotations
@@ -79,8 +86,64 @@ class HighwayEnvResult(Rates):
     version: str
 
 
-def measure_highway_env(decisions: int = 200, seed: int = 0, warmup: int = 10) -> HighwayEnvResult:
-    """Time `decisions` random decisions of highway-env after `warmup` untimed ones."""
+def matched_scene(sim_config: Any) -> dict[str, Any]:
+    """highway-env's configuration for the scene of overtake's ``SimConfig``: the same lanes,
+    traffic cars, physics rate, decision period and episode length, and the observation
+    closest to the preset's default sensors (module docstring)."""
+    episode = sim_config.episode
+    observations: list[dict[str, Any]] = []
+    if sim_config.grid.enabled:
+        grid = sim_config.grid
+        cells = grid.cells
+        observations.append(
+            {
+                "type": "OccupancyGrid",
+                "features": ["presence"],
+                "grid_size": [[-grid.behind_m, grid.ahead_m], [-6.0, 6.0]],
+                "grid_step": [(grid.ahead_m + grid.behind_m) / cells, 4.0],
+                "absolute": False,
+            }
+        )
+    if sim_config.lidar.enabled or sim_config.lidar_map.enabled:
+        observations.append(
+            {
+                "type": "LidarObservation",
+                "cells": sim_config.lidar.ray_count,
+                "maximum_range": sim_config.lidar.max_range_m,
+                "normalize": True,
+            }
+        )
+    if sim_config.camera.enabled:
+        camera = sim_config.camera
+        observations.append(
+            {
+                "type": "GrayscaleObservation",
+                "observation_shape": (camera.width_px, camera.height_px),
+                "stack_size": 1,
+                "weights": [0.2989, 0.5870, 0.1140],
+            }
+        )
+    observation = (
+        observations[0]
+        if len(observations) == 1
+        else {"type": "TupleObservation", "observation_configs": observations}
+    )
+    return {
+        "lanes_count": sim_config.road.lane_count,
+        "vehicles_count": sim_config.traffic.resolved_vehicle_count,
+        "simulation_frequency": round(1.0 / episode.physics_dt_s),
+        "policy_frequency": 1.0 / episode.decision_period_s,
+        "duration": episode.max_decisions * episode.decision_period_s,
+        "action": {"type": "DiscreteMetaAction"},
+        "observation": observation,
+    }
+
+
+def measure_highway_env(
+    decisions: int = 200, seed: int = 0, warmup: int = 10, scene: Mapping[str, Any] | None = None
+) -> HighwayEnvResult:
+    """Time `decisions` random decisions of highway-env after `warmup` untimed ones, on
+    ``scene`` (default: :data:`SCENE_CONFIG`)."""
     # highway-env skips drawing entirely under SDL's "dummy" driver and returns
     # all-zero images; "offscreen" draws without needing a display. SDL reads
     # the variable when pygame's display is initialised, so it must be set
@@ -94,10 +157,13 @@ def measure_highway_env(decisions: int = 200, seed: int = 0, warmup: int = 10) -
             "highway-env is not installed; install the bench extra with `pip install -e '.[bench]'`"
         ) from error
 
-    env = gymnasium.make(ENV_ID, config=SCENE_CONFIG)
+    config = dict(SCENE_CONFIG if scene is None else scene)
+    env = gymnasium.make(ENV_ID, config=config)
     try:
-        _, image = env.reset(seed=seed)[0]
-        if not np.any(image):
+        first = env.reset(seed=seed)[0]
+        drawn = config["observation"]["type"] in ("TupleObservation", "GrayscaleObservation")
+        image = first[-1] if isinstance(first, tuple) else first
+        if drawn and not np.any(image):
             raise RuntimeError(
                 "highway-env rendered an all-zero grayscale image; pygame is not "
                 "drawing (check SDL_VIDEODRIVER, which must not be 'dummy')"
