@@ -61,9 +61,11 @@ COPY trainers trainers
 RUN --mount=type=secret,id=pip_ca \
     pip-install . \
     && viewer="$(python -c 'import os, rerun_cli; print(os.path.dirname(rerun_cli.__file__))')" \
-    && ln -s "$viewer/rerun" /usr/local/bin/rerun-viewer
+    && ln -s "$viewer/rerun" /usr/local/bin/rerun-viewer \
+    && python -m overtake.server.sim.warm
 # rerun-viewer is the viewer binary itself, not the `rerun` script, which runs it as a child:
-# a signal to the container then reaches the viewer.
+# a signal to the container then reaches the viewer. The simulator's numba loops are compiled
+# into the image (overtake.server.sim.warm): a container's first decision loads them.
 USER overtake
 WORKDIR /data
 EXPOSE 7447
@@ -92,7 +94,8 @@ COPY server server
 COPY client client
 COPY trainers trainers
 RUN --mount=type=secret,id=pip_ca \
-    pip-install ".[train]"
+    pip-install ".[train]" \
+    && python -m overtake.server.sim.warm
 USER overtake
 WORKDIR /data
 CMD ["overtake-train", "--help"]

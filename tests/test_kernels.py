@@ -1,0 +1,37 @@
+"""The simulator's compiled loops: compiled ahead by the warm-up, and cached where asked.
+
+Their results are checked bit for bit by the golden digests (``test_golden.py``) and by the
+sensors' and physics' own tests; here, that ``python -m overtake.server.sim.warm`` (run by the
+container images at build time) leaves every kernel compiled in the cache.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+from numba.core.registry import CPUDispatcher
+
+from overtake.server.sim import kernels
+
+
+def test_warm_up_caches_every_kernel(tmp_path):
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    done = subprocess.run(
+        [sys.executable, "-m", "overtake.server.sim.warm"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+        check=True,
+    )
+    assert "simulator kernels ready" in done.stdout
+    cached = {path.name.split(".")[1].split("-")[0] for path in tmp_path.rglob("kernels.*.nbi")}
+    compiled = {
+        name for name, value in vars(kernels).items() if isinstance(value, CPUDispatcher)
+    }
+    assert compiled >= {"lidar_scan", "paint_ground", "follow_and_accelerate", "cars_ahead"}
+    assert cached == compiled, f"not cached: {sorted(compiled - cached)}"
+    # Each cached kernel has its compiled code beside its index.
+    assert len(list(tmp_path.rglob("kernels.*.nbc"))) >= len(compiled)
