@@ -28,9 +28,7 @@ def test_warm_up_caches_every_kernel(tmp_path):
     )
     assert "simulator kernels ready" in done.stdout
     cached = {path.name.split(".")[1].split("-")[0] for path in tmp_path.rglob("kernels.*.nbi")}
-    compiled = {
-        name for name, value in vars(kernels).items() if isinstance(value, CPUDispatcher)
-    }
+    compiled = {name for name, value in vars(kernels).items() if isinstance(value, CPUDispatcher)}
     assert compiled >= {"lidar_scan", "paint_ground", "follow_and_accelerate", "cars_ahead"}
     assert cached == compiled, f"not cached: {sorted(compiled - cached)}"
     # Each cached kernel has its compiled code beside its index.
