@@ -4,8 +4,8 @@ One run measures, for each input configuration asked for, ``overtake-train``'s o
 (``overtake.trainers.train.main``) three times on the same settings: with the simulator in
 this process, and with it in an ``overtake.server`` subprocess on 127.0.0.1 (a free port),
 with overlap in one part (the learner updates while the server simulates: overtake-train's
-default with --connect) and in two (the arenas in halves, one simulated while the learner
-acts and learns on the other), and in lock-step (--no-overlap). Only
+--overlap on) and in two (the arenas in halves, one simulated while the learner
+acts and learns on the other), and in lock-step (--overlap off). Only
 the steps after learning has started count (the loop then acts, steps, stores and updates, as
 in a real run). Where the time goes comes from the loop's own clock (``metrics.jsonl``: act =
 network forward for acting, env = the environment's step, or with overlap the wait for a
@@ -71,7 +71,7 @@ def run_once(
             seed=0,
             run_dir=run_dir,
             connect=connect,
-            overlap=overlap_parts > 0,
+            overlap="on" if overlap_parts > 0 else "off",
             overlap_parts=max(overlap_parts, 1),
             progress=False,
             log_every=config.learning_starts,

@@ -692,13 +692,13 @@ def test_each_algorithm_trains_against_a_real_server(tmp_path, start_server, alg
 
 
 def test_overlapped_remote_training_is_deterministic_and_lock_step_stays(tmp_path, start_server):
-    """With --connect the learner updates while the server simulates (one group), or with
+    """With --overlap on the learner updates while the server simulates (one group), or with
     --overlap-parts 2 the 4 arenas are two groups stepped in turn; two runs of one seed store
-    the same episodes and learn the same losses either way; --no-overlap is one group again,
+    the same episodes and learn the same losses either way; --overlap off is one group again,
     stepped and then learned from."""
     server = start_server("train-overlap")
 
-    def run(name: str, overlap: bool, parts: int = 1) -> tuple[dict, list[dict]]:
+    def run(name: str, overlap: str, parts: int = 1) -> tuple[dict, list[dict]]:
         summary = train(
             TrainConfig(
                 algo="ddqn",
@@ -726,22 +726,22 @@ def test_overlapped_remote_training_is_deterministic_and_lock_step_stays(tmp_pat
         ]
         return summary, lines
 
-    one, one_lines = run("one-a", overlap=True)
+    one, one_lines = run("one-a", overlap="on")
     assert one["parts"] == 1 and one["steps"] == 240 and one["updates"] >= 30
     # One send per vector step, plus the last one in flight when the run ended.
     assert one["env_steps_called"] >= 240 // 4 + 1
-    assert run("one-b", overlap=True)[1] == one_lines
-    halves, halves_lines = run("two-a", overlap=True, parts=2)
+    assert run("one-b", overlap="on")[1] == one_lines
+    halves, halves_lines = run("two-a", overlap="on", parts=2)
     assert halves["parts"] == 2 and halves["steps"] == 240 and halves["updates"] >= 30
     # Every send was a round of one of the two groups; two parts of 2 arenas each.
     assert halves["env_steps_called"] >= 240 // 2
     episodes = [line for line in halves_lines if line["kind"] == "episode"]
     assert len(episodes) >= 4 and {line["env"] for line in episodes} == {0, 1, 2, 3}
-    again, again_lines = run("two-b", overlap=True, parts=2)
+    again, again_lines = run("two-b", overlap="on", parts=2)
     assert again_lines == halves_lines
     assert again["updates"] == halves["updates"]
     assert halves_lines != one_lines
-    lock, lock_lines = run("lock", overlap=False, parts=2)
+    lock, lock_lines = run("lock", overlap="off", parts=2)
     assert lock["parts"] == 1 and lock["steps"] == 240
     # The learner updated at other times: before the step's transitions were stored.
     assert lock_lines != one_lines and lock_lines != halves_lines
@@ -992,3 +992,20 @@ def test_sigterm_ends_a_training_run_with_a_checkpoint_and_a_whole_recording(tmp
         for step in chunk.to_record_batch().column("step").to_pylist()
     ]
     assert max(epsilon_steps) == summary["steps"]  # the stop's own log line
+
+
+def test_overlap_auto_leaves_a_core_for_the_server(monkeypatch):
+    """--overlap auto learns while the server simulates only where this machine has a core
+    beyond PyTorch's threads; on and off decide by themselves; in-process never overlaps."""
+    remote = TrainConfig(connect="tcp/127.0.0.1:7447", num_envs=4, overlap_parts=2)
+    monkeypatch.setattr("os.cpu_count", lambda: 4)
+    monkeypatch.setattr(torch, "get_num_threads", lambda: 4)
+    assert not remote.overlapped and remote.parts == 1
+    monkeypatch.setattr(torch, "get_num_threads", lambda: 3)
+    assert remote.overlapped and remote.parts == 2
+    assert not replace(remote, overlap="off").overlapped
+    monkeypatch.setattr(torch, "get_num_threads", lambda: 4)
+    assert replace(remote, overlap="on").parts == 2
+    assert not replace(remote, connect=None, overlap="on").overlapped
+    # Never more parts than environments.
+    assert replace(remote, overlap="on", num_envs=1).parts == 1

@@ -25,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import os
 import platform
 import signal
 import subprocess
@@ -97,11 +98,13 @@ class TrainConfig:
     """usrpwd credentials and TLS certificates for --connect"""
     num_envs: int = 1
     """environments (arenas) stepped together"""
-    overlap: bool = True
-    """with --connect: learn while the server simulates (each iteration sends a part's
+    overlap: Literal["auto", "on", "off"] = "auto"
+    """with --connect: "on" learns while the server simulates (each iteration sends a part's
     actions, learns, then takes the Steps of the part sent longest ago), in a fixed order
     (deterministic for a seed, but not the lock-step run's transitions: README, "Overlap");
-    --no-overlap steps all arenas, then learns, as in-process training does"""
+    "off" steps all arenas, then learns, as in-process training does; "auto" overlaps where
+    this machine has a core beyond PyTorch's threads (on a machine without one the server's
+    simulation and the update contend for the cores: measured slower, bench/RESULTS.md)"""
     overlap_parts: int = 1
     """with overlap: the groups the arenas are opened in on the server, stepped in turn (2 or
     more also overlap acting with simulation, at the cost of one network call per part);
@@ -138,14 +141,15 @@ class TrainConfig:
     @property
     def parts(self) -> int:
         """Groups the remote arenas are opened in (1 without overlap or in-process)."""
-        if self.connect is None or not self.overlap:
-            return 1
-        return min(self.overlap_parts, self.num_envs)
+        return min(self.overlap_parts, self.num_envs) if self.overlapped else 1
 
     @property
     def overlapped(self) -> bool:
-        """Whether the loop learns while the server simulates (remote, with overlap)."""
-        return self.connect is not None and self.overlap
+        """Whether the loop learns while the server simulates (remote, with overlap; "auto"
+        reads PyTorch's threads, so ask after they are set)."""
+        if self.connect is None or self.overlap == "off":
+            return False
+        return self.overlap == "on" or torch.get_num_threads() < (os.cpu_count() or 1)
 
     @classmethod
     def for_preset(cls, preset: str, **changes: Any) -> TrainConfig:
