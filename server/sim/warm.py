@@ -12,12 +12,13 @@ import time
 
 import numpy as np
 
+from .config import PlainValue
 from .core import HighwaySim
 from .presets import PRESETS, make_config
 
 # Settings whose kernels the presets' defaults leave unused: the grey camera (fayjie2018's is
 # RGB) and the LIDAR scan beside the grid map.
-EXTRA_SETTINGS: tuple[dict[str, object], ...] = ({"camera.rgb": False, "lidar.enabled": True},)
+EXTRA_SETTINGS: tuple[dict[str, PlainValue], ...] = ({"camera.rgb": False, "lidar.enabled": True},)
 
 
 def warm_up() -> float:
@@ -25,7 +26,7 @@ def warm_up() -> float:
     seconds it took (mostly compiling, or loading the cache)."""
     start = time.perf_counter()
     configs = [make_config(preset) for preset in sorted(PRESETS)]
-    configs += [make_config("fayjie2018", dict(settings)) for settings in EXTRA_SETTINGS]
+    configs += [make_config("fayjie2018", settings) for settings in EXTRA_SETTINGS]
     for config in configs:
         for arenas in (1, 2):
             sim = HighwaySim(config, num_arenas=arenas)
