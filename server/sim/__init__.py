@@ -1,6 +1,6 @@
-"""The highway simulation core: pure numpy, no network, arrays in and arrays out.
+"""The highway simulation core: numpy, no network, arrays in and arrays out.
 
-Importing it loads numpy and the standard library only. The rooms, each one idea on one
+Importing it loads numpy, numba and the standard library only. The rooms, each one idea on one
 structure-of-arrays state:
 
 - ``state``: the state every part reads and writes; ``randomness``: each decision's uniforms;
@@ -13,7 +13,9 @@ structure-of-arrays state:
 - ``sensors``: LIDAR, camera, ego vector behind one interface;
 - ``config`` and ``presets``: the data that chooses all of the above;
 - ``core``: :class:`HighwaySim`, which steps the parts in order; ``autoreset``: rounds with
-  Gymnasium's next-step autoreset; ``render``: a top-down picture for people.
+  Gymnasium's next-step autoreset; ``render``: a top-down picture for people;
+- ``kernels``: the inner loops the rooms hand to numba (same arithmetic, compiled);
+  ``warm``: compiling them ahead.
 """
 
 from .autoreset import RoundResult, autoreset_round

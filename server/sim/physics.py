@@ -9,6 +9,9 @@ it can, the safety rule of Ho's simulator), while an agent ahead gets no such co
 the agents' speeds are replaced by Ho's speed steps (:class:`.assist.SpeedSteps`).
 Laterally a lane change is a minimum-jerk move between lane centres. A collision is an agent's
 box overlapping another vehicle's. The frame's events go to the episode bookkeeping.
+
+Car-following with the agents' assistance, the speed caps and the integration run as compiled
+loops (:mod:`.kernels`): per-call numpy overhead dominated a frame at small arena counts.
 """
 
 from __future__ import annotations
