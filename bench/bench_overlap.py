@@ -12,7 +12,13 @@ rendered), its weights random and fixed; actions are its greedy ones, through th
 steps each, after a warm-up, so that both see the same machine; the figure is the ratio of
 their arena-steps per second, each round's ratio and the median.
 
+With ``--in-process`` (the default) the same arenas also step in this process, lock-step, in
+the same rounds, and each remote mode gets its ratio to that (the issue's "64 arenas remote"
+figure, here with overlap too). ``--policy random`` drops the network: random actions, no
+frame stacking, so what is measured is the simulation and its transport alone.
+
     .venv/bin/python -m bench.bench_overlap [--num-envs 64] [--inputs lidar] [--rounds 4]
+    .venv/bin/python -m bench.bench_overlap --policy random --inputs both
 """
 
 from __future__ import annotations
@@ -43,6 +49,12 @@ class OverlapBenchConfig:
     warmup_steps: int = 20
     torch_threads: int = 1
     """PyTorch threads of this (the trainer's) process; the server runs in its own"""
+    policy: Literal["network", "random"] = "network"
+    """network: the Q-network acting greedily on stacked frames; random: uniformly random
+    actions and no trainer work at all (what is left is the simulation and its transport)"""
+    in_process: bool = True
+    """also step the same arenas in this process (lock-step) and give each remote mode's
+    ratio to it"""
     json: Path | None = None
 
 
@@ -67,6 +79,26 @@ def make_actor(env: Any, inputs: str, seed: int = 0) -> Any:
     return learner, stacker
 
 
+class RandomActor:
+    """Uniformly random actions, ignoring observations and masks (``policy random``)."""
+
+    def act(self, _obs: Any, mask: np.ndarray, _epsilon: float, rng: np.random.Generator):
+        return rng.integers(0, mask.shape[1], len(mask)), None
+
+
+class NoStacker:
+    """Keeps no frames: the random actor reads none."""
+
+    def reset(self, _envs: np.ndarray, _obs: Any) -> None:
+        pass
+
+    def push(self, _envs: np.ndarray, _obs: Any) -> None:
+        pass
+
+    def observation(self) -> dict[str, np.ndarray]:
+        return {}
+
+
 def run_mode(
     env: Any, learner: Any, stacker: Any, mode: str, steps: int, rng: np.random.Generator
 ) -> float:
@@ -77,7 +109,7 @@ def run_mode(
     stacker.reset(everyone, obs)
     mask = np.array(info["action_mask"])
     start = time.perf_counter()
-    if mode == "lock-step":
+    if mode != "overlap":  # lock-step, remote or in-process
         for _ in range(steps):
             actions, _ = learner.act(stacker.observation(), mask, 0.0, rng)
             obs, _, _, _, info = env.step(actions)
@@ -107,7 +139,7 @@ def main(config: OverlapBenchConfig) -> dict[str, Any]:
     import torch
 
     from overtake.client.remote import RemoteConfig
-    from overtake.protocol import REMOTE_HIGHWAY_ENV_ID, register_environments
+    from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
     from overtake.trainers.train import TrainConfig
 
     torch.set_num_threads(config.torch_threads)
@@ -115,19 +147,31 @@ def main(config: OverlapBenchConfig) -> dict[str, Any]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     server = start_server(endpoint, 60.0)
     envs: dict[str, Any] = {}
+    # overtake-train's: no camera rendered for a LIDAR-only network
+    overrides = TrainConfig(inputs=config.inputs).overrides()
     try:
+        if config.in_process:
+            envs["in-process"] = gym.make_vec(
+                HIGHWAY_ENV_ID,
+                num_envs=config.num_envs,
+                vectorization_mode="vector_entry_point",
+                overrides=overrides,
+            )
         for mode, parts in (("lock-step", 1), ("overlap", 2)):
             envs[mode] = gym.make_vec(
                 REMOTE_HIGHWAY_ENV_ID,
                 num_envs=config.num_envs,
                 vectorization_mode="vector_entry_point",
                 remote=RemoteConfig(connect=(endpoint,)),
-                # overtake-train's: no camera rendered for a LIDAR-only network
-                overrides=TrainConfig(inputs=config.inputs).overrides(),
+                overrides=overrides,
                 parts=parts,
             )
         rng = np.random.default_rng(0)
-        actor = make_actor(envs["lock-step"], config.inputs)
+        actor = (
+            make_actor(envs["lock-step"], config.inputs)
+            if config.policy == "network"
+            else (RandomActor(), NoStacker())
+        )
         for mode, env in envs.items():
             run_mode(env, *actor, mode, config.warmup_steps, rng)
         rates: dict[str, list[float]] = {mode: [] for mode in envs}
@@ -146,13 +190,30 @@ def main(config: OverlapBenchConfig) -> dict[str, Any]:
         "overlap_over_lock_step": [round(r, 3) for r in ratios],
         "median_ratio": round(statistics.median(ratios), 3),
     }
+    if config.in_process:
+        report["over_in_process"] = {
+            mode: round(
+                statistics.median(
+                    r / local for r, local in zip(rates[mode], rates["in-process"], strict=True)
+                ),
+                3,
+            )
+            for mode in ("lock-step", "overlap")
+        }
+    acting = (
+        f"{config.inputs} network acting greedily"
+        if config.policy == "network"
+        else "random actions"
+    )
     print(
-        f"{config.num_envs} remote arenas, {config.inputs} network acting greedily, "
+        f"{config.num_envs} arenas, {acting}, "
         f"{config.rounds} rounds of {config.steps} vector steps per mode"
     )
     for mode, values in rates.items():
-        print(f"  {mode:>9}: {statistics.median(values):8.1f} arena-steps/s (median)")
+        print(f"  {mode:>10}: {statistics.median(values):8.1f} arena-steps/s (median)")
     print(f"  overlap / lock-step: {report['median_ratio']:.2f}x (rounds: {ratios})")
+    if config.in_process:
+        print(f"  remote / in-process (median of rounds): {report['over_in_process']}")
     if config.json is not None:
         config.json.parent.mkdir(parents=True, exist_ok=True)
         config.json.write_text(json.dumps(report, indent=2))

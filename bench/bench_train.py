@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import statistics
 import sys
 import tempfile
 import time
@@ -41,7 +42,14 @@ class TrainBenchConfig:
     inputs: tuple[str, ...] = ("both", "lidar")
     torch_threads: int = 2
     parts: tuple[int, ...] = (1, 2, 0)
-    """the remote runs: overlapped in that many parts, 0 for lock-step"""
+    """the remote runs: overlapped in that many parts, 0 for lock-step (none: --parts with no
+    value)"""
+    precisions: tuple[str, ...] = ("fp32",)
+    """in-process runs in each of these precisions, in this order (overtake-train
+    --precision; one may come again, to alternate: ratios use each one's mean); the remote
+    runs in the first"""
+    device: str = "cpu"
+    """overtake-train --device"""
     json: Path | None = None
 
 
@@ -52,10 +60,12 @@ def run_once(
     run_dir: Path,
     recording: Any = None,
     overlap_parts: int = 1,
+    precision: str = "fp32",
 ) -> dict[str, Any]:
     """One ``overtake-train`` run; ``recording``: its RecordingConfig (None: the default);
     ``overlap_parts``: remote arenas overlapped in that many parts (1, overtake-train's
-    default: learning during the round trip), or 0 for lock-step."""
+    default: learning during the round trip), or 0 for lock-step; ``precision``:
+    overtake-train's --precision."""
     from overtake.trainers.learner import DQNConfig
     from overtake.trainers.train import TrainConfig, main
 
@@ -77,6 +87,8 @@ def run_once(
             log_every=config.learning_starts,
             checkpoint_every=10 * total,
             torch_threads=config.torch_threads,
+            device=config.device,
+            precision=precision,  # type: ignore[arg-type]
             dqn=DQNConfig(
                 learning_starts=config.learning_starts, replay_size=max(10_000, 2 * total)
             ),
@@ -98,7 +110,8 @@ def run_once(
     }
     return {
         "inputs": inputs,
-        "where": where_label(connect, overlap_parts),
+        "where": where_label(connect, overlap_parts, precision),
+        "precision": precision,
         "steps_timed": steps,
         "steps_per_s": steps / seconds,
         "wall_s": wall,
@@ -107,10 +120,11 @@ def run_once(
     }
 
 
-def where_label(connect: str | None, overlap_parts: int) -> str:
-    """How a run's simulator was reached: in-process, remote lock-step, remote overlap/k."""
+def where_label(connect: str | None, overlap_parts: int, precision: str = "fp32") -> str:
+    """How a run's simulator was reached: in-process (in-process bf16 for a precision other
+    than fp32), remote lock-step, remote overlap/k."""
     if connect is None:
-        return "in-process"
+        return "in-process" if precision == "fp32" else f"in-process {precision}"
     return f"remote overlap/{overlap_parts}" if overlap_parts else "remote lock-step"
 
 
@@ -122,21 +136,34 @@ def main(config: TrainBenchConfig) -> dict[str, Any]:
     try:
         with tempfile.TemporaryDirectory() as tmp:
             for inputs in config.inputs:
-                for connect, parts in ((None, 0), *((endpoint, k) for k in config.parts)):
-                    where = f"overlap{parts}" if parts else ("lockstep" if connect else "inproc")
+                for index, precision in enumerate(config.precisions):
                     results.append(
                         run_once(
                             config,
                             inputs,
-                            connect,
+                            None,
+                            Path(tmp) / f"{inputs}-inproc-{index}-{precision}",
+                            overlap_parts=0,
+                            precision=precision,
+                        )
+                    )
+                for parts in config.parts:
+                    where = f"overlap{parts}" if parts else "lockstep"
+                    results.append(
+                        run_once(
+                            config,
+                            inputs,
+                            endpoint,
                             Path(tmp) / f"{inputs}-{where}",
                             overlap_parts=parts,
+                            precision=config.precisions[0],
                         )
                     )
     finally:
         stop_process(server)
     print(
         f"{config.algo}, {config.num_envs} envs, torch threads {config.torch_threads}, "
+        f"device {config.device}, "
         f"{config.steps} timed steps after {config.learning_starts} (one update per 4 steps)"
     )
     print(
@@ -151,11 +178,21 @@ def main(config: TrainBenchConfig) -> dict[str, Any]:
             f"{ms['time_update']:7.2f}"
         )
     by = {(r["inputs"], r["where"]): r for r in results}
+    rate: dict[tuple[str, str], float] = {
+        key: statistics.fmean(r["steps_per_s"] for r in results if (r["inputs"], r["where"]) == key)
+        for key in by
+    }
     for inputs in config.inputs:
-        local = by[(inputs, "in-process")]
+        local = by[(inputs, where_label(None, 0, config.precisions[0]))]
+        base = rate[(inputs, local["where"])]
         ratios = ", ".join(
-            f"{where} {by[(inputs, where)]['steps_per_s'] / local['steps_per_s']:.2f}x"
-            for where in (where_label("remote", k) for k in config.parts)
+            f"{where} {rate[(inputs, where)] / base:.2f}x"
+            for where in (
+                *dict.fromkeys(
+                    where_label(None, 0, p) for p in config.precisions if p != config.precisions[0]
+                ),
+                *(where_label("remote", k) for k in config.parts),
+            )
         )
         print(f"{inputs}: steps/s against in-process: {ratios}")
         if (inputs, "remote lock-step") in by:

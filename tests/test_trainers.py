@@ -20,7 +20,13 @@ from overtake.trainers.checkpoint import CHECKPOINT_NAME, CheckpointError, load_
 from overtake.trainers.evaluate import EvalConfig
 from overtake.trainers.evaluate import cli as evaluate_cli
 from overtake.trainers.evaluate import main as evaluate
-from overtake.trainers.learner import DQNConfig, DQNLearner, masked, td_target
+from overtake.trainers.learner import (
+    DQNConfig,
+    DQNLearner,
+    execution_device,
+    masked,
+    td_target,
+)
 from overtake.trainers.network import NetworkShape, QNetwork, dueling_q
 from overtake.trainers.replay import FrameShapes, FrameStacker, ReplayMemory
 from overtake.trainers.train import TrainConfig
@@ -186,6 +192,55 @@ def test_update_moves_q_towards_the_target():
         learner.update(batch)
     after = learner.q_values(obs)[:, 2].mean()
     assert abs(after - 3.0) < 0.1 < abs(before - 3.0)
+
+
+def test_devices_and_precisions_this_machine_cannot_run_are_refused_saying_why():
+    assert execution_device("cpu", "bf16") == torch.device("cpu")
+    with pytest.raises(ValueError, match="'gpu' is not a PyTorch device name"):
+        execution_device("gpu")
+    with pytest.raises(ValueError, match="fp16 needs a CUDA device.*'cpu': use bf16"):
+        execution_device("cpu", "fp16")
+    with pytest.raises(ValueError, match="precision is one of fp32, bf16, fp16, got 'fp8'"):
+        execution_device("cpu", "fp8")  # type: ignore[arg-type]
+    if not torch.cuda.is_available():
+        with pytest.raises(ValueError, match=r"'cuda:1' asked for, but this PyTorch .* no CUDA"):
+            execution_device("cuda:1")
+    else:
+        count = torch.cuda.device_count()
+        with pytest.raises(ValueError, match=f"has {count} CUDA device"):
+            execution_device(f"cuda:{count}")
+
+
+@pytest.mark.parametrize("inputs", ["lidar", "both"])
+def test_bf16_runs_the_forward_passes_in_bf16_and_keeps_float32_weights(inputs):
+    shape = small_shape()
+    config = DQNConfig(lstm_cells=8, hidden_units=16, learning_rate=0.01, gamma=0.0)
+    torch.manual_seed(0)
+    full = DQNLearner(shape, inputs, config, double=True, dueling=False)
+    mixed = DQNLearner(shape, inputs, config, double=True, dueling=False, precision="bf16")
+    mixed.load_state_dict(full.state_dict())
+    obs = random_obs(shape, 32, np.random.default_rng(3))
+    q_full, q_mixed = full.q_values(obs), mixed.q_values(obs)
+    assert q_mixed.dtype == np.float32
+    # bf16 keeps 8 bits of mantissa: close to float32, and not the same numbers.
+    assert not np.array_equal(q_full, q_mixed)
+    np.testing.assert_allclose(q_mixed, q_full, atol=0.05 * np.abs(q_full).max())
+    batch = {
+        **obs,
+        **{"next_" + k: v for k, v in obs.items()},
+        "action": np.full(32, 2),
+        "reward": np.full(32, 3.0, dtype=np.float32),
+        "terminated": np.zeros(32, dtype=bool),
+        "next_mask": np.ones((32, 5), np.int8),
+    }
+    before = mixed.q_values(obs)[:, 2].mean()
+    for _ in range(100):
+        stats = mixed.update(batch)
+        assert np.isfinite(stats["loss"])
+    assert all(p.dtype == torch.float32 for p in mixed.online.parameters())
+    assert "grad_scaler" not in mixed.state_dict()  # loss scaling is fp16's alone
+    after = mixed.q_values(obs)[:, 2].mean()
+    assert abs(after - 3.0) < 0.15 < abs(before - 3.0)
 
 
 # --- replay and stacking -------------------------------------------------------------------------
@@ -443,10 +498,12 @@ def greedy_score(checkpoint_path: Path, episodes: int = 200) -> float:
     return float(reward.mean())
 
 
-def test_learner_beats_random_on_a_tiny_environment(tmp_path):
+@pytest.mark.parametrize("precision", ["fp32", "bf16"])
+def test_learner_beats_random_on_a_tiny_environment(tmp_path, precision):
     config = TrainConfig(
         algo="ddqn",
         inputs="lidar",
+        precision=precision,
         num_envs=4,
         total_steps=2400,
         seed=0,
@@ -497,7 +554,11 @@ def test_checkpoint_round_trip_and_resume_continue_the_step_count(tmp_path):
     # Running again without --resume refuses to overwrite the run.
     with pytest.raises(UsageError, match="--resume"):
         train(config, envs=PickTheFreeLane(2, seed=1))
-    resumed = train(replace(config, total_steps=500, resume=True), envs=PickTheFreeLane(2, seed=2))
+    # Resumed in mixed precision: the weights are float32 either way.
+    resumed = train(
+        replace(config, total_steps=500, resume=True, precision="bf16"),
+        envs=PickTheFreeLane(2, seed=2),
+    )
     assert resumed["steps"] == 500 and resumed["updates"] > first["updates"]
     after = load_checkpoint(run_dir / CHECKPOINT_NAME)
     assert after.step == 500 and after.resumes == 1
@@ -595,6 +656,13 @@ def test_the_commands_print_what_is_wrong_and_exit_non_zero(tmp_path):
     assert str(exited.value.code).startswith(
         f"overtake-eval: {broken} is not a readable overtake checkpoint ("
     )
+    with pytest.raises(SystemExit) as exited:
+        train_cli(["--precision", "fp16", "--run-dir", str(tmp_path / "run"), "--no-progress"])
+    assert exited.value.code == (
+        "overtake-train: precision fp16 needs a CUDA device (its loss scaling is CUDA's), got "
+        "device 'cpu': use bf16 there"
+    )
+    assert not (tmp_path / "run").exists()
     with pytest.raises(SystemExit) as exited:
         evaluate_cli(["--policy", "rule", "--episodes", "0"])
     assert exited.value.code == "overtake-eval: --episodes must be >= 1, got 0"

@@ -23,7 +23,7 @@ import torch
 from overtake.client.commands import UsageError
 
 from .grid_network import GridNetworkShape
-from .learner import ALGOS, DQNConfig, DQNLearner
+from .learner import ALGOS, DQNConfig, DQNLearner, Precision
 from .network import Inputs, NetworkShape
 from .two_stream_network import TwoStreamShape
 
@@ -62,7 +62,7 @@ class Checkpoint:
                 f"for algo={algo} inputs={inputs} preset={preset}"
             )
 
-    def make_learner(self, device: str = "cpu") -> DQNLearner:
+    def make_learner(self, device: str = "cpu", precision: Precision = "fp32") -> DQNLearner:
         double, dueling = ALGOS[self.algo]
         learner = DQNLearner(
             self.net_shape,
@@ -71,6 +71,7 @@ class Checkpoint:
             double=double,
             dueling=dueling,
             device=device,
+            precision=precision,
         )
         learner.load_state_dict(self.learner)
         return learner

@@ -15,6 +15,7 @@ The network is each preset's (:func:`build_network`).
 
 from __future__ import annotations
 
+import contextlib
 import copy
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -28,6 +29,13 @@ from .network import Inputs, NetworkShape, QNetwork
 from .two_stream_network import TwoStreamQNetwork, TwoStreamShape
 
 Algo = Literal["dqn", "ddqn", "dueling"]
+
+Precision = Literal["fp32", "bf16", "fp16"]
+"""fp32: everything in float32. bf16 / fp16: mixed precision, the networks' forward passes
+under ``torch.autocast`` in that type while weights, optimiser state, TD targets and the loss
+stay float32; fp16 (CUDA only) also scales the loss against gradient underflow."""
+
+_AUTOCAST_DTYPES = {"bf16": torch.bfloat16, "fp16": torch.float16}
 
 # The algorithms as switch settings. Dueling uses the double target as well, as Wang et al.
 # (2016) did and as Min et al.'s code does (Double + Dueling DQN).
@@ -198,10 +206,47 @@ def td_target(
     return reward + gamma * (1.0 - terminated.float()) * next_value
 
 
+def execution_device(device: str, precision: Precision = "fp32") -> torch.device:
+    """The torch device named ``device``, checked to exist here and to run ``precision``
+    (raises ValueError saying what was asked and what this machine has)."""
+    try:
+        resolved = torch.device(device)
+    except RuntimeError as error:
+        raise ValueError(f"device {device!r} is not a PyTorch device name: {error}") from None
+    if resolved.type == "cuda":
+        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        if count == 0:
+            raise ValueError(
+                f"device {device!r} asked for, but this PyTorch ({torch.__version__}) sees no "
+                "CUDA device; use --device cpu, or install a CUDA build of PyTorch on a machine "
+                "with a GPU"
+            )
+        if resolved.index is not None and resolved.index >= count:
+            raise ValueError(
+                f"device {device!r} asked for, but this machine has {count} CUDA device(s): "
+                f"cuda:0..cuda:{count - 1}"
+            )
+    elif resolved.type == "mps" and not torch.backends.mps.is_available():
+        raise ValueError(f"device {device!r} asked for, but this PyTorch sees no MPS device")
+    elif resolved.type not in ("cpu", "cuda", "mps"):
+        raise ValueError(f"device {device!r}: overtake trains on cpu, cuda or mps")
+    if precision not in ("fp32", *_AUTOCAST_DTYPES):
+        raise ValueError(f"precision is one of fp32, bf16, fp16, got {precision!r}")
+    if precision == "fp16" and resolved.type != "cuda":
+        raise ValueError(
+            f"precision fp16 needs a CUDA device (its loss scaling is CUDA's), got device "
+            f"{device!r}: use bf16 there"
+        )
+    if precision == "bf16" and resolved.type == "cuda" and not torch.cuda.is_bf16_supported():
+        raise ValueError(f"precision bf16: the GPU of {device!r} does not support it; use fp16")
+    return resolved
+
+
 class DQNLearner:
     """The online and target networks, the optimiser, acting and updating.
 
     ``double``: the Double DQN target (Eq. 8); ``dueling``: value and advantage streams (Eq. 9).
+    ``device`` and ``precision`` say where and how the networks run (:data:`Precision`).
     """
 
     def __init__(
@@ -213,10 +258,14 @@ class DQNLearner:
         double: bool,
         dueling: bool,
         device: str = "cpu",
+        precision: Precision = "fp32",
     ) -> None:
         self.shape, self.inputs, self.config = shape, inputs, config
         self.double, self.dueling = double, dueling
-        self.device = torch.device(device)
+        self.device = execution_device(device, precision)
+        self.precision = precision
+        # Loss scaling only for fp16 (bf16 has float32's range); disabled, it passes through.
+        self.scaler = torch.amp.GradScaler("cuda", enabled=precision == "fp16")
         self.online = build_network(shape, inputs, config, dueling).to(self.device)
         self.target = copy.deepcopy(self.online).eval()
         for p in self.target.parameters():
@@ -238,13 +287,23 @@ class DQNLearner:
             for name in network.input_names
         ]
 
+    def _autocast(self) -> contextlib.AbstractContextManager[Any]:
+        """Mixed precision for a forward pass (nothing for fp32)."""
+        dtype = _AUTOCAST_DTYPES.get(self.precision)
+        if dtype is None:
+            return contextlib.nullcontext()
+        return torch.autocast(device_type=self.device.type, dtype=dtype)
+
     # --- acting ---------------------------------------------------------------------------
 
     @torch.no_grad()
     def q_values(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        """(N, actions) Q-values of stacked observations (see :class:`.replay.FrameStacker`)."""
+        """(N, actions) float32 Q-values of stacked observations (see
+        :class:`.replay.FrameStacker`)."""
         self.online.eval()
-        return self.online(*self._tensors(obs)).cpu().numpy()
+        with self._autocast():
+            q = self.online(*self._tensors(obs))
+        return q.float().cpu().numpy()
 
     def act(
         self, obs: dict[str, np.ndarray], mask: np.ndarray, epsilon: float, rng: np.random.Generator
@@ -269,20 +328,26 @@ class DQNLearner:
         reward = torch.as_tensor(batch["reward"], device=dev, dtype=torch.float32)
         terminated = torch.as_tensor(batch["terminated"], device=dev)
         next_mask = torch.as_tensor(batch["next_mask"], device=dev)
-        q_taken = self.online(*self._tensors(batch)).gather(1, action[:, None]).squeeze(1)
+        # Forward passes in the learner's precision; the TD target and the loss in float32.
+        with self._autocast():
+            q_all = self.online(*self._tensors(batch))
+        q_taken = q_all.float().gather(1, action[:, None]).squeeze(1)
         with torch.no_grad():
             next_inputs = self._tensors(batch, "next_")
-            next_q_target = self.target(*next_inputs)
-            next_q_online = self.online(*next_inputs) if self.double else None
+            with self._autocast():
+                next_q_target = self.target(*next_inputs).float()
+                next_q_online = self.online(*next_inputs).float() if self.double else None
             target = td_target(
                 reward, terminated, self.config.gamma, next_q_target, next_mask, next_q_online
             )
         loss = self.loss_fn(q_taken, target)
         self.optimizer.zero_grad(set_to_none=True)
-        loss.backward()
+        self.scaler.scale(loss).backward()
         if self.config.grad_clip_norm > 0.0:
+            self.scaler.unscale_(self.optimizer)  # clip the true gradients, not scaled ones
             nn.utils.clip_grad_norm_(self.online.parameters(), self.config.grad_clip_norm)
-        self.optimizer.step()
+        self.scaler.step(self.optimizer)  # skips the step where fp16 gradients overflowed
+        self.scaler.update()
         self.updates += 1
         return {"loss": float(loss.item()), "q_taken": float(q_taken.mean().item())}
 
@@ -297,6 +362,7 @@ class DQNLearner:
             "target": self.target.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "updates": self.updates,
+            **({"grad_scaler": self.scaler.state_dict()} if self.scaler.is_enabled() else {}),
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -304,3 +370,6 @@ class DQNLearner:
         self.target.load_state_dict(state["target"])
         self.optimizer.load_state_dict(state["optimizer"])
         self.updates = int(state["updates"])
+        # An fp16 run resumed from a run in another precision starts with a fresh scale.
+        if self.scaler.is_enabled() and "grad_scaler" in state:
+            self.scaler.load_state_dict(state["grad_scaler"])

@@ -62,7 +62,7 @@ from .checkpoint import (
     save_checkpoint,
 )
 from .grid_network import GridNetworkShape
-from .learner import ALGOS, Algo, DQNConfig, DQNLearner
+from .learner import ALGOS, Algo, DQNConfig, DQNLearner, Precision, execution_device
 from .network import INPUT_SENSORS, Inputs, NetworkShape
 from .observations import describe_space, frame_shapes
 from .presets import PRESET_TRAINING
@@ -127,6 +127,11 @@ class TrainConfig:
     log_every: int = 1_000
     """environment steps between training log lines"""
     device: str = "cpu"
+    """where the networks run: cpu, cuda, cuda:N or mps (checked before the run starts)"""
+    precision: Precision = "fp32"
+    """fp32, or mixed precision: bf16 (CPU or GPU) or fp16 (CUDA, with loss scaling); the
+    forward passes run in that type, weights, optimiser, TD targets and loss in float32
+    (bench/RESULTS.md: bf16 updates on this project's CPU)"""
     torch_threads: int | None = None
     """CPU threads for PyTorch; None keeps PyTorch's default"""
     progress: bool = True
@@ -253,6 +258,10 @@ def main(
     """
     if config.total_steps < 1 or config.num_envs < 1:
         raise UsageError("--total-steps and --num-envs must be >= 1")
+    try:  # before a run directory, server or environment is touched
+        execution_device(config.device, config.precision)
+    except ValueError as error:
+        raise UsageError(str(error)) from None
     if config.torch_threads is not None:
         torch.set_num_threads(config.torch_threads)
     run_dir = config.resolved_run_dir()
@@ -397,7 +406,13 @@ class TrainingRun:
             self.net_shape = NetworkShape.from_space(self.space, ACTION_COUNT, dqn.stack)
         torch.manual_seed(config.seed)
         self.learner = DQNLearner(
-            self.net_shape, config.inputs, dqn, double=double, dueling=dueling, device=config.device
+            self.net_shape,
+            config.inputs,
+            dqn,
+            double=double,
+            dueling=dueling,
+            device=config.device,
+            precision=config.precision,
         )
         self.replay = ReplayMemory(
             dqn.replay_size, config.num_envs, shapes, dqn.stack, stacked, seed=config.seed
