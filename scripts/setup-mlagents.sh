@@ -10,3 +10,17 @@ cd "$(dirname "$0")/.."
 [[ -x .venv/bin/python ]] || scripts/setup.sh
 .venv/bin/python -m pip install --quiet -e ".[mlagents]"
 .venv/bin/python -m pip install --quiet --no-deps --ignore-requires-python "mlagents-envs==1.1.0"
+# ML-Agents' own side for overtake-unity-bridge (tests/test_unity_bridge.py): mlagents-envs'
+# UnityEnvironment imports its generated protobuf modules, which need protobuf 3.20 (newer ones
+# refuse them, and ONNX in .venv needs a newer one), so it gets an environment of its own, as an
+# ML-Agents user's would be: .venv-mlagents, with nothing of overtake in it. The bridge itself
+# runs in .venv and reads the same message definitions with today's protobuf.
+python_bin="${PYTHON:-python3}"
+if [[ ! -x .venv-mlagents/bin/python ]]; then
+  "$python_bin" -m venv .venv-mlagents
+fi
+.venv-mlagents/bin/python -m pip install --quiet --upgrade pip
+.venv-mlagents/bin/python -m pip install --quiet "protobuf==3.20.3" "grpcio>=1.48" numpy \
+  "pillow>=9" "cloudpickle>=2" "filelock>=3" pyyaml "gym==0.26.2"
+.venv-mlagents/bin/python -m pip install --quiet --no-deps --ignore-requires-python \
+  "mlagents-envs==1.1.0"

@@ -1,0 +1,610 @@
+"""``overtake-unity-bridge``: ML-Agents' Python tools drive overtake as they drive a Unity scene.
+
+ML-Agents' Python side (mlagents-envs' ``UnityEnvironment``, ``mlagents-learn``) listens on a
+gRPC port (5004 for the editor, ``base_port + worker_id`` for builds) and waits for a Unity
+process to dial in and call ``UnityToExternalProto.Exchange`` with ``UnityMessageProto``s. This
+bridge is that Unity process: it opens arenas on an overtake server over Zenoh (a
+:class:`~overtake.client.environment.RemoteEnvironment`), dials the ML-Agents process, and
+answers each exchange:
+
+1. initialisation: overtake's name, communication version and capabilities; the answer
+   carries the trainer's seed, version and ``num_areas``;
+2. an empty message, whose answer is the first command (a reset);
+3. then per command: ``RESET`` restarts every arena, ``STEP`` applies each deciding agent's
+   discrete action and advances one decision; the answer to each is the agents' observations,
+   rewards, done and max-step flags, ids and action masks (the behaviour's spec the first
+   time: one discrete branch of 5 actions, the preset's observations). ``QUIT``, or the
+   trainer's close (header status 400), ends the bridge and frees its arenas.
+
+What is chosen here, where ML-Agents leaves it to the scene: the behaviour is named
+``PRESET?team=0`` (``--behavior-name`` changes PRESET), as Unity names behaviours; the seed of
+the ``n``-th reset (from 0) is ``seed + n * arenas`` for arena 0 and one more per arena, so
+resets never repeat an episode; ``num_areas`` above 1 reopens that many arenas (a Unity scene
+would instantiate that many training areas). Observations are laid out as mlagents-envs 1.1.0
+expects a Unity scene's: images channels-first (1 or 3, height, width), camera pixels (uint8)
+as PNG, which ML-Agents scales to [0, 1] (grey in all three channels, as Unity's grey cameras
+send it, averaged back), everything else as float32 values. Environment parameters
+(``EnvironmentParametersChannel.set_float_parameter("traffic.vehicle_count", 25)``, or an
+``environment_parameters`` section of an mlagents-learn configuration) become simulator
+overrides at the next reset, which reopens the arenas with them; whole numbers go as ints.
+Other side channels (engine configuration, statistics, analytics) are not read: each is
+named once in the log.
+
+The messages are ML-Agents' own: their descriptors are read from the generated modules that
+mlagents-envs ships (``communicator_objects/*_pb2.py``), into a private descriptor pool, so the
+bridge works with today's protobuf while those modules themselves need protobuf 3.20 (the
+ML-Agents process keeps its own). Communication version 1.5.0 (mlagents-envs 1.1.0) is the
+one supported; another major version is refused, naming both.
+"""
+
+from __future__ import annotations
+
+import ast
+import contextlib
+import functools
+import importlib.util
+import logging
+import signal
+import struct
+import sys
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from overtake.protocol import ProtocolError
+from overtake.protocol.messages import Scalar, Steps
+from overtake.protocol.transport import SecurityConfig
+
+from .commands import UsageError, run_command
+from .environment import RemoteEnvironment
+from .episodes import parse_overrides
+from .mlagents import SUPPORTED_MLAGENTS_ENVS, MLAgentsMissing
+from .remote import RemoteConfig
+
+log = logging.getLogger("overtake.unity_bridge")
+
+COMMUNICATION_VERSION = "1.5.0"
+"""ML-Agents' communication version this bridge speaks (mlagents-envs 1.1.0's API_VERSION)."""
+EXCHANGE_METHOD = "/communicator_objects.UnityToExternalProto/Exchange"
+PACKAGE = "communicator_objects"
+STATUS_OK, STATUS_CLOSED, STATUS_FAILED = 200, 400, 500
+COMMAND_STEP, COMMAND_RESET, COMMAND_QUIT = 0, 1, 2
+# ML-Agents' enums: ObservationTypeProto DEFAULT, CompressionTypeProto NONE.
+OBSERVATION_TYPE_DEFAULT, COMPRESSION_NONE = 0, 0
+
+
+class BridgeError(UsageError):
+    """The ML-Agents process could not be reached, spoke another version, or sent what the
+    bridge cannot carry out."""
+
+
+class PeerGone(BridgeError):
+    """The ML-Agents process went away in the middle of an exchange."""
+
+
+# --- ML-Agents' messages -------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Messages:
+    """ML-Agents' message classes, built from the descriptors mlagents-envs ships."""
+
+    message: Any  # UnityMessageProto: header + unity_output / unity_input
+    agent_info: Any
+    observation: Any
+    brain_parameters: Any
+    capabilities: Any
+
+
+def _serialized_descriptor(path: Path) -> bytes | None:
+    """The serialized FileDescriptorProto in one generated ``*_pb2.py`` module, read from its
+    source (importing it needs protobuf 3.20): ``serialized_pb=b'...'`` or ``_b('...')``."""
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.keyword) and node.arg == "serialized_pb":
+            value = node.value
+            if isinstance(value, ast.Call) and isinstance(value.func, ast.Name):
+                return bytes(ast.literal_eval(value.args[0]).encode("latin1"))  # _b('...')
+            return bytes(ast.literal_eval(value))
+    return None
+
+
+@functools.cache
+def load_messages() -> Messages:
+    """ML-Agents' message classes (raises :class:`MLAgentsMissing` saying how to install)."""
+    try:
+        from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+    except ImportError as exc:
+        raise MLAgentsMissing(
+            f"protobuf is not installed ({exc}); scripts/setup-mlagents.sh installs it"
+        ) from exc
+    spec = importlib.util.find_spec("mlagents_envs")
+    if spec is None or spec.submodule_search_locations is None:
+        raise MLAgentsMissing(
+            f"mlagents-envs {SUPPORTED_MLAGENTS_ENVS} is not installed (the bridge reads "
+            "ML-Agents' message definitions from it); scripts/setup-mlagents.sh installs it"
+        )
+    folder = Path(next(iter(spec.submodule_search_locations))) / "communicator_objects"
+    files: dict[str, Any] = {}
+    for path in sorted(folder.glob("*_pb2.py")):
+        serialized = _serialized_descriptor(path)
+        if serialized is not None:
+            proto = descriptor_pb2.FileDescriptorProto.FromString(serialized)
+            files[proto.name] = proto
+    pool = descriptor_pool.DescriptorPool()
+    added: set[str] = set()
+
+    def add(name: str) -> None:  # dependencies first
+        if name in added:
+            return
+        if name not in files:
+            raise MLAgentsMissing(f"mlagents-envs' message definitions lack {name}")
+        for dependency in files[name].dependency:
+            add(dependency)
+        pool.Add(files[name])
+        added.add(name)
+
+    for name in files:
+        add(name)
+
+    def cls(name: str) -> Any:
+        try:
+            return message_factory.GetMessageClass(pool.FindMessageTypeByName(f"{PACKAGE}.{name}"))
+        except KeyError as exc:
+            raise MLAgentsMissing(
+                f"mlagents-envs' message definitions lack {name}: is it version "
+                f"{SUPPORTED_MLAGENTS_ENVS}?"
+            ) from exc
+
+    return Messages(
+        message=cls("UnityMessageProto"),
+        agent_info=cls("AgentInfoProto"),
+        observation=cls("ObservationProto"),
+        brain_parameters=cls("BrainParametersProto"),
+        capabilities=cls("UnityRLCapabilitiesProto"),
+    )
+
+
+def compatible(ours: str, theirs: str) -> bool:
+    """ML-Agents' rule: the same major version, and for major 0 the same minor too."""
+    try:
+        our_parts = [int(p) for p in ours.split(".")[:2]]
+        their_parts = [int(p) for p in theirs.split(".")[:2]]
+    except ValueError:
+        return False
+    if len(their_parts) < 2 or our_parts[0] != their_parts[0]:
+        return False
+    return our_parts[0] != 0 or our_parts[1] == their_parts[1]
+
+
+# --- what goes to ML-Agents --------------------------------------------------------------------
+
+# ML-Agents' DimensionPropertyProto: NONE 1, TRANSLATIONAL_EQUIVARIANCE 2 (a visual
+# observation is (channels, height, width): NONE, TE, TE, what mlagents-learn's encoders take).
+DIMENSION_NONE, DIMENSION_TRANSLATIONAL = 1, 2
+COMPRESSION_PNG = 1
+
+
+def observation_layout(values: np.ndarray) -> tuple[list[int], list[int]]:
+    """The ML-Agents shape and dimension properties of one agent's observation as overtake
+    gives it: an image (height, width[, 3]) becomes channels-first (1 or 3, height, width), a
+    vector stays a vector."""
+    if values.ndim == 1:
+        return [values.shape[0]], [DIMENSION_NONE]
+    if values.ndim == 2:
+        height, width = values.shape
+        channels = 1
+    elif values.ndim == 3 and values.shape[2] == 3:
+        height, width, channels = values.shape
+    else:
+        raise BridgeError(f"no ML-Agents layout for an observation of shape {values.shape}")
+    return [channels, height, width], [
+        DIMENSION_NONE,
+        DIMENSION_TRANSLATIONAL,
+        DIMENSION_TRANSLATIONAL,
+    ]
+
+
+def png(values: np.ndarray) -> bytes:
+    """A camera image (height, width) grey or (height, width, 3) RGB, uint8, as the PNG a Unity
+    camera sensor sends: RGB, grey in all three channels (ML-Agents averages them back)."""
+    import io
+
+    from PIL import Image
+
+    rgb = values if values.ndim == 3 else np.repeat(values[:, :, None], 3, axis=2)
+    out = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(rgb), mode="RGB").save(out, format="PNG", compress_level=1)
+    return out.getvalue()
+
+
+def observation_proto(messages: Messages, name: str, values: np.ndarray) -> Any:
+    """One agent's observation: uint8 images as PNG (lossless; ML-Agents scales them to
+    [0, 1]), everything else as float32 values, channels first."""
+    shape, properties = observation_layout(values)
+    obs = messages.observation(
+        shape=shape,
+        dimension_properties=properties,
+        observation_type=OBSERVATION_TYPE_DEFAULT,
+        name=name,
+    )
+    if values.dtype == np.uint8 and values.ndim >= 2:
+        obs.compression_type = COMPRESSION_PNG
+        obs.compressed_data = png(values)
+    else:
+        obs.compression_type = COMPRESSION_NONE
+        layout = values if values.ndim < 3 else np.moveaxis(values, 2, 0)
+        obs.float_data.data.extend(layout.astype(np.float32).ravel().tolist())
+    return obs
+
+
+def agent_infos(steps: Steps, messages: Messages) -> tuple[list[Any], list[int]]:
+    """The AgentInfoProtos of one round of Steps (agents whose episode ended first, done, then
+    the deciding ones) and the deciding agents' ids in the order sent: ML-Agents answers with
+    their actions in that order. An ended agent is back among the deciding ones, with its new
+    episode's first observation, after the next step (as with RemoteEnvironment)."""
+    ended = steps.ended
+    infos = []
+    for row in [*np.flatnonzero(ended), *np.flatnonzero(~ended)]:
+        done = bool(ended[row])
+        info = messages.agent_info(
+            reward=float(steps.reward[row]),
+            done=done,
+            max_step_reached=done and bool(steps.truncated[row]),
+            id=int(steps.agents[row]),
+            observations=[
+                observation_proto(messages, name, values[row])
+                for name, values in steps.observations.items()
+            ],
+        )
+        if not done:
+            # ML-Agents' masks: True marks an action that can NOT be taken.
+            info.action_mask.extend((steps.action_mask[row] == 0).tolist())
+        infos.append(info)
+    return infos, [int(a) for a in steps.agents[~ended]]
+
+
+def brain_parameters(name: str, branches: tuple[int, ...], messages: Messages) -> Any:
+    """A behaviour's BrainParametersProto: its name and discrete action branches."""
+    brain = messages.brain_parameters(brain_name=name, is_training=True)
+    brain.action_spec.num_continuous_actions = 0
+    brain.action_spec.num_discrete_actions = len(branches)
+    brain.action_spec.discrete_branch_sizes.extend(branches)
+    return brain
+
+
+# --- what comes from ML-Agents: side channels ----------------------------------------------------
+
+ENVIRONMENT_PARAMETERS_CHANNEL = uuid.UUID("534c891e-810f-11ea-a9d0-822485860400")
+PARAMETER_FLOAT = 0
+
+
+def side_channel_messages(data: bytes) -> list[tuple[uuid.UUID, bytes]]:
+    """ML-Agents' side-channel frames: a channel id (16 bytes, little-endian UUID), a length
+    (int32) and that many bytes, repeated."""
+    out, offset = [], 0
+    while offset < len(data):
+        if len(data) - offset < 20:
+            raise BridgeError(f"a side-channel frame cut short at byte {offset} of {len(data)}")
+        channel = uuid.UUID(bytes_le=bytes(data[offset : offset + 16]))
+        (length,) = struct.unpack_from("<i", data, offset + 16)
+        offset += 20
+        if length < 0 or offset + length > len(data):
+            raise BridgeError(
+                f"a side-channel frame says {length} bytes, {len(data) - offset} left"
+            )
+        out.append((channel, bytes(data[offset : offset + length])))
+        offset += length
+    return out
+
+
+def environment_parameter(payload: bytes) -> tuple[str, float] | None:
+    """An EnvironmentParametersChannel message's float parameter (key, value); None for a
+    sampler (curriculum sampling is the scene's, which overtake has not got)."""
+    try:
+        (size,) = struct.unpack_from("<i", payload, 0)
+        key = payload[4 : 4 + size].decode("ascii")
+        (kind,) = struct.unpack_from("<i", payload, 4 + size)
+        if kind != PARAMETER_FLOAT:
+            return None
+        (value,) = struct.unpack_from("<f", payload, 8 + size)
+    except (struct.error, UnicodeDecodeError) as error:
+        raise BridgeError(
+            f"an environment parameter message that does not parse: {error}"
+        ) from None
+    return key, float(value)
+
+
+def override_value(value: float) -> Scalar:
+    """An environment parameter (always a float in ML-Agents) as an overtake override: whole
+    numbers as int, so integer settings (traffic.vehicle_count) take them."""
+    return int(value) if float(value).is_integer() else value
+
+
+# --- the bridge --------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class BridgeConfig:
+    """Play the Unity side for ML-Agents' Python tools, with arenas on an overtake server."""
+
+    connect: str
+    """the overtake server's (or router's) Zenoh endpoint, e.g. tcp/SIM:7447"""
+    port: int = 5004
+    """the ML-Agents process's gRPC port (5004: UnityEnvironment(file_name=None) and
+    mlagents-learn without --env; base_port + worker_id otherwise)"""
+    host: str = "localhost"
+    """where the ML-Agents process runs"""
+    preset: str = "min2018"
+    arenas: int = 1
+    """arenas opened (ML-Agents' num_areas above 1 replaces it)"""
+    agents_per_arena: int = 1
+    set: tuple[str, ...] = ()
+    """simulator overrides as dotted.name=value"""
+    security: SecurityConfig = field(default_factory=SecurityConfig)
+    """usrpwd credentials and TLS certificates for --connect"""
+    behavior_name: str | None = None
+    """the behaviour's name on the ML-Agents side (sent as NAME?team=0, as Unity names
+    behaviours; mlagents-learn's configuration keys on NAME); default the preset's name"""
+    dial_timeout_s: float = 60.0
+    """how long to wait for the ML-Agents process to listen"""
+
+    def brain_name(self) -> str:
+        return f"{self.behavior_name or self.preset}?team=0"
+
+
+class Bridge:
+    """One ML-Agents process and one overtake environment, exchange by exchange."""
+
+    def __init__(self, config: BridgeConfig) -> None:
+        import grpc
+
+        self.config = config
+        self.messages = load_messages()
+        self.resets = 0
+        self.seed: int | None = None
+        self.brain_sent = False
+        self.deciding: list[int] = []
+        self.env: RemoteEnvironment | None = None
+        self.brain_name = config.brain_name()
+        # ML-Agents' environment parameters, applied as overrides at the next reset.
+        self.parameters: dict[str, Scalar] = {}
+        self.opened_with: dict[str, Scalar] = {}
+        self.ignored_channels: set[uuid.UUID] = set()
+        self.refused: Exception | None = None  # the server's refusal to open the arenas
+        self.channel = grpc.insecure_channel(f"{config.host}:{config.port}")
+        self._exchange = self.channel.unary_unary(
+            EXCHANGE_METHOD,
+            request_serializer=self.messages.message.SerializeToString,
+            response_deserializer=self.messages.message.FromString,
+        )
+
+    def open(self, arenas: int) -> RemoteEnvironment:
+        if self.env is not None:
+            self.env.close()
+        remote = RemoteConfig(connect=(self.config.connect,), security=self.config.security)
+        overrides: dict[str, Scalar] = {
+            **parse_overrides(self.config.set),  # type: ignore[dict-item]
+            **self.parameters,
+        }
+        self.env = RemoteEnvironment(
+            config=remote,
+            preset=self.config.preset,
+            overrides=overrides,
+            arenas=arenas,
+            agents_per_arena=self.config.agents_per_arena,
+            seed=self.seed,
+        )
+        self.opened_with = dict(self.parameters)
+        self.brain_sent = False
+        return self.env
+
+    def exchange(self, message: Any) -> Any:
+        import grpc
+
+        try:
+            reply = self._exchange(message)
+        except grpc.RpcError as error:
+            raise PeerGone(
+                f"the ML-Agents process at {self.config.host}:{self.config.port} went away "
+                f"({error.code().name}: {error.details()})"
+            ) from None
+        return reply
+
+    def dial(self) -> None:
+        import grpc
+
+        try:
+            grpc.channel_ready_future(self.channel).result(timeout=self.config.dial_timeout_s)
+        except grpc.FutureTimeoutError:
+            raise BridgeError(
+                f"no ML-Agents process listened on {self.config.host}:{self.config.port} "
+                f"within {self.config.dial_timeout_s:g} s (start UnityEnvironment(file_name="
+                f"None, base_port={self.config.port}) or mlagents-learn first)"
+            ) from None
+
+    def initialise(self) -> Any:
+        """The initialisation exchange; returns the answer to the empty message after it
+        (the first command). The arenas open in between, with the trainer's seed and
+        num_areas; if the server refuses them, the refusal answers that first command (an
+        ML-Agents process waiting in its initialisation has no timeout)."""
+        from importlib.metadata import version
+
+        message = self.messages.message()
+        message.header.status = STATUS_OK
+        init = message.unity_output.rl_initialization_output
+        init.name = "overtake"
+        init.communication_version = COMMUNICATION_VERSION
+        init.package_version = version("overtake")
+        init.capabilities.CopyFrom(
+            self.messages.capabilities(baseRLCapabilities=True, hybridActions=True)
+        )
+        reply = self.exchange(message)
+        trainer = reply.unity_input.rl_initialization_input
+        if not compatible(COMMUNICATION_VERSION, trainer.communication_version):
+            raise BridgeError(
+                f"the ML-Agents process speaks communication version "
+                f"{trainer.communication_version!r} (mlagents-envs "
+                f"{trainer.package_version or 'unknown'}); this bridge speaks "
+                f"{COMMUNICATION_VERSION} (mlagents-envs {SUPPORTED_MLAGENTS_ENVS})"
+            )
+        self.seed = int(trainer.seed)
+        arenas = int(trainer.num_areas) if trainer.num_areas > 1 else self.config.arenas
+        log.info(
+            "ML-Agents %s (communication %s) at %s:%d: seed %d, %d arena(s) of %s",
+            trainer.package_version,
+            trainer.communication_version,
+            self.config.host,
+            self.config.port,
+            self.seed,
+            arenas,
+            self.config.preset,
+        )
+        try:
+            self.open(arenas)
+        except (ProtocolError, ValueError) as error:
+            self.refused = error
+        empty = self.messages.message()
+        empty.header.status = STATUS_OK
+        return self.exchange(empty)
+
+    def answer(self, command: Any) -> Any | None:
+        """Carry out one command from ML-Agents; the output to send, or None to end."""
+        if command.header.status != STATUS_OK:
+            log.info("the ML-Agents process closed the environment")
+            return None
+        if self.refused is not None:
+            raise BridgeError(f"the server refused the arenas: {self.refused}")
+        env = self.env
+        assert env is not None
+        rl_input = command.unity_input.rl_input
+        if rl_input.command == COMMAND_QUIT:
+            log.info("the ML-Agents process asked to quit")
+            return None
+        self.read_side_channels(rl_input.side_channel)
+        if rl_input.command == COMMAND_RESET:
+            if self.parameters != self.opened_with:
+                log.info("environment parameters %s: reopening the arenas", self.parameters)
+                env = self.open(len(env.group.arena_ids))
+            count = len(env.group.arena_ids)
+            seed = None if self.seed is None else self.seed + self.resets * count
+            env.reset(seed=seed)
+            self.resets += 1
+        elif rl_input.command == COMMAND_STEP:
+            actions = rl_input.agent_actions[self.brain_name].value
+            if len(actions) != len(self.deciding):
+                raise BridgeError(
+                    f"ML-Agents sent {len(actions)} action(s) for behaviour "
+                    f"{self.brain_name!r}, expected one per deciding agent "
+                    f"({len(self.deciding)}: ids {self.deciding})"
+                )
+            if actions:
+                env.set_actions(
+                    env.behavior_name,
+                    np.array([_discrete(a) for a in actions], dtype=np.int64),
+                )
+            env.step()
+        else:
+            raise BridgeError(
+                f"ML-Agents sent command {rl_input.command}; expected STEP (0), RESET (1) or "
+                "QUIT (2)"
+            )
+        output = self.messages.message()
+        output.header.status = STATUS_OK
+        infos, self.deciding = agent_infos(env.steps, self.messages)
+        rl_output = output.unity_output.rl_output
+        rl_output.agentInfos[self.brain_name].value.extend(infos)
+        if not self.brain_sent and infos:
+            # ML-Agents learns a behaviour's spec from its brain parameters beside its first
+            # agents, as a Unity scene sends them once per behaviour.
+            branches = env.behavior_specs[env.behavior_name].action_spec.discrete_branches
+            output.unity_output.rl_initialization_output.brain_parameters.append(
+                brain_parameters(self.brain_name, branches, self.messages)
+            )
+            self.brain_sent = True
+        return output
+
+    def read_side_channels(self, data: bytes) -> None:
+        """Keep the environment parameters ML-Agents sets; say once per other channel that
+        it is not read."""
+        for channel, payload in side_channel_messages(data):
+            if channel == ENVIRONMENT_PARAMETERS_CHANNEL:
+                parameter = environment_parameter(payload)
+                if parameter is None:
+                    log.warning("a sampled environment parameter is not supported; ignored")
+                else:
+                    self.parameters[parameter[0]] = override_value(parameter[1])
+            elif channel not in self.ignored_channels:
+                self.ignored_channels.add(channel)
+                log.info(
+                    "side channel %s is not read by overtake; its messages are ignored", channel
+                )
+
+    def fail(self, why: str) -> None:
+        """Tell the ML-Agents process the bridge stops (it raises on its side)."""
+        message = self.messages.message()
+        message.header.status = STATUS_FAILED
+        message.header.message = why
+        # It may be gone already; the bridge stops either way.
+        with contextlib.suppress(Exception):
+            self._exchange(message, timeout=5.0)
+
+    def close(self) -> None:
+        try:
+            if self.env is not None:
+                self.env.close()
+        finally:
+            self.channel.close()
+
+
+def _discrete(action: Any) -> int:
+    if len(action.discrete_actions):
+        return int(action.discrete_actions[0])
+    if len(action.vector_actions_deprecated):
+        return int(action.vector_actions_deprecated[0])
+    raise BridgeError("ML-Agents sent an action with no discrete value")
+
+
+def main(config: BridgeConfig) -> dict[str, Any]:
+    """Serve one ML-Agents process until it closes; returns what happened. What stops the
+    bridge (a version it does not speak, an action it cannot apply, an override the server
+    refuses) is told to the ML-Agents process too, which then raises on its side."""
+    bridge = Bridge(config)
+    exchanges = 0
+    try:
+        bridge.dial()
+        try:
+            command = bridge.initialise()
+            while (output := bridge.answer(command)) is not None:
+                command = bridge.exchange(output)
+                exchanges += 1
+        except PeerGone:
+            raise
+        except (BridgeError, ProtocolError, ValueError, KeyError) as error:
+            bridge.fail(f"overtake-unity-bridge: {error}")
+            raise BridgeError(str(error)) from None
+    finally:
+        bridge.close()
+    return {"exchanges": exchanges, "resets": bridge.resets}
+
+
+def cli(argv: list[str] | None = None) -> None:
+    import tyro
+
+    config = tyro.cli(
+        BridgeConfig,
+        args=argv,
+        config=(tyro.conf.OmitArgPrefixes,),
+        description="overtake-unity-bridge: ML-Agents' UnityEnvironment and mlagents-learn on "
+        "an overtake server",
+    )
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit("overtake-unity-bridge: terminated"))
+    summary = run_command("overtake-unity-bridge", main, config)
+    print(f"overtake-unity-bridge: done after {summary['exchanges']} exchange(s)")
+
+
+if __name__ == "__main__":
+    cli()
