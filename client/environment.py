@@ -70,8 +70,8 @@ class ObservationType(Enum):
 
 
 class ObservationSpec(NamedTuple):
-    """One observation of an agent, as ML-Agents describes it: images are (height, width,
-    channels) with two translationally equivariant dimensions, vectors (size,)."""
+    """One observation of an agent, as ML-Agents describes it: images are (channels, height,
+    width) with two translationally equivariant dimensions, vectors (size,)."""
 
     shape: tuple[int, ...]
     dimension_property: tuple[DimensionProperty, ...]
@@ -176,17 +176,20 @@ class BehaviorSpec(NamedTuple):
 
 
 def mlagents_observation_spec(name: str, shape: tuple[int, ...]) -> ObservationSpec:
-    """The ML-Agents spec of one of overtake's observations: a 2-D one (the grey camera, the
-    LIDAR map, Ho's grid) becomes an image of one channel, as ML-Agents' visual observations
-    are (height, width, channels)."""
-    if len(shape) == 2:
-        shape = (*shape, 1)
+    """The ML-Agents spec of one of overtake's observations: an image (the grey camera, the
+    LIDAR map, Ho's grid: (height, width); the RGB camera: (height, width, 3)) becomes
+    channels-first (1 or 3, height, width) with dimension properties NONE, TE, TE, as
+    mlagents-envs 1.1.0 delivers a Unity camera's (its PNG decoding moves channels first) and
+    as mlagents-learn's visual encoders read it; a vector stays (size,)."""
     prop: tuple[DimensionProperty, ...]
-    if len(shape) == 3:
+    if len(shape) in (2, 3):
+        height, width = shape[:2]
+        channels = 1 if len(shape) == 2 else shape[2]
+        shape = (channels, height, width)
         prop = (
-            DimensionProperty.TRANSLATIONAL_EQUIVARIANCE,
-            DimensionProperty.TRANSLATIONAL_EQUIVARIANCE,
             DimensionProperty.NONE,
+            DimensionProperty.TRANSLATIONAL_EQUIVARIANCE,
+            DimensionProperty.TRANSLATIONAL_EQUIVARIANCE,
         )
     else:
         prop = (DimensionProperty.NONE,) * len(shape)
@@ -200,13 +203,16 @@ def mlagents_observation_spec(name: str, shape: tuple[int, ...]) -> ObservationS
 
 def mlagents_observations(batch: np.ndarray) -> np.ndarray:
     """(agents, ...) of one observation as ML-Agents hands it to trainers: float32, pixels
-    (uint8) scaled to [0, 1] as Unity's cameras are, 2-D observations given a channel axis."""
+    (uint8) scaled to [0, 1] as Unity's cameras are, images channels-first (see
+    :func:`mlagents_observation_spec`)."""
     if batch.dtype == np.uint8:
         out = batch.astype(np.float32) / np.float32(255.0)
     else:
         out = batch.astype(np.float32, copy=False)
     if out.ndim == 3:
-        out = out[..., None]
+        return out[:, None]
+    if out.ndim == 4:
+        return np.moveaxis(out, 3, 1)
     return out
 
 

@@ -59,7 +59,7 @@ from overtake.protocol.messages import Scalar, Steps
 from overtake.protocol.transport import SecurityConfig
 
 from .commands import UsageError, run_command
-from .environment import RemoteEnvironment
+from .environment import RemoteEnvironment, mlagents_observation_spec
 from .episodes import parse_overrides
 from .mlagents import SUPPORTED_MLAGENTS_ENVS, MLAgentsMissing
 from .remote import RemoteConfig
@@ -181,30 +181,16 @@ def compatible(ours: str, theirs: str) -> bool:
 
 # --- what goes to ML-Agents --------------------------------------------------------------------
 
-# ML-Agents' DimensionPropertyProto: NONE 1, TRANSLATIONAL_EQUIVARIANCE 2 (a visual
-# observation is (channels, height, width): NONE, TE, TE, what mlagents-learn's encoders take).
-DIMENSION_NONE, DIMENSION_TRANSLATIONAL = 1, 2
 COMPRESSION_PNG = 1
 
 
 def observation_layout(values: np.ndarray) -> tuple[list[int], list[int]]:
     """The ML-Agents shape and dimension properties of one agent's observation as overtake
-    gives it: an image (height, width[, 3]) becomes channels-first (1 or 3, height, width), a
-    vector stays a vector."""
-    if values.ndim == 1:
-        return [values.shape[0]], [DIMENSION_NONE]
-    if values.ndim == 2:
-        height, width = values.shape
-        channels = 1
-    elif values.ndim == 3 and values.shape[2] == 3:
-        height, width, channels = values.shape
-    else:
+    gives it (RemoteEnvironment's: images channels-first, NONE, TE, TE)."""
+    if values.ndim > 1 and not (values.ndim == 2 or (values.ndim == 3 and values.shape[2] == 3)):
         raise BridgeError(f"no ML-Agents layout for an observation of shape {values.shape}")
-    return [channels, height, width], [
-        DIMENSION_NONE,
-        DIMENSION_TRANSLATIONAL,
-        DIMENSION_TRANSLATIONAL,
-    ]
+    spec = mlagents_observation_spec("", values.shape)
+    return list(spec.shape), [int(p) for p in spec.dimension_property]
 
 
 def png(values: np.ndarray) -> bytes:

@@ -39,7 +39,7 @@ def as_mlagents(batch: np.ndarray) -> np.ndarray:
     """An in-process observation batch as ML-Agents delivers Unity's (written out here)."""
     out = batch.astype(np.float32) / np.float32(255.0) if batch.dtype == np.uint8 else batch
     out = out.astype(np.float32)
-    return out[..., None] if out.ndim == 3 else out
+    return out[:, None] if out.ndim == 3 else out  # channels first, as mlagents-envs 1.1.0
 
 
 # --- the types carry ML-Agents' names ---------------------------------------------------------
@@ -105,11 +105,11 @@ def test_unity_to_gym_wrapper_drives_the_remote_environment_as_in_process(start_
     env = WRAPPERS.gym(remote, allow_multiple_obs=True)
     local = HighwayVectorEnv(num_envs=1, overrides=SHORT)
     try:
-        # The camera is a visual observation (80, 80, 1); ego and LIDAR one vector, in the
+        # The camera is a visual observation (1, 80, 80); ego and LIDAR one vector, in the
         # behaviour's order (camera, ego, lidar).
         assert env.action_space.n == 5
         camera_space, vector_space = env.observation_space.spaces
-        assert camera_space.shape == (80, 80, 1) and vector_space.shape == (6 + 360,)
+        assert camera_space.shape == (1, 80, 80) and vector_space.shape == (6 + 360,)
 
         def expected(obs: dict[str, np.ndarray]) -> list[np.ndarray]:
             return [
@@ -167,7 +167,7 @@ def test_unity_parallel_env_drives_two_cars_on_a_shared_road(start_server):
             # Deciding agents come with ML-Agents' action mask (True: can NOT be taken).
             assert set(observations[agent]) == {"observation", "action_mask"}
             assert [o.shape for o in observations[agent]["observation"]] == [
-                (80, 80, 1),
+                (1, 80, 80),
                 (6,),
                 (360,),
             ]

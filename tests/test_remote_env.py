@@ -20,7 +20,13 @@ import pytest
 
 import overtake.client  # noqa: F401  (registers the environments)
 from overtake.client import ActionTuple, DecisionSteps, RemoteEnvironment, TerminalSteps
-from overtake.client.environment import DimensionProperty, ObservationType, UnsupportedRequest
+from overtake.client.environment import (
+    DimensionProperty,
+    ObservationType,
+    UnsupportedRequest,
+    mlagents_observation_spec,
+    mlagents_observations,
+)
 from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, codec, keys
 from overtake.protocol.errors import ConnectError, ServerLost
 from overtake.protocol.messages import WorldFrame
@@ -42,10 +48,23 @@ EMPTY_ROAD = {"episode.max_decisions": 20, "traffic.vehicle_count": 0}
 
 def as_mlagents(batch: np.ndarray) -> np.ndarray:
     """An in-process observation batch as ML-Agents delivers it: float32, pixels in [0, 1],
-    2-D observations with a channel axis (written out here, not taken from the client)."""
+    images channels first (written out here, not taken from the client)."""
     out = batch.astype(np.float32) / np.float32(255.0) if batch.dtype == np.uint8 else batch
     out = out.astype(np.float32)
-    return out[..., None] if out.ndim == 3 else out
+    if out.ndim == 4:  # (agents, height, width, 3)
+        return out.transpose(0, 3, 1, 2)
+    return out[:, None] if out.ndim == 3 else out
+
+
+def test_ml_agents_layout_puts_image_channels_first():
+    rgb = np.arange(2 * 4 * 5 * 3, dtype=np.uint8).reshape(2, 4, 5, 3)
+    grey = rgb[..., 0]
+    assert mlagents_observation_spec("camera", (4, 5, 3)).shape == (3, 4, 5)
+    assert mlagents_observation_spec("camera", (4, 5)).shape == (1, 4, 5)
+    assert mlagents_observation_spec("lidar", (360,)).shape == (360,)
+    assert np.array_equal(mlagents_observations(rgb)[1, 2], rgb[1, :, :, 2] / np.float32(255))
+    assert np.array_equal(mlagents_observations(rgb), as_mlagents(rgb))
+    assert np.array_equal(mlagents_observations(grey), as_mlagents(grey))
 
 
 def assert_same(a, b, where: str = "value") -> None:
@@ -253,13 +272,15 @@ def test_remote_environment_follows_ml_agents_base_env(start_server):
         ((name, spec),) = env.behavior_specs.items()
         local_space = local.single_observation_space
         assert [o.name for o in spec.observation_specs] == list(local_space.spaces)
-        # ML-Agents' shapes: the grey camera (80, 80) is an image of one channel.
+        # ML-Agents' shapes: the grey camera (80, 80) is an image of one channel, channels first
+        # as mlagents-envs 1.1.0 delivers a Unity camera's.
         assert [o.shape for o in spec.observation_specs] == [
-            (*local_space[k].shape, 1) if len(local_space[k].shape) == 2 else local_space[k].shape
+            (1, *local_space[k].shape) if len(local_space[k].shape) == 2 else local_space[k].shape
             for k in local_space.spaces
         ]
         camera = next(o for o in spec.observation_specs if o.name == "camera")
-        assert camera.dimension_property[:2] == (
+        assert camera.dimension_property == (
+            DimensionProperty.NONE,
             DimensionProperty.TRANSLATIONAL_EQUIVARIANCE,
             DimensionProperty.TRANSLATIONAL_EQUIVARIANCE,
         )
