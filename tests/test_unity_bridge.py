@@ -384,3 +384,29 @@ def test_no_ml_agents_process_listening_is_a_clear_error(tmp_path, start_server)
     assert f"no ML-Agents process listened on localhost:{port} within 1 s" in proc.stderr
     assert time.monotonic() - started < 30
     assert server.probe().discover()[0].arenas_used == 0
+
+
+@pytest.mark.slow
+def test_mlagents_learn_trains_ppo_through_the_bridge():
+    """scripts/try-mlagents-learn.sh from scratch: mlagents 1.1.0 in .venv-mlagents-learn, its
+    PPO for 3,000 steps on min2018 through the bridge (about a minute with the install)."""
+    if socket_taken(5004):
+        pytest.skip("port 5004 is taken (mlagents-learn without --env listens there)")
+    proc = subprocess.run(
+        ["scripts/try-mlagents-learn.sh"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env=child_env(),
+        timeout=1800,
+    )
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert "min2018. Step: 3000." in proc.stdout
+    assert "done after" in proc.stdout  # the bridge ended when mlagents-learn closed
+    checkpoints = list((ROOT / "runs" / "mlagents-learn" / "ppo-min2018" / "min2018").glob("*.pt"))
+    assert checkpoints, "no PyTorch checkpoint from mlagents-learn"
+
+
+def socket_taken(port: int) -> bool:
+    with socket.socket() as probe:
+        return probe.connect_ex(("127.0.0.1", port)) == 0
