@@ -21,6 +21,7 @@ second to the direct client's, round by round, and the bridge's cost per step in
 from __future__ import annotations
 
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -36,7 +37,7 @@ from bench.bench_remote import free_port, start_server, stop_process
 from bench.bench_sim import machine_description
 
 ROOT = Path(__file__).resolve().parent.parent
-ML_PYTHON = ROOT / ".venv-mlagents" / "bin" / "python"
+ML_PYTHON = Path(os.environ.get("OVERTAKE_ML_PYTHON", ROOT / ".venv-mlagents" / "bin" / "python"))
 DRIVER = ROOT / "bench" / "mlagents_driver.py"
 
 

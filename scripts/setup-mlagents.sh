@@ -15,9 +15,19 @@ cd "$(dirname "$0")/.."
 # refuse them, and ONNX in .venv needs a newer one), so it gets an environment of its own, as an
 # ML-Agents user's would be: .venv-mlagents, with nothing of overtake in it. The bridge itself
 # runs in .venv and reads the same message definitions with today's protobuf.
-python_bin="${PYTHON:-python3}"
+# Python 3.10 where there is one (ML-Agents' own, and protobuf 3.20.3 has its C++ parser only up
+# to 3.10: on 3.11 ML-Agents parses every message in pure Python, 1.9x slower through the bridge
+# at 8 arenas, bench/RESULTS.md); OVERTAKE_MLAGENTS_PYTHON chooses another.
+ml_python=""
+for candidate in "${OVERTAKE_MLAGENTS_PYTHON:-}" python3.10 \
+  "${PYENV_ROOT:-$HOME/.pyenv}"/versions/3.10*/bin/python python3; do
+  if [[ -n "$candidate" ]] && "$candidate" -c "import venv" 2> /dev/null; then
+    ml_python="$candidate"
+    break
+  fi
+done
 if [[ ! -x .venv-mlagents/bin/python ]]; then
-  "$python_bin" -m venv .venv-mlagents
+  "$ml_python" -m venv .venv-mlagents
 fi
 .venv-mlagents/bin/python -m pip install --quiet --upgrade pip
 .venv-mlagents/bin/python -m pip install --quiet "protobuf==3.20.3" "grpcio>=1.48" numpy \
