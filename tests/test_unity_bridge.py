@@ -48,10 +48,27 @@ try:
 except MLAgentsMissing as missing:
     pytest.skip(f"no ML-Agents message definitions: {missing}", allow_module_level=True)
 
-needs_ml_side = pytest.mark.skipif(
-    not ML_PYTHON.exists(),
-    reason="ML-Agents' side needs .venv-mlagents (scripts/setup-mlagents.sh creates it)",
-)
+
+def ml_side_problem() -> str | None:
+    """Why ML-Agents' side cannot run here (None: it can)."""
+    if not ML_PYTHON.exists():
+        return "ML-Agents' side needs .venv-mlagents (scripts/setup-mlagents.sh creates it)"
+    probe = subprocess.run(
+        [str(ML_PYTHON), "-c", "import mlagents_envs.environment"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    if probe.returncode != 0:
+        return (
+            "mlagents-envs does not import in .venv-mlagents (scripts/setup-mlagents.sh): "
+            + probe.stderr.strip().splitlines()[-1]
+        )
+    return None
+
+
+ML_SIDE_PROBLEM = ml_side_problem()
+needs_ml_side = pytest.mark.skipif(ML_SIDE_PROBLEM is not None, reason=str(ML_SIDE_PROBLEM))
 
 
 # --- the pieces ----------------------------------------------------------------------------------
