@@ -173,13 +173,10 @@ def test_epsilon_falls_linearly_then_stays():
     assert [round(config.epsilon(s), 6) for s in (0, 50, 100, 1000)] == [1.0, 0.55, 0.1, 0.1]
 
 
-def test_update_moves_q_towards_the_target():
-    torch.manual_seed(0)
-    shape = small_shape()
-    config = DQNConfig(lstm_cells=8, hidden_units=16, learning_rate=0.01, gamma=0.0)
-    learner = DQNLearner(shape, "lidar", config, double=False, dueling=False)
-    obs = random_obs(shape, 32, np.random.default_rng(2))
-    batch = {
+def reward_three_for_action_two(obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """A replay batch of 32 one-step episodes: action 2 taken, reward 3, nothing after (with
+    gamma 0, Q of action 2 should go to 3)."""
+    return {
         **obs,
         **{"next_" + k: v for k, v in obs.items()},
         "action": np.full(32, 2),
@@ -187,6 +184,15 @@ def test_update_moves_q_towards_the_target():
         "terminated": np.zeros(32, dtype=bool),
         "next_mask": np.ones((32, 5), np.int8),
     }
+
+
+def test_update_moves_q_towards_the_target():
+    torch.manual_seed(0)
+    shape = small_shape()
+    config = DQNConfig(lstm_cells=8, hidden_units=16, learning_rate=0.01, gamma=0.0)
+    learner = DQNLearner(shape, "lidar", config, double=False, dueling=False)
+    obs = random_obs(shape, 32, np.random.default_rng(2))
+    batch = reward_three_for_action_two(obs)
     before = learner.q_values(obs)[:, 2].mean()
     for _ in range(100):
         learner.update(batch)
@@ -225,14 +231,7 @@ def test_bf16_runs_the_forward_passes_in_bf16_and_keeps_float32_weights(inputs):
     # bf16 keeps 8 bits of mantissa: close to float32, and not the same numbers.
     assert not np.array_equal(q_full, q_mixed)
     np.testing.assert_allclose(q_mixed, q_full, atol=0.05 * np.abs(q_full).max())
-    batch = {
-        **obs,
-        **{"next_" + k: v for k, v in obs.items()},
-        "action": np.full(32, 2),
-        "reward": np.full(32, 3.0, dtype=np.float32),
-        "terminated": np.zeros(32, dtype=bool),
-        "next_mask": np.ones((32, 5), np.int8),
-    }
+    batch = reward_three_for_action_two(obs)
     before = mixed.q_values(obs)[:, 2].mean()
     for _ in range(100):
         stats = mixed.update(batch)

@@ -246,6 +246,14 @@ def pair(tmp_path):
     started.stop()
 
 
+def wait_arenas_freed(server, timeout_s: float) -> None:
+    wait_until(
+        lambda: server.probe().discover()[0].arenas_used == 0,
+        timeout_s=timeout_s,
+        what=f"server {server.name}'s arenas freed",
+    )
+
+
 def in_process_first_observations(arenas: int, seed: int) -> dict[str, np.ndarray]:
     """Agent 0's first observation after a reset with ``seed``, in this process."""
     import overtake.client  # noqa: F401  (registers the environments)
@@ -293,11 +301,7 @@ def test_unity_environment_steps_resets_and_sets_parameters_through_the_bridge(p
     assert result["first_after_second_reset"]["lidar"] != first["lidar"]  # new seeds
     assert result["agents_after_parameters"] == 2
     assert "environment parameters {'traffic.vehicle_count': 3}: reopening the arenas" in log
-    wait_until(
-        lambda: server.probe().discover()[0].arenas_used == 0,
-        timeout_s=20,
-        what="the bridge's arenas freed",
-    )
+    wait_arenas_freed(server, timeout_s=20)
 
 
 @needs_ml_side
@@ -330,11 +334,7 @@ def test_a_bridge_that_dies_is_a_timeout_on_ml_agents_side(pair, start_server):
     assert result["error"] == "UnityTimeOutException", result
     assert result["after_s"] < 6 + 10  # timeout_wait 6 s, with slack for a loaded machine
     # The arenas of the killed bridge are freed when its Zenoh session's lease runs out.
-    wait_until(
-        lambda: server.probe().discover()[0].arenas_used == 0,
-        timeout_s=30,
-        what="the dead bridge's arenas freed",
-    )
+    wait_arenas_freed(server, timeout_s=30)
 
 
 @needs_ml_side
