@@ -7,8 +7,8 @@ import pytest
 
 from overtake.protocol.vocabulary import AGENT_KIND
 from overtake.server.sim import HighwaySim, make_config
+from overtake.server.sim.kernels import idm as idm_accel
 from overtake.server.sim.physics import traffic_overlaps
-from overtake.server.sim.traffic.car_following import idm_accel
 from overtake.server.sim.units import KMH
 
 from conftest import (
@@ -93,36 +93,16 @@ def test_ego_cruise_control_follows_a_slower_leader_without_closing_below_min_ga
 
 def test_idm_acceleration_formula():
     # Free road at the desired speed: no acceleration; half the desired speed: 15/16 of a_max.
-    a = idm_accel(
-        np.array([20.0, 10.0]),
-        np.array([20.0, 20.0]),
-        np.array([1e9, 1e9]),
-        np.zeros(2),
-        1.5,
-        2.0,
-        1.5,
-        2 * np.sqrt(1.5 * 2.5),
-    )
+    a = [idm_accel(v, 20.0, 1e9, 0.0, 1.5, 2.0, 1.5, 2 * np.sqrt(1.5 * 2.5)) for v in (20.0, 10.0)]
     assert a == pytest.approx([0.0, 1.5 * 15 / 16], abs=1e-9)
     # Far below the desired speed, exactly at the desired gap s* = s0 + v T behind an equally
     # fast leader: no acceleration; at half of it: a_max (1 - 4).
     gap = 2.0 + 10.0 * 1.5
     for factor, expected in ((1.0, 0.0), (0.5, -4.5)):
-        a = idm_accel(
-            np.array(10.0), np.array(1e9), np.array(gap * factor), np.array(0.0), 1.5, 2.0, 1.5, 3.0
-        )
+        a = idm_accel(10.0, 1e9, gap * factor, 0.0, 1.5, 2.0, 1.5, 3.0)
         assert a == pytest.approx(expected, abs=1e-9)
     # Closing in adds v * dv / (2 sqrt(a b)) to the desired gap.
-    a = idm_accel(
-        np.array(10.0),
-        np.array(1e9),
-        np.array(gap + 10.0 * 3.0 / 3.0),
-        np.array(3.0),
-        1.5,
-        2.0,
-        1.5,
-        3.0,
-    )
+    a = idm_accel(10.0, 1e9, gap + 10.0 * 3.0 / 3.0, 3.0, 1.5, 2.0, 1.5, 3.0)
     assert a == pytest.approx(0.0, abs=1e-9)
 
 

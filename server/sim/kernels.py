@@ -435,3 +435,119 @@ def lidar_grid(
             if 0 <= row < cells and 0 <= column < cells:
                 image[o, int(row) * cells + int(column)] = 255
     return image
+
+
+@njit(cache=True, nogil=True)
+def idm(
+    speed: float,
+    desired_speed: float,
+    gap: float,
+    closing: float,
+    headway: float,
+    min_gap: float,
+    max_accel: float,
+    two_sqrt_ab: float,
+) -> float:
+    """One car's IDM acceleration: :func:`.traffic.car_following.idm_accel`'s operations."""
+    desired_gap = min_gap + max(0.0, speed * headway + speed * closing / two_sqrt_ab)
+    ratio = speed / desired_speed
+    ratio *= ratio
+    interaction = desired_gap / max(gap, 0.1)
+    return max_accel * (1.0 - ratio * ratio - interaction * interaction)
+
+
+@njit(cache=True, nogil=True)
+def mobil_accept(
+    flat: np.ndarray,
+    new_lane_leader: np.ndarray,
+    new_lane_follower: np.ndarray,
+    old_lane_follower: np.ndarray,
+    own_gap: np.ndarray,
+    own_has_leader: np.ndarray,
+    own_leader: np.ndarray,
+    random_mover: np.ndarray,
+    politeness: np.ndarray,
+    threshold: np.ndarray,
+    x: np.ndarray,
+    speed: np.ndarray,
+    desired_speed: np.ndarray,
+    accel: np.ndarray,
+    headway: np.ndarray,
+    min_gap: np.ndarray,
+    max_accel: np.ndarray,
+    two_sqrt_ab: np.ndarray,
+    half_length: np.ndarray,
+    safe_decel_mps2: float,
+    no_gap_m: float,
+) -> np.ndarray:
+    """MOBIL's verdict for each candidate ``flat[i]`` (flat vehicle indices into the flattened
+    (A, V) arrays ``x`` .. ``half_length``): its new lane's leader and follower and its old
+    lane's follower (-1: none), its own gap, leader and whether it has one, whether it is a
+    random mover, and its behaviour's politeness and threshold. True where the change is safe
+    and worth it (or random and not braking hard).
+
+    The loop form of :meth:`.traffic.lane_changes.Mobil.decide`'s arithmetic, operation for
+    operation."""
+    accept = np.zeros(flat.size, dtype=np.bool_)
+    for i in range(flat.size):
+        c = flat[i]
+        xc, vc, half = x[c], speed[c], half_length[c]
+        nl = new_lane_leader[i]
+        if nl >= 0:
+            gap_new = ((x[nl] - xc) - half_length[nl]) - half
+            closing_new = vc - speed[nl]
+        else:
+            gap_new = no_gap_m
+            closing_new = 0.0
+        accel_new = idm(
+            vc,
+            desired_speed[c],
+            gap_new,
+            closing_new,
+            headway[c],
+            min_gap[c],
+            max_accel[c],
+            two_sqrt_ab[c],
+        )
+        nf = new_lane_follower[i]
+        nf_gain = 0.0
+        gap_nf = no_gap_m
+        nf_brakes_hard = False
+        if nf >= 0:
+            gap_nf = ((xc - x[nf]) - half) - half_length[nf]
+            nf_accel_new = idm(
+                speed[nf],
+                desired_speed[nf],
+                gap_nf,
+                speed[nf] - vc,
+                headway[nf],
+                min_gap[nf],
+                max_accel[nf],
+                two_sqrt_ab[nf],
+            )
+            nf_gain = nf_accel_new - accel[nf]
+            nf_brakes_hard = not (nf_accel_new >= -safe_decel_mps2)
+        of = old_lane_follower[i]
+        of_gain = 0.0
+        if of >= 0:
+            # The old follower would follow the old leader across the gap this car leaves.
+            left_gap = own_gap[i] + 2 * half if own_has_leader[i] else no_gap_m
+            of_gap_after = left_gap + (((xc - x[of]) - half) - half_length[of])
+            ol_speed = speed[own_leader[i]] if own_has_leader[i] else speed[of]
+            of_accel_after = idm(
+                speed[of],
+                desired_speed[of],
+                of_gap_after,
+                speed[of] - ol_speed,
+                headway[of],
+                min_gap[of],
+                max_accel[of],
+                two_sqrt_ab[of],
+            )
+            of_gain = of_accel_after - accel[of]
+        safe = gap_new > min_gap[c] and gap_nf > min_gap[c] and not nf_brakes_hard
+        incentive = (accel_new - accel[c]) + politeness[i] * (nf_gain + of_gain)
+        # A change for no reason must not make the mover itself brake hard either.
+        random = random_mover[i] and accel_new >= -safe_decel_mps2
+        accept[i] = safe and (incentive > threshold[i] or random)
+    return accept

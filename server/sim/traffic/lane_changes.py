@@ -5,7 +5,8 @@ counting the gains and losses of the followers it leaves and joins weighted by i
 and when the new follower would not have to brake harder than ``traffic.safe_decel_mps2``.
 Traffic considers changing left on even decisions and right on odd ones: cars from both sides
 never start into the same gap at the same moment. Decisions are taken on the first frame of a
-decision, for every arena and car at once.
+decision, for every arena and car at once: the neighbours from the lane index in numpy, the
+accelerations and the verdict in a compiled loop (:func:`..kernels.mobil_accept`).
 """
 
 from __future__ import annotations
@@ -14,8 +15,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .. import kernels
 from ..lane_index import NO_GAP_M, LaneIndex, neighbours_at
-from .car_following import Following, idm_accel
+from .car_following import Following
 
 if TYPE_CHECKING:
     from ..state import SimState
@@ -62,62 +64,32 @@ class Mobil:
             return
         vehicles = st.x_m.shape[1]
         arena = flat // vehicles
-        g = {
-            name: getattr(p, name).reshape(-1)
-            for name in ("headway", "min_gap", "max_accel", "two_sqrt_ab", "half_length")
-        }
-        xf, vf = x_rel.reshape(-1), st.speed_mps.reshape(-1)
-        v0f, af = st.desired_speed_mps.reshape(-1), accel.reshape(-1)
-
-        def idm(i: np.ndarray, gap_m: np.ndarray, closing: np.ndarray) -> np.ndarray:
-            return idm_accel(
-                vf[i],
-                v0f[i],
-                gap_m,
-                closing,
-                g["headway"][i],
-                g["min_gap"][i],
-                g["max_accel"][i],
-                g["two_sqrt_ab"][i],
-            )
-
-        x, v, half = xf[flat], vf[flat], g["half_length"][flat]
+        xf = x_rel.reshape(-1)
         new_lane = target.reshape(-1)[flat]
-        new_leader, new_follower = neighbours_at(index, arena, new_lane, x)
-        _, old_follower = neighbours_at(index, arena, st.lane.reshape(-1)[flat], x)
-
-        has_nl = new_leader >= 0
-        nl = np.maximum(new_leader, 0)
-        gap_new = np.where(has_nl, xf[nl] - x - g["half_length"][nl] - half, NO_GAP_M)
-        accel_new = idm(flat, gap_new, np.where(has_nl, v - vf[nl], 0.0))
-
-        has_nf = new_follower >= 0
-        nf = np.maximum(new_follower, 0)
-        gap_nf = np.where(has_nf, x - xf[nf] - half - g["half_length"][nf], NO_GAP_M)
-        nf_accel_new = idm(nf, gap_nf, vf[nf] - v)
-        nf_gain = np.where(has_nf, nf_accel_new - af[nf], 0.0)
-
-        # The old follower would follow the old leader across the gap this car leaves.
-        has_of = old_follower >= 0
-        of = np.maximum(old_follower, 0)
-        own_gap = following.gap_m.reshape(-1)[flat]
-        own_has_leader = following.has_leader.reshape(-1)[flat]
-        of_gap_after = np.where(own_has_leader, own_gap + 2 * half, NO_GAP_M) + (
-            x - xf[of] - half - g["half_length"][of]
-        )
-        ol_speed = np.where(own_has_leader, vf[following.leader.reshape(-1)[flat]], vf[of])
-        of_gain = np.where(has_of, idm(of, of_gap_after, vf[of] - ol_speed) - af[of], 0.0)
-
+        new_leader, new_follower = neighbours_at(index, arena, new_lane, xf[flat])
+        _, old_follower = neighbours_at(index, arena, st.lane.reshape(-1)[flat], xf[flat])
         kind = st.kind.reshape(-1)[flat]
-        min_gap = g["min_gap"][flat]
-        safe = (
-            (gap_new > min_gap)
-            & (gap_nf > min_gap)
-            & (~has_nf | (nf_accel_new >= -self.safe_decel_mps2))
+        accept = kernels.mobil_accept(
+            flat,
+            new_leader,
+            new_follower,
+            old_follower,
+            following.gap_m.reshape(-1)[flat],
+            following.has_leader.reshape(-1)[flat],
+            following.leader.reshape(-1)[flat],
+            random_movers.reshape(-1)[flat],
+            self.kinds.politeness[kind],
+            self.kinds.threshold[kind],
+            np.ascontiguousarray(xf),
+            st.speed_mps.reshape(-1),
+            st.desired_speed_mps.reshape(-1),
+            accel.reshape(-1),
+            *(
+                np.ascontiguousarray(getattr(p, name).reshape(-1))
+                for name in ("headway", "min_gap", "max_accel", "two_sqrt_ab", "half_length")
+            ),
+            self.safe_decel_mps2,
+            NO_GAP_M,
         )
-        incentive = accel_new - af[flat] + self.kinds.politeness[kind] * (nf_gain + of_gain)
-        # A change for no reason must not make the mover itself brake hard either.
-        random = random_movers.reshape(-1)[flat] & (accel_new >= -self.safe_decel_mps2)
-        accept = safe & ((incentive > self.kinds.threshold[kind]) | random)
         st.target_lane.reshape(-1)[flat[accept]] = new_lane[accept]
         st.change_progress.reshape(-1)[flat[accept]] = 0.0
