@@ -84,10 +84,11 @@ class Mobil:
             st.speed_mps.reshape(-1),
             st.desired_speed_mps.reshape(-1),
             accel.reshape(-1),
-            *(
-                np.ascontiguousarray(getattr(p, name).reshape(-1))
-                for name in ("headway", "min_gap", "max_accel", "two_sqrt_ab", "half_length")
-            ),
+            np.ascontiguousarray(p.headway.reshape(-1)),
+            np.ascontiguousarray(p.min_gap.reshape(-1)),
+            np.ascontiguousarray(p.max_accel.reshape(-1)),
+            np.ascontiguousarray(p.two_sqrt_ab.reshape(-1)),
+            np.ascontiguousarray(p.half_length.reshape(-1)),
             self.safe_decel_mps2,
             NO_GAP_M,
         )
