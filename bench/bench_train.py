@@ -27,9 +27,13 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, get_args
 
 from bench.bench_remote import free_port, start_server, stop_process
+
+# overtake.trainers.learner.Precision, written here: importing it loads PyTorch before main()
+# has set its threads (main checks that the two agree).
+Precision = Literal["fp32", "bf16", "fp16"]
 
 
 @dataclass(frozen=True)
@@ -44,7 +48,7 @@ class TrainBenchConfig:
     parts: tuple[int, ...] = (1, 2, 0)
     """the remote runs: overlapped in that many parts, 0 for lock-step (none: --parts with no
     value)"""
-    precisions: tuple[str, ...] = ("fp32",)
+    precisions: tuple[Precision, ...] = ("fp32",)
     """in-process runs in each of these precisions, in this order (overtake-train
     --precision; one may come again, to alternate: ratios use each one's mean); the remote
     runs in the first"""
@@ -60,7 +64,7 @@ def run_once(
     run_dir: Path,
     recording: Any = None,
     overlap_parts: int = 1,
-    precision: str = "fp32",
+    precision: Precision = "fp32",
 ) -> dict[str, Any]:
     """One ``overtake-train`` run; ``recording``: its RecordingConfig (None: the default);
     ``overlap_parts``: remote arenas overlapped in that many parts (1, overtake-train's
@@ -88,7 +92,7 @@ def run_once(
             checkpoint_every=10 * total,
             torch_threads=config.torch_threads,
             device=config.device,
-            precision=precision,  # type: ignore[arg-type]
+            precision=precision,
             dqn=DQNConfig(
                 learning_starts=config.learning_starts, replay_size=max(10_000, 2 * total)
             ),
@@ -130,6 +134,9 @@ def where_label(connect: str | None, overlap_parts: int, precision: str = "fp32"
 
 def main(config: TrainBenchConfig) -> dict[str, Any]:
     os.environ.setdefault("OMP_NUM_THREADS", str(config.torch_threads))
+    from overtake.trainers import learner
+
+    assert get_args(Precision) == get_args(learner.Precision), "Precision out of date"
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     server = start_server(endpoint, 60.0)
     results = []

@@ -105,6 +105,8 @@ def bridge_round(endpoint: str, arenas: int, config: BridgeBenchConfig) -> float
                 endpoint,
                 "--port",
                 str(port),
+                "--host",
+                "127.0.0.1",
                 "--arenas",
                 str(arenas),
             ],

@@ -46,7 +46,6 @@ import importlib.util
 import logging
 import signal
 import struct
-import sys
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -387,12 +386,18 @@ class Bridge:
         self.brain_sent = False
         return self.env
 
-    def exchange(self, message: Any) -> Any:
+    def exchange(self, message: Any) -> Any | None:
+        """Send ``message``; ML-Agents' next message, or None where it closed meanwhile."""
         import grpc
 
         try:
             reply = self._exchange(message)
         except grpc.RpcError as error:
+            if error.code() == grpc.StatusCode.CANCELLED:
+                # ML-Agents' close() sends its goodbye (status 400) and stops its server with
+                # no grace: the call may be cancelled before the goodbye is read.
+                log.info("the ML-Agents process closed the environment (the call was cancelled)")
+                return None
             raise PeerGone(
                 f"the ML-Agents process at {self.config.host}:{self.config.port} went away "
                 f"({error.code().name}: {error.details()})"
@@ -428,6 +433,8 @@ class Bridge:
             self.messages.capabilities(baseRLCapabilities=True, hybridActions=True)
         )
         reply = self.exchange(message)
+        if reply is None:
+            raise PeerGone("the ML-Agents process closed before the initialisation ended")
         trainer = reply.unity_input.rl_initialization_input
         if not compatible(COMMUNICATION_VERSION, trainer.communication_version):
             raise BridgeError(
@@ -450,14 +457,16 @@ class Bridge:
         )
         try:
             self.open(arenas)
-        except (ProtocolError, ValueError) as error:
+        except Exception as error:  # told to ML-Agents at its first command, not a hang
             self.refused = error
         empty = self.messages.message()
         empty.header.status = STATUS_OK
         return self.exchange(empty)
 
-    def answer(self, command: Any) -> Any | None:
+    def answer(self, command: Any | None) -> Any | None:
         """Carry out one command from ML-Agents; the output to send, or None to end."""
+        if command is None:
+            return None
         if command.header.status != STATUS_OK:
             log.info("the ML-Agents process closed the environment")
             return None
@@ -556,8 +565,11 @@ def _discrete(action: Any) -> int:
 def main(config: BridgeConfig) -> dict[str, Any]:
     """Serve one ML-Agents process until it closes; returns what happened. What stops the
     bridge (a version it does not speak, an action it cannot apply, an override the server
-    refuses) is told to the ML-Agents process too, which then raises on its side."""
-    bridge = Bridge(config)
+    refuses, SIGTERM) is told to the ML-Agents process too, which then raises on its side."""
+    try:
+        bridge = Bridge(config)
+    except ImportError as error:  # MLAgentsMissing (says how to install), or grpc missing
+        raise BridgeError(str(error)) from None
     exchanges = 0
     try:
         bridge.dial()
@@ -568,12 +580,16 @@ def main(config: BridgeConfig) -> dict[str, Any]:
                 exchanges += 1
         except PeerGone:
             raise
-        except (BridgeError, ProtocolError, ValueError, KeyError) as error:
+        except (BridgeError, ProtocolError, ValueError) as error:
             bridge.fail(f"overtake-unity-bridge: {error}")
             raise BridgeError(str(error)) from None
     finally:
         bridge.close()
     return {"exchanges": exchanges, "resets": bridge.resets}
+
+
+def _terminated(_signum: int, _frame: Any) -> None:
+    raise BridgeError("terminated (SIGTERM)")
 
 
 def cli(argv: list[str] | None = None) -> None:
@@ -587,7 +603,7 @@ def cli(argv: list[str] | None = None) -> None:
         "an overtake server",
     )
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit("overtake-unity-bridge: terminated"))
+    signal.signal(signal.SIGTERM, _terminated)
     summary = run_command("overtake-unity-bridge", main, config)
     print(f"overtake-unity-bridge: done after {summary['exchanges']} exchange(s)")
 

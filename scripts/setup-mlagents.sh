@@ -3,7 +3,8 @@
 # own wrappers over RemoteEnvironment (overtake.client.mlagents) and tests/test_mlagents.py.
 # mlagents-envs declares Python <= 3.10 and numpy < 1.24, yet runs on Python 3.11 and today's
 # numpy: it is installed without its dependencies, and what it imports comes from overtake's
-# `mlagents` extra (protobuf 3.20.3, grpcio, gym 0.26.2, pettingzoo, ...).
+# `mlagents` extra (grpcio, gym 0.26.2, pettingzoo, ...; the protobuf there is the newer one ONNX
+# needs, which the wrappers never touch).
 # Usage: scripts/setup-mlagents.sh   (after scripts/setup.sh, which it runs if .venv is missing)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -26,6 +27,10 @@ for candidate in "${OVERTAKE_MLAGENTS_PYTHON:-}" python3.10 \
     break
   fi
 done
+if [[ -z "$ml_python" ]]; then
+  echo "no Python found for .venv-mlagents (tried \$OVERTAKE_MLAGENTS_PYTHON, python3.10, pyenv's 3.10, python3)" >&2
+  exit 1
+fi
 if [[ ! -x .venv-mlagents/bin/python ]]; then
   "$ml_python" -m venv .venv-mlagents
 fi

@@ -238,8 +238,32 @@ def test_bf16_runs_the_forward_passes_in_bf16_and_keeps_float32_weights(inputs):
         assert np.isfinite(stats["loss"])
     assert all(p.dtype == torch.float32 for p in mixed.online.parameters())
     assert "grad_scaler" not in mixed.state_dict()  # loss scaling is fp16's alone
+    # The Q head runs in float32 under autocast too (bf16 would tie nearby Q-values).
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        assert mixed.online(*mixed._tensors(obs)).dtype == torch.float32
     after = mixed.q_values(obs)[:, 2].mean()
     assert abs(after - 3.0) < 0.15 < abs(before - 3.0)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="fp16 needs a CUDA device: none here")
+def test_fp16_learns_with_loss_scaling_and_its_scale_survives_a_checkpoint():
+    shape = small_shape()
+    config = DQNConfig(lstm_cells=8, hidden_units=16, learning_rate=0.01, gamma=0.0)
+    learner = DQNLearner(
+        shape, "both", config, double=True, dueling=True, device="cuda", precision="fp16"
+    )
+    obs = random_obs(shape, 32, np.random.default_rng(3))
+    batch = reward_three_for_action_two(obs)
+    before = learner.q_values(obs)[:, 2].mean()
+    for _ in range(100):
+        assert np.isfinite(learner.update(batch)["loss"])
+    assert abs(learner.q_values(obs)[:, 2].mean() - 3.0) < 0.15 < abs(before - 3.0)
+    state = learner.state_dict()
+    restored = DQNLearner(
+        shape, "both", config, double=True, dueling=True, device="cuda", precision="fp16"
+    )
+    restored.load_state_dict(state)
+    assert restored.scaler.get_scale() == learner.scaler.get_scale()
 
 
 # --- replay and stacking -------------------------------------------------------------------------

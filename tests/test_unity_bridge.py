@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import io
 import json
+import signal
 import socket
 import struct
 import subprocess
@@ -15,6 +16,7 @@ import sys
 import time
 import uuid
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -60,9 +62,9 @@ def ml_side_problem() -> str | None:
         timeout=120,
     )
     if probe.returncode != 0:
+        last = (probe.stderr.strip().splitlines() or [f"exit status {probe.returncode}"])[-1]
         return (
-            "mlagents-envs does not import in .venv-mlagents (scripts/setup-mlagents.sh): "
-            + probe.stderr.strip().splitlines()[-1]
+            f"mlagents-envs does not import in .venv-mlagents (scripts/setup-mlagents.sh): {last}"
         )
     return None
 
@@ -177,13 +179,14 @@ class Pair:
         self.bridge_log = tmp_path / f"bridge-{self.port}.log"
 
     def start_ml(self, scenario: str, steps: int = 0) -> subprocess.Popen:
-        self.ml = subprocess.Popen(
-            [str(ML_PYTHON), str(ML_SIDE), scenario, str(self.port), str(steps)],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=open(self.tmp_path / "ml.log", "wb"),  # noqa: SIM115 (until it ends)
-            text=True,
-        )
+        with open(self.tmp_path / "ml.log", "wb") as log:  # the child keeps its own handle
+            self.ml = subprocess.Popen(
+                [str(ML_PYTHON), str(ML_SIDE), scenario, str(self.port), str(steps)],
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                stderr=log,
+                text=True,
+            )
 
         def listening() -> bool:
             assert self.ml is not None
@@ -196,7 +199,12 @@ class Pair:
         return self.ml
 
     def start_bridge(self, endpoint: str, *args: str) -> subprocess.Popen:
-        self.bridge = subprocess.Popen(
+        with open(self.bridge_log, "wb") as log:  # the child keeps its own handle
+            self.bridge = self._start_bridge(log, endpoint, *args)
+        return self.bridge
+
+    def _start_bridge(self, log: Any, endpoint: str, *args: str) -> subprocess.Popen:
+        return subprocess.Popen(
             [
                 sys.executable,
                 "-m",
@@ -210,12 +218,11 @@ class Pair:
                 *args,
             ],
             stdin=subprocess.DEVNULL,
-            stdout=open(self.bridge_log, "wb"),  # noqa: SIM115 (until it ends)
+            stdout=log,
             stderr=subprocess.STDOUT,
             env=child_env(),
             cwd=ROOT,
         )
-        return self.bridge
 
     def ml_result(self, timeout_s: float = 120) -> dict:
         assert self.ml is not None and self.ml.stdout is not None
@@ -352,6 +359,24 @@ def test_a_trainer_that_dies_ends_the_bridge_with_a_clear_error(pair, start_serv
 
 
 @needs_ml_side
+def test_a_terminated_bridge_tells_ml_agents_at_once(pair, start_server):
+    server = start_server("unity-bridge-sigterm")
+    ml = pair.start_ml("hang")
+    bridge = pair.start_bridge(server.endpoint)
+    assert ml.stdout is not None and ml.stdin is not None
+    assert json.loads(ml.stdout.readline()) == {"ready": True}
+    bridge.send_signal(signal.SIGTERM)
+    code, log = pair.bridge_exit()
+    assert code == 1 and "terminated (SIGTERM)" in log, log
+    ml.stdin.write("go\n")
+    ml.stdin.flush()
+    result = pair.ml_result()
+    assert result["error"] == "UnityCommunicatorStoppedException", result
+    assert result["after_s"] < 5, result  # told, not its 6 s timeout
+    wait_arenas_freed(server, timeout_s=20)
+
+
+@needs_ml_side
 def test_another_communication_version_is_refused_on_both_sides(pair, start_server):
     server = start_server("unity-bridge-version")
     pair.start_ml("version")
@@ -370,7 +395,9 @@ def test_an_override_the_server_refuses_stops_both_sides_saying_which(pair, star
     pair.start_ml("steps", 2)
     pair.start_bridge(server.endpoint, "--set", "traffic.no_such_setting=1")
     result = pair.ml_result()
-    assert "error" in result, result
+    # Told at its first command (its reset), not left to time out.
+    assert result["error"] == "UnityCommunicatorStoppedException", result
+    assert result["after_s"] < 25, result
     code, log = pair.bridge_exit()
     assert code == 1 and "traffic.no_such_setting" in log, log
 
@@ -388,6 +415,8 @@ def test_no_ml_agents_process_listening_is_a_clear_error(tmp_path, start_server)
             server.endpoint,
             "--port",
             str(port),
+            "--host",
+            "127.0.0.1",
             "--dial-timeout-s",
             "1",
         ],
@@ -398,7 +427,7 @@ def test_no_ml_agents_process_listening_is_a_clear_error(tmp_path, start_server)
         timeout=60,
     )
     assert proc.returncode == 1
-    assert f"no ML-Agents process listened on localhost:{port} within 1 s" in proc.stderr
+    assert f"no ML-Agents process listened on 127.0.0.1:{port} within 1 s" in proc.stderr
     assert time.monotonic() - started < 30
     assert server.probe().discover()[0].arenas_used == 0
 
@@ -406,7 +435,9 @@ def test_no_ml_agents_process_listening_is_a_clear_error(tmp_path, start_server)
 @pytest.mark.slow
 def test_mlagents_learn_trains_ppo_through_the_bridge():
     """scripts/try-mlagents-learn.sh from scratch: mlagents 1.1.0 in .venv-mlagents-learn, its
-    PPO for 3,000 steps on min2018 through the bridge (about a minute with the install)."""
+    PPO for 3,000 steps on min2018 through the bridge (about a minute with the install).
+    mlagents-learn without --env listens on port 5004 of every interface, whatever it is told,
+    and writes under runs/: the one test off a free loopback port, skipped where 5004 is taken."""
     if socket_taken(5004):
         pytest.skip("port 5004 is taken (mlagents-learn without --env listens there)")
     proc = subprocess.run(

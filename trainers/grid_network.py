@@ -22,7 +22,7 @@ from typing import Literal
 import torch
 from torch import nn
 
-from .network import dueling_q
+from .network import q_head
 
 GridNetworkKind = Literal["baseline", "proposed"]
 GRID_NETWORKS: tuple[str, ...] = ("baseline", "proposed")
@@ -108,6 +108,4 @@ class GridQNetwork(nn.Module):
         if self.uses_actions:
             assert actions is not None, "the proposed network reads the action stack"
             hidden = self.fuse(torch.cat([hidden, self.action_net(actions.float())], dim=1))
-        if self.dueling:
-            return dueling_q(self.value(hidden), self.advantage(hidden))
-        return self.q(hidden)
+        return q_head(self, hidden)

@@ -237,8 +237,13 @@ def execution_device(device: str, precision: Precision = "fp32") -> torch.device
             f"precision fp16 needs a CUDA device (its loss scaling is CUDA's), got device "
             f"{device!r}: use bf16 there"
         )
-    if precision == "bf16" and resolved.type == "cuda" and not torch.cuda.is_bf16_supported():
-        raise ValueError(f"precision bf16: the GPU of {device!r} does not support it; use fp16")
+    if precision == "bf16" and resolved.type == "cuda":
+        major, minor = torch.cuda.get_device_capability(resolved)
+        if major < 8:  # bf16 in hardware from Ampere (compute capability 8.0) on
+            raise ValueError(
+                f"precision bf16: the GPU of {device!r} (compute capability {major}.{minor}) "
+                "runs it only in emulation; use fp16"
+            )
     return resolved
 
 

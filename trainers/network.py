@@ -19,7 +19,7 @@ by the observation space's bounds, so the replay keeps the compact dtypes.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -157,9 +157,19 @@ class QNetwork(nn.Module):
             out, _ = self.lstm(lidar.float() / self.shape.lidar_max_m)
             parts.append(out[:, -1])
         hidden = self.fuse(torch.cat(parts, dim=1))
-        if self.dueling:
-            return dueling_q(self.value(hidden), self.advantage(hidden))
-        return self.q(hidden)
+        return q_head(self, hidden)
+
+
+def q_head(net: Any, hidden: torch.Tensor) -> torch.Tensor:
+    """Q-values (N, actions) of the last hidden layer of ``net`` (any of the three networks):
+    its dueling streams combined (``net.value``, ``net.advantage``) or its plain head
+    (``net.q``). Always in float32, under mixed precision too: bf16's 8 bits of mantissa would
+    round Q-values of tens to steps of a quarter, tying actions that differ by less."""
+    with torch.autocast(device_type=hidden.device.type, enabled=False):
+        hidden = hidden.float()
+        if net.dueling:
+            return dueling_q(net.value(hidden), net.advantage(hidden))
+        return net.q(hidden)
 
 
 def dueling_q(value: torch.Tensor, advantage: torch.Tensor) -> torch.Tensor:

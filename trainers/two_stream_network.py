@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from .network import dueling_q
+from .network import q_head
 
 
 @dataclass(frozen=True)
@@ -98,6 +98,4 @@ class TwoStreamQNetwork(nn.Module):
             dim=1,
         )
         hidden = self.fuse(features)
-        if self.dueling:
-            return dueling_q(self.value(hidden), self.advantage(hidden))
-        return self.q(hidden)
+        return q_head(self, hidden)

@@ -278,31 +278,21 @@ class LaneChangeAssist:
         ``lane_change_clear_behind_m`` behind the agent's rear bumper to
         ``lane_change_clear_ahead_m`` ahead of its front bumper, each window growing by the
         speed at which a car there closes in times ``lane_change_closing_time_s``. A lane that
-        does not exist counts as clear here; :meth:`possible` refuses it anyway."""
-        n, ego = self.agents, self.ego
-        half = self.kinds.half_length[st.kind]  # (A, V)
-        dx = st.x_m[:, None, :] - st.x_m[:, :n, None]  # (A, N, V): other - agent
-        reach = half[:, None, :] + half[:, :n, None]
-        # Positive when the other car gains on the agent from behind (or the agent on a car
-        # ahead): the gap it needs grows with that speed.
-        closing_mps = st.speed_mps[:, None, :] - st.speed_mps[:, :n, None]
-        ahead_m = (
-            ego.lane_change_clear_ahead_m
-            + np.maximum(-closing_mps, 0.0) * ego.lane_change_closing_time_s
+        does not exist counts as clear here; :meth:`possible` refuses it anyway. A compiled loop
+        (:func:`.kernels.side_clear`)."""
+        ego = self.ego
+        return kernels.side_clear(
+            st.x_m,
+            st.speed_mps,
+            self.kinds.half_length[st.kind],
+            st.active,
+            st.lane,
+            st.target_lane,
+            self.agents,
+            ego.lane_change_clear_ahead_m,
+            ego.lane_change_clear_behind_m,
+            ego.lane_change_closing_time_s,
         )
-        behind_m = (
-            ego.lane_change_clear_behind_m
-            + np.maximum(closing_mps, 0.0) * ego.lane_change_closing_time_s
-        )
-        near = (dx - reach < ahead_m) & (-dx - reach < behind_m)
-        near &= st.active[:, None, :]
-        near[:, np.arange(n), np.arange(n)] = False  # not the agent itself
-        clear = np.empty(near.shape[:2] + (2,), dtype=bool)
-        for side, step in enumerate((-1, 1)):
-            lane = (st.lane[:, :n] + step)[:, :, None]
-            there = (st.lane[:, None, :] == lane) | (st.target_lane[:, None, :] == lane)
-            clear[..., side] = ~(near & there).any(axis=2)
-        return clear
 
     def _one_agent_per_gap(self, st: SimState, go_left: np.ndarray, go_right: np.ndarray) -> None:
         """Agents cleared into the same lane at the same decision, near each other (from

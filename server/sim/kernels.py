@@ -551,3 +551,48 @@ def mobil_accept(
         random = random_mover[i] and accel_new >= -safe_decel_mps2
         accept[i] = safe and (incentive > threshold[i] or random)
     return accept
+
+
+@njit(cache=True, nogil=True)
+def side_clear(
+    x_m: np.ndarray,
+    speed: np.ndarray,
+    half_length: np.ndarray,
+    active: np.ndarray,
+    lane: np.ndarray,
+    target_lane: np.ndarray,
+    agents: int,
+    clear_ahead_m: float,
+    clear_behind_m: float,
+    closing_time_s: float,
+) -> np.ndarray:
+    """(A, N, 2) bool: whether the lane to each agent's right [0] and left [1] is free of
+    active vehicles in it or moving into it, within the agent's window ahead and behind, each
+    grown by the closing speed times ``closing_time_s``; (A, V) inputs.
+
+    The loop form of :meth:`.assist.LaneChangeAssist.side_clear`'s arithmetic."""
+    arenas, vehicles = x_m.shape
+    clear = np.ones((arenas, agents, 2), dtype=np.bool_)
+    for a in range(arenas):
+        for i in range(agents):
+            right, left = lane[a, i] - 1, lane[a, i] + 1
+            for o in range(vehicles):
+                if o == i or not active[a, o]:
+                    continue
+                in_right = lane[a, o] == right or target_lane[a, o] == right
+                in_left = lane[a, o] == left or target_lane[a, o] == left
+                if not (in_right or in_left):
+                    continue
+                dx = x_m[a, o] - x_m[a, i]
+                reach = half_length[a, o] + half_length[a, i]
+                # Positive when the other car gains on the agent from behind (or the agent
+                # on a car ahead): the gap it needs grows with that speed.
+                closing = speed[a, o] - speed[a, i]
+                ahead = clear_ahead_m + max(-closing, 0.0) * closing_time_s
+                behind = clear_behind_m + max(closing, 0.0) * closing_time_s
+                if dx - reach < ahead and -dx - reach < behind:
+                    if in_right:
+                        clear[a, i, 0] = False
+                    if in_left:
+                        clear[a, i, 1] = False
+    return clear
