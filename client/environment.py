@@ -11,9 +11,9 @@ on mlagents-envs: ``behavior_specs``, ``get_steps``, ``set_actions``, ``set_acti
 of arenas (one behaviour); agent ids are ids within the group, and several agents per arena
 share a road.
 
-Observations come as ML-Agents delivers Unity's: float32, camera pixels scaled to [0, 1], and
-2-D observations (the grey camera, the LIDAR map, Ho's grid) as images of one channel (height,
-width, 1). The raw observations (uint8 pixels, the reward terms, the metrics) are in
+Observations come as mlagents-envs 1.1.0 delivers Unity's: float32, camera pixels scaled to
+[0, 1], images channels-first (the grey camera, the LIDAR map, Ho's grid: (1, height, width);
+the RGB camera: (3, height, width)). The raw observations (uint8 pixels, the reward terms, the metrics) are in
 :attr:`RemoteEnvironment.steps`.
 
 As in ML-Agents, an agent whose episode ended is in ``TerminalSteps`` (``interrupted`` when it
