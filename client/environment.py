@@ -13,8 +13,8 @@ share a road.
 
 Observations come as mlagents-envs 1.1.0 delivers Unity's: float32, camera pixels scaled to
 [0, 1], images channels-first (the grey camera, the LIDAR map, Ho's grid: (1, height, width);
-the RGB camera: (3, height, width)). The raw observations (uint8 pixels, the reward terms, the metrics) are in
-:attr:`RemoteEnvironment.steps`.
+the RGB camera: (3, height, width)). The raw observations (uint8 pixels, the reward terms, the
+metrics) are in :attr:`RemoteEnvironment.steps`.
 
 As in ML-Agents, an agent whose episode ended is in ``TerminalSteps`` (``interrupted`` when it
 hit the time limit), and after the next :meth:`RemoteEnvironment.step` it is back in
