@@ -23,7 +23,6 @@ frame stacking, so what is measured is the simulation and its transport alone.
 
 from __future__ import annotations
 
-import json
 import statistics
 import time
 from dataclasses import dataclass
@@ -34,7 +33,7 @@ import numpy as np
 import tyro
 
 from bench.bench_remote import free_port, start_server, stop_process
-from bench.bench_sim import machine_description
+from bench.bench_sim import machine_description, write_report
 
 
 @dataclass(frozen=True)
@@ -214,9 +213,7 @@ def main(config: OverlapBenchConfig) -> dict[str, Any]:
     print(f"  overlap / lock-step: {report['median_ratio']:.2f}x (rounds: {ratios})")
     if config.in_process:
         print(f"  remote / in-process (median of rounds): {report['over_in_process']}")
-    if config.json is not None:
-        config.json.parent.mkdir(parents=True, exist_ok=True)
-        config.json.write_text(json.dumps(report, indent=2))
+    write_report(config.json, report)
     return report
 
 

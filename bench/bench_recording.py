@@ -19,9 +19,7 @@ It also reports the .rrd bytes written per 1,000 environment steps.
 
 from __future__ import annotations
 
-import json
 import os
-import platform
 import statistics
 import sys
 import tempfile
@@ -30,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.bench_remote import free_port, start_server, stop_process
+from bench.bench_sim import machine_description, write_report
 from bench.bench_train import TrainBenchConfig, run_once
 
 
@@ -153,18 +152,12 @@ def main(config: RecordingBenchConfig) -> dict[str, Any]:
         print(f"{name}: {size / 1e6:.1f} MB over all its remote runs")
     report = {
         "config": {k: str(v) for k, v in vars(config).items()},
-        "machine": {
-            "cpus": os.cpu_count(),
-            "platform": platform.platform(),
-            "python": sys.version.split()[0],
-        },
+        "machine": machine_description(),
         "summary": summary,
         "results": results,
         "server_rrd_bytes": server_rrd_bytes,
     }
-    if config.json is not None:
-        config.json.parent.mkdir(parents=True, exist_ok=True)
-        config.json.write_text(json.dumps(report, indent=2, default=str))
+    write_report(config.json, report)
     return report
 
 

@@ -55,7 +55,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import datetime
-import json
 import os
 import queue
 import resource
@@ -72,7 +71,7 @@ from typing import Any
 
 import tyro
 
-from bench.bench_sim import machine_description, pin_threads
+from bench.bench_sim import machine_description, pin_threads, write_report
 
 ENV_ID = "overtake/Highway-v0"
 REMOTE_ENV_ID = "overtake/RemoteHighway-v0"
@@ -1005,10 +1004,7 @@ def main(config: BenchConfig) -> dict[str, Any]:
         "wall_seconds": wall,
         "cpu_seconds": {"benchmark_processes": own, "everything_else": others},
     }
-    if config.json is not None:
-        config.json.parent.mkdir(parents=True, exist_ok=True)
-        config.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
-        print(f"wrote {config.json}")
+    write_report(config.json, report)
     return report
 
 

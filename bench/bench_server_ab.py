@@ -16,7 +16,6 @@ Each repeat starts both servers afresh and prints both medians and their differe
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import shutil
 import subprocess
@@ -37,6 +36,7 @@ from bench.bench_remote import (
     start_server,
     stop_process,
 )
+from bench.bench_sim import write_report
 
 # The folders the project maps into overtake.* (pyproject.toml's package-dir).
 PACKAGE_FOLDERS = ("protocol", "viz", "server", "client", "trainers")
@@ -148,9 +148,7 @@ def main(config: ServerABConfig) -> dict[str, Any]:
         "config": {**config.__dict__, "json": None if config.json is None else str(config.json)},
         "results": results,
     }
-    if config.json is not None:
-        config.json.parent.mkdir(parents=True, exist_ok=True)
-        config.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+    write_report(config.json, report)
     return report
 
 

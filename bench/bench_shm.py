@@ -43,7 +43,7 @@ import zenoh
 from zenoh.shm import GarbageCollect, ShmProvider
 
 from bench.bench_remote import free_port, stop_process, wait_matching
-from bench.bench_sim import machine_description
+from bench.bench_sim import machine_description, write_report
 from overtake.protocol.transport import TransportConfig, open_session
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -247,10 +247,7 @@ def main(config: ShmBenchConfig) -> dict[str, Any]:
         "zenoh": metadata.version("eclipse-zenoh"),
         "sizes": sizes,
     }
-    if config.json is not None:
-        config.json.parent.mkdir(parents=True, exist_ok=True)
-        config.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
-        print(f"wrote {config.json}")
+    write_report(config.json, report)
     return report
 
 

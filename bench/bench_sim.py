@@ -321,6 +321,16 @@ def machine_description() -> dict[str, Any]:
     }
 
 
+def write_report(path: Path | None, report: dict[str, Any]) -> None:
+    """Write a benchmark's report as JSON to ``path`` (``--json``; nothing for None), values
+    JSON has no type for as text, and say where."""
+    if path is None:
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(report, indent=2, default=str) + "\n", encoding="utf-8")
+    print(f"wrote {path}")
+
+
 def _preset_config(preset: Any) -> SimConfig:
     """A preset's SimConfig (PRESETS holds configurations or their factories)."""
     return preset() if callable(preset) else preset
@@ -504,10 +514,7 @@ def main(config: BenchConfig) -> dict[str, Any]:
         "ratios_sim_seconds_per_cpu_second": {f"{p} {a}": v for (p, a), v in ratios.items()},
         "bars": bars,
     }
-    if config.json is not None:
-        config.json.parent.mkdir(parents=True, exist_ok=True)
-        config.json.write_text(json.dumps(report, indent=2, default=str) + "\n", encoding="utf-8")
-        print(f"wrote {config.json}")
+    write_report(config.json, report)
     return report
 
 

@@ -41,6 +41,8 @@ from typing import Any, Literal
 
 import tyro
 
+from bench.bench_sim import write_report
+
 ROOT = Path(__file__).resolve().parents[1]
 SIDES = ("baseline", "working tree")
 
@@ -307,9 +309,7 @@ def main(config: SimABConfig) -> dict[str, Any]:
         "config": {**config.__dict__, "json": None if config.json is None else str(config.json)},
         "result": result,
     }
-    if config.json is not None:
-        config.json.parent.mkdir(parents=True, exist_ok=True)
-        config.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+    write_report(config.json, report)
     return report
 
 

@@ -20,9 +20,7 @@ from __future__ import annotations
 
 import json
 import os
-import platform
 import statistics
-import sys
 import tempfile
 import time
 from dataclasses import dataclass
@@ -30,6 +28,7 @@ from pathlib import Path
 from typing import Any, Literal, get_args
 
 from bench.bench_remote import free_port, start_server, stop_process
+from bench.bench_sim import machine_description, write_report
 
 # overtake.trainers.learner.Precision, written here: importing it loads PyTorch before main()
 # has set its threads (main checks that the two agree).
@@ -208,16 +207,10 @@ def main(config: TrainBenchConfig) -> dict[str, Any]:
             print(f"{inputs}: lock-step transport and serving ~{transport:.2f} ms per step")
     report = {
         "config": {k: str(v) for k, v in vars(config).items()},
-        "machine": {
-            "cpus": os.cpu_count(),
-            "platform": platform.platform(),
-            "python": sys.version.split()[0],
-        },
+        "machine": machine_description(),
         "results": results,
     }
-    if config.json is not None:
-        config.json.parent.mkdir(parents=True, exist_ok=True)
-        config.json.write_text(json.dumps(report, indent=2))
+    write_report(config.json, report)
     return report
 
 

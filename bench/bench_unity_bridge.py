@@ -34,7 +34,7 @@ import numpy as np
 import tyro
 
 from bench.bench_remote import free_port, start_server, stop_process
-from bench.bench_sim import machine_description
+from bench.bench_sim import machine_description, write_report
 
 ROOT = Path(__file__).resolve().parent.parent
 ML_PYTHON = Path(os.environ.get("OVERTAKE_ML_PYTHON", ROOT / ".venv-mlagents" / "bin" / "python"))
@@ -157,9 +157,7 @@ def main(config: BridgeBenchConfig) -> dict[str, Any]:
             f"{arenas:>6} {direct:9.1f} {bridge:9.1f} {statistics.median(ratios):12.2f}x "
             f"{cost_ms:8.2f}   (rounds {[round(r, 2) for r in ratios]})"
         )
-    if config.json is not None:
-        config.json.parent.mkdir(parents=True, exist_ok=True)
-        config.json.write_text(json.dumps(report, indent=2))
+    write_report(config.json, report)
     return report
 
 

@@ -27,6 +27,8 @@ from pathlib import Path
 import numpy as np
 import tyro
 
+from bench.bench_sim import write_report
+
 
 @dataclass(frozen=True)
 class RecordingMemoryConfig:
@@ -164,9 +166,7 @@ def main(config: RecordingMemoryConfig) -> dict[str, object]:
             f"{r['slope_mib_per_min']:+.3f} MiB/min after the warm-up, .rrd {r['rrd_mb']} MB"
         )
     report = {"config": {k: str(v) for k, v in vars(config).items()}, "results": results}
-    if config.json is not None:
-        config.json.parent.mkdir(parents=True, exist_ok=True)
-        config.json.write_text(json.dumps(report, indent=2))
+    write_report(config.json, report)
     return report
 
 
