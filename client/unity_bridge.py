@@ -58,7 +58,7 @@ from overtake.protocol.messages import Scalar, Steps
 from overtake.protocol.transport import SecurityConfig
 
 from .commands import UsageError, run_command
-from .environment import RemoteEnvironment, mlagents_observation_spec
+from .environment import RemoteEnvironment, mlagents_observation_spec, mlagents_observations
 from .episodes import parse_overrides
 from .mlagents import SUPPORTED_MLAGENTS_ENVS, MLAgentsMissing
 from .remote import RemoteConfig
@@ -69,10 +69,12 @@ COMMUNICATION_VERSION = "1.5.0"
 """ML-Agents' communication version this bridge speaks (mlagents-envs 1.1.0's API_VERSION)."""
 EXCHANGE_METHOD = "/communicator_objects.UnityToExternalProto/Exchange"
 PACKAGE = "communicator_objects"
-STATUS_OK, STATUS_CLOSED, STATUS_FAILED = 200, 400, 500
+# Header statuses: 200 a message, 500 the bridge's failure; anything else from ML-Agents (its
+# close() sends 400) ends the exchanges.
+STATUS_OK, STATUS_FAILED = 200, 500
 COMMAND_STEP, COMMAND_RESET, COMMAND_QUIT = 0, 1, 2
-# ML-Agents' enums: ObservationTypeProto DEFAULT, CompressionTypeProto NONE.
-OBSERVATION_TYPE_DEFAULT, COMPRESSION_NONE = 0, 0
+# ML-Agents' enums: ObservationTypeProto DEFAULT, CompressionTypeProto NONE and PNG.
+OBSERVATION_TYPE_DEFAULT, COMPRESSION_NONE, COMPRESSION_PNG = 0, 0, 1
 
 
 class BridgeError(UsageError):
@@ -180,8 +182,6 @@ def compatible(ours: str, theirs: str) -> bool:
 
 # --- what goes to ML-Agents --------------------------------------------------------------------
 
-COMPRESSION_PNG = 1
-
 
 def observation_layout(values: np.ndarray) -> tuple[list[int], list[int]]:
     """The ML-Agents shape and dimension properties of one agent's observation as overtake
@@ -205,24 +205,34 @@ def png(values: np.ndarray) -> bytes:
     return out.getvalue()
 
 
+def observation_protos(messages: Messages, name: str, batch: np.ndarray) -> list[Any]:
+    """One observation of every agent in ``batch`` (agents, ...): uint8 images as PNG
+    (lossless; ML-Agents scales them to [0, 1]), everything else as float32 values, channels
+    first (RemoteEnvironment's conversion, done once for the whole batch)."""
+    shape, properties = observation_layout(batch[0])
+    as_png = batch.dtype == np.uint8 and batch.ndim >= 3
+    floats = None if as_png else mlagents_observations(batch)
+    protos = []
+    for row in range(len(batch)):
+        obs = messages.observation(
+            shape=shape,
+            dimension_properties=properties,
+            observation_type=OBSERVATION_TYPE_DEFAULT,
+            name=name,
+        )
+        if floats is None:
+            obs.compression_type = COMPRESSION_PNG
+            obs.compressed_data = png(batch[row])
+        else:
+            obs.compression_type = COMPRESSION_NONE
+            obs.float_data.data.extend(floats[row].ravel().tolist())
+        protos.append(obs)
+    return protos
+
+
 def observation_proto(messages: Messages, name: str, values: np.ndarray) -> Any:
-    """One agent's observation: uint8 images as PNG (lossless; ML-Agents scales them to
-    [0, 1]), everything else as float32 values, channels first."""
-    shape, properties = observation_layout(values)
-    obs = messages.observation(
-        shape=shape,
-        dimension_properties=properties,
-        observation_type=OBSERVATION_TYPE_DEFAULT,
-        name=name,
-    )
-    if values.dtype == np.uint8 and values.ndim >= 2:
-        obs.compression_type = COMPRESSION_PNG
-        obs.compressed_data = png(values)
-    else:
-        obs.compression_type = COMPRESSION_NONE
-        layout = values if values.ndim < 3 else np.moveaxis(values, 2, 0)
-        obs.float_data.data.extend(layout.astype(np.float32).ravel().tolist())
-    return obs
+    """One agent's observation (see :func:`observation_protos`)."""
+    return observation_protos(messages, name, values[None])[0]
 
 
 def agent_infos(steps: Steps, messages: Messages) -> tuple[list[Any], list[int]]:
@@ -231,6 +241,10 @@ def agent_infos(steps: Steps, messages: Messages) -> tuple[list[Any], list[int]]
     their actions in that order. An ended agent is back among the deciding ones, with its new
     episode's first observation, after the next step (as with RemoteEnvironment)."""
     ended = steps.ended
+    observations = {
+        name: observation_protos(messages, name, batch)
+        for name, batch in steps.observations.items()
+    }
     infos = []
     for row in [*np.flatnonzero(ended), *np.flatnonzero(~ended)]:
         done = bool(ended[row])
@@ -239,10 +253,7 @@ def agent_infos(steps: Steps, messages: Messages) -> tuple[list[Any], list[int]]
             done=done,
             max_step_reached=done and bool(steps.truncated[row]),
             id=int(steps.agents[row]),
-            observations=[
-                observation_proto(messages, name, values[row])
-                for name, values in steps.observations.items()
-            ],
+            observations=[protos[row] for protos in observations.values()],
         )
         if not done:
             # ML-Agents' masks: True marks an action that can NOT be taken.
