@@ -2,8 +2,9 @@
 
 Each kernel replaces a run of whole-array numpy calls whose temporaries and per-call overhead
 dominated a decision (one arena: dozens of calls on arrays of a few dozen elements; 64 arenas:
-several passes over every camera pixel). They do the same float operations in the same order
-as the numpy code they replace, so results are bit for bit the same (``tests/test_golden.py``).
+several passes over every camera pixel). They did the same float operations in the same order
+as the numpy code they replaced, so results stayed bit for bit the same (``tests/test_golden.py``
+was not re-recorded); they are now the only implementation of that arithmetic.
 
 Compiled on first use and cached on disk (``cache=True``: next to this file, or under
 ``NUMBA_CACHE_DIR`` where that is not writable); the first decision of a fresh install pays the
@@ -213,8 +214,8 @@ def follow_and_accelerate(
     (``cruise``: time constant, comfortable deceleration, maximum acceleration) and emergency
     braking (``aeb``: time to collision, deceleration), within the vehicle's limits.
 
-    The loop form of :func:`.traffic.car_following.follow`, :func:`~.traffic.car_following.
-    idm_accel`, :class:`.assist.CruiseControl` and :class:`.assist.EmergencyBraking`.
+    The settings are :class:`.assist.CruiseControl`'s and :class:`.assist.EmergencyBraking`'s,
+    the IDM :func:`idm`.
     """
     arenas, vehicles = x_m.shape
     time_constant_s, comfort_decel, cruise_max_accel = cruise[0], cruise[1], cruise[2]
@@ -244,13 +245,16 @@ def follow_and_accelerate(
             leader_speed[a, v] = followed
             closing[a, v] = close
             # IDM: agents' desired speed is infinite (their cruise control drives them).
-            desired_gap = min_gap[a, v] + max(
-                0.0, own * headway[a, v] + own * close / two_sqrt_ab[a, v]
+            acc = idm(
+                own,
+                np.inf if v < agents else desired_speed[a, v],
+                g,
+                close,
+                headway[a, v],
+                min_gap[a, v],
+                max_accel[a, v],
+                two_sqrt_ab[a, v],
             )
-            ratio = own / (np.inf if v < agents else desired_speed[a, v])
-            ratio *= ratio
-            interaction = desired_gap / max(g, 0.1)
-            acc = max_accel[a, v] * (1.0 - ratio * ratio - interaction * interaction)
             if v < agents:
                 towards = min(
                     max((desired_speed[a, v] - own) / time_constant_s, -comfort_decel),
@@ -448,7 +452,9 @@ def idm(
     max_accel: float,
     two_sqrt_ab: float,
 ) -> float:
-    """One car's IDM acceleration: :func:`.traffic.car_following.idm_accel`'s operations."""
+    """One car's Intelligent Driver Model acceleration (m/s^2): ``closing`` is its speed minus
+    its leader's, ``gap`` bumper to bumper (m), ``two_sqrt_ab`` 2 sqrt(max_accel * comfortable
+    deceleration); the desired gap is :func:`.traffic.car_following.idm_desired_gap`'s."""
     desired_gap = min_gap + max(0.0, speed * headway + speed * closing / two_sqrt_ab)
     ratio = speed / desired_speed
     ratio *= ratio
@@ -486,8 +492,7 @@ def mobil_accept(
     random mover, and its behaviour's politeness and threshold. True where the change is safe
     and worth it (or random and not braking hard).
 
-    The loop form of :meth:`.traffic.lane_changes.Mobil.decide`'s arithmetic, operation for
-    operation."""
+    The arithmetic of :class:`.traffic.lane_changes.Mobil`, which gathers the neighbours."""
     accept = np.zeros(flat.size, dtype=np.bool_)
     for i in range(flat.size):
         c = flat[i]
@@ -570,7 +575,7 @@ def side_clear(
     active vehicles in it or moving into it, within the agent's window ahead and behind, each
     grown by the closing speed times ``closing_time_s``; (A, V) inputs.
 
-    The loop form of :meth:`.assist.LaneChangeAssist.side_clear`'s arithmetic."""
+    What :meth:`.assist.LaneChangeAssist.side_clear` returns."""
     arenas, vehicles = x_m.shape
     clear = np.ones((arenas, agents, 2), dtype=np.bool_)
     for a in range(arenas):
