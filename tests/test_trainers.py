@@ -906,6 +906,80 @@ def test_training_loop_stores_no_transition_across_an_autoreset(tmp_path):
                 assert nxt[1] == now[1] + 1 and nxt[2] == 0 and ep_step[env, j + 1] == 0
 
 
+def _last_train_line(run_dir: Path) -> dict:
+    lines = [json.loads(x) for x in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    return [line for line in lines if line["kind"] == "train"][-1]
+
+
+def test_a_run_stores_exactly_its_budget_when_the_last_step_would_pass_it(tmp_path):
+    """Three environments and a budget of 100: the 34th vector step plays 3 transitions where
+    1 is left. It stores that one (environment 0's), and the summary, the checkpoint, the
+    last log line and the replay all say 100."""
+    config = TrainConfig(
+        inputs="lidar",
+        num_envs=3,
+        total_steps=100,
+        run_dir=tmp_path,
+        progress=False,
+        save_replay=True,
+        log_every=40,
+        dqn=tiny_dqn(learning_starts=50),
+    )
+    summary = train(config, envs=PickTheFreeLane(3, length=1000))
+    assert summary["steps"] == 100 and summary["unstored"] == 2
+    assert summary["env_steps_called"] == 34
+    assert load_checkpoint(tmp_path / CHECKPOINT_NAME).step == 100
+    assert _last_train_line(tmp_path)["step"] == 100
+    with np.load(tmp_path / "replay.npz") as saved:
+        assert saved["has_next"].sum() == 100
+        assert saved["has_next"].sum(axis=1).tolist() == [34, 33, 33]
+    # A resume to a larger budget carries on from exactly 100.
+    more = train(replace(config, total_steps=131, resume=True), envs=PickTheFreeLane(3))
+    assert more["steps"] == 131 and more["resumed_at_step"] == 100
+
+
+def test_an_episode_ending_past_the_budget_is_not_counted(tmp_path):
+    """Episodes of 4 decisions on 2 environments, a budget of 7: the fourth step's second
+    transition ends environment 1's episode, but is past the budget: one episode, not two."""
+    config = TrainConfig(
+        inputs="lidar",
+        num_envs=2,
+        total_steps=7,
+        run_dir=tmp_path,
+        progress=False,
+        dqn=tiny_dqn(learning_starts=50),
+    )
+    summary = train(config, envs=PickTheFreeLane(2, length=4))
+    assert summary["steps"] == 7 and summary["unstored"] == 1 and summary["episodes"] == 1
+    lines = [json.loads(x) for x in (tmp_path / "metrics.jsonl").read_text().splitlines()]
+    assert [line["env"] for line in lines if line["kind"] == "episode"] == [0]
+
+
+@pytest.mark.parametrize("overlap, parts", [("off", 1), ("on", 1), ("on", 2)])
+def test_a_remote_run_stores_exactly_its_budget(tmp_path, start_server, overlap, parts):
+    server = start_server(f"budget-{overlap}-{parts}")
+    run_dir = tmp_path / "run"
+    summary = train(
+        TrainConfig(
+            inputs="lidar",
+            num_envs=3,
+            total_steps=100,
+            seed=2,
+            connect=server.endpoint,
+            overlap=overlap,
+            overlap_parts=parts,
+            run_dir=run_dir,
+            progress=False,
+            log_every=30,
+            set=("episode.max_decisions=500",),
+            dqn=DQNConfig(**SMOKE_DQN),
+        )
+    )
+    assert summary["steps"] == 100 and summary["parts"] == parts
+    assert load_checkpoint(run_dir / CHECKPOINT_NAME).step == 100
+    assert _last_train_line(run_dir)["step"] == 100
+
+
 def test_eval_table_joins_earlier_results_and_refuses_other_files(tmp_path, capsys):
     for seed in (3, 4):
         evaluate(

@@ -389,6 +389,7 @@ class TrainingRun:
         self.parts = tuple(np.arange(config.num_envs)[s] for s in self.part_rows)
         self.in_flight: dict[int, tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]] = {}
         self.env_calls = 0  # envs.step, or with overlap send: one each, autoreset steps included
+        self.unstored = 0  # transitions played past the budget, in its last step: not stored
 
     def _build_learner(self) -> None:
         """The learner (seeded), its replay memory and frame stacker, and the random generator
@@ -472,6 +473,9 @@ class TrainingRun:
             # which no server played).
             "env_steps_called": self.env_calls,
             "parts": len(self.parts),
+            # The transitions the last step played beyond the budget (not stored or learned
+            # from): steps + unstored is what the environments played in this run.
+            "unstored": self.unstored,
             **self._remote_facts(),
             "episodes": self.episodes,
             "updates": self.learner.updates,
@@ -572,8 +576,8 @@ class TrainingRun:
         self.env_calls += 1
         t2 = time.perf_counter()
         self._record_car_view(seen, actions, q, reward, info)
-        stored = self._store(self.everyone, actions, reward, terminated, info["action_mask"])
-        self._end_episodes(self.everyone, terminated, truncated, info)
+        stored, taken = self._store(self.everyone, actions, reward, terminated, info["action_mask"])
+        self._end_episodes(self.everyone, terminated, truncated, info, taken)
         t3 = time.perf_counter()
         self._learn()
         t4 = time.perf_counter()
@@ -644,8 +648,8 @@ class TrainingRun:
             self.obs[name][rows] = value
         if part == 0:
             self._record_car_view(seen, actions, q, reward, info)
-        stored = self._store(envs, actions, reward, terminated, info["action_mask"])
-        self._end_episodes(envs, terminated, truncated, info)
+        stored, taken = self._store(envs, actions, reward, terminated, info["action_mask"])
+        self._end_episodes(envs, terminated, truncated, info, taken)
         return stored, waited
 
     def _finish_parts(self) -> None:
@@ -688,18 +692,29 @@ class TrainingRun:
         reward: np.ndarray,
         terminated: np.ndarray,
         mask: np.ndarray,
-    ) -> int:
+    ) -> tuple[int, np.ndarray]:
         """Store what a step of the environments ``envs`` returned (their rows of
         ``self.obs``; the other arrays have a row per environment of ``envs``); returns how
-        many transitions that added.
+        many transitions that added, and which of the rows were taken (stored, or a new
+        episode's start).
 
         Gymnasium next-step autoreset: environments that ended last step were reset by this
         one (its action ignored, reward 0); their observation starts a new episode, no
-        transition. The others add one transition each.
+        transition. The others add one transition each, as long as the budget lasts: the step
+        that reaches ``total_steps`` stores only what is left of it (the first environments'
+        transitions), so that a run's step N is N stored transitions everywhere (its
+        checkpoint, its metrics, the experiments' tables, resume); the rest are counted in
+        ``unstored`` and not learned from.
         """
         self.mask[envs] = mask
         starting = self.starting[envs]
         moving = np.flatnonzero(~starting)
+        room = self.config.total_steps - self.step
+        if moving.size > room:
+            self.unstored += moving.size - room
+            moving = moving[:room]
+        taken = starting.copy()
+        taken[moving] = True
         fresh = np.flatnonzero(starting)
         if fresh.size:
             ids = envs[fresh]
@@ -715,7 +730,7 @@ class TrainingRun:
             self.stacker.push(ids, sub)
             self.step += moving.size
             self.reward_sum += float(reward[moving].sum())
-        return int(moving.size)
+        return int(moving.size), taken
 
     def _end_episodes(
         self,
@@ -723,10 +738,12 @@ class TrainingRun:
         terminated: np.ndarray,
         truncated: np.ndarray,
         info: dict[str, Any],
+        taken: np.ndarray,
     ) -> None:
         """Log the episodes this step of the environments ``envs`` ended (their metrics) and
-        mark those environments for the autoreset step that follows."""
-        ended = (terminated | truncated) & ~self.starting[envs]
+        mark those environments for the autoreset step that follows; an episode whose last
+        transition was past the budget (not ``taken``) did not end in this run."""
+        ended = (terminated | truncated) & ~self.starting[envs] & taken
         for i in np.flatnonzero(ended):
             self.episodes += 1
             self.last_episode = {name: float(values[i]) for name, values in info["metrics"].items()}
