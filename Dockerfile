@@ -1,10 +1,12 @@
 # overtake's images, one target each (docker-compose.yml builds both):
 #   docker build --target server  -t overtake-server .   simulator, overtake-router, spectators,
-#                                                         the Rerun viewer; no PyTorch (1.0 GB,
-#                                                         0.7 of it rerun-sdk: viewer, bindings,
+#                                                         the Rerun viewer; no PyTorch (1.2 GB,
+#                                                         0.65 of it rerun-sdk: viewer, bindings,
 #                                                         pyarrow)
 #   docker build --target trainer -t overtake-trainer .  overtake-train / overtake-eval with the
-#                                                         CPU build of PyTorch 2.13.0 (2.0 GB)
+#                                                         CPU build of PyTorch 2.13.0 (1.6 GB;
+#                                                         no viewer binary, PyTorch's tests or
+#                                                         headers: docker/slim.sh)
 # The router itself is the official eclipse/zenoh image (see docker-compose.yml).
 #
 # Building offline or behind a proxy (README): three build arguments and one build secret.
@@ -39,6 +41,7 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
     VIRTUAL_ENV=/opt/venv \
     PATH=/opt/venv/bin:$PATH
 COPY docker/pip-install.sh /usr/local/bin/pip-install
+COPY docker/slim.sh /usr/local/bin/slim
 # Not root: the processes only need their data directories, created here so that fresh named
 # volumes mounted on them inherit the owner.
 RUN python3 -m venv /opt/venv \
@@ -62,7 +65,8 @@ RUN --mount=type=secret,id=pip_ca \
     pip-install . \
     && viewer="$(python -c 'import os, rerun_cli; print(os.path.dirname(rerun_cli.__file__))')" \
     && ln -s "$viewer/rerun" /usr/local/bin/rerun-viewer \
-    && python -m overtake.server.sim.warm
+    && python -m overtake.server.sim.warm \
+    && slim server
 # rerun-viewer is the viewer binary itself, not the `rerun` script, which runs it as a child:
 # a signal to the container then reaches the viewer. The simulator's numba loops are compiled
 # into the image (overtake.server.sim.warm): a container's first decision loads them.
@@ -86,7 +90,8 @@ RUN --mount=type=secret,id=pip_ca \
         pip-install --find-links /tmp/torch-wheels torch==2.13.0; \
     else \
         pip-install torch==2.13.0 --index-url "$TORCH_INDEX_URL"; \
-    fi
+    fi \
+    && slim torch
 COPY pyproject.toml README.md LICENSE ./
 COPY protocol protocol
 COPY viz viz
@@ -95,7 +100,8 @@ COPY client client
 COPY trainers trainers
 RUN --mount=type=secret,id=pip_ca \
     pip-install ".[train]" \
-    && python -m overtake.server.sim.warm
+    && python -m overtake.server.sim.warm \
+    && slim trainer
 USER overtake
 WORKDIR /data
 CMD ["overtake-train", "--help"]

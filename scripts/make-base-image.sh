@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # A base image for the Dockerfile's BASE_IMAGE, made from Debian's own packages, for hosts that
 # reach a Debian mirror but no image registry (python:3.11-slim cannot be pulled there):
-# Debian 12's Python 3.11 with venv and pip, and CA certificates. Needs root, debootstrap and a
+# Debian 12's Python 3.11 with venv (whose ensurepip gives the image's venv its pip), and CA
+# certificates. Needs root, debootstrap and a
 # running Docker engine; takes about a minute and 300 MB.
 #
 #   scripts/make-base-image.sh [IMAGE] [MIRROR]
@@ -33,7 +34,7 @@ root="$(mktemp -d)"
 trap 'rm -rf "$root"' EXIT
 echo "make-base-image: Debian bookworm from $mirror into $image" >&2
 debootstrap --variant=minbase \
-  --include=python3,python3-venv,python3-pip,ca-certificates \
+  --include=python3,python3-venv,ca-certificates \
   bookworm "$root" "$mirror" >"$root.log" 2>&1 || {
     tail -n 20 "$root.log" >&2
     echo "make-base-image: debootstrap failed (log above)" >&2

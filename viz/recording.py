@@ -119,7 +119,14 @@ def viewer_binary() -> str:
     its PID would leave the real viewer running."""
     import rerun_cli
 
-    return str(Path(rerun_cli.__file__).parent / "rerun")
+    binary = Path(rerun_cli.__file__).parent / "rerun"
+    if not binary.exists():
+        raise RecordingError(
+            f"the Rerun viewer is not installed here ({binary} is missing: the trainer image "
+            "leaves it out); record to a file (--sink file) or stream to a running viewer "
+            "(--sink grpc --viewer-url ...)"
+        )
+    return str(binary)
 
 
 def _port_open(host: str, port: int) -> bool:
