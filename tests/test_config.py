@@ -54,7 +54,7 @@ def test_default_preset_is_min2018_with_the_papers_numbers():
         "speed_mps",
     )
     # At most 32 traffic cars (the authors' slider), all of Min et al.'s random kind.
-    assert config.traffic.density_vehicle_counts == (5, 10, 20)
+    assert config.traffic.density_vehicle_counts == (10, 20, 32)
     assert config.traffic.random.share == 1.0
     assert all(
         getattr(config.traffic, name).share == 0.0
@@ -198,7 +198,7 @@ def test_density_sets_the_vehicle_count():
         d: make_config(overrides={"traffic.density": d}).traffic.resolved_vehicle_count
         for d in ("light", "medium", "heavy")
     }
-    assert counts == {"light": 5, "medium": 10, "heavy": 20}
+    assert counts == {"light": 10, "medium": 20, "heavy": 32}
     ho_counts = make_config(
         overrides={"traffic.density_vehicle_counts": [20, 40, 60], "traffic.density": "heavy"}
     ).traffic.resolved_vehicle_count

@@ -31,11 +31,13 @@ from overtake.trainers.experiment import (
     cli,
     command_args,
     episode_statistics,
+    keep_evidence,
     learning_curves,
     main,
     make_plan,
     note_life,
     reference_policies,
+    seed_order,
     seed_statistics,
     train_command,
     training_episodes,
@@ -54,12 +56,14 @@ ROOT = Path(__file__).resolve().parent.parent
 def test_min2018_table3_lists_the_papers_rows_densities_and_references():
     experiment = EXPERIMENTS["min2018-table3"]
     rows = {(row.label, row.algo, row.inputs, row.seeds) for row in experiment.rows}
+    # The sensor rows with the paper's algorithm (Double + Dueling), two seeds each; DQN and
+    # Double DQN beside them for the algorithm comparison.
     assert rows == {
         ("dqn-both", "dqn", "both", 1),
-        ("ddqn-both", "ddqn", "both", 2),
-        ("dueling-both", "dueling", "both", 1),
-        ("ddqn-camera", "ddqn", "camera", 1),
-        ("ddqn-lidar", "ddqn", "lidar", 1),
+        ("ddqn-both", "ddqn", "both", 1),
+        ("dueling-both", "dueling", "both", 2),
+        ("dueling-camera", "dueling", "camera", 2),
+        ("dueling-lidar", "dueling", "lidar", 2),
     }
     assert experiment.densities == ("light", "medium", "heavy")
     assert experiment.references == ("rule", "random", "idle", "planner")
@@ -138,20 +142,22 @@ def test_each_runs_command_line_parses_back_to_its_training_configuration(tmp_pa
     assert [run.name for run in plan.runs] == [
         "dqn-both-seed0",
         "ddqn-both-seed0",
-        "ddqn-both-seed1",
         "dueling-both-seed0",
-        "ddqn-camera-seed0",
-        "ddqn-lidar-seed0",
+        "dueling-both-seed1",
+        "dueling-camera-seed0",
+        "dueling-camera-seed1",
+        "dueling-lidar-seed0",
+        "dueling-lidar-seed1",
     ]
     for run in plan.runs:
         assert parse(TrainConfig, command_args(run.train, TrainConfig())) == run.train
         assert parse_args(train_command(run.train)[3:]) == run.train
-    train = plan.runs[2].train
+    train = plan.runs[3].train
     assert (train.algo, train.inputs, train.seed, train.run_dir) == (
-        "ddqn",
+        "dueling",
         "both",
         1,
-        tmp_path / "ddqn-both-seed1",
+        tmp_path / "dueling-both-seed1",
     )
     assert train.resume_if_found and not train.progress and train.connect == config.connect
     assert train.dqn.learning_starts == Schedule.for_budget(200_000).learning_starts
@@ -159,7 +165,7 @@ def test_each_runs_command_line_parses_back_to_its_training_configuration(tmp_pa
 
 
 def test_ho2018_table8_runs_train_ho_s_networks_with_the_presets_settings(tmp_path):
-    plan = make_plan(ExperimentConfig(experiment="ho2018-table8", out=tmp_path))
+    plan = make_plan(ExperimentConfig(experiment="ho2018-table8", out=tmp_path, seeds=1))
     assert [run.name for run in plan.runs] == [
         "baseline-seed0",
         "proposed-lr0.0001-seed0",
@@ -179,6 +185,15 @@ def test_ho2018_table8_runs_train_ho_s_networks_with_the_presets_settings(tmp_pa
         0.0005, 0.0001, 0.00025, 0.0005, 0.00075
     ]  # fmt: skip
     assert plan.eval_episodes == 200 and "planner" not in plan.references
+    # Table 6's schedule as it is, with his budget of 2,000 episodes of 1,000 decisions; a
+    # smaller --total-steps stops it early and changes nothing else.
+    for total in (None, 500_000):
+        config = ExperimentConfig(experiment="ho2018-table8", out=tmp_path, total_steps=total)
+        dqn = make_plan(config).runs[0].train.dqn
+        assert (dqn.learning_starts, dqn.epsilon_decay_steps) == (100_000, 2_000_000)
+        assert (dqn.target_update_steps, dqn.replay_size) == (10_000, 1_000_000)
+    assert EXPERIMENTS["ho2018-table8"].total_steps == 2_000_000
+    assert all(row.seeds == 2 for row in EXPERIMENTS["ho2018-table8"].rows)
 
 
 def test_an_evaluations_command_line_parses_back_to_its_configuration(tmp_path):
@@ -277,9 +292,9 @@ def test_statistics_of_episodes_and_of_seeds():
 
 BUDGET = 400
 NUM_ENVS = 2
-ROWS = ("ddqn-lidar", "dqn-both")
+ROWS = ("dueling-lidar", "dqn-both")
 TINY = (
-    ["--rows", *ROWS, "--total-steps", str(BUDGET), "--num-envs", str(NUM_ENVS)]
+    ["--rows", *ROWS, "--seeds", "1", "--total-steps", str(BUDGET), "--num-envs", str(NUM_ENVS)]
     + ["--learning-starts", "32", "--replay-size", "400", "--checkpoint-every", "50"]
     + ["--references", "rule", "random", "--densities", "light", "--jobs", "2"]
     + ["--eval-episodes", "2", "--eval-max-decisions", "30", "--curve-bins", "8"]
@@ -351,11 +366,9 @@ def test_a_killed_experiment_continues_each_run_from_its_checkpoint(tiny):
     out, at_kill = tiny["out"], tiny["at_kill"]
     assert any(0 < step < BUDGET for step in at_kill.values())
     assert sorted(tiny["second"]["trained"]) == sorted(f"{row}-seed0" for row in ROWS)
-    # A step stores one transition per environment that moved (none for an autoreset), so a
-    # run ends on the first step at or past the budget: up to num_envs - 1 past it, where
-    # depends on where its episodes ended, which a resume changes.
+    # Every run ends at its budget exactly, however its episodes and its resume fell.
     final = {row: load_checkpoint(out / f"{row}-seed0" / CHECKPOINT_NAME).step for row in ROWS}
-    assert all(BUDGET <= step < BUDGET + NUM_ENVS for step in final.values())
+    assert all(step == BUDGET for step in final.values())
     for row, step in at_kill.items():
         run = out / f"{row}-seed0"
         if step < BUDGET:
@@ -364,8 +377,8 @@ def test_a_killed_experiment_continues_each_run_from_its_checkpoint(tiny):
         lives = [json.loads(line) for line in (run / LIVES_NAME).read_text().splitlines()]
         assert [life["from_step"] for life in lives] == [0, step]
     assert sorted(tiny["second"]["evaluated"]) == [
-        f"ddqn-lidar-seed0@{final['ddqn-lidar']} light",
-        f"dqn-both-seed0@{final['dqn-both']} light",
+        f"dqn-both-seed0@{BUDGET} light",
+        f"dueling-lidar-seed0@{BUDGET} light",
         "random light",
         "rule light",
     ]
@@ -384,7 +397,7 @@ def test_the_table_holds_every_row_and_reference_with_finite_figures(tiny):
     assert result["versions"]["torch"] and result["versions"]["matplotlib"]
     assert result["commit"]
     [light] = result["densities"].values()
-    assert [row["label"] for row in light["rows"]] == ["dqn-both", "ddqn-lidar"]
+    assert [row["label"] for row in light["rows"]] == ["dqn-both", "dueling-lidar"]
     assert [ref["policy"] for ref in light["references"]] == ["rule", "random"]
     for entry in light["rows"] + light["references"]:
         assert entry["summary"]["episodes"] == 2
@@ -393,11 +406,14 @@ def test_the_table_holds_every_row_and_reference_with_finite_figures(tiny):
             assert math.isfinite(entry["summary"][name]["std"])
     for row in light["rows"]:
         [run] = row["runs"]
-        assert BUDGET <= run["checkpoint_step"] < BUDGET + NUM_ENVS
+        assert run["checkpoint_step"] == BUDGET
         assert row["seeds"]["avg_speed_kmh"]["means"] == [run["summary"]["avg_speed_kmh"]["mean"]]
     table = (out / "table.md").read_text()
     assert "## Light traffic" in table
-    for name in ("| dqn-both | DQN | camera + LIDAR | 1 |", "| ddqn-lidar | Double DQN | LIDAR |"):
+    for name in (
+        "| dqn-both | DQN | camera + LIDAR | 1 |",
+        "| dueling-lidar | Dueling DQN | LIDAR |",
+    ):
         assert name in table
     assert "| rule | reference policy |" in table and "| random | reference policy |" in table
     assert "nan" not in table.lower()
@@ -453,3 +469,39 @@ def test_work_another_invocation_did_meanwhile_is_not_done_again(tiny, capsys):
     assert running == [] and pending == []
     said = capsys.readouterr().err
     assert said.count("by another invocation") == len(ROWS) + 2
+
+
+def test_the_kept_evidence_is_the_table_and_curves_without_the_episodes(tiny, tmp_path):
+    keep_evidence(tiny["out"], tmp_path / "kept")
+    kept = sorted(p.name for p in (tmp_path / "kept").iterdir())
+    assert kept == ["curves.png", "table.json", "table.md"]
+    table = json.loads((tmp_path / "kept" / "table.json").read_text())
+    assert table["commit"]
+    # The summaries, not the episodes: each run and reference names the evaluation that
+    # holds those.
+    [light] = table["densities"].values()
+    runs = [run for row in light["rows"] for run in row["runs"]]
+    for entry in light["rows"] + light["references"] + runs:
+        assert "episodes" not in entry
+    for entry in light["references"] + runs:
+        assert (tiny["out"] / entry["evaluation"]).exists()
+
+
+def seeded_row(label: str, means: list[float]) -> dict[str, Any]:
+    runs = [{"run": f"{label}-seed{i}"} for i in range(len(means))]
+    return {"label": label, "runs": runs, "seeds": {"avg_speed_kmh": {"means": means}}}
+
+
+def test_the_order_of_rows_is_judged_against_the_seed_spread():
+    rows = [
+        seeded_row("camera", [70.0, 74.0]),
+        seeded_row("both", [75.0, 76.0]),
+        seeded_row("lidar", [72.0, 73.0]),
+        seeded_row("one-seed", [90.0]),  # a single seed has no spread: not judged
+    ]
+    order = {(p["higher"], p["lower"]): p["beyond_seed_spread"] for p in seed_order(rows)}
+    assert order == {
+        ("both", "lidar"): True,  # 75 and 76 both above 72 and 73
+        ("both", "camera"): True,
+        ("lidar", "camera"): False,  # means 72.5 > 72.0, but camera's 74 beats lidar's 73
+    }

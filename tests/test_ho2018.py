@@ -60,9 +60,10 @@ def test_the_preset_observes_the_grid_and_the_action_stack():
 
 
 def test_a_car_covers_the_cells_of_its_body_in_its_lane_and_only_those():
-    # 36 cells of 30/36 m from 20 m ahead (row 0) to 10 m behind. A 4.5 m car centred 10 m
-    # ahead spans 7.75-12.25 m: rows 9-14; one centred 8 m behind spans -10.25 to -5.75 m:
-    # rows 30-35. The car 30 m ahead is out of sight, and the agent is no obstacle to itself.
+    # 36 cells of 1 m (his boxes) from 24.5 m ahead of the agent's centre (row 0: 21 ahead of
+    # its front bumper) to 11.5 m behind. A 7 m car centred 10 m ahead spans 6.5-13.5 m: rows
+    # 11-17; one centred 8 m behind spans -11.5 to -4.5 m: rows 29-35. The car 30 m ahead
+    # (from 26.5 m) is out of sight, and the agent is no obstacle to itself.
     sim = ho_sim(
         [
             Car(dx=10.0, lane=OWN_LANE + 1, speed_kmh=60.0),
@@ -71,8 +72,8 @@ def test_a_car_covers_the_cells_of_its_body_in_its_lane_and_only_those():
         ]
     )
     grid = grid_of(sim)
-    assert rows_with(grid[:, LEFT_COLUMN]) == list(range(9, 15))
-    assert rows_with(grid[:, RIGHT_COLUMN]) == list(range(30, 36))
+    assert rows_with(grid[:, LEFT_COLUMN]) == list(range(11, 18))
+    assert rows_with(grid[:, RIGHT_COLUMN]) == list(range(29, 36))
     assert rows_with(grid[:, OWN_COLUMN]) == []
     assert set(np.unique(grid).tolist()) == {0, 1}
 
@@ -135,7 +136,8 @@ def test_the_speed_stays_within_0_and_110_kmh():
 
 
 def test_a_slower_car_within_the_safety_gap_is_matched_at_once_and_counted_as_an_emergency_brake():
-    # 5 m bumper to bumper (centres 9.5 m apart), 30 km/h slower: an emergency brake.
+    # 2.5 m bumper to bumper (7 m cars, centres 9.5 m apart), 30 km/h slower: an emergency
+    # brake.
     sim = ho_sim([Car(dx=9.5, lane=OWN_LANE, speed_kmh=60.0)], ego_speed_kmh=90.0)
     sim.step(np.array([[CRUISE_UP]]))
     assert speed_kmh(sim) == pytest.approx(60.0, abs=0.01)
@@ -151,19 +153,27 @@ def test_no_accelerating_with_a_car_within_the_safety_gap_even_a_faster_one():
     sim = ho_sim([Car(dx=9.5, lane=OWN_LANE, speed_kmh=80.0)], ego_speed_kmh=60.0)
     sim.step(np.array([[CRUISE_UP]]))
     assert speed_kmh(sim) == pytest.approx(60.0)
-    # Once it is beyond the gap, the agent accelerates again.
-    far = ho_sim([Car(dx=15.0, lane=OWN_LANE, speed_kmh=80.0)], ego_speed_kmh=60.0)
+    # Once it is beyond the gap (10 m bumper to bumper), the agent accelerates again.
+    far = ho_sim([Car(dx=17.0, lane=OWN_LANE, speed_kmh=80.0)], ego_speed_kmh=60.0)
     far.step(np.array([[CRUISE_UP]]))
     assert speed_kmh(far) == pytest.approx(64.0)
 
 
 def test_traffic_yields_to_the_agent_in_ho2018_and_not_in_min_et_al_s_rule():
     def rear_ended(yields: bool) -> bool:
-        # A car 60 km/h faster 10 m behind the agent's rear bumper.
+        # A car 60 km/h faster 10 m behind the agent's rear bumper, on a road of one lane (it
+        # cannot swerve), braking at most 6 m/s^2 by car-following (it needs 23 m): only the
+        # safety rule's speed cap, Ho's "match the car ahead at once", saves it.
         sim = ho_sim(
-            [Car(dx=-14.5, lane=OWN_LANE, speed_kmh=100.0)],
+            [Car(dx=-17.0, lane=0, speed_kmh=100.0)],
+            ego_lane=0,
             ego_speed_kmh=40.0,
-            **{"traffic.yield_to_agents": yields},
+            **{
+                "traffic.yield_to_agents": yields,
+                "road.lane_count": 1,
+                "traffic.max_decel_mps2": 6.0,
+                "traffic.comfort_decel_mps2": 2.5,
+            },
         )
         return any(keep(sim).terminated[0, 0] for _ in range(40))
 
@@ -199,20 +209,22 @@ def test_every_crossing_counts_plus_or_minus_one():
                 totals[name] += float(terms[name][0, 0])
         return totals
 
-    assert run(20) == {"overtake": 1.0, "passed": 0.0}  # passes it
+    # Eight decisions of 0.32 s at 40 km/h between them move it 28 m: within the kept road
+    # (50 m behind, 90 m ahead), so the same car is passed each time.
+    assert run(8) == {"overtake": 1.0, "passed": 0.0}  # passes it
     st.speed_mps[0, 0] = 20.0 * KMH
     sim.state_written()
-    assert run(40) == {"overtake": 0.0, "passed": -1.0}  # it passes back
+    assert run(8) == {"overtake": 0.0, "passed": -1.0}  # it passes back
     st.speed_mps[0, 0] = 110.0 * KMH
     sim.state_written()
-    assert run(40) == {"overtake": 1.0, "passed": 0.0}  # the same car again: it counts again
+    assert run(8) == {"overtake": 1.0, "passed": 0.0}  # the same car again: it counts again
     assert sim.metrics()["overtakes"][0, 0] == 2
 
 
 def test_a_lane_change_opposite_to_a_recent_one_costs_the_alternation_penalty():
     sim = ho_sim()
     rewards = []
-    # Left, then right as soon as the change is over (0.25 s: 4 decisions of 0.08 s), while
+    # Left, then right once the change is over (0.24 s, within the decision of 0.32 s), while
     # the left is still among the last four actions; then right again, with no left among them.
     for action in (LANE_LEFT, KEEP, KEEP, KEEP, LANE_RIGHT, KEEP, KEEP, KEEP, KEEP, LANE_RIGHT):
         result = sim.step(np.array([[action]]))
@@ -302,9 +314,12 @@ def test_every_reference_policy_drives_ho2018_without_further_flags():
         envs.close()
         assert decisions == 3 * 60 and all(row["collisions"] == 0 for row in rows)
         speeds[policy] = np.mean([row["avg_speed_kmh"] for row in rows])
-    # Idle holds its 60 km/h start (or less); the others accelerate towards 110 km/h.
+    # Idle holds its 60 km/h start (or less); the rule driver and the planner accelerate
+    # towards 110 km/h; random driving, its decelerations repeated as its accelerations are,
+    # goes nowhere fast.
     assert speeds["idle"] <= 60.0 + 1e-6
-    assert min(speeds["random"], speeds["rule"], speeds["planner"]) > speeds["idle"] + 5.0
+    assert min(speeds["rule"], speeds["planner"]) > speeds["idle"] + 5.0
+    assert speeds["random"] < min(speeds["rule"], speeds["planner"]) - 20.0
 
 
 def test_the_grid_rule_driver_needs_the_lanes_either_side():
@@ -312,3 +327,22 @@ def test_the_grid_rule_driver_needs_the_lanes_either_side():
     with pytest.raises(UsageError, match="grid.side_lanes = 2"):
         baseline_policy("rule", envs.unwrapped.sim_config, 0, 1, envs)
     envs.close()
+
+
+def test_evaluation_decides_every_frame_as_his_code_does():
+    """Ho's code skips frames only while training (gui.py): overtake-eval drives his 4,000
+    frames with a decision at each, and --no-paper-evaluation as in training, 1,000 decisions
+    of 4 frames; both the same 320 s of road."""
+    from overtake.trainers.evaluate import EvalConfig
+    from overtake.trainers.evaluate import main as evaluate
+
+    every_frame = evaluate(EvalConfig(preset="ho2018", policy="idle", episodes=1))
+    as_trained = evaluate(
+        EvalConfig(preset="ho2018", policy="idle", episodes=1, paper_evaluation=False)
+    )
+    assert every_frame["overrides"]["episode.frames_per_decision"] == 1
+    assert [row["decisions"] for row in every_frame["episodes"]] == [4000]
+    assert [row["decisions"] for row in as_trained["episodes"]] == [1000]
+    # Idle driving over the same road: the same distance either way.
+    distance = [r["episodes"][0]["distance_m"] for r in (every_frame, as_trained)]
+    assert distance[0] == pytest.approx(distance[1], rel=0.05)

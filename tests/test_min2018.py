@@ -202,7 +202,7 @@ def test_random_traffic_changes_lanes_for_no_reason_and_safely():
     assert lane_changes(0.2) > 20
 
 
-@pytest.mark.parametrize("density, cars", [("light", 5), ("medium", 10), ("heavy", 20)])
+@pytest.mark.parametrize("density, cars", [("light", 10), ("medium", 20), ("heavy", 32)])
 def test_each_density_holds_its_cars_on_the_road(density, cars):
     envs = make_vector_env(
         "min2018",

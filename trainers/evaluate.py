@@ -30,6 +30,7 @@ from overtake.protocol.transport import SecurityConfig
 from .checkpoint import load_checkpoint
 from .network import INPUT_SENSORS
 from .observations import describe_space, frame_shapes
+from .presets import PRESET_TRAINING
 from .replay import FrameStacker
 
 TABLE_METRICS = (
@@ -61,7 +62,11 @@ class EvalConfig:
     set: tuple[str, ...] = ()
     """more simulator overrides as dotted.name=value"""
     max_decisions: int | None = None
-    """episode length in decisions; None keeps the preset's"""
+    """episode length in decisions; None keeps the preset's (or its paper's evaluation's)"""
+    paper_evaluation: bool = True
+    """evaluate as the preset's paper does where it evaluates otherwise than it trains
+    (ho2018: a decision every frame, 4,000 frames, as Ho's code evaluates); --no-paper-
+    evaluation decides as training does"""
     connect: str | None = None
     """a simulator server's (or router's) Zenoh endpoint; None runs the simulator in-process"""
     security: SecurityConfig = field(default_factory=SecurityConfig)
@@ -107,6 +112,12 @@ class GreedyPolicy:
             self.stacker.observation(), info["action_mask"], 0.0, self.rng
         )
         return actions
+
+
+def paper_evaluation(preset: str) -> tuple[str, ...]:
+    """The overrides (dotted.name=value) under which ``preset``'s paper evaluates."""
+    training = PRESET_TRAINING.get(preset)
+    return training.evaluation if training is not None else ()
 
 
 def summarise(rows: list[dict[str, float]]) -> dict[str, Any]:
@@ -168,6 +179,8 @@ def main(config: EvalConfig) -> dict[str, Any]:
     preset = config.preset or (checkpoint.preset if checkpoint else "min2018")
     overrides: dict[str, Any] = dict(checkpoint.overrides) if checkpoint else {}
     overrides.pop("traffic.density", None)  # evaluation sets its own traffic
+    if config.paper_evaluation:
+        overrides.update(parse_overrides(paper_evaluation(preset)))
     overrides.update(parse_overrides(config.set))
     if config.traffic is not None:
         overrides["traffic.density"] = config.traffic

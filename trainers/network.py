@@ -4,10 +4,11 @@
   (8x8 stride 4, 32; 4x4 stride 2, 64; 3x3 stride 1, 64), ReLU after each;
 - LIDAR: the last ``stack`` scans through an LSTM with 256 cells (its last output is the
   feature);
-- the ego vector of the latest decision (speed, cruise target, lane, lane count, lane-change
-  progress and direction; Min et al.'s code feeds these 6 values beside the LIDAR) is
-  concatenated too, in every variant: it is the car's own state, not a sensor, so the ablation
-  compares camera against LIDAR only;
+- the ego vector of the latest decision is concatenated too, whatever fields the environment
+  gives: Min et al.'s six (three warnings, the car ahead's distance and speed, the car's
+  speed), which the authors' code feeds beside the LIDAR, for the LIDAR and multi-modal
+  networks; the car's speed alone for the camera-only one (``TrainConfig.overrides``), so that
+  each variant sees other cars only through its own sensors;
 - the concatenation goes through a 512-unit layer with ReLU, then either Q-values or, with
   ``dueling``, a value and an advantage head combined as Q = V + A - mean(A) (Wang et al.,
   Min et al. Eq. 9).

@@ -2,9 +2,10 @@
 network, optimiser and hyper-parameters. ``overtake-train --preset NAME`` starts from these
 (its ``--help`` shows them), and every one can be overridden by its flag.
 
-- ``min2018`` (Min et al. 2018 and the authors' code): Double DQN on camera and LIDAR with the
-  multi-modal network of Table II, Adam 2.5e-4 and the rest of :class:`.learner.DQNConfig`'s
-  defaults.
+- ``min2018`` (Min et al. 2018 and the authors' code): Double DQN with the Dueling network
+  (§IV: the three methods "are combined"; the authors' code runs Double + Dueling) on camera
+  and LIDAR with the multi-modal network of Table II, Adam 2.5e-4 and the rest of
+  :class:`.learner.DQNConfig`'s defaults.
 - ``ho2018`` (Ho 2018, Table 6): DQN with a target network (the thesis calls it DDQN but
   describes a target network only) on the occupancy grid with the proposed network of Fig. 5;
   RMSProp with learning rate 0.0005 and gradient momentum 0.95 (Table 7's runs vary the rate:
@@ -14,6 +15,8 @@ network, optimiser and hyper-parameters. ``overtake-train --preset NAME`` starts
   clipping. Chosen here: RMSProp's other settings as Mnih et al. (2015), whose table Table 6
   follows (squared-gradient smoothing 0.95, minimum 0.01, centred), and an update every 4
   steps.
+  Evaluation as his code's (``gui.py`` skips frames only while training): a decision every
+  frame, 4,000 of them an episode, the frames and actions stacked per decision as in training.
 - ``fayjie2018`` (Fayjie et al. 2018, §III.A and Table I): DQN with a target network copied
   every 6,000 steps on the camera and the LIDAR map (``camera-map`` inputs, 4 frames each) with
   the two-stream network (:mod:`.two_stream_network`), learning rate 0.001, discount 0.99,
@@ -37,10 +40,13 @@ class PresetTraining:
     algo: Algo
     inputs: Inputs
     dqn: DQNConfig
+    evaluation: tuple[str, ...] = ()
+    """simulator overrides (dotted.name=value) under which ``overtake-eval`` evaluates, as
+    the paper (or its authors' code) evaluates; ``--no-paper-evaluation`` leaves them out"""
 
 
 PRESET_TRAINING: dict[str, PresetTraining] = {
-    "min2018": PresetTraining(algo="ddqn", inputs="both", dqn=DQNConfig()),
+    "min2018": PresetTraining(algo="dueling", inputs="both", dqn=DQNConfig()),
     "ho2018": PresetTraining(
         algo="dqn",
         inputs="grid",
@@ -64,6 +70,9 @@ PRESET_TRAINING: dict[str, PresetTraining] = {
             grad_clip_norm=0.0,
             stack=4,
         ),
+        # His code skips frames only while training (gui.py: `... and is_training`): an
+        # evaluated driver decides every frame, over the episode's 4,000 frames.
+        evaluation=("episode.frames_per_decision=1", "episode.max_decisions=4000"),
     ),
     "fayjie2018": PresetTraining(
         algo="dqn",

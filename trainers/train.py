@@ -72,6 +72,9 @@ from .visual import TrainingRecording, training_blueprint
 
 log = logging.getLogger("overtake.trainer")
 
+# The ego vector of a camera-only network: the car's own speed, nothing of the other cars.
+CAMERA_ONLY_EGO_FIELDS = ("speed_mps",)
+
 # Environment 0's view is logged every this many steps of the vector environment: about 6 MB
 # of .rrd per 10,000 steps with the camera, and no loss in steps per second measurable above
 # the machine's noise (bench/RESULTS.md), for runs that last days.
@@ -82,8 +85,9 @@ TRAINER_RECORD_EVERY = 10
 class TrainConfig:
     """Train a DQN-family learner on an overtake preset."""
 
-    algo: Algo = "ddqn"
-    """dqn, ddqn (Double DQN) or dueling (Dueling network with the Double DQN target)"""
+    algo: Algo = "dueling"
+    """dqn, ddqn (Double DQN) or dueling (Dueling network with the Double DQN target: Min et
+    al.'s combination, the default of min2018)"""
     inputs: Inputs = "both"
     """camera, lidar or both (Min et al.'s multi-modal network), grid (Ho's occupancy grid and
     action stack) or camera-map (Fayjie et al.'s camera and LIDAR map); default the preset's"""
@@ -173,13 +177,19 @@ class TrainConfig:
         return self.run_dir or Path("runs") / f"{self.algo}-{self.inputs}-{self.seed}"
 
     def overrides(self) -> dict[str, Any]:
-        """Simulator overrides: the user's, the traffic, and no sensor the network ignores
-        (rendering a camera nobody looks at costs a third of a step)."""
+        """Simulator overrides: the user's, the traffic, no sensor the network ignores
+        (rendering a camera nobody looks at costs a third of a step), and for the camera alone
+        an ego vector of the car's own speed only: the warnings and the car ahead's distance and
+        speed ride with the LIDAR in the authors' code (its vector's elements 360-365), so a
+        camera-only network sees other cars only through its camera (Min et al.'s ablation)."""
         overrides = parse_overrides(self.set)
         if self.traffic is not None:
             overrides["traffic.density"] = self.traffic
         if self.inputs == "lidar":
             overrides.setdefault("camera.enabled", False)
+        if self.inputs == "camera":
+            overrides.setdefault("lidar.enabled", False)
+            overrides.setdefault("ego_vector.fields", list(CAMERA_ONLY_EGO_FIELDS))
         return overrides
 
 

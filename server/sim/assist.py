@@ -103,7 +103,7 @@ class EgoConfig:
             self.cruise_max_kmh,
         )
         check_range("ego.length_m", self.length_m, 2.0, 20.0)
-        check_range("ego.width_m", self.width_m, 1.0, 3.0)
+        check_range("ego.width_m", self.width_m, 1.0, 4.0)
         check_range("ego.cruise_time_constant_s", self.cruise_time_constant_s, 0.05, 10.0)
         check_range("ego.time_headway_s", self.time_headway_s, 0.1, 5.0)
         check_range("ego.min_gap_m", self.min_gap_m, 0.5, 20.0)

@@ -282,8 +282,11 @@ def capped_speeds(
 ) -> None:
     """Every vehicle's speed at the end of the frame into ``new_speed`` (A, V): ``accel``
     integrated, not below 0, and for traffic behind a traffic leader (any leader with
-    ``yield_to_agents``) no faster than stopping behind it allows if it brakes as hard as it
-    can (the safety rule; :meth:`.physics.Physics.frame`)."""
+    ``yield_to_agents``) no faster than keeps it 0.2 m behind that leader through the frame
+    even if the leader brakes as hard as it can (the safety rule;
+    :meth:`.physics.Physics.frame`). Both move at the mean of their old and new speeds
+    (:func:`integrate`), so the follower closes in by ``(v + s) / 2 * dt`` against the
+    leader's ``(u - max_decel * dt / 2) * dt``."""
     arenas, vehicles = speed.shape
     for a in range(arenas):
         for v in range(vehicles):
@@ -291,10 +294,13 @@ def capped_speeds(
             if is_traffic[a, v] and has_leader[a, v]:
                 c = leader[a, v] - a * vehicles
                 if yield_to_agents or is_traffic[a, c]:
-                    cap = max(
-                        leader_speed[a, v] - max_decel_mps2 * dt + (gap[a, v] - 0.2) / dt, 0.0
+                    cap = (
+                        2.0 * (gap[a, v] - 0.2) / dt
+                        + 2.0 * leader_speed[a, v]
+                        - max_decel_mps2 * dt
+                        - speed[a, v]
                     )
-                    s = min(s, cap)
+                    s = min(s, max(cap, 0.0))
             new_speed[a, v] = s
 
 

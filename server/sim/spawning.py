@@ -200,21 +200,24 @@ class Spawner:
         )
         x = st.x_m[arena, anchor][:, None] + np.where(ahead_side[:, None], distance, -distance)
         kind = self.kinds.behaviour_of(u[:, U_BEHAVIOUR])
-        speed = self.kinds.desired_speed(kind, u[:, U_SPEED])
+        desired = self.kinds.desired_speed(kind, u[:, U_SPEED])
         shape = lane.shape
+        speed = np.broadcast_to(desired[:, None], shape)
+        if cfg.enter_at_leader_speed:
+            speed = self.entry_speeds(st, arena, lane, x, speed, st.active[arena])
         ok = self.clearance_ok(
             st,
             arena,
             lane,
             x,
-            np.broadcast_to(speed[:, None], shape),
+            speed,
             np.broadcast_to(kind[:, None], shape),
             st.active[arena],
         )
         found = np.asarray(ok.any(axis=1))
         pick = np.argmax(ok, axis=1)
-        pick_lane = lane[np.arange(arena.size), pick]
-        pick_x = x[np.arange(arena.size), pick]
+        picked = (np.arange(arena.size), pick)
+        pick_lane, pick_x, pick_speed = lane[picked], x[picked], speed[picked]
         # Two spawns of this decision may not land on each other: the later one waits.
         same_place = (
             (arena[:, None] == arena[None, :])
@@ -230,14 +233,40 @@ class Spawner:
         st.target_lane[a, c] = pick_lane[found]
         st.change_progress[a, c] = 0.0
         st.y_m[a, c] = self.road.centre_y(pick_lane[found])
-        st.speed_mps[a, c] = speed[found]
-        st.desired_speed_mps[a, c] = speed[found]
+        st.speed_mps[a, c] = pick_speed[found]
+        st.desired_speed_mps[a, c] = desired[found]
         st.accel_mps2[a, c] = 0.0
         st.kind[a, c] = kind[found]
         st.active[a, c] = True
         spawned = np.zeros((arenas, vehicles), dtype=bool)
         spawned[a, c] = True
         self.tracker.start(st, spawned)
+
+    def entry_speeds(
+        self,
+        st: SimState,
+        arena: np.ndarray,
+        lane: np.ndarray,
+        x: np.ndarray,
+        speed: np.ndarray,
+        others: np.ndarray,
+    ) -> np.ndarray:
+        """(K, M) the candidates' speeds, each lowered to its leader's where that is slower
+        (``traffic.enter_at_leader_speed``): a car arrives in the traffic it meets.
+
+        ``arena`` (K,) rows of ``st``; lane, x, speed (K, M) the candidates; ``others`` (K, V)
+        the vehicles that can lead them.
+        """
+        o_x = st.x_m[arena][:, None, :]
+        in_lane = (
+            (st.lane[arena][:, None, :] == lane[..., None])
+            | (st.target_lane[arena][:, None, :] == lane[..., None])
+        ) & others[:, None, :]
+        ahead = np.where(in_lane & (o_x >= x[..., None]), o_x - x[..., None], np.inf)
+        leader = np.argmin(ahead, axis=-1)
+        has_leader = np.isfinite(np.take_along_axis(ahead, leader[..., None], axis=-1)[..., 0])
+        leader_speed = st.speed_mps[arena[:, None], leader]
+        return np.where(has_leader, np.minimum(speed, leader_speed), speed)
 
     def clearance_ok(
         self,
