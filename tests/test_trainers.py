@@ -626,7 +626,7 @@ def test_resume_if_found_continues_a_run_and_starts_one_where_there_is_none(tmp_
     assert after.step == 160 and after.resumes == 1
     assert (run_dir / "run-resume-1.json").exists()
     # Like --resume, it refuses a checkpoint of another algorithm.
-    with pytest.raises(CheckpointError, match="algo=ddqn"):
+    with pytest.raises(CheckpointError, match="algo=dueling"):
         train(replace(config, algo="dqn", total_steps=200), envs=PickTheFreeLane(1))
 
 
