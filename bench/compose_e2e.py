@@ -96,7 +96,8 @@ class ComposeE2EConfig:
     num_envs: int = 2
     """arenas per trainer"""
     wait_s: float = 600.0
-    """the longest any one wait may take (health, first steps, a checkpoint, the end)"""
+    """the longest any one wait may take (health, first steps, a checkpoint); the trainers'
+    end is waited for as long as they make progress, up to six times this"""
     stop_grace_s: int = 20
     """docker compose stop's timeout: after it a container is killed with SIGKILL"""
     keep: bool = False
@@ -122,6 +123,32 @@ def wait_for(condition: Callable[[], T | None], timeout_s: float, what: str) -> 
         if time.monotonic() > deadline:
             raise E2EFailure(f"{what}: not within {timeout_s:g} s")
         time.sleep(0.5)
+
+
+def wait_while_progressing(
+    condition: Callable[[], bool],
+    progress: Callable[[], Any],
+    stall_s: float,
+    cap_s: float,
+    what: str,
+) -> float:
+    """Wait for ``condition``, as long as ``progress()`` keeps changing: E2EFailure once it has
+    not changed for ``stall_s`` (something is stuck), or after ``cap_s`` in all. How long
+    training takes depends on the machine and what else runs on it; a stall does not. Returns
+    the seconds waited."""
+    start = time.monotonic()
+    last, changed = progress(), start
+    while not condition():
+        now = time.monotonic()
+        if now - start > cap_s:
+            raise E2EFailure(f"{what}: not within {cap_s:g} s (still progressing: {last})")
+        current = progress()
+        if current != last:
+            last, changed = current, now
+        elif now - changed > stall_s:
+            raise E2EFailure(f"{what}: no progress for {stall_s:g} s (stuck at {last})")
+        time.sleep(2.0)
+    return time.monotonic() - start
 
 
 def run(
@@ -530,11 +557,29 @@ def trainer_summaries(stack: Stack) -> dict[str, dict[str, Any]]:
 
 
 def check_trainers_finish(stack: Stack, figures: dict[str, Any]) -> None:
-    def finished() -> bool:
-        trainers = [c for c in stack.containers() if c["Service"].startswith("trainer-")]
-        return bool(trainers) and all(c.get("State") == "exited" for c in trainers)
+    def containers() -> list[dict[str, Any]]:
+        return [c for c in stack.containers() if c["Service"].startswith("trainer-")]
 
-    wait_for(finished, stack.config.wait_s, "every trainer's end")
+    def finished() -> bool:
+        running = containers()
+        return bool(running) and all(c.get("State") == "exited" for c in running)
+
+    def progress() -> tuple[Any, ...]:
+        """The trainers' states and every group's rounds on the server: any change is
+        progress."""
+        rounds = sorted(
+            (g["group"], g["rounds"]) for s in stack.status() for g in s.get("groups", ())
+        )
+        return tuple(sorted(str(c.get("State")) for c in containers())), tuple(rounds)
+
+    # The whole training of five trainers on the machine's cores: how long it takes is the
+    # machine's business, so the wait is on progress (a stuck trainer or server fails it).
+    figures["trainers_end_s"] = round(
+        wait_while_progressing(
+            finished, progress, stack.config.wait_s, 6 * stack.config.wait_s, "every trainer's end"
+        ),
+        1,
+    )
     trainers = trainer_summaries(stack)
     for name, facts in trainers.items():
         if facts["exit"] != 0 or facts["summary"] is None:
