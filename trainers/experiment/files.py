@@ -1,0 +1,131 @@
+"""The experiment directory's files: written whole or not at all, locked while a process works
+in them, and the training records of runs that were killed and resumed."""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..checkpoint import CHECKPOINT_NAME, load_checkpoint
+
+LIVES_NAME = "experiment-lives.jsonl"
+PLAN_NAME = "experiment.json"
+LOCK_NAME = ".lock"
+
+
+def write_atomic(path: Path, data: str | bytes) -> None:
+    """Write to a temporary file beside ``path`` and rename it over ``path``: a kill leaves the
+    old file or the new one, never half of one."""
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_bytes(data.encode() if isinstance(data, str) else data)
+    os.replace(tmp, path)
+
+
+def read_json(path: Path) -> Any:
+    """``path``'s JSON, or None where it is missing or unreadable (a file of a killed
+    process)."""
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+
+
+def checkpoint_step(run_dir: Path) -> int | None:
+    """The step of the run's checkpoint, or None where it has none."""
+    path = run_dir / CHECKPOINT_NAME
+    if not path.exists():
+        return None
+    return load_checkpoint(path).step
+
+
+def lock(path: Path) -> int | None:
+    """An open descriptor holding an exclusive lock on ``path`` (created), or None where
+    another process holds it. The lock lasts while any process keeps the descriptor open: a
+    child that inherits it holds it until it exits."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        return None
+    return fd
+
+
+def note_life(run_dir: Path, from_step: int) -> None:
+    """Record, before a trainer starts in ``run_dir``, where its records will begin in
+    metrics.jsonl and from which step it trains (0: from scratch). The episodes an earlier
+    life logged after that step are redone by this one, and the curves drop them."""
+    metrics = run_dir / "metrics.jsonl"
+    offset = metrics.stat().st_size if metrics.exists() else 0
+    record = {"from_step": from_step, "metrics_offset_bytes": offset, "started_utc": utc_now()}
+    with open(run_dir / LIVES_NAME, "a", encoding="utf-8") as handle:
+        handle.write(json.dumps(record) + "\n")
+
+
+def training_episodes(run_dir: Path) -> list[dict[str, Any]]:
+    """The run's training episodes (metrics.jsonl's ``episode`` records) that its final model
+    descends from: where a life resumed from step S, the earlier lives' episodes after S are
+    left out (that training was lost with the kill and done again)."""
+    return training_records(run_dir, "episode")
+
+
+def training_records(run_dir: Path, kind: str) -> list[dict[str, Any]]:
+    """:func:`training_episodes` for metrics.jsonl's records of any ``kind``."""
+    metrics = run_dir / "metrics.jsonl"
+    data = metrics.read_bytes() if metrics.exists() else b""
+    starts: list[tuple[int, int | None]] = [(0, None)]
+    lives = run_dir / LIVES_NAME
+    if lives.exists():
+        for text in lives.read_text(encoding="utf-8").splitlines():
+            with contextlib.suppress(ValueError, KeyError, TypeError):
+                life = json.loads(text)
+                starts.append((int(life["metrics_offset_bytes"]), int(life["from_step"])))
+    kept: list[dict[str, Any]] = []
+    for i, (begin, from_step) in enumerate(starts):
+        end = starts[i + 1][0] if i + 1 < len(starts) else len(data)
+        if from_step is not None:
+            kept = [record for record in kept if record["step"] <= from_step]
+        for line in data[begin:end].splitlines():
+            try:
+                record = json.loads(line)
+            except ValueError:
+                continue  # the line a kill cut short
+            if isinstance(record, dict) and record.get("kind") == kind:
+                kept.append(record)
+    return kept
+
+
+def window_rewards(train_records_by_run: dict[str, list[dict[str, Any]]], window: int) -> Any:
+    """A row's reward per window of training steps (Fayjie et al.'s Fig. 6): each training
+    line's ``reward_sum`` (the runs log one per window), the mean over the row's runs of the
+    k-th window, and the lowest and highest of them."""
+    by_window: dict[int, list[float]] = {}
+    for records in train_records_by_run.values():
+        for record in records:
+            if record.get("reward_sum") is not None:
+                k = max(1, round(record["step"] / window))
+                by_window.setdefault(k, []).append(float(record["reward_sum"]))
+    windows = sorted(by_window)
+    return {
+        "window_end_step": [k * window for k in windows],
+        "mean": [float(np.mean(by_window[k])) for k in windows],
+        "run_min": [min(by_window[k]) for k in windows],
+        "run_max": [max(by_window[k]) for k in windows],
+    }
+
+
+def utc_now() -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+
+
+def say(message: str) -> None:
+    print(f"[{time.strftime('%H:%M:%S')}] {message}", file=sys.stderr, flush=True)

@@ -1,0 +1,353 @@
+"""An experiment resolved against a command line: every run's training configuration, checked
+before anything is trained, and the command lines of its processes."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import sys
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import tyro
+
+from overtake.client.commands import UsageError
+from overtake.protocol.transport import SecurityConfig
+from overtake.viz.recording import RecordingConfig
+
+from ..checkpoint import plain_data
+from ..evaluate import EvalConfig
+from ..train import TrainConfig
+from .catalogue import EXPERIMENTS, Density, Experiment, Row, Schedule
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    """Reproduce a paper's table: train its rows (resumable, in parallel), evaluate them and
+    the reference policies on fixed seeds at each traffic density, write the table and the
+    learning curves. Run the same command again to continue after a kill."""
+
+    experiment: Annotated[str, tyro.conf.Positional] = "min2018-table3"
+    """the experiment to run (--list-experiments shows them)"""
+    out: Path | None = None
+    """the experiment directory; default runs/experiments/<experiment>"""
+    jobs: int | None = None
+    """processes (training runs or evaluations) at once; default the cores this process may
+    use"""
+    total_steps: int | None = None
+    """environment steps per training run; None keeps the experiment's"""
+    seeds: int | None = None
+    """training seeds of every row; None keeps each row's"""
+    rows: tuple[str, ...] = ()
+    """only these rows (labels); default every row"""
+    densities: tuple[Density, ...] | None = None
+    """evaluation traffic densities; None keeps the experiment's"""
+    references: tuple[str, ...] | None = None
+    """reference policies (overtake-eval --policy) to evaluate beside the rows; None keeps the
+    experiment's"""
+    eval_episodes: int | None = None
+    """evaluation episodes per policy and density; None keeps the experiment's"""
+    eval_seed: int = 1_000
+    """evaluation episode i uses seed eval_seed + i, for every policy and density"""
+    eval_max_decisions: int | None = None
+    """evaluation episode length in decisions; None keeps the preset's"""
+    num_envs: int | None = None
+    """environments per training run; None keeps the experiment's"""
+    learning_starts: int | None = None
+    """None: the experiment's schedule (scaled to the budget, Schedule.for_budget, or the
+    preset's own where the experiment keeps it), as are the next four"""
+    epsilon_decay_steps: int | None = None
+    target_update_steps: int | None = None
+    replay_size: int | None = None
+    checkpoint_every: int | None = None
+    reward_window_steps: int | None = None
+    """the training reward's window, for an experiment that plots it (Fayjie et al.'s 3,000);
+    None keeps the experiment's"""
+    set: tuple[str, ...] = ()
+    """simulator overrides (dotted.name=value) for training and evaluation alike"""
+    connect: str | None = None
+    """a simulator server's (or router's) Zenoh endpoint for training and evaluation; None runs
+    the simulator in each process"""
+    security: SecurityConfig = field(default_factory=SecurityConfig)
+    """usrpwd credentials and TLS certificates for --connect"""
+    torch_threads: int | None = None
+    """PyTorch threads per process; default the cores divided by --jobs"""
+    record_training: bool = False
+    """each training run also records its Rerun trainer.rrd (about 6 MB per 10,000 steps)"""
+    curve_bins: int = 40
+    """learning curves: training episodes are averaged in this many equal bins of steps"""
+    progress_every_s: float = 300.0
+    """seconds between lines giving every running run's training step"""
+    keep: Path | None = None
+    """also copy table.md, table.json and curves.png into this directory (the evidence that is
+    committed: bench/results/<experiment>)"""
+    list_experiments: bool = False
+    """print the experiments and their rows, and do nothing else"""
+
+
+@dataclass(frozen=True)
+class RunPlan:
+    """One training run of a row."""
+
+    row: Row
+    seed: int
+    run_dir: Path
+    train: TrainConfig
+
+    @property
+    def name(self) -> str:
+        return self.run_dir.name
+
+
+@dataclass(frozen=True)
+class Plan:
+    """An experiment resolved against a configuration: what will be trained and evaluated."""
+
+    experiment: Experiment
+    out: Path
+    jobs: int
+    torch_threads: int
+    rows: tuple[Row, ...]
+    runs: tuple[RunPlan, ...]
+    densities: tuple[Density, ...]
+    references: tuple[str, ...]
+    eval_episodes: int
+    schedule: Schedule
+    total_steps: int
+
+
+def available_cores() -> int:
+    """The cores this process may run on (its CPU affinity where the platform tells it)."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
+def reference_policies() -> tuple[str, ...]:
+    """The ``--policy`` names ``overtake-eval`` accepts (read from EvalConfig, so new ones are
+    known as soon as it has them)."""
+    hint = typing.get_type_hints(EvalConfig)["policy"]
+    return tuple(
+        value
+        for arg in typing.get_args(hint)
+        if typing.get_origin(arg) is Literal
+        for value in typing.get_args(arg)
+    )
+
+
+# The options that must be at least 1 where given.
+_POSITIVE = (
+    "jobs",
+    "total_steps",
+    "seeds",
+    "eval_episodes",
+    "eval_max_decisions",
+    "num_envs",
+    "epsilon_decay_steps",
+    "target_update_steps",
+    "replay_size",
+    "checkpoint_every",
+    "reward_window_steps",
+    "torch_threads",
+    "curve_bins",
+)
+
+
+def _at_least_one(name: str, value: int | None) -> None:
+    if value is not None and value < 1:
+        raise UsageError(f"--{name.replace('_', '-')} must be >= 1, got {value}")
+
+
+def make_plan(config: ExperimentConfig) -> Plan:
+    """The experiment ``config`` asks for, checked: every bad option is refused here, before
+    anything is trained."""
+    experiment = EXPERIMENTS.get(config.experiment)
+    if experiment is None:
+        raise UsageError(
+            f"unknown experiment {config.experiment!r}: expected one of {', '.join(EXPERIMENTS)}"
+        )
+    if config.reward_window_steps is not None:
+        if experiment.reward_window_steps is None:
+            raise UsageError(
+                f"--reward-window-steps: {experiment.name} plots no reward per window "
+                "(fayjie2018-fig6 does)"
+            )
+        experiment = dataclasses.replace(experiment, reward_window_steps=config.reward_window_steps)
+    for name in _POSITIVE:
+        _at_least_one(name, getattr(config, name))
+    if config.learning_starts is not None and config.learning_starts < 0:
+        raise UsageError(f"--learning-starts must be >= 0, got {config.learning_starts}")
+    labels = [row.label for row in experiment.rows]
+    unknown = [label for label in config.rows if label not in labels]
+    if unknown:
+        raise UsageError(
+            f"unknown row(s) {', '.join(unknown)} of {experiment.name}: expected some of "
+            f"{', '.join(labels)}"
+        )
+    references = experiment.references if config.references is None else config.references
+    known = reference_policies()
+    missing = [policy for policy in references if policy not in known]
+    if missing:
+        raise UsageError(
+            f"reference polic{'y' if len(missing) == 1 else 'ies'} {', '.join(missing)} "
+            f"unknown to overtake-eval --policy (it has {', '.join(known)}): pass "
+            f"--references with some of those"
+        )
+    total_steps = config.total_steps or experiment.total_steps
+    scaled = Schedule.for_budget(total_steps)
+    if not experiment.scale_schedule:
+        own = TrainConfig.for_preset(experiment.preset).dqn
+        scaled = dataclasses.replace(
+            scaled,
+            learning_starts=own.learning_starts,
+            epsilon_decay_steps=own.epsilon_decay_steps,
+            target_update_steps=own.target_update_steps,
+            replay_size=own.replay_size,
+        )
+    schedule = Schedule(
+        **{
+            f.name: getattr(config, f.name)
+            if getattr(config, f.name) is not None
+            else getattr(scaled, f.name)
+            for f in dataclasses.fields(Schedule)
+        }
+    )
+    jobs = config.jobs or available_cores()
+    out = config.out or Path("runs") / "experiments" / experiment.name
+    rows = tuple(
+        dataclasses.replace(row, seeds=config.seeds or row.seeds)
+        for row in experiment.rows
+        if not config.rows or row.label in config.rows
+    )
+    threads = config.torch_threads or max(1, available_cores() // jobs)
+    runs = tuple(
+        _run_plan(config, experiment, row, seed, out, total_steps, schedule, threads)
+        for row in rows
+        for seed in range(row.seeds)
+    )
+    return Plan(
+        experiment=experiment,
+        out=out,
+        jobs=jobs,
+        torch_threads=threads,
+        rows=rows,
+        runs=runs,
+        densities=config.densities or experiment.densities,
+        references=references,
+        eval_episodes=config.eval_episodes or experiment.eval_episodes,
+        schedule=schedule,
+        total_steps=total_steps,
+    )
+
+
+def _run_plan(
+    config: ExperimentConfig,
+    experiment: Experiment,
+    row: Row,
+    seed: int,
+    out: Path,
+    total_steps: int,
+    schedule: Schedule,
+    threads: int,
+) -> RunPlan:
+    run_dir = out / f"{row.label}-seed{seed}"
+    # The preset's training (its paper's network and hyper-parameters), scaled to the budget.
+    base = TrainConfig.for_preset(experiment.preset)
+    dqn = dataclasses.replace(
+        base.dqn,
+        learning_starts=schedule.learning_starts,
+        epsilon_decay_steps=schedule.epsilon_decay_steps,
+        target_update_steps=schedule.target_update_steps,
+        replay_size=schedule.replay_size,
+    )
+    if row.network is not None:
+        dqn = dataclasses.replace(dqn, network=row.network)
+    if row.learning_rate is not None:
+        dqn = dataclasses.replace(dqn, learning_rate=row.learning_rate)
+    train = dataclasses.replace(
+        base,
+        algo=row.algo,
+        inputs=row.inputs,
+        preset=experiment.preset,
+        traffic=experiment.train_traffic,
+        set=config.set,
+        connect=config.connect,
+        security=config.security,
+        num_envs=config.num_envs or experiment.num_envs,
+        total_steps=total_steps,
+        seed=seed,
+        run_dir=run_dir,
+        resume_if_found=True,
+        checkpoint_every=schedule.checkpoint_every,
+        log_every=experiment.reward_window_steps or base.log_every,
+        torch_threads=threads,
+        progress=False,
+        dqn=dqn,
+        recording=RecordingConfig(
+            sink="file" if config.record_training else "off",
+            record_every=TrainConfig().recording.record_every,
+        ),
+    )
+    return RunPlan(row=row, seed=seed, run_dir=run_dir, train=train)
+
+
+# Settings of a run that do not change what it learns: a restarted experiment may change them.
+_UNLEARNED = (
+    "connect",
+    "security",
+    "torch_threads",
+    "progress",
+    "recording",
+    "resume",
+    "resume_if_found",
+    "run_dir",
+)
+
+
+def training_identity(train: TrainConfig) -> dict[str, Any]:
+    """What a run's training is, for comparing a directory's runs with a new invocation's."""
+    data = plain_data(train)
+    for name in _UNLEARNED:
+        data.pop(name, None)
+    return data
+
+
+def command_args(config: Any, default: Any) -> list[str]:
+    """The command-line arguments (tyro, with OmitArgPrefixes) that make a command parse
+    ``config``: one per field that differs from ``default``, nested dataclasses flattened."""
+    args: list[str] = []
+    for f in dataclasses.fields(config):
+        value, base = getattr(config, f.name), getattr(default, f.name)
+        if dataclasses.is_dataclass(value):
+            args += command_args(value, base)
+            continue
+        if value == base:
+            continue
+        flag = "--" + f.name.replace("_", "-")
+        if isinstance(value, bool):
+            args.append(flag if value else f"--no-{f.name.replace('_', '-')}")
+        elif value is None:
+            args += [flag, "None"]
+        elif isinstance(value, tuple):
+            args += [flag, *(str(item) for item in value)]
+        else:
+            args += [flag, str(value)]
+    return args
+
+
+def train_command(train: TrainConfig) -> list[str]:
+    """``overtake-train`` for ``train``, as this interpreter's module (found whether or not
+    the environment's bin is on PATH)."""
+    # overtake-train's defaults are the training of the preset it is given (--preset first).
+    base = TrainConfig.for_preset(train.preset)
+    preset = [] if train.preset == TrainConfig().preset else ["--preset", train.preset]
+    args = [*preset, *command_args(train, base)]
+    return [sys.executable, "-m", "overtake.trainers.train", *args]
+
+
+def eval_command(evaluation: EvalConfig) -> list[str]:
+    """``overtake-eval`` for ``evaluation``, as this interpreter's module."""
+    args = command_args(evaluation, EvalConfig())
+    return [sys.executable, "-m", "overtake.trainers.evaluate", *args]

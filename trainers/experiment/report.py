@@ -1,0 +1,392 @@
+"""The experiment's outputs: table.md, table.json, curves.png and curves.rrd, and the evidence
+kept in git."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from overtake.viz.recording import RecordingConfig, close_recording, open_recording
+
+from ..checkpoint import plain_data
+from ..train import git_commit, package_versions
+from .catalogue import (
+    ALGO_NAMES,
+    CURVE_METRICS,
+    EXPERIMENTS,
+    INPUT_NAMES,
+    TABLE_COLUMNS,
+    Density,
+    Row,
+)
+from .files import (
+    checkpoint_step,
+    say,
+    training_episodes,
+    training_records,
+    utc_now,
+    window_rewards,
+    write_atomic,
+)
+from .plan import ExperimentConfig, Plan
+from .run import ExperimentRun
+from .statistics import episode_statistics, learning_curves, seed_order, seed_statistics
+
+
+def _cell(stats: dict[str, Any], metric: str, decimals: int) -> str:
+    return f"{stats[metric]['mean']:.{decimals}f} ± {stats[metric]['std']:.{decimals}f}"
+
+
+def markdown_table(result: dict[str, Any]) -> str:
+    """table.md: one table per density, the rows then the reference policies."""
+    plan = result["plan"]
+    episodes, seed = plan["eval_episodes"], plan["eval_seed"]
+    lines = [
+        f"# {result['experiment']}: {plan['title']}",
+        "",
+        f"Training: {plan['total_steps']:,} environment steps per run, preset "
+        f"{plan['preset']}, {plan['num_envs']} environments, "
+        f"{plan['train_traffic'] or 'the preset’s'} traffic; learning starts at "
+        f"{plan['schedule']['learning_starts']:,} steps, epsilon 1 → 0.1 over "
+        f"{plan['schedule']['epsilon_decay_steps']:,}, target copy every "
+        f"{plan['schedule']['target_update_steps']:,}, replay "
+        f"{plan['schedule']['replay_size']:,}.",
+        f"Evaluation: greedy, {episodes} episodes per policy and density on seeds "
+        f"{seed}–{seed + episodes - 1} (the same for every policy). Mean ± spread (standard "
+        "deviation) over the episodes; a row with several training seeds pools the episodes "
+        "of all of them (per-seed means below its table). Collisions per 1,000 decisions: "
+        "each episode's own rate.",
+        f"Code {result['commit']}, written {result['written_utc']}.",
+    ]
+    headings = [heading for _, heading, _ in TABLE_COLUMNS]
+    for density, table in result["densities"].items():
+        lines += [
+            "",
+            f"## {density.capitalize()} traffic",
+            "",
+            "| policy | algorithm | inputs | training seeds | " + " | ".join(headings) + " |",
+            "|---|---|---|---:|" + "---:|" * len(headings),
+        ]
+        for row in table["rows"]:
+            cells = [_cell(row["summary"], m, d) for m, _, d in TABLE_COLUMNS]
+            lines.append(
+                f"| {row['label']} | {ALGO_NAMES[row['algo']]} | {INPUT_NAMES[row['inputs']]} "
+                f"| {len(row['runs'])} | " + " | ".join(cells) + " |"
+            )
+        for reference in table["references"]:
+            cells = [_cell(reference["summary"], m, d) for m, _, d in TABLE_COLUMNS]
+            lines.append(
+                f"| {reference['policy']} | reference policy | - | - | " + " | ".join(cells) + " |"
+            )
+        several = [row for row in table["rows"] if len(row["runs"]) > 1]
+        if several:
+            lines += [
+                "",
+                "Per training seed (means over each seed's episodes; spread over the seeds "
+                "in the last line of each row):",
+                "",
+                "| run | " + " | ".join(headings) + " |",
+                "|---|" + "---:|" * len(headings),
+            ]
+            for row in several:
+                for run in row["runs"]:
+                    cells = [f"{run['summary'][m]['mean']:.{d}f}" for m, _, d in TABLE_COLUMNS]
+                    lines.append(f"| {run['run']} | " + " | ".join(cells) + " |")
+                cells = [f"± {row['seeds'][m]['std']:.{d}f}" for m, _, d in TABLE_COLUMNS]
+                lines.append(f"| {row['label']}: spread over seeds | " + " | ".join(cells) + " |")
+            if len(several) > 1:
+                lines += [
+                    "",
+                    "The order of these rows by average speed, against the seed spread (it "
+                    "holds beyond the spread when every seed of the faster row is faster than "
+                    "every seed of the slower):",
+                    "",
+                ]
+                means = {row["label"]: row["seeds"]["avg_speed_kmh"]["means"] for row in several}
+                for pair in table["order"]:
+                    high, low = means[pair["higher"]], means[pair["lower"]]
+                    verdict = (
+                        "beyond the seed spread"
+                        if pair["beyond_seed_spread"]
+                        else "in the means only (the seeds overlap)"
+                    )
+                    lines.append(
+                        f"- {pair['higher']} ({min(high):.1f}–{max(high):.1f}) > "
+                        f"{pair['lower']} ({min(low):.1f}–{max(low):.1f}) by "
+                        f"{pair['difference']:.1f} km/h: {verdict}"
+                    )
+    experiment = EXPERIMENTS.get(result["experiment"])
+    if experiment is not None and experiment.note:
+        lines += ["", "## Reading it", "", experiment.note]
+    if experiment is not None and experiment.paper:
+        lines += ["", "## The paper's figures", "", experiment.paper]
+    return "\n".join(lines) + "\n"
+
+
+def plot_curves(curves: dict[str, Any], title: str, path: Path) -> None:
+    """curves.png: one panel per curve metric, one line per row (with the band between its
+    runs' lowest and highest bin means where it has several)."""
+    # The object-oriented API draws with the Agg canvas and touches no global pyplot state.
+    from matplotlib.figure import Figure
+
+    windowed = [row for row, curve in curves.items() if "window_reward" in curve]
+    panels = len(CURVE_METRICS) + (1 if windowed else 0)
+    figure = Figure(figsize=(7.0, 3.2 * panels), layout="constrained")
+    axes = figure.subplots(panels, 1, sharex=True, squeeze=False)[:, 0]
+    if windowed:
+        ax = axes[-1]
+        for row in windowed:
+            window = curves[row]["window_reward"]
+            ax.plot(window["window_end_step"], window["mean"], marker=".", label=row)
+        steps = curves[windowed[0]]["window_reward"]["window_end_step"]
+        size = steps[0] if steps else 0
+        ax.set_ylabel(f"reward per {size:,} steps")
+        ax.grid(alpha=0.3)
+    for ax, (metric, label) in zip(axes, CURVE_METRICS):
+        for row, curve in curves.items():
+            steps = np.array(curve["bin_end_step"], dtype=float)
+            mean = _floats(curve[metric]["mean"])
+            # Bins no episode ended in are skipped, so that the line joins its neighbours.
+            ok = ~np.isnan(mean)
+            (line,) = ax.plot(steps[ok], mean[ok], marker=".", label=row)
+            if curve["runs"] > 1:
+                ax.fill_between(
+                    steps[ok],
+                    _floats(curve[metric]["run_min"])[ok],
+                    _floats(curve[metric]["run_max"])[ok],
+                    color=line.get_color(),
+                    alpha=0.2,
+                    linewidth=0,
+                )
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("training steps")
+    axes[-1].set_xlim(0, max(max(c["bin_end_step"]) for c in curves.values()))
+    axes[0].legend(fontsize="small")
+    axes[0].set_title(title, fontsize="medium")
+    tmp = path.with_name(path.name + ".tmp")
+    figure.savefig(tmp, format="png", dpi=100)
+    os.replace(tmp, path)
+
+
+def _relative(path: Path | None, root: Path) -> Path | None:
+    """``path`` within ``root`` (an evaluation's cache file, named in table.json)."""
+    if path is None:
+        return None
+    try:
+        return path.relative_to(root)
+    except ValueError:
+        return path
+
+
+def _floats(values: list[float | None]) -> np.ndarray:
+    return np.array([math.nan if v is None else v for v in values], dtype=float)
+
+
+# matplotlib's default cycle (tab10), so that curves.rrd and curves.png colour rows alike.
+ROW_COLORS = (
+    (31, 119, 180),
+    (255, 127, 14),
+    (44, 160, 44),
+    (214, 39, 40),
+    (148, 103, 189),
+    (140, 86, 75),
+    (227, 119, 194),
+    (127, 127, 127),
+    (188, 189, 34),
+    (23, 190, 207),
+)
+
+
+def record_curves(curves: dict[str, Any], experiment: str, path: Path) -> None:
+    """curves.rrd: ``curves/<metric>/<row>`` on the ``step`` timeline, one entity per row."""
+    import rerun as rr
+    import rerun.blueprint as rrb
+
+    metrics = list(CURVE_METRICS)
+    if any("window_reward" in curve for curve in curves.values()):
+        metrics.append(("window_reward", "reward per window of training steps"))
+    # Without a range the viewer shows a narrow window around the time cursor; a learning curve
+    # is read whole.
+    whole_run = rrb.archetypes.TimeAxis(
+        view_range=rr.TimeRange(
+            start=rr.TimeRangeBoundary.infinite(), end=rr.TimeRangeBoundary.infinite()
+        )
+    )
+    blueprint = rrb.Blueprint(
+        rrb.Vertical(
+            *(
+                rrb.TimeSeriesView(origin=f"/curves/{metric}", name=label, axis_x=whole_run)
+                for metric, label in metrics
+            )
+        ),
+        rrb.TimePanel(timeline="step"),
+        collapse_panels=True,
+    )
+    tmp = path.with_name(path.name + ".tmp")
+    recording = open_recording(
+        f"overtake-experiment {experiment}", RecordingConfig(sink="file", rrd=tmp), tmp, blueprint
+    )
+    assert recording is not None  # sink=file always opens one
+    stream = recording.stream
+    try:
+        for index, (row, curve) in enumerate(curves.items()):
+            color = ROW_COLORS[index % len(ROW_COLORS)]
+            for metric, _ in metrics:
+                if metric not in curve:
+                    continue
+                entity = f"curves/{metric}/{row}"
+                # One colour per row in every plot, as in curves.png; the viewer's own pick
+                # hashes the entity path and colours a row differently from plot to plot.
+                stream.log(entity, rr.SeriesLines(names=row, colors=color), static=True)
+                steps = curve[metric].get("window_end_step", curve["bin_end_step"])
+                for step, value in zip(steps, curve[metric]["mean"]):
+                    if value is not None:
+                        stream.set_time("step", sequence=step)
+                        stream.log(entity, rr.Scalars(value))
+    finally:
+        close_recording(recording)
+    os.replace(tmp, path)
+
+
+def _versions() -> dict[str, str]:
+    versions = package_versions()
+    from importlib import metadata
+
+    for name in ("matplotlib", "rerun-sdk", "tyro"):
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            versions[name] = "not installed"
+    return versions
+
+
+class Outputs:
+    """The table and the curves, from the cached evaluations and the runs' metrics."""
+
+    def __init__(self, config: ExperimentConfig, plan: Plan, experiment_run: ExperimentRun):
+        self.config, self.plan, self.run = config, plan, experiment_run
+
+    def result(self) -> dict[str, Any]:
+        plan = self.plan
+        densities: dict[str, Any] = {}
+        for density in plan.densities:
+            rows = [self._row(row, density) for row in plan.rows]
+            densities[density] = {
+                "rows": rows,
+                "order": seed_order(rows),
+                "references": [self._reference(policy, density) for policy in plan.references],
+            }
+        curves = {}
+        for row in plan.rows:
+            runs = [run for run in plan.runs if run.row == row]
+            curve = learning_curves(
+                {run.name: training_episodes(run.run_dir) for run in runs},
+                plan.total_steps,
+                self.config.curve_bins,
+            )
+            window = plan.experiment.reward_window_steps
+            if window:
+                curve["window_reward"] = window_rewards(
+                    {run.name: training_records(run.run_dir, "train") for run in runs}, window
+                )
+            curves[row.label] = {"runs": len(runs), **curve}
+        experiment = plan.experiment
+        return {
+            "experiment": experiment.name,
+            "plan": {
+                "title": experiment.title,
+                "rows": [dataclasses.asdict(row) for row in plan.rows],
+                "preset": experiment.preset,
+                "total_steps": plan.total_steps,
+                "num_envs": plan.runs[0].train.num_envs if plan.runs else None,
+                "train_traffic": experiment.train_traffic,
+                "schedule": dataclasses.asdict(plan.schedule),
+                "densities": list(plan.densities),
+                "references": list(plan.references),
+                "eval_episodes": plan.eval_episodes,
+                "eval_seed": self.config.eval_seed,
+                "eval_max_decisions": self.config.eval_max_decisions,
+                "runs": {run.name: plain_data(run.train) for run in plan.runs},
+            },
+            "config": plain_data(self.config),
+            "versions": _versions(),
+            "commit": git_commit(),
+            "written_utc": utc_now(),
+            "densities": densities,
+            "curves": curves,
+        }
+
+    def _row(self, row: Row, density: Density) -> dict[str, Any]:
+        runs: list[dict[str, Any]] = []
+        pooled: list[dict[str, float]] = []
+        for run in (run for run in self.plan.runs if run.row == row):
+            step = checkpoint_step(run.run_dir)
+            assert step is not None  # every run finished before the outputs are written
+            [task] = [
+                t for t in self.run.eval_tasks_of_run(run, step) if t.key["density"] == density
+            ]
+            result = self.run.cached(task)
+            assert result is not None
+            runs.append(
+                {
+                    "run": run.name,
+                    "seed": run.seed,
+                    "checkpoint_step": step,
+                    "summary": episode_statistics(result["episodes"]),
+                    "evaluation": str(_relative(task.cache, self.plan.out)),
+                    "decisions_per_s": result["decisions_per_s"],
+                }
+            )
+            pooled.extend(result["episodes"])
+        return {
+            "label": row.label,
+            "algo": row.algo,
+            "inputs": row.inputs,
+            "summary": episode_statistics(pooled),
+            "seeds": seed_statistics([run["summary"] for run in runs]),
+            "runs": runs,
+        }
+
+    def _reference(self, policy: str, density: Density) -> dict[str, Any]:
+        [task] = [
+            t
+            for t in self.run.reference_tasks()
+            if t.key["policy"] == policy and t.key["density"] == density
+        ]
+        result = self.run.cached(task)
+        assert result is not None
+        return {
+            "policy": policy,
+            "summary": episode_statistics(result["episodes"]),
+            "evaluation": str(_relative(task.cache, self.plan.out)),
+            "decisions_per_s": result["decisions_per_s"],
+        }
+
+    def write(self) -> dict[str, Any]:
+        out = self.plan.out
+        result = self.result()
+        write_atomic(out / "table.json", json.dumps(result, indent=1))
+        write_atomic(out / "table.md", markdown_table(result))
+        title = f"{self.plan.experiment.name}: training episodes ({self.config.curve_bins} bins)"
+        plot_curves(result["curves"], title, out / "curves.png")
+        record_curves(result["curves"], self.plan.experiment.name, out / "curves.rrd")
+        return result
+
+
+EVIDENCE = ("table.md", "table.json", "curves.png")
+
+
+def keep_evidence(out: Path, keep: Path) -> None:
+    """Copy an experiment's table and curves (small: table.json holds summaries, the episodes
+    stay in the evaluations) from ``out`` into ``keep``, each written whole or not at all."""
+    keep.mkdir(parents=True, exist_ok=True)
+    for name in EVIDENCE:
+        write_atomic(keep / name, (out / name).read_bytes())
+    say(f"kept {', '.join(EVIDENCE)} in {keep}")
