@@ -66,7 +66,7 @@ def writer(config: RecordingMemoryConfig) -> None:
     env = HighwayVectorEnv(num_envs=1, preset=config.preset)
     obs, _ = env.reset(seed=0)
     frame = {k: v[0] for k, v in obs.items()}
-    ego_fields = tuple(env.sim_config["ego_vector"]["fields"])
+    ego_fields = env.behaviour_spec.observation("ego").columns
     env.close()
     recording = open_recording(
         "overtake",

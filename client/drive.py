@@ -89,7 +89,7 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
             )
         else:
             act = baseline_policy(
-                config.policy, envs.unwrapped.sim_config, config.seed, config.episodes, envs
+                config.policy, envs.unwrapped.behaviour_spec, config.seed, config.episodes, envs
             )
         rows, decisions, elapsed = run_episodes(
             envs, act, config.episodes, config.seed, realtime=clock

@@ -30,16 +30,6 @@ import numpy as np
 
 from overtake.protocol.vocabulary import CRUISE_DOWN, CRUISE_UP, KEEP, LANE_LEFT, LANE_RIGHT
 
-# Min et al.'s ego vector (the simulator's default ``ego_vector.fields``).
-DEFAULT_EGO_FIELDS: tuple[str, ...] = (
-    "left_warning",
-    "right_warning",
-    "forward_warning",
-    "ahead_distance_m",
-    "ahead_speed_mps",
-    "speed_mps",
-)
-
 
 @dataclass(frozen=True, slots=True)
 class RuleDriverConfig:
@@ -80,8 +70,10 @@ class RuleDriver:
         config: RuleDriverConfig = RuleDriverConfig(),
         ray_count: int = 360,
         max_range_m: float = 80.0,
-        ego_fields: tuple[str, ...] = DEFAULT_EGO_FIELDS,
+        *,
+        ego_fields: tuple[str, ...],
     ) -> None:
+        """``ego_fields``: the ego vector's columns, as the behaviour spec names them."""
         self.config = config
         self.max_range_m = max_range_m
         # The ego vector's columns the driver reads (None where the preset has no such field).

@@ -19,6 +19,7 @@ import gymnasium as gym
 import numpy as np
 
 from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
+from overtake.protocol.messages import BehaviourSpec
 from overtake.protocol.transport import SecurityConfig
 from overtake.protocol.vocabulary import METRIC_FIELDS
 
@@ -183,13 +184,13 @@ BASELINE_POLICIES = ("rule", "random", "idle", "planner")
 
 
 def baseline_policy(
-    policy: str, sim_config: dict[str, Any], seed: int, num_envs: int, envs: Any = None
+    policy: str, spec: BehaviourSpec, seed: int, num_envs: int, envs: Any = None
 ) -> Policy:
     """A reference policy for :func:`run_episodes`:
 
     - ``rule``: the rule-based driver that reads what the preset observes (the LIDAR and ego
       vector, Ho's grid or Fayjie et al.'s LIDAR map: :mod:`overtake.client.drivers`), tuned
-      to the simulator's configuration;
+      to the environment's behaviour spec (its road, car and the observations' reach);
     - ``random``: uniformly random among the allowed actions;
     - ``idle``: never acts (action 0 throughout): the floor any policy should beat;
     - ``planner``: the simulator's privileged planner, which reads the true state of every
@@ -213,45 +214,49 @@ def baseline_policy(
         raise UsageError(
             f"unknown baseline policy {policy!r}: one of {', '.join(BASELINE_POLICIES)}"
         )
-    # .get: a server older than these sensors sends a configuration without their sections.
-    grid = sim_config.get("grid", {})
-    if sim_config["lidar"]["enabled"] and sim_config["ego_vector"]["enabled"]:
+    return _rule_driver(spec)
+
+
+def _rule_driver(spec: BehaviourSpec) -> Policy:
+    """The rule-based driver for what ``spec``'s agents observe."""
+    road, car = spec.road, spec.car
+    assert road is not None and car is not None  # a 1.5 spec (remote_gym refuses older ones)
+    if spec.has("lidar") and spec.has("ego"):
+        lidar, ego = spec.observation("lidar"), spec.observation("ego")
+        assert lidar.reach is not None
         driver = RuleDriver(
-            RuleDriverConfig(
-                cruise_max_kmh=sim_config["ego"]["cruise_max_kmh"],
-                lane_width_m=sim_config["road"]["lane_width_m"],
-            ),
-            ray_count=sim_config["lidar"]["ray_count"],
-            max_range_m=sim_config["lidar"]["max_range_m"],
-            ego_fields=tuple(sim_config["ego_vector"]["fields"]),
+            RuleDriverConfig(cruise_max_kmh=car.max_speed_kmh, lane_width_m=road.lane_width_m),
+            ray_count=lidar.shape[0],
+            max_range_m=lidar.reach.range_m,
+            ego_fields=ego.columns,
         )
         return lambda obs, info, _starting: driver.act(
             obs["lidar"], obs["ego"], info["action_mask"]
         )
-    if grid.get("enabled"):
-        if grid["side_lanes"] != 1:
+    if spec.has("grid"):
+        grid = spec.observation("grid")
+        assert grid.reach is not None
+        if grid.shape[1] != 3:
             raise UsageError(
                 "the rule-based driver on the occupancy grid reads the lanes either side of its "
-                f"own (grid.side_lanes = 1), got grid.side_lanes = {grid['side_lanes']}"
+                f"own (grid.side_lanes = 1), got grid.side_lanes = {(grid.shape[1] - 1) // 2}"
             )
         on_grid = GridRuleDriver(
-            GridRuleDriverConfig(half_length_m=sim_config["ego"]["length_m"] / 2),
-            ahead_m=grid["ahead_m"],
-            behind_m=grid["behind_m"],
-            cells=grid["cells"],
+            GridRuleDriverConfig(half_length_m=car.length_m / 2),
+            ahead_m=grid.reach.ahead_m,
+            behind_m=grid.reach.behind_m,
+            cells=grid.shape[0],
         )
         return lambda obs, info, _starting: on_grid.act(obs["grid"], info["action_mask"])
-    lidar_map = sim_config.get("lidar_map", {})
-    if lidar_map.get("enabled"):
+    if spec.has("lidar_map"):
+        lidar_map = spec.observation("lidar_map")
+        assert lidar_map.reach is not None
         on_map = MapRuleDriver(
-            MapRuleDriverConfig(
-                lane_width_m=sim_config["road"]["lane_width_m"],
-                half_length_m=sim_config["ego"]["length_m"] / 2,
-            ),
-            cells=lidar_map["cells"],
-            ahead_m=lidar_map["ahead_m"],
-            behind_m=lidar_map["behind_m"],
-            half_width_m=lidar_map["half_width_m"],
+            MapRuleDriverConfig(lane_width_m=road.lane_width_m, half_length_m=car.length_m / 2),
+            cells=lidar_map.shape[0],
+            ahead_m=lidar_map.reach.ahead_m,
+            behind_m=lidar_map.reach.behind_m,
+            half_width_m=lidar_map.reach.side_m,
         )
         return lambda obs, info, _starting: on_map.act(obs["lidar_map"], info["action_mask"])
     raise UsageError(

@@ -25,13 +25,21 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector.utils import batch_space
 
+from overtake.protocol import errors
+from overtake.protocol.codec import version_text
 from overtake.protocol.envs import (
     ReportsEpisodeLength,
     arena_seeds,
     check_actions,
     check_render_mode,
 )
-from overtake.protocol.messages import BehaviourSpec, OpenRequest, Scalar, Steps
+from overtake.protocol.messages import (
+    TYPED_SPEC_SINCE_MINOR,
+    BehaviourSpec,
+    OpenRequest,
+    Scalar,
+    Steps,
+)
 from overtake.protocol.vocabulary import ACTION_COUNT
 
 from .remote import ArenaGroup, Connection, RemoteConfig
@@ -131,7 +139,16 @@ class _Remote:
         self.part_sizes = tuple(sizes)
         spec = self.group.spec
         assert spec is not None
+        if self.group.server_minor < TYPED_SPEC_SINCE_MINOR:
+            self.close()
+            raise errors.VersionMismatch(
+                f"server {self.group.server} speaks protocol 1.{self.group.server_minor}: its "
+                "behaviour spec lacks the road, the car and the observations' columns and "
+                f"reach, which this client (protocol {version_text()}) reads; upgrade the "
+                "server"
+            )
         self.spec = spec
+        # A record of the server's configuration (run records keep it); nothing reads it.
         self.sim_config: dict[str, Any] = json.loads(spec.config_json)
         self.reward_terms = spec.reward_terms
         self.metric_fields = spec.metric_fields
@@ -173,8 +190,14 @@ class _RemoteHandles:
 
     @property
     def sim_config(self) -> dict[str, Any]:
-        """The server's resolved configuration as plain nested data."""
+        """The server's resolved configuration as plain nested data, a record: read
+        :attr:`behaviour_spec` for what an agent sees and drives."""
         return self._remote.sim_config
+
+    @property
+    def behaviour_spec(self) -> BehaviourSpec:
+        """What an agent sees and drives, as the server describes its arenas."""
+        return self._remote.spec
 
     def label_step(self, step: int) -> None:
         """Send ``step`` (the trainer's count of environment steps, >= 0) with the following

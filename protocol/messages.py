@@ -30,7 +30,7 @@ from .vocabulary import ACTION_COUNT, ACTION_NAMES
 
 # The wire contract: protocol version (major, minor). A peer of another major version is
 # refused; a newer minor may add optional fields, which an older peer ignores.
-PROTOCOL_VERSION: tuple[int, int] = (1, 4)
+PROTOCOL_VERSION: tuple[int, int] = (1, 5)
 PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
     (
         "1.0",
@@ -63,7 +63,18 @@ PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
         "a request beyond the bound is answered server_busy at once instead of not at all. "
         "A 1.3 server's status decodes with zeros.",
     ),
+    (
+        "1.5",
+        "The behaviour spec states what a consumer needs to read the observations as typed "
+        "fields: the road (RoadSpec: lanes and their width), the car (CarSpec: length, width, "
+        "the speeds its actions move between) and per observation its named columns (the ego "
+        "vector's fields) and its reach (Reach: metres ahead, behind, to the side, range). "
+        "config_json stays, a record of the server's configuration that no consumer reads. A "
+        "1.4 server's spec decodes without them, and clients refuse it.",
+    ),
 )
+# The minor version whose spec carries the road, the car and the observations' facts.
+TYPED_SPEC_SINCE_MINOR = 5
 
 # Sizes beyond these are refused before anything is allocated.
 MAX_FRAME_BYTES = 256 * 2**20
@@ -164,14 +175,72 @@ class Message(Part):
 
 
 @dataclass(frozen=True, eq=False)
+class Reach(Part):
+    """How far an observation sees, in metres from the car's centre along the road (ahead,
+    behind), across it (to either side) and along its rays (range); 0 where it does not
+    apply."""
+
+    ahead_m: float = 0.0
+    behind_m: float = 0.0
+    side_m: float = 0.0
+    range_m: float = 0.0
+
+    def check(self) -> None:
+        for name in ("ahead_m", "behind_m", "side_m", "range_m"):
+            value = getattr(self, name)
+            if not 0.0 <= value < 1e6:
+                raise DecodeError(f"reach {name} must be from 0 to 1e6 m, got {value}")
+
+
+@dataclass(frozen=True, eq=False)
+class RoadSpec(Part):
+    """The road the agents drive: its lanes."""
+
+    lane_count: int
+    lane_width_m: float
+
+    def check(self) -> None:
+        check_range("lane count", self.lane_count, 1, 64)
+        if not 0.0 < self.lane_width_m < 100.0:
+            raise DecodeError(f"lane width must be from 0 to 100 m, got {self.lane_width_m}")
+
+
+@dataclass(frozen=True, eq=False)
+class CarSpec(Part):
+    """An agent's car: its body and the speeds its actions move between."""
+
+    length_m: float
+    width_m: float
+    min_speed_kmh: float
+    max_speed_kmh: float
+
+    def check(self) -> None:
+        if not (0.0 < self.length_m < 100.0 and 0.0 < self.width_m < 100.0):
+            raise DecodeError(
+                f"car length and width must be from 0 to 100 m, got {self.length_m} and "
+                f"{self.width_m}"
+            )
+        if not 0.0 <= self.min_speed_kmh <= self.max_speed_kmh < 1e4:
+            raise DecodeError(
+                f"car speeds must be 0 <= min <= max, got {self.min_speed_kmh} and "
+                f"{self.max_speed_kmh} km/h"
+            )
+
+
+@dataclass(frozen=True, eq=False)
 class ObservationSpec(Part):
-    """One observation of one agent: a Box of ``shape`` and ``dtype`` within [low, high]."""
+    """One observation of one agent: a Box of ``shape`` and ``dtype`` within [low, high], the
+    names of its last axis' entries where they are named (``columns``: the ego vector's fields)
+    and how far it sees (``reach``; None for what sees nothing of the road, as the action
+    stack)."""
 
     name: str
     shape: tuple[int, ...]
     dtype: str
     low: np.ndarray
     high: np.ndarray
+    columns: tuple[str, ...] = field(default=(), metadata={"since": 5})
+    reach: Reach | None = field(default=None, metadata={"since": 5})
 
     def check(self) -> None:
         check_name("observation name", self.name)
@@ -188,6 +257,11 @@ class ObservationSpec(Part):
         for bound in ("low", "high"):
             check_array(
                 f"observation {self.name!r} {bound}", getattr(self, bound), self.dtype, self.shape
+            )
+        if self.columns and len(self.columns) != self.shape[-1]:
+            raise DecodeError(
+                f"observation {self.name!r} names {len(self.columns)} columns for a last axis "
+                f"of {self.shape[-1]}"
             )
 
 
@@ -206,6 +280,10 @@ class BehaviourSpec(Part):
     max_episode_steps: int
     agents_per_arena: int
     config_json: str
+    """the server's resolved configuration, a record (run records, checkpoints): what a
+    consumer reads of it is in the typed fields"""
+    road: RoadSpec | None = field(default=None, metadata={"since": 5})
+    car: CarSpec | None = field(default=None, metadata={"since": 5})
 
     def check(self) -> None:
         names = [o.name for o in self.observations]
@@ -227,6 +305,10 @@ class BehaviourSpec(Part):
             if spec.name == name:
                 return spec
         raise KeyError(name)
+
+    def has(self, name: str) -> bool:
+        """Whether the agents observe ``name``."""
+        return any(spec.name == name for spec in self.observations)
 
 
 # --- requests and replies -------------------------------------------------------------------

@@ -29,11 +29,13 @@ from overtake.protocol.envs import (
     check_actions,
     check_render_mode,
 )
+from overtake.protocol.messages import BehaviourSpec
 from overtake.protocol.vocabulary import ACTION_COUNT, METRIC_FIELDS
 
 from .sim import HighwaySim, SimConfig, StepResult, autoreset_round, make_config
 from .sim.planner import Planner
 from .sim.render import render_top_down
+from .spec import behaviour_spec
 
 try:  # Gymnasium >= 1.1 names the autoreset modes; 1.0 only has next-step autoreset.
     from gymnasium.vector import AutoresetMode
@@ -125,8 +127,14 @@ class HighwayEnv(ReportsEpisodeLength, gym.Env):
 
     @property
     def sim_config(self) -> dict[str, Any]:
-        """The resolved configuration as plain nested data (as the remote env reports it)."""
+        """The resolved configuration as plain nested data, a record (as the remote env
+        reports it): read :attr:`behaviour_spec` for what an agent sees and drives."""
         return json.loads(json.dumps(dataclasses.asdict(self.config)))
+
+    @property
+    def behaviour_spec(self) -> BehaviourSpec:
+        """What an agent sees and drives, as a server describes its arenas (protocol 1.5)."""
+        return behaviour_spec(self.sim)
 
     def action_masks(self) -> np.ndarray:
         """The current action mask (the name sb3-contrib's MaskablePPO looks for)."""
@@ -168,8 +176,14 @@ class HighwayVectorEnv(gym.vector.VectorEnv):
 
     @property
     def sim_config(self) -> dict[str, Any]:
-        """The resolved configuration as plain nested data (as the remote env reports it)."""
+        """The resolved configuration as plain nested data, a record (as the remote env
+        reports it): read :attr:`behaviour_spec` for what an agent sees and drives."""
         return json.loads(json.dumps(dataclasses.asdict(self.config)))
+
+    @property
+    def behaviour_spec(self) -> BehaviourSpec:
+        """What an agent sees and drives, as a server describes its arenas (protocol 1.5)."""
+        return behaviour_spec(self.sim)
 
     def _observations(self) -> dict[str, np.ndarray]:
         return {key: value[:, 0] for key, value in self.sim.observe().items()}

@@ -14,9 +14,7 @@ for the round and placed back afterwards) while the road goes on for the others.
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
-import json
 import secrets
 import time
 from collections.abc import Iterable, Mapping
@@ -31,46 +29,18 @@ from overtake.protocol.messages import (
     Actions,
     BehaviourSpec,
     GroupStatus,
-    ObservationSpec,
     Scalar,
     Steps,
     WorldFrame,
 )
 from overtake.protocol.vocabulary import (
-    ACTION_COUNT,
-    ACTION_NAMES,
     AGENT_KIND,
     DEFAULT_ACTION,
-    METRIC_FIELDS,
 )
 
 from .sim import PRESETS, ConfigError, HighwaySim, SimConfig, autoreset_round, make_config
 from .sim.physics import headings
-
-
-def behaviour_spec(sim: HighwaySim) -> BehaviourSpec:
-    """The spec a client needs to rebuild exactly the in-process spaces."""
-    config = sim.config
-    # In the order of the in-process Dict space, which Gymnasium sorts by name.
-    observations = tuple(
-        ObservationSpec(
-            name=name, shape=box.shape, dtype=box.dtype.name, low=box.low, high=box.high
-        )
-        for name, box in sorted(sim.observation_spaces().items())
-    )
-    return BehaviourSpec(
-        name=f"Highway?preset={config.preset}",
-        preset=config.preset,
-        observations=observations,
-        action_branches=(ACTION_COUNT,),
-        action_names=ACTION_NAMES,
-        reward_terms=sim.reward_terms,
-        metric_fields=METRIC_FIELDS,
-        decision_period_s=config.episode.decision_period_s,
-        max_episode_steps=config.episode.max_decisions,
-        agents_per_arena=sim.agents,
-        config_json=json.dumps(dataclasses.asdict(config)),
-    )
+from .spec import behaviour_spec
 
 
 def resolve_config(preset: str, overrides: Mapping[str, Scalar]) -> SimConfig:

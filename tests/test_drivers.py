@@ -15,7 +15,6 @@ from overtake.client import HIGHWAY_ENV_ID, RandomDriver, RuleDriver, RuleDriver
 from overtake.client.commands import UsageError
 from overtake.client.drive import DriveConfig, main
 from overtake.client.drive import cli as drive_cli
-from overtake.client.drivers import DEFAULT_EGO_FIELDS
 from overtake.client.episodes import parse_overrides
 from overtake.protocol.vocabulary import (
     ACTION_COUNT,
@@ -26,10 +25,13 @@ from overtake.protocol.vocabulary import (
     LANE_RIGHT,
     METRIC_FIELDS,
 )
+from overtake.server.env import HighwayEnv
 
 from conftest import LANE_WIDTH, Car, scripted_sim
 
 RANGE = 80.0
+# Min et al.'s ego vector, as min2018's behaviour spec names its columns.
+MIN_EGO = HighwayEnv().behaviour_spec.observation("ego").columns
 ALL_ALLOWED = np.ones((1, ACTION_COUNT), dtype=np.int8)
 
 
@@ -45,10 +47,11 @@ def scan(*points: tuple[float, float]) -> np.ndarray:
 def ego(
     speed_kmh: float = 80.0,
     warnings: tuple[bool, bool, bool] = (False, False, False),
-    fields: tuple[str, ...] = DEFAULT_EGO_FIELDS,
+    fields: tuple[str, ...] | None = None,
 ) -> np.ndarray:
-    """A (1, E) ego vector of ``fields``: driving at ``speed_kmh`` (its cruise target too) in
-    lane 2 of 5, not changing lanes, with the left, right and forward ``warnings``."""
+    """A (1, E) ego vector of ``fields`` (min2018's by default): driving at ``speed_kmh`` (its
+    cruise target too) in lane 2 of 5, not changing lanes, with the left, right and forward
+    ``warnings``."""
     values = {
         "speed_mps": speed_kmh / 3.6,
         "cruise_target_mps": speed_kmh / 3.6,
@@ -62,7 +65,7 @@ def ego(
         "ahead_distance_m": RANGE,
         "ahead_speed_mps": speed_kmh / 3.6,
     }
-    return np.array([[values[name] for name in fields]], dtype=np.float32)
+    return np.array([[values[name] for name in fields or MIN_EGO]], dtype=np.float32)
 
 
 def mask(left: bool = True, right: bool = True) -> np.ndarray:
@@ -72,7 +75,9 @@ def mask(left: bool = True, right: bool = True) -> np.ndarray:
 
 
 def act(lidar: np.ndarray, ego_vector: np.ndarray | None = None, action_mask=ALL_ALLOWED) -> int:
-    actions = RuleDriver().act(lidar, ego(80.0) if ego_vector is None else ego_vector, action_mask)
+    actions = RuleDriver(ego_fields=MIN_EGO).act(
+        lidar, ego(80.0) if ego_vector is None else ego_vector, action_mask
+    )
     assert actions.shape == (1,) and actions.dtype == np.int64
     return int(actions[0])
 
@@ -93,7 +98,7 @@ def test_rule_driver_does_not_accelerate_against_a_forward_warning():
 
 
 def test_rule_driver_limit_follows_its_config():
-    driver = RuleDriver(RuleDriverConfig(cruise_max_kmh=60.0))
+    driver = RuleDriver(RuleDriverConfig(cruise_max_kmh=60.0), ego_fields=MIN_EGO)
     assert driver.act(scan(), ego(60.0), ALL_ALLOWED).tolist() == [KEEP]
     assert driver.act(scan(), ego(55.0), ALL_ALLOWED).tolist() == [CRUISE_UP]
 
@@ -114,7 +119,7 @@ def test_rule_driver_reads_a_cruise_target_where_the_ego_vector_has_one():
 
 
 def test_free_distance_per_lane():
-    driver = RuleDriver()
+    driver = RuleDriver(ego_fields=MIN_EGO)
     free, clear = driver.free_distance(scan((20.0, 0.0), (50.0, LANE_WIDTH), (0.0, -2.6)))
     assert free[0].tolist() == pytest.approx([RANGE, 20.0, 50.0], abs=0.01)
     assert clear[0].tolist() == [False, True, True]  # the right has a car beside
@@ -179,7 +184,9 @@ def test_rule_driver_on_sensor_scans_of_scripted_scenes(speed_kmh):
         sim = scripted_sim(cars, ego_lane=ego_lane, ego_speed_kmh=speed_kmh)
         obs = sim.observe()
         return int(
-            RuleDriver().act(obs["lidar"][:, 0], obs["ego"][:, 0], sim.action_mask()[:, 0])[0]
+            RuleDriver(ego_fields=MIN_EGO).act(
+                obs["lidar"][:, 0], obs["ego"][:, 0], sim.action_mask()[:, 0]
+            )[0]
         )
 
     free = CRUISE_UP if speed_kmh < 80.0 else KEEP
@@ -202,7 +209,11 @@ def test_rule_driver_takes_batches():
     lidar = np.concatenate([scan(), scan((20.0, 0.0)), scan((20.0, 0.0))])
     egos = np.concatenate([ego(50.0), ego(80.0), ego(80.0)])
     masks = np.concatenate([ALL_ALLOWED, ALL_ALLOWED, mask(left=False)])
-    assert RuleDriver().act(lidar, egos, masks).tolist() == [CRUISE_UP, LANE_LEFT, LANE_RIGHT]
+    assert RuleDriver(ego_fields=MIN_EGO).act(lidar, egos, masks).tolist() == [
+        CRUISE_UP,
+        LANE_LEFT,
+        LANE_RIGHT,
+    ]
 
 
 # --- random ----------------------------------------------------------------------------------
@@ -256,7 +267,7 @@ def average_speeds(driver, episodes: int = 4, decisions: int = 300) -> np.ndarra
 
 
 def test_rule_driver_is_faster_than_random():
-    rule = average_speeds(RuleDriver())
+    rule = average_speeds(RuleDriver(ego_fields=MIN_EGO))
     random = average_speeds(RandomDriver(seed=0))
     assert rule.mean() > random.mean() + 5.0
     assert (rule > 40.0).all() and (random >= 0.0).all()

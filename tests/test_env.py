@@ -323,3 +323,31 @@ def test_a_seeded_reset_forgets_the_history():
         step_a, step_b = env_a.step(action), env_b.step(action)
         assert_same_observation(step_a[0], step_b[0])
         assert step_a[1:4] == step_b[1:4]
+
+
+def test_the_behaviour_spec_states_what_each_preset_sees_and_drives():
+    """The road, the car and each observation's columns and reach, from the configuration
+    (protocol 1.5): what the rule drivers and the recordings read instead of it."""
+    from overtake.server.env import HighwayVectorEnv
+
+    def spec(preset, **overrides):
+        return HighwayVectorEnv(preset=preset, overrides=overrides).behaviour_spec
+
+    min2018 = spec("min2018")
+    assert (min2018.road.lane_count, min2018.road.lane_width_m) == (5, 3.5)
+    assert (min2018.car.min_speed_kmh, min2018.car.max_speed_kmh) == (40.0, 80.0)
+    assert min2018.observation("lidar").reach.range_m == 80.0
+    ego = min2018.observation("ego")
+    assert ego.columns[-1] == "speed_mps" and len(ego.columns) == ego.shape[0] == 6
+    assert ego.reach.ahead_m == 80.0
+    assert min2018.observation("camera").columns == ()
+    ho = spec("ho2018")
+    assert (ho.car.length_m, ho.car.width_m, ho.road.lane_width_m) == (7.0, 3.4, 5.0)
+    grid = ho.observation("grid")
+    assert grid.columns == ("left_1", "own", "right_1")
+    assert (grid.reach.ahead_m, grid.reach.behind_m) == (24.5, 11.5)
+    assert ho.observation("actions").reach is None
+    wider = spec("ho2018", **{"grid.side_lanes": 2}).observation("grid").columns
+    assert wider == ("left_2", "left_1", "own", "right_1", "right_2")
+    lidar_map = spec("fayjie2018").observation("lidar_map").reach
+    assert (lidar_map.ahead_m, lidar_map.behind_m, lidar_map.side_m) == (40.0, 0.0, 20.0)

@@ -203,7 +203,7 @@ def test_the_rule_driver_drives_fayjie2018_from_its_map():
     from overtake.client.episodes import baseline_policy, make_vector_env, run_episodes
 
     envs = make_vector_env("fayjie2018", {"traffic.density": "light"}, 2, None)
-    act = baseline_policy("rule", envs.unwrapped.sim_config, 0, 2, envs)
+    act = baseline_policy("rule", envs.unwrapped.behaviour_spec, 0, 2, envs)
     rows, _, _ = run_episodes(envs, act, 2, 1000)
     envs.close()
     assert all(row["avg_speed_kmh"] > 80.0 for row in rows)  # idle holds 60, random about 55

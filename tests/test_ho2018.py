@@ -309,7 +309,7 @@ def test_every_reference_policy_drives_ho2018_without_further_flags():
     speeds = {}
     for policy in ("idle", "random", "rule", "planner"):
         envs = make_vector_env("ho2018", short, 3, None)
-        act = baseline_policy(policy, envs.unwrapped.sim_config, 0, 3, envs)
+        act = baseline_policy(policy, envs.unwrapped.behaviour_spec, 0, 3, envs)
         rows, decisions, _ = run_episodes(envs, act, 3, 100)
         envs.close()
         assert decisions == 3 * 60 and all(row["collisions"] == 0 for row in rows)
@@ -325,7 +325,7 @@ def test_every_reference_policy_drives_ho2018_without_further_flags():
 def test_the_grid_rule_driver_needs_the_lanes_either_side():
     envs = make_vector_env("ho2018", {"grid.side_lanes": 2}, 1, None)
     with pytest.raises(UsageError, match="grid.side_lanes = 2"):
-        baseline_policy("rule", envs.unwrapped.sim_config, 0, 1, envs)
+        baseline_policy("rule", envs.unwrapped.behaviour_spec, 0, 1, envs)
     envs.close()
 
 

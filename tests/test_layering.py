@@ -193,3 +193,15 @@ def test_every_package_folder_is_listed_in_pyproject():
     assert present == listed, (
         f"missing: {sorted(present - listed)}, stale: {sorted(listed - present)}"
     )
+
+
+def test_clients_and_trainers_read_the_behaviour_spec_not_the_servers_configuration():
+    """What a consumer reads of an arena is the spec's typed fields (protocol 1.5); the full
+    configuration (``sim_config``, the spec's ``config_json``) is only recorded."""
+    reads = []
+    for folder in ("client", "trainers"):
+        for path in _sources(folder):
+            for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+                if "sim_config[" in line or "sim_config.get(" in line:
+                    reads.append(f"{path.relative_to(ROOT)}:{number}: {line.strip()}")
+    assert not reads, "read the behaviour spec instead:\n" + "\n".join(reads)

@@ -225,7 +225,7 @@ def test_random_driving_crashes_and_brakes_in_medium_traffic():
     envs = make_vector_env(
         "min2018", {"camera.enabled": False, "episode.max_decisions": 400}, 16, None
     )
-    act = baseline_policy("random", envs.unwrapped.sim_config, 0, 16, envs)
+    act = baseline_policy("random", envs.unwrapped.behaviour_spec, 0, 16, envs)
     rows, _, _ = run_episodes(envs, act, 16, 100)
     envs.close()
     assert sum(row["collisions"] for row in rows) >= 1
@@ -252,10 +252,10 @@ def test_the_planner_passes_a_slow_car_where_the_side_is_free_and_waits_where_it
 
 def test_idle_and_planner_are_reference_policies_in_process_only_for_the_planner():
     envs = make_vector_env("min2018", {"camera.enabled": False}, 2, None)
-    idle = baseline_policy("idle", envs.unwrapped.sim_config, 0, 2, envs)
+    idle = baseline_policy("idle", envs.unwrapped.behaviour_spec, 0, 2, envs)
     assert idle({}, {}, np.ones(2, dtype=bool)).tolist() == [KEEP, KEEP]
     obs, info = envs.reset(seed=0)
-    planner = baseline_policy("planner", envs.unwrapped.sim_config, 0, 2, envs)
+    planner = baseline_policy("planner", envs.unwrapped.behaviour_spec, 0, 2, envs)
     actions = planner(obs, info, np.ones(2, dtype=bool))
     assert actions.shape == (2,) and actions.dtype == np.int64
     envs.close()

@@ -36,6 +36,7 @@ from overtake.protocol.messages import (
     Ack,
     Actions,
     BehaviourSpec,
+    CarSpec,
     CloseRequest,
     ErrorReply,
     GroupStatus,
@@ -45,7 +46,9 @@ from overtake.protocol.messages import (
     Opened,
     OpenRequest,
     Part,
+    Reach,
     ResetRequest,
+    RoadSpec,
     StatusReply,
     StatusRequest,
     Steps,
@@ -101,12 +104,17 @@ def observation_specs(draw):
     shape = draw(
         hnp.array_shapes(min_dims=1, max_dims=messages.MAX_ARRAY_DIMS - 1, min_side=1, max_side=2)
     )
+    metres = st.floats(min_value=0.0, max_value=1e5)
     return ObservationSpec(
         name=draw(names),
         shape=shape,
         dtype=dtype,
         low=draw(wire_array(dtype, shape)),
         high=draw(wire_array(dtype, shape)),
+        columns=tuple(
+            draw(st.one_of(st.just([]), st.lists(texts, min_size=shape[-1], max_size=shape[-1])))
+        ),
+        reach=draw(st.one_of(st.none(), st.builds(Reach, metres, metres, metres, metres))),
     )
 
 
@@ -127,6 +135,8 @@ def behaviour_specs(draw):
         max_episode_steps=draw(st.integers(1, 2**62)),
         agents_per_arena=draw(st.integers(1, messages.MAX_AGENTS_PER_ARENA)),
         config_json=draw(texts),
+        road=RoadSpec(lane_count=draw(st.integers(1, 64)), lane_width_m=3.5),
+        car=CarSpec(length_m=4.5, width_m=1.8, min_speed_kmh=0.0, max_speed_kmh=110.0),
     )
 
 
@@ -374,6 +384,7 @@ def sample_spec() -> BehaviourSpec:
         dtype="float32",
         low=np.zeros(4, np.float32),
         high=np.ones(4, np.float32),
+        reach=Reach(range_m=80.0),
     )
     return BehaviourSpec(
         name="Highway",
@@ -387,6 +398,8 @@ def sample_spec() -> BehaviourSpec:
         max_episode_steps=100,
         agents_per_arena=1,
         config_json="{}",
+        road=RoadSpec(lane_count=5, lane_width_m=3.5),
+        car=CarSpec(length_m=4.5, width_m=1.8, min_speed_kmh=40.0, max_speed_kmh=80.0),
     )
 
 
@@ -1219,3 +1232,32 @@ def test_an_unsupported_render_mode_is_refused_naming_what_there_is():
         check_render_mode("human", ["rgb_array"])
     with pytest.raises(ValueError, match="does not render; watch it with a spectator"):
         check_render_mode("rgb_array", [])
+
+
+def test_a_1_4_peers_spec_decodes_without_the_road_the_car_and_the_observations_facts():
+    # 1.5 added the typed facts of the spec: a 1.4 server's Opened decodes without them (the
+    # remote environments then refuse it, tests/test_remote_env.py)...
+    opened = sample_opened()
+    assert decode(encode(opened)) == opened
+    *_, body = msgpack.unpackb(encode(opened), raw=False)
+    for name in ("road", "car"):
+        body["spec"].pop(name)
+    for observation in body["spec"]["observations"]:
+        observation.pop("columns"), observation.pop("reach")
+    old = decode(pack([MAJOR, 4, "opened", body])).spec
+    assert old.road is None and old.car is None
+    assert old.observation("lidar").reach is None and old.observation("lidar").columns == ()
+    # ...while a peer of this minor version must send them.
+    with pytest.raises(DecodeError, match="road"):
+        decode(pack([MAJOR, MINOR, "opened", body]))
+
+
+def test_bad_spec_facts_are_refused_saying_what_came():
+    with pytest.raises(DecodeError, match="names 2 columns for a last axis of 4"):
+        dataclasses.replace(sample_spec().observations[0], columns=("a", "b"))
+    with pytest.raises(DecodeError, match="reach ahead_m must be from 0 to 1e6 m, got -1.0"):
+        Reach(ahead_m=-1.0)
+    with pytest.raises(DecodeError, match="lane count must be from 1 to 64, got 0"):
+        RoadSpec(lane_count=0, lane_width_m=3.5)
+    with pytest.raises(DecodeError, match="0 <= min <= max, got 90.0 and 80.0 km/h"):
+        CarSpec(length_m=4.5, width_m=1.8, min_speed_kmh=90.0, max_speed_kmh=80.0)

@@ -27,7 +27,8 @@ from overtake.client.environment import (
     mlagents_observation_spec,
     mlagents_observations,
 )
-from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, codec, keys
+from overtake.client.remote import ArenaGroup
+from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, codec, errors, keys
 from overtake.protocol.errors import ConnectError, ServerLost
 from overtake.protocol.messages import WorldFrame
 from overtake.server.env import HighwayVectorEnv
@@ -152,6 +153,8 @@ def test_remote_vector_env_is_bit_identical_to_in_process_vector_env(start_serve
         assert remote.action_space == local.action_space
         assert remote.single_action_space == local.single_action_space
         assert remote.metadata["autoreset_mode"] == local.metadata["autoreset_mode"]
+        # One description of what an agent sees and drives, wherever the simulator runs.
+        assert remote.unwrapped.behaviour_spec == local.unwrapped.behaviour_spec
         assert server.status().arenas_used == n  # one group of n arenas
         assert len(server.status().groups) == 1
 
@@ -589,3 +592,24 @@ def test_a_slow_spectator_does_not_slow_the_simulation(start_server, start_train
     assert summary["max_gap_s"] < 0.5, f"a step took {summary['max_gap_s']:.2f} s"
     assert received, "the spectator got no frames"
     assert server.alive()
+
+
+@pytest.mark.timeout(60)
+def test_a_server_of_protocol_1_4_is_refused_and_its_arenas_freed(start_server, monkeypatch):
+    """A 1.4 server's spec lacks the typed road, car and observation facts the clients read."""
+    server = start_server("e2e-old-spec")
+    original_open = ArenaGroup._open
+
+    def as_if_1_4(self, reseed=True):
+        original_open(self, reseed)
+        self.server_minor = 4
+
+    monkeypatch.setattr(ArenaGroup, "_open", as_if_1_4)
+    with pytest.raises(errors.VersionMismatch, match=r"speaks protocol 1\.4: .* upgrade"):
+        gym.make_vec(
+            REMOTE_HIGHWAY_ENV_ID,
+            num_envs=2,
+            vectorization_mode="vector_entry_point",
+            remote=remote_config(server.endpoint, server.name),
+        )
+    assert server.status().arenas_used == 0

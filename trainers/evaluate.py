@@ -190,14 +190,14 @@ def main(config: EvalConfig) -> dict[str, Any]:
         overrides.pop("lidar.enabled", None)  # the rule-based driver reads the LIDAR
     envs = make_vector_env(preset, overrides, config.episodes, config.connect, config.security)
     try:
-        sim = envs.unwrapped.sim_config
         if checkpoint is not None:
             policy: Any = GreedyPolicy(
                 checkpoint, config.episodes, envs.single_observation_space, preset
             )
             name = config.name or f"{checkpoint.algo}/{checkpoint.inputs}@{checkpoint.step}"
         else:
-            policy = baseline_policy(str(config.policy), sim, config.seed, config.episodes, envs)
+            spec = envs.unwrapped.behaviour_spec
+            policy = baseline_policy(str(config.policy), spec, config.seed, config.episodes, envs)
             name = config.name or str(config.policy)
         with torch.no_grad():
             rows, decisions, elapsed = run_episodes(envs, policy, config.episodes, config.seed)

@@ -43,6 +43,7 @@ import torch
 from overtake.client.commands import UsageError, run_command
 from overtake.client.episodes import make_vector_env, parse_overrides
 from overtake.protocol import ACTION_COUNT
+from overtake.protocol.messages import BehaviourSpec
 from overtake.protocol.transport import SecurityConfig
 from overtake.viz.recording import (
     APPLICATION_ID,
@@ -319,14 +320,10 @@ def prepare_run_dir(config: TrainConfig, run_dir: Path) -> Checkpoint | None:
     return resumed
 
 
-def _ego_fields(sim_config: Any) -> tuple[str, ...]:
-    """The fields of the ego vector observation, in order, from the environment's resolved
-    configuration (none where it has no ego vector or does not say)."""
-    try:
-        ego = sim_config["ego_vector"]
-        return tuple(ego["fields"]) if ego.get("enabled", True) else ()
-    except (KeyError, TypeError, AttributeError):
-        return ()
+def _ego_fields(spec: BehaviourSpec | None) -> tuple[str, ...]:
+    """The fields of the ego vector observation, in order, from the environment's behaviour
+    spec (none where it has no ego vector, or no spec: an environment of the caller's)."""
+    return spec.observation("ego").columns if spec is not None and spec.has("ego") else ()
 
 
 class TrainingRun:
@@ -544,7 +541,7 @@ class TrainingRun:
                 self.recording.stream,
                 run_name,
                 colour_index=list(ALGOS).index(self.config.algo),
-                ego_fields=_ego_fields(getattr(self.envs.unwrapped, "sim_config", None)),
+                ego_fields=_ego_fields(getattr(self.envs.unwrapped, "behaviour_spec", None)),
             )
             if self.recording is not None
             else None

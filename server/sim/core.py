@@ -38,7 +38,7 @@ from .physics import Physics
 from .randomness import draw_uniforms
 from .rewards import Rewards, StepFacts
 from .road import Road
-from .sensors.base import Scene, Sensor, SensorSpace
+from .sensors.base import Scene, Sensor, SensorFacts, SensorSpace
 from .spawning import Spawner
 from .state import SimState
 from .traffic.manoeuvres import RandomManoeuvres
@@ -124,6 +124,10 @@ class HighwaySim:
     def observation_spaces(self) -> dict[str, SensorSpace]:
         """One agent's observation, sensor by sensor (the observation's keys, in order)."""
         return {sensor.key: sensor.space() for sensor in self.sensors}
+
+    def observation_facts(self) -> dict[str, SensorFacts]:
+        """Each observation's named columns and reach, sensor by sensor."""
+        return {sensor.key: sensor.facts() for sensor in self.sensors}
 
     # --- episodes and cars ----------------------------------------------------------------------
 

@@ -9,6 +9,6 @@ sensor itself (``key``, ``space()``, ``observe(scene)``), a section of that conf
 :class:`~overtake.server.sim.config.SimConfig`, and the presets that switch it on.
 """
 
-from .base import ObserverViews, Scene, Sensor, SensorConfig, SensorSpace
+from .base import ObserverViews, Scene, Sensor, SensorConfig, SensorFacts, SensorSpace
 
-__all__ = ["ObserverViews", "Scene", "Sensor", "SensorConfig", "SensorSpace"]
+__all__ = ["ObserverViews", "Scene", "Sensor", "SensorConfig", "SensorFacts", "SensorSpace"]

@@ -18,7 +18,7 @@ from overtake.protocol.vocabulary import ACTION_COUNT
 
 from ..state import ACTION_HISTORY
 from ..validation import check_flag
-from .base import Scene, SensorConfig, SensorSpace
+from .base import Scene, SensorConfig, SensorFacts, SensorSpace
 
 if TYPE_CHECKING:
     from ..config import SimConfig
@@ -42,6 +42,10 @@ class ActionHistory:
 
     def space(self) -> SensorSpace:
         return SensorSpace.uniform((ACTION_HISTORY,), np.float32, 0.0, ACTION_COUNT - 1)
+
+    def facts(self) -> SensorFacts:
+        """The last actions, oldest first: nothing of the road."""
+        return SensorFacts()
 
     def observe(self, scene: Scene) -> np.ndarray:
         return scene.state.recent_actions.astype(np.float32)

@@ -43,6 +43,25 @@ class SensorSpace:
         )
 
 
+@dataclass(frozen=True)
+class SensorFacts:
+    """What a reader of a sensor's observation needs beyond its box: the names of the last
+    axis' entries where they are named (``columns``), and how far it sees, in metres from the
+    car's centre along the road, across it and along its rays (0 where that does not apply).
+    The behaviour spec carries them (protocol 1.5)."""
+
+    columns: tuple[str, ...] = ()
+    ahead_m: float = 0.0
+    behind_m: float = 0.0
+    side_m: float = 0.0
+    range_m: float = 0.0
+
+    @property
+    def sees(self) -> bool:
+        """Whether it sees any of the road (the action stack does not)."""
+        return any((self.ahead_m, self.behind_m, self.side_m, self.range_m))
+
+
 # Built every observation: a plain record (a frozen one pays a setattr call per field).
 @dataclass(slots=True)
 class ObserverViews:
@@ -129,6 +148,10 @@ class Sensor(Protocol):
 
     def space(self) -> SensorSpace:
         """The box one agent's observation lies in."""
+        ...
+
+    def facts(self) -> SensorFacts:
+        """Its columns' names and its reach (:class:`SensorFacts`)."""
         ...
 
     def observe(self, scene: Scene) -> np.ndarray:

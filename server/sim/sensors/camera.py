@@ -21,7 +21,7 @@ import numpy as np
 from ..kernels import colour, paint_boxes, paint_ground
 from ..road import RoadConfig
 from ..validation import check, check_range
-from .base import ObserverViews, Scene, SensorConfig, SensorSpace
+from .base import ObserverViews, Scene, SensorConfig, SensorFacts, SensorSpace
 
 if TYPE_CHECKING:
     from ..config import SimConfig
@@ -192,6 +192,10 @@ class Camera:
 
     def space(self) -> SensorSpace:
         return SensorSpace.uniform(self.shape, np.uint8, 0, 255)
+
+    def facts(self) -> SensorFacts:
+        """A view ahead that draws nothing beyond ``max_distance_m``."""
+        return SensorFacts(ahead_m=self.config.max_distance_m)
 
     def observe(self, scene: Scene) -> np.ndarray:
         road_x = np.repeat(scene.state.x_m[:, 0], scene.agents)

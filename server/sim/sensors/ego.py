@@ -17,7 +17,7 @@ from ..assist import DriverWarnings
 from ..road import Road
 from ..units import KMH
 from ..validation import check, check_flag, check_range
-from .base import Scene, SensorConfig, SensorSpace
+from .base import Scene, SensorConfig, SensorFacts, SensorSpace
 
 if TYPE_CHECKING:
     from ..config import SimConfig
@@ -115,6 +115,10 @@ class EgoVector:
         return SensorSpace(
             (len(self.fields),), np.dtype(np.float32), self._low.copy(), self._high.copy()
         )
+
+    def facts(self) -> SensorFacts:
+        """Its fields by name; the car ahead is looked for up to ``ahead_range_m``."""
+        return SensorFacts(columns=tuple(self.fields), ahead_m=self.ahead_range_m)
 
     def observe(self, scene: Scene) -> np.ndarray:
         out = np.empty((scene.arenas, scene.agents, len(self.fields)), dtype=np.float32)

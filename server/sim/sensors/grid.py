@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..validation import check, check_flag, check_range
-from .base import Scene, SensorConfig, SensorSpace
+from .base import Scene, SensorConfig, SensorFacts, SensorSpace
 
 if TYPE_CHECKING:
     from ..config import SimConfig
@@ -78,6 +78,8 @@ class OccupancyGrid:
 
     def __init__(self, config: OccupancyGridConfig, lane_count: int) -> None:
         self.cells = config.cells
+        self.ahead_m, self.behind_m = config.ahead_m, config.behind_m
+        self.side_lanes = config.side_lanes
         self.lane_count = lane_count
         self.off_road_value = config.off_road_value
         cell_m = (config.ahead_m + config.behind_m) / config.cells
@@ -91,6 +93,13 @@ class OccupancyGrid:
         low = min(0, self.off_road_value)
         shape = (self.cells, self._offsets.size)
         return SensorSpace.uniform(shape, np.int8, low, 1)
+
+    def facts(self) -> SensorFacts:
+        """Rows from ``ahead_m`` ahead to ``behind_m`` behind; columns the lanes, left to
+        right (``left_2, left_1, own, right_1, right_2`` with two side lanes)."""
+        sides = range(self.side_lanes, 0, -1)
+        columns = (*(f"left_{k}" for k in sides), "own", *(f"right_{k}" for k in sides[::-1]))
+        return SensorFacts(columns=columns, ahead_m=self.ahead_m, behind_m=self.behind_m)
 
     def observe(self, scene: Scene) -> np.ndarray:
         st, n = scene.state, scene.agents

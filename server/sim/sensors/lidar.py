@@ -20,7 +20,7 @@ import numpy as np
 from ..kernels import lidar_scan
 from ..road import Road
 from ..validation import check, check_range
-from .base import ObserverViews, Scene, SensorConfig, SensorSpace
+from .base import ObserverViews, Scene, SensorConfig, SensorFacts, SensorSpace
 
 if TYPE_CHECKING:
     from ..config import SimConfig
@@ -77,6 +77,10 @@ class Lidar:
 
     def space(self) -> SensorSpace:
         return SensorSpace.uniform((self.ray_count,), np.float32, 0.0, self.max_range_m)
+
+    def facts(self) -> SensorFacts:
+        """Rays all around, one per ``360 / ray_count`` degrees, up to the range."""
+        return SensorFacts(range_m=self.max_range_m)
 
     def observe(self, scene: Scene) -> np.ndarray:
         return self.scan(scene.views).reshape(scene.arenas, scene.agents, -1)

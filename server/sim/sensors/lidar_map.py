@@ -19,7 +19,7 @@ import numpy as np
 
 from ..kernels import lidar_grid
 from ..validation import check, check_flag, check_range
-from .base import Scene, SensorConfig, SensorSpace
+from .base import Scene, SensorConfig, SensorFacts, SensorSpace
 from .lidar import Lidar
 
 if TYPE_CHECKING:
@@ -66,6 +66,7 @@ class LidarMap:
     def __init__(self, config: LidarMapConfig, scanner: Lidar) -> None:
         self.cells = config.cells
         self.ahead_m = config.ahead_m
+        self.behind_m = config.behind_m
         self.half_width_m = config.half_width_m
         self.row_m = (config.ahead_m + config.behind_m) / config.cells
         self.column_m = 2.0 * config.half_width_m / config.cells
@@ -75,6 +76,11 @@ class LidarMap:
 
     def space(self) -> SensorSpace:
         return SensorSpace.uniform((self.cells, self.cells), np.uint8, 0, 255)
+
+    def facts(self) -> SensorFacts:
+        """Rows from ``ahead_m`` ahead to ``behind_m`` behind, columns ``half_width_m`` to
+        either side."""
+        return SensorFacts(ahead_m=self.ahead_m, behind_m=self.behind_m, side_m=self.half_width_m)
 
     def observe(self, scene: Scene) -> np.ndarray:
         distance = self.scanner.scan(scene.views)  # (O, R), in the car's frame
