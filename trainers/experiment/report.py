@@ -15,7 +15,7 @@ import numpy as np
 from overtake.viz.recording import RecordingConfig, close_recording, open_recording
 
 from ..checkpoint import plain_data
-from ..train import git_commit, package_versions
+from ..run_files import git_commit, package_versions
 from .catalogue import (
     ALGO_NAMES,
     CURVE_METRICS,

@@ -1,0 +1,520 @@
+"""One life of a training run (its start or one resume) in its run directory: the learner,
+the replay and the frame stacker, the loop that steps the environments until ``total_steps``
+transitions are stored, lock-step or overlapped with the server's simulation, and the run's
+files (run.json, metrics.jsonl, the Rerun recording, the checkpoints). ``overtake-train``
+(:mod:`.train`) builds it from its configuration."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import platform
+import threading
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import torch
+
+from overtake.protocol import ACTION_COUNT
+from overtake.protocol.messages import BehaviourSpec
+from overtake.viz.recording import APPLICATION_ID, Recording, close_recording, open_recording
+
+from .checkpoint import CHECKPOINT_NAME, REPLAY_NAME, Checkpoint, plain_data, save_checkpoint
+from .env_parts import EnvParts
+from .grid_network import GridNetworkShape
+from .learner import ALGOS, DQNLearner
+from .network import INPUT_SENSORS, NetworkShape
+from .observations import describe_space, frame_shapes
+from .replay import FrameStacker, ReplayMemory
+from .run_files import MetricsLog, git_commit, package_versions
+from .run_log import LogWindow, progress_bar
+from .two_stream_network import TwoStreamShape
+from .visual import TrainingRecording, training_blueprint
+
+if TYPE_CHECKING:
+    from .train import TrainConfig
+
+
+def _ego_fields(spec: BehaviourSpec | None) -> tuple[str, ...]:
+    """The fields of the ego vector observation, in order, from the environment's behaviour
+    spec (none where it has no ego vector, or no spec: an environment of the caller's)."""
+    return spec.observation("ego").columns if spec is not None and spec.has("ego") else ()
+
+
+class TrainingRun:
+    """One life of a training run (its start or one resume) in its run directory.
+
+    It holds the learner, the replay and the frame stacker, steps the vector environment
+    until ``total_steps`` transitions are stored, and writes the run's files: the run record,
+    the metrics log, the Rerun recording and the checkpoints.
+    """
+
+    # Set by run(): its outputs, then, once the environments start, the latest observation
+    # and action mask, the environments whose next step is their autoreset, the clock, and
+    # what the next training log line averages.
+    log: MetricsLog
+    recording: Recording | None
+    view: TrainingRecording | None
+    bar: Any
+    obs: dict[str, np.ndarray]
+    mask: np.ndarray
+    starting: np.ndarray
+    everyone: np.ndarray
+    started: float
+    window: LogWindow
+
+    def __init__(
+        self,
+        config: TrainConfig,
+        envs: Any,
+        run_dir: Path,
+        overrides: dict[str, Any],
+        resumed: Checkpoint | None,
+        stop: threading.Event | None = None,
+    ) -> None:
+        self.config, self.dqn, self.envs = config, config.dqn, envs
+        self.stop = stop if stop is not None else threading.Event()
+        # Overlap steps the environments' parts (a remote vector env opened in parts) in turn:
+        # part p's actions go out, then the part sent longest ago comes back.
+        self.env = EnvParts(envs, config.num_envs)
+        self.run_dir, self.overrides = run_dir, overrides
+        self.checkpoint_path, self.replay_path = run_dir / CHECKPOINT_NAME, run_dir / REPLAY_NAME
+        self.space = envs.single_observation_space
+        self.space_description = describe_space(self.space)
+        self._build_learner()
+        self.step, self.episodes, self.resumes = 0, 0, 0
+        self.resumed_at_step: int | None = None
+        self.env_seed = config.seed
+        if resumed is not None:
+            self._restore(resumed)
+        self.next_update = self.step + self.dqn.train_every
+        self.next_sync = self.step + self.dqn.target_update_steps
+        self.next_checkpoint = self.step + config.checkpoint_every
+        self.next_log = self.step + config.log_every
+        # Updates wait for this many transitions: at the start of a run, and again after a
+        # resume without a saved replay (capped by what the replay can hold).
+        self.warm = max(
+            self.dqn.batch_size,
+            min(self.dqn.learning_starts, (self.replay.per_env - 1) * config.num_envs),
+        )
+        self.last_episode: dict[str, float] = {}
+        self.iteration = 0
+        self.in_flight: dict[int, tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]] = {}
+        self.env_calls = 0  # envs.step, or with overlap send: one each, autoreset steps included
+        self.unstored = 0  # transitions played past the budget, in its last step: not stored
+
+    def _build_learner(self) -> None:
+        """The learner (seeded), its replay memory and frame stacker, and the random generator
+        of its exploration."""
+        config, dqn = self.config, self.dqn
+        double, dueling = ALGOS[config.algo]
+        shapes = frame_shapes(self.space, config.inputs, f"preset {config.preset}'s environment")
+        stacked = INPUT_SENSORS[config.inputs]
+        self.net_shape: NetworkShape | GridNetworkShape | TwoStreamShape
+        if config.inputs == "grid":
+            self.net_shape = GridNetworkShape.from_space(self.space, ACTION_COUNT, dqn.stack)
+        elif config.inputs == "camera-map":
+            self.net_shape = TwoStreamShape.from_space(self.space, ACTION_COUNT, dqn.stack)
+        else:
+            self.net_shape = NetworkShape.from_space(self.space, ACTION_COUNT, dqn.stack)
+        torch.manual_seed(config.seed)
+        self.learner = DQNLearner(
+            self.net_shape,
+            config.inputs,
+            dqn,
+            double=double,
+            dueling=dueling,
+            device=config.device,
+            precision=config.precision,
+        )
+        self.replay = ReplayMemory(
+            dqn.replay_size, config.num_envs, shapes, dqn.stack, stacked, seed=config.seed
+        )
+        self.stacker = FrameStacker(config.num_envs, shapes, dqn.stack, stacked)
+        self.rng = np.random.default_rng(config.seed)
+
+    def _restore(self, resumed: Checkpoint) -> None:
+        """Carry on from ``resumed``: the learner, the counts, the random generators, and the
+        replay where it was saved."""
+        self.learner.load_state_dict(resumed.learner)
+        self.step, self.episodes = resumed.step, resumed.episodes
+        self.resumed_at_step = resumed.step
+        self.resumes = resumed.resumes + 1
+        self.rng.bit_generator.state = resumed.rng_state
+        torch.set_rng_state(resumed.torch_rng_state)
+        # New episodes, not the ones of the first life: different environment seeds.
+        self.env_seed = self.config.seed + 1_000_003 * self.resumes
+        if self.config.save_replay and self.replay_path.exists():
+            self.replay.load(self.replay_path)
+
+    def _life_file(self, stem: str, suffix: str) -> Path:
+        """``stem.suffix`` for a run's start, ``stem-resume-N.suffix`` for its N-th resume."""
+        name = stem if self.resumed_at_step is None else f"{stem}-resume-{self.resumes}"
+        return self.run_dir / f"{name}{suffix}"
+
+    def run(self) -> dict[str, Any]:
+        """Train to ``total_steps``, checkpointing on the way and at the end; returns the
+        summary :func:`main` returns."""
+        self._write_run_record()
+        self.log = MetricsLog(self.run_dir / "metrics.jsonl")
+        self.recording, self.bar = None, None
+        try:
+            self._open_recording()
+            self._start_episodes()
+            iteration = self._part_iteration if self.config.overlapped else self._iteration
+            while self.step < self.config.total_steps and not self.stop.is_set():
+                iteration()
+            self._finish_parts()
+            if self.step > self.window.start_step:
+                # The steps since the last line, a partial window: a learning curve (Fayjie
+                # et al.'s reward per 3,000 steps) keeps its last point.
+                self._log_training(self.dqn.epsilon(self.step))
+            self._checkpoint()
+        finally:
+            if self.bar is not None:
+                self.bar.close()
+            self.log.close()
+            close_recording(self.recording)
+        return {
+            "run_dir": str(self.run_dir),
+            "steps": self.step,
+            "resumed_at_step": self.resumed_at_step,
+            # Calls of envs.step in this life (with overlap: of send, one part each), autoreset
+            # steps included: on a server, the rounds it played for this trainer's groups,
+            # plus two per server loss (the truncated step and the reopened arenas' first,
+            # which no server played).
+            "env_steps_called": self.env_calls,
+            "parts": self.env.count,
+            # The transitions the last step played beyond the budget (not stored or learned
+            # from): steps + unstored is what the environments played in this run.
+            "unstored": self.unstored,
+            **self.env.remote_facts(),
+            "episodes": self.episodes,
+            "updates": self.learner.updates,
+            "last_episode": self.last_episode,
+            "stopped": self.step < self.config.total_steps,
+        }
+
+    def _write_run_record(self) -> None:
+        """run.json (run-resume-N.json): what this life of the run is, to reproduce it."""
+        config = self.config
+        double, dueling = ALGOS[config.algo]
+        record = {
+            "config": plain_data(config),
+            "algo": {"name": config.algo, "double": double, "dueling": dueling},
+            "overrides": self.overrides,
+            "sim_config": self.env.sim_config,
+            "observation_space": self.space_description,
+            "network": dataclasses.asdict(self.net_shape),
+            "versions": package_versions(),
+            "commit": git_commit(),
+            "seed": config.seed,
+            "resumes": self.resumes,
+            "resumed_at_step": self.resumed_at_step,
+            "trainer": self.env.remote_facts().get("trainer"),
+            "host": platform.node(),
+            "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "replay_bytes": self.replay.nbytes,
+            "replay_naive_bytes": self.replay.naive_nbytes(),
+        }
+        self._life_file("run", ".json").write_text(json.dumps(record, indent=2, default=str))
+
+    def _open_recording(self) -> None:
+        run_name = self.run_dir.name or "run"
+        # No footer: a run may write for days, and the SDK would hold the footer's index in
+        # memory until the end (overtake.viz.recording, on footers; bench/recording_memory.py).
+        self.recording = open_recording(
+            APPLICATION_ID,
+            self.config.recording,
+            self._life_file("trainer", ".rrd"),
+            training_blueprint(run_name),
+            footer=False,
+        )
+        self.view = (
+            # Coloured by algorithm: DQN, Double DQN and Dueling keep their colours in every
+            # recording that holds several runs.
+            TrainingRecording(
+                self.recording.stream,
+                run_name,
+                colour_index=list(ALGOS).index(self.config.algo),
+                ego_fields=_ego_fields(self.env.behaviour_spec),
+            )
+            if self.recording is not None
+            else None
+        )
+        recorded = self.env.recorded_arenas()
+        if self.view is not None and recorded is not None:
+            self.view.arenas(*recorded)
+
+    def _start_episodes(self) -> None:
+        """Reset every environment and start its frame stack and its replay ring."""
+        obs, info = self.envs.reset(seed=self.env_seed)
+        # Own, writable copies: parts write their rows into them as their Steps come back.
+        self.obs = {k: np.array(v) for k, v in obs.items()}
+        everyone = self.everyone = np.arange(self.config.num_envs)
+        self.stacker.reset(everyone, self.obs)
+        self.replay.start(everyone, self.obs, info["action_mask"])
+        self.mask = np.array(info["action_mask"])
+        self.starting = np.zeros(self.config.num_envs, dtype=bool)
+        self.started = time.perf_counter()
+        self.window = LogWindow(self.step, self.started)
+        self.bar = progress_bar(self.config, self.step)
+
+    def _iteration(self) -> None:
+        """One step of every environment: act, step, store what came back, learn; log and
+        checkpoint when due."""
+        t0 = time.perf_counter()
+        epsilon = self.dqn.epsilon(self.step)
+        actions, q = self.learner.act(self.stacker.observation(), self.mask, epsilon, self.rng)
+        t1 = time.perf_counter()
+        seen = self.obs
+        self.env.label_step(self.step)
+        self.obs, reward, terminated, truncated, info = self.env.step(actions)
+        self.env_calls += 1
+        t2 = time.perf_counter()
+        self._record_car_view(seen, actions, q, reward, info)
+        stored, taken = self._store(self.everyone, actions, reward, terminated, info["action_mask"])
+        self._end_episodes(self.everyone, terminated, truncated, info, taken)
+        t3 = time.perf_counter()
+        self._learn()
+        t4 = time.perf_counter()
+        self._account(epsilon, stored, (t0, t1, t2, t3, t4))
+
+    def _part_iteration(self) -> None:
+        """Overlap: act for one part and send its actions; learn while the server simulates;
+        then take the Steps of the part sent longest ago and store them; log and checkpoint
+        when due. With one part the update runs during the round trip (it sees the
+        transitions up to the previous iteration); with two the server also plays one part
+        while the learner acts on the other."""
+        t0 = time.perf_counter()
+        part = self.env_calls % self.env.count
+        rows = self.env.rows[part]
+        epsilon = self.dqn.epsilon(self.step)
+        stacked = self.stacker.observation()
+        if self.env.count > 1:
+            stacked = {k: v[rows] for k, v in stacked.items()}
+        actions, q = self.learner.act(stacked, self.mask[rows], epsilon, self.rng)
+        t1 = time.perf_counter()
+        self.env.label_step(self.step)
+        seen = {k: v[rows].copy() for k, v in self.obs.items()} if part == 0 else {}
+        self.env.send(part, actions)
+        self.in_flight[part] = (actions, q, seen)
+        self.env_calls += 1
+        t2 = time.perf_counter()
+        self._learn()
+        t3 = time.perf_counter()
+        stored, waited = 0, 0.0
+        oldest = self.env_calls % self.env.count  # the next to send is the one sent longest ago
+        if oldest in self.in_flight and len(self.in_flight) == self.env.count:
+            stored, waited = self._receive_part(oldest)
+        t4 = time.perf_counter()
+        # In _account's order (act, env, replay, update): the wait for the Steps counts as the
+        # environment's time, the rest of receiving as the replay's.
+        env_end = t2 + waited
+        replay_end = env_end + (t4 - t3 - waited)
+        self._account(epsilon, stored, (t0, t1, env_end, replay_end, t4))
+
+    def _account(
+        self, epsilon: float, stored: int, times: tuple[float, float, float, float, float]
+    ) -> None:
+        """An iteration's time split (act, env, replay, update, from its five clock readings)
+        and progress; a log line and a checkpoint when due."""
+        self.window.add_times(times)
+        if self.bar is not None and stored:
+            self.bar.update(stored)
+        if self.step >= self.next_log:
+            self._log_training(epsilon)
+        if self.step >= self.next_checkpoint:
+            self._checkpoint()
+            self.next_checkpoint = self.step + self.config.checkpoint_every
+
+    def _receive_part(self, part: int) -> tuple[int, float]:
+        """Take part ``part``'s Steps and store them; returns the transitions stored and the
+        seconds spent waiting for them."""
+        envs, rows = self.env.indices[part], self.env.rows[part]
+        actions, q, seen = self.in_flight.pop(part)
+        start = time.perf_counter()
+        obs, reward, terminated, truncated, info = self.env.recv(part)
+        waited = time.perf_counter() - start
+        for name, value in obs.items():
+            self.obs[name][rows] = value
+        if part == 0:
+            self._record_car_view(seen, actions, q, reward, info)
+        stored, taken = self._store(envs, actions, reward, terminated, info["action_mask"])
+        self._end_episodes(envs, terminated, truncated, info, taken)
+        return stored, waited
+
+    def _finish_parts(self) -> None:
+        """Take the Steps of the parts still in flight at the end of the run, without storing
+        them (the run has its steps): the server's rounds and the trainer's sends agree."""
+        for part in sorted(self.in_flight):
+            self.env.recv(part)
+        self.in_flight.clear()
+
+    def _record_car_view(
+        self,
+        seen: dict[str, np.ndarray],
+        actions: np.ndarray,
+        q: np.ndarray,
+        reward: np.ndarray,
+        info: dict[str, Any],
+    ) -> None:
+        """Environment 0's view, action, Q-values and reward to Rerun, every record_every
+        iterations (not for its autoreset step, whose action the environment ignored)."""
+        if (
+            self.view is not None
+            and not self.starting[0]
+            and self.iteration % self.config.recording.record_every == 0
+        ):
+            terms = {name: float(v[0]) for name, v in info.get("reward_terms", {}).items()}
+            self.view.car_view(
+                self.step,
+                {k: v[0] for k, v in seen.items()},
+                int(actions[0]),
+                q[0],
+                float(reward[0]),
+                terms,
+            )
+        self.iteration += 1
+
+    def _store(
+        self,
+        envs: np.ndarray,
+        actions: np.ndarray,
+        reward: np.ndarray,
+        terminated: np.ndarray,
+        mask: np.ndarray,
+    ) -> tuple[int, np.ndarray]:
+        """Store what a step of the environments ``envs`` returned (their rows of
+        ``self.obs``; the other arrays have a row per environment of ``envs``); returns how
+        many transitions that added, and which of the rows were taken (stored, or a new
+        episode's start).
+
+        Gymnasium next-step autoreset: environments that ended last step were reset by this
+        one (its action ignored, reward 0); their observation starts a new episode, no
+        transition. The others add one transition each, as long as the budget lasts: the step
+        that reaches ``total_steps`` stores only what is left of it (the first environments'
+        transitions), so that a run's step N is N stored transitions everywhere (its
+        checkpoint, its metrics, the experiments' tables, resume); the rest are counted in
+        ``unstored`` and not learned from.
+        """
+        self.mask[envs] = mask
+        starting = self.starting[envs]
+        moving = np.flatnonzero(~starting)
+        room = self.config.total_steps - self.step
+        if moving.size > room:
+            self.unstored += moving.size - room
+            moving = moving[:room]
+        taken = starting.copy()
+        taken[moving] = True
+        fresh = np.flatnonzero(starting)
+        if fresh.size:
+            ids = envs[fresh]
+            sub = {k: v[ids] for k, v in self.obs.items()}
+            self.stacker.reset(ids, sub)
+            self.replay.start(ids, sub, mask[fresh])
+        if moving.size:
+            ids = envs[moving]
+            sub = {k: v[ids] for k, v in self.obs.items()}
+            self.replay.add(
+                ids, actions[moving], reward[moving], terminated[moving], sub, mask[moving]
+            )
+            self.stacker.push(ids, sub)
+            self.step += moving.size
+            self.window.reward_sum += float(reward[moving].sum())
+        return int(moving.size), taken
+
+    def _end_episodes(
+        self,
+        envs: np.ndarray,
+        terminated: np.ndarray,
+        truncated: np.ndarray,
+        info: dict[str, Any],
+        taken: np.ndarray,
+    ) -> None:
+        """Log the episodes this step of the environments ``envs`` ended (their metrics) and
+        mark those environments for the autoreset step that follows; an episode whose last
+        transition was past the budget (not ``taken``) did not end in this run."""
+        ended = (terminated | truncated) & ~self.starting[envs] & taken
+        for i in np.flatnonzero(ended):
+            self.episodes += 1
+            self.last_episode = {name: float(values[i]) for name, values in info["metrics"].items()}
+            self.log.write(
+                {
+                    "kind": "episode",
+                    "step": self.step,
+                    "episode": self.episodes,
+                    "env": int(envs[i]),
+                    "wall_s": round(time.perf_counter() - self.started, 3),
+                    "terminated": bool(terminated[i]),
+                    **self.last_episode,
+                }
+            )
+            if self.view is not None:
+                self.view.episode(self.step, self.last_episode)
+        self.starting[envs] = ended
+
+    def _learn(self) -> None:
+        """One update per ``train_every`` steps stored (once the replay holds ``warm``
+        transitions), and the target network's sync every ``target_update_steps``."""
+        while self.step >= self.next_update:
+            self.next_update += self.dqn.train_every
+            if len(self.replay) >= self.warm:
+                stats = self.learner.update(self.replay.sample(self.dqn.batch_size))
+                self.window.losses.append(stats["loss"])
+                self.window.q_taken.append(stats["q_taken"])
+        if self.step >= self.next_sync:
+            self.learner.sync_target()
+            self.next_sync = self.step + self.dqn.target_update_steps
+
+    def _log_training(self, epsilon: float) -> None:
+        """A ``{"kind": "train", ...}`` line (to metrics.jsonl, Rerun and the progress bar)
+        over the steps since the last one."""
+        now = time.perf_counter()
+        averages = self.window.line(self.step, now)
+        entry = {
+            "kind": "train",
+            "step": self.step,
+            "episodes": self.episodes,
+            "wall_s": round(now - self.started, 3),
+            "epsilon": epsilon,
+            "updates": self.learner.updates,
+            "loss": averages.pop("loss"),
+            "q_taken": averages.pop("q_taken"),
+            "reward_sum": averages.pop("reward_sum"),
+            "steps_per_s": averages.pop("steps_per_s"),
+            "replay": len(self.replay),
+            **averages,
+        }
+        self.log.write(entry)
+        if self.view is not None:
+            self.view.learning(self.step, entry)
+        if self.bar is not None:
+            last = self.last_episode
+            self.bar.set_postfix(
+                eps=f"{epsilon:.2f}",
+                loss=entry["loss"] and f"{entry['loss']:.3f}",
+                speed=last and f"{last['avg_speed_kmh']:.1f}",
+                ret=last and f"{last['return']:.0f}",
+                refresh=False,
+            )
+        self.window = LogWindow(self.step, now)
+        self.next_log = self.step + self.config.log_every
+
+    def _checkpoint(self) -> None:
+        save_checkpoint(
+            self.checkpoint_path,
+            learner=self.learner,
+            config=self.config,
+            overrides=self.overrides,
+            space=self.space_description,
+            net_shape=self.net_shape,
+            step=self.step,
+            episodes=self.episodes,
+            rng_state=self.rng.bit_generator.state,
+            resumes=self.resumes,
+        )
+        if self.config.save_replay:
+            self.replay.save(self.replay_path)
