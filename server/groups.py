@@ -39,7 +39,6 @@ from overtake.protocol.vocabulary import (
 )
 
 from .sim import PRESETS, ConfigError, HighwaySim, SimConfig, autoreset_round, make_config
-from .sim.physics import headings
 from .spec import behaviour_spec
 
 
@@ -458,35 +457,33 @@ class Group:
         return self.last_observations or self.sim.observe()
 
     def world_frame(self, arena: int, observations: dict[str, np.ndarray]) -> WorldFrame:
-        sim, st = self.sim, self.sim.state
-        n = sim.agents
-        body = np.clip(st.kind[arena], 0, AGENT_KIND)
+        """Arena ``arena`` (an index in the group) as spectators and recordings see it: the
+        simulator's snapshot of its road, with the agents' latest observations and rewards."""
+        world = self.sim.world_snapshot(arena)
         return WorldFrame(
             server=self.server,
             group=self.group_id,
             arena=self.arena_ids[arena],
             round=self.round,
-            sim_time_s=float(st.frame[arena] * sim.dt),
-            lane_count=sim.road.lane_count,
-            lane_width_m=float(sim.road.lane_width_m),
+            sim_time_s=world.sim_time_s,
+            lane_count=world.lane_count,
+            lane_width_m=world.lane_width_m,
             agent_kind=AGENT_KIND,
-            agent_active=st.active[arena, :n].copy(),
-            x_m=st.x_m[arena].astype(np.float64),
-            y_m=st.y_m[arena].astype(np.float64),
-            speed_mps=st.speed_mps[arena].astype(np.float32),
-            kind=st.kind[arena].astype(np.int8),
-            active=st.active[arena].copy(),
+            agent_active=world.agent_active,
+            x_m=world.x_m,
+            y_m=world.y_m,
+            speed_mps=world.speed_mps,
+            kind=world.kind,
+            active=world.active,
             observations={name: value[arena] for name, value in observations.items()},
             reward=self.last_reward[arena].astype(np.float64),
             action_applied=self.last_applied[arena].astype(np.int64),
             reward_terms=self.last_terms[arena].astype(np.float64),
-            reward_term_names=sim.reward_terms,
+            reward_term_names=self.sim.reward_terms,
             trainer_step=self.trainer_step,
-            half_length_m=sim.kinds.half_length[body].astype(np.float32),
-            half_width_m=sim.kinds.half_width[body].astype(np.float32),
-            agent_heading_rad=headings(st, sim.kinds, sim.road.lane_width_m, n)[arena].astype(
-                np.float32
-            ),
+            half_length_m=world.half_length_m,
+            half_width_m=world.half_width_m,
+            agent_heading_rad=world.agent_heading_rad,
         )
 
 

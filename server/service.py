@@ -12,8 +12,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
-import queue
-import secrets
 import signal
 import socket
 import sys
@@ -50,65 +48,26 @@ from overtake.protocol.transport import (
 )
 from overtake.viz.recording import RecordingConfig
 
+from .arenas import ArenaRegistry
 from .errors import StartError
 from .groups import Group, next_to_step
+from .inbox import (
+    MAX_EVENTS_PER_PASS,
+    WAKE,
+    ActionsArrived,
+    Event,
+    Inbox,
+    QueryArrived,
+    TrainerPresence,
+)
+from .outbox import Outbox
 from .recorder import ServerRecorder
 
 log = logging.getLogger("overtake.server")
 
-# What Zenoh's threads hand the loop: small records, decoded and checked only by the loop.
-
-
-@dataclass(frozen=True)
-class _Query:
-    query: zenoh.Query
-    payload: bytes
-
-
-@dataclass(frozen=True)
-class _ActionsPut:
-    key: str
-    payload: bytes
-
-
-@dataclass(frozen=True)
-class _Liveliness:
-    key: str
-    present: bool
-
-
-@dataclass(frozen=True)
-class _Wake:
-    """Nothing to do but look at the clock (a stop request, or a deadline)."""
-
-
-_Event = _Query | _ActionsPut | _Liveliness | _Wake
-_WAKE = _Wake()
-# Events handled before the ready groups step: bounds what a flood of messages can delay.
-MAX_EVENTS_PER_PASS = 256
-# What a flood may queue before the loop reads it (bench/fuzz_wire.py: a million unreadable
-# actions on one key queued 150 MiB). Actions waiting per key (per trainer name): a trainer in
-# lock step has one at a time, so only a flood on its key reaches the bound. Requests waiting
-# in all (their sender is not known before decoding): beyond it a request goes unanswered and
-# its sender's timeout says so.
-MAX_QUEUED_ACTIONS_PER_KEY = 64
-MAX_QUEUED_REQUESTS = 1024
-# At most one warning about dropped frames per this many seconds.
-DROPPED_REPORT_INTERVAL_S = 5.0
-
-
 # With its sink on, a server logs every arena one round in this many: logging every round
 # costs trainers 20-30% of their steps per second, one in ten a few per cent (bench/RESULTS.md).
 SERVER_RECORD_EVERY = 10
-
-
-def busy_reply(server: str) -> ErrorReply:
-    """The answer to a request that finds MAX_QUEUED_REQUESTS already waiting."""
-    return ErrorReply(
-        code=errors.ServerBusy.code,
-        message=f"server {server} is busy: {MAX_QUEUED_REQUESTS} requests are waiting "
-        "already, so this one was not queued; ask again",
-    )
 
 
 def default_server_name() -> str:
@@ -182,25 +141,13 @@ class SimulatorServer:
             raise ValueError(f"step_deadline_s must be > 0, got {config.step_deadline_s}")
         self.config = config
         self.name = config.name
-        self._events: queue.SimpleQueue[_Event] = queue.SimpleQueue()
-        # Frames queued and not yet handled, counted by Zenoh's threads and the loop alike.
-        self._queue_lock = threading.Lock()
-        self._queued_actions: dict[str, int] = {}
-        self._queued_requests = 0
-        self._dropped = 0
-        self._dropped_reported = 0
-        self._dropped_report_t = 0.0
-        self._busy_frame = codec.encode(busy_reply(config.name))
+        self.inbox = Inbox(config.name)
         self._stopping = threading.Event()
         self._own_session = session is None
         self.session = session if session is not None else open_session(config.transport())
-        self.groups: dict[int, Group] = {}
-        self._arena_index: dict[int, tuple[int, int]] = {}  # arena id -> (group, index)
-        self._next_arena = 0
+        self.arenas = ArenaRegistry(self.name, config.max_arenas, config.max_arenas_per_trainer)
         self._alive_trainers: set[str] = set()
-        self._step_pubs: dict[str, zenoh.Publisher] = {}
-        self._world_pubs: dict[int, zenoh.Publisher] = {}
-        self._last_world: dict[int, float] = {}
+        self.outbox = Outbox(self.session, self.name, config.world_rate_hz)
         self._started = time.monotonic()
         self._declared: list[Any] = []
         self._declare()
@@ -226,81 +173,25 @@ class SimulatorServer:
                 "give this one another --name"
             )
         s = self.session
+        # Zenoh's threads only enqueue (server/inbox.py); the loop does the rest.
         self._declared.append(
-            s.declare_queryable(keys.server_request(self.name), self._enqueue_query)
+            s.declare_queryable(keys.server_request(self.name), self.inbox.on_query)
         )
         self._declared.append(
-            s.declare_subscriber(keys.server_actions_all(self.name), self._enqueue_actions)
+            s.declare_subscriber(keys.server_actions_all(self.name), self.inbox.on_actions)
         )
         self._declared.append(
             s.liveliness().declare_subscriber(
-                keys.ALL_TRAINERS_ALIVE,
-                lambda sample: self._events.put(
-                    _Liveliness(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
-                ),
-                history=True,
+                keys.ALL_TRAINERS_ALIVE, self.inbox.on_presence, history=True
             )
         )
         self._token = s.liveliness().declare_token(keys.server_alive(self.name))
-
-    def _enqueue_query(self, query: zenoh.Query) -> None:
-        """Zenoh's thread: queue a request, unless a flood already filled the queue; then it
-        is answered busy at once (a prepared frame: no decoding, nothing kept), so that an
-        honest asker caught in the flood hears why and asks again instead of timing out."""
-        with self._queue_lock:
-            full = self._queued_requests >= MAX_QUEUED_REQUESTS
-            if full:
-                self._dropped += 1
-            else:
-                self._queued_requests += 1
-        if full:
-            with contextlib.suppress(Exception), query:
-                query.reply(keys.server_request(self.name), self._busy_frame)
-            return
-        self._events.put(_Query(query, query.payload.to_bytes() if query.payload else b""))
-
-    def _enqueue_actions(self, sample: zenoh.Sample) -> None:
-        """Zenoh's thread: queue actions, unless their key already has its share queued."""
-        key = str(sample.key_expr)
-        with self._queue_lock:
-            waiting = self._queued_actions.get(key, 0)
-            if waiting >= MAX_QUEUED_ACTIONS_PER_KEY:
-                self._dropped += 1
-                return
-            self._queued_actions[key] = waiting + 1
-        self._events.put(_ActionsPut(key, sample.payload.to_bytes()))
-
-    def _dequeued(self, event: _Event) -> None:
-        """The loop took ``event``: it no longer counts against its queue's bound."""
-        with self._queue_lock:
-            if isinstance(event, _Query):
-                self._queued_requests -= 1
-            elif isinstance(event, _ActionsPut):
-                left = self._queued_actions[event.key] - 1
-                if left:
-                    self._queued_actions[event.key] = left
-                else:
-                    del self._queued_actions[event.key]
-            dropped = self._dropped
-        now = time.monotonic()
-        if dropped > self._dropped_reported and now - self._dropped_report_t >= (
-            DROPPED_REPORT_INTERVAL_S
-        ):
-            log.warning(
-                "dropped %d frame(s) of a flood (%d in all): more than %d actions waiting on "
-                "one key, or %d requests waiting",
-                dropped - self._dropped_reported,
-                dropped,
-                MAX_QUEUED_ACTIONS_PER_KEY,
-                MAX_QUEUED_REQUESTS,
-            )
-            self._dropped_reported, self._dropped_report_t = dropped, now
 
     # --- main loop ------------------------------------------------------------------------------
 
     def stop(self) -> None:
         self._stopping.set()
-        self._events.put(_WAKE)
+        self.inbox.wake()
 
     def serve(self) -> None:
         log.info(
@@ -322,19 +213,15 @@ class SimulatorServer:
                 # at once), but not without bound: a flood must not keep the groups from
                 # stepping.
                 for _ in range(MAX_EVENTS_PER_PASS):
-                    try:
-                        self._handle(self._events.get_nowait())
-                    except queue.Empty:
+                    arrived = self.inbox.take()
+                    if arrived is None:
                         break
-                group = next_to_step(self.groups.values(), time.monotonic())
+                    self._handle(arrived)
+                group = next_to_step(self.arenas.groups.values(), time.monotonic())
                 if group is not None:
                     self._step_group(group)
                     continue
-                try:
-                    event = self._events.get(timeout=self._next_timeout())
-                except queue.Empty:
-                    event = _WAKE
-                self._handle(event)
+                self._handle(self.inbox.take(self._next_timeout()) or WAKE)
         finally:
             self.close()
 
@@ -355,20 +242,19 @@ class SimulatorServer:
         log.info("server %s stopped", self.name)
 
     def _next_timeout(self) -> float:
-        deadlines = [g.deadline for g in self.groups.values() if g.deadline is not None]
+        deadlines = [g.deadline for g in self.arenas.groups.values() if g.deadline is not None]
         if not deadlines:
             return 1.0
         return min(max(min(deadlines) - time.monotonic(), 0.0), 1.0)
 
-    def _handle(self, event: _Event) -> None:
-        self._dequeued(event)
+    def _handle(self, event: Event) -> None:
         try:
-            if isinstance(event, _Query):
+            if isinstance(event, QueryArrived):
                 self._on_query(event.query, event.payload)
-            elif isinstance(event, _ActionsPut):
+            elif isinstance(event, ActionsArrived):
                 self._on_actions(event.key, event.payload)
-            elif isinstance(event, _Liveliness):
-                self._on_alive(event.key, event.present)
+            elif isinstance(event, TrainerPresence):
+                self._on_presence(event.key, event.present)
         except Exception:  # the loop must survive anything; a bug shows as a log line
             log.exception("unexpected error handling %s", type(event).__name__)
 
@@ -404,36 +290,36 @@ class SimulatorServer:
         if isinstance(request, StatusRequest):
             return self.status()
         if isinstance(request, OpenRequest):
-            return self._open(request)
+            self._require_alive(request.trainer)
+            return self.arenas.open(request, self._opened)
         if isinstance(request, JoinRequest):
-            return self._join(request)
+            self._require_alive(request.trainer)
+            return self.arenas.join(request, self._opened)
         if isinstance(request, ResetRequest):
-            return self._group(request.group).reset(
+            return self.arenas.group(request.group).reset(
                 request.trainer, request.ticket, request.arenas, request.seeds
             )
         if isinstance(request, CloseRequest):
-            group = self._group(request.group)
+            group = self.arenas.group(request.group)
             group.member(request.trainer, request.ticket)
             self._leave(group, request.trainer, "closed")
             return Ack(message=f"left group {request.group}")
         raise errors.DecodeError(f"not a request: {request.TYPE}")  # pragma: no cover
 
     def status(self) -> StatusReply:
-        with self._queue_lock:
-            queued_actions = sum(self._queued_actions.values())
-            # The status request being answered has left the queue already.
-            queued_requests, dropped = self._queued_requests, self._dropped
+        # The status request being answered has left the queue already.
+        backlog = self.inbox.backlog()
         return StatusReply(
             server=self.name,
             package_version=_package_version(),
             max_arenas=self.config.max_arenas,
-            arenas_used=len(self._arena_index),
+            arenas_used=self.arenas.used,
             step_deadline_s=self.config.step_deadline_s,
             uptime_s=time.monotonic() - self._started,
-            groups=tuple(g.status() for g in self.groups.values()),
-            queued_actions=queued_actions,
-            queued_requests=queued_requests,
-            dropped_frames=dropped,
+            groups=tuple(g.status() for g in self.arenas.groups.values()),
+            queued_actions=backlog.queued_actions,
+            queued_requests=backlog.queued_requests,
+            dropped_frames=backlog.dropped_frames,
         )
 
     def _require_alive(self, trainer: str) -> None:
@@ -449,95 +335,8 @@ class SimulatorServer:
             )
         self._alive_trainers.add(trainer)
 
-    def _arenas_of(self, trainer: str) -> int:
-        """Arenas in which ``trainer`` holds cars."""
-        return sum(
-            int(member.slots.any(axis=1).sum())
-            for group in self.groups.values()
-            if (member := group.members.get(trainer)) is not None
-        )
-
-    def _check_trainer_limit(self, trainer: str, more: int) -> None:
-        limit = self.config.max_arenas_per_trainer
-        if limit is None:
-            return
-        held = self._arenas_of(trainer)
-        if held + more > limit:
-            raise errors.ServerFull(
-                f"server {self.name} lets one trainer hold at most {limit} arena(s) "
-                f"(--max-arenas-per-trainer); {trainer} holds {held}, asked for {more} more"
-            )
-
-    def _open(self, request: OpenRequest) -> Opened:
-        self._require_alive(request.trainer)
-        self._check_trainer_limit(request.trainer, request.arenas)
-        free = self.config.max_arenas - len(self._arena_index)
-        if request.arenas > free:
-            raise errors.ServerFull(
-                f"server {self.name} has {free} free arena(s) of "
-                f"{self.config.max_arenas}, asked for {request.arenas}"
-            )
-        arena_ids = list(range(self._next_arena, self._next_arena + request.arenas))
-        group = Group.open(
-            self._new_group_id(),
-            self.name,
-            arena_ids,
-            request.preset,
-            dict(request.overrides),
-            request.agents_per_arena,
-            request.seed,
-        )
-        for index in range(request.arenas):
-            group.claim(request.trainer, index, request.claim, fresh=True)
-        opened = self._opened(group, request.trainer)
-        # Registered only once the reply exists: a failure above leaves nothing behind.
-        self._next_arena += request.arenas
-        self.groups[group.group_id] = group
-        for index, arena in enumerate(arena_ids):
-            self._arena_index[arena] = (group.group_id, index)
-        log.info(
-            "trainer %s opened group %d: %d arena(s) %s of %s, %d agent(s) each",
-            request.trainer,
-            group.group_id,
-            request.arenas,
-            _span(arena_ids),
-            request.preset,
-            request.agents_per_arena,
-        )
-        return opened
-
-    def _new_group_id(self) -> int:
-        # Random rather than counted: a restarted server never reuses the id of a group its
-        # previous life served, so late messages about the old one cannot be mistaken.
-        while True:
-            group_id = secrets.randbelow(2**31)
-            if group_id not in self.groups:
-                return group_id
-
-    def _join(self, request: JoinRequest) -> Opened:
-        self._require_alive(request.trainer)
-        where = self._arena_index.get(request.arena)
-        if where is None:
-            raise errors.UnknownArena(
-                f"server {self.name} has no arena {request.arena}; its "
-                f"arenas are {_span(sorted(self._arena_index))}"
-            )
-        group = self.groups[where[0]]
-        member = group.members.get(request.trainer)
-        if member is None or not member.slots[where[1]].any():
-            self._check_trainer_limit(request.trainer, 1)
-        group.claim(request.trainer, where[1], request.agents, fresh=False)
-        log.info(
-            "trainer %s joined arena %d (group %d) with %d agent(s)",
-            request.trainer,
-            request.arena,
-            group.group_id,
-            request.agents,
-        )
-        return self._opened(group, request.trainer)
-
     def _opened(self, group: Group, trainer: str) -> Opened:
-        self._publisher_for(trainer)
+        self.outbox.open_for(trainer)
         member = group.members[trainer]
         return Opened(
             server=self.name,
@@ -548,14 +347,6 @@ class SimulatorServer:
             steps=group.current_steps(trainer),
             server_minor=PROTOCOL_VERSION[1],
         )
-
-    def _group(self, group_id: int) -> Group:
-        group = self.groups.get(group_id)
-        if group is None:
-            raise errors.UnknownArena(
-                f"server {self.name} has no group {group_id} (closed, or never opened)"
-            )
-        return group
 
     # --- actions and rounds -----------------------------------------------------------------
 
@@ -578,7 +369,7 @@ class SimulatorServer:
                     actions.trainer,
                 )
                 return
-            self._group(actions.group).accept(actions, self.config.step_deadline_s)
+            self.arenas.group(actions.group).accept(actions, self.config.step_deadline_s)
         except errors.StaleActions as error:
             log.debug("dropped late actions from %s: %s", trainer, error)
         except errors.WrongTicket as error:
@@ -593,15 +384,15 @@ class SimulatorServer:
                 # stranger inventing names must not make the server write to them.
                 return
             group = actions.group if isinstance(actions, Actions) else None
-            self._send(trainer, ErrorReply(code=error.code, message=str(error), group=group))
+            self.outbox.send(trainer, ErrorReply(code=error.code, message=str(error), group=group))
 
     def _step_group(self, group: Group) -> None:
         """Step one group, send each member its observations, publish and record it."""
         try:
             steps = group.step()
             for trainer, message in steps.items():
-                self._send(trainer, message)
-            self._publish_world(group, time.monotonic())
+                self.outbox.send(trainer, message)
+            self.outbox.publish_world(group, time.monotonic())
             if self.recorder is not None and self.recorder.wants(group.round):
                 self._record(group)
         except Exception as error:
@@ -616,7 +407,7 @@ class SimulatorServer:
             )
             for trainer in list(group.members):
                 try:
-                    self._send(trainer, reply)
+                    self.outbox.send(trainer, reply)
                 except Exception:  # pragma: no cover - the session itself is failing
                     log.exception("could not tell %s", trainer)
                 self._leave(group, trainer, "internal error")
@@ -635,52 +426,11 @@ class SimulatorServer:
         except Exception:
             log.exception("could not record group %d's round %d", group.group_id, group.round)
 
-    def _publisher_for(self, trainer: str) -> zenoh.Publisher:
-        pub = self._step_pubs.get(trainer)
-        if pub is None:
-            pub = self.session.declare_publisher(
-                keys.trainer_steps(trainer, self.name),
-                congestion_control=zenoh.CongestionControl.BLOCK,
-                priority=zenoh.Priority.DATA_HIGH,
-            )
-            self._step_pubs[trainer] = pub
-        return pub
-
-    def _send(self, trainer: str, message: Message) -> None:
-        pub = self._step_pubs.get(trainer)
-        if pub is not None:
-            pub.put(codec.encode(message))
-        else:  # a trainer with no arenas here (an error reply): no publisher kept for it
-            self.session.put(
-                keys.trainer_steps(trainer, self.name),
-                codec.encode(message),
-                congestion_control=zenoh.CongestionControl.BLOCK,
-            )
-
-    def _publish_world(self, group: Group, now: float) -> None:
-        rate = self.config.world_rate_hz
-        if rate <= 0 or now - self._last_world.get(group.group_id, 0.0) < 1.0 / rate:
-            return
-        self._last_world[group.group_id] = now
-        observations = None
-        for index, arena in enumerate(group.arena_ids):
-            pub = self._world_pubs.get(arena)
-            if pub is None:
-                pub = self._world_pubs[arena] = self.session.declare_publisher(
-                    keys.world(self.name, arena),
-                    congestion_control=zenoh.CongestionControl.DROP,
-                    priority=zenoh.Priority.DATA_LOW,
-                )
-            # zenoh 1.10's stubs say bool; it is a MatchingStatus.
-            if not pub.matching_status.matching:  # type: ignore[attr-defined]
-                continue  # nobody watches this arena: no frame is even encoded
-            if observations is None:
-                observations = group.latest_observations()
-            pub.put(codec.encode(group.world_frame(index, observations)))
-
     # --- trainers leaving ---------------------------------------------------------------------
 
-    def _on_alive(self, key: str, present: bool) -> None:
+    def _on_presence(self, key: str, present: bool) -> None:
+        """A trainer's liveliness token came or went: one that went (died, or closed its
+        session) leaves every group it was in, its cars off the road."""
         try:
             trainer = keys.parse_trainer_alive(key)
         except errors.ProtocolError:
@@ -689,46 +439,14 @@ class SimulatorServer:
             self._alive_trainers.add(trainer)
             return
         self._alive_trainers.discard(trainer)
-        for group in list(self.groups.values()):
+        for group in list(self.arenas.groups.values()):
             if trainer in group.members:
                 self._leave(group, trainer, "gone (liveliness token lost)")
-        pub = self._step_pubs.pop(trainer, None)
-        if pub is not None:
-            pub.undeclare()
+        self.outbox.forget_trainer(trainer)
 
     def _leave(self, group: Group, trainer: str, why: str) -> None:
-        group.leave(trainer)
-        if group.members:
-            log.info(
-                "trainer %s left group %d (%s); its cars are off the road",
-                trainer,
-                group.group_id,
-                why,
-            )
-            return
-        self.groups.pop(group.group_id)
-        for arena in group.arena_ids:
-            self._arena_index.pop(arena, None)
-            pub = self._world_pubs.pop(arena, None)
-            if pub is not None:
-                pub.undeclare()
-        self._last_world.pop(group.group_id, None)
-        log.info(
-            "trainer %s left group %d (%s); arenas %s freed after %d rounds",
-            trainer,
-            group.group_id,
-            why,
-            _span(group.arena_ids),
-            group.rounds_done,
-        )
-
-
-def _span(ids: list[int]) -> str:
-    if not ids:
-        return "none"
-    if len(ids) > 1 and ids == list(range(ids[0], ids[-1] + 1)):
-        return f"{ids[0]}-{ids[-1]}"
-    return ", ".join(map(str, ids))
+        if self.arenas.leave(group, trainer, why):
+            self.outbox.forget_group(group)
 
 
 def main(config: ServerConfig) -> None:

@@ -771,20 +771,12 @@ def _refusal_reaches(raw: RawClient, server: str, trainer: str) -> bool:
 def test_a_flood_queues_at_most_its_bound():
     # What Zenoh's threads queue for the loop: at most MAX_QUEUED_ACTIONS_PER_KEY actions per
     # key and MAX_QUEUED_REQUESTS requests; the rest is dropped and counted. Exercised on the
-    # queueing alone (no session): a flood cannot be timed against the loop reliably.
+    # inbox alone (no session): a flood cannot be timed against the loop reliably.
     from types import SimpleNamespace
 
-    from overtake.server import service
+    from overtake.server import inbox as server_inbox
 
-    server = service.SimulatorServer.__new__(service.SimulatorServer)
-    server._events = queue.SimpleQueue()
-    server._queue_lock = threading.Lock()
-    server._queued_actions, server._queued_requests = {}, 0
-    server._dropped = server._dropped_reported = 0
-    server._dropped_report_t = 0.0
-    server.name = "s"
-    server._busy_frame = codec.encode(service.busy_reply("s"))
-
+    inbox = server_inbox.Inbox("s")
     replies: list[bytes] = []
 
     class FakeQuery:
@@ -803,24 +795,28 @@ def test_a_flood_queues_at_most_its_bound():
     def sample(key: str) -> SimpleNamespace:
         return SimpleNamespace(key_expr=key, payload=SimpleNamespace(to_bytes=lambda: b"x"))
 
-    bound = service.MAX_QUEUED_ACTIONS_PER_KEY
+    bound = server_inbox.MAX_QUEUED_ACTIONS_PER_KEY
     for _ in range(bound + 100):
-        server._enqueue_actions(sample("overtake/server/s/actions/flooder"))
-    server._enqueue_actions(sample("overtake/server/s/actions/honest"))  # another key: let in
-    assert server._events.qsize() == bound + 1 and server._dropped == 100
+        inbox.on_actions(sample("overtake/server/s/actions/flooder"))
+    inbox.on_actions(sample("overtake/server/s/actions/honest"))  # another key: let in
+    backlog = inbox.backlog()
+    assert backlog.queued_actions == bound + 1 and backlog.dropped_frames == 100
     # The loop taking one makes room for one more on that key.
-    server._dequeued(server._events.get_nowait())
-    server._enqueue_actions(sample("overtake/server/s/actions/flooder"))
-    assert server._events.qsize() == bound + 1 and server._dropped == 100
-    for _ in range(service.MAX_QUEUED_REQUESTS + 5):
-        server._enqueue_query(FakeQuery())
-    assert server._queued_requests == service.MAX_QUEUED_REQUESTS and server._dropped == 105
+    assert isinstance(inbox.take(), server_inbox.ActionsArrived)
+    inbox.on_actions(sample("overtake/server/s/actions/flooder"))
+    backlog = inbox.backlog()
+    assert backlog.queued_actions == bound + 1 and backlog.dropped_frames == 100
+    for _ in range(server_inbox.MAX_QUEUED_REQUESTS + 5):
+        inbox.on_query(FakeQuery())
+    backlog = inbox.backlog()
+    assert backlog.queued_requests == server_inbox.MAX_QUEUED_REQUESTS
+    assert backlog.dropped_frames == 105
     # Those beyond the bound were answered at once, busy, with the bound named (protocol 1.4);
     # those queued were not answered yet.
     assert len(replies) == 5
     busy = codec.decode(replies[0])
     assert isinstance(busy, ErrorReply) and busy.code == errors.ServerBusy.code
-    assert f"{service.MAX_QUEUED_REQUESTS} requests are waiting" in busy.message
+    assert f"{server_inbox.MAX_QUEUED_REQUESTS} requests are waiting" in busy.message
     with pytest.raises(errors.ServerBusy, match="server s is busy"):
         raise errors.error_from_code(busy.code, busy.message)
 

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from overtake.protocol.vocabulary import LANE_LEFT, LANE_RIGHT, METRIC_FIELDS
+from overtake.protocol.vocabulary import AGENT_KIND, LANE_LEFT, LANE_RIGHT, METRIC_FIELDS
 
 from .actions import DasActions
 from .assist import DriverWarnings, LaneChangeAssist
@@ -34,7 +34,7 @@ from .config import SimConfig
 from .episodes import EpisodeBook
 from .lane_index import LaneSorter, leaders
 from .overtakes import OvertakeTracker
-from .physics import Physics
+from .physics import Physics, headings
 from .randomness import draw_uniforms
 from .rewards import Rewards, StepFacts
 from .road import Road
@@ -56,6 +56,25 @@ class StepResult:
     terminated: np.ndarray  # bool: collided
     truncated: np.ndarray  # bool: the episode reached its decision limit
     action_applied: np.ndarray  # int64: the action actually taken (refused -> keep)
+
+
+@dataclass(frozen=True)
+class WorldSnapshot:
+    """One arena's road and every vehicle on it now, for whoever shows it (world frames,
+    recordings): copies, in the wire's dtypes; vehicle slots in order, agents first."""
+
+    sim_time_s: float
+    lane_count: int
+    lane_width_m: float
+    agent_active: np.ndarray  # (N,) bool: the agents' cars on the road
+    x_m: np.ndarray  # (V,) float64
+    y_m: np.ndarray  # (V,) float64
+    speed_mps: np.ndarray  # (V,) float32
+    kind: np.ndarray  # (V,) int8: a traffic behaviour, or AGENT_KIND
+    active: np.ndarray  # (V,) bool
+    half_length_m: np.ndarray  # (V,) float32
+    half_width_m: np.ndarray  # (V,) float32
+    agent_heading_rad: np.ndarray  # (N,) float32
 
 
 class HighwaySim:
@@ -304,6 +323,26 @@ class HighwaySim:
             warnings=self.state.warnings if self.keeps_warnings else None,
         )
         return {sensor.key: sensor.observe(scene) for sensor in self.sensors}
+
+    def world_snapshot(self, arena: int) -> WorldSnapshot:
+        """Arena ``arena``'s road and vehicles now (:class:`WorldSnapshot`)."""
+        st, n = self.state, self.agents
+        body = np.clip(st.kind[arena], 0, AGENT_KIND)
+        heading = headings(st, self.kinds, self.road.lane_width_m, n)[arena]
+        return WorldSnapshot(
+            sim_time_s=float(st.frame[arena] * self.dt),
+            lane_count=self.road.lane_count,
+            lane_width_m=float(self.road.lane_width_m),
+            agent_active=st.active[arena, :n].copy(),
+            x_m=st.x_m[arena].astype(np.float64),
+            y_m=st.y_m[arena].astype(np.float64),
+            speed_mps=st.speed_mps[arena].astype(np.float32),
+            kind=st.kind[arena].astype(np.int8),
+            active=st.active[arena].copy(),
+            half_length_m=self.kinds.half_length[body].astype(np.float32),
+            half_width_m=self.kinds.half_width[body].astype(np.float32),
+            agent_heading_rad=heading.astype(np.float32),
+        )
 
     def action_mask(self) -> np.ndarray:
         """(A, N, actions) int8: 1 where the action can be taken now."""
