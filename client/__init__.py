@@ -5,6 +5,7 @@ and ``overtake/RemoteHighway-v0`` without importing the simulator."""
 from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
 from overtake.protocol.transport import SecurityConfig
 
+from .connection import RemoteConfig
 from .drivers import RandomDriver, RuleDriver, RuleDriverConfig
 from .environment import (
     ActionSpec,
@@ -16,7 +17,6 @@ from .environment import (
     TerminalSteps,
     UnsupportedRequest,
 )
-from .remote import RemoteConfig
 
 register_environments()
 

@@ -44,7 +44,8 @@ from overtake.protocol.messages import (
 )
 from overtake.protocol.vocabulary import ACTION_COUNT, DEFAULT_ACTION
 
-from .remote import ArenaGroup, Connection, RemoteConfig
+from .connection import Connection, RemoteConfig
+from .remote import ArenaGroup
 
 
 class UnsupportedRequest(ValueError):

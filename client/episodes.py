@@ -24,6 +24,7 @@ from overtake.protocol.transport import SecurityConfig
 from overtake.protocol.vocabulary import METRIC_FIELDS
 
 from .commands import UsageError
+from .connection import RemoteConfig
 from .drivers import (
     GridRuleDriver,
     GridRuleDriverConfig,
@@ -33,7 +34,6 @@ from .drivers import (
     RuleDriver,
     RuleDriverConfig,
 )
-from .remote import RemoteConfig
 
 Policy = Callable[[dict[str, np.ndarray], dict[str, Any], np.ndarray], np.ndarray]
 """``act(obs, info, starting)`` -> actions, for :func:`run_episodes`."""

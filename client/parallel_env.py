@@ -21,11 +21,10 @@ from typing import Any
 import numpy as np
 from pettingzoo import ParallelEnv
 
-from overtake.protocol import errors
 from overtake.protocol.envs import ParallelAgents, check_parallel_actions, check_render_mode
 from overtake.protocol.messages import Scalar, Steps
 
-from .remote import RemoteConfig
+from .connection import RemoteConfig
 from .remote_gym import _Remote, _RemoteHandles, spaces_from_spec
 
 AgentID = str
@@ -54,17 +53,18 @@ class RemoteHighwayParallelEnv(
         render_mode: str | None = None,
     ) -> None:
         check_render_mode(render_mode, self.metadata["render_modes"])
+        # A car whose episode ended must leave the road (Actions.retire, protocol 1.3).
+        retire = (RETIRE_SINCE_MINOR, "several cars on one road in PettingZoo's API")
         self._remote = _Remote(
-            connect, remote, preset, overrides, arenas=1, seed=None, agents_per_arena=agents
+            connect,
+            remote,
+            preset,
+            overrides,
+            arenas=1,
+            seed=None,
+            agents_per_arena=agents,
+            needs=(retire,),
         )
-        group = self._remote.group
-        if group.server_minor < RETIRE_SINCE_MINOR:
-            self._remote.close()
-            raise errors.VersionMismatch(
-                f"server {group.server} speaks protocol 1.{group.server_minor}; several cars "
-                f"on one road in PettingZoo's API need 1.{RETIRE_SINCE_MINOR} or newer (a car "
-                "whose episode ended must leave the road): upgrade the server"
-            )
         spec = self._remote.spec
         self._init_agents(agents, spaces_from_spec(spec))
         self._retire_next: list[int] = []

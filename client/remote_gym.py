@@ -42,7 +42,8 @@ from overtake.protocol.messages import (
 )
 from overtake.protocol.vocabulary import ACTION_COUNT
 
-from .remote import ArenaGroup, Connection, RemoteConfig
+from .connection import Connection, RemoteConfig
+from .remote import ArenaGroup
 
 try:  # Gymnasium >= 1.1 names the autoreset modes; 1.0 only has next-step autoreset.
     from gymnasium.vector import AutoresetMode
@@ -90,9 +91,19 @@ def spaces_from_spec(spec: BehaviourSpec) -> spaces.Dict:
     )
 
 
+# What a server's minor protocol version must be for these environments: (minor, what for).
+TYPED_SPEC_NEED = (
+    TYPED_SPEC_SINCE_MINOR,
+    "this client reads the road, the car and the observations' columns and reach from the "
+    "behaviour spec",
+)
+
+
 class _Remote:
     """The connection and the groups both Gymnasium environments are built on: one group, or
-    ``parts`` groups of consecutive arenas (see :class:`RemoteHighwayVectorEnv`)."""
+    ``parts`` groups of consecutive arenas (see :class:`RemoteHighwayVectorEnv`). ``needs``:
+    (minor version, what for) the server must speak beyond :data:`TYPED_SPEC_NEED`; the
+    oldest unmet one refuses it."""
 
     def __init__(
         self,
@@ -104,6 +115,7 @@ class _Remote:
         seed: int | None,
         agents_per_arena: int = 1,
         parts: int = 1,
+        needs: tuple[tuple[int, str], ...] = (),
     ) -> None:
         if not 1 <= parts <= arenas:
             raise ValueError(f"parts must be between 1 and the {arenas} arena(s), got {parts}")
@@ -139,14 +151,15 @@ class _Remote:
         self.part_sizes = tuple(sizes)
         spec = self.group.spec
         assert spec is not None
-        if self.group.server_minor < TYPED_SPEC_SINCE_MINOR:
-            self.close()
-            raise errors.VersionMismatch(
-                f"server {self.group.server} speaks protocol 1.{self.group.server_minor}: its "
-                "behaviour spec lacks the road, the car and the observations' columns and "
-                f"reach, which this client (protocol {version_text()}) reads; upgrade the "
-                "server"
-            )
+        minor = self.group.server_minor
+        for need, why in sorted((TYPED_SPEC_NEED, *needs)):
+            if minor < need:
+                self.close()
+                raise errors.VersionMismatch(
+                    f"server {self.group.server} speaks protocol 1.{minor}; {why}, which need "
+                    f"1.{need} or newer (this client speaks {version_text()}): upgrade the "
+                    "server"
+                )
         self.spec = spec
         # A record of the server's configuration (run records keep it); nothing reads it.
         self.sim_config: dict[str, Any] = json.loads(spec.config_json)

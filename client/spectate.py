@@ -22,7 +22,7 @@ from overtake.viz.recording import APPLICATION_ID, RecordingConfig, close_record
 from overtake.viz.world_view import WorldRecording
 
 from .commands import run_command
-from .remote import RemoteConfig
+from .connection import RemoteConfig
 from .spectator import Spectator
 
 DEFAULT_RRD = Path("runs/spectate/world.rrd")

@@ -18,7 +18,7 @@ from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import WorldFrame
 from overtake.protocol.transport import open_session
 
-from .remote import RemoteConfig, unreachable_message
+from .connection import RemoteConfig, unreachable_message
 
 log = logging.getLogger("overtake.client.spectator")
 

@@ -10,7 +10,7 @@ from overtake.protocol.messages import StatusReply
 from overtake.protocol.transport import DEFAULT_ENDPOINT, SecurityConfig
 
 from .commands import run_command
-from .remote import Connection, RemoteConfig
+from .connection import Connection, RemoteConfig
 
 
 @dataclass(frozen=True)

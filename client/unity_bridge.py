@@ -58,10 +58,10 @@ from overtake.protocol.messages import Scalar, Steps
 from overtake.protocol.transport import SecurityConfig
 
 from .commands import UsageError, run_command
+from .connection import RemoteConfig
 from .environment import RemoteEnvironment, mlagents_observation_spec, mlagents_observations
 from .episodes import parse_overrides
 from .mlagents import SUPPORTED_MLAGENTS_ENVS, MLAgentsMissing
-from .remote import RemoteConfig
 
 log = logging.getLogger("overtake.unity_bridge")
 

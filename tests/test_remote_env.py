@@ -605,7 +605,8 @@ def test_a_server_of_protocol_1_4_is_refused_and_its_arenas_freed(start_server, 
         self.server_minor = 4
 
     monkeypatch.setattr(ArenaGroup, "_open", as_if_1_4)
-    with pytest.raises(errors.VersionMismatch, match=r"speaks protocol 1\.4: .* upgrade"):
+    refusal = r"speaks protocol 1\.4; .* need 1\.5 .* upgrade"
+    with pytest.raises(errors.VersionMismatch, match=refusal):
         gym.make_vec(
             REMOTE_HIGHWAY_ENV_ID,
             num_envs=2,

@@ -826,7 +826,7 @@ def test_a_flood_of_garbage_in_a_trainers_name_is_logged_once_per_interval(caplo
     # bench/fuzz_wire's run): the first is logged, the rest counted into the next line.
     import logging
 
-    from overtake.client import remote
+    from overtake.client import connection as wire
 
     connection = Connection.__new__(Connection)  # no session: only the filing is exercised
     connection._stepping = set()
@@ -837,7 +837,7 @@ def test_a_flood_of_garbage_in_a_trainers_name_is_logged_once_per_interval(caplo
             connection._file(key, b"\x00garbage")
         assert len(caplog.records) == 1
         assert "unreadable message from server sim-a" in caplog.records[0].getMessage()
-        connection._drop_logged_t -= remote.DROPPED_LOG_INTERVAL_S  # the interval has passed
+        connection._drop_logged_t -= wire.DROPPED_LOG_INTERVAL_S  # the interval has passed
         connection._file(key, b"\x00garbage")
     assert len(caplog.records) == 2
     assert "and 99 more dropped unlogged" in caplog.records[1].getMessage()
@@ -846,7 +846,7 @@ def test_a_flood_of_garbage_in_a_trainers_name_is_logged_once_per_interval(caplo
 def test_a_request_a_busy_server_did_not_queue_is_asked_again_until_the_timeout(monkeypatch):
     # Protocol 1.4: beyond its bound of waiting requests a server answers server_busy at
     # once; the client asks again with growing pauses, and names the cause when time is up.
-    from overtake.client import remote
+    from overtake.client import connection as wire
 
     connection = Connection.__new__(Connection)  # no session: only the asking is exercised
     connection.config = remote_config("tcp/127.0.0.1:1", request_timeout_s=5.0)
@@ -863,21 +863,21 @@ def test_a_request_a_busy_server_did_not_queue_is_asked_again_until_the_timeout(
 
     pauses: list[float] = []
     monkeypatch.setattr(connection, "_request_once", once)
-    monkeypatch.setattr(remote.time, "sleep", pauses.append)
+    monkeypatch.setattr(wire.time, "sleep", pauses.append)
     assert connection.request("s", StatusRequest(), Ack) is ok
-    assert len(asked) == 3 and pauses == [remote.BUSY_FIRST_PAUSE_S, 2 * remote.BUSY_FIRST_PAUSE_S]
+    assert len(asked) == 3 and pauses == [wire.BUSY_FIRST_PAUSE_S, 2 * wire.BUSY_FIRST_PAUSE_S]
 
     # Always busy: it gives up before the request timeout would pass, with the server's words.
     clock = [0.0]
-    monkeypatch.setattr(remote.time, "monotonic", lambda: clock[0])
+    monkeypatch.setattr(wire.time, "monotonic", lambda: clock[0])
     pauses.clear()
 
     def sleep(seconds: float) -> None:
         pauses.append(seconds)
         clock[0] += seconds
 
-    monkeypatch.setattr(remote.time, "sleep", sleep)
+    monkeypatch.setattr(wire.time, "sleep", sleep)
     answers[:] = [errors.ServerBusy("server s is busy")] * 100
     with pytest.raises(errors.ServerBusy, match="server s is busy"):
         connection.request("s", StatusRequest(), Ack)
-    assert 4.0 < clock[0] <= 5.0 and max(pauses) == remote.BUSY_MAX_PAUSE_S
+    assert 4.0 < clock[0] <= 5.0 and max(pauses) == wire.BUSY_MAX_PAUSE_S

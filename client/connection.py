@@ -1,0 +1,426 @@
+"""The trainer's Zenoh connection: one session with this trainer's liveliness token (a server
+frees our arenas when it disappears), the subscriber our Steps arrive on, requests answered
+with retries where a server is busy, and the servers on the network (their status, which one
+takes a request)."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import os
+import queue
+import secrets
+import socket
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
+
+import zenoh
+
+from overtake.protocol import codec, errors, keys
+from overtake.protocol.messages import (
+    Actions,
+    ErrorReply,
+    Message,
+    StatusReply,
+    StatusRequest,
+    Steps,
+)
+from overtake.protocol.transport import (
+    DEFAULT_ENDPOINT,
+    SecurityConfig,
+    TransportConfig,
+    connect_failure_cause,
+    open_session,
+)
+
+log = logging.getLogger("overtake.client")
+
+M = TypeVar("M", bound=Message)
+
+# Messages dropped (unreadable, or not for us) are logged at most once per this many seconds.
+DROPPED_LOG_INTERVAL_S = 5.0
+# A request a busy server did not queue is asked again after this pause, doubled each time
+# up to the maximum (a flood of requests usually drains within a second: bench/fuzz_wire.py).
+BUSY_FIRST_PAUSE_S = 0.05
+BUSY_MAX_PAUSE_S = 1.0
+
+
+@dataclass(frozen=True)
+class RemoteConfig:
+    """How a trainer reaches simulator servers."""
+
+    connect: tuple[str, ...] = (DEFAULT_ENDPOINT,)
+    """Zenoh endpoints: a server's ``--listen`` address or a router's."""
+    server: str | None = None
+    """Use this server (its ``--name``); by default the least loaded one is picked."""
+    connect_timeout_s: float = 5.0
+    """How long to keep trying to reach the endpoints before failing with ConnectError."""
+    request_timeout_s: float = 10.0
+    """How long an open, reset, close or status request may take."""
+    step_timeout_s: float = 120.0
+    """How long to wait for a step's observations (longer than the server's step deadline)."""
+    reconnect_timeout_s: float = 30.0
+    """After losing the server, how long to wait for one to reopen the arenas on (0: never)."""
+    lease_s: float = 3.0
+    """If this trainer's host vanishes (or it freezes), servers free its arenas within this."""
+    security: SecurityConfig = field(default_factory=SecurityConfig)
+    """usrpwd credentials and TLS certificates (the password from a file or the environment)"""
+    trainer_name: str | None = None
+    """A readable prefix for this trainer's id in server logs and status. Default: the usrpwd
+    user, else "trainer". A router that isolates trainers (overtake-router
+    --isolate-trainers) lets a user's session use only ids that begin with its user name."""
+
+    @classmethod
+    def from_connect(cls, connect: str | tuple[str, ...] | list[str] | None) -> RemoteConfig:
+        """Defaults, with ``connect`` (one endpoint or several; None: the default)."""
+        if connect is None:
+            return cls()
+        return cls(connect=(connect,) if isinstance(connect, str) else tuple(connect))
+
+    def transport(self) -> TransportConfig:
+        return TransportConfig(
+            mode="client",
+            connect=self.connect,
+            connect_timeout_s=self.connect_timeout_s,
+            lease_s=self.lease_s,
+            security=self.security,
+        )
+
+
+def _trainer_id(prefix: str | None) -> str:
+    host = "".join(c if c.isalnum() or c in "-_." else "-" for c in socket.gethostname())[:24]
+    head = "".join(c if c.isalnum() or c in "-_." else "-" for c in (prefix or "trainer"))
+    head = head[: keys.TRAINER_PREFIX_CHARS]
+    return f"{head}-{host or 'host'}-{os.getpid()}-{secrets.token_hex(3)}"
+
+
+def likely_causes(config: RemoteConfig) -> str:
+    user = config.security.user_name()
+    return (
+        "Likely causes: no overtake-server (or Zenoh router) is running there; a wrong host "
+        "or port; the server listens on loopback only (start it with --listen "
+        "tcp/0.0.0.0:7447 to let other hosts in); a firewall; wrong or missing Zenoh "
+        "credentials" + (" (user " + repr(user) + ")" if user else "") + "; a TLS "
+        "certificate this side does not trust (--tls-root-ca)."
+    )
+
+
+def unreachable_message(config: RemoteConfig, error: Exception) -> str:
+    """Why opening a session failed: the cause found by trying the links by hand (Zenoh only
+    says it could not connect), or the likely causes when none could be tried."""
+    zenoh_text = str(error).split(" at /")[0].strip()  # drop Zenoh's source location
+    cause = connect_failure_cause(config.transport())
+    return (
+        f"could not connect to {', '.join(config.connect)} within "
+        f"{config.connect_timeout_s:g} s ({zenoh_text}). "
+        + (f"{cause[0].upper()}{cause[1:]}." if cause else likely_causes(config))
+    )
+
+
+class Connection:
+    """One Zenoh session of one trainer."""
+
+    def __init__(self, config: RemoteConfig) -> None:
+        self.config = config
+        self.trainer = _trainer_id(config.trainer_name or config.security.user_name())
+        try:
+            self.session = open_session(config.transport())
+        except zenoh.ZError as error:
+            raise errors.ConnectError(unreachable_message(config, error)) from None
+        self._inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+        self._buffered: dict[tuple[str, int], deque[Steps]] = {}
+        self._errors: dict[tuple[str, int], deque[errors.ProtocolError]] = {}
+        # The (server, group) pairs this connection steps: anything else that arrives is
+        # stale or foreign and is dropped.
+        self._stepping: set[tuple[str, int]] = set()
+        self._servers_lost: set[str] = set()
+        # Times each server's token disappeared: a group opened at one count is gone at the
+        # next, even if a restarted server of the same name is back by the time we look.
+        self._server_epoch: dict[str, int] = {}
+        self._lock = threading.Lock()
+        self._server_appeared = threading.Event()
+        self._token = self.session.liveliness().declare_token(keys.trainer_alive(self.trainer))
+        self._subscriber = self.session.declare_subscriber(
+            keys.trainer_steps_all(self.trainer),
+            lambda sample: self._inbox.put((str(sample.key_expr), sample.payload.to_bytes())),
+        )
+        self._alive_sub = self.session.liveliness().declare_subscriber(
+            keys.ALL_SERVERS_ALIVE, self._on_server_alive, history=True
+        )
+        self._publishers: dict[str, zenoh.Publisher] = {}
+        self._drop_logged_t, self._drops_unlogged = -math.inf, 0
+        self.closed = False
+
+    def _on_server_alive(self, sample: zenoh.Sample) -> None:
+        try:
+            server = keys.parse_server_alive(str(sample.key_expr))
+        except errors.ProtocolError:
+            return
+        with self._lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._servers_lost.discard(server)
+                self._server_appeared.set()
+            else:
+                self._servers_lost.add(server)
+                self._server_epoch[server] = self._server_epoch.get(server, 0) + 1
+        self._inbox.put(("", b""))  # wake a waiter
+
+    def server_lost(self, server: str) -> bool:
+        with self._lock:
+            return server in self._servers_lost
+
+    def epoch(self, server: str) -> int:
+        """How many times ``server`` has gone away since this connection opened."""
+        with self._lock:
+            return self._server_epoch.get(server, 0)
+
+    # --- requests --------------------------------------------------------------------------
+
+    def request(self, server: str, message: Message, expect: type[M]) -> M:
+        """Send a request to one server; its reply, or the error it names. A server too busy
+        to queue it (a flood) is asked again, waiting longer each time, until the request
+        timeout; a busy server did not queue the request, so asking again is safe."""
+        give_up = time.monotonic() + self.config.request_timeout_s
+        pause_s = BUSY_FIRST_PAUSE_S
+        while True:
+            try:
+                return self._request_once(server, message, expect)
+            except errors.ServerBusy:
+                if time.monotonic() + pause_s > give_up:
+                    raise
+                log.info("server %s is busy; asking again in %.2f s", server, pause_s)
+                time.sleep(pause_s)
+                pause_s = min(pause_s * 2, BUSY_MAX_PAUSE_S)
+
+    def _request_once(self, server: str, message: Message, expect: type[M]) -> M:
+        replies = list(
+            self.session.get(
+                keys.server_request(server),
+                payload=codec.encode(message),
+                timeout=self.config.request_timeout_s,
+                target=zenoh.QueryTarget.ALL,
+                congestion_control=zenoh.CongestionControl.BLOCK,
+            )
+        )
+        for reply in replies:
+            if reply.ok is None:
+                err = reply.err
+                text = (
+                    "no reply" if err is None else err.payload.to_bytes().decode("utf-8", "replace")
+                )
+                if self.server_lost(server):
+                    raise errors.ServerLost(
+                        f"server {server} went away during a {message.TYPE} request"
+                    )
+                raise errors.StepTimeout(
+                    f"server {server} did not answer a {message.TYPE} "
+                    f"request within {self.config.request_timeout_s:g} s "
+                    f"({text})"
+                )
+            answer = codec.decode(reply.ok.payload.to_bytes(), expect)
+            if isinstance(answer, ErrorReply):
+                raise errors.error_from_code(answer.code, f"server {server}: {answer.message}")
+            return answer
+        raise errors.ServerLost(
+            f"no server named {server!r} answers on {', '.join(self.config.connect)}"
+        )
+
+    def discover(self) -> list[StatusReply]:
+        """Status of every server that answers within the request timeout."""
+        replies = self.session.get(
+            keys.ALL_SERVER_REQUESTS,
+            payload=codec.encode(StatusRequest()),
+            timeout=self.config.request_timeout_s,
+            target=zenoh.QueryTarget.ALL,
+        )
+        found: list[StatusReply] = []
+        mismatch: errors.VersionMismatch | None = None
+        for reply in replies:
+            if reply.ok is None:
+                continue
+            try:
+                status = codec.decode(reply.ok.payload.to_bytes(), StatusReply)
+            except errors.VersionMismatch as error:
+                mismatch = error  # one old server must not hide the others
+                log.warning("ignored a server of another protocol version: %s", error)
+                continue
+            except errors.ProtocolError as error:
+                log.warning("ignored a bad status reply: %s", error)
+                continue
+            if isinstance(status, StatusReply):
+                found.append(status)
+        if not found and mismatch is not None:
+            raise mismatch
+        return found
+
+    def candidates(self, arenas: int) -> list[str]:
+        """Servers to ask, best first, by the rule in this module's docstring."""
+        if self.config.server is not None:
+            return [self.config.server]
+        # A trainer may start together with its server (docker compose): keep asking for a
+        # while before concluding that nobody is there.
+        give_up = time.monotonic() + self.config.connect_timeout_s
+        statuses = self.discover()
+        while not statuses and time.monotonic() < give_up:
+            # Woken when a server's liveliness token appears; its queryable is declared just
+            # before the token, so it answers from then on.
+            self._server_appeared.wait(timeout=max(give_up - time.monotonic(), 0.0))
+            self._server_appeared.clear()
+            statuses = self.discover()
+        if not statuses:
+            raise errors.ConnectError(
+                f"connected to {', '.join(self.config.connect)}, but no overtake server "
+                f"answered within {self.config.connect_timeout_s:g} s. "
+                + likely_causes(self.config)
+            )
+        roomy = [s for s in statuses if s.arenas_free >= arenas]
+        if not roomy:
+            listing = ", ".join(f"{s.server} ({s.arenas_free} free)" for s in statuses)
+            raise errors.ServerFull(f"no server has {arenas} free arena(s): {listing}")
+        # Ties broken at random: trainers started together see the same statuses, and a tie
+        # broken by name sent them all to the same server.
+        tie_break = {s.server: secrets.randbits(32) for s in roomy}
+        roomy.sort(key=lambda s: (-s.arenas_free, len(s.groups), tie_break[s.server]))
+        return [s.server for s in roomy]
+
+    # --- steps ----------------------------------------------------------------------------
+
+    def send_actions(self, server: str, actions: Actions) -> None:
+        pub = self._publishers.get(server)
+        if pub is None:
+            pub = self._publishers[server] = self.session.declare_publisher(
+                keys.server_actions(server, self.trainer),
+                congestion_control=zenoh.CongestionControl.BLOCK,
+                priority=zenoh.Priority.DATA_HIGH,
+            )
+        pub.put(codec.encode(actions))
+
+    def _take(self, server: str, group: int, round_: int) -> Steps | None:
+        """Round ``round_`` of ``group`` if it has arrived; older rounds are dropped."""
+        arrived = self._buffered.setdefault((server, group), deque())
+        while arrived:
+            steps = arrived[0]
+            if steps.round > round_:
+                return None  # a later round is all there is: the caller is behind
+            arrived.popleft()
+            if steps.round == round_:
+                return steps
+            log.debug("dropped stale steps of group %d round %d", group, steps.round)
+        failures = self._errors.get((server, group))
+        if failures:
+            raise failures.popleft()
+        return None
+
+    def arrived(self, server: str, group: int, round_: int) -> Steps | None:
+        """Without waiting: round ``round_`` of ``group`` if it is already here."""
+        while True:
+            try:
+                key, payload = self._inbox.get_nowait()
+            except queue.Empty:
+                break
+            if key:
+                self._file(key, payload)
+        return self._take(server, group, round_)
+
+    def next_steps(self, server: str, group: int, round_: int, epoch: int) -> Steps:
+        """Block until the :class:`Steps` of ``group``'s ``round_`` arrive."""
+        deadline = time.monotonic() + self.config.step_timeout_s
+        while True:
+            steps = self._take(server, group, round_)
+            if steps is not None:
+                return steps
+            later = self._buffered.get((server, group))
+            if later:
+                # Rounds come in order: a later one without ours means ours will never come.
+                raise errors.DecodeError(
+                    f"expected round {round_} of group {group} from "
+                    f"server {server}, got round {later[0].round}"
+                )
+            if self.server_lost(server) or self.epoch(server) != epoch:
+                raise errors.ServerLost(
+                    f"server {server} went away while we waited for round {round_} of group {group}"
+                )
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise errors.StepTimeout(
+                    f"no observations from server {server} for round {round_} of group {group} "
+                    f"within {self.config.step_timeout_s:g} s (the server's step deadline may "
+                    "be longer; see RemoteConfig.step_timeout_s)"
+                )
+            try:
+                key, payload = self._inbox.get(timeout=min(remaining, 0.5))
+            except queue.Empty:
+                continue
+            if key:
+                self._file(key, payload)
+
+    def _file(self, key: str, payload: bytes) -> None:
+        sender = key.rsplit("/", 1)[-1]
+        try:
+            message = codec.decode(payload, Steps)
+        except errors.ProtocolError as error:
+            self._drop("dropped an unreadable message from server %s: %s", sender, error)
+            return
+        if isinstance(message, ErrorReply):
+            if (sender, message.group) not in self._stepping:
+                # Not about a group we step (perhaps garbage sent in our name): say so only.
+                self._drop("server %s refused a message in our name: %s", sender, message.message)
+                return
+            self._errors.setdefault((sender, message.group), deque()).append(
+                errors.error_from_code(message.code, f"server {sender}: {message.message}")
+            )
+            return
+        if message.server != sender or (sender, message.group) not in self._stepping:
+            self._drop(
+                "dropped steps of group %d from %s on server %s's key",
+                message.group,
+                message.server,
+                sender,
+            )
+            return
+        self._buffered.setdefault((sender, message.group), deque()).append(message)
+
+    def _drop(self, message: str, *args: Any) -> None:
+        """Log a message this connection dropped, at most once per DROPPED_LOG_INTERVAL_S,
+        with how many went unlogged meanwhile: a flood of garbage in our name (bench/fuzz_wire)
+        would otherwise write a line per frame."""
+        now = time.monotonic()
+        if now - self._drop_logged_t < DROPPED_LOG_INTERVAL_S:
+            self._drops_unlogged += 1
+            return
+        if self._drops_unlogged:
+            message += " (and %d more dropped unlogged in the last %.0f s)"
+            args += (self._drops_unlogged, now - self._drop_logged_t)
+        log.warning(message, *args)
+        self._drop_logged_t, self._drops_unlogged = now, 0
+
+    def track(self, server: str, group: int) -> None:
+        """Start accepting Steps and errors for ``group`` (after opening or joining it)."""
+        self.forget(server, group)
+        self._stepping.add((server, group))
+
+    def forget(self, server: str, group: int) -> None:
+        self._stepping.discard((server, group))
+        self._buffered.pop((server, group), None)
+        self._errors.pop((server, group), None)
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        # What went with the session already needs no undeclaring.
+        declared: tuple[Any, ...] = (
+            *self._publishers.values(),
+            self._subscriber,
+            self._alive_sub,
+            self._token,
+        )
+        for obj in declared:
+            with contextlib.suppress(Exception):
+                obj.undeclare()
+        with contextlib.suppress(Exception):
+            self.session.close()
