@@ -19,299 +19,70 @@ Conversations (``T`` a trainer, ``S`` a server; queries are answered, puts are n
 
 from __future__ import annotations
 
-import re
-from dataclasses import dataclass, field, fields
-from typing import Any, ClassVar
+from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
 from .errors import DecodeError
+from .records import (
+    MAX_AGENTS_PER_ARENA,
+    MAX_ARENAS_PER_REQUEST,
+    MAX_ARRAY_DIMS,
+    MAX_FRAME_BYTES,
+    MAX_TEXT_CHARS,
+    NAME_PATTERN,
+    WIRE_DTYPES,
+    Message,
+    Part,
+    Scalar,
+    check_array,
+    check_name,
+    check_range,
+)
+from .specs import BehaviourSpec, CarSpec, ObservationSpec, Reach, RoadSpec
+from .version import PROTOCOL_HISTORY, PROTOCOL_VERSION, TYPED_SPEC_SINCE_MINOR
 from .vocabulary import ACTION_COUNT, ACTION_NAMES
 
-# The wire contract: protocol version (major, minor). A peer of another major version is
-# refused; a newer minor may add optional fields, which an older peer ignores.
-PROTOCOL_VERSION: tuple[int, int] = (1, 5)
-PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
-    (
-        "1.0",
-        "First wire protocol: status, open/join, reset, batched actions and steps, close, "
-        "world frames for spectators, error replies.",
-    ),
-    (
-        "1.1",
-        "World frames carry each agent's reward terms (reward_terms, reward_term_names); "
-        "a 1.0 peer's frames decode with none.",
-    ),
-    (
-        "1.2",
-        "Actions carry the trainer's step count (trainer_step) and world frames repeat it, so "
-        "a spectator's recording shares the trainers' step timeline; world frames carry each "
-        "vehicle's half length and width and each agent's heading. Older peers' messages decode "
-        "with -1 and None.",
-    ),
-    (
-        "1.3",
-        "Actions may take some of the trainer's cars off the road until their arena is reset "
-        "(retire: PettingZoo's finished agents); Opened says the server's minor version "
-        "(server_minor), so a trainer can tell a server that would ignore retire. A 1.2 "
-        "peer's Actions decode with no retired cars, its Opened with server_minor 2.",
-    ),
-    (
-        "1.4",
-        "Status replies say what waits in the server's queues (queued_actions, "
-        "queued_requests) and how many frames a flood lost at their bounds (dropped_frames); "
-        "a request beyond the bound is answered server_busy at once instead of not at all. "
-        "A 1.3 server's status decodes with zeros.",
-    ),
-    (
-        "1.5",
-        "The behaviour spec states what a consumer needs to read the observations as typed "
-        "fields: the road (RoadSpec: lanes and their width), the car (CarSpec: length, width, "
-        "the speeds its actions move between) and per observation its named columns (the ego "
-        "vector's fields) and its reach (Reach: metres ahead, behind, to the side, range). "
-        "config_json stays, a record of the server's configuration that no consumer reads. A "
-        "1.4 server's spec decodes without them, and clients refuse it.",
-    ),
-)
-# The minor version whose spec carries the road, the car and the observations' facts.
-TYPED_SPEC_SINCE_MINOR = 5
-
-# Sizes beyond these are refused before anything is allocated.
-MAX_FRAME_BYTES = 256 * 2**20
-MAX_TEXT_CHARS = 65_536
-MAX_ARRAY_DIMS = 5
-MAX_ARENAS_PER_REQUEST = 4096
-MAX_AGENTS_PER_ARENA = 48
-
-NAME_PATTERN = re.compile(r"[A-Za-z0-9_.-]{1,64}")
-
-# The dtypes arrays may travel in; always little-endian on the wire.
-WIRE_DTYPES: dict[str, np.dtype] = {
-    name: np.dtype(name).newbyteorder("<")
-    for name in ("bool", "int8", "uint8", "int32", "int64", "float32", "float64")
-}
-
-Scalar = bool | int | float | str
-
-
-def check_name(what: str, value: str) -> None:
-    """Names end up inside Zenoh key expressions: letters, digits, ``_ . -`` only."""
-    if not NAME_PATTERN.fullmatch(value):
-        raise DecodeError(
-            f"{what} must be 1-64 characters of letters, digits, '_', '.' or '-', got {value!r}"
-        )
-
-
-def check_array(what: str, value: np.ndarray, dtype: str, shape: tuple[int | None, ...]) -> None:
-    """``value`` has ``dtype`` and ``shape`` (None matches any length on that axis)."""
-    if value.dtype != WIRE_DTYPES[dtype]:
-        raise DecodeError(f"{what} must be {dtype}, got {value.dtype}")
-    if value.ndim != len(shape) or any(
-        want is not None and got != want for got, want in zip(value.shape, shape, strict=True)
-    ):
-        wanted = "(" + ", ".join("n" if s is None else str(s) for s in shape) + ")"
-        raise DecodeError(f"{what} must have shape {wanted}, got {value.shape}")
-
-
-def check_range(what: str, value: int, low: int, high: int) -> None:
-    if not low <= value <= high:
-        raise DecodeError(f"{what} must be from {low} to {high}, got {value}")
-
-
-def _values_equal(a: Any, b: Any) -> bool:
-    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
-        return (
-            isinstance(a, np.ndarray)
-            and isinstance(b, np.ndarray)
-            and a.dtype == b.dtype
-            and a.shape == b.shape
-            and np.array_equal(a, b, equal_nan=a.dtype.kind == "f")
-        )
-    if isinstance(a, dict) and isinstance(b, dict):
-        return a.keys() == b.keys() and all(_values_equal(a[k], b[k]) for k in a)
-    if isinstance(a, (tuple, list)) and isinstance(b, (tuple, list)):
-        return len(a) == len(b) and all(_values_equal(x, y) for x, y in zip(a, b, strict=True))
-    if isinstance(a, float) and isinstance(b, float) and a != a and b != b:
-        return True  # NaN
-    return type(a) is type(b) and a == b
-
-
-@dataclass(frozen=True, eq=False)
-class Part:
-    """A frozen record that checks itself; equality compares arrays by value and dtype."""
-
-    def __post_init__(self) -> None:
-        self.check()
-
-    def check(self) -> None:
-        """Raise :class:`DecodeError` naming what is wrong. Subclasses add their rules."""
-
-    @classmethod
-    def trusted(cls, **values: Any) -> Any:
-        """Build without :meth:`check`: only for records a side builds from its own arrays of
-        the right dtypes and shapes, on a hot path (the server's Steps). Decoding always
-        checks."""
-        record = object.__new__(cls)
-        for name, value in values.items():
-            object.__setattr__(record, name, value)
-        return record
-
-    def __eq__(self, other: object) -> bool:
-        return type(self) is type(other) and all(
-            _values_equal(getattr(self, f.name), getattr(other, f.name)) for f in fields(self)
-        )
-
-    __hash__ = None  # type: ignore[assignment]
-
-
-@dataclass(frozen=True, eq=False)
-class Message(Part):
-    """A top-level message; ``TYPE`` is its tag on the wire."""
-
-    TYPE: ClassVar[str] = ""
-
-
-# --- specs -----------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, eq=False)
-class Reach(Part):
-    """How far an observation sees, in metres from the car's centre along the road (ahead,
-    behind), across it (to either side) and along its rays (range); 0 where it does not
-    apply."""
-
-    ahead_m: float = 0.0
-    behind_m: float = 0.0
-    side_m: float = 0.0
-    range_m: float = 0.0
-
-    def check(self) -> None:
-        for name in ("ahead_m", "behind_m", "side_m", "range_m"):
-            value = getattr(self, name)
-            if not 0.0 <= value < 1e6:
-                raise DecodeError(f"reach {name} must be from 0 to 1e6 m, got {value}")
-
-
-@dataclass(frozen=True, eq=False)
-class RoadSpec(Part):
-    """The road the agents drive: its lanes."""
-
-    lane_count: int
-    lane_width_m: float
-
-    def check(self) -> None:
-        check_range("lane count", self.lane_count, 1, 64)
-        if not 0.0 < self.lane_width_m < 100.0:
-            raise DecodeError(f"lane width must be from 0 to 100 m, got {self.lane_width_m}")
-
-
-@dataclass(frozen=True, eq=False)
-class CarSpec(Part):
-    """An agent's car: its body and the speeds its actions move between."""
-
-    length_m: float
-    width_m: float
-    min_speed_kmh: float
-    max_speed_kmh: float
-
-    def check(self) -> None:
-        if not (0.0 < self.length_m < 100.0 and 0.0 < self.width_m < 100.0):
-            raise DecodeError(
-                f"car length and width must be from 0 to 100 m, got {self.length_m} and "
-                f"{self.width_m}"
-            )
-        if not 0.0 <= self.min_speed_kmh <= self.max_speed_kmh < 1e4:
-            raise DecodeError(
-                f"car speeds must be 0 <= min <= max, got {self.min_speed_kmh} and "
-                f"{self.max_speed_kmh} km/h"
-            )
-
-
-@dataclass(frozen=True, eq=False)
-class ObservationSpec(Part):
-    """One observation of one agent: a Box of ``shape`` and ``dtype`` within [low, high], the
-    names of its last axis' entries where they are named (``columns``: the ego vector's fields)
-    and how far it sees (``reach``; None for what sees nothing of the road, as the action
-    stack)."""
-
-    name: str
-    shape: tuple[int, ...]
-    dtype: str
-    low: np.ndarray
-    high: np.ndarray
-    columns: tuple[str, ...] = field(default=(), metadata={"since": 5})
-    reach: Reach | None = field(default=None, metadata={"since": 5})
-
-    def check(self) -> None:
-        check_name("observation name", self.name)
-        if self.dtype not in WIRE_DTYPES:
-            raise DecodeError(
-                f"observation {self.name!r} dtype must be one of "
-                f"{sorted(WIRE_DTYPES)}, got {self.dtype!r}"
-            )
-        if not 1 <= len(self.shape) <= MAX_ARRAY_DIMS - 1 or min(self.shape) < 1:
-            raise DecodeError(
-                f"observation {self.name!r} shape must have 1 to "
-                f"{MAX_ARRAY_DIMS - 1} positive sizes, got {self.shape}"
-            )
-        for bound in ("low", "high"):
-            check_array(
-                f"observation {self.name!r} {bound}", getattr(self, bound), self.dtype, self.shape
-            )
-        if self.columns and len(self.columns) != self.shape[-1]:
-            raise DecodeError(
-                f"observation {self.name!r} names {len(self.columns)} columns for a last axis "
-                f"of {self.shape[-1]}"
-            )
-
-
-@dataclass(frozen=True, eq=False)
-class BehaviourSpec(Part):
-    """Everything a client needs to rebuild the in-process spaces (ML-Agents' BehaviorSpec)."""
-
-    name: str
-    preset: str
-    observations: tuple[ObservationSpec, ...]
-    action_branches: tuple[int, ...]
-    action_names: tuple[str, ...]
-    reward_terms: tuple[str, ...]
-    metric_fields: tuple[str, ...]
-    decision_period_s: float
-    max_episode_steps: int
-    agents_per_arena: int
-    config_json: str
-    """the server's resolved configuration, a record (run records, checkpoints): what a
-    consumer reads of it is in the typed fields"""
-    road: RoadSpec | None = field(default=None, metadata={"since": 5})
-    car: CarSpec | None = field(default=None, metadata={"since": 5})
-
-    def check(self) -> None:
-        names = [o.name for o in self.observations]
-        if not names or len(set(names)) != len(names):
-            raise DecodeError(f"observation names must be distinct and at least one, got {names}")
-        if self.action_branches != (ACTION_COUNT,):
-            raise DecodeError(
-                f"action branches must be ({ACTION_COUNT},), got {self.action_branches}"
-            )
-        if len(self.action_names) != ACTION_COUNT:
-            raise DecodeError(f"expected {ACTION_COUNT} action names, got {self.action_names}")
-        check_range("agents per arena", self.agents_per_arena, 1, MAX_AGENTS_PER_ARENA)
-        check_range("max episode steps", self.max_episode_steps, 1, 2**62)
-        if not self.decision_period_s > 0:
-            raise DecodeError(f"decision period must be > 0 s, got {self.decision_period_s}")
-
-    def observation(self, name: str) -> ObservationSpec:
-        for spec in self.observations:
-            if spec.name == name:
-                return spec
-        raise KeyError(name)
-
-    def has(self, name: str) -> bool:
-        """Whether the agents observe ``name``."""
-        return any(spec.name == name for spec in self.observations)
-
-
-# --- requests and replies -------------------------------------------------------------------
+__all__ = [
+    "ACTION_COUNT",
+    "ACTION_NAMES",
+    "MAX_AGENTS_PER_ARENA",
+    "MAX_ARENAS_PER_REQUEST",
+    "MAX_ARRAY_DIMS",
+    "MAX_FRAME_BYTES",
+    "MAX_TEXT_CHARS",
+    "MESSAGE_TYPES",
+    "NAME_PATTERN",
+    "PROTOCOL_HISTORY",
+    "PROTOCOL_VERSION",
+    "TYPED_SPEC_SINCE_MINOR",
+    "WIRE_DTYPES",
+    "Ack",
+    "Actions",
+    "BehaviourSpec",
+    "CarSpec",
+    "CloseRequest",
+    "ErrorReply",
+    "GroupStatus",
+    "JoinRequest",
+    "Message",
+    "ObservationSpec",
+    "OpenRequest",
+    "Opened",
+    "Part",
+    "Reach",
+    "ResetRequest",
+    "RoadSpec",
+    "Scalar",
+    "StatusReply",
+    "StatusRequest",
+    "Steps",
+    "WorldFrame",
+    "check_array",
+    "check_name",
+    "check_range",
+]
 
 
 @dataclass(frozen=True, eq=False)

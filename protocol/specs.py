@@ -1,0 +1,158 @@
+"""The behaviour spec a server sends with every Opened: what an agent sees (each observation's
+box, named columns and reach) and drives (the actions, the road, the car), ML-Agents'
+BehaviorSpec with the facts a consumer needs to read the observations."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import DecodeError
+from .records import (
+    MAX_AGENTS_PER_ARENA,
+    MAX_ARRAY_DIMS,
+    WIRE_DTYPES,
+    Part,
+    check_array,
+    check_name,
+    check_range,
+)
+from .vocabulary import ACTION_COUNT
+
+
+@dataclass(frozen=True, eq=False)
+class Reach(Part):
+    """How far an observation sees, in metres from the car's centre along the road (ahead,
+    behind), across it (to either side) and along its rays (range); 0 where it does not
+    apply."""
+
+    ahead_m: float = 0.0
+    behind_m: float = 0.0
+    side_m: float = 0.0
+    range_m: float = 0.0
+
+    def check(self) -> None:
+        for name in ("ahead_m", "behind_m", "side_m", "range_m"):
+            value = getattr(self, name)
+            if not 0.0 <= value < 1e6:
+                raise DecodeError(f"reach {name} must be from 0 to 1e6 m, got {value}")
+
+
+@dataclass(frozen=True, eq=False)
+class RoadSpec(Part):
+    """The road the agents drive: its lanes."""
+
+    lane_count: int
+    lane_width_m: float
+
+    def check(self) -> None:
+        check_range("lane count", self.lane_count, 1, 64)
+        if not 0.0 < self.lane_width_m < 100.0:
+            raise DecodeError(f"lane width must be from 0 to 100 m, got {self.lane_width_m}")
+
+
+@dataclass(frozen=True, eq=False)
+class CarSpec(Part):
+    """An agent's car: its body and the speeds its actions move between."""
+
+    length_m: float
+    width_m: float
+    min_speed_kmh: float
+    max_speed_kmh: float
+
+    def check(self) -> None:
+        if not (0.0 < self.length_m < 100.0 and 0.0 < self.width_m < 100.0):
+            raise DecodeError(
+                f"car length and width must be from 0 to 100 m, got {self.length_m} and "
+                f"{self.width_m}"
+            )
+        if not 0.0 <= self.min_speed_kmh <= self.max_speed_kmh < 1e4:
+            raise DecodeError(
+                f"car speeds must be 0 <= min <= max, got {self.min_speed_kmh} and "
+                f"{self.max_speed_kmh} km/h"
+            )
+
+
+@dataclass(frozen=True, eq=False)
+class ObservationSpec(Part):
+    """One observation of one agent: a Box of ``shape`` and ``dtype`` within [low, high], the
+    names of its last axis' entries where they are named (``columns``: the ego vector's fields)
+    and how far it sees (``reach``; None for what sees nothing of the road, as the action
+    stack)."""
+
+    name: str
+    shape: tuple[int, ...]
+    dtype: str
+    low: np.ndarray
+    high: np.ndarray
+    columns: tuple[str, ...] = field(default=(), metadata={"since": 5})
+    reach: Reach | None = field(default=None, metadata={"since": 5})
+
+    def check(self) -> None:
+        check_name("observation name", self.name)
+        if self.dtype not in WIRE_DTYPES:
+            raise DecodeError(
+                f"observation {self.name!r} dtype must be one of "
+                f"{sorted(WIRE_DTYPES)}, got {self.dtype!r}"
+            )
+        if not 1 <= len(self.shape) <= MAX_ARRAY_DIMS - 1 or min(self.shape) < 1:
+            raise DecodeError(
+                f"observation {self.name!r} shape must have 1 to "
+                f"{MAX_ARRAY_DIMS - 1} positive sizes, got {self.shape}"
+            )
+        for bound in ("low", "high"):
+            check_array(
+                f"observation {self.name!r} {bound}", getattr(self, bound), self.dtype, self.shape
+            )
+        if self.columns and len(self.columns) != self.shape[-1]:
+            raise DecodeError(
+                f"observation {self.name!r} names {len(self.columns)} columns for a last axis "
+                f"of {self.shape[-1]}"
+            )
+
+
+@dataclass(frozen=True, eq=False)
+class BehaviourSpec(Part):
+    """Everything a client needs to rebuild the in-process spaces (ML-Agents' BehaviorSpec)."""
+
+    name: str
+    preset: str
+    observations: tuple[ObservationSpec, ...]
+    action_branches: tuple[int, ...]
+    action_names: tuple[str, ...]
+    reward_terms: tuple[str, ...]
+    metric_fields: tuple[str, ...]
+    decision_period_s: float
+    max_episode_steps: int
+    agents_per_arena: int
+    config_json: str
+    """the server's resolved configuration, a record (run records, checkpoints): what a
+    consumer reads of it is in the typed fields"""
+    road: RoadSpec | None = field(default=None, metadata={"since": 5})
+    car: CarSpec | None = field(default=None, metadata={"since": 5})
+
+    def check(self) -> None:
+        names = [o.name for o in self.observations]
+        if not names or len(set(names)) != len(names):
+            raise DecodeError(f"observation names must be distinct and at least one, got {names}")
+        if self.action_branches != (ACTION_COUNT,):
+            raise DecodeError(
+                f"action branches must be ({ACTION_COUNT},), got {self.action_branches}"
+            )
+        if len(self.action_names) != ACTION_COUNT:
+            raise DecodeError(f"expected {ACTION_COUNT} action names, got {self.action_names}")
+        check_range("agents per arena", self.agents_per_arena, 1, MAX_AGENTS_PER_ARENA)
+        check_range("max episode steps", self.max_episode_steps, 1, 2**62)
+        if not self.decision_period_s > 0:
+            raise DecodeError(f"decision period must be > 0 s, got {self.decision_period_s}")
+
+    def observation(self, name: str) -> ObservationSpec:
+        for spec in self.observations:
+            if spec.name == name:
+                return spec
+        raise KeyError(name)
+
+    def has(self, name: str) -> bool:
+        """Whether the agents observe ``name``."""
+        return any(spec.name == name for spec in self.observations)

@@ -1,0 +1,51 @@
+"""The wire contract's version: (major, minor), and what each minor version added. A peer of
+another major version is refused; a newer minor may add optional fields, which an older peer
+ignores, and an older peer's messages decode with those fields at their defaults."""
+
+from __future__ import annotations
+
+PROTOCOL_VERSION: tuple[int, int] = (1, 5)
+PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
+    (
+        "1.0",
+        "First wire protocol: status, open/join, reset, batched actions and steps, close, "
+        "world frames for spectators, error replies.",
+    ),
+    (
+        "1.1",
+        "World frames carry each agent's reward terms (reward_terms, reward_term_names); "
+        "a 1.0 peer's frames decode with none.",
+    ),
+    (
+        "1.2",
+        "Actions carry the trainer's step count (trainer_step) and world frames repeat it, so "
+        "a spectator's recording shares the trainers' step timeline; world frames carry each "
+        "vehicle's half length and width and each agent's heading. Older peers' messages decode "
+        "with -1 and None.",
+    ),
+    (
+        "1.3",
+        "Actions may take some of the trainer's cars off the road until their arena is reset "
+        "(retire: PettingZoo's finished agents); Opened says the server's minor version "
+        "(server_minor), so a trainer can tell a server that would ignore retire. A 1.2 "
+        "peer's Actions decode with no retired cars, its Opened with server_minor 2.",
+    ),
+    (
+        "1.4",
+        "Status replies say what waits in the server's queues (queued_actions, "
+        "queued_requests) and how many frames a flood lost at their bounds (dropped_frames); "
+        "a request beyond the bound is answered server_busy at once instead of not at all. "
+        "A 1.3 server's status decodes with zeros.",
+    ),
+    (
+        "1.5",
+        "The behaviour spec states what a consumer needs to read the observations as typed "
+        "fields: the road (RoadSpec: lanes and their width), the car (CarSpec: length, width, "
+        "the speeds its actions move between) and per observation its named columns (the ego "
+        "vector's fields) and its reach (Reach: metres ahead, behind, to the side, range). "
+        "config_json stays, a record of the server's configuration that no consumer reads. A "
+        "1.4 server's spec decodes without them, and clients refuse it.",
+    ),
+)
+# The minor version whose spec carries the road, the car and the observations' facts.
+TYPED_SPEC_SINCE_MINOR = 5
