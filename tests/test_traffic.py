@@ -7,8 +7,8 @@ import pytest
 
 from overtake.protocol.vocabulary import AGENT_KIND
 from overtake.server.sim import HighwaySim, make_config
-from overtake.server.sim.kernels import idm as idm_accel
 from overtake.server.sim.physics import traffic_overlaps
+from overtake.server.sim.traffic.kernels import idm as idm_accel
 from overtake.server.sim.units import KMH
 
 from conftest import (

@@ -147,7 +147,7 @@ class CruiseControl:
     Each frame an agent accelerates towards its target (``(target - speed) / time constant``,
     between ``-comfort_decel_mps2`` and ``max_accel_mps2``), and no more than the IDM's
     distance keeping to the car ahead allows (the IDM without its free-road term): in the
-    physics frame's compiled loop, :func:`.kernels.follow_and_accelerate`, with these
+    physics frame's compiled loop, :func:`.traffic.kernels.follow_and_accelerate`, with these
     parameters."""
 
     def __init__(self, ego: EgoConfig, agents: int) -> None:
@@ -212,7 +212,7 @@ class SpeedSteps:
 class EmergencyBraking:
     """Autonomous emergency braking: an agent closing in on its leader brakes at
     ``decel_mps2`` once the gap is under ``time_to_collision_s`` of closing (applied in the
-    physics frame's compiled loop, :func:`.kernels.follow_and_accelerate`)."""
+    physics frame's compiled loop, :func:`.traffic.kernels.follow_and_accelerate`)."""
 
     def __init__(self, ego: EgoConfig, agents: int) -> None:
         self.time_to_collision_s = ego.aeb_time_to_collision_s

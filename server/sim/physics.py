@@ -21,9 +21,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .assist import CruiseControl, EmergencyBraking, SpeedSteps
-from .kernels import capped_speeds, follow_and_accelerate, integrate
+from .kernels import integrate
 from .lane_index import NO_GAP_M
 from .traffic.car_following import Following
+from .traffic.kernels import capped_speeds, follow_and_accelerate
 from .traffic.lane_changes import Mobil
 
 if TYPE_CHECKING:

@@ -18,10 +18,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..kernels import colour, paint_boxes, paint_ground
 from ..road import RoadConfig
 from ..validation import check, check_range
 from .base import ObserverViews, Scene, SensorConfig, SensorFacts, SensorSpace
+from .kernels import colour, paint_boxes, paint_ground
 
 if TYPE_CHECKING:
     from ..config import SimConfig

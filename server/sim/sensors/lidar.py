@@ -6,7 +6,7 @@ Vehicles are axis-aligned rectangles on the road; the guard rails are two lines 
 
 The naive test of every ray against every car costs O(R * V) per observer. A car covers only a
 few degrees of the scan, so each car's angular extent is computed first and only the rays inside
-it are intersected with its box, in a compiled loop (:func:`..kernels.lidar_scan`; the bearings
+it are intersected with its box, in a compiled loop (:func:`.kernels.lidar_scan`; the bearings
 come from numpy's arctan2).
 """
 
@@ -17,10 +17,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..kernels import lidar_scan
 from ..road import Road
 from ..validation import check, check_range
 from .base import ObserverViews, Scene, SensorConfig, SensorFacts, SensorSpace
+from .kernels import lidar_scan
 
 if TYPE_CHECKING:
     from ..config import SimConfig

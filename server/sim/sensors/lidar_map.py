@@ -17,9 +17,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..kernels import lidar_grid
 from ..validation import check, check_flag, check_range
 from .base import Scene, SensorConfig, SensorFacts, SensorSpace
+from .kernels import lidar_grid
 from .lidar import Lidar
 
 if TYPE_CHECKING:

@@ -6,7 +6,7 @@ and when the new follower would not have to brake harder than ``traffic.safe_dec
 Traffic considers changing left on even decisions and right on odd ones: cars from both sides
 never start into the same gap at the same moment. Decisions are taken on the first frame of a
 decision, for every arena and car at once: the neighbours from the lane index in numpy, the
-accelerations and the verdict in a compiled loop (:func:`..kernels.mobil_accept`).
+accelerations and the verdict in a compiled loop (:func:`.kernels.mobil_accept`).
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .. import kernels
 from ..lane_index import NO_GAP_M, LaneIndex, neighbours_at
+from . import kernels
 from .car_following import Following
 
 if TYPE_CHECKING:

@@ -1,0 +1,253 @@
+"""Car-following's compiled loops (numba): the IDM, every vehicle's acceleration in a frame
+(traffic's car-following, the agents' cruise control and emergency braking), MOBIL's verdict,
+and traffic's safety cap on speeds.
+
+Compiled on first use and cached on disk (``cache=True``: next to this file, or under
+``NUMBA_CACHE_DIR`` where that is not writable); ``python -m overtake.server.sim.warm``
+compiles them ahead. They do the same float operations in the same order as the numpy code
+they replaced (``tests/test_golden.py`` was not re-recorded for them); with
+``NUMBA_DISABLE_JIT=1`` they run as plain Python (slow, for debugging).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def idm(
+    speed: float,
+    desired_speed: float,
+    gap: float,
+    closing: float,
+    headway: float,
+    min_gap: float,
+    max_accel: float,
+    two_sqrt_ab: float,
+) -> float:
+    """One car's Intelligent Driver Model acceleration (m/s^2): ``closing`` is its speed minus
+    its leader's, ``gap`` bumper to bumper (m), ``two_sqrt_ab`` 2 sqrt(max_accel * comfortable
+    deceleration); the desired gap is :func:`.traffic.car_following.idm_desired_gap`'s."""
+    desired_gap = min_gap + max(0.0, speed * headway + speed * closing / two_sqrt_ab)
+    ratio = speed / desired_speed
+    ratio *= ratio
+    interaction = desired_gap / max(gap, 0.1)
+    return max_accel * (1.0 - ratio * ratio - interaction * interaction)
+
+
+@njit(cache=True, nogil=True)
+def follow_and_accelerate(
+    x_m: np.ndarray,
+    speed: np.ndarray,
+    desired_speed: np.ndarray,
+    lead: np.ndarray,
+    valid: np.ndarray,
+    half_length: np.ndarray,
+    headway: np.ndarray,
+    min_gap: np.ndarray,
+    max_accel: np.ndarray,
+    two_sqrt_ab: np.ndarray,
+    agents: int,
+    cruise: np.ndarray,
+    aeb: np.ndarray,
+    max_decel_mps2: float,
+    no_gap_m: float,
+    gap: np.ndarray,
+    leader: np.ndarray,
+    has_leader: np.ndarray,
+    leader_speed: np.ndarray,
+    closing: np.ndarray,
+    accel: np.ndarray,
+) -> None:
+    """One frame's car-following of every vehicle, (A, V) arrays: whom it follows (the nearer
+    of its two lane entries' leaders, ``lead``/``valid`` (A, 2V) flat indices) into ``gap``,
+    ``leader``, ``has_leader``, ``leader_speed`` and ``closing``, and its acceleration into
+    ``accel``: the IDM (agents without a free-road term), the agents' cruise control
+    (``cruise``: time constant, comfortable deceleration, maximum acceleration) and emergency
+    braking (``aeb``: time to collision, deceleration), within the vehicle's limits.
+
+    The settings are :class:`.assist.CruiseControl`'s and :class:`.assist.EmergencyBraking`'s,
+    the IDM :func:`idm`.
+    """
+    arenas, vehicles = x_m.shape
+    time_constant_s, comfort_decel, cruise_max_accel = cruise[0], cruise[1], cruise[2]
+    time_to_collision_s, aeb_decel = aeb[0], aeb[1]
+    for a in range(arenas):
+        origin = x_m[a, 0]
+        for v in range(vehicles):
+            front = (x_m[a, v] - origin) + half_length[a, v]
+            first = no_gap_m
+            second = no_gap_m
+            if valid[a, v]:
+                k = lead[a, v]
+                c = k - a * vehicles
+                first = ((x_m[a, c] - origin) - half_length[a, c]) - front
+            if valid[a, vehicles + v]:
+                k = lead[a, vehicles + v]
+                c = k - a * vehicles
+                second = ((x_m[a, c] - origin) - half_length[a, c]) - front
+            g = min(first, second)
+            k = lead[a, vehicles + v] if second < first else lead[a, v]
+            own = speed[a, v]
+            followed = speed[a, k - a * vehicles] if g < no_gap_m else own
+            close = own - followed
+            gap[a, v] = g
+            leader[a, v] = k
+            has_leader[a, v] = g < no_gap_m
+            leader_speed[a, v] = followed
+            closing[a, v] = close
+            # IDM: agents' desired speed is infinite (their cruise control drives them).
+            acc = idm(
+                own,
+                np.inf if v < agents else desired_speed[a, v],
+                g,
+                close,
+                headway[a, v],
+                min_gap[a, v],
+                max_accel[a, v],
+                two_sqrt_ab[a, v],
+            )
+            if v < agents:
+                towards = min(
+                    max((desired_speed[a, v] - own) / time_constant_s, -comfort_decel),
+                    cruise_max_accel,
+                )
+                acc = min(towards, acc)
+                if close > 0.0 and g < close * time_to_collision_s:
+                    acc = min(acc, -aeb_decel)
+            accel[a, v] = max(min(acc, max_accel[a, v]), -max_decel_mps2)
+
+
+@njit(cache=True, nogil=True)
+def mobil_accept(
+    flat: np.ndarray,
+    new_lane_leader: np.ndarray,
+    new_lane_follower: np.ndarray,
+    old_lane_follower: np.ndarray,
+    own_gap: np.ndarray,
+    own_has_leader: np.ndarray,
+    own_leader: np.ndarray,
+    random_mover: np.ndarray,
+    politeness: np.ndarray,
+    threshold: np.ndarray,
+    x: np.ndarray,
+    speed: np.ndarray,
+    desired_speed: np.ndarray,
+    accel: np.ndarray,
+    headway: np.ndarray,
+    min_gap: np.ndarray,
+    max_accel: np.ndarray,
+    two_sqrt_ab: np.ndarray,
+    half_length: np.ndarray,
+    safe_decel_mps2: float,
+    no_gap_m: float,
+) -> np.ndarray:
+    """MOBIL's verdict for each candidate ``flat[i]`` (flat vehicle indices into the flattened
+    (A, V) arrays ``x`` .. ``half_length``): its new lane's leader and follower and its old
+    lane's follower (-1: none), its own gap, leader and whether it has one, whether it is a
+    random mover, and its behaviour's politeness and threshold. True where the change is safe
+    and worth it (or random and not braking hard).
+
+    The arithmetic of :class:`.traffic.lane_changes.Mobil`, which gathers the neighbours."""
+    accept = np.zeros(flat.size, dtype=np.bool_)
+    for i in range(flat.size):
+        c = flat[i]
+        xc, vc, half = x[c], speed[c], half_length[c]
+        nl = new_lane_leader[i]
+        if nl >= 0:
+            gap_new = ((x[nl] - xc) - half_length[nl]) - half
+            closing_new = vc - speed[nl]
+        else:
+            gap_new = no_gap_m
+            closing_new = 0.0
+        accel_new = idm(
+            vc,
+            desired_speed[c],
+            gap_new,
+            closing_new,
+            headway[c],
+            min_gap[c],
+            max_accel[c],
+            two_sqrt_ab[c],
+        )
+        nf = new_lane_follower[i]
+        nf_gain = 0.0
+        gap_nf = no_gap_m
+        nf_brakes_hard = False
+        if nf >= 0:
+            gap_nf = ((xc - x[nf]) - half) - half_length[nf]
+            nf_accel_new = idm(
+                speed[nf],
+                desired_speed[nf],
+                gap_nf,
+                speed[nf] - vc,
+                headway[nf],
+                min_gap[nf],
+                max_accel[nf],
+                two_sqrt_ab[nf],
+            )
+            nf_gain = nf_accel_new - accel[nf]
+            nf_brakes_hard = not (nf_accel_new >= -safe_decel_mps2)
+        of = old_lane_follower[i]
+        of_gain = 0.0
+        if of >= 0:
+            # The old follower would follow the old leader across the gap this car leaves.
+            left_gap = own_gap[i] + 2 * half if own_has_leader[i] else no_gap_m
+            of_gap_after = left_gap + (((xc - x[of]) - half) - half_length[of])
+            ol_speed = speed[own_leader[i]] if own_has_leader[i] else speed[of]
+            of_accel_after = idm(
+                speed[of],
+                desired_speed[of],
+                of_gap_after,
+                speed[of] - ol_speed,
+                headway[of],
+                min_gap[of],
+                max_accel[of],
+                two_sqrt_ab[of],
+            )
+            of_gain = of_accel_after - accel[of]
+        safe = gap_new > min_gap[c] and gap_nf > min_gap[c] and not nf_brakes_hard
+        incentive = (accel_new - accel[c]) + politeness[i] * (nf_gain + of_gain)
+        # A change for no reason must not make the mover itself brake hard either.
+        random = random_mover[i] and accel_new >= -safe_decel_mps2
+        accept[i] = safe and (incentive > threshold[i] or random)
+    return accept
+
+
+@njit(cache=True, nogil=True)
+def capped_speeds(
+    speed: np.ndarray,
+    accel: np.ndarray,
+    gap: np.ndarray,
+    leader: np.ndarray,
+    has_leader: np.ndarray,
+    leader_speed: np.ndarray,
+    is_traffic: np.ndarray,
+    yield_to_agents: bool,
+    max_decel_mps2: float,
+    dt: float,
+    new_speed: np.ndarray,
+) -> None:
+    """Every vehicle's speed at the end of the frame into ``new_speed`` (A, V): ``accel``
+    integrated, not below 0, and for traffic behind a traffic leader (any leader with
+    ``yield_to_agents``) no faster than keeps it 0.2 m behind that leader through the frame
+    even if the leader brakes as hard as it can (the safety rule;
+    :meth:`.physics.Physics.frame`). Both move at the mean of their old and new speeds
+    (:func:`integrate`), so the follower closes in by ``(v + s) / 2 * dt`` against the
+    leader's ``(u - max_decel * dt / 2) * dt``."""
+    arenas, vehicles = speed.shape
+    for a in range(arenas):
+        for v in range(vehicles):
+            s = max(speed[a, v] + accel[a, v] * dt, 0.0)
+            if is_traffic[a, v] and has_leader[a, v]:
+                c = leader[a, v] - a * vehicles
+                if yield_to_agents or is_traffic[a, c]:
+                    cap = (
+                        2.0 * (gap[a, v] - 0.2) / dt
+                        + 2.0 * leader_speed[a, v]
+                        - max_decel_mps2 * dt
+                        - speed[a, v]
+                    )
+                    s = min(s, max(cap, 0.0))
+            new_speed[a, v] = s
