@@ -17,7 +17,7 @@ from __future__ import annotations
 import itertools
 import secrets
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -485,17 +485,3 @@ class Group:
             half_width_m=world.half_width_m,
             agent_heading_rad=world.agent_heading_rad,
         )
-
-
-def next_to_step(groups: Iterable[Group], now: float) -> Group | None:
-    """Of the groups ready to step at ``now``, the one stepped longest ago (None: none is
-    ready). The server steps one group at a time and handles what arrived between two, so a
-    group that became ready waits behind the groups that were ready before it and no longer.
-    Stepping every ready group in a fixed order per pass let answers that arrive while a pass
-    runs miss it in a fixed pattern: with the server busy, two of four equal trainers got
-    exactly half the steps of the others."""
-    chosen: Group | None = None
-    for group in groups:
-        if group.ready(now) and (chosen is None or group.last_stepped < chosen.last_stepped):
-            chosen = group
-    return chosen

@@ -48,9 +48,9 @@ from overtake.protocol.transport import (
 )
 from overtake.viz.recording import RecordingConfig
 
-from .arenas import ArenaRegistry
+from .arenas import ArenaRegistry, next_to_step
 from .errors import StartError
-from .groups import Group, next_to_step
+from .groups import Group
 from .inbox import (
     MAX_EVENTS_PER_PASS,
     WAKE,

@@ -7,7 +7,8 @@ import pytest
 
 from overtake.protocol import errors
 from overtake.protocol.messages import Actions
-from overtake.server.groups import Group, next_to_step
+from overtake.server.arenas import next_to_step
+from overtake.server.groups import Group
 from overtake.server.sim import HighwaySim, make_config
 
 QUIET = {"traffic.vehicle_count": 0}

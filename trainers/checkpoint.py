@@ -23,7 +23,7 @@ import torch
 from overtake.client.commands import UsageError
 
 from .grid_network import GridNetworkShape
-from .learner import ALGOS, DQNConfig, DQNLearner, Precision
+from .learner import DQNConfig, DQNLearner, Precision
 from .network import Inputs, NetworkShape
 from .two_stream_network import TwoStreamShape
 
@@ -63,15 +63,8 @@ class Checkpoint:
             )
 
     def make_learner(self, device: str = "cpu", precision: Precision = "fp32") -> DQNLearner:
-        double, dueling = ALGOS[self.algo]
-        learner = DQNLearner(
-            self.net_shape,
-            self.inputs,
-            self.dqn,
-            double=double,
-            dueling=dueling,
-            device=device,
-            precision=precision,
+        learner = DQNLearner.for_algo(
+            self.algo, self.net_shape, self.inputs, self.dqn, device, precision
         )
         learner.load_state_dict(self.learner)
         return learner

@@ -131,6 +131,19 @@ class DQNConfig:
         return self.epsilon_start + fraction * (self.epsilon_end - self.epsilon_start)
 
 
+AnyShape = NetworkShape | GridNetworkShape | TwoStreamShape
+
+
+def network_shape(space: Any, inputs: Inputs, actions: int, stack: int) -> AnyShape:
+    """What the network for ``inputs`` is built for, read from the single observation
+    ``space``: Ho's grid network, Fayjie et al.'s two streams, or Min et al.'s network."""
+    if inputs == "grid":
+        return GridNetworkShape.from_space(space, actions, stack)
+    if inputs == "camera-map":
+        return TwoStreamShape.from_space(space, actions, stack)
+    return NetworkShape.from_space(space, actions, stack)
+
+
 def build_network(
     shape: NetworkShape | GridNetworkShape | TwoStreamShape,
     inputs: Inputs,
@@ -282,6 +295,30 @@ class DQNLearner:
         self.updates = 0
 
     # --- inputs ---------------------------------------------------------------------------
+
+    @classmethod
+    def for_algo(
+        cls,
+        algo: str,
+        shape: AnyShape,
+        inputs: Inputs,
+        config: DQNConfig,
+        device: str = "cpu",
+        precision: Precision = "fp32",
+    ) -> DQNLearner:
+        """The learner of ``algo`` (dqn, ddqn or dueling: its :data:`ALGOS` switches)."""
+        if algo not in ALGOS:
+            raise ValueError(f"unknown algorithm {algo!r}: expected one of {', '.join(ALGOS)}")
+        double, dueling = ALGOS[algo]
+        return cls(
+            shape,
+            inputs,
+            config,
+            double=double,
+            dueling=dueling,
+            device=device,
+            precision=precision,
+        )
 
     def _tensors(self, obs: dict[str, np.ndarray], prefix: str = "") -> list[torch.Tensor | None]:
         """The network's inputs in the order it takes them (None for one it leaves out)."""

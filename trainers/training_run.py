@@ -19,19 +19,17 @@ import torch
 
 from overtake.protocol import ACTION_COUNT
 from overtake.protocol.messages import BehaviourSpec
-from overtake.viz.recording import APPLICATION_ID, Recording, close_recording, open_recording
+from overtake.viz.recording import Recording, close_recording
 
 from .checkpoint import CHECKPOINT_NAME, REPLAY_NAME, Checkpoint, plain_data, save_checkpoint
 from .env_parts import EnvParts
-from .grid_network import GridNetworkShape
-from .learner import ALGOS, DQNLearner
-from .network import INPUT_SENSORS, NetworkShape
+from .learner import ALGOS, DQNLearner, network_shape
+from .network import INPUT_SENSORS
 from .observations import describe_space, frame_shapes
 from .replay import FrameStacker, ReplayMemory
 from .run_files import MetricsLog, git_commit, package_versions
 from .run_log import LogWindow, progress_bar
-from .two_stream_network import TwoStreamShape
-from .visual import TrainingRecording, training_blueprint
+from .visual import TrainingRecording, open_training_recording
 
 if TYPE_CHECKING:
     from .train import TrainConfig
@@ -109,25 +107,12 @@ class TrainingRun:
         """The learner (seeded), its replay memory and frame stacker, and the random generator
         of its exploration."""
         config, dqn = self.config, self.dqn
-        double, dueling = ALGOS[config.algo]
         shapes = frame_shapes(self.space, config.inputs, f"preset {config.preset}'s environment")
         stacked = INPUT_SENSORS[config.inputs]
-        self.net_shape: NetworkShape | GridNetworkShape | TwoStreamShape
-        if config.inputs == "grid":
-            self.net_shape = GridNetworkShape.from_space(self.space, ACTION_COUNT, dqn.stack)
-        elif config.inputs == "camera-map":
-            self.net_shape = TwoStreamShape.from_space(self.space, ACTION_COUNT, dqn.stack)
-        else:
-            self.net_shape = NetworkShape.from_space(self.space, ACTION_COUNT, dqn.stack)
+        self.net_shape = network_shape(self.space, config.inputs, ACTION_COUNT, dqn.stack)
         torch.manual_seed(config.seed)
-        self.learner = DQNLearner(
-            self.net_shape,
-            config.inputs,
-            dqn,
-            double=double,
-            dueling=dueling,
-            device=config.device,
-            precision=config.precision,
+        self.learner = DQNLearner.for_algo(
+            config.algo, self.net_shape, config.inputs, dqn, config.device, config.precision
         )
         self.replay = ReplayMemory(
             dqn.replay_size, config.num_envs, shapes, dqn.stack, stacked, seed=config.seed
@@ -222,31 +207,14 @@ class TrainingRun:
         self._life_file("run", ".json").write_text(json.dumps(record, indent=2, default=str))
 
     def _open_recording(self) -> None:
-        run_name = self.run_dir.name or "run"
-        # No footer: a run may write for days, and the SDK would hold the footer's index in
-        # memory until the end (overtake.viz.recording, on footers; bench/recording_memory.py).
-        self.recording = open_recording(
-            APPLICATION_ID,
+        self.recording, self.view = open_training_recording(
             self.config.recording,
             self._life_file("trainer", ".rrd"),
-            training_blueprint(run_name),
-            footer=False,
+            self.run_dir.name or "run",
+            self.config.algo,
+            _ego_fields(self.env.behaviour_spec),
+            self.env.recorded_arenas(),
         )
-        self.view = (
-            # Coloured by algorithm: DQN, Double DQN and Dueling keep their colours in every
-            # recording that holds several runs.
-            TrainingRecording(
-                self.recording.stream,
-                run_name,
-                colour_index=list(ALGOS).index(self.config.algo),
-                ego_fields=_ego_fields(self.env.behaviour_spec),
-            )
-            if self.recording is not None
-            else None
-        )
-        recorded = self.env.recorded_arenas()
-        if self.view is not None and recorded is not None:
-            self.view.arenas(*recorded)
 
     def _start_episodes(self) -> None:
         """Reset every environment and start its frame stack and its replay ring."""

@@ -25,13 +25,17 @@ with the default decimation the training loop loses nothing measurable (``bench/
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from overtake.protocol import ACTION_NAMES
+from overtake.viz.recording import APPLICATION_ID, Recording, RecordingConfig, open_recording
 from overtake.viz.training_layout import training_blueprint
 from overtake.viz.world_view import ACTION_COLOURS, LIDAR_HIT_COLOUR, lidar_hits, to_drawing
+
+from .learner import ALGOS
 
 __all__ = ["LEARNING_SERIES", "TrainingRecording", "training_blueprint"]
 
@@ -156,3 +160,32 @@ class TrainingRecording:
         stream.log(f"{base}/reward/total", rr.Scalars(float(reward)))
         for name, value in terms.items():
             stream.log(f"{base}/reward/{name}", rr.Scalars(float(value)))
+
+
+def open_training_recording(
+    config: RecordingConfig,
+    rrd: Path,
+    run_name: str,
+    algo: str,
+    ego_fields: Sequence[str],
+    arenas: tuple[str, tuple[int, ...]] | None,
+) -> tuple[Recording | None, TrainingRecording | None]:
+    """A training run's recording (to ``rrd`` with a file sink) and its view: coloured by
+    algorithm (DQN, Double DQN and Dueling keep their colours in every recording that holds
+    several runs), with the server's ``arenas`` environment 0 lies among (None in-process).
+    No footer: a run may write for days, and the SDK would hold the footer's index in memory
+    until the end (overtake.viz.recording, on footers; bench/recording_memory.py)."""
+    recording = open_recording(
+        APPLICATION_ID, config, rrd, training_blueprint(run_name), footer=False
+    )
+    if recording is None:
+        return None, None
+    view = TrainingRecording(
+        recording.stream,
+        run_name,
+        colour_index=list(ALGOS).index(algo),
+        ego_fields=tuple(ego_fields),
+    )
+    if arenas is not None:
+        view.arenas(*arenas)
+    return recording, view
