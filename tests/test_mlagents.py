@@ -32,7 +32,8 @@ from overtake.client.mlagents import load_wrappers  # noqa: E402
 WRAPPERS = load_wrappers()
 # mlagents-envs 1.1.0's generated protobuf modules use descriptor calls protobuf deprecates.
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning:mlagents_envs.*")
-SHORT = {"episode.max_decisions": 12}
+# Episodes of 12 decisions on a road of 10 cars, which these actions live through.
+SHORT = {"episode.max_decisions": 12, "traffic.vehicle_count": 10}
 
 
 def as_mlagents(batch: np.ndarray) -> np.ndarray:

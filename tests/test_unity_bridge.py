@@ -22,6 +22,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from overtake.client.episodes import parse_overrides
 from overtake.client.mlagents import MLAgentsMissing
 from overtake.client.unity_bridge import (
     COMPRESSION_NONE,
@@ -43,7 +44,9 @@ from remote_support import child_env, free_port, stop_process, wait_until
 ROOT = Path(__file__).resolve().parent.parent
 ML_PYTHON = ROOT / ".venv-mlagents" / "bin" / "python"
 ML_SIDE = Path(__file__).resolve().parent / "mlagents_side.py"
-SHORT = "episode.max_decisions=12"
+# Episodes of 12 decisions on a road of 10 cars, which random driving here lives through: every
+# episode ends at the time limit.
+SHORT = ("episode.max_decisions=12", "traffic.vehicle_count=10")
 
 try:
     MESSAGES = load_messages()
@@ -270,7 +273,7 @@ def in_process_first_observations(arenas: int, seed: int) -> dict[str, np.ndarra
         num_envs=arenas,
         vectorization_mode="vector_entry_point",
         preset="min2018",
-        overrides={"episode.max_decisions": 12},
+        overrides=parse_overrides(SHORT),
     )
     obs, _ = env.reset(seed=seed)
     env.close()
@@ -281,7 +284,7 @@ def in_process_first_observations(arenas: int, seed: int) -> dict[str, np.ndarra
 def test_unity_environment_steps_resets_and_sets_parameters_through_the_bridge(pair, start_server):
     server = start_server("unity-bridge")
     pair.start_ml("steps", 40)
-    pair.start_bridge(server.endpoint, "--arenas", "2", "--set", SHORT)
+    pair.start_bridge(server.endpoint, "--arenas", "2", "--set", *SHORT)
     result = pair.ml_result()
     assert "error" not in result, result
     code, log = pair.bridge_exit()
@@ -315,7 +318,7 @@ def test_unity_environment_steps_resets_and_sets_parameters_through_the_bridge(p
 def test_ml_agents_gym_wrapper_drives_overtake_through_the_bridge(pair, start_server):
     server = start_server("unity-bridge-gym")
     pair.start_ml("gym", 30)
-    pair.start_bridge(server.endpoint, "--set", SHORT, "--behavior-name", "Highway")
+    pair.start_bridge(server.endpoint, "--set", *SHORT, "--behavior-name", "Highway")
     result = pair.ml_result()
     assert "error" not in result, result
     assert result["action_space"] == "Discrete(5)"
