@@ -366,7 +366,7 @@ class Connection:
             self._drop("dropped an unreadable message from server %s: %s", sender, error)
             return
         if isinstance(message, ErrorReply):
-            if (sender, message.group) not in self._stepping:
+            if message.group is None or (sender, message.group) not in self._stepping:
                 # Not about a group we step (perhaps garbage sent in our name): say so only.
                 self._drop("server %s refused a message in our name: %s", sender, message.message)
                 return

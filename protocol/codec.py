@@ -16,7 +16,7 @@ import types
 import typing
 from collections.abc import Callable
 from dataclasses import MISSING, fields, is_dataclass
-from typing import Any, TypeVar
+from typing import Any, TypeVar, overload
 
 import msgpack
 import numpy as np
@@ -29,6 +29,7 @@ from .messages import (
     MESSAGE_TYPES,
     PROTOCOL_VERSION,
     WIRE_DTYPES,
+    ErrorReply,
     Message,
 )
 
@@ -348,15 +349,24 @@ def _build(cls: type, body: Any, peer_minor: int) -> Any:
     return cls(**values)
 
 
+@overload
+def decode(data: bytes | bytearray | memoryview, expect: type[M]) -> M | ErrorReply: ...
+
+
+@overload
 def decode(
-    data: bytes | bytearray | memoryview, expect: type[M] | tuple[type[Message], ...] | None = None
-) -> M:
-    """The message in ``data``; with ``expect``, it must be one of those types.
+    data: bytes | bytearray | memoryview, expect: tuple[type[Message], ...] | None = None
+) -> Message: ...
 
-    An :class:`ErrorReply` is always accepted (the caller decides what to raise).
+
+def decode(
+    data: bytes | bytearray | memoryview,
+    expect: type[Message] | tuple[type[Message], ...] | None = None,
+) -> Message:
+    """The message in ``data``; with ``expect``, it must be one of those types or an
+    :class:`ErrorReply`, which is always accepted (the caller decides what to raise): a
+    decode that expects ``Steps`` returns ``Steps | ErrorReply``.
     """
-    from .messages import ErrorReply
-
     if len(data) > MAX_FRAME_BYTES:
         raise DecodeError(f"frame of {len(data)} bytes exceeds the limit of {MAX_FRAME_BYTES}")
     try:
