@@ -70,6 +70,21 @@ class FrameStacker:
         for name, latest in self.latest.items():
             latest[envs] = frames[name]
 
+    def take(self, frames: Frames, starting: np.ndarray) -> dict[str, np.ndarray]:
+        """Every environment's new frame (``frames``: a row each): those ``starting`` an
+        episode restart their stacks with it, the others push it; returns the stacked
+        observation a policy acts on."""
+        fresh, moving = np.flatnonzero(starting), np.flatnonzero(~np.asarray(starting))
+        if fresh.size:
+            self.reset(fresh, {name: frames[name][fresh] for name in self._names})
+        if moving.size:
+            self.push(moving, {name: frames[name][moving] for name in self._names})
+        return self.observation()
+
+    @property
+    def _names(self) -> tuple[str, ...]:
+        return (*self.frames, *self.latest)
+
     def observation(self) -> dict[str, np.ndarray]:
         return {**self.frames, **self.latest}
 

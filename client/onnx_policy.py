@@ -70,13 +70,7 @@ class OnnxPolicy:
     ) -> np.ndarray:
         """Actions for every environment; ``starting`` marks those whose episode just began."""
         began = time.perf_counter()
-        frames = {name: obs[name] for name in self.names}
-        fresh, moving = np.flatnonzero(starting), np.flatnonzero(~starting)
-        if fresh.size:
-            self.stacker.reset(fresh, {k: v[fresh] for k, v in frames.items()})
-        if moving.size:
-            self.stacker.push(moving, {k: v[moving] for k, v in frames.items()})
-        stacked = self.stacker.observation()
+        stacked = self.stacker.take(obs, starting)
         q = self.session.run([self.output], {name: stacked[name] for name in self.names})[0]
         allowed = np.asarray(info["action_mask"]).astype(bool)
         allowed |= ~allowed.any(axis=1, keepdims=True)

@@ -93,7 +93,6 @@ class GreedyPolicy:
                     f"network was built for {checkpoint.space.get(name)} {trained_on}"
                 )
         self.learner = checkpoint.make_learner()
-        self.names = tuple(shapes.shapes)
         self.stacker = FrameStacker(
             num_envs, shapes, checkpoint.dqn.stack, INPUT_SENSORS[checkpoint.inputs]
         )
@@ -102,15 +101,8 @@ class GreedyPolicy:
     def __call__(
         self, obs: dict[str, np.ndarray], info: dict[str, Any], starting: np.ndarray
     ) -> np.ndarray:
-        frames = {name: obs[name] for name in self.names}
-        fresh, moving = np.flatnonzero(starting), np.flatnonzero(~starting)
-        if fresh.size:
-            self.stacker.reset(fresh, {k: v[fresh] for k, v in frames.items()})
-        if moving.size:
-            self.stacker.push(moving, {k: v[moving] for k, v in frames.items()})
-        actions, _ = self.learner.act(
-            self.stacker.observation(), info["action_mask"], 0.0, self.rng
-        )
+        stacked = self.stacker.take(obs, starting)
+        actions, _ = self.learner.act(stacked, info["action_mask"], 0.0, self.rng)
         return actions
 
 

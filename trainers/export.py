@@ -190,11 +190,7 @@ def check_against_torch(
             obs, _, terminated, truncated, info = envs.step(torch_actions)
             # Next-step autoreset: the step after an episode ended brings the new episode's
             # first frame, which restarts that arena's stack.
-            fresh, moving = np.flatnonzero(resetting), np.flatnonzero(~resetting)
-            if fresh.size:
-                stacker.reset(fresh, {k: v[fresh] for k, v in obs.items()})
-            if moving.size:
-                stacker.push(moving, {k: v[moving] for k, v in obs.items()})
+            stacker.take(obs, resetting)
             resetting = terminated | truncated
     finally:
         envs.close()
