@@ -54,3 +54,13 @@ METRIC_FIELDS: tuple[str, ...] = (
 # its length marks an agent's car.
 BEHAVIOUR_NAMES: tuple[str, ...] = ("steady", "road_max", "lane_changer", "random")
 AGENT_KIND = len(BEHAVIOUR_NAMES)
+# How every view draws the vehicles (the in-process render and Rerun's road alike), RGB: one
+# colour per behaviour in the order of BEHAVIOUR_NAMES (steady blue, road-max green,
+# lane-changer orange, random purple), and the agents' cars red.
+BEHAVIOUR_COLOURS: tuple[tuple[int, int, int], ...] = (
+    (80, 120, 255),
+    (40, 200, 120),
+    (240, 170, 30),
+    (200, 120, 230),
+)
+AGENT_COLOUR: tuple[int, int, int] = (230, 40, 40)

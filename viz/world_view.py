@@ -37,17 +37,15 @@ from typing import Any
 import numpy as np
 
 from overtake.protocol.messages import WorldFrame
-from overtake.protocol.vocabulary import ACTION_NAMES, BEHAVIOUR_NAMES
+from overtake.protocol.vocabulary import ACTION_NAMES, BEHAVIOUR_COLOURS, BEHAVIOUR_NAMES
+from overtake.protocol.vocabulary import AGENT_COLOUR as AGENT_RGB
 
 log = logging.getLogger("overtake.viz")
 
-# One colour per behaviour, in the order of BEHAVIOUR_NAMES: steady blue, road-max green,
-# lane-changer orange, random purple.
-KIND_COLOURS = np.array(
-    [[80, 120, 255], [40, 200, 120], [240, 170, 30], [200, 120, 230]], dtype=np.uint8
-)
+# The vocabulary's colours: one per behaviour, and the agents' red.
+KIND_COLOURS = np.array(BEHAVIOUR_COLOURS, dtype=np.uint8)
 assert len(KIND_COLOURS) == len(BEHAVIOUR_NAMES)
-AGENT_COLOUR = np.array([230, 40, 40], dtype=np.uint8)
+AGENT_COLOUR = np.array(AGENT_RGB, dtype=np.uint8)
 # One colour per action, in the order of ACTION_NAMES, for the action scatter.
 ACTION_COLOURS = np.array(
     [[200, 200, 200], [40, 200, 120], [240, 80, 60], [80, 160, 255], [240, 170, 30]],

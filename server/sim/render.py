@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from overtake.protocol.vocabulary import AGENT_KIND
+from overtake.protocol.vocabulary import AGENT_COLOUR, AGENT_KIND, BEHAVIOUR_COLOURS
 
 from .core import HighwaySim
 
@@ -17,19 +17,9 @@ _GRASS = np.array([70, 120, 60], dtype=np.uint8)
 _ROAD = np.array([90, 90, 95], dtype=np.uint8)
 _MARK = np.array([240, 240, 240], dtype=np.uint8)
 _RAIL = np.array([180, 180, 170], dtype=np.uint8)
-# Traffic by behaviour (steady, road maximum, lane changer, random), other agents, the watched
-# agent.
-_KIND_COLOURS = np.array(
-    [
-        [60, 110, 220],
-        [240, 150, 40],
-        [170, 70, 200],
-        [60, 190, 190],
-        [250, 250, 60],
-        [230, 40, 40],
-    ],
-    dtype=np.uint8,
-)
+# Traffic by behaviour and the watched agent as every view draws them (the vocabulary's
+# colours); the other agents on a shared road yellow.
+_KIND_COLOURS = np.array([*BEHAVIOUR_COLOURS, (250, 250, 60), AGENT_COLOUR], dtype=np.uint8)
 _OTHER_AGENT = AGENT_KIND
 _WATCHED_AGENT = AGENT_KIND + 1
 
