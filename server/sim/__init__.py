@@ -18,7 +18,7 @@ structure-of-arrays state:
   ``warm``: compiling them ahead.
 """
 
-from .autoreset import RoundResult, autoreset_round
+from .autoreset import autoreset_round
 from .config import ConfigError, SimConfig, apply_overrides
 from .core import HighwaySim, StepResult
 from .presets import DEFAULT_PRESET, PRESETS, make_config
@@ -29,7 +29,6 @@ __all__ = [
     "PRESETS",
     "ConfigError",
     "HighwaySim",
-    "RoundResult",
     "SensorSpace",
     "SimConfig",
     "StepResult",

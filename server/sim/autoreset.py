@@ -12,34 +12,16 @@ the road goes on for everyone else.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from .core import HighwaySim
-
-
-@dataclass(frozen=True)
-class RoundResult:
-    """What one round gave every agent slot, (A, N) unless noted; slots that restarted or
-    have no car on the road have reward 0, no flags, and action -1."""
-
-    reward: np.ndarray  # float64
-    reward_terms: dict[str, np.ndarray]  # name -> (A, N) float64, in the preset's order
-    terminated: np.ndarray  # bool
-    truncated: np.ndarray  # bool
-    action_applied: np.ndarray  # int64
-
-    @property
-    def ended(self) -> np.ndarray:
-        """(A, N) bool: episodes that ended this round (they restart on the next)."""
-        return self.terminated | self.truncated
+from .core import HighwaySim, StepResult
 
 
 def autoreset_round(
     sim: HighwaySim, actions: np.ndarray, restarting: np.ndarray, present: np.ndarray | None = None
-) -> RoundResult:
-    """Step every arena of ``sim`` one round with (A, N) ``actions``.
+) -> StepResult:
+    """Step every arena of ``sim`` one round with (A, N) ``actions``; slots that restarted or
+    have no car on the road get reward 0, no flags and action -1.
 
     ``restarting`` (A, N): the agents whose episode ended last round; they restart now.
     ``present`` (A, N): the agents whose car is on the road (None: all of them); the others'
@@ -49,14 +31,7 @@ def autoreset_round(
     on_road = np.ones((arenas, n), dtype=bool) if present is None else present
     if not restarting.any() and on_road.all():
         # The common round: every car on the road, nobody restarting.
-        result = sim.step(actions)
-        return RoundResult(
-            reward=result.reward,
-            reward_terms=result.reward_terms,
-            terminated=result.terminated,
-            truncated=result.truncated,
-            action_applied=result.action_applied,
-        )
+        return sim.step(actions)
     reward = np.zeros((arenas, n))
     terminated = np.zeros((arenas, n), dtype=bool)
     truncated = np.zeros((arenas, n), dtype=bool)
@@ -86,7 +61,7 @@ def autoreset_round(
             terms[name][stepping] = np.where(live, value, 0.0)
     for row, slots in respawn:
         sim.respawn_agents(row, slots)
-    return RoundResult(
+    return StepResult(
         reward=reward,
         reward_terms=terms,
         terminated=terminated,

@@ -57,6 +57,11 @@ class StepResult:
     truncated: np.ndarray  # bool: the episode reached its decision limit
     action_applied: np.ndarray  # int64: the action actually taken (refused -> keep)
 
+    @property
+    def ended(self) -> np.ndarray:
+        """(A, N) bool: episodes that ended (with an autoreset, they restart next round)."""
+        return self.terminated | self.truncated
+
 
 @dataclass(frozen=True)
 class WorldSnapshot:
