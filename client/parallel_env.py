@@ -105,23 +105,20 @@ class RemoteHighwayParallelEnv(
         )
         restarted = self.group.restarts != restarts
         rows = self._rows(steps)
-        rewards: dict[AgentID, float] = {}
-        terminations: dict[AgentID, bool] = {}
-        truncations: dict[AgentID, bool] = {}
-        infos: dict[AgentID, dict[str, Any]] = {}
-        for agent in live:
-            row = rows[agent]
-            rewards[agent] = float(steps.reward[row])
-            terminations[agent] = bool(steps.terminated[row])
-            # A server restart ends the episode for every car (the road is gone).
-            truncations[agent] = bool(steps.truncated[row]) or restarted
-            infos[agent] = self._info(steps, row)
+
+        def info(row: int) -> dict[str, Any]:
+            out = self._info(steps, row)
             if restarted:
-                infos[agent]["server_restarted"] = True
+                out["server_restarted"] = True
+            return out
+
+        # A server restart ends the episode for every car (the road is gone).
+        truncated = steps.truncated | restarted
+        rewards, terminations, truncations, infos, ended = self._outcomes(
+            live, rows, steps.reward, steps.terminated, truncated, info
+        )
         observations = self._observations(steps, rows, live)
-        ended = [a for a in live if terminations[a] or truncations[a]]
         self._retire_next = [self._index[a] for a in ended]
-        self.agents = [a for a in live if a not in ended]
         return observations, rewards, terminations, truncations, infos
 
     def _rows(self, steps: Steps) -> dict[AgentID, int]:

@@ -10,7 +10,7 @@ checked, and how the episode length is reported.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -146,6 +146,28 @@ class ParallelAgents:
     def action_space(self, agent: str) -> gym.spaces.Space:
         self._slot(agent)
         return self._action_space
+
+    def _outcomes(
+        self,
+        live: list[str],
+        rows: Mapping[str, int],
+        reward: np.ndarray,
+        terminated: np.ndarray,
+        truncated: np.ndarray,
+        info: Callable[[int], dict[str, Any]],
+    ) -> tuple[
+        dict[str, float], dict[str, bool], dict[str, bool], dict[str, dict[str, Any]], list[str]
+    ]:
+        """A step's rewards, terminations, truncations and infos of the ``live`` cars (each at
+        its row of the arrays; ``info(row)`` builds its info), and the cars whose episode
+        ended: they leave the road, and ``agents`` keeps the others."""
+        rewards = {agent: float(reward[rows[agent]]) for agent in live}
+        terminations = {agent: bool(terminated[rows[agent]]) for agent in live}
+        truncations = {agent: bool(truncated[rows[agent]]) for agent in live}
+        infos = {agent: info(rows[agent]) for agent in live}
+        ended = [agent for agent in live if terminations[agent] or truncations[agent]]
+        self.agents = [agent for agent in live if agent not in ended]
+        return rewards, terminations, truncations, infos, ended
 
     def _live_agents(self) -> list[str]:
         """The cars that act this step; none left means the episode is over for all."""

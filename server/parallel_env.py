@@ -109,32 +109,27 @@ class HighwayParallelEnv(ParallelAgents, ParallelEnv[AgentID, dict[str, np.ndarr
             self._on_road[None].copy(),
         )
         mask = self.sim.action_mask()[0]
-        ended = result.ended[0]
-        metrics = self.sim.metrics() if ended.any() else None
-        rewards: dict[AgentID, float] = {}
-        terminations: dict[AgentID, bool] = {}
-        truncations: dict[AgentID, bool] = {}
-        infos: dict[AgentID, dict[str, Any]] = {}
-        for agent in live:
-            i = self._index[agent]
-            rewards[agent] = float(result.reward[0, i])
-            terminations[agent] = bool(result.terminated[0, i])
-            truncations[agent] = bool(result.truncated[0, i])
-            info: dict[str, Any] = {
+        metrics = self.sim.metrics() if result.ended.any() else None
+
+        def info(i: int) -> dict[str, Any]:
+            out: dict[str, Any] = {
                 "action_mask": mask[i],
                 "action_applied": int(result.action_applied[0, i]),
                 "reward_terms": {n: float(v[0, i]) for n, v in result.reward_terms.items()},
             }
-            if ended[i] and metrics is not None:
-                info["metrics"] = {name: float(v[0, i]) for name, v in metrics.items()}
-            infos[agent] = info
+            if result.ended[0, i] and metrics is not None:
+                out["metrics"] = {name: float(v[0, i]) for name, v in metrics.items()}
+            return out
+
+        rewards, terminations, truncations, infos, ended = self._outcomes(
+            live, self._index, result.reward[0], result.terminated[0], result.truncated[0], info
+        )
         # Observations before the finished cars leave: their last view of the road.
         observations = self._observations(live)
-        gone = [self._index[a] for a in live if ended[self._index[a]]]
+        gone = [self._index[a] for a in ended]
         if gone:
             self.sim.remove_agents(0, gone)
             self._on_road[gone] = False
-        self.agents = [a for a in live if not ended[self._index[a]]]
         return observations, rewards, terminations, truncations, infos
 
     def _observations(self, agents: list[AgentID]) -> dict[AgentID, dict[str, np.ndarray]]:
