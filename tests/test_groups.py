@@ -209,11 +209,13 @@ def test_a_respawned_car_is_not_an_overtake_for_the_others():
     st.x_m[0, 1] = st.x_m[0, 0] + 80.0  # b far ahead of a
     group.sim.tracker.start(st, np.ones_like(st.active))
     group.ended[0, 1] = True  # b restarts behind a on the next round
+    overtake = group.spec.reward_terms.index("overtake")
+    overtakes = group.spec.metric_fields.index("overtakes")
     for _ in range(2):
         _all_act(group)
         steps = group.step()
-        assert steps["a"].reward_terms[0, 3] == 0.0, "a was paid for b's respawn"  # overtake
-        assert steps["a"].metrics[0, 2] == 0  # a's overtakes this episode
+        assert steps["a"].reward_terms[0, overtake] == 0.0, "a was paid for b's respawn"
+        assert steps["a"].metrics[0, overtakes] == 0  # a's overtakes this episode
 
 
 def test_agents_left_out_of_a_trainers_actions_are_marked_late():
