@@ -269,7 +269,7 @@ class DQNLearner:
 
     def __init__(
         self,
-        shape: NetworkShape | GridNetworkShape | TwoStreamShape,
+        shape: AnyShape,
         inputs: Inputs,
         config: DQNConfig,
         *,
@@ -294,8 +294,6 @@ class DQNLearner:
         )
         self.updates = 0
 
-    # --- inputs ---------------------------------------------------------------------------
-
     @classmethod
     def for_algo(
         cls,
@@ -319,6 +317,8 @@ class DQNLearner:
             device=device,
             precision=precision,
         )
+
+    # --- inputs ---------------------------------------------------------------------------
 
     def _tensors(self, obs: dict[str, np.ndarray], prefix: str = "") -> list[torch.Tensor | None]:
         """The network's inputs in the order it takes them (None for one it leaves out)."""

@@ -1,11 +1,6 @@
 """The sensors' compiled loops (numba): the LIDAR scan, the camera's ground, boxes and colours,
-and the LIDAR grid map.
-
-Compiled on first use and cached on disk (``cache=True``: next to this file, or under
-``NUMBA_CACHE_DIR`` where that is not writable); ``python -m overtake.server.sim.warm``
-compiles them ahead. They do the same float operations in the same order as the numpy code
-they replaced (``tests/test_golden.py`` was not re-recorded for them); with
-``NUMBA_DISABLE_JIT=1`` they run as plain Python (slow, for debugging).
+and the LIDAR grid map. Compiled and cached as
+:mod:`overtake.server.sim.kernels` says.
 """
 
 from __future__ import annotations
