@@ -39,6 +39,9 @@ class DriveConfig:
     onnx: Path | None = None
     """drive a policy exported by overtake-export (ONNX Runtime, no PyTorch) instead of
     --policy"""
+    shield: bool | None = None
+    """with --onnx: the safety shield in front of the model (overtake.client.shield); None:
+    where the model was trained with it"""
     realtime: bool = False
     """advance the simulator on the wall clock, one decision period (0.4 s for min2018) per
     decision: an action not ready in time is late (the car keeps its lane and speed), and the
@@ -85,7 +88,12 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
             from .onnx_policy import OnnxPolicy
 
             act: Any = OnnxPolicy(
-                config.onnx, config.episodes, envs.single_observation_space, preset
+                config.onnx,
+                config.episodes,
+                envs.single_observation_space,
+                preset,
+                spec=envs.unwrapped.behaviour_spec,
+                shield=config.shield,
             )
         else:
             act = baseline_policy(
@@ -100,6 +108,16 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
     table = metric_table(rows)
     summary = metric_summary(rows)
     _print_table(config, preset, table, summary, decisions, elapsed)
+    if rows and "shield_overrides" in rows[0]:
+        overrides_per_episode = np.array([row["shield_overrides"] for row in rows])
+        summary["shield_overrides"] = {
+            "mean": float(overrides_per_episode.mean()),
+            "std": float(overrides_per_episode.std()),
+        }
+        print(
+            f"the safety shield overrode the model {int(overrides_per_episode.sum())} times "
+            f"in {decisions} decisions"
+        )
     timing: dict[str, float] = {}
     if clock is not None:
         timing = {
@@ -123,7 +141,7 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
                     "preset": preset,
                     "seed": config.seed,
                     "overrides": overrides,
-                    "episodes": [dict(zip(METRIC_FIELDS, r)) for r in table.tolist()],
+                    "episodes": rows,
                     "summary": summary,
                     "realtime": timing or None,
                 },

@@ -132,6 +132,8 @@ def run_episodes(
     ``realtime``: advance on the wall clock instead of waiting for the policy (see
     :class:`RealTime`).
     """
+    # A policy may add columns of its own to each episode's row (the shield's overrides).
+    extras = getattr(act, "episode_extras", None)
     obs, info = envs.reset(seed=seed)
     starting = np.ones(episodes, dtype=bool)
     resetting = np.zeros(episodes, dtype=bool)  # ended: the next step is their autoreset
@@ -148,7 +150,8 @@ def run_episodes(
         ended = terminated | truncated
         for i in np.flatnonzero(ended & info.get("_metrics", False)):
             if rows[i] is None:
-                rows[i] = {name: float(info["metrics"][name][i]) for name in METRIC_FIELDS}
+                row = {name: float(info["metrics"][name][i]) for name in METRIC_FIELDS}
+                rows[i] = row if extras is None else {**row, **extras(int(i))}
         # Gymnasium's next-step autoreset: an env that ended is reset by the following step,
         # whose observation is then the first of the new episode.
         starting, resetting = resetting, ended

@@ -19,8 +19,11 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from overtake.protocol.messages import BehaviourSpec
+
 from .commands import UsageError
 from .frames import FrameShapes, FrameStacker, describe_space
+from .shield import Shield, ShieldedActing
 
 POLICY_FORMAT = "overtake-policy/1"
 METADATA_KEY = "overtake"
@@ -30,8 +33,17 @@ class OnnxPolicy:
     """Greedy actions of an exported Q-network for ``num_envs`` environments."""
 
     def __init__(
-        self, path: Path, num_envs: int, space: gym.spaces.Dict, preset: str, threads: int = 1
+        self,
+        path: Path,
+        num_envs: int,
+        space: gym.spaces.Dict,
+        preset: str,
+        threads: int = 1,
+        spec: BehaviourSpec | None = None,
+        shield: bool | None = None,
     ) -> None:
+        """``shield``: put the safety shield in front of the model (None: where the model was
+        trained with it, its metadata says); it needs the environment's ``spec``."""
         ort = _onnxruntime()
         self.meta: dict[str, Any] = read_metadata(path)
         options = ort.SessionOptions()
@@ -62,6 +74,12 @@ class OnnxPolicy:
         self.stacker = FrameStacker(
             num_envs, shapes, int(self.meta["stack"]), tuple(self.meta["stacked"])
         )
+        self.guard: ShieldedActing | None = None
+        if self.meta.get("shield", False) if shield is None else shield:
+            if spec is None:
+                raise UsageError("the safety shield reads the environment's behaviour spec")
+            self.guard = ShieldedActing(Shield(spec), num_envs)
+            self.episode_extras = self.guard.episode_extras
         self.latencies_s: list[float] = []
         """wall-clock seconds of each call's inference (stacking included)"""
 
@@ -72,7 +90,12 @@ class OnnxPolicy:
         began = time.perf_counter()
         stacked = self.stacker.take(obs, starting)
         q = self.session.run([self.output], {name: stacked[name] for name in self.names})[0]
-        allowed = np.asarray(info["action_mask"]).astype(bool)
+        mask = info["action_mask"]
+        if self.guard is not None:
+            shielded = self.guard.mask(stacked, mask, starting)
+            self.guard.count(q, mask, shielded)
+            mask = shielded
+        allowed = np.asarray(mask).astype(bool)
         allowed |= ~allowed.any(axis=1, keepdims=True)
         actions = np.where(allowed, q, -np.inf).argmax(axis=1).astype(np.int64)
         self.latencies_s.append(time.perf_counter() - began)

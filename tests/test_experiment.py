@@ -505,3 +505,30 @@ def test_the_order_of_rows_is_judged_against_the_seed_spread():
         ("both", "camera"): True,
         ("lidar", "camera"): False,  # means 72.5 > 72.0, but camera's 74 beats lidar's 73
     }
+
+
+def test_min2018_safe_trains_the_paper_row_and_the_options_each_alone_and_together(tmp_path):
+    plan = make_plan(ExperimentConfig(experiment="min2018-safe", out=tmp_path))
+    trained = {
+        run.name: (run.train.shield, run.train.dqn.prioritized, run.train.dqn.n_step)
+        for run in plan.runs
+    }
+    assert trained == {
+        f"{label}-seed{seed}": options
+        for label, options in {
+            "paper": (False, False, 1),
+            "shield": (True, False, 1),
+            "per-3step": (False, True, 3),
+            "all": (True, True, 3),
+        }.items()
+        for seed in (0, 1)
+    }
+    assert all((run.train.algo, run.train.inputs) == ("dueling", "lidar") for run in plan.runs)
+    assert plan.total_steps == 200_000 and plan.eval_episodes == 100
+    assert plan.densities == ("medium", "heavy") and plan.references == ("rule", "planner")
+    # Each command line parses back to its run's configuration, options included.
+    for run in plan.runs:
+        assert parse_args(train_command(run.train)[3:]) == run.train
+    labels = {row.label: row.options for row in EXPERIMENTS["min2018-safe"].rows}
+    assert labels["all"] == "shield, prioritized replay, 3-step returns"
+    assert labels["paper"] == "-"

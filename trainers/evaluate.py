@@ -25,6 +25,7 @@ from overtake.client.episodes import (
     parse_overrides,
     run_episodes,
 )
+from overtake.client.shield import Shield, ShieldedActing
 from overtake.protocol.transport import SecurityConfig
 
 from .checkpoint import load_checkpoint
@@ -63,6 +64,9 @@ class EvalConfig:
     """more simulator overrides as dotted.name=value"""
     max_decisions: int | None = None
     """episode length in decisions; None keeps the preset's (or its paper's evaluation's)"""
+    shield: bool | None = None
+    """the safety shield in front of the checkpoint's greedy choices; None: where the run was
+    trained with it (overtake.client.shield)"""
     paper_evaluation: bool = True
     """evaluate as the preset's paper does where it evaluates otherwise than it trains
     (ho2018: a decision every frame, 4,000 frames, as Ho's code evaluates); --no-paper-
@@ -82,7 +86,14 @@ class EvalConfig:
 class GreedyPolicy:
     """A trained learner acting greedily on stacked frames (restarted at episode starts)."""
 
-    def __init__(self, checkpoint: Any, num_envs: int, space: Any, preset: str) -> None:
+    def __init__(
+        self,
+        checkpoint: Any,
+        num_envs: int,
+        space: Any,
+        preset: str,
+        shield: Shield | None = None,
+    ) -> None:
         trained_on = f"(the checkpoint was trained on preset {checkpoint.preset})"
         shapes = frame_shapes(space, checkpoint.inputs, f"preset {preset} {trained_on}")
         here = describe_space(space)
@@ -97,12 +108,22 @@ class GreedyPolicy:
             num_envs, shapes, checkpoint.dqn.stack, INPUT_SENSORS[checkpoint.inputs]
         )
         self.rng = np.random.default_rng(0)  # unused by a greedy policy, which act() needs
+        self.guard = ShieldedActing(shield, num_envs) if shield is not None else None
+        if self.guard is not None:
+            # run_episodes adds each episode's overrides to its row.
+            self.episode_extras = self.guard.episode_extras
 
     def __call__(
         self, obs: dict[str, np.ndarray], info: dict[str, Any], starting: np.ndarray
     ) -> np.ndarray:
         stacked = self.stacker.take(obs, starting)
-        actions, _ = self.learner.act(stacked, info["action_mask"], 0.0, self.rng)
+        mask = info["action_mask"]
+        if self.guard is None:
+            actions, _ = self.learner.act(stacked, mask, 0.0, self.rng)
+            return actions
+        shielded = self.guard.mask(stacked, mask, starting)
+        actions, q = self.learner.act(stacked, shielded, 0.0, self.rng)
+        self.guard.count(q, mask, shielded)
         return actions
 
 
@@ -118,12 +139,18 @@ def summarise(rows: list[dict[str, float]]) -> dict[str, Any]:
     decisions = sum(row["decisions"] for row in rows)
     collisions = sum(row["collisions"] for row in rows)
     summary["collisions_per_1000_decisions"] = float(1000.0 * collisions / max(decisions, 1.0))
+    if rows and "shield_overrides" in rows[0]:
+        overrides = np.array([row["shield_overrides"] for row in rows])
+        summary["shield_overrides"] = {
+            "mean": float(overrides.mean()),
+            "std": float(overrides.std()),
+        }
     summary["episodes"] = len(rows)
     return summary
 
 
 def format_rows(named: list[tuple[str, dict[str, Any]]]) -> str:
-    headers = (
+    headers: tuple[str, ...] = (
         "policy",
         "speed km/h",
         "lane changes",
@@ -133,10 +160,17 @@ def format_rows(named: list[tuple[str, dict[str, Any]]]) -> str:
         "return",
         "coll./1k dec.",
     )
+    shielded = any("shield_overrides" in s for _, s in named)
+    if shielded:
+        headers = (*headers, "shield overrides")
     lines: list[tuple[str, ...]] = [headers]
     for name, s in named:
         cells = [name] + [f"{s[m]['mean']:.1f} ± {s[m]['std']:.1f}" for m in TABLE_METRICS]
-        lines.append(tuple(cells + [f"{s['collisions_per_1000_decisions']:.2f}"]))
+        cells.append(f"{s['collisions_per_1000_decisions']:.2f}")
+        if shielded:
+            overrides = s.get("shield_overrides")
+            cells.append(f"{overrides['mean']:.1f}" if overrides else "-")
+        lines.append(tuple(cells))
     widths = [max(len(row[i]) for row in lines) for i in range(len(headers))]
     out = ["  ".join(c.rjust(w) for c, w in zip(row, widths)) for row in lines]
     out.insert(1, "-" * len(out[0]))
@@ -183,8 +217,15 @@ def main(config: EvalConfig) -> dict[str, Any]:
     envs = make_vector_env(preset, overrides, config.episodes, config.connect, config.security)
     try:
         if checkpoint is not None:
+            shielded = (
+                checkpoint.config.get("shield", False) if config.shield is None else config.shield
+            )
             policy: Any = GreedyPolicy(
-                checkpoint, config.episodes, envs.single_observation_space, preset
+                checkpoint,
+                config.episodes,
+                envs.single_observation_space,
+                preset,
+                Shield(envs.unwrapped.behaviour_spec) if shielded else None,
             )
             name = config.name or f"{checkpoint.algo}/{checkpoint.inputs}@{checkpoint.step}"
         else:

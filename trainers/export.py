@@ -90,6 +90,8 @@ def policy_metadata(checkpoint: Checkpoint, names: tuple[str, ...]) -> dict[str,
         "overrides": checkpoint.overrides,
         "step": checkpoint.step,
         "stack": checkpoint.dqn.stack,
+        # Trained behind the safety shield: drivers put it in front of the model too.
+        "shield": bool(checkpoint.config.get("shield", False)),
         "input_names": list(names),
         "stacked": [n for n in names if n in stacked],
         "space": {name: checkpoint.space[name] for name in names},

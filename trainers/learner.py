@@ -86,6 +86,19 @@ class DQNConfig:
     """RMSProp with a gradient momentum (a mean of the gradient, Mnih et al.'s 0.95 as alpha)"""
     loss: Literal["huber", "mse"] = "huber"
     """of the TD error: Huber (Mnih et al. 2015) or squared (Ho's code)"""
+    n_step: int = 1
+    """rewards summed into each target before bootstrapping (n-step returns, Hessel et al.
+    2018 take 3; 1 is the papers' one-step target)"""
+    prioritized: bool = False
+    """prioritized replay, proportional (Schaul et al. 2016): transitions drawn by their last
+    TD error, the loss weighted by importance"""
+    priority_alpha: float = 0.6
+    """how strongly priorities skew the draw (0: uniform; Schaul et al.'s 0.6)"""
+    priority_beta_start: float = 0.4
+    """the importance weights' exponent at the start, annealed linearly to 1 over the run's
+    budget (Schaul et al.'s 0.4)"""
+    priority_eps: float = 1e-6
+    """added to each TD error's magnitude, so that no transition is never drawn again"""
 
     def __post_init__(self) -> None:
         for name in (
@@ -119,11 +132,25 @@ class DQNConfig:
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
+        if self.n_step < 1:
+            raise ValueError(f"n_step must be >= 1, got {self.n_step}")
+        if not 0.0 <= self.priority_alpha <= 1.0 or not 0.0 <= self.priority_beta_start <= 1.0:
+            raise ValueError(
+                "priority_alpha and priority_beta_start must be in [0, 1], got "
+                f"{self.priority_alpha} and {self.priority_beta_start}"
+            )
+        if self.priority_eps <= 0.0:
+            raise ValueError(f"priority_eps must be > 0, got {self.priority_eps}")
         if not 0.0 < self.rmsprop_alpha < 1.0 or self.rmsprop_eps <= 0.0:
             raise ValueError(
                 "rmsprop_alpha must be in (0, 1) and rmsprop_eps > 0, got "
                 f"{self.rmsprop_alpha} and {self.rmsprop_eps}"
             )
+
+    def priority_beta(self, step: int, total_steps: int) -> float:
+        """Prioritized replay's importance exponent after ``step`` of ``total_steps``."""
+        fraction = min(max(step, 0) / max(total_steps, 1), 1.0)
+        return self.priority_beta_start + fraction * (1.0 - self.priority_beta_start)
 
     def epsilon(self, step: int) -> float:
         """The exploration rate after ``step`` environment steps."""
@@ -203,14 +230,16 @@ def masked(q: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
 def td_target(
     reward: torch.Tensor,
     terminated: torch.Tensor,
-    gamma: float,
+    gamma: float | torch.Tensor,
     next_q_target: torch.Tensor,
     next_mask: torch.Tensor,
     next_q_online: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """r + gamma * (1 - terminated) * value of s'. With ``next_q_online`` (Double DQN, Eq. 8)
     the online network picks the action and the target network values it; without, the target
-    network's max. Both only over the actions ``next_mask`` allows."""
+    network's max. Both only over the actions ``next_mask`` allows. With n-step returns ``r``
+    is the discounted sum of the window's rewards and ``gamma`` (per sample) the discount to
+    the state after it, ``gamma ** steps``."""
     if next_q_online is None:
         next_value = masked(next_q_target, next_mask).max(dim=1).values
     else:
@@ -292,6 +321,12 @@ class DQNLearner:
         self.loss_fn: nn.Module = (
             nn.HuberLoss(delta=config.huber_delta) if config.loss == "huber" else nn.MSELoss()
         )
+        # Per sample, for prioritized replay's importance weights.
+        self.loss_each: nn.Module = (
+            nn.HuberLoss(delta=config.huber_delta, reduction="none")
+            if config.loss == "huber"
+            else nn.MSELoss(reduction="none")
+        )
         self.updates = 0
 
     @classmethod
@@ -361,15 +396,20 @@ class DQNLearner:
 
     # --- learning -------------------------------------------------------------------------
 
-    def update(self, batch: dict[str, np.ndarray]) -> dict[str, float]:
+    def update(self, batch: dict[str, np.ndarray]) -> dict[str, Any]:
         """One gradient step on a replay batch; returns the loss and the mean Q of the taken
-        actions."""
+        actions, and with prioritized replay (the batch's ``weight``) each sample's TD error's
+        magnitude (``td_error``), its new priority."""
         self.online.train()
         dev = self.device
         action = torch.as_tensor(batch["action"], device=dev)
         reward = torch.as_tensor(batch["reward"], device=dev, dtype=torch.float32)
         terminated = torch.as_tensor(batch["terminated"], device=dev)
         next_mask = torch.as_tensor(batch["next_mask"], device=dev)
+        gamma: float | torch.Tensor = self.config.gamma
+        steps = batch.get("steps")
+        if steps is not None and np.any(steps != 1):  # n-step returns: gamma ** steps each
+            gamma = torch.as_tensor(self.config.gamma**steps, device=dev, dtype=torch.float32)
         # Forward passes in the learner's precision; the TD target and the loss in float32.
         with self._autocast():
             q_all = self.online(*self._tensors(batch))
@@ -379,10 +419,13 @@ class DQNLearner:
             with self._autocast():
                 next_q_target = self.target(*next_inputs).float()
                 next_q_online = self.online(*next_inputs).float() if self.double else None
-            target = td_target(
-                reward, terminated, self.config.gamma, next_q_target, next_mask, next_q_online
-            )
-        loss = self.loss_fn(q_taken, target)
+            target = td_target(reward, terminated, gamma, next_q_target, next_mask, next_q_online)
+        weight = batch.get("weight")
+        if weight is None:
+            loss = self.loss_fn(q_taken, target)
+        else:  # prioritized replay: each sample's loss times its importance weight
+            each = self.loss_each(q_taken, target)
+            loss = (torch.as_tensor(weight, device=dev, dtype=torch.float32) * each).mean()
         self.optimizer.zero_grad(set_to_none=True)
         self.scaler.scale(loss).backward()
         if self.config.grad_clip_norm > 0.0:
@@ -391,7 +434,13 @@ class DQNLearner:
         self.scaler.step(self.optimizer)  # skips the step where fp16 gradients overflowed
         self.scaler.update()
         self.updates += 1
-        return {"loss": float(loss.item()), "q_taken": float(q_taken.mean().item())}
+        stats: dict[str, Any] = {
+            "loss": float(loss.item()),
+            "q_taken": float(q_taken.mean().item()),
+        }
+        if weight is not None:
+            stats["td_error"] = (target - q_taken).detach().abs().cpu().numpy()
+        return stats
 
     def sync_target(self) -> None:
         self.target.load_state_dict(self.online.state_dict())

@@ -11,6 +11,17 @@ episode, and the transition that left it (action, reward, terminated); ``has_nex
 following slot holds the next frame of the same episode. A transition is sampled only if its
 next frame is there and the frames its stack needs have not been overwritten, so no stack or
 transition ever crosses an episode boundary or mixes old and new data.
+
+Two options of Rainbow's (Hessel et al. 2018), off by default: **n-step returns**
+(``n_step`` > 1): a sample's reward is the discounted sum of up to ``n_step`` rewards of its
+episode from that transition on, ``steps`` says how many (the target discounts the bootstrap
+by ``gamma ** steps``), and its next state is the state after them; the window stops early at
+a termination (no bootstrap), where the episode was cut by its time limit (bootstrap from the
+last state it reached) and at the newest frame. **Prioritized replay** (``prioritized``,
+Schaul et al. 2016, proportional): transitions are drawn with probability ``p ** alpha`` over
+the sum (:class:`.sum_tree.SumTree`), new ones at the largest priority seen, and after each
+update at their TD error's magnitude plus a small constant; a sample carries its importance
+weight ``(N * P(i)) ** -beta`` over the batch's largest, and its ``index`` for the update.
 """
 
 from __future__ import annotations
@@ -23,6 +34,8 @@ import numpy as np
 
 # Frame stacking is shared with policies that act without PyTorch (overtake.client.frames).
 from overtake.client.frames import Frames, FrameShapes, FrameStacker
+
+from .sum_tree import SumTree
 
 __all__ = ["FrameShapes", "FrameStacker", "Frames", "ReplayMemory"]
 
@@ -38,7 +51,15 @@ class ReplayMemory:
         stack: int,
         stacked: tuple[str, ...],
         seed: int | None = None,
+        *,
+        n_step: int = 1,
+        gamma: float = 0.99,
+        prioritized: bool = False,
+        priority_alpha: float = 0.6,
+        priority_eps: float = 1e-6,
     ) -> None:
+        if n_step < 1:
+            raise ValueError(f"n_step must be >= 1, got {n_step}")
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         per_env = capacity // num_envs
@@ -63,6 +84,11 @@ class ReplayMemory:
         self.pos = np.zeros(num_envs, dtype=np.int64)  # next slot to write, per env
         self.count = np.zeros(num_envs, dtype=np.int64)  # frames held, per env
         self.rng = np.random.default_rng(seed)
+        self.n_step, self.gamma = n_step, gamma
+        self.priority_alpha, self.priority_eps = priority_alpha, priority_eps
+        # Leaf env * per_env + slot: the transition that left that slot.
+        self.tree = SumTree(num_envs * per_env) if prioritized else None
+        self.max_priority = 1.0
 
     # --- writing --------------------------------------------------------------------------
 
@@ -75,6 +101,8 @@ class ReplayMemory:
         self.mask[envs, slots] = mask
         self.ep_step[envs, slots] = ep_step
         self.has_next[envs, slots] = False  # an overwritten slot's old transition is gone
+        if self.tree is not None:
+            self.tree.update(envs * self.per_env + slots, np.zeros(envs.size))
         self.pos[envs] = (slots + 1) % self.per_env
         self.count[envs] = np.minimum(self.count[envs] + 1, self.per_env)
 
@@ -104,6 +132,9 @@ class ReplayMemory:
         next_step = self.ep_step[envs, last] + 1
         self._write(envs, frames, mask, next_step)
         self.has_next[envs, last] = True
+        if self.tree is not None:
+            leaves = envs * self.per_env + last
+            self.tree.update(leaves, np.full(envs.size, self.max_priority**self.priority_alpha))
 
     def __len__(self) -> int:
         """Transitions held (those a sample may still draw are a few fewer)."""
@@ -123,20 +154,28 @@ class ReplayMemory:
         back = np.minimum(np.arange(self.stack - 1, -1, -1)[None, :], ep_step[:, None])
         return (slots[:, None] - back) % self.per_env
 
-    def sample(self, batch: int) -> dict[str, np.ndarray]:
-        """``batch`` transitions drawn uniformly: states and next states as stacks."""
+    def _draw(self, count: int) -> tuple[np.ndarray, np.ndarray]:
+        """``count`` (env, slot) pairs: uniformly over the transitions held, or in proportion
+        to their priorities."""
+        if self.tree is not None:
+            leaves = self.tree.sample(count, self.rng)
+            return leaves // self.per_env, leaves % self.per_env
+        weights = self.count / self.count.sum()
+        e = self.rng.choice(self.num_envs, size=count, p=weights)
+        oldest = (self.pos[e] - self.count[e]) % self.per_env
+        s = (oldest + (self.rng.random(count) * self.count[e]).astype(np.int64)) % self.per_env
+        return e, s
+
+    def sample(self, batch: int, beta: float = 1.0) -> dict[str, np.ndarray]:
+        """``batch`` transitions, states and next states as stacks (``beta``: the importance
+        weights' exponent, with prioritized replay)."""
         if len(self) == 0:
             raise RuntimeError("the replay holds no transitions yet")
         envs = np.empty(batch, dtype=np.int64)
         slots = np.empty(batch, dtype=np.int64)
-        weights = self.count / self.count.sum()
         missing = np.arange(batch)
         for _ in range(1000):
-            e = self.rng.choice(self.num_envs, size=missing.size, p=weights)
-            oldest = (self.pos[e] - self.count[e]) % self.per_env
-            s = (
-                oldest + (self.rng.random(missing.size) * self.count[e]).astype(np.int64)
-            ) % self.per_env
+            e, s = self._draw(missing.size)
             envs[missing], slots[missing] = e, s
             missing = missing[~self._valid(e, s)]
             if missing.size == 0:
@@ -144,15 +183,28 @@ class ReplayMemory:
         else:
             raise RuntimeError("could not draw valid transitions (the replay holds too few)")
         ep_step = self.ep_step[envs, slots]
-        nxt = (slots + 1) % self.per_env
         now_slots = self._stack_slots(slots, ep_step)
-        next_slots = self._stack_slots(nxt, ep_step + 1)
+        if self.n_step == 1:
+            last, steps = slots, np.ones(batch, dtype=np.int64)
+            reward = self.reward[envs, slots]
+            terminated = self.terminated[envs, slots]
+        else:
+            last, steps, reward, terminated = self._n_step(envs, slots)
+        nxt = (last + 1) % self.per_env
+        next_slots = self._stack_slots(nxt, self.ep_step[envs, last] + 1)
         out: dict[str, np.ndarray] = {
             "action": self.action[envs, slots],
-            "reward": self.reward[envs, slots],
-            "terminated": self.terminated[envs, slots],
+            "reward": reward,
+            "terminated": terminated,
+            "steps": steps,
             "next_mask": self.mask[envs, nxt],
         }
+        if self.tree is not None:
+            leaves = envs * self.per_env + slots
+            probability = self.tree.priorities[leaves] / self.tree.total
+            weight = (len(self) * probability) ** -beta
+            out["weight"] = (weight / weight.max()).astype(np.float32)
+            out["index"] = leaves
         rows = envs[:, None]
         for name, store in self.frames.items():
             if name in self.stacked:
@@ -162,6 +214,40 @@ class ReplayMemory:
                 out[name] = store[envs, slots]
                 out["next_" + name] = store[envs, nxt]
         return out
+
+    def _n_step(
+        self, envs: np.ndarray, slots: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """From each transition, up to ``n_step`` of its episode: the slot of the last one
+        taken, how many, their discounted reward sum (float32) and whether the last
+        terminated."""
+        slot, last = slots.copy(), slots.copy()
+        total = np.zeros(slots.size)
+        discount = np.ones(slots.size)
+        steps = np.zeros(slots.size, dtype=np.int64)
+        terminated = np.zeros(slots.size, dtype=bool)
+        live = np.ones(slots.size, dtype=bool)
+        for k in range(self.n_step):
+            total = np.where(live, total + discount * self.reward[envs, slot], total)
+            steps += live
+            last = np.where(live, slot, last)
+            ended = self.terminated[envs, slot]
+            terminated = np.where(live, ended, terminated)
+            discount = np.where(live, discount * self.gamma, discount)
+            following = (slot + 1) % self.per_env
+            # The window goes on only within the episode, to a transition already stored.
+            live &= ~ended & self.has_next[envs, following] & (k + 1 < self.n_step)
+            slot = np.where(live, following, slot)
+        return last, steps, total.astype(np.float32), terminated
+
+    def update_priorities(self, index: np.ndarray, td_error: np.ndarray) -> None:
+        """After an update: the sampled transitions' priorities from their TD errors."""
+        assert self.tree is not None, "update_priorities() on a replay without priorities"
+        priority = np.abs(np.asarray(td_error, dtype=np.float64)) + self.priority_eps
+        self.max_priority = max(self.max_priority, float(priority.max()))
+        # A transition overwritten since it was drawn keeps its 0.
+        held = self.tree.priorities[index] > 0.0
+        self.tree.update(index[held], priority[held] ** self.priority_alpha)
 
     # --- size and persistence -------------------------------------------------------------
 
@@ -206,6 +292,8 @@ class ReplayMemory:
             pos=self.pos,
             count=self.count,
         )
+        if self.tree is not None:
+            arrays.update(priority=self.tree.priorities, max_priority=np.array(self.max_priority))
         tmp = path.with_name(path.name + ".tmp")
         with open(tmp, "wb") as handle:
             np.savez(handle, **arrays)
@@ -228,6 +316,16 @@ class ReplayMemory:
                 "count",
             ):
                 _restore(getattr(self, name), data[name], name)
+            if self.tree is not None:
+                if "priority" not in data:
+                    raise ValueError(
+                        "saved replay has no priorities (saved without prioritized replay); "
+                        "this run samples by priority"
+                    )
+                priorities = np.zeros(self.tree.size)
+                _restore(priorities, data["priority"], "priorities")
+                self.tree.update(np.arange(self.tree.size), priorities)
+                self.max_priority = float(data["max_priority"])
 
 
 def _restore(target: np.ndarray, value: np.ndarray, what: str) -> None:

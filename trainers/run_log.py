@@ -40,6 +40,7 @@ class LogWindow:
         self.losses: list[float] = []
         self.q_taken: list[float] = []
         self.reward_sum = 0.0
+        self.shield_overrides = 0
         self.timings = Timings()
 
     def add_times(self, times: tuple[float, float, float, float, float]) -> None:
@@ -58,6 +59,7 @@ class LogWindow:
             "loss": float(np.mean(self.losses)) if self.losses else None,
             "q_taken": float(np.mean(self.q_taken)) if self.q_taken else None,
             "reward_sum": self.reward_sum,
+            "shield_overrides": self.shield_overrides,
             "steps_per_s": (step - self.start_step) / max(now - self.start_t, 1e-9),
             **self.timings.shares(),
         }

@@ -123,6 +123,10 @@ class TrainConfig:
     """CPU threads for PyTorch; None keeps PyTorch's default"""
     progress: bool = True
     """show a progress bar"""
+    shield: bool = False
+    """mask the actions a safety shield judges unsafe, from what the car observes (its LIDAR
+    and speed), when acting, exploring and in the target's max (overtake.client.shield: the
+    rule and its sources); evaluation, export and the ONNX driver use it where it was on"""
     dqn: DQNConfig = field(default_factory=DQNConfig)
     recording: RecordingConfig = field(
         default_factory=lambda: RecordingConfig(record_every=TRAINER_RECORD_EVERY)

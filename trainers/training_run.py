@@ -17,6 +17,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
+from overtake.client.commands import UsageError
+from overtake.client.shield import Shield, overridden
 from overtake.protocol import ACTION_COUNT
 from overtake.protocol.messages import BehaviourSpec
 from overtake.viz.recording import Recording, close_recording
@@ -102,6 +104,25 @@ class TrainingRun:
         self.in_flight: dict[int, tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]] = {}
         self.env_calls = 0  # envs.step, or with overlap send: one each, autoreset steps included
         self.unstored = 0  # transitions played past the budget, in its last step: not stored
+        # The safety shield (--shield), judging from what the cars observe (client/shield.py).
+        self.shield = self._make_shield() if config.shield else None
+        self.shield_overrides = 0
+
+    def _make_shield(self) -> Shield:
+        spec = self.env.behaviour_spec
+        if spec is None:
+            raise UsageError(
+                "--shield reads the environment's behaviour spec (its road, car and LIDAR); "
+                "this environment has none"
+            )
+        shield = Shield(spec)
+        missing = [name for name in ("lidar", "ego") if name not in self.stacker.observation()]
+        if missing:
+            raise UsageError(
+                f"--shield reads the stacked LIDAR scans and the ego vector; inputs "
+                f"{self.config.inputs} keep no {' or '.join(missing)}"
+            )
+        return shield
 
     def _build_learner(self) -> None:
         """The learner (seeded), its replay memory and frame stacker, and the random generator
@@ -115,7 +136,17 @@ class TrainingRun:
             config.algo, self.net_shape, config.inputs, dqn, config.device, config.precision
         )
         self.replay = ReplayMemory(
-            dqn.replay_size, config.num_envs, shapes, dqn.stack, stacked, seed=config.seed
+            dqn.replay_size,
+            config.num_envs,
+            shapes,
+            dqn.stack,
+            stacked,
+            seed=config.seed,
+            n_step=dqn.n_step,
+            gamma=dqn.gamma,
+            prioritized=dqn.prioritized,
+            priority_alpha=dqn.priority_alpha,
+            priority_eps=dqn.priority_eps,
         )
         self.stacker = FrameStacker(config.num_envs, shapes, dqn.stack, stacked)
         self.rng = np.random.default_rng(config.seed)
@@ -172,6 +203,8 @@ class TrainingRun:
             # which no server played).
             "env_steps_called": self.env_calls,
             "parts": self.env.count,
+            # Decisions where the shield forbade the network's greedy choice (with --shield).
+            "shield_overrides": self.shield_overrides if self.shield is not None else None,
             # The transitions the last step played beyond the budget (not stored or learned
             # from): steps + unstored is what the environments played in this run.
             "unstored": self.unstored,
@@ -223,8 +256,9 @@ class TrainingRun:
         self.obs = {k: np.array(v) for k, v in obs.items()}
         everyone = self.everyone = np.arange(self.config.num_envs)
         self.stacker.reset(everyone, self.obs)
-        self.replay.start(everyone, self.obs, info["action_mask"])
-        self.mask = np.array(info["action_mask"])
+        self.env_mask = np.array(info["action_mask"])
+        self.mask = self._shielded(everyone, self.env_mask)
+        self.replay.start(everyone, self.obs, self.mask)
         self.starting = np.zeros(self.config.num_envs, dtype=bool)
         self.started = time.perf_counter()
         self.window = LogWindow(self.step, self.started)
@@ -236,6 +270,7 @@ class TrainingRun:
         t0 = time.perf_counter()
         epsilon = self.dqn.epsilon(self.step)
         actions, q = self.learner.act(self.stacker.observation(), self.mask, epsilon, self.rng)
+        self._count_overrides(q, self.env_mask, self.mask)
         t1 = time.perf_counter()
         seen = self.obs
         self.env.label_step(self.step)
@@ -264,6 +299,7 @@ class TrainingRun:
         if self.env.count > 1:
             stacked = {k: v[rows] for k, v in stacked.items()}
         actions, q = self.learner.act(stacked, self.mask[rows], epsilon, self.rng)
+        self._count_overrides(q, self.env_mask[rows], self.mask[rows])
         t1 = time.perf_counter()
         self.env.label_step(self.step)
         seen = {k: v[rows].copy() for k, v in self.obs.items()} if part == 0 else {}
@@ -366,9 +402,9 @@ class TrainingRun:
         that reaches ``total_steps`` stores only what is left of it (the first environments'
         transitions), so that a run's step N is N stored transitions everywhere (its
         checkpoint, its metrics, the experiments' tables, resume); the rest are counted in
-        ``unstored`` and not learned from.
+        ``unstored`` and not learned from. With the shield, the masks stored (what the
+        target's max runs over) and acted on are the environment's and the shield's together.
         """
-        self.mask[envs] = mask
         starting = self.starting[envs]
         moving = np.flatnonzero(~starting)
         room = self.config.total_steps - self.step
@@ -379,9 +415,14 @@ class TrainingRun:
         taken[moving] = True
         fresh = np.flatnonzero(starting)
         if fresh.size:
+            self.stacker.reset(envs[fresh], {k: v[envs[fresh]] for k, v in self.obs.items()})
+        if moving.size:
+            self.stacker.push(envs[moving], {k: v[envs[moving]] for k, v in self.obs.items()})
+        self.env_mask[envs] = mask
+        mask = self.mask[envs] = self._shielded(envs, mask)
+        if fresh.size:
             ids = envs[fresh]
             sub = {k: v[ids] for k, v in self.obs.items()}
-            self.stacker.reset(ids, sub)
             self.replay.start(ids, sub, mask[fresh])
         if moving.size:
             ids = envs[moving]
@@ -389,10 +430,24 @@ class TrainingRun:
             self.replay.add(
                 ids, actions[moving], reward[moving], terminated[moving], sub, mask[moving]
             )
-            self.stacker.push(ids, sub)
             self.step += moving.size
             self.window.reward_sum += float(reward[moving].sum())
         return int(moving.size), taken
+
+    def _shielded(self, envs: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """The environments' action mask of ``envs``, with the shield's where it is on (it
+        judges from their stacked frames, which must already hold the newest)."""
+        if self.shield is None:
+            return mask
+        stacked = self.stacker.observation()
+        return mask & self.shield.mask(stacked["lidar"][envs], stacked["ego"][envs])
+
+    def _count_overrides(self, q: np.ndarray, env_mask: np.ndarray, mask: np.ndarray) -> None:
+        """Decisions where the shield forbade the network's greedy choice."""
+        if self.shield is not None:
+            count = int(overridden(q, env_mask, mask).sum())
+            self.window.shield_overrides += count
+            self.shield_overrides += count
 
     def _end_episodes(
         self,
@@ -430,7 +485,11 @@ class TrainingRun:
         while self.step >= self.next_update:
             self.next_update += self.dqn.train_every
             if len(self.replay) >= self.warm:
-                stats = self.learner.update(self.replay.sample(self.dqn.batch_size))
+                beta = self.dqn.priority_beta(self.step, self.config.total_steps)
+                batch = self.replay.sample(self.dqn.batch_size, beta=beta)
+                stats = self.learner.update(batch)
+                if "td_error" in stats:
+                    self.replay.update_priorities(batch["index"], stats["td_error"])
                 self.window.losses.append(stats["loss"])
                 self.window.q_taken.append(stats["q_taken"])
         if self.step >= self.next_sync:
@@ -452,9 +511,14 @@ class TrainingRun:
             "loss": averages.pop("loss"),
             "q_taken": averages.pop("q_taken"),
             "reward_sum": averages.pop("reward_sum"),
+            **(
+                {"shield_overrides": averages.pop("shield_overrides")}
+                if self.shield is not None
+                else {}
+            ),
             "steps_per_s": averages.pop("steps_per_s"),
             "replay": len(self.replay),
-            **averages,
+            **{k: v for k, v in averages.items() if k != "shield_overrides"},
         }
         self.log.write(entry)
         if self.view is not None:

@@ -266,10 +266,13 @@ def _run_plan(
         dqn = dataclasses.replace(dqn, network=row.network)
     if row.learning_rate is not None:
         dqn = dataclasses.replace(dqn, learning_rate=row.learning_rate)
+    if row.prioritized or row.n_step > 1:
+        dqn = dataclasses.replace(dqn, prioritized=row.prioritized, n_step=row.n_step)
     train = dataclasses.replace(
         base,
         algo=row.algo,
         inputs=row.inputs,
+        shield=row.shield,
         preset=experiment.preset,
         traffic=experiment.train_traffic,
         set=config.set,

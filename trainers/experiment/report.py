@@ -70,19 +70,24 @@ def markdown_table(result: dict[str, Any]) -> str:
             "",
             f"## {density.capitalize()} traffic",
             "",
-            "| policy | algorithm | inputs | training seeds | " + " | ".join(headings) + " |",
-            "|---|---|---|---:|" + "---:|" * len(headings),
+            "| policy | algorithm | inputs | training seeds | " + " | ".join(headings) + " | "
+            "options | shield overrides |",
+            "|---|---|---|---:|" + "---:|" * len(headings) + "---|---:|",
         ]
         for row in table["rows"]:
             cells = [_cell(row["summary"], m, d) for m, _, d in TABLE_COLUMNS]
+            overrides = row["summary"].get("shield_overrides")
             lines.append(
                 f"| {row['label']} | {ALGO_NAMES[row['algo']]} | {INPUT_NAMES[row['inputs']]} "
-                f"| {len(row['runs'])} | " + " | ".join(cells) + " |"
+                f"| {len(row['runs'])} | " + " | ".join(cells) + f" | {row.get('options', '-')} "
+                f"| {_cell(row['summary'], 'shield_overrides', 1) if overrides else '-'} |"
             )
         for reference in table["references"]:
             cells = [_cell(reference["summary"], m, d) for m, _, d in TABLE_COLUMNS]
             lines.append(
-                f"| {reference['policy']} | reference policy | - | - | " + " | ".join(cells) + " |"
+                f"| {reference['policy']} | reference policy | - | - | "
+                + " | ".join(cells)
+                + " | - | - |"
             )
         several = [row for row in table["rows"] if len(row["runs"]) > 1]
         if several:
@@ -349,6 +354,7 @@ class Outputs:
             "label": row.label,
             "algo": row.algo,
             "inputs": row.inputs,
+            "options": row.options,
             "summary": episode_statistics(pooled),
             "seeds": seed_statistics([run["summary"] for run in runs]),
             "runs": runs,

@@ -24,6 +24,8 @@ def episode_statistics(episodes: Sequence[dict[str, float]]) -> dict[str, Any]:
     table["collisions_per_1000_decisions"] = (
         1000.0 * table["collisions"] / np.maximum(table["decisions"], 1.0)
     )
+    if episodes and all("shield_overrides" in episode for episode in episodes):
+        table["shield_overrides"] = np.array([e["shield_overrides"] for e in episodes], float)
     stats: dict[str, Any] = {
         name: {"mean": float(values.mean()), "std": float(values.std())}
         for name, values in table.items()
