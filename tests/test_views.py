@@ -288,3 +288,24 @@ def test_layout_names_the_file_whose_arena_shape_it_cannot_read(tmp_path):
         LayoutError, match=r"bad.rrd: /world/s/arena3/shape is not an arena's shape"
     ):
         read_contents([bad])
+
+
+@needs_viewer
+@pytest.mark.timeout(240)
+def test_a_tab_pattern_draws_every_tab_it_names_each_to_its_own_file(tmp_path):
+    """``overtake-render --tabs "*"`` wrote ``render-.png`` once (the pattern's own empty
+    name); now each tab the pattern names is drawn to a file named by its title."""
+    from overtake.viz.render import RenderConfig
+    from overtake.viz.render import main as render
+
+    rrd = tmp_path / "world.rrd"
+    recording = open_recording(APPLICATION_ID, RecordingConfig(rrd=rrd, recording_id="tabs"), rrd)
+    view = WorldRecording(recording.stream, rays=False, with_training=True)
+    for round_ in range(3):
+        view.log(road_frame(round_, 3, 100 * round_))
+    recording.close()
+    written = render(RenderConfig(recordings=(rrd,), out=tmp_path / "demo.png", tabs=("*",)))
+    names = [path.name for path in written]
+    assert len(names) >= 2 and len(set(names)) == len(names), names
+    assert "demo-.png" not in names and "demo-compare.png" in names
+    assert all(path.is_file() and path.stat().st_size > 1000 for path in written)

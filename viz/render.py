@@ -198,20 +198,32 @@ def loaded_blueprint(client: Any, tabs: bool = True) -> Any:
         time.sleep(SETTLE_INTERVAL_S)  # loading happens in the viewer; nothing to wait on
 
 
+def tab_titles(client: Any, pattern: str) -> list[str]:
+    """The titles of the layout's tabs that ``pattern`` (a title or a shell pattern) names, in
+    the layout's order; RenderError naming the tabs where none matches."""
+    blueprint = loaded_blueprint(client).blueprint
+    titles = [
+        _title(blueprint, child)
+        for _, tabs in _tabs_containers(blueprint)
+        for child in tabs.get("contents", [])
+    ]
+    matching = [title for title in titles if fnmatch.fnmatchcase(title, pattern)]
+    if not matching:
+        raise RenderError(f"the layout has no tab titled {pattern!r}; its tabs: {titles}")
+    return matching
+
+
 def choose_tab(client: Any, title: str) -> None:
     """Make the tab titled ``title`` the active one in the recording's layout."""
     found = loaded_blueprint(client)
     blueprint = found.blueprint
-    titles: list[str] = []
     for _, tabs in _tabs_containers(blueprint):
         for child in tabs.get("contents", []):
-            name = _title(blueprint, child)
-            titles.append(name)
-            if fnmatch.fnmatchcase(name, title):
+            if _title(blueprint, child) == title:
                 tabs["active_tab"] = child
                 client.set_blueprint(blueprint, store_id=found.store_id)
                 return
-    raise RenderError(f"the layout has no tab titled {title!r}; its tabs: {titles}")
+    raise RenderError(f"the layout has no tab titled {title!r}")
 
 
 def _title(blueprint: dict[str, Any], child: str) -> str:
@@ -236,9 +248,10 @@ def main(config: RenderConfig) -> list[Path]:
         if not config.tabs and not config.views:
             settled_screenshot(client, config.out, not_before=quiet_from)
             return [config.out]
-        for tab in config.tabs:
-            choose_tab(client, tab)
-            path = _beside(config.out, tab)
+        # A pattern draws every tab it names, each to a file named by its own title.
+        for title in (t for pattern in config.tabs for t in tab_titles(client, pattern)):
+            choose_tab(client, title)
+            path = _beside(config.out, title)
             settled_screenshot(client, path, not_before=quiet_from)
             written.append(path)
         if config.views:
@@ -250,9 +263,10 @@ def main(config: RenderConfig) -> list[Path]:
                     raise RenderError(
                         f"the layout has no view titled {title!r}; its views: {sorted(views)}"
                     )
-                path = _beside(config.out, title)
-                settled_screenshot(client, path, view_id=views[found[0]], not_before=quiet_from)
-                written.append(path)
+                for name in found:
+                    path = _beside(config.out, name)
+                    settled_screenshot(client, path, view_id=views[name], not_before=quiet_from)
+                    written.append(path)
     return written
 
 
