@@ -29,13 +29,14 @@ from overtake.protocol.envs import (
     check_actions,
     check_render_mode,
 )
-from overtake.protocol.messages import BehaviourSpec
+from overtake.protocol.messages import BehaviourSpec, WorldFrame
 from overtake.protocol.vocabulary import ACTION_COUNT, METRIC_FIELDS
 
 from .sim import HighwaySim, SimConfig, StepResult, autoreset_round, make_config
 from .sim.planner import Planner
 from .sim.render import render_top_down
 from .spec import behaviour_spec
+from .world import world_frame
 
 try:  # Gymnasium >= 1.1 names the autoreset modes; 1.0 only has next-step autoreset.
     from gymnasium.vector import AutoresetMode
@@ -184,6 +185,33 @@ class HighwayVectorEnv(gym.vector.VectorEnv):
     def behaviour_spec(self) -> BehaviourSpec:
         """What an agent sees and drives, as a server describes its arenas (protocol 1.5)."""
         return behaviour_spec(self.sim)
+
+    def world_frame(
+        self,
+        index: int,
+        observations: dict[str, np.ndarray],
+        reward: float,
+        action_applied: int,
+        reward_terms: dict[str, float],
+        trainer_step: int = -1,
+    ) -> WorldFrame:
+        """Environment ``index``'s road now, as a spectator of a server would see it: its
+        trainer's recording draws it in-process (``observations`` its latest, unbatched;
+        the reward, action and terms of its last step)."""
+        names = self.sim.reward_terms
+        return world_frame(
+            self.sim,
+            index,
+            server="in-process",
+            group=0,
+            arena_id=index,
+            round_=int(self.sim.state.decisions[index]),
+            observations={name: np.asarray(value)[None] for name, value in observations.items()},
+            reward=np.array([reward]),
+            action_applied=np.array([action_applied]),
+            reward_terms=np.array([[reward_terms.get(name, 0.0) for name in names]]),
+            trainer_step=trainer_step,
+        )
 
     def _observations(self) -> dict[str, np.ndarray]:
         return {key: value[:, 0] for key, value in self.sim.observe().items()}

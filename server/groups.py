@@ -34,12 +34,12 @@ from overtake.protocol.messages import (
     WorldFrame,
 )
 from overtake.protocol.vocabulary import (
-    AGENT_KIND,
     DEFAULT_ACTION,
 )
 
 from .sim import PRESETS, ConfigError, HighwaySim, SimConfig, autoreset_round, make_config
 from .spec import behaviour_spec
+from .world import world_frame
 
 
 def resolve_config(preset: str, overrides: Mapping[str, Scalar]) -> SimConfig:
@@ -459,29 +459,16 @@ class Group:
     def world_frame(self, arena: int, observations: dict[str, np.ndarray]) -> WorldFrame:
         """Arena ``arena`` (an index in the group) as spectators and recordings see it: the
         simulator's snapshot of its road, with the agents' latest observations and rewards."""
-        world = self.sim.world_snapshot(arena)
-        return WorldFrame(
+        return world_frame(
+            self.sim,
+            arena,
             server=self.server,
             group=self.group_id,
-            arena=self.arena_ids[arena],
-            round=self.round,
-            sim_time_s=world.sim_time_s,
-            lane_count=world.lane_count,
-            lane_width_m=world.lane_width_m,
-            agent_kind=AGENT_KIND,
-            agent_active=world.agent_active,
-            x_m=world.x_m,
-            y_m=world.y_m,
-            speed_mps=world.speed_mps,
-            kind=world.kind,
-            active=world.active,
+            arena_id=self.arena_ids[arena],
+            round_=self.round,
             observations={name: value[arena] for name, value in observations.items()},
-            reward=self.last_reward[arena].astype(np.float64),
-            action_applied=self.last_applied[arena].astype(np.int64),
-            reward_terms=self.last_terms[arena].astype(np.float64),
-            reward_term_names=self.sim.reward_terms,
+            reward=self.last_reward[arena],
+            action_applied=self.last_applied[arena],
+            reward_terms=self.last_terms[arena],
             trainer_step=self.trainer_step,
-            half_length_m=world.half_length_m,
-            half_width_m=world.half_width_m,
-            agent_heading_rad=world.agent_heading_rad,
         )

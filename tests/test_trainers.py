@@ -1174,3 +1174,37 @@ def test_overlap_auto_leaves_a_core_for_the_server(monkeypatch):
     assert not replace(remote, connect=None, overlap="on").overlapped
     # Never more parts than environments.
     assert replace(remote, overlap="on", num_envs=1).parts == 1
+
+
+def test_an_in_process_run_draws_its_first_cars_road_in_its_recording(tmp_path):
+    """World frames leave only a server: in-process, the trainer draws environment 0's road
+    itself (every car on it), and its layout shows the road beside the car's view."""
+    import rerun as rr
+
+    from overtake.trainers.training_run import IN_PROCESS_ROAD
+
+    from remote_support import blueprint_texts
+
+    config = TrainConfig(
+        inputs="lidar",
+        num_envs=2,
+        total_steps=60,
+        run_dir=tmp_path / "run",
+        progress=False,
+        set=("episode.max_decisions=40",),
+        dqn=tiny_dqn(learning_starts=50),
+        recording=RecordingConfig(record_every=5),
+    )
+    train(config)
+    reader = rr.chunk.RrdReader(str(tmp_path / "run" / "trainer.rrd"))
+    cars = [
+        chunk.to_record_batch()
+        for chunk in reader.stream().to_chunks()
+        if chunk.entity_path == f"{IN_PROCESS_ROAD}/cars" and not chunk.is_static
+    ]
+    # A frame every 5th step of the vector env: 60 steps of 2 envs are 30 steps, 6 frames
+    # (and the same count of car views), each with the agent and the medium traffic's cars.
+    boxes = [len(row) for batch in cars for row in batch.column("Boxes2D:half_sizes").to_pylist()]
+    assert len(boxes) == 6 and all(count > 10 for count in boxes), boxes
+    texts = set().union(*(blueprint_texts(reader, store) for store in reader.blueprints()))
+    assert IN_PROCESS_ROAD in texts and "run: road (env 0 at 0 m, left up)" in texts

@@ -34,6 +34,9 @@ class EnvParts:
         """what an agent sees and drives; None for an environment of the caller's"""
         self.sim_config: dict[str, Any] | None = getattr(self._own, "sim_config", None)
         """the simulator's configuration, for the run record"""
+        self.world_frame = getattr(self._own, "world_frame", None)
+        """an in-process environment's road as a world frame, for the run's recording (a
+        remote one's roads reach a recording through a spectator); None where it has none"""
 
     @property
     def count(self) -> int:

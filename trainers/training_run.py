@@ -22,6 +22,7 @@ from overtake.client.shield import Shield, overridden
 from overtake.protocol import ACTION_COUNT
 from overtake.protocol.messages import BehaviourSpec
 from overtake.viz.recording import Recording, close_recording
+from overtake.viz.world_view import WorldRecording
 
 from .checkpoint import CHECKPOINT_NAME, REPLAY_NAME, Checkpoint, plain_data, save_checkpoint
 from .env_parts import EnvParts
@@ -35,6 +36,9 @@ from .visual import TrainingRecording, open_training_recording
 
 if TYPE_CHECKING:
     from .train import TrainConfig
+
+# Where an in-process run's recording draws environment 0's road (a world frame's entities).
+IN_PROCESS_ROAD = "/world/in-process/arena0/road"
 
 
 def _ego_fields(spec: BehaviourSpec | None) -> tuple[str, ...]:
@@ -57,6 +61,7 @@ class TrainingRun:
     log: MetricsLog
     recording: Recording | None
     view: TrainingRecording | None
+    world: WorldRecording | None
     bar: Any
     obs: dict[str, np.ndarray]
     mask: np.ndarray
@@ -240,6 +245,14 @@ class TrainingRun:
         self._life_file("run", ".json").write_text(json.dumps(record, indent=2, default=str))
 
     def _open_recording(self) -> None:
+        # In-process, the run draws environment 0's road itself (a server's roads reach a
+        # recording through a spectator).
+        spec = self.env.behaviour_spec
+        road = (
+            (IN_PROCESS_ROAD, spec.road.lane_count * spec.road.lane_width_m)
+            if self.env.world_frame is not None and spec is not None and spec.road is not None
+            else None
+        )
         self.recording, self.view = open_training_recording(
             self.config.recording,
             self._life_file("trainer", ".rrd"),
@@ -247,6 +260,12 @@ class TrainingRun:
             self.config.algo,
             _ego_fields(self.env.behaviour_spec),
             self.env.recorded_arenas(),
+            road,
+        )
+        self.world = (
+            WorldRecording(self.recording.stream, rays=False, lay_out=False)
+            if self.recording is not None and road is not None
+            else None
         )
 
     def _start_episodes(self) -> None:
@@ -381,6 +400,16 @@ class TrainingRun:
                 float(reward[0]),
                 terms,
             )
+            if self.world is not None and self.env.world_frame is not None:
+                frame = self.env.world_frame(
+                    0,
+                    {k: v[0] for k, v in self.obs.items()},
+                    float(reward[0]),
+                    int(info["action_applied"][0]) if "action_applied" in info else -1,
+                    terms,
+                    self.step,
+                )
+                self.world.log(frame)
         self.iteration += 1
 
     def _store(

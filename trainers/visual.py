@@ -169,14 +169,16 @@ def open_training_recording(
     algo: str,
     ego_fields: Sequence[str],
     arenas: tuple[str, tuple[int, ...]] | None,
+    road: tuple[str, float] | None = None,
 ) -> tuple[Recording | None, TrainingRecording | None]:
     """A training run's recording (to ``rrd`` with a file sink) and its view: coloured by
     algorithm (DQN, Double DQN and Dueling keep their colours in every recording that holds
     several runs), with the server's ``arenas`` environment 0 lies among (None in-process).
     No footer: a run may write for days, and the SDK would hold the footer's index in memory
-    until the end (overtake.viz.recording, on footers; bench/recording_memory.py)."""
+    until the end (overtake.viz.recording, on footers; bench/recording_memory.py). ``road``:
+    an in-process run's road (its entity path and width, m), drawn above its car's view."""
     recording = open_recording(
-        APPLICATION_ID, config, rrd, training_blueprint(run_name), footer=False
+        APPLICATION_ID, config, rrd, training_blueprint(run_name, road=road), footer=False
     )
     if recording is None:
         return None, None

@@ -57,10 +57,12 @@ class RenderConfig:
     out: Path = Path("render.png")
     """the PNG; with --tabs, one per tab: <stem>-<tab>.png beside it"""
     tabs: tuple[str, ...] = ()
-    """tabs of the layout to draw, by their titles or shell patterns of them ("demo arena *"),
-    the first that matches (default: the layout as it opens)"""
+    """tabs of the layout to draw, by their titles or shell patterns of them ("demo arena *"):
+    every tab a pattern matches, each to <stem>-<its title>.png (default: the layout as it
+    opens)"""
     views: tuple[str, ...] = ()
-    """single views to draw, by their titles or patterns (after the tabs): <stem>-<view>.png"""
+    """single views to draw, by their titles or patterns (after the tabs): every view a pattern
+    matches, each to <stem>-<its title>.png"""
     timeline_time: int | None = None
     """move the time cursor to this point of the layout's timeline (default: the end)"""
     width: int = 1600

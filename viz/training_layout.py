@@ -70,12 +70,29 @@ def key_curves_layout() -> Any:
     return rrb.Horizontal(*(_plot(title, section, series) for title, section, series in KEY_PLOTS))
 
 
-def car_layout(run: str) -> Any:
-    """What run ``run``'s first environment sees and does."""
+def car_layout(run: str, road: tuple[str, float] | None = None) -> Any:
+    """What run ``run``'s first environment sees and does; with ``road`` (the entity path of
+    its road and the road's width in metres: an in-process run's), the road from above on
+    top, the way a spectator's recording shows a server's arenas."""
     import rerun.blueprint as rrb
 
+    from .world_view import ROAD_AHEAD_M, ROAD_BEHIND_M
+
     root = f"/trainer/{run}/env0"
+    road_view = []
+    if road is not None:
+        origin, width_m = road
+        road_view.append(
+            rrb.Spatial2DView(
+                origin=origin,
+                name=f"{run}: road (env 0 at 0 m, left up)",
+                visual_bounds=rrb.VisualBounds2D(
+                    x_range=[-ROAD_BEHIND_M, ROAD_AHEAD_M], y_range=[-width_m - 1.0, 1.0]
+                ),
+            )
+        )
     return rrb.Vertical(
+        *road_view,
         rrb.Horizontal(
             rrb.Spatial2DView(origin=f"{root}/camera", name=f"{run}: camera"),
             rrb.Spatial2DView(origin=f"{root}/lidar", name=f"{run}: LIDAR (m, left up)"),
@@ -84,14 +101,19 @@ def car_layout(run: str) -> Any:
         rrb.TimeSeriesView(origin=f"{root}/q", name=f"{run}: Q-values"),
         rrb.TimeSeriesView(origin=f"{root}/reward", name=f"{run}: reward and its terms"),
         rrb.TimeSeriesView(origin=f"{root}/action", name=f"{run}: action"),
-        row_shares=[3, 1, 1, 1, 1],
+        row_shares=[2, 3, 1, 1, 1, 1] if road is not None else [3, 1, 1, 1, 1],
         name=f"{run}: env 0",
     )
 
 
-def training_blueprint(runs: str | Sequence[str], extra_tabs: Sequence[Any] = ()) -> Any:
+def training_blueprint(
+    runs: str | Sequence[str],
+    extra_tabs: Sequence[Any] = (),
+    road: tuple[str, float] | None = None,
+) -> Any:
     """One run's layout, or several runs' side by side: the curves (every run in each plot),
-    then each run's car view, as tabs. ``extra_tabs`` (for example the road's) follow."""
+    then each run's car view, as tabs. ``extra_tabs`` (for example the road's) follow; ``road``:
+    one in-process run's road (:func:`car_layout`)."""
     import rerun.blueprint as rrb
 
     names = [runs] if isinstance(runs, str) else list(runs)
@@ -100,7 +122,7 @@ def training_blueprint(runs: str | Sequence[str], extra_tabs: Sequence[Any] = ()
             curves_layout(names),
             rrb.Horizontal(*(car_layout(run) for run in names), name="cars")
             if len(names) > 1
-            else car_layout(names[0]),
+            else car_layout(names[0], road),
             *extra_tabs,
         ),
         rrb.TimePanel(timeline="step", state="collapsed"),

@@ -1,0 +1,57 @@
+"""An arena as spectators and recordings see it: a :class:`WorldFrame` of the simulator's
+snapshot of its road, with its agents' latest observations and rewards. The server's groups
+send them to spectators; an in-process environment gives them to its trainer's recording."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from overtake.protocol.messages import WorldFrame
+from overtake.protocol.vocabulary import AGENT_KIND
+
+from .sim import HighwaySim
+
+
+def world_frame(
+    sim: HighwaySim,
+    arena: int,
+    *,
+    server: str,
+    group: int,
+    arena_id: int,
+    round_: int,
+    observations: dict[str, np.ndarray],
+    reward: np.ndarray,
+    action_applied: np.ndarray,
+    reward_terms: np.ndarray,
+    trainer_step: int = -1,
+) -> WorldFrame:
+    """Arena ``arena`` of ``sim`` (``arena_id`` to the world); the per-agent arrays are its
+    agents' latest: observations (N, ...) by name, reward (N,), the action applied (N,) and
+    the reward terms (N, terms)."""
+    world = sim.world_snapshot(arena)
+    return WorldFrame(
+        server=server,
+        group=group,
+        arena=arena_id,
+        round=round_,
+        sim_time_s=world.sim_time_s,
+        lane_count=world.lane_count,
+        lane_width_m=world.lane_width_m,
+        agent_kind=AGENT_KIND,
+        agent_active=world.agent_active,
+        x_m=world.x_m,
+        y_m=world.y_m,
+        speed_mps=world.speed_mps,
+        kind=world.kind,
+        active=world.active,
+        observations=observations,
+        reward=np.asarray(reward, dtype=np.float64),
+        action_applied=np.asarray(action_applied, dtype=np.int64),
+        reward_terms=np.asarray(reward_terms, dtype=np.float64),
+        reward_term_names=sim.reward_terms,
+        trainer_step=trainer_step,
+        half_length_m=world.half_length_m,
+        half_width_m=world.half_width_m,
+        agent_heading_rad=world.agent_heading_rad,
+    )
