@@ -200,10 +200,16 @@ def _print_table(
     )
 
 
-def cli(argv: list[str] | None = None) -> None:
+def parse_args(argv: list[str] | None = None) -> DriveConfig:
+    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
+    ``cli`` runs, and what the documentation's checks parse its commands with."""
     import tyro
 
-    config = tyro.cli(DriveConfig, args=argv, config=(tyro.conf.OmitArgPrefixes,))
+    return tyro.cli(DriveConfig, args=argv, config=(tyro.conf.OmitArgPrefixes,))
+
+
+def cli(argv: list[str] | None = None) -> None:
+    config = parse_args(argv)
     run_command("overtake-drive", main, config)
 
 

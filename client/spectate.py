@@ -91,15 +91,21 @@ def main(config: SpectateConfig, stop: threading.Event | None = None) -> int:
     return logged
 
 
-def cli(argv: list[str] | None = None) -> None:
+def parse_args(argv: list[str] | None = None) -> SpectateConfig:
+    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
+    ``cli`` runs, and what the documentation's checks parse its commands with."""
     import tyro
 
-    config = tyro.cli(
+    return tyro.cli(
         SpectateConfig,
         args=argv,
         config=(tyro.conf.OmitArgPrefixes,),
         description="overtake-spectate: a running server's arenas in Rerun",
     )
+
+
+def cli(argv: list[str] | None = None) -> None:
+    config = parse_args(argv)
     stop = threading.Event()
 
     def on_signal(_signum: int, _frame: Any) -> None:

@@ -75,15 +75,21 @@ def main(config: StatusConfig) -> list[StatusReply]:
     return statuses
 
 
-def cli(argv: list[str] | None = None) -> None:
+def parse_args(argv: list[str] | None = None) -> StatusConfig:
+    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
+    ``cli`` runs, and what the documentation's checks parse its commands with."""
     import tyro
 
-    config = tyro.cli(
+    return tyro.cli(
         StatusConfig,
         args=argv,
         config=(tyro.conf.OmitArgPrefixes,),
         description="overtake-status: the simulator servers on the network and their arenas",
     )
+
+
+def cli(argv: list[str] | None = None) -> None:
+    config = parse_args(argv)
     statuses = run_command("overtake-status", main, config)
     if not statuses:
         sys.exit(1)

@@ -184,10 +184,15 @@ class Bridge:
         try:
             reply = self._exchange(message)
         except grpc.RpcError as error:
-            if error.code() == grpc.StatusCode.CANCELLED:
-                # ML-Agents' close() sends its goodbye (status 400) and stops its server with
-                # no grace: the call may be cancelled before the goodbye is read.
-                log.info("the ML-Agents process closed the environment (the call was cancelled)")
+            # ML-Agents' close() sends its goodbye (status 400) and stops its server with no
+            # grace: the call may be cancelled before the goodbye is read, or (mlagents-learn,
+            # closing after its export) end in the GOAWAY gRPC's server stop sends. A process
+            # that dies is neither: its connection is reset ("Socket closed").
+            stopped = error.code() == grpc.StatusCode.UNAVAILABLE and "Cancelling all calls" in (
+                error.details() or ""
+            )
+            if error.code() == grpc.StatusCode.CANCELLED or stopped:
+                log.info("the ML-Agents process closed the environment (its server stopped)")
                 return None
             raise PeerGone(
                 f"the ML-Agents process at {self.config.host}:{self.config.port} went away "
@@ -383,16 +388,22 @@ def _terminated(_signum: int, _frame: Any) -> None:
     raise BridgeError("terminated (SIGTERM)")
 
 
-def cli(argv: list[str] | None = None) -> None:
+def parse_args(argv: list[str] | None = None) -> BridgeConfig:
+    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
+    ``cli`` runs, and what the documentation's checks parse its commands with."""
     import tyro
 
-    config = tyro.cli(
+    return tyro.cli(
         BridgeConfig,
         args=argv,
         config=(tyro.conf.OmitArgPrefixes,),
         description="overtake-unity-bridge: ML-Agents' UnityEnvironment and mlagents-learn on "
         "an overtake server",
     )
+
+
+def cli(argv: list[str] | None = None) -> None:
+    config = parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     signal.signal(signal.SIGTERM, _terminated)
     summary = run_command("overtake-unity-bridge", main, config)

@@ -35,8 +35,10 @@ port=$(.venv/bin/python -c "import socket; s = socket.socket(); s.bind(('127.0.0
 .venv/bin/overtake-server --listen "tcp/127.0.0.1:$port" --name mlagents-learn \
   --log-level warning > "$out/server.log" 2>&1 &
 server=$!
-$venv/bin/mlagents-learn "$config" --run-id ppo-min2018 --force --results-dir "$out" \
-  --torch-device cpu > "$out/mlagents-learn.log" 2>&1 &
+# mlagents-learn through scripts/mlagents_learn.py: its closing ONNX export with PyTorch's
+# TorchScript-based exporter (the default one needs onnxscript, which needs numpy >= 2).
+$venv/bin/python scripts/mlagents_learn.py "$config" --run-id ppo-min2018 --force \
+  --results-dir "$out" --torch-device cpu > "$out/mlagents-learn.log" 2>&1 &
 learner=$!
 cleanup() { kill "$server" "$learner" 2> /dev/null || true; }
 trap cleanup EXIT
@@ -54,4 +56,22 @@ ls "$out"/ppo-min2018/*/*.pt
 if ((learn_status != 0)); then
   echo "mlagents-learn exited with $learn_status after training; its last lines:" >&2
   tail -3 "$out/mlagents-learn.log" >&2
+  exit "$learn_status"
 fi
+# The model mlagents-learn exported, loaded and run once in ONNX Runtime.
+.venv/bin/python - "$out"/ppo-min2018/*.onnx <<'PY'
+import sys
+
+import numpy as np
+import onnxruntime as ort
+
+session = ort.InferenceSession(sys.argv[1], providers=["CPUExecutionProvider"])
+feeds = {}
+for tensor in session.get_inputs():
+    shape = [1 if not isinstance(d, int) or d < 1 else d for d in tensor.shape]
+    kind = np.float32 if "float" in tensor.type else np.int64
+    feeds[tensor.name] = np.zeros(shape, dtype=kind)
+outputs = session.run(None, feeds)
+print(f"{sys.argv[1]}: {len(session.get_inputs())} inputs, {len(outputs)} outputs, "
+      "runs in ONNX Runtime")
+PY

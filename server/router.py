@@ -202,14 +202,21 @@ def main(config: RouterConfig, stop: threading.Event | None = None) -> None:
         log.info("router stopped")
 
 
-def cli() -> None:
+def parse_args(argv: list[str] | None = None) -> RouterConfig:
+    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
+    ``cli`` runs, and what the documentation's checks parse its commands with."""
     import tyro
 
-    config = tyro.cli(
+    return tyro.cli(
         RouterConfig,
+        args=argv,
         config=(tyro.conf.OmitArgPrefixes,),
         description="overtake-router: a Zenoh router (for hosts without zenohd)",
     )
+
+
+def cli(argv: list[str] | None = None) -> None:
+    config = parse_args(argv)
     stop = threading.Event()
 
     def on_signal(signum: int, _frame: Any) -> None:

@@ -476,14 +476,21 @@ def main(config: ServerConfig) -> None:
     server.serve()
 
 
-def cli() -> None:
+def parse_args(argv: list[str] | None = None) -> ServerConfig:
+    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
+    ``cli`` runs, and what the documentation's checks parse its commands with."""
     import tyro
 
-    config = tyro.cli(
+    return tyro.cli(
         ServerConfig,
+        args=argv,
         config=(tyro.conf.OmitArgPrefixes,),
         description="overtake-server: the highway simulator, served to trainers over Zenoh",
     )
+
+
+def cli(argv: list[str] | None = None) -> None:
+    config = parse_args(argv)
     try:
         main(config)
     except StartError as error:

@@ -456,6 +456,8 @@ def test_mlagents_learn_trains_ppo_through_the_bridge():
     assert "done after" in proc.stdout  # the bridge ended when mlagents-learn closed
     checkpoints = list((ROOT / "runs" / "mlagents-learn" / "ppo-min2018" / "min2018").glob("*.pt"))
     assert checkpoints, "no PyTorch checkpoint from mlagents-learn"
+    # mlagents-learn finished with its own ONNX export, which ONNX Runtime loads and runs.
+    assert "runs in ONNX Runtime" in proc.stdout
 
 
 def socket_taken(port: int) -> bool:

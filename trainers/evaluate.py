@@ -255,16 +255,22 @@ def main(config: EvalConfig) -> dict[str, Any]:
     return result
 
 
-def cli(argv: list[str] | None = None) -> None:
+def parse_args(argv: list[str] | None = None) -> EvalConfig:
+    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
+    ``cli`` runs, and what the documentation's checks parse its commands with."""
     import tyro
 
-    config = tyro.cli(
+    return tyro.cli(
         EvalConfig,
         args=argv,
         config=(tyro.conf.OmitArgPrefixes,),
         description="overtake-eval: the papers' metrics for a checkpoint or a "
         "baseline on fixed seeds",
     )
+
+
+def cli(argv: list[str] | None = None) -> None:
+    config = parse_args(argv)
     run_command("overtake-eval", main, config)
 
 

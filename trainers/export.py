@@ -261,13 +261,19 @@ def main(config: ExportConfig) -> dict[str, Any]:
     return report
 
 
-def cli(argv: list[str] | None = None) -> None:
-    config = tyro.cli(
+def parse_args(argv: list[str] | None = None) -> ExportConfig:
+    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
+    ``cli`` runs, and what the documentation's checks parse its commands with."""
+    return tyro.cli(
         ExportConfig,
         args=argv,
         config=(tyro.conf.OmitArgPrefixes,),
         description="overtake-export: a checkpoint's Q-network as ONNX, checked against PyTorch",
     )
+
+
+def cli(argv: list[str] | None = None) -> None:
+    config = parse_args(argv)
     run_command("overtake-export", main, config)
 
 

@@ -197,14 +197,20 @@ def main(config: LayoutConfig) -> Contents:
     return contents
 
 
-def cli(argv: list[str] | None = None) -> None:
+def parse_args(argv: list[str] | None = None) -> LayoutConfig:
+    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
+    ``cli`` runs, and what the documentation's checks parse its commands with."""
     import tyro
 
-    config = tyro.cli(
+    return tyro.cli(
         LayoutConfig,
         args=argv,
         description="overtake-layout: recordings of one run joined into one laid-out .rrd",
     )
+
+
+def cli(argv: list[str] | None = None) -> None:
+    config = parse_args(argv)
     try:
         contents = main(config)
     except LayoutError as error:

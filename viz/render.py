@@ -278,14 +278,20 @@ def _beside(out: Path, title: str) -> Path:
     return out.with_name(f"{out.stem}-{slug}{out.suffix}")
 
 
-def cli(argv: list[str] | None = None) -> None:
+def parse_args(argv: list[str] | None = None) -> RenderConfig:
+    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
+    ``cli`` runs, and what the documentation's checks parse its commands with."""
     import tyro
 
-    config = tyro.cli(
+    return tyro.cli(
         RenderConfig,
         args=argv,
         description="overtake-render: a recording's layout drawn to PNG by Rerun's viewer",
     )
+
+
+def cli(argv: list[str] | None = None) -> None:
+    config = parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     try:
         for path in main(config):

@@ -131,14 +131,20 @@ def _terminate(_signum: int, _frame: Any) -> None:
     raise KeyboardInterrupt
 
 
-def cli(argv: list[str] | None = None) -> None:
-    config = tyro.cli(
+def parse_args(argv: list[str] | None = None) -> ExperimentConfig:
+    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
+    ``cli`` runs, and what the documentation's checks parse its commands with."""
+    return tyro.cli(
         ExperimentConfig,
         args=argv,
         config=(tyro.conf.OmitArgPrefixes,),
         description="overtake-experiment: train, evaluate and tabulate a paper's table "
         "(resumable: run the same command again to continue)",
     )
+
+
+def cli(argv: list[str] | None = None) -> None:
+    config = parse_args(argv)
     # SIGTERM (a container stopping, `kill`) stops the children as Ctrl-C does.
     previous = signal.signal(signal.SIGTERM, _terminate)
     try:
