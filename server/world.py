@@ -46,9 +46,10 @@ def world_frame(
         kind=world.kind,
         active=world.active,
         observations=observations,
-        reward=np.asarray(reward, dtype=np.float64),
-        action_applied=np.asarray(action_applied, dtype=np.int64),
-        reward_terms=np.asarray(reward_terms, dtype=np.float64),
+        # Copies: the frame may be encoded or recorded after the caller's arrays move on.
+        reward=np.array(reward, dtype=np.float64),
+        action_applied=np.array(action_applied, dtype=np.int64),
+        reward_terms=np.array(reward_terms, dtype=np.float64),
         reward_term_names=sim.reward_terms,
         trainer_step=trainer_step,
         half_length_m=world.half_length_m,
