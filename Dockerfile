@@ -9,7 +9,7 @@
 #                                                         headers: docker/slim.sh)
 # The router itself is the official eclipse/zenoh image (see docker-compose.yml).
 #
-# Building offline or behind a proxy (README): three build arguments and one build secret.
+# Building offline or behind a proxy (docs/compose.md): three build arguments and one build secret.
 #   BASE_IMAGE       any Debian-like image with Python 3.11 and its venv module: python:3.11-slim
 #                    by default, or one made where no registry is reachable
 #                    (scripts/make-base-image.sh makes one from Debian's packages)

@@ -153,8 +153,8 @@ def start_topology(config: LoadConfig) -> tuple[str, list[subprocess.Popen[bytes
                 stderr=subprocess.DEVNULL,
             )
         )
-        # Listening nowhere ("--listen" with no endpoint), as the README's router recipe has
-        # it: everything goes through the router.
+        # Listening nowhere ("--listen" with no endpoint), as docs/remote-hosts.md's router
+        # recipe has it: everything goes through the router.
         listen = [("--listen", "--connect", endpoint)] * config.servers
     for name, where in zip(server_names(config.servers), listen, strict=True):
         procs.append(

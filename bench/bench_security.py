@@ -3,12 +3,12 @@ link plain, usrpwd, usrpwd with trainers isolated (Zenoh access control), TLS an
 
 Every mode runs the same topology on 127.0.0.1 (free ports): an ``overtake-router``
 subprocess with that mode's options, an ``overtake-server`` subprocess that listens nowhere and
-joins the router (the README's recipe), and this process as the trainer, stepping ``--arenas``
-arenas of ``--preset`` with seeded random actions. The modes are measured in rounds (each round
-runs every mode for ``--seconds`` in a rotating order, each on a fresh router and server), so
-drifts of the machine hit them alike. Reported per mode: step latency p50 / p99 and steps per
-second, and their ratio to the plain link's in the same run. Certificates come from
-``scripts/make-certs.sh``.
+joins the router (docs/remote-hosts.md's recipe), and this process as the trainer, stepping
+``--arenas`` arenas of ``--preset`` with seeded random actions. The modes are measured in
+rounds (each round runs every mode for ``--seconds`` in a rotating order, each on a fresh
+router and server), so drifts of the machine hit them alike. Reported per mode: step latency
+p50 / p99 and steps per second, and their ratio to the plain link's in the same run.
+Certificates come from ``scripts/make-certs.sh``.
 
     .venv/bin/python -m bench.bench_security [--seconds 20] [--rounds 3] [--arenas 1]
 """

@@ -181,7 +181,7 @@ def compose_command() -> list[str]:
 def engine_version() -> str:
     """The Docker engine's version; E2EFailure saying why when none answers."""
     if shutil.which("docker") is None:
-        raise E2EFailure("no `docker` command: install a Docker engine (README)")
+        raise E2EFailure("no `docker` command: install a Docker engine (docs/compose.md)")
     done = run(["docker", "info", "--format", "{{.ServerVersion}}"], check=False, timeout_s=30)
     if done.returncode != 0 or not done.stdout.strip():
         raise E2EFailure(f"no Docker engine answers: {done.stderr.strip()[-500:]}")

@@ -94,27 +94,27 @@ class StatusRequest(Message):
 class GroupStatus(Part):
     """One group of arenas: opened by one request, stepped together in one numpy pass."""
 
-    group: int
-    preset: str
-    arenas: tuple[int, ...]
-    agents_per_arena: int
-    trainers: tuple[str, ...]
-    rounds: int
-    rounds_per_s: float
-    agent_steps_per_s: float
-    late_agents: int
+    group: int  # the group's id on its server
+    preset: str  # the preset its arenas run
+    arenas: tuple[int, ...]  # its arena ids (server-wide)
+    agents_per_arena: int  # car slots per arena
+    trainers: tuple[str, ...]  # the trainers driving cars in it
+    rounds: int  # rounds stepped since it opened
+    rounds_per_s: float  # its recent rate of rounds
+    agent_steps_per_s: float  # rounds per second × its driven cars
+    late_agents: int  # agents given the default action at a deadline so far
 
 
 @dataclass(frozen=True, eq=False)
 class StatusReply(Message):
     TYPE: ClassVar[str] = "status"
-    server: str
-    package_version: str
-    max_arenas: int
-    arenas_used: int
-    step_deadline_s: float
-    uptime_s: float
-    groups: tuple[GroupStatus, ...]
+    server: str  # the server's name (its key expressions')
+    package_version: str  # overtake's version on the server
+    max_arenas: int  # arenas it may hold at once (--max-arenas)
+    arenas_used: int  # arenas open now
+    step_deadline_s: float  # how long a group waits for late trainers once one has acted
+    uptime_s: float  # seconds since the server started
+    groups: tuple[GroupStatus, ...]  # every open group
     queued_actions: int = field(default=0, metadata={"since": 4})
     """Actions frames received and not yet handled, over all trainers' keys."""
     queued_requests: int = field(default=0, metadata={"since": 4})
@@ -139,13 +139,14 @@ class OpenRequest(Message):
     """
 
     TYPE: ClassVar[str] = "open"
-    trainer: str
-    preset: str
+    trainer: str  # the trainer's name (its steps' key)
+    preset: str  # a preset the server knows (min2018, ho2018, fayjie2018)
+    # dotted field name -> value, checked against the preset's typed configuration
     overrides: dict[str, Scalar]
-    arenas: int
-    agents_per_arena: int
-    claim: int
-    seed: int | None
+    arenas: int  # how many arenas to open, stepped together as one group
+    agents_per_arena: int  # car slots per arena
+    claim: int  # the slots this trainer drives; the rest wait for JoinRequest
+    seed: int | None  # arena i is reset with seed + i; None: fresh entropy
 
     def check(self) -> None:
         check_name("trainer", self.trainer)
@@ -162,9 +163,9 @@ class JoinRequest(Message):
     """Claim ``agents`` free agent slots of an existing arena and drive them on its road."""
 
     TYPE: ClassVar[str] = "join"
-    trainer: str
-    arena: int
-    agents: int
+    trainer: str  # the joining trainer's name
+    arena: int  # the arena's id (server-wide)
+    agents: int  # free slots to claim
 
     def check(self) -> None:
         check_name("trainer", self.trainer)
@@ -185,9 +186,9 @@ class Steps(Message):
     """
 
     TYPE: ClassVar[str] = "steps"
-    server: str
-    group: int
-    round: int
+    server: str  # the server that stepped
+    group: int  # the group stepped
+    round: int  # the round these rows answer; the next Actions answer it
     agents: np.ndarray  # int32 (k,)
     observations: dict[str, np.ndarray]  # name -> (k, ...)
     reward: np.ndarray  # float64 (k,)
@@ -229,11 +230,11 @@ class Opened(Message):
     """Reply to open or join: where the agents are, the spec, and the first observations."""
 
     TYPE: ClassVar[str] = "opened"
-    server: str
-    group: int
+    server: str  # the server that opened (or holds) the group
+    group: int  # the group's id on that server
     arenas: tuple[int, ...]  # the group's arena ids (server-wide), by index in the group
     ticket: bytes  # proves later requests come from this trainer
-    spec: BehaviourSpec
+    spec: BehaviourSpec  # what the agents observe and do
     steps: Steps  # this trainer's agents and their current observations
     # The minor protocol version the server speaks; a server of 1.2 or older sends none (2).
     server_minor: int = field(default=2, metadata={"since": 3})
@@ -255,11 +256,11 @@ class ResetRequest(Message):
     """
 
     TYPE: ClassVar[str] = "reset"
-    trainer: str
-    ticket: bytes
-    group: int
-    arenas: tuple[int, ...]
-    seeds: tuple[int | None, ...]
+    trainer: str  # the trainer's name
+    ticket: bytes  # the ticket of the group's Opened
+    group: int  # the group's id
+    arenas: tuple[int, ...]  # indices in the group, distinct
+    seeds: tuple[int | None, ...]  # one per arena; None: fresh entropy
 
     def check(self) -> None:
         check_name("trainer", self.trainer)
@@ -279,10 +280,10 @@ class Actions(Message):
     """One trainer's actions for its agents in one group, answering step ``round``."""
 
     TYPE: ClassVar[str] = "actions"
-    trainer: str
-    ticket: bytes
-    group: int
-    round: int
+    trainer: str  # the trainer's name; must match the key it is put on
+    ticket: bytes  # the ticket of the group's Opened
+    group: int  # the group's id
+    round: int  # the Steps round these actions answer
     agents: np.ndarray  # int32 (k,), distinct
     actions: np.ndarray  # int64 (k,) in [0, ACTION_COUNT)
     # The trainer's count of environment steps when it chose these actions (-1: not given):
@@ -324,15 +325,15 @@ class CloseRequest(Message):
     """Leave a group: its arenas are freed, or this trainer's cars leave the shared ones."""
 
     TYPE: ClassVar[str] = "close"
-    trainer: str
-    ticket: bytes
-    group: int
+    trainer: str  # the trainer's name
+    ticket: bytes  # the ticket of the group's Opened
+    group: int  # the group's id
 
 
 @dataclass(frozen=True, eq=False)
 class Ack(Message):
     TYPE: ClassVar[str] = "ack"
-    message: str
+    message: str  # what was done
 
 
 @dataclass(frozen=True, eq=False)
@@ -345,9 +346,9 @@ class ErrorReply(Message):
     """
 
     TYPE: ClassVar[str] = "error"
-    code: str
-    message: str
-    group: int | None = None
+    code: str  # e.g. unknown_preset, bad_config, server_full, bad_action, server_busy
+    message: str  # what was expected and what came
+    group: int | None = None  # the group a refused Actions put was for; None for a request
 
 
 @dataclass(frozen=True, eq=False)
@@ -360,14 +361,14 @@ class WorldFrame(Message):
     """
 
     TYPE: ClassVar[str] = "world"
-    server: str
-    group: int
-    arena: int
-    round: int
-    sim_time_s: float
-    lane_count: int
-    lane_width_m: float
-    agent_kind: int
+    server: str  # the server stepping the arena
+    group: int  # the arena's group
+    arena: int  # the arena's id (server-wide)
+    round: int  # the group's round
+    sim_time_s: float  # simulated seconds since the arena's episode began
+    lane_count: int  # lanes of the road
+    lane_width_m: float  # width of each lane
+    agent_kind: int  # the kind value that marks an agent's car
     agent_active: np.ndarray  # bool (N,)
     x_m: np.ndarray  # float64 (V,)
     y_m: np.ndarray  # float64 (V,)
@@ -379,6 +380,7 @@ class WorldFrame(Message):
     action_applied: np.ndarray  # int64 (N,)
     # Since 1.1 (a 1.0 peer's frames decode with these defaults):
     reward_terms: np.ndarray | None = field(default=None, metadata={"since": 1})  # (N, terms)
+    # the names of reward_terms' columns
     reward_term_names: tuple[str, ...] = field(default=(), metadata={"since": 1})
     # The step count the arena's trainer sent with its last actions (-1: none sent one).
     trainer_step: int = field(default=-1, metadata={"since": 2})

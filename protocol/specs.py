@@ -27,10 +27,10 @@ class Reach(Part):
     behind), across it (to either side) and along its rays (range); 0 where it does not
     apply."""
 
-    ahead_m: float = 0.0
-    behind_m: float = 0.0
-    side_m: float = 0.0
-    range_m: float = 0.0
+    ahead_m: float = 0.0  # how far ahead of the car's centre along the road (a grid, a map)
+    behind_m: float = 0.0  # how far behind the car's centre along the road
+    side_m: float = 0.0  # how far to either side, across the road
+    range_m: float = 0.0  # how far along its rays (the LIDAR's range)
 
     def check(self) -> None:
         for name in ("ahead_m", "behind_m", "side_m", "range_m"):
@@ -43,8 +43,8 @@ class Reach(Part):
 class RoadSpec(Part):
     """The road the agents drive: its lanes."""
 
-    lane_count: int
-    lane_width_m: float
+    lane_count: int  # lanes, numbered from the right
+    lane_width_m: float  # each lane's width
 
     def check(self) -> None:
         check_range("lane count", self.lane_count, 1, 64)
@@ -56,10 +56,10 @@ class RoadSpec(Part):
 class CarSpec(Part):
     """An agent's car: its body and the speeds its actions move between."""
 
-    length_m: float
-    width_m: float
-    min_speed_kmh: float
-    max_speed_kmh: float
+    length_m: float  # bumper to bumper
+    width_m: float  # side to side
+    min_speed_kmh: float  # the lowest speed the speed actions set
+    max_speed_kmh: float  # the highest
 
     def check(self) -> None:
         if not (0.0 < self.length_m < 100.0 and 0.0 < self.width_m < 100.0):
@@ -81,12 +81,14 @@ class ObservationSpec(Part):
     and how far it sees (``reach``; None for what sees nothing of the road, as the action
     stack)."""
 
-    name: str
-    shape: tuple[int, ...]
-    dtype: str
-    low: np.ndarray
-    high: np.ndarray
+    name: str  # the observation's key (lidar, camera, ego, grid, ...)
+    shape: tuple[int, ...]  # one agent's shape
+    dtype: str  # a wire dtype
+    low: np.ndarray  # lower bounds, of shape and dtype
+    high: np.ndarray  # upper bounds, of shape and dtype
+    # names of the last axis' entries, where named
     columns: tuple[str, ...] = field(default=(), metadata={"since": 5})
+    # how far it sees; None: nothing of the road
     reach: Reach | None = field(default=None, metadata={"since": 5})
 
     def check(self) -> None:
@@ -116,20 +118,22 @@ class ObservationSpec(Part):
 class BehaviourSpec(Part):
     """Everything a client needs to rebuild the in-process spaces (ML-Agents' BehaviorSpec)."""
 
-    name: str
-    preset: str
-    observations: tuple[ObservationSpec, ...]
-    action_branches: tuple[int, ...]
-    action_names: tuple[str, ...]
-    reward_terms: tuple[str, ...]
-    metric_fields: tuple[str, ...]
-    decision_period_s: float
-    max_episode_steps: int
-    agents_per_arena: int
+    name: str  # the behaviour's name (ML-Agents' behavior name)
+    preset: str  # the preset the arenas run
+    observations: tuple[ObservationSpec, ...]  # what each agent observes, in order
+    action_branches: tuple[int, ...]  # one discrete branch of ACTION_COUNT actions
+    action_names: tuple[str, ...]  # the actions, in index order
+    reward_terms: tuple[str, ...]  # the reward's terms, in the order they are summed and reported
+    metric_fields: tuple[str, ...]  # the columns of Steps.metrics
+    decision_period_s: float  # simulated seconds per decision
+    max_episode_steps: int  # decisions before an episode is truncated
+    agents_per_arena: int  # car slots per arena
     config_json: str
     """the server's resolved configuration, a record (run records, checkpoints): what a
     consumer reads of it is in the typed fields"""
+    # lanes (None from a 1.4 server)
     road: RoadSpec | None = field(default=None, metadata={"since": 5})
+    # the agent's car (None from a 1.4 server)
     car: CarSpec | None = field(default=None, metadata={"since": 5})
 
     def check(self) -> None:

@@ -435,7 +435,7 @@ def warn_if_unguarded(
             "address can join this Zenoh network, drive the simulator and read "
             "everything on it. Listen on loopback only (tcp/127.0.0.1:PORT), or admit "
             "only known users (--credentials-file) or certificates (tls/ endpoints with "
-            '--tls-mtls); README, "Trainers on other hosts"',
+            "--tls-mtls); docs/remote-hosts.md",
             ", ".join(unguarded),
         )
     return unguarded

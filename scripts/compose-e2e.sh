@@ -3,7 +3,7 @@
 # this host needs it), brings the stack up, checks health, stepping, the viewer, restart and
 # resume, --scale, stop and down, and writes the figures to runs/compose-e2e/summary.json.
 # bench/compose_e2e.py says exactly what it checks; its options: --help.
-# Needs a running Docker engine (README, "Running it with docker compose"), and root where no
+# Needs a running Docker engine (docs/compose.md), and root where no
 # registry is reachable (the base image is then made with debootstrap).
 set -euo pipefail
 cd "$(dirname "$0")/.."

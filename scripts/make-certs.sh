@@ -10,7 +10,7 @@
 # DIR/client.pem, client.key      a client certificate, for mutual TLS (--tls-mtls)
 #
 # Elliptic-curve keys (P-256), valid for 365 days (OVERTAKE_CERT_DAYS). tests/test_deploy.py
-# runs this script; the README's "Trainers on other hosts" shows how the files are used.
+# runs this script; docs/remote-hosts.md shows how the files are used.
 set -euo pipefail
 
 if [[ $# -lt 1 ]]; then

@@ -160,7 +160,8 @@ def start_server(
     listen: bool = True,
 ) -> Background:
     """A simulator server that joins the network via ``router``; it listens on loopback only,
-    or (``listen=False``, the README's recipe) nowhere: reached only through the router."""
+    or (``listen=False``, docs/remote-hosts.md's recipe) nowhere: reached only through the
+    router."""
     endpoints = [f"tcp/{LOOPBACK}:{free_port()}"] if listen else []
     argv = [
         PY,
@@ -395,7 +396,7 @@ def test_usrpwd_router_admits_only_listed_users(tmp_path: Path, background):
         str(wrong_password),
     )
     # The server's password from a file, the trainer's from the environment: neither appears on
-    # a command line. The server listens nowhere (the README's recipe): nobody gets to it
+    # a command line. The server listens nowhere (docs/remote-hosts.md's recipe): nobody gets to it
     # without passing the router's check.
     server = start_server(
         background,
@@ -448,7 +449,7 @@ def test_usrpwd_router_admits_only_listed_users(tmp_path: Path, background):
 @pytest.fixture(scope="module")
 def certificates(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A CA, a router certificate for localhost and 127.0.0.1, and a client certificate, made
-    by the script the README tells users to run."""
+    by the script the documentation tells users to run."""
     where = tmp_path_factory.mktemp("certs")
     done = subprocess.run(
         ["bash", str(ROOT / "scripts" / "make-certs.sh"), str(where), "localhost", LOOPBACK],

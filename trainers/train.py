@@ -88,7 +88,7 @@ class TrainConfig:
     overlap: Literal["auto", "on", "off"] = "auto"
     """with --connect: "on" learns while the server simulates (each iteration sends a part's
     actions, learns, then takes the Steps of the part sent longest ago), in a fixed order
-    (deterministic for a seed, but not the lock-step run's transitions: README, "Overlap");
+    (deterministic for a seed, but not the lock-step run's transitions: docs/training.md, "Speed");
     "off" steps all arenas, then learns, as in-process training does; "auto" overlaps where
     this machine has a core beyond PyTorch's threads (on a machine without one the server's
     simulation and the update contend for the cores: measured slower, bench/RESULTS.md)"""

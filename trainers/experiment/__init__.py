@@ -47,7 +47,7 @@ from .catalogue import (
     Row,
     Schedule,
 )
-from .command import check_directory, cli, describe_experiments, main
+from .command import check_directory, cli, describe_experiments, main, parse_args
 from .files import LIVES_NAME, note_life, training_episodes, training_records, window_rewards
 from .plan import (
     ExperimentConfig,
@@ -91,6 +91,7 @@ __all__ = [
     "make_plan",
     "markdown_table",
     "note_life",
+    "parse_args",
     "reference_policies",
     "seed_order",
     "seed_statistics",
