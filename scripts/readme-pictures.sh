@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# The README's pictures, drawn by Rerun's own viewer (headless) from the demo's recording:
+# The pictures of the README and the documentation site, drawn by Rerun's own viewer
+# (headless) from the demo's recording:
 # runs scripts/demo.sh first when runs/demo/demo.rrd is missing (or with --fresh).
 # Writes docs/pictures/demo-*.png.
 set -euo pipefail
