@@ -46,7 +46,7 @@ class RecordingBenchConfig:
 
 
 def main(config: RecordingBenchConfig) -> dict[str, Any]:
-    from overtake.server.service import SERVER_RECORD_EVERY
+    from overtake.server.server_config import SERVER_RECORD_EVERY
     from overtake.trainers.train import TRAINER_RECORD_EVERY
     from overtake.viz.recording import RecordingConfig
 

@@ -25,10 +25,13 @@ from overtake.protocol.messages import (
     Actions,
     ErrorReply,
     Message,
+    ShmOffer,
     StatusReply,
     StatusRequest,
     Steps,
+    StepsInShm,
 )
+from overtake.protocol.shared_memory import Segment
 from overtake.protocol.transport import (
     DEFAULT_ENDPOINT,
     SecurityConfig,
@@ -36,6 +39,8 @@ from overtake.protocol.transport import (
     connect_failure_cause,
     open_session,
 )
+
+from .shared_steps import Transport, attach, steps_from_notice
 
 log = logging.getLogger("overtake.client")
 
@@ -73,6 +78,10 @@ class RemoteConfig:
     """A readable prefix for this trainer's id in server logs and status. Default: the usrpwd
     user, else "trainer". A router that isolates trainers (overtake-router
     --isolate-trainers) lets a user's session use only ids that begin with its user name."""
+    steps_transport: Transport = "auto"
+    """How Steps travel: ``auto`` through shared memory where the server is on this host (it
+    offers a segment and this trainer can map it), over Zenoh otherwise; ``shm`` shared memory
+    or a clear error; ``zenoh`` always over Zenoh."""
 
     @classmethod
     def from_connect(cls, connect: str | tuple[str, ...] | list[str] | None) -> RemoteConfig:
@@ -137,6 +146,10 @@ class Connection:
         # The (server, group) pairs this connection steps: anything else that arrives is
         # stale or foreign and is dropped.
         self._stepping: set[tuple[str, int]] = set()
+        # The shared-memory segments of the groups whose Steps come through one.
+        self._segments: dict[tuple[str, int], Segment] = {}
+        self.rounds_through_shm = 0
+        """Steps that came through a shared-memory segment (the rest came over Zenoh)."""
         self._servers_lost: set[str] = set()
         # Times each server's token disappeared: a group opened at one count is gone at the
         # next, even if a restarted server of the same name is back by the time we look.
@@ -361,7 +374,7 @@ class Connection:
     def _file(self, key: str, payload: bytes) -> None:
         sender = key.rsplit("/", 1)[-1]
         try:
-            message = codec.decode(payload, Steps)
+            message = codec.decode(payload, (Steps, StepsInShm))
         except errors.ProtocolError as error:
             self._drop("dropped an unreadable message from server %s: %s", sender, error)
             return
@@ -374,6 +387,7 @@ class Connection:
                 errors.error_from_code(message.code, f"server {sender}: {message.message}")
             )
             return
+        assert isinstance(message, (Steps, StepsInShm))
         if message.server != sender or (sender, message.group) not in self._stepping:
             self._drop(
                 "dropped steps of group %d from %s on server %s's key",
@@ -382,6 +396,18 @@ class Connection:
                 sender,
             )
             return
+        if isinstance(message, StepsInShm):
+            segment = self._segments.get((sender, message.group))
+            try:
+                if segment is None:
+                    raise errors.DecodeError(
+                        f"a shared-memory notice for group {message.group}, which has no segment"
+                    )
+                message = steps_from_notice(segment, message)
+                self.rounds_through_shm += 1
+            except errors.ProtocolError as error:
+                self._errors.setdefault((sender, message.group), deque()).append(error)
+                return
         self._buffered.setdefault((sender, message.group), deque()).append(message)
 
     def _drop(self, message: str, *args: Any) -> None:
@@ -399,11 +425,29 @@ class Connection:
         self._drop_logged_t, self._drops_unlogged = now, 0
 
     def track(self, server: str, group: int) -> None:
-        """Start accepting Steps and errors for ``group`` (after opening or joining it)."""
-        self.forget(server, group)
+        """Start accepting Steps and errors for ``group`` (after opening or joining it, or
+        again after a reset: what arrived before is stale). Its segment, if any, stays."""
+        self._buffered.pop((server, group), None)
+        self._errors.pop((server, group), None)
         self._stepping.add((server, group))
 
+    def attach_segment(self, server: str, group: int, offer: ShmOffer | None) -> bool:
+        """Map the segment ``server`` offered for ``group``; whether its Steps will come
+        through it (see :attr:`RemoteConfig.steps_transport`)."""
+        segment = attach(server, offer, self.config.steps_transport)
+        if segment is not None:
+            self._segments[(server, group)] = segment
+        return segment is not None
+
+    def _release_segment(self, server: str, group: int) -> None:
+        segment = self._segments.pop((server, group), None)
+        if segment is not None:
+            if self.server_lost(server):
+                segment.unlink()  # its server cannot any more
+            segment.close()
+
     def forget(self, server: str, group: int) -> None:
+        self._release_segment(server, group)
         self._stepping.discard((server, group))
         self._buffered.pop((server, group), None)
         self._errors.pop((server, group), None)
@@ -412,6 +456,8 @@ class Connection:
         if self.closed:
             return
         self.closed = True
+        for server, group in list(self._segments):
+            self._release_segment(server, group)
         # What went with the session already needs no undeclaring.
         declared: tuple[Any, ...] = (
             *self._publishers.values(),

@@ -28,6 +28,7 @@ from .episodes import (
     parse_overrides,
     run_episodes,
 )
+from .shared_steps import Transport
 
 
 @dataclass(frozen=True)
@@ -65,6 +66,9 @@ class DriveConfig:
     the simulator in this process"""
     security: SecurityConfig = field(default_factory=SecurityConfig)
     """usrpwd credentials and TLS certificates for --connect"""
+    transport: Transport = "auto"
+    """how a server's Steps reach this process (--connect): auto (shared memory where the
+    server is on this host, Zenoh otherwise), shm (shared memory or an error), zenoh"""
 
 
 def main(config: DriveConfig) -> dict[str, dict[str, float]]:
@@ -81,7 +85,14 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
         overrides["traffic.density"] = config.traffic
     if config.max_decisions is not None:
         overrides["episode.max_decisions"] = config.max_decisions
-    envs = make_vector_env(preset, overrides, config.episodes, config.connect, config.security)
+    envs = make_vector_env(
+        preset,
+        overrides,
+        config.episodes,
+        config.connect,
+        config.security,
+        transport=config.transport,
+    )
     clock = RealTime(period_s=envs.unwrapped.decision_period_s) if config.realtime else None
     try:
         if config.onnx is not None:

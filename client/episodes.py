@@ -34,6 +34,7 @@ from .drivers import (
     RuleDriver,
     RuleDriverConfig,
 )
+from .shared_steps import Transport
 
 Policy = Callable[[dict[str, np.ndarray], dict[str, Any], np.ndarray], np.ndarray]
 """``act(obs, info, starting)`` -> actions, for :func:`run_episodes`."""
@@ -61,10 +62,12 @@ def make_vector_env(
     connect: str | None,
     security: SecurityConfig | None = None,
     parts: int = 1,
+    transport: Transport = "auto",
 ) -> Any:
     """``num_envs`` arenas of ``preset`` as one vector environment: in this process, or on a
     simulator server reached at ``connect`` (with ``security``'s credentials and
-    certificates), there in ``parts`` groups (see ``RemoteHighwayVectorEnv``)."""
+    certificates), there in ``parts`` groups (see ``RemoteHighwayVectorEnv``), their Steps
+    through shared memory or Zenoh as ``transport`` says (``RemoteConfig.steps_transport``)."""
     register_environments()
     if connect is None:
         return gym.make_vec(
@@ -74,7 +77,9 @@ def make_vector_env(
             preset=preset,
             overrides=overrides,
         )
-    remote = RemoteConfig(connect=(connect,), security=security or SecurityConfig())
+    remote = RemoteConfig(
+        connect=(connect,), security=security or SecurityConfig(), steps_transport=transport
+    )
     return gym.make_vec(
         REMOTE_HIGHWAY_ENV_ID,
         num_envs=num_envs,

@@ -62,6 +62,8 @@ class ArenaGroup:
     epoch: int = 0  # the server's epoch (Connection.epoch) when the group was opened
     server_minor: int = 2
     """The server's minor protocol version (Opened.server_minor; a 1.2 server says none)."""
+    shm: bool = False
+    """Steps come through the server's shared-memory segment (protocol 1.6), not Zenoh."""
     trainer_step: int = -1
     """Sent with every Actions (-1: not given): the trainer's step count, which the server
     repeats in its world frames so that recordings of the road share the trainer's timeline."""
@@ -93,6 +95,7 @@ class ArenaGroup:
             if not reseed:
                 # After a restart the first episodes must not replay: fresh seeds.
                 request = dataclasses.replace(request, seed=None)
+            request = dataclasses.replace(request, shm=conn.config.steps_transport != "zenoh")
             last_error: errors.ProtocolError | None = None
             for server in conn.candidates(request.arenas):
                 try:
@@ -109,6 +112,11 @@ class ArenaGroup:
         self.server, self.group_id, self.arena_ids = opened.server, opened.group, opened.arenas
         conn.track(self.server, self.group_id)
         self.ticket, self.spec = opened.ticket, opened.spec
+        try:
+            self.shm = conn.attach_segment(self.server, self.group_id, opened.shm)
+        except errors.ConnectError:
+            self.close()  # transport shm and no segment: the arenas are not kept
+            raise
         self.server_minor = opened.server_minor
         self.round = opened.steps.round
         self.last = opened.steps
@@ -193,6 +201,7 @@ class ArenaGroup:
                         actions=np.asarray(actions, dtype=np.int64),
                         trainer_step=self.trainer_step,
                         retire=np.asarray(retire, dtype=np.int32) if len(retire) else None,
+                        shm=self.shm,
                     ),
                 )
         except errors.ServerLost as error:

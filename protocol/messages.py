@@ -40,6 +40,7 @@ from .records import (
     check_name,
     check_range,
 )
+from .shm_messages import ShmArray, ShmOffer, StepsInShm
 from .specs import BehaviourSpec, CarSpec, ObservationSpec, Reach, RoadSpec
 from .version import PROTOCOL_HISTORY, PROTOCOL_VERSION, TYPED_SPEC_SINCE_MINOR
 from .vocabulary import ACTION_COUNT, ACTION_NAMES
@@ -75,9 +76,12 @@ __all__ = [
     "ResetRequest",
     "RoadSpec",
     "Scalar",
+    "ShmArray",
+    "ShmOffer",
     "StatusReply",
     "StatusRequest",
     "Steps",
+    "StepsInShm",
     "WorldFrame",
     "check_array",
     "check_name",
@@ -147,6 +151,8 @@ class OpenRequest(Message):
     agents_per_arena: int  # car slots per arena
     claim: int  # the slots this trainer drives; the rest wait for JoinRequest
     seed: int | None  # arena i is reset with seed + i; None: fresh entropy
+    # The trainer can read Steps from a shared-memory segment (it may share the server's host).
+    shm: bool = field(default=False, metadata={"since": 6})
 
     def check(self) -> None:
         check_name("trainer", self.trainer)
@@ -238,6 +244,9 @@ class Opened(Message):
     steps: Steps  # this trainer's agents and their current observations
     # The minor protocol version the server speaks; a server of 1.2 or older sends none (2).
     server_minor: int = field(default=2, metadata={"since": 3})
+    # A segment this trainer may read its Steps from, when it asked (OpenRequest.shm) and the
+    # group is its alone; None: Steps come over Zenoh.
+    shm: ShmOffer | None = field(default=None, metadata={"since": 6})
 
     def check(self) -> None:
         check_name("server", self.server)
@@ -292,6 +301,9 @@ class Actions(Message):
     # int32 (m,), distinct, none of them in ``agents``: cars of this trainer that leave the
     # road before this round and stay off (not restarted) until their arena is reset.
     retire: np.ndarray | None = field(default=None, metadata={"since": 3})
+    # The trainer reads this group's Steps from the offered segment: send a StepsInShm notice
+    # instead of the Steps frame.
+    shm: bool = field(default=False, metadata={"since": 6})
 
     def check(self) -> None:
         check_name("trainer", self.trainer)
@@ -435,6 +447,7 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
         Opened,
         ResetRequest,
         Steps,
+        StepsInShm,
         Actions,
         CloseRequest,
         Ack,

@@ -4,7 +4,7 @@ ignores, and an older peer's messages decode with those fields at their defaults
 
 from __future__ import annotations
 
-PROTOCOL_VERSION: tuple[int, int] = (1, 5)
+PROTOCOL_VERSION: tuple[int, int] = (1, 6)
 PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
     (
         "1.0",
@@ -45,6 +45,15 @@ PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
         "vector's fields) and its reach (Reach: metres ahead, behind, to the side, range). "
         "config_json stays, a record of the server's configuration that no consumer reads. A "
         "1.4 server's spec decodes without them, and clients refuse it.",
+    ),
+    (
+        "1.6",
+        "Steps through shared memory for a trainer on the server's host: an OpenRequest may "
+        "say the trainer can read a segment (shm), the Opened offers one (ShmOffer: name, "
+        "nonce, size), and once the trainer's Actions say it reads it (shm), the server writes "
+        "each round's arrays there and sends a small StepsInShm notice instead of the Steps "
+        "frame. Older peers' messages decode with no offer and no request, and get Steps "
+        "frames as before.",
     ),
 )
 # The minor version whose spec carries the road, the car and the observations' facts.

@@ -11,13 +11,10 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import os
 import signal
-import socket
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
 from importlib import metadata
 from typing import Any
 
@@ -38,15 +35,12 @@ from overtake.protocol.messages import (
     StatusReply,
     StatusRequest,
 )
+from overtake.protocol.shared_memory import sweep_orphans
 from overtake.protocol.transport import (
-    DEFAULT_ENDPOINT,
-    SecurityConfig,
-    TransportConfig,
     open_session,
     warn_if_unconnected,
     warn_if_unguarded,
 )
-from overtake.viz.recording import RecordingConfig
 
 from .arenas import ArenaRegistry, next_to_step
 from .errors import StartError
@@ -62,65 +56,9 @@ from .inbox import (
 )
 from .outbox import Outbox
 from .recorder import ServerRecorder
+from .server_config import ServerConfig
 
 log = logging.getLogger("overtake.server")
-
-# With its sink on, a server logs every arena one round in this many: logging every round
-# costs trainers 20-30% of their steps per second, one in ten a few per cent (bench/RESULTS.md).
-SERVER_RECORD_EVERY = 10
-
-
-def default_server_name() -> str:
-    host = "".join(c if c.isalnum() or c in "-_." else "-" for c in socket.gethostname())
-    return f"sim-{host[:40] or 'host'}-{os.getpid()}"
-
-
-@dataclass(frozen=True)
-class ServerConfig:
-    """An ``overtake-server`` process."""
-
-    name: str = field(default_factory=default_server_name)
-    """Unique on the Zenoh network; it is part of every key this server serves."""
-    listen: tuple[str, ...] = (DEFAULT_ENDPOINT,)
-    """Endpoints to listen on. Loopback by default; ``tcp/0.0.0.0:7447`` lets other hosts in;
-    none (``--listen`` alone) when the server only joins a router through ``--connect``."""
-    connect: tuple[str, ...] = ()
-    """Zenoh routers (or peers) to connect to, e.g. ``tcp/router:7447``."""
-    max_arenas: int = 256
-    """Arenas this server holds at once; an open request beyond it is refused as full."""
-    max_arenas_per_trainer: int | None = None
-    """Arenas one trainer may hold here at once (opened or joined); beyond it an open or join
-    is refused as full, and the trainer's client tries the next server. Default: no limit
-    below --max-arenas. On a server others share, set it so that one trainer (or a stranger
-    who reached the port) cannot take all of it."""
-    step_deadline_s: float = 30.0
-    """How long a round waits for late trainers once another trainer of the group has acted.
-    Generous, since a learner may pause for network updates; late agents get the default
-    action (keep) and are reported as late."""
-    world_rate_hz: float = 10.0
-    """World frames per second per arena for spectators (0 turns them off)."""
-    lease_s: float = 3.0
-    """Trainers notice within this that this server's host vanished (a trainer's own lease,
-    RemoteConfig.lease_s, bounds how soon its arenas are freed when its host vanishes)."""
-    security: SecurityConfig = field(default_factory=SecurityConfig)
-    """usrpwd credentials (when connecting to a router that asks for them, and the users this
-    server admits) and TLS certificates (for tls/ endpoints)"""
-    log_level: str = "info"
-    recording: RecordingConfig = field(
-        default_factory=lambda: RecordingConfig(sink="off", record_every=SERVER_RECORD_EVERY)
-    )
-    """Rerun: this server logs every arena it steps itself (default off; spectators watch
-    without it), one round in --record-every. With --sink file the .rrd defaults to
-    runs/server/<name>.rrd."""
-
-    def transport(self) -> TransportConfig:
-        return TransportConfig(
-            mode="peer",
-            listen=self.listen,
-            connect=self.connect,
-            lease_s=self.lease_s,
-            security=self.security,
-        )
 
 
 def _package_version() -> str:
@@ -148,6 +86,10 @@ class SimulatorServer:
         self.arenas = ArenaRegistry(self.name, config.max_arenas, config.max_arenas_per_trainer)
         self._alive_trainers: set[str] = set()
         self.outbox = Outbox(self.session, self.name, config.world_rate_hz)
+        if config.shared_memory:
+            swept = sweep_orphans()
+            if swept:
+                log.info("removed %d segment(s) a dead process left in shared memory", len(swept))
         self._started = time.monotonic()
         self._declared: list[Any] = []
         self._declare()
@@ -235,6 +177,8 @@ class SimulatorServer:
             self._token.undeclare()
         if self._own_session and not self.session.is_closed():
             self.session.close()
+        if hasattr(self, "outbox"):
+            self.outbox.close()
         recorder = getattr(self, "recorder", None)
         if recorder is not None:
             recorder.close()
@@ -291,7 +235,8 @@ class SimulatorServer:
             return self.status()
         if isinstance(request, OpenRequest):
             self._require_alive(request.trainer)
-            return self.arenas.open(request, self._opened)
+            shm = request.shm and self.config.shared_memory
+            return self.arenas.open(request, lambda g, t: self._opened(g, t, shm=shm))
         if isinstance(request, JoinRequest):
             self._require_alive(request.trainer)
             return self.arenas.join(request, self._opened)
@@ -335,9 +280,10 @@ class SimulatorServer:
             )
         self._alive_trainers.add(trainer)
 
-    def _opened(self, group: Group, trainer: str) -> Opened:
+    def _opened(self, group: Group, trainer: str, shm: bool = False) -> Opened:
         self.outbox.open_for(trainer)
         member = group.members[trainer]
+        offer = self.outbox.offer_segment(group, trainer) if shm else None
         return Opened(
             server=self.name,
             group=group.group_id,
@@ -346,6 +292,7 @@ class SimulatorServer:
             spec=group.spec,
             steps=group.current_steps(trainer),
             server_minor=PROTOCOL_VERSION[1],
+            shm=offer,
         )
 
     # --- actions and rounds -----------------------------------------------------------------
@@ -370,6 +317,7 @@ class SimulatorServer:
                 )
                 return
             self.arenas.group(actions.group).accept(actions, self.config.step_deadline_s)
+            self.outbox.reads_shm(trainer, actions.group, actions.shm)
         except errors.StaleActions as error:
             log.debug("dropped late actions from %s: %s", trainer, error)
         except errors.WrongTicket as error:
@@ -391,7 +339,7 @@ class SimulatorServer:
         try:
             steps = group.step()
             for trainer, message in steps.items():
-                self.outbox.send(trainer, message)
+                self.outbox.send_steps(group, trainer, message)
             self.outbox.publish_world(group, time.monotonic())
             if self.recorder is not None and self.recorder.wants(group.round):
                 self._record(group)
@@ -445,6 +393,7 @@ class SimulatorServer:
         self.outbox.forget_trainer(trainer)
 
     def _leave(self, group: Group, trainer: str, why: str) -> None:
+        self.outbox.forget_member(group.group_id, trainer)
         if self.arenas.leave(group, trainer, why):
             self.outbox.forget_group(group)
 

@@ -133,8 +133,10 @@ class ServerProcess:
         world_rate_hz: float | None = None,
         extra: tuple[str, ...] = (),
         start_timeout_s: float = 20.0,
+        env: dict[str, str] | None = None,
     ) -> None:
         self.name = name
+        self.env = {**child_env(), **(env or {})}
         self.port = port if port is not None else free_port()
         self.endpoint = endpoint(self.port)
         self.connect = connect
@@ -167,7 +169,7 @@ class ServerProcess:
                 stdin=subprocess.DEVNULL,
                 stdout=log,
                 stderr=subprocess.STDOUT,
-                env=child_env(),
+                env=self.env,
                 cwd=HERE.parent,
             )
         finally:

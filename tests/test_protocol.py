@@ -49,11 +49,15 @@ from overtake.protocol.messages import (
     Reach,
     ResetRequest,
     RoadSpec,
+    ShmArray,
+    ShmOffer,
     StatusReply,
     StatusRequest,
     Steps,
+    StepsInShm,
     WorldFrame,
 )
+from overtake.protocol.shm_messages import STEPS_ARRAYS
 
 MAJOR, MINOR = PROTOCOL_VERSION
 
@@ -203,6 +207,7 @@ def open_requests(draw):
         agents_per_arena=agents,
         claim=draw(st.integers(1, agents)),
         seed=draw(st.none() | seeds),
+        shm=draw(st.booleans()),
     )
 
 
@@ -215,6 +220,37 @@ def opened_messages(draw):
         ticket=draw(st.binary(min_size=16, max_size=64)),
         spec=draw(behaviour_specs()),
         steps=draw(steps_messages()),
+        shm=draw(st.none() | shm_offers()),
+    )
+
+
+@st.composite
+def shm_offers(draw):
+    return ShmOffer(
+        name=draw(names),
+        nonce=draw(st.binary(min_size=16, max_size=16)),
+        size_bytes=draw(st.integers(64, messages.MAX_FRAME_BYTES)),
+    )
+
+
+@st.composite
+def steps_in_shm(draw):
+    fields = [*STEPS_ARRAYS, *(f"obs/{n}" for n in draw(st.lists(names, max_size=3, unique=True)))]
+    arrays = tuple(
+        ShmArray(
+            name=name,
+            offset=draw(st.integers(64, 2**20)),
+            dtype=draw(st.sampled_from(sorted(messages.WIRE_DTYPES))),
+            shape=tuple(draw(st.lists(st.integers(0, 100), max_size=4))),
+        )
+        for name in fields
+    )
+    return StepsInShm(
+        server=draw(names),
+        group=draw(ints),
+        round=draw(ints),
+        generation=draw(st.integers(2, 2**40)),
+        arrays=arrays,
     )
 
 
@@ -240,6 +276,7 @@ def actions_messages(draw):
         round=draw(ints),
         agents=draw(wire_array("int32", (k,), unique=True)),
         actions=draw(wire_array("int64", (k,), elements=st.integers(0, ACTION_COUNT - 1))),
+        shm=draw(st.booleans()),
     )
 
 
@@ -292,6 +329,7 @@ MESSAGES = {
     Opened.TYPE: opened_messages(),
     ResetRequest.TYPE: reset_requests(),
     Steps.TYPE: steps_messages(),
+    StepsInShm.TYPE: steps_in_shm(),
     Actions.TYPE: actions_messages(),
     CloseRequest.TYPE: st.builds(
         CloseRequest, trainer=names, ticket=st.binary(max_size=64), group=ints

@@ -25,6 +25,7 @@ from overtake.client.episodes import (
     parse_overrides,
     run_episodes,
 )
+from overtake.client.shared_steps import Transport
 from overtake.client.shield import Shield, ShieldedActing
 from overtake.protocol.transport import SecurityConfig
 
@@ -75,6 +76,9 @@ class EvalConfig:
     """a simulator server's (or router's) Zenoh endpoint; None runs the simulator in-process"""
     security: SecurityConfig = field(default_factory=SecurityConfig)
     """usrpwd credentials and TLS certificates for --connect"""
+    transport: Transport = "auto"
+    """how a server's Steps reach this process (--connect): auto (shared memory where the
+    server is on this host, Zenoh otherwise), shm (shared memory or an error), zenoh"""
     json_out: Path | None = None
     """also write the table (and every episode) as JSON here"""
     name: str | None = None
@@ -214,7 +218,14 @@ def main(config: EvalConfig) -> dict[str, Any]:
         overrides["episode.max_decisions"] = config.max_decisions
     if config.policy == "rule":
         overrides.pop("lidar.enabled", None)  # the rule-based driver reads the LIDAR
-    envs = make_vector_env(preset, overrides, config.episodes, config.connect, config.security)
+    envs = make_vector_env(
+        preset,
+        overrides,
+        config.episodes,
+        config.connect,
+        config.security,
+        transport=config.transport,
+    )
     try:
         if checkpoint is not None:
             shielded = (

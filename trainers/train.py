@@ -37,6 +37,7 @@ import torch
 
 from overtake.client.commands import UsageError, run_command
 from overtake.client.episodes import make_vector_env, parse_overrides
+from overtake.client.shared_steps import Transport
 from overtake.protocol.transport import SecurityConfig
 from overtake.viz.recording import (
     RecordingConfig,
@@ -83,6 +84,9 @@ class TrainConfig:
     """a simulator server's (or router's) Zenoh endpoint; None runs the simulator in-process"""
     security: SecurityConfig = field(default_factory=SecurityConfig)
     """usrpwd credentials and TLS certificates for --connect"""
+    transport: Transport = "auto"
+    """how a server's Steps reach this process (--connect): auto (shared memory where the
+    server is on this host, Zenoh otherwise), shm (shared memory or an error), zenoh"""
     num_envs: int = 1
     """environments (arenas) stepped together"""
     overlap: Literal["auto", "on", "off"] = "auto"
@@ -212,6 +216,7 @@ def main(
             config.connect,
             config.security,
             parts=config.parts,
+            transport=config.transport,
         )
     elif envs.num_envs != config.num_envs:
         raise ValueError(
