@@ -162,6 +162,14 @@ class ArenaRegistry:
                 return group_id
 
 
+def ready_to_step(groups: Iterable[Group], now: float, limit: int) -> list[Group]:
+    """Up to ``limit`` of the groups ready at ``now``, those stepped longest ago first: what a
+    server with ``limit`` stepping threads steps at once (``limit`` 1 is
+    :func:`next_to_step`)."""
+    ready = sorted((g for g in groups if g.ready(now)), key=lambda g: g.last_stepped)
+    return ready[:limit]
+
+
 def next_to_step(groups: Iterable[Group], now: float) -> Group | None:
     """Of the groups ready to step at ``now``, the one stepped longest ago (None: none is
     ready). The server steps one group at a time and handles what arrived between two, so a

@@ -43,6 +43,10 @@ class ServerConfig:
     action (keep) and are reported as late."""
     world_rate_hz: float = 10.0
     """World frames per second per arena for spectators (0 turns them off)."""
+    step_threads: int = 1
+    """Groups stepped at once, each on its own thread (the simulation's compiled loops release
+    the GIL), when several are ready: for a server with cores to spare beside its trainers.
+    1 steps one group at a time."""
     shared_memory: bool = True
     """Offer a trainer that asks (one on this host, --transport auto or shm) a shared-memory
     segment for its Steps; --no-shared-memory sends every Steps over Zenoh."""

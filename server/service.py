@@ -15,6 +15,7 @@ import signal
 import sys
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from importlib import metadata
 from typing import Any
 
@@ -42,7 +43,7 @@ from overtake.protocol.transport import (
     warn_if_unguarded,
 )
 
-from .arenas import ArenaRegistry, next_to_step
+from .arenas import ArenaRegistry, ready_to_step
 from .errors import StartError
 from .groups import Group
 from .inbox import (
@@ -73,6 +74,8 @@ class SimulatorServer:
 
     def __init__(self, config: ServerConfig, session: zenoh.Session | None = None) -> None:
         keys.server_request(config.name)  # checks the name
+        if config.step_threads < 1:
+            raise ValueError(f"step_threads must be >= 1, got {config.step_threads}")
         if config.max_arenas < 1:
             raise ValueError(f"max_arenas must be >= 1, got {config.max_arenas}")
         if config.step_deadline_s <= 0:
@@ -86,6 +89,9 @@ class SimulatorServer:
         self.arenas = ArenaRegistry(self.name, config.max_arenas, config.max_arenas_per_trainer)
         self._alive_trainers: set[str] = set()
         self.outbox = Outbox(self.session, self.name, config.world_rate_hz)
+        self._pool: ThreadPoolExecutor | None = None
+        self.parallel_passes = 0
+        """Passes that stepped several groups at once (on the stepping threads)."""
         if config.shared_memory:
             swept = sweep_orphans()
             if swept:
@@ -159,9 +165,11 @@ class SimulatorServer:
                     if arrived is None:
                         break
                     self._handle(arrived)
-                group = next_to_step(self.arenas.groups.values(), time.monotonic())
-                if group is not None:
-                    self._step_group(group)
+                ready = ready_to_step(
+                    self.arenas.groups.values(), time.monotonic(), self.config.step_threads
+                )
+                if ready:
+                    self._step_groups(ready)
                     continue
                 self._handle(self.inbox.take(self._next_timeout()) or WAKE)
         finally:
@@ -177,6 +185,10 @@ class SimulatorServer:
             self._token.undeclare()
         if self._own_session and not self.session.is_closed():
             self.session.close()
+        pool = getattr(self, "_pool", None)
+        if pool is not None:
+            pool.shutdown()
+            log.info("stepped several groups at once in %d pass(es)", self.parallel_passes)
         if hasattr(self, "outbox"):
             self.outbox.close()
         recorder = getattr(self, "recorder", None)
@@ -334,10 +346,32 @@ class SimulatorServer:
             group = actions.group if isinstance(actions, Actions) else None
             self.outbox.send(trainer, ErrorReply(code=error.code, message=str(error), group=group))
 
-    def _step_group(self, group: Group) -> None:
-        """Step one group, send each member its observations, publish and record it."""
+    def _step_groups(self, groups: list[Group]) -> None:
+        """Step ``groups`` (on the stepping threads where there are several; nothing else
+        touches them meanwhile: this thread waits), then deliver each group's round."""
+        if len(groups) == 1:
+            self._step_group(groups[0])
+            return
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(self.config.step_threads, "overtake-step")
+        self.parallel_passes += 1
+        stepped = list(self._pool.map(_step_caught, groups))
+        for group, (steps, error) in zip(groups, stepped, strict=True):
+            self._step_group(group, steps, error)
+
+    def _step_group(
+        self,
+        group: Group,
+        steps: dict[str, Message] | None = None,
+        error: Exception | None = None,
+    ) -> None:
+        """Step one group (unless a stepping thread did: ``steps`` or ``error``), send each
+        member its observations, publish and record it."""
         try:
-            steps = group.step()
+            if error is not None:
+                raise error
+            if steps is None:
+                steps = dict(group.step())
             for trainer, message in steps.items():
                 self.outbox.send_steps(group, trainer, message)
             self.outbox.publish_world(group, time.monotonic())
@@ -396,6 +430,15 @@ class SimulatorServer:
         self.outbox.forget_member(group.group_id, trainer)
         if self.arenas.leave(group, trainer, why):
             self.outbox.forget_group(group)
+
+
+def _step_caught(group: Group) -> tuple[dict[str, Message] | None, Exception | None]:
+    """``group.step()`` on a stepping thread; a failure comes back to the loop's thread, where
+    it closes that group as a failure of a step there does."""
+    try:
+        return dict(group.step()), None
+    except Exception as error:
+        return None, error
 
 
 def main(config: ServerConfig) -> None:

@@ -10,6 +10,7 @@ world without slowing anyone down.
 from __future__ import annotations
 
 import gc
+import re
 import sys
 import threading
 import time
@@ -187,10 +188,12 @@ def test_remote_vector_env_is_bit_identical_to_in_process_vector_env(start_serve
 
 
 @pytest.mark.timeout(90)
-def test_vector_env_in_parts_is_the_same_env_stepped_part_by_part(start_server):
+@pytest.mark.parametrize("step_threads", [1, 2])
+def test_vector_env_in_parts_is_the_same_env_stepped_part_by_part(start_server, step_threads):
     """parts=2: two groups on the server; reset with a seed and given the same actions, step()
-    and every order of send / recv return exactly the one-group environment's values."""
-    server = start_server("e2e-parts")
+    and every order of send / recv return exactly the one-group environment's values, whether
+    the server steps one group at a time or ready groups at once on two threads."""
+    server = start_server("e2e-parts", extra=("--step-threads", str(step_threads)))
     n = 5  # parts of 3 and 2 environments
     make = lambda parts: gym.make_vec(  # noqa: E731
         REMOTE_HIGHWAY_ENV_ID,
@@ -247,6 +250,13 @@ def test_vector_env_in_parts_is_the_same_env_stepped_part_by_part(start_server):
     finally:
         whole.close()
         split.close()
+    server.stop()
+    passes = re.search(r"stepped several groups at once in (\d+) pass", server.log_text())
+    if step_threads == 1:
+        assert passes is None
+    else:
+        # The two parts' actions go out back to back: their groups were stepped together.
+        assert passes is not None and int(passes.group(1)) > 0, server.log_text()[-2000:]
     with pytest.raises(ValueError, match="parts must be between 1 and the 2 arena"):
         gym.make_vec(
             REMOTE_HIGHWAY_ENV_ID,
