@@ -624,3 +624,49 @@ def test_a_server_of_protocol_1_4_is_refused_and_its_arenas_freed(start_server, 
             remote=remote_config(server.endpoint, server.name),
         )
     assert server.status().arenas_used == 0
+
+
+@pytest.mark.timeout(60)
+def test_a_group_that_fails_on_a_stepping_thread_closes_alone():
+    """Two groups stepped at once on the server's threads; one's step raises: its trainer is
+    told the group closed after an internal error, the other group and the server go on."""
+    from overtake.server.server_config import ServerConfig
+    from overtake.server.service import SimulatorServer
+
+    server = SimulatorServer(
+        ServerConfig(name="e2e-fail", listen=(endpoint(free_port()),), step_threads=2)
+    )
+    serving = threading.Thread(target=server.serve, daemon=True)
+    serving.start()
+    envs = gym.make_vec(
+        REMOTE_HIGHWAY_ENV_ID,
+        num_envs=4,
+        vectorization_mode="vector_entry_point",
+        remote=remote_config(server.config.listen[0], "e2e-fail"),
+        overrides=SHORT,
+        parts=2,
+    )
+    try:
+        envs.reset(seed=1)
+        env = envs.unwrapped
+        doomed_id = env.groups[0].group_id
+
+        def broken_step():
+            raise RuntimeError("a bug in the simulation")
+
+        server.arenas.group(doomed_id).step = broken_step
+        for part in (0, 1):
+            env.send(part, np.ones(2, dtype=np.int64))
+        with pytest.raises(errors.ProtocolError, match="internal error: RuntimeError: a bug"):
+            env.recv(0)
+        env.recv(1)  # the other group stepped
+        for _ in range(3):
+            env.send(1, np.ones(2, dtype=np.int64))
+            env.recv(1)
+        assert doomed_id not in server.arenas.groups
+        assert server.parallel_passes >= 1
+    finally:
+        envs.close()
+        server.stop()
+        serving.join(10)
+    assert not serving.is_alive()
