@@ -1181,7 +1181,7 @@ def test_an_in_process_run_draws_its_first_cars_road_in_its_recording(tmp_path):
     itself (every car on it), and its layout shows the road beside the car's view."""
     import rerun as rr
 
-    from overtake.trainers.training_run import IN_PROCESS_ROAD
+    from overtake.trainers.run_recording import IN_PROCESS_ROAD
 
     from remote_support import blueprint_texts
 

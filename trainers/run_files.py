@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import platform
 import subprocess
+import time
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -54,3 +55,15 @@ class MetricsLog:
 
     def close(self) -> None:
         self.handle.close()
+
+
+def run_record(**facts: Any) -> dict[str, Any]:
+    """run.json's contents: the run's ``facts`` (its configuration, algorithm, overrides,
+    spaces, network, seed, resumes, replay size), with where and from what code it runs."""
+    return {
+        **facts,
+        "versions": package_versions(),
+        "commit": git_commit(),
+        "host": platform.node(),
+        "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+    }

@@ -1,14 +1,12 @@
-"""One life of a training run (its start or one resume) in its run directory: the learner,
-the replay and the frame stacker, the loop that steps the environments until ``total_steps``
-transitions are stored, lock-step or overlapped with the server's simulation, and the run's
-files (run.json, metrics.jsonl, the Rerun recording, the checkpoints). ``overtake-train``
+"""One life of a training run (its start or one resume): the learner, the replay and the
+frame stacker, the loop that steps the environments until ``total_steps`` transitions are
+stored (lock-step or overlapped with the server), and the run's files. ``overtake-train``
 (:mod:`.train`) builds it from its configuration."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import platform
 import threading
 import time
 from pathlib import Path
@@ -17,12 +15,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from overtake.client.commands import UsageError
-from overtake.client.shield import Shield, overridden
 from overtake.protocol import ACTION_COUNT
-from overtake.protocol.messages import BehaviourSpec
-from overtake.viz.recording import Recording, close_recording
-from overtake.viz.world_view import WorldRecording
 
 from .checkpoint import CHECKPOINT_NAME, REPLAY_NAME, Checkpoint, plain_data, save_checkpoint
 from .env_parts import EnvParts
@@ -30,21 +23,13 @@ from .learner import ALGOS, DQNLearner, network_shape
 from .network import INPUT_SENSORS
 from .observations import describe_space, frame_shapes
 from .replay import FrameStacker, ReplayMemory
-from .run_files import MetricsLog, git_commit, package_versions
+from .run_files import MetricsLog, run_record
 from .run_log import LogWindow, progress_bar
-from .visual import TrainingRecording, open_training_recording
+from .run_recording import RunRecording
+from .shielding import TrainingShield
 
 if TYPE_CHECKING:
     from .train import TrainConfig
-
-# Where an in-process run's recording draws environment 0's road (a world frame's entities).
-IN_PROCESS_ROAD = "/world/in-process/arena0/road"
-
-
-def _ego_fields(spec: BehaviourSpec | None) -> tuple[str, ...]:
-    """The fields of the ego vector observation, in order, from the environment's behaviour
-    spec (none where it has no ego vector, or no spec: an environment of the caller's)."""
-    return spec.observation("ego").columns if spec is not None and spec.has("ego") else ()
 
 
 class TrainingRun:
@@ -59,9 +44,7 @@ class TrainingRun:
     # and action mask, the environments whose next step is their autoreset, the clock, and
     # what the next training log line averages.
     log: MetricsLog
-    recording: Recording | None
-    view: TrainingRecording | None
-    world: WorldRecording | None
+    recording: RunRecording | None
     bar: Any
     obs: dict[str, np.ndarray]
     mask: np.ndarray
@@ -110,24 +93,11 @@ class TrainingRun:
         self.env_calls = 0  # envs.step, or with overlap send: one each, autoreset steps included
         self.unstored = 0  # transitions played past the budget, in its last step: not stored
         # The safety shield (--shield), judging from what the cars observe (client/shield.py).
-        self.shield = self._make_shield() if config.shield else None
-        self.shield_overrides = 0
-
-    def _make_shield(self) -> Shield:
-        spec = self.env.behaviour_spec
-        if spec is None:
-            raise UsageError(
-                "--shield reads the environment's behaviour spec (its road, car and LIDAR); "
-                "this environment has none"
-            )
-        shield = Shield(spec)
-        missing = [name for name in ("lidar", "ego") if name not in self.stacker.observation()]
-        if missing:
-            raise UsageError(
-                f"--shield reads the stacked LIDAR scans and the ego vector; inputs "
-                f"{self.config.inputs} keep no {' or '.join(missing)}"
-            )
-        return shield
+        self.shield = (
+            TrainingShield(self.env.behaviour_spec, self.stacker, config.inputs)
+            if config.shield
+            else None
+        )
 
     def _build_learner(self) -> None:
         """The learner (seeded), its replay memory and frame stacker, and the random generator
@@ -182,7 +152,13 @@ class TrainingRun:
         self.log = MetricsLog(self.run_dir / "metrics.jsonl")
         self.recording, self.bar = None, None
         try:
-            self._open_recording()
+            self.recording = RunRecording.open(
+                self.config.recording,
+                self._life_file("trainer", ".rrd"),
+                self.run_dir.name or "run",
+                self.config.algo,
+                self.env,
+            )
             self._start_episodes()
             iteration = self._part_iteration if self.config.overlapped else self._iteration
             while self.step < self.config.total_steps and not self.stop.is_set():
@@ -197,21 +173,19 @@ class TrainingRun:
             if self.bar is not None:
                 self.bar.close()
             self.log.close()
-            close_recording(self.recording)
+            if self.recording is not None:
+                self.recording.close()
         return {
             "run_dir": str(self.run_dir),
             "steps": self.step,
             "resumed_at_step": self.resumed_at_step,
-            # Calls of envs.step in this life (with overlap: of send, one part each), autoreset
-            # steps included: on a server, the rounds it played for this trainer's groups,
-            # plus two per server loss (the truncated step and the reopened arenas' first,
-            # which no server played).
+            # Calls of envs.step (with overlap: of send, a part each) in this life, autoreset
+            # steps included: a server's rounds for this trainer, plus two per server loss.
             "env_steps_called": self.env_calls,
             "parts": self.env.count,
             # Decisions where the shield forbade the network's greedy choice (with --shield).
-            "shield_overrides": self.shield_overrides if self.shield is not None else None,
-            # The transitions the last step played beyond the budget (not stored or learned
-            # from): steps + unstored is what the environments played in this run.
+            "shield_overrides": self.shield.overrides if self.shield is not None else None,
+            # Transitions played beyond the budget in the last step (not stored nor learned).
             "unstored": self.unstored,
             **self.env.remote_facts(),
             "episodes": self.episodes,
@@ -222,51 +196,22 @@ class TrainingRun:
 
     def _write_run_record(self) -> None:
         """run.json (run-resume-N.json): what this life of the run is, to reproduce it."""
-        config = self.config
-        double, dueling = ALGOS[config.algo]
-        record = {
-            "config": plain_data(config),
-            "algo": {"name": config.algo, "double": double, "dueling": dueling},
-            "overrides": self.overrides,
-            "sim_config": self.env.sim_config,
-            "observation_space": self.space_description,
-            "network": dataclasses.asdict(self.net_shape),
-            "versions": package_versions(),
-            "commit": git_commit(),
-            "seed": config.seed,
-            "resumes": self.resumes,
-            "resumed_at_step": self.resumed_at_step,
-            "trainer": self.env.remote_facts().get("trainer"),
-            "host": platform.node(),
-            "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-            "replay_bytes": self.replay.nbytes,
-            "replay_naive_bytes": self.replay.naive_nbytes(),
-        }
+        double, dueling = ALGOS[self.config.algo]
+        record = run_record(
+            config=plain_data(self.config),
+            algo={"name": self.config.algo, "double": double, "dueling": dueling},
+            overrides=self.overrides,
+            sim_config=self.env.sim_config,
+            observation_space=self.space_description,
+            network=dataclasses.asdict(self.net_shape),
+            seed=self.config.seed,
+            resumes=self.resumes,
+            resumed_at_step=self.resumed_at_step,
+            trainer=self.env.remote_facts().get("trainer"),
+            replay_bytes=self.replay.nbytes,
+            replay_naive_bytes=self.replay.naive_nbytes(),
+        )
         self._life_file("run", ".json").write_text(json.dumps(record, indent=2, default=str))
-
-    def _open_recording(self) -> None:
-        # In-process, the run draws environment 0's road itself (a server's roads reach a
-        # recording through a spectator).
-        spec = self.env.behaviour_spec
-        road = (
-            (IN_PROCESS_ROAD, spec.road.lane_count * spec.road.lane_width_m)
-            if self.env.world_frame is not None and spec is not None and spec.road is not None
-            else None
-        )
-        self.recording, self.view = open_training_recording(
-            self.config.recording,
-            self._life_file("trainer", ".rrd"),
-            self.run_dir.name or "run",
-            self.config.algo,
-            _ego_fields(self.env.behaviour_spec),
-            self.env.recorded_arenas(),
-            road,
-        )
-        self.world = (
-            WorldRecording(self.recording.stream, rays=False, lay_out=False)
-            if self.recording is not None and road is not None
-            else None
-        )
 
     def _start_episodes(self) -> None:
         """Reset every environment and start its frame stack and its replay ring."""
@@ -384,32 +329,14 @@ class TrainingRun:
         reward: np.ndarray,
         info: dict[str, Any],
     ) -> None:
-        """Environment 0's view, action, Q-values and reward to Rerun, every record_every
-        iterations (not for its autoreset step, whose action the environment ignored)."""
+        """Environment 0's view to Rerun every record_every iterations (not for its autoreset
+        step, whose action the environment ignored)."""
         if (
-            self.view is not None
+            self.recording is not None
             and not self.starting[0]
             and self.iteration % self.config.recording.record_every == 0
         ):
-            terms = {name: float(v[0]) for name, v in info.get("reward_terms", {}).items()}
-            self.view.car_view(
-                self.step,
-                {k: v[0] for k, v in seen.items()},
-                int(actions[0]),
-                q[0],
-                float(reward[0]),
-                terms,
-            )
-            if self.world is not None and self.env.world_frame is not None:
-                frame = self.env.world_frame(
-                    0,
-                    {k: v[0] for k, v in self.obs.items()},
-                    float(reward[0]),
-                    int(info["action_applied"][0]) if "action_applied" in info else -1,
-                    terms,
-                    self.step,
-                )
-                self.world.log(frame)
+            self.recording.car_view(self.step, seen, self.obs, actions, q, reward, info)
         self.iteration += 1
 
     def _store(
@@ -464,19 +391,11 @@ class TrainingRun:
         return int(moving.size), taken
 
     def _shielded(self, envs: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        """The environments' action mask of ``envs``, with the shield's where it is on (it
-        judges from their stacked frames, which must already hold the newest)."""
-        if self.shield is None:
-            return mask
-        stacked = self.stacker.observation()
-        return mask & self.shield.mask(stacked["lidar"][envs], stacked["ego"][envs])
+        return mask if self.shield is None else self.shield.mask(envs, mask)
 
     def _count_overrides(self, q: np.ndarray, env_mask: np.ndarray, mask: np.ndarray) -> None:
-        """Decisions where the shield forbade the network's greedy choice."""
         if self.shield is not None:
-            count = int(overridden(q, env_mask, mask).sum())
-            self.window.shield_overrides += count
-            self.shield_overrides += count
+            self.window.shield_overrides += self.shield.count(q, env_mask, mask)
 
     def _end_episodes(
         self,
@@ -504,8 +423,8 @@ class TrainingRun:
                     **self.last_episode,
                 }
             )
-            if self.view is not None:
-                self.view.episode(self.step, self.last_episode)
+            if self.recording is not None:
+                self.recording.episode(self.step, self.last_episode)
         self.starting[envs] = ended
 
     def _learn(self) -> None:
@@ -550,8 +469,8 @@ class TrainingRun:
             **{k: v for k, v in averages.items() if k != "shield_overrides"},
         }
         self.log.write(entry)
-        if self.view is not None:
-            self.view.learning(self.step, entry)
+        if self.recording is not None:
+            self.recording.learning(self.step, entry)
         if self.bar is not None:
             last = self.last_episode
             self.bar.set_postfix(
