@@ -5,6 +5,7 @@ killed trainer nor a killed server."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import signal
 import stat
@@ -19,7 +20,7 @@ import pytest
 import overtake.client  # noqa: F401  (registers the environments)
 from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, codec, errors
 from overtake.protocol.errors import DecodeError
-from overtake.protocol.messages import ShmArray, ShmOffer, StepsInShm
+from overtake.protocol.messages import ShmArray, ShmOffer, Steps, StepsInShm
 from overtake.protocol.shared_memory import (
     HEADER_BYTES,
     NAME_PREFIX,
@@ -28,6 +29,7 @@ from overtake.protocol.shared_memory import (
     shm_dir,
     sweep_orphans,
 )
+from overtake.protocol.shm_messages import STEPS_ARRAYS
 
 from remote_support import remote_config, trainer_args, wait_until
 
@@ -109,17 +111,14 @@ def test_a_segment_refuses_what_is_not_the_offer_and_torn_or_outside_reads():
 
 
 def test_the_notices_decode_and_refuse_what_they_must():
+    # Every array of a Steps has its place in a notice: a field added to Steps without one
+    # would not reach a trainer reading shared memory.
     names = [
-        "agents",
-        "reward",
-        "terminated",
-        "truncated",
-        "action_applied",
-        "late",
-        "action_mask",
-        "reward_terms",
-        "metrics",
+        f.name
+        for f in dataclasses.fields(Steps)
+        if f.name not in ("server", "group", "round", "observations")
     ]
+    assert tuple(names) == STEPS_ARRAYS
     arrays = tuple(ShmArray(name=n, offset=64, dtype="int8", shape=(1,)) for n in names)
     notice = StepsInShm(server="s", group=3, round=5, generation=2, arrays=arrays)
     assert codec.decode(codec.encode(notice), StepsInShm) == notice
