@@ -26,6 +26,8 @@ import re
 import shlex
 import subprocess
 import sys
+import threading
+import time
 from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 from typing import Any
@@ -237,3 +239,49 @@ pytest_collect_file = Sybil(
     setup=_namespace,
     teardown=_close_what_pages_left_open,
 ).pytest()
+
+
+# --- a session that ends ---------------------------------------------------------------------
+
+_EXIT_STATUS: list[int] = []
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    _EXIT_STATUS.append(int(exitstatus))
+
+
+def _zenoh_callback_threads() -> list[threading.Thread]:
+    return [
+        t
+        for t in threading.enumerate()
+        if "pyo3-closure" in t.name and t.is_alive() and not t.daemon
+    ]
+
+
+def _exit_past_stuck_callbacks() -> None:
+    """Zenoh runs each Python callback of a session on a thread of its own, not a daemon, that
+    ends a moment after its session closes. One whose session never closes (seen once, in a
+    full run on a loaded machine: two threads of one client session, after the suite's
+    summary) keeps the interpreter from exiting, and CI would wait for it for ever. At exit,
+    after pytest's report, such threads get 10 s to end; those still running are named and
+    the process ends with pytest's status."""
+    # A closed session's callback threads end on their own within a second or two.
+    deadline = time.monotonic() + 10.0
+    for thread in _zenoh_callback_threads():
+        thread.join(max(0.0, deadline - time.monotonic()))
+    stuck = _zenoh_callback_threads()
+    if stuck and _EXIT_STATUS:
+        print(
+            f"\nconftest: {len(stuck)} Zenoh callback thread(s) of an unclosed session still "
+            f"run ({', '.join(t.name for t in stuck)}); exiting with pytest's status "
+            f"{_EXIT_STATUS[-1]} instead of waiting for them",
+            file=sys.stderr,
+        )
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(_EXIT_STATUS[-1])
+
+
+# The interpreter joins non-daemon threads before it runs atexit's functions; the threading
+# module's own exit hook (what concurrent.futures uses) runs before that join.
+threading._register_atexit(_exit_past_stuck_callbacks)  # type: ignore[attr-defined]
