@@ -7,7 +7,10 @@ What is measured, in one run on 127.0.0.1 (free ports), for 1, 8 and 64 arenas (
   ``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")`` (N = 8, 64), preset
   min2018, as in ``bench/bench_sim.py``;
 * remote: an ``overtake.server`` subprocess (``--listen tcp/127.0.0.1:<port> --name bench``) and
-  ``overtake/RemoteHighway-v0`` made the same two ways, with ``RemoteConfig(connect=(ep,))``;
+  ``overtake/RemoteHighway-v0`` made the same two ways, with ``RemoteConfig(connect=(ep,))``:
+  "remote" with its Steps through shared memory (``steps_transport="shm"``, what a trainer on
+  the server's host gets), and the same over Zenoh alone (``steps_transport="zenoh"``, what a
+  trainer on another host pays, less the network), both in the same rounds;
 * the floor: a bare Zenoh ping-pong between this process and a child process (this script in
   echo mode), with a request exactly as long as the encoded ``Actions`` of N agents and a reply
   exactly as long as the encoded ``Steps`` of N agents (both measured by encoding the remote
@@ -642,19 +645,21 @@ def measure_arenas(
     from overtake.protocol import codec
 
     vector = arenas > 1
-    local = remote = None
+    local = remote = remote_zenoh = None
+
+    def remote_driver(transport: str) -> Driver:
+        settings = RemoteConfig(connect=(endpoint,), steps_transport=transport)
+        env = make_env(REMOTE_ENV_ID, arenas, preset=PRESET, remote=settings)
+        return Driver(env, arenas, config.seed, vector)
+
     try:
         local = Driver(make_env(ENV_ID, arenas, preset=PRESET), arenas, config.seed, vector)
-        remote = Driver(
-            make_env(
-                REMOTE_ENV_ID, arenas, preset=PRESET, remote=RemoteConfig(connect=(endpoint,))
-            ),
-            arenas,
-            config.seed,
-            vector,
-        )
+        # The trainer on the server's host gets its Steps through shared memory (issue 36);
+        # the same over Zenoh alone is what a trainer on another host pays (less the network).
+        remote, remote_zenoh = remote_driver("shm"), remote_driver("zenoh")
         local.drive(config.warmup_steps, timed=False)
         remote.drive(config.warmup_steps, timed=False)
+        remote_zenoh.drive(config.warmup_steps, timed=False)
         actions, steps = wire_messages(remote.env, arenas, config.seed)
         request_bytes, reply_bytes = len(codec.encode(actions)), len(codec.encode(steps))
         codec_us = codec_times(actions, steps, config.repeats())
@@ -668,11 +673,13 @@ def measure_arenas(
         ]
         ping_times: dict[str, list[float]] = {shape: [] for shape in PING_SHAPES}
         server_cpu, server_faults = 0.0, 0
-        kinds = ["local", "remote", *PING_SHAPES]
+        kinds = ["local", "remote", "remote_zenoh", *PING_SHAPES]
         for index, count in enumerate(chunks):
             for kind in kinds[index % len(kinds) :] + kinds[: index % len(kinds)]:
                 if kind == "local":
                     local.drive(count)
+                elif kind == "remote_zenoh":
+                    remote_zenoh.drive(count)
                 elif kind == "remote":
                     cpu_before, faults_before = process_usage(server_pid)
                     remote.drive(count)
@@ -684,13 +691,15 @@ def measure_arenas(
                         ping.round_trips(kind, request_bytes, reply_bytes, count, arenas)
                     )
         local_result, remote_result = local.result(), remote.result()
+        zenoh_result = remote_zenoh.result()
         remote_result["server_cpu_ms_per_step"] = 1e3 * server_cpu / remote.steps
         remote_result["server_minor_faults_per_step"] = server_faults / remote.steps
-        same = (
-            local.episodes_ended == remote.episodes_ended and local.reward_sum == remote.reward_sum
+        same = all(
+            local.episodes_ended == other.episodes_ended and local.reward_sum == other.reward_sum
+            for other in (remote, remote_zenoh)
         )
     finally:
-        for driver in (local, remote):
+        for driver in (local, remote, remote_zenoh):
             if driver is not None:
                 driver.env.close()
 
@@ -701,6 +710,10 @@ def measure_arenas(
         "arenas": arenas,
         "in_process": local_result,
         "remote": remote_result,
+        "remote_zenoh": zenoh_result,
+        "throughput_ratio_zenoh": (
+            zenoh_result["agent_steps_per_second"] / local_result["agent_steps_per_second"]
+        ),
         "same_episodes": same,
         "wire": {"actions_bytes": request_bytes, "steps_bytes": reply_bytes},
         "ping_pong": pings,
@@ -807,6 +820,7 @@ def print_report(results: list[dict[str, Any]]) -> None:
                 "in-process/s",
                 "remote/s",
                 "remote/in-process",
+                "over Zenoh/in-process",
                 "CPU in-proc",
                 "CPU client",
                 "CPU server",
@@ -821,6 +835,7 @@ def print_report(results: list[dict[str, Any]]) -> None:
                     f"{r['in_process']['agent_steps_per_second']:,.0f}",
                     f"{r['remote']['agent_steps_per_second']:,.0f}",
                     f"{r['throughput_ratio']:.2f}x",
+                    f"{r['throughput_ratio_zenoh']:.2f}x",
                     f"{r['in_process']['cpu_ms_per_step']:.3f}",
                     f"{r['remote']['cpu_ms_per_step']:.3f}",
                     f"{r['remote']['server_cpu_ms_per_step']:.3f}",
