@@ -260,9 +260,10 @@ def _zenoh_callback_threads() -> list[threading.Thread]:
 
 def _exit_past_stuck_callbacks() -> None:
     """Zenoh runs each Python callback of a session on a thread of its own, not a daemon, that
-    ends a moment after its session closes. One whose session never closes (seen once, in a
-    full run on a loaded machine: two threads of one client session, after the suite's
-    summary) keeps the interpreter from exiting, and CI would wait for it for ever. At exit,
+    ends a moment after its session closes. One whose session never closes keeps the
+    interpreter from exiting, and CI would wait for it for ever (it happened: an ML-Agents
+    snippet in docs/ecosystem.md left its environments open inside ML-Agents' wrappers, which
+    the page teardown does not know; the snippet closes them now). At exit,
     after pytest's report, such threads get 10 s to end; those still running are named and
     the process ends with pytest's status."""
     # A closed session's callback threads end on their own within a second or two.
