@@ -3,6 +3,7 @@ join more (the server's size and each trainer's share)."""
 
 from __future__ import annotations
 
+import heapq
 import logging
 import secrets
 from collections.abc import Callable, Iterable
@@ -163,22 +164,16 @@ class ArenaRegistry:
 
 
 def ready_to_step(groups: Iterable[Group], now: float, limit: int) -> list[Group]:
-    """Up to ``limit`` of the groups ready at ``now``, those stepped longest ago first: what a
-    server with ``limit`` stepping threads steps at once (``limit`` 1 is
-    :func:`next_to_step`)."""
-    ready = sorted((g for g in groups if g.ready(now)), key=lambda g: g.last_stepped)
-    return ready[:limit]
+    """Up to ``limit`` of the groups ready at ``now``, those stepped longest ago first. The
+    server steps them (``limit``: its stepping threads) and handles what arrived before it
+    picks again, so a group that became ready waits behind the groups that were ready before
+    it and no longer. Stepping every ready group in a fixed order per pass let answers that
+    arrive while a pass runs miss it in a fixed pattern: with the server busy, two of four
+    equal trainers got exactly half the steps of the others."""
+    return heapq.nsmallest(limit, (g for g in groups if g.ready(now)), key=lambda g: g.last_stepped)
 
 
 def next_to_step(groups: Iterable[Group], now: float) -> Group | None:
-    """Of the groups ready to step at ``now``, the one stepped longest ago (None: none is
-    ready). The server steps one group at a time and handles what arrived between two, so a
-    group that became ready waits behind the groups that were ready before it and no longer.
-    Stepping every ready group in a fixed order per pass let answers that arrive while a pass
-    runs miss it in a fixed pattern: with the server busy, two of four equal trainers got
-    exactly half the steps of the others."""
-    chosen: Group | None = None
-    for group in groups:
-        if group.ready(now) and (chosen is None or group.last_stepped < chosen.last_stepped):
-            chosen = group
-    return chosen
+    """Of the groups ready at ``now``, the one stepped longest ago (None: none is ready)."""
+    chosen = ready_to_step(groups, now, 1)
+    return chosen[0] if chosen else None

@@ -82,13 +82,16 @@ class Outbox:
             written = segment.write(steps_arrays(steps))
             if written is not None:
                 generation, places = written
-                notice = StepsInShm(
+                # Built from the server's own arrays every round: unchecked, as its Steps are
+                # (the trainer checks the notice it decodes, and the arrays it reads).
+                notice = StepsInShm.trusted(
                     server=steps.server,
                     group=steps.group,
                     round=steps.round,
                     generation=generation,
                     arrays=tuple(
-                        ShmArray(name=n, offset=o, dtype=d, shape=sh) for n, o, d, sh in places
+                        ShmArray.trusted(name=n, offset=o, dtype=d, shape=sh)
+                        for n, o, d, sh in places
                     ),
                 )
                 self.send(trainer, notice)

@@ -15,6 +15,7 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from importlib import metadata
 from typing import Any
@@ -347,32 +348,25 @@ class SimulatorServer:
             self.outbox.send(trainer, ErrorReply(code=error.code, message=str(error), group=group))
 
     def _step_groups(self, groups: list[Group]) -> None:
-        """Step ``groups`` (on the stepping threads where there are several; nothing else
-        touches them meanwhile: this thread waits), then deliver each group's round."""
+        """Step ``groups``, several at once on the stepping threads, and deliver each group's
+        round as its step is done. The loop takes no event until all are delivered, so
+        nothing touches a group while a thread steps it."""
         if len(groups) == 1:
-            self._step_group(groups[0])
+            self._step_group(groups[0], groups[0].step)
             return
         if self._pool is None:
             self._pool = ThreadPoolExecutor(self.config.step_threads, "overtake-step")
         self.parallel_passes += 1
-        stepped = list(self._pool.map(_step_caught, groups))
-        for group, (steps, error) in zip(groups, stepped, strict=True):
-            self._step_group(group, steps, error)
+        stepping = [self._pool.submit(group.step) for group in groups]
+        for group, future in zip(groups, stepping, strict=True):
+            self._step_group(group, future.result)  # re-raises the step's failure here
 
-    def _step_group(
-        self,
-        group: Group,
-        steps: dict[str, Message] | None = None,
-        error: Exception | None = None,
-    ) -> None:
-        """Step one group (unless a stepping thread did: ``steps`` or ``error``), send each
-        member its observations, publish and record it."""
+    def _step_group(self, group: Group, step: Callable[[], Mapping[str, Message]]) -> None:
+        """Take ``group``'s round from ``step`` (its step, or a stepping thread's result),
+        send each member its observations, publish and record it; a failure closes the
+        group."""
         try:
-            if error is not None:
-                raise error
-            if steps is None:
-                steps = dict(group.step())
-            for trainer, message in steps.items():
+            for trainer, message in step().items():
                 self.outbox.send_steps(group, trainer, message)
             self.outbox.publish_world(group, time.monotonic())
             if self.recorder is not None and self.recorder.wants(group.round):
@@ -430,15 +424,6 @@ class SimulatorServer:
         self.outbox.forget_member(group.group_id, trainer)
         if self.arenas.leave(group, trainer, why):
             self.outbox.forget_group(group)
-
-
-def _step_caught(group: Group) -> tuple[dict[str, Message] | None, Exception | None]:
-    """``group.step()`` on a stepping thread; a failure comes back to the loop's thread, where
-    it closes that group as a failure of a step there does."""
-    try:
-        return dict(group.step()), None
-    except Exception as error:
-        return None, error
 
 
 def main(config: ServerConfig) -> None:
