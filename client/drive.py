@@ -19,6 +19,13 @@ from overtake.protocol.transport import SecurityConfig
 from overtake.protocol.vocabulary import METRIC_FIELDS
 
 from .commands import UsageError, run_command
+from .episode_records import (
+    EpisodeRecorder,
+    PolicySource,
+    RecordHeader,
+    record_name,
+    write_records,
+)
 from .episodes import (
     RealTime,
     baseline_policy,
@@ -28,6 +35,7 @@ from .episodes import (
     parse_overrides,
     run_episodes,
 )
+from .provenance import git_commit
 from .shared_steps import Transport
 
 
@@ -61,6 +69,8 @@ class DriveConfig:
     """more overrides as dotted.name=value (value read as JSON, else as a string)"""
     json_out: Path | None = None
     """also write the table as JSON here"""
+    episodes_out: Path | None = None
+    """keep every episode as a record in this folder (<policy>.jsonl), for overtake-replay"""
     connect: str | None = None
     """a simulator server's (or router's) Zenoh endpoint, e.g. tcp/127.0.0.1:7447; None runs
     the simulator in this process"""
@@ -110,11 +120,30 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
             act = baseline_policy(
                 config.policy, envs.unwrapped.behaviour_spec, config.seed, config.episodes, envs
             )
+        recorder = EpisodeRecorder([config.seed + i for i in range(config.episodes)], act)
         rows, decisions, elapsed = run_episodes(
-            envs, act, config.episodes, config.seed, realtime=clock
+            envs, act, config.episodes, config.seed, realtime=clock, watchers=[recorder]
+        )
+        header = RecordHeader(
+            preset=preset,
+            overrides=overrides,
+            config=envs.unwrapped.sim_config,
+            policy=(
+                PolicySource(
+                    "onnx", str(config.onnx), shield=getattr(act, "guard", None) is not None
+                )
+                if config.onnx is not None
+                else PolicySource("reference", config.policy)
+            ),
+            commit=git_commit(),
+            name=_policy_name(config),
         )
     finally:
         envs.close()
+    if config.episodes_out is not None:
+        path = config.episodes_out / f"{record_name(_policy_name(config))}.jsonl"
+        write_records(path, header, recorder.records())
+        print(f"episodes kept in {path} (overtake-replay {path} --rrd OUT.rrd)")
 
     table = metric_table(rows)
     summary = metric_summary(rows)

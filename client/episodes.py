@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import gymnasium as gym
 import numpy as np
@@ -126,20 +126,47 @@ class RealTime:
         return float(np.percentile(self.latencies_s, q) * 1e3) if self.latencies_s else 0.0
 
 
+class EpisodeWatcher(Protocol):
+    """Sees every step :func:`run_episodes` takes (an episode record, a Rerun recording)."""
+
+    def started(self, obs: dict[str, np.ndarray], info: dict[str, Any]) -> None:
+        """The environments were reset: ``obs`` and ``info`` are the episodes' first."""
+
+    def stepped(
+        self,
+        actions: np.ndarray,
+        obs: dict[str, np.ndarray],
+        reward: np.ndarray,
+        terminated: np.ndarray,
+        truncated: np.ndarray,
+        info: dict[str, Any],
+    ) -> None:
+        """``actions`` were sent, and the step answered with the rest."""
+
+
 def run_episodes(
-    envs: Any, act: Policy, episodes: int, seed: int, realtime: RealTime | None = None
+    envs: Any,
+    act: Policy,
+    episodes: int,
+    seed: int | Sequence[int],
+    realtime: RealTime | None = None,
+    watchers: Sequence[EpisodeWatcher] = (),
 ) -> tuple[list[dict[str, float]], int, float]:
-    """One episode per environment of ``envs`` (seeds seed, seed + 1, ...), all stepped
-    together; returns each episode's metrics, the decisions taken and the seconds it took.
+    """One episode per environment of ``envs`` (seeds seed, seed + 1, ..., or each its own
+    of a sequence), all stepped together; returns each episode's metrics, the decisions taken
+    and the seconds it took.
 
     ``act(obs, info, starting)`` returns the actions; ``starting`` marks the environments whose
     observation is the first of an episode (a policy that stacks frames restarts there).
     ``realtime``: advance on the wall clock instead of waiting for the policy (see
-    :class:`RealTime`).
+    :class:`RealTime`). ``watchers`` see the reset and every step (the episodes' first are
+    the ones that count; each environment steps on, into episodes of its own, until all end).
     """
     # A policy may add columns of its own to each episode's row (the shield's overrides).
     extras = getattr(act, "episode_extras", None)
-    obs, info = envs.reset(seed=seed)
+    obs, info = envs.reset(seed=seed if isinstance(seed, int) else list(seed))
+    for watcher in watchers:
+        watcher.started(obs, info)
     starting = np.ones(episodes, dtype=bool)
     resetting = np.zeros(episodes, dtype=bool)  # ended: the next step is their autoreset
     rows: list[dict[str, float] | None] = [None] * episodes
@@ -150,7 +177,9 @@ def run_episodes(
 
     def step(actions: np.ndarray) -> None:
         nonlocal obs, info, starting, resetting, decisions
-        obs, _, terminated, truncated, info = envs.step(actions)
+        obs, reward, terminated, truncated, info = envs.step(actions)
+        for watcher in watchers:
+            watcher.stepped(actions, obs, reward, terminated, truncated, info)
         decisions += episodes
         ended = terminated | truncated
         for i in np.flatnonzero(ended & info.get("_metrics", False)):

@@ -80,6 +80,9 @@ class OnnxPolicy:
                 raise UsageError("the safety shield reads the environment's behaviour spec")
             self.guard = ShieldedActing(Shield(spec), num_envs)
             self.episode_extras = self.guard.episode_extras
+        # The last decision's Q-values and the shield's overrides (episode records, recordings).
+        self.last_q: np.ndarray | None = None
+        self.last_overridden: np.ndarray | None = None
         self.latencies_s: list[float] = []
         """wall-clock seconds of each call's inference (stacking included)"""
 
@@ -90,10 +93,12 @@ class OnnxPolicy:
         began = time.perf_counter()
         stacked = self.stacker.take(obs, starting)
         q = self.session.run([self.output], {name: stacked[name] for name in self.names})[0]
+        self.last_q = q
         mask = info["action_mask"]
         if self.guard is not None:
             shielded = self.guard.mask(stacked, mask, starting)
             self.guard.count(q, mask, shielded)
+            self.last_overridden = self.guard.last_overridden
             mask = shielded
         allowed = np.asarray(mask).astype(bool)
         allowed |= ~allowed.any(axis=1, keepdims=True)

@@ -40,7 +40,7 @@ from overtake.protocol.messages import (
     Scalar,
     Steps,
 )
-from overtake.protocol.vocabulary import ACTION_COUNT
+from overtake.protocol.vocabulary import ACTION_COUNT, EPISODE_COUNTS
 
 from .connection import Connection, RemoteConfig
 from .remote import ArenaGroup
@@ -340,6 +340,12 @@ class RemoteHighwayVectorEnv(_RemoteHandles, gym.vector.VectorEnv):
             "action_applied": steps.action_applied,
             "reward_terms": {
                 name: steps.reward_terms[:, i] for i, name in enumerate(self._remote.reward_terms)
+            },
+            # The Steps' metrics are each episode's so far; the counts of events, as in-process.
+            "episode_counts": {
+                name: steps.metrics[:, self._remote.metric_fields.index(name)].astype(np.int64)
+                for name in EPISODE_COUNTS
+                if name in self._remote.metric_fields
             },
         }
         ended = steps.ended

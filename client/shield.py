@@ -143,6 +143,7 @@ class ShieldedActing:
     def __init__(self, shield: Shield, num_envs: int) -> None:
         self.shield = shield
         self.overrides = np.zeros(num_envs, dtype=np.int64)
+        self.last_overridden = np.zeros(num_envs, dtype=bool)
 
     def mask(
         self, stacked: dict[str, np.ndarray], env_mask: np.ndarray, starting: np.ndarray
@@ -154,8 +155,10 @@ class ShieldedActing:
         return np.asarray(env_mask) & self.shield.mask(stacked["lidar"], stacked["ego"])
 
     def count(self, q: np.ndarray, env_mask: np.ndarray, mask: np.ndarray) -> None:
-        """Note the decisions where the policy's greedy choice (``q``) was overridden."""
-        self.overrides += overridden(q, env_mask, mask)
+        """Note the decisions where the policy's greedy choice (``q``) was overridden
+        (``last_overridden``: this decision's, per environment)."""
+        self.last_overridden = overridden(q, env_mask, mask)
+        self.overrides += self.last_overridden
 
     def episode_extras(self, env: int) -> dict[str, float]:
         return {"shield_overrides": float(self.overrides[env])}

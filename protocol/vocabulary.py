@@ -48,6 +48,11 @@ METRIC_FIELDS: tuple[str, ...] = (
     "decisions",
     "traffic_cars",
 )
+# The metrics that count events, which a vector environment also reports after every step as
+# the episode's counts so far (``info["episode_counts"]``): the decision whose count rose had
+# one (an episode record marks it, a replay shows it).
+EPISODE_COUNTS: tuple[str, ...] = ("collisions", "emergency_brakes")
+assert set(EPISODE_COUNTS) <= set(METRIC_FIELDS)
 
 # Traffic driver types: Ho's three (2018, Table 5), and Min et al.'s cars that act at random
 # (2018, §IV.A). A vehicle's ``kind`` in world frames indexes this tuple, and a kind equal to

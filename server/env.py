@@ -30,7 +30,7 @@ from overtake.protocol.envs import (
     check_render_mode,
 )
 from overtake.protocol.messages import BehaviourSpec, WorldFrame
-from overtake.protocol.vocabulary import ACTION_COUNT, METRIC_FIELDS
+from overtake.protocol.vocabulary import ACTION_COUNT, EPISODE_COUNTS, METRIC_FIELDS
 
 from .sim import HighwaySim, SimConfig, StepResult, autoreset_round, make_config
 from .sim.planner import Planner
@@ -232,8 +232,15 @@ class HighwayVectorEnv(gym.vector.VectorEnv):
             "action_mask": self.sim.action_mask()[:, 0],
             "action_applied": np.full(n, -1, dtype=np.int64),
             "reward_terms": {name: np.zeros(n) for name in self.sim.reward_terms},
+            "episode_counts": self._episode_counts(),
         }
         return self._observations(), info
+
+    def _episode_counts(self) -> dict[str, np.ndarray]:
+        """Each environment's collisions and emergency brakes in its episode so far (copies:
+        the state moves on); a decision whose count rose had one."""
+        state = self.sim.state
+        return {name: getattr(state, name)[:, 0].copy() for name in EPISODE_COUNTS}
 
     def step(self, actions):
         actions = check_actions(actions, self.num_envs, single=False)
@@ -242,6 +249,7 @@ class HighwayVectorEnv(gym.vector.VectorEnv):
             "action_mask": self.sim.action_mask()[:, 0],
             "action_applied": result.action_applied[:, 0],
             "reward_terms": {name: value[:, 0] for name, value in result.reward_terms.items()},
+            "episode_counts": self._episode_counts(),
         }
         ended = result.ended[:, 0]
         if ended.any():

@@ -419,6 +419,43 @@ def test_the_table_holds_every_row_and_reference_with_finite_figures(tiny):
     assert "nan" not in table.lower()
 
 
+def test_every_evaluation_keeps_its_episodes_and_the_table_names_the_collisions(tiny):
+    from overtake.client.episode_records import read_records
+    from overtake.trainers.episode_replay import ReplayConfig
+    from overtake.trainers.episode_replay import main as replay
+
+    out = tiny["out"]
+    [light] = json.loads((out / "table.json").read_text())["densities"].values()
+    table = (out / "table.md").read_text()
+    assert "Episodes with collisions, and the command that replays them in Rerun:" in table
+    entries = [run for row in light["rows"] for run in row["runs"]] + light["references"]
+    for entry in entries:
+        record = Path(entry["episodes_record"])
+        _, episodes = read_records(record)
+        assert len(episodes) == 2
+        crashed = [e.episode for e in episodes if e.collisions]
+        assert crashed == entry["collision_episodes"]
+        if crashed:
+            assert f"overtake-replay {record} --collisions" in table
+    # A checkpoint's episodes replay with its Q-values, each of its choices checked.
+    [run] = light["rows"][1]["runs"]
+    rrd = out.parent / "replayed.rrd"
+    replayed = replay(
+        ReplayConfig(
+            record=Path(run["episodes_record"]), recording=RecordingConfig(sink="file", rrd=rrd)
+        )
+    )
+    assert replayed["episodes"] == [0, 1]
+    import rerun as rr
+
+    logged = {c.entity_path for c in rr.chunk.RrdReader(str(rrd)).stream().to_chunks()}
+    assert {
+        "/episode/car/q/keep",
+        "/episode/car/lidar/hits",
+        "/world/episode/arena0/road/cars",
+    } <= logged
+
+
 def test_the_curves_are_a_png_and_a_rerun_recording_of_every_row(tiny):
     import rerun as rr
 

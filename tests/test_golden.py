@@ -120,15 +120,26 @@ def _single(preset: str, overrides: dict[str, Any]) -> str:
     return digest.hexdigest()
 
 
+def _without_counts(info: dict[str, Any]) -> dict[str, Any]:
+    """The vector environments' info as the digests were recorded: the episode counts so far
+    (issue 38) are the metrics' own counts, checked against them here instead."""
+    counts = info.pop("episode_counts")
+    for name, ended in ((name, info.get("_metrics")) for name in counts):
+        if ended is not None:
+            assert np.array_equal(counts[name][ended], info["metrics"][name][ended])
+    return info
+
+
 def _vector(preset: str, overrides: dict[str, Any]) -> str:
     envs = HighwayVectorEnv(num_envs=VECTOR_ARENAS, preset=preset, overrides=overrides)
     rng = np.random.default_rng(12)
     digest = Digest()
     obs, info = envs.reset(seed=7)
-    digest.add({"obs": obs, "info": info})
+    digest.add({"obs": obs, "info": _without_counts(info)})
     for _ in range(VECTOR_STEPS):
         actions = rng.integers(ACTION_COUNT, size=VECTOR_ARENAS)
         obs, reward, terminated, truncated, info = envs.step(actions)
+        info = _without_counts(info)
         digest.add(
             {
                 "obs": obs,

@@ -18,6 +18,14 @@ import numpy as np
 import torch
 
 from overtake.client.commands import UsageError, run_command
+from overtake.client.episode_recording import open_episode_recording
+from overtake.client.episode_records import (
+    EpisodeRecorder,
+    PolicySource,
+    RecordHeader,
+    record_name,
+    write_records,
+)
 from overtake.client.episodes import (
     baseline_policy,
     make_vector_env,
@@ -25,9 +33,11 @@ from overtake.client.episodes import (
     parse_overrides,
     run_episodes,
 )
+from overtake.client.provenance import git_commit
 from overtake.client.shared_steps import Transport
 from overtake.client.shield import Shield, ShieldedActing
 from overtake.protocol.transport import SecurityConfig
+from overtake.viz.recording import RecordingConfig, close_recording
 
 from .checkpoint import load_checkpoint
 from .network import INPUT_SENSORS
@@ -81,6 +91,12 @@ class EvalConfig:
     server is on this host, Zenoh otherwise), shm (shared memory or an error), zenoh"""
     json_out: Path | None = None
     """also write the table (and every episode) as JSON here"""
+    episodes_out: Path | None = None
+    """keep every episode as a record in this folder (<name>.jsonl: seeds, actions, metrics,
+    the decisions of collisions, emergency brakes and shield overrides), for overtake-replay"""
+    record: Path | None = None
+    """record the episodes to this .rrd while evaluating, each on its own timeline (the road
+    too, in process), as overtake-replay does"""
     name: str | None = None
     """the row's name in the table (default: the algorithm and inputs, or the baseline)"""
     table: tuple[Path, ...] = ()
@@ -113,6 +129,10 @@ class GreedyPolicy:
         )
         self.rng = np.random.default_rng(0)  # unused by a greedy policy, which act() needs
         self.guard = ShieldedActing(shield, num_envs) if shield is not None else None
+        # The last decision's Q-values (N, actions) and where the shield overrode them: what
+        # an episode record and a recording show beside the action.
+        self.last_q: np.ndarray | None = None
+        self.last_overridden: np.ndarray | None = None
         if self.guard is not None:
             # run_episodes adds each episode's overrides to its row.
             self.episode_extras = self.guard.episode_extras
@@ -123,11 +143,12 @@ class GreedyPolicy:
         stacked = self.stacker.take(obs, starting)
         mask = info["action_mask"]
         if self.guard is None:
-            actions, _ = self.learner.act(stacked, mask, 0.0, self.rng)
+            actions, self.last_q = self.learner.act(stacked, mask, 0.0, self.rng)
             return actions
         shielded = self.guard.mask(stacked, mask, starting)
-        actions, q = self.learner.act(stacked, shielded, 0.0, self.rng)
-        self.guard.count(q, mask, shielded)
+        actions, self.last_q = self.learner.act(stacked, shielded, 0.0, self.rng)
+        self.guard.count(self.last_q, mask, shielded)
+        self.last_overridden = self.guard.last_overridden
         return actions
 
 
@@ -243,10 +264,51 @@ def main(config: EvalConfig) -> dict[str, Any]:
             spec = envs.unwrapped.behaviour_spec
             policy = baseline_policy(str(config.policy), spec, config.seed, config.episodes, envs)
             name = config.name or str(config.policy)
-        with torch.no_grad():
-            rows, decisions, elapsed = run_episodes(envs, policy, config.episodes, config.seed)
+        source = (
+            PolicySource(
+                "checkpoint", str(config.checkpoint), checkpoint.step, policy.guard is not None
+            )
+            if checkpoint is not None
+            else PolicySource("reference", str(config.policy))
+        )
+        recorder = EpisodeRecorder(
+            [config.seed + i for i in range(config.episodes)], policy, first_episode=0
+        )
+        watchers: list[Any] = [recorder]
+        recording = None
+        if config.record is not None:
+            recording, view = open_episode_recording(
+                RecordingConfig(sink="file", rrd=config.record),
+                config.record,
+                range(config.episodes),
+                envs,
+                policy,
+                name,
+            )
+            watchers.append(view)
+        try:
+            with torch.no_grad():
+                rows, decisions, elapsed = run_episodes(
+                    envs, policy, config.episodes, config.seed, watchers=watchers
+                )
+        finally:
+            close_recording(recording)
+        header = RecordHeader(
+            preset=preset,
+            overrides=overrides,
+            config=envs.unwrapped.sim_config,
+            policy=source,
+            commit=git_commit(),
+            name=name,
+        )
     finally:
         envs.close()
+    record_path = None
+    if config.episodes_out is not None:
+        record_path = write_records(
+            config.episodes_out / f"{record_name(name)}.jsonl", header, recorder.records()
+        )
+        print(f"episodes kept in {record_path} (overtake-replay {record_path} --rrd OUT.rrd)")
     summary = summarise(rows)
     result = {
         "name": name,
@@ -258,6 +320,7 @@ def main(config: EvalConfig) -> dict[str, Any]:
         "summary": summary,
         "episodes": rows,
         "decisions_per_s": decisions / max(elapsed, 1e-9),
+        "episodes_record": str(record_path) if record_path is not None else None,
     }
     print(format_rows([(name, summary)]))
     if config.json_out is not None:

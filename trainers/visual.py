@@ -30,10 +30,9 @@ from typing import Any
 
 import numpy as np
 
-from overtake.protocol import ACTION_NAMES
+from overtake.viz.car_view import CarView
 from overtake.viz.recording import APPLICATION_ID, Recording, RecordingConfig, open_recording
 from overtake.viz.training_layout import training_blueprint
-from overtake.viz.world_view import ACTION_COLOURS, LIDAR_HIT_COLOUR, lidar_hits, to_drawing
 
 from .learner import ALGOS
 
@@ -56,14 +55,12 @@ class TrainingRecording:
     ) -> None:
         """``ego_fields`` names the ego vector's fields in order (the preset's
         ``ego_vector.fields``): the car's speed is read from its ``speed_mps``, when it has
-        one."""
+        one (:class:`~overtake.viz.car_view.CarView`)."""
         import rerun as rr
 
         self.rr, self.stream, self.run = rr, stream, run
-        self.speed_field = (
-            list(ego_fields).index("speed_mps") if "speed_mps" in ego_fields else None
-        )
         self.root = f"trainer/{run}"
+        self.car = CarView(stream, f"{self.root}/env0", ego_fields)
         self.colour = RUN_COLOURS[colour_index % len(RUN_COLOURS)]
         self._styled: set[str] = set()
 
@@ -102,29 +99,6 @@ class TrainingRecording:
             if value is not None:
                 self.stream.log(self._series("learning", name), rr.Scalars(float(value)))
 
-    def _style_car(self, base: str) -> None:
-        rr, stream = self.rr, self.stream
-        for index, name in enumerate(ACTION_NAMES):
-            # The colours of the action scatter: a Q-value's line and its action's points match.
-            stream.log(
-                f"{base}/q/{name}",
-                rr.SeriesLines(names=name, colors=[ACTION_COLOURS[index]]),
-                static=True,
-            )
-            stream.log(
-                f"{base}/action/{name}",
-                rr.SeriesPoints(
-                    names=name, colors=[ACTION_COLOURS[index]], markers="circle", marker_sizes=3.0
-                ),
-                static=True,
-            )
-        stream.log(
-            f"{base}/lidar/car",
-            rr.Boxes2D(centers=[[0.0, 0.0]], half_sizes=[[2.25, 0.9]], colors=[[230, 40, 40]]),
-            static=True,
-        )
-        self._styled.add(base)
-
     def car_view(
         self,
         step: int,
@@ -137,29 +111,8 @@ class TrainingRecording:
         """One environment's latest frame (``obs`` unbatched: ``lidar`` (R,) metres, ``camera``
         (H, W[, 3]) uint8, ``ego`` the ego vector), the action it took, the Q-values
         of every action, and the reward it got for it with each term."""
-        rr, stream, base = self.rr, self.stream, f"{self.root}/env0"
-        if base not in self._styled:
-            self._style_car(base)
-        stream.set_time("step", sequence=step)
-        lidar = obs.get("lidar")
-        if lidar is not None:
-            stream.log(
-                f"{base}/lidar/hits",
-                rr.Points2D(to_drawing(lidar_hits(lidar)), radii=[0.3], colors=[LIDAR_HIT_COLOUR]),
-            )
-        camera = obs.get("camera")
-        if camera is not None:
-            stream.log(f"{base}/camera", rr.Image(camera))
-        ego = obs.get("ego")
-        if ego is not None and self.speed_field is not None:
-            stream.log(f"{base}/speed_kmh", rr.Scalars(float(ego[self.speed_field]) * 3.6))
-        stream.log(f"{base}/action/{ACTION_NAMES[action]}", rr.Scalars(float(action)))
-        for name, value in zip(ACTION_NAMES, q, strict=True):
-            stream.log(f"{base}/q/{name}", rr.Scalars(float(value)))
-        stream.log(f"{base}/q_chosen", rr.Scalars(float(q[action])))
-        stream.log(f"{base}/reward/total", rr.Scalars(float(reward)))
-        for name, value in terms.items():
-            stream.log(f"{base}/reward/{name}", rr.Scalars(float(value)))
+        self.stream.set_time("step", sequence=step)
+        self.car.log(obs, action, q, reward, terms)
 
 
 def open_training_recording(

@@ -70,22 +70,29 @@ def key_curves_layout() -> Any:
     return rrb.Horizontal(*(_plot(title, section, series) for title, section, series in KEY_PLOTS))
 
 
-def car_layout(run: str, road: tuple[str, float] | None = None) -> Any:
+def car_layout(
+    run: str,
+    road: tuple[str, float] | None = None,
+    root: str | None = None,
+    below: Sequence[Any] = (),
+) -> Any:
     """What run ``run``'s first environment sees and does; with ``road`` (the entity path of
     its road and the road's width in metres: an in-process run's), the road from above on
-    top, the way a spectator's recording shows a server's arenas."""
+    top, the way a spectator's recording shows a server's arenas. ``root``: the car's
+    entities (default: the run's first environment's); ``below``: more views under the
+    rest (an episode's events)."""
     import rerun.blueprint as rrb
 
     from .world_view import ROAD_AHEAD_M, ROAD_BEHIND_M
 
-    root = f"/trainer/{run}/env0"
+    car_root = root or f"/trainer/{run}/env0"
     road_view = []
     if road is not None:
         origin, width_m = road
         road_view.append(
             rrb.Spatial2DView(
                 origin=origin,
-                name=f"{run}: road (env 0 at 0 m, left up)",
+                name=f"{run}: road ({'env 0' if root is None else 'the car'} at 0 m, left up)",
                 visual_bounds=rrb.VisualBounds2D(
                     x_range=[-ROAD_BEHIND_M, ROAD_AHEAD_M], y_range=[-width_m - 1.0, 1.0]
                 ),
@@ -94,14 +101,15 @@ def car_layout(run: str, road: tuple[str, float] | None = None) -> Any:
     return rrb.Vertical(
         *road_view,
         rrb.Horizontal(
-            rrb.Spatial2DView(origin=f"{root}/camera", name=f"{run}: camera"),
-            rrb.Spatial2DView(origin=f"{root}/lidar", name=f"{run}: LIDAR (m, left up)"),
+            rrb.Spatial2DView(origin=f"{car_root}/camera", name=f"{run}: camera"),
+            rrb.Spatial2DView(origin=f"{car_root}/lidar", name=f"{run}: LIDAR (m, left up)"),
         ),
-        rrb.TimeSeriesView(origin=f"{root}/speed_kmh", name=f"{run}: speed (km/h)"),
-        rrb.TimeSeriesView(origin=f"{root}/q", name=f"{run}: Q-values"),
-        rrb.TimeSeriesView(origin=f"{root}/reward", name=f"{run}: reward and its terms"),
-        rrb.TimeSeriesView(origin=f"{root}/action", name=f"{run}: action"),
-        row_shares=[2, 3, 1, 1, 1, 1] if road is not None else [3, 1, 1, 1, 1],
+        rrb.TimeSeriesView(origin=f"{car_root}/speed_kmh", name=f"{run}: speed (km/h)"),
+        rrb.TimeSeriesView(origin=f"{car_root}/q", name=f"{run}: Q-values"),
+        rrb.TimeSeriesView(origin=f"{car_root}/reward", name=f"{run}: reward and its terms"),
+        rrb.TimeSeriesView(origin=f"{car_root}/action", name=f"{run}: action"),
+        *below,
+        row_shares=[*([2] if road is not None else []), 3, 1, 1, 1, 1, *([1] * len(below))],
         name=f"{run}: env 0",
     )
 

@@ -66,6 +66,8 @@ LINES_AHEAD_M = 250.0
 DASH_PERIOD_M = 12.0
 DASH_M = 6.0
 LIDAR_HIT_COLOUR = [255, 128, 0]
+# The cars of a collision, at the decision it happened: a colour no behaviour or agent has.
+EVENT_COLOUR = np.array([0, 240, 255], dtype=np.uint8)
 LIDAR_RAY_COLOUR = [255, 200, 120]
 
 
@@ -249,13 +251,21 @@ class WorldRecording:
     opens; Rerun's "reset to default" brings the layout back at any time)."""
 
     def __init__(
-        self, stream: Any, rays: bool = True, lay_out: bool = True, with_training: bool = False
+        self,
+        stream: Any,
+        rays: bool = True,
+        lay_out: bool = True,
+        with_training: bool = False,
+        agent_series: bool = True,
     ) -> None:
         """``with_training``: the layout also shows the trainers' plots (see
-        :func:`world_blueprint`); for a recording shared with trainers."""
+        :func:`world_blueprint`); for a recording shared with trainers. ``agent_series``:
+        each agent's camera, speed, reward and action too (False: the road only, for a
+        recording that shows its car's view on its own, :mod:`.car_view`)."""
         import rerun as rr
 
         self.rr, self.stream, self.rays, self.lay_out = rr, stream, rays, lay_out
+        self.agent_series = agent_series
         self.with_training = with_training
         self.shapes: dict[tuple[str, int], ArenaShape] = {}
         self._seen: set[tuple[str, int]] = set()
@@ -300,7 +310,16 @@ class WorldRecording:
             )
         self._styled.add(base)
 
-    def log(self, frame: WorldFrame) -> None:
+    def log(
+        self,
+        frame: WorldFrame,
+        timeline: tuple[str, int] | None = None,
+        highlight: np.ndarray | None = None,
+    ) -> None:
+        """Draw ``frame``; ``timeline`` (name, position): on that timeline alone instead of
+        the frame's round, sim time and step (an episode replayed on a timeline of its own);
+        ``highlight``: vehicles (indices into the frame's arrays) drawn in
+        :data:`EVENT_COLOUR` (the cars of a collision)."""
         rr, stream = self.rr, self.stream
         root = f"world/{frame.server}/arena{frame.arena}"
         if frame.trainer_step >= 0 and not self._on_step:
@@ -311,10 +330,14 @@ class WorldRecording:
             self._seen.add((frame.server, frame.arena))
             self._arena_appears(frame)
             self._lane_lines(root, frame)
-        stream.set_time("round", sequence=frame.round)
-        stream.set_time("sim_time", duration=frame.sim_time_s)
-        if frame.trainer_step >= 0:
-            stream.set_time("step", sequence=frame.trainer_step)
+        if timeline is not None:
+            stream.reset_time()
+            stream.set_time(timeline[0], sequence=timeline[1])
+        else:
+            stream.set_time("round", sequence=frame.round)
+            stream.set_time("sim_time", duration=frame.sim_time_s)
+            if frame.trainer_step >= 0:
+                stream.set_time("step", sequence=frame.trainer_step)
         n = frame.agent_active.shape[0]
         active = np.flatnonzero(frame.active)
         agents = active[active < n]
@@ -332,6 +355,8 @@ class WorldRecording:
             AGENT_COLOUR,
             KIND_COLOURS[np.clip(frame.kind[active], 0, len(KIND_COLOURS) - 1)],
         )
+        if highlight is not None and len(highlight):
+            colours = np.where(np.isin(active, highlight)[:, None], EVENT_COLOUR, colours)
         stream.log(
             f"{root}/road/cars",
             rr.Boxes2D(
@@ -352,7 +377,7 @@ class WorldRecording:
         camera = frame.observations.get("camera")
         for i in agents:
             base = f"{root}/agent{i}"
-            if base not in self._styled:
+            if self.agent_series and base not in self._styled:
                 self._style(base)
             car = np.array([frame.x_m[i], frame.y_m[i]]) - origin
             if lidar is not None:
@@ -376,6 +401,8 @@ class WorldRecording:
                             colors=[LIDAR_RAY_COLOUR],
                         ),
                     )
+            if not self.agent_series:
+                continue
             if camera is not None:
                 stream.log(f"{base}/camera", rr.Image(camera[i]))
             stream.log(f"{base}/speed_kmh", rr.Scalars(float(frame.speed_mps[i]) * 3.6))

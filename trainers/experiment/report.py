@@ -89,6 +89,18 @@ def markdown_table(result: dict[str, Any]) -> str:
                 + " | ".join(cells)
                 + " | - | - |"
             )
+        crashed = [
+            line
+            for row in table["rows"]
+            for run in row["runs"]
+            for line in _collision_lines(run["run"], run)
+        ] + [
+            line
+            for reference in table["references"]
+            for line in _collision_lines(reference["policy"], reference)
+        ]
+        lines += ["", "Episodes with collisions, and the command that replays them in Rerun:", ""]
+        lines += crashed or ["- none"]
         several = [row for row in table["rows"] if len(row["runs"]) > 1]
         if several:
             lines += [
@@ -272,6 +284,30 @@ def _versions() -> dict[str, str]:
     return versions
 
 
+def _collisions(result: dict[str, Any]) -> dict[str, Any]:
+    """An evaluation's episodes with a collision (their numbers: episode i had seed
+    eval_seed + i) and its episode record, which overtake-replay plays them from."""
+    return {
+        "collision_episodes": [
+            i for i, episode in enumerate(result["episodes"]) if episode["collisions"] > 0
+        ],
+        "episodes_record": result.get("episodes_record"),
+    }
+
+
+def _collision_lines(name: str, entry: dict[str, Any]) -> list[str]:
+    episodes = entry.get("collision_episodes")
+    if not episodes:
+        return [] if episodes is not None else [f"- {name}: not counted (an older evaluation)"]
+    record = entry.get("episodes_record")
+    replay = (
+        f"`overtake-replay {record} --collisions --rrd {Path(record).stem}-collisions.rrd`"
+        if record
+        else "no episode record (evaluated before records were kept)"
+    )
+    return [f"- {name}: episodes {', '.join(map(str, episodes))}: {replay}"]
+
+
 class Outputs:
     """The table and the curves, from the cached evaluations and the runs' metrics."""
 
@@ -347,6 +383,7 @@ class Outputs:
                     "summary": episode_statistics(result["episodes"]),
                     "evaluation": str(_relative(task.cache, self.plan.out)),
                     "decisions_per_s": result["decisions_per_s"],
+                    **_collisions(result),
                 }
             )
             pooled.extend(result["episodes"])
@@ -373,6 +410,7 @@ class Outputs:
             "summary": episode_statistics(result["episodes"]),
             "evaluation": str(_relative(task.cache, self.plan.out)),
             "decisions_per_s": result["decisions_per_s"],
+            **_collisions(result),
         }
 
     def write(self) -> dict[str, Any]:

@@ -75,6 +75,8 @@ class ExperimentRun:
             connect=None if base.policy == "planner" else config.connect,
             security=config.security,
             json_out=cache.with_name(cache.name + ".out"),
+            # Every episode kept, for overtake-replay (the table names those with collisions).
+            episodes_out=cache.with_name(cache.stem + ".episodes"),
         )
         full_key = {
             **key,

@@ -1,0 +1,283 @@
+"""Episode records and their replay (issue 38): a kept episode plays again bit for bit, in
+process and on a server, for every preset; a record that no longer describes this simulator, or
+a replay that parts from its record, stops with a message naming what differs; a replayed
+collision is in the recording at the decision the record names, its cars coloured."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from overtake.client.drive import DriveConfig
+from overtake.client.drive import main as drive
+from overtake.client.episode_records import (
+    EpisodeRecord,
+    RecordError,
+    read_records,
+    write_records,
+)
+from overtake.server.sim.presets import PRESETS
+from overtake.trainers.episode_replay import ReplayConfig, ReplayDiverged
+from overtake.trainers.episode_replay import main as replay
+from overtake.viz.recording import RecordingConfig
+
+NO_RECORDING = RecordingConfig(sink="off")
+# Short, crowded episodes: a random driver collides in some of them.
+CROWDED = ("traffic.density=heavy",)
+
+
+def _drive(out: Path, preset: str, policy: str = "random", **options) -> Path:
+    drive(
+        DriveConfig(
+            policy=policy,  # type: ignore[arg-type]
+            preset=preset,
+            episodes=4,
+            seed=3,
+            max_decisions=80,
+            set=CROWDED,
+            episodes_out=out,
+            **options,
+        )
+    )
+    [path] = list(out.glob("*.jsonl"))
+    return path
+
+
+def _rewrite(path: Path, edit_header=None, edit_episode=None) -> None:
+    lines = [json.loads(line) for line in path.read_text().splitlines()]
+    if edit_header is not None:
+        edit_header(lines[0])
+    if edit_episode is not None:
+        for line in lines[1:]:
+            edit_episode(line)
+    path.write_text("\n".join(json.dumps(line) for line in lines) + "\n")
+
+
+@pytest.mark.parametrize("preset", sorted(PRESETS))
+def test_a_recorded_episode_replays_to_the_same_metrics_in_process(tmp_path, preset):
+    record = _drive(tmp_path / "records", preset)
+    header, episodes = read_records(record)
+    assert header.preset == preset and header.policy.kind == "reference"
+    assert [e.seed for e in episodes] == [3, 4, 5, 6]
+    for episode in episodes:
+        assert len(episode.actions) == episode.metrics["decisions"]
+        # The decisions where the counts rose are as many as the metrics count.
+        for name in ("collisions", "emergency_brakes"):
+            assert len(episode.events.get(name, ())) == episode.metrics[name]
+    result = replay(ReplayConfig(record=record, recording=NO_RECORDING))
+    assert result["episodes"] == [0, 1, 2, 3]
+
+
+def test_records_made_on_a_server_replay_in_process_and_on_the_server(tmp_path, start_server):
+    server = start_server("episodes")
+    remote = _drive(tmp_path / "remote", "min2018", connect=server.endpoint)
+    local = _drive(tmp_path / "local", "min2018")
+    # The same episodes: a server's simulator is this one.
+    assert read_records(remote)[1] == read_records(local)[1]
+    replay(ReplayConfig(record=remote, recording=NO_RECORDING))
+    replay(ReplayConfig(record=local, recording=NO_RECORDING, connect=server.endpoint))
+
+
+def test_a_record_of_another_preset_or_other_overrides_is_refused(tmp_path):
+    record = _drive(tmp_path / "records", "min2018", policy="rule")
+
+    def other_preset(header):
+        header["preset"] = "ho2018"
+
+    _rewrite(record, edit_header=other_preset)
+    with pytest.raises(RecordError, match=r"ho2018 .*resolves to another simulator") as refused:
+        replay(ReplayConfig(record=record, recording=NO_RECORDING))
+    assert "simulator than the record's: preset: 'min2018' in the record, 'ho2018' now" in str(
+        refused.value
+    )
+
+    record = _drive(tmp_path / "again", "min2018", policy="rule")
+
+    def other_overrides(header):
+        header["overrides"]["traffic.density"] = "light"
+
+    _rewrite(record, edit_header=other_overrides)
+    with pytest.raises(RecordError, match="traffic.density: 'heavy' in the record, 'light' now"):
+        replay(ReplayConfig(record=record, recording=NO_RECORDING))
+
+
+def test_a_replay_that_parts_from_its_record_says_where(tmp_path):
+    # The rule driver decides on what it sees: a changed action makes the replayed car see
+    # otherwise, and the replay names the first decision where the driver now disagrees.
+    record = _drive(tmp_path / "rule", "min2018", policy="rule")
+    _, episodes = read_records(record)
+    changed = episodes[1]
+    flipped = "0" if changed.actions[10] != "0" else "1"
+
+    def edit(line):
+        if line["episode"] == 1:
+            line["actions"] = line["actions"][:10] + flipped + line["actions"][11:]
+
+    _rewrite(record, edit_episode=edit)
+    with pytest.raises(ReplayDiverged, match=r"episode 1 \(seed 4\) parts from its record at"):
+        replay(ReplayConfig(record=record, recording=NO_RECORDING))
+    # A random driver cannot be asked again: the metrics at the end tell the difference.
+    record = _drive(tmp_path / "random", "min2018")
+
+    def slower(line):
+        if line["episode"] == 0:
+            line["metrics"]["distance_m"] += 1.0
+
+    _rewrite(record, edit_episode=slower)
+    with pytest.raises(ReplayDiverged, match=r"episode 0 \(seed 3\) replayed with distance_m"):
+        replay(ReplayConfig(record=record, recording=NO_RECORDING))
+
+
+def test_episodes_are_chosen_by_number_or_by_collision(tmp_path, capsys):
+    record = _drive(tmp_path / "records", "min2018")
+    _, episodes = read_records(record)
+    crashed = [e.episode for e in episodes if e.collisions]
+    assert crashed, "heavy traffic and a random driver: some episode collides"
+    assert (
+        replay(ReplayConfig(record=record, collisions=True, recording=NO_RECORDING))["episodes"]
+        == crashed
+    )
+    assert replay(ReplayConfig(record=record, episode=(2,), recording=NO_RECORDING))[
+        "episodes"
+    ] == [2]
+    with pytest.raises(RecordError, match="has no episode 9: it holds episodes 0-3"):
+        replay(ReplayConfig(record=record, episode=(9,), recording=NO_RECORDING))
+
+
+@pytest.mark.parametrize(
+    ("line", "message"),
+    [
+        ('{"format": "something-else"}', "is not an episode record"),
+        ('{"format": "overtake-episodes", "version": 99}', "version 99, this code reads"),
+        ("not json", "line 1: not JSON"),
+    ],
+)
+def test_a_file_that_is_not_a_record_is_refused_with_what_it_holds(tmp_path, line, message):
+    path = tmp_path / "bad.jsonl"
+    path.write_text(line + "\n")
+    with pytest.raises(RecordError, match=message):
+        read_records(path)
+
+
+def test_an_episode_line_is_checked(tmp_path):
+    record = _drive(tmp_path / "records", "min2018", policy="rule")
+    header, episodes = read_records(record)
+    bad = EpisodeRecord(0, 3, "01x", episodes[0].metrics)
+    write_records(tmp_path / "letters.jsonl", header, [bad])
+    with pytest.raises(RecordError, match=r"line 2: actions must be digits 0-4, got \['0', '1'"):
+        read_records(tmp_path / "letters.jsonl")
+    short = EpisodeRecord(0, 3, "01", episodes[0].metrics)
+    write_records(tmp_path / "short.jsonl", header, [short])
+    with pytest.raises(RecordError, match="2 actions for an episode of 80 decisions"):
+        read_records(tmp_path / "short.jsonl")
+
+
+def _text_events(rrd: Path) -> list[tuple[str, int, str]]:
+    """(timeline, position, text) of every event logged to a recording."""
+    import rerun as rr
+
+    found = []
+    for chunk in rr.chunk.RrdReader(str(rrd)).stream().to_chunks():
+        if chunk.entity_path != "/episode/events":
+            continue
+        batch = chunk.to_record_batch()
+        timelines = [f.name for f in batch.schema if f.name.startswith("episode ")]
+        texts = [c for c in batch.schema.names if c.endswith("TextLog:text")]
+        for row in range(batch.num_rows):
+            for name in timelines:
+                position = batch.column(name)[row].as_py()
+                if position is not None:
+                    text = batch.column(texts[0])[row].as_py()
+                    found.append((name, position, text[0] if isinstance(text, list) else text))
+    return found
+
+
+def _car_colours(rrd: Path, timeline: str, position: int) -> np.ndarray:
+    """The road view's box colours logged at ``position`` of ``timeline``."""
+    import rerun as rr
+
+    for chunk in rr.chunk.RrdReader(str(rrd)).stream().to_chunks():
+        if chunk.entity_path != "/world/episode/arena0/road/cars":
+            continue
+        batch = chunk.to_record_batch()
+        if timeline not in batch.schema.names:
+            continue
+        colours = [c for c in batch.schema.names if c.endswith("Boxes2D:colors")]
+        for row in range(batch.num_rows):
+            if batch.column(timeline)[row].as_py() == position:
+                return np.array(batch.column(colours[0])[row].as_py(), dtype=np.uint32)
+    raise AssertionError(f"no road logged at {timeline} = {position}")
+
+
+def test_a_replayed_collision_is_marked_at_its_decision_with_its_cars_coloured(tmp_path):
+    from overtake.viz.world_view import EVENT_COLOUR
+
+    record = _drive(tmp_path / "records", "min2018")
+    _, episodes = read_records(record)
+    crashed = [e for e in episodes if e.collisions]
+    rrd = tmp_path / "replay.rrd"
+    replay(
+        ReplayConfig(
+            record=record, collisions=True, recording=RecordingConfig(sink="file", rrd=rrd)
+        )
+    )
+    events = _text_events(rrd)
+    packed = int.from_bytes(bytes([*EVENT_COLOUR, 255]), "big")
+    for episode in crashed:
+        [decision] = episode.events["collisions"]
+        # A collision ends a min2018 episode: the metrics' last decision is the collision's.
+        assert decision == episode.metrics["decisions"] - 1
+        timeline = f"episode {episode.episode}"
+        assert (timeline, decision, f"collision at decision {decision}") in {
+            (name, position, text.split(",")[0]) for name, position, text in events
+        }
+        colours = _car_colours(rrd, timeline, decision)
+        # The agent and the car it hit, and only at the collision.
+        assert (colours == packed).sum() >= 2
+        assert (_car_colours(rrd, timeline, decision - 1) == packed).sum() == 0
+    assert not {name for name, _, _ in events} - {f"episode {e.episode}" for e in crashed}
+
+
+class _OverriddenEveryFew:
+    """Keeps its lane and speed, and says the shield overrode it at decisions 3, 10, 17, ..."""
+
+    def __init__(self, n: int) -> None:
+        self.n, self.calls = n, 0
+        self.last_q: np.ndarray | None = None
+        self.last_overridden: np.ndarray | None = None
+
+    def __call__(self, obs, info, starting) -> np.ndarray:
+        self.last_q = np.tile(np.arange(5.0), (self.n, 1))
+        self.last_overridden = np.full(self.n, self.calls % 7 == 3)
+        self.calls += 1
+        return np.zeros(self.n, dtype=np.int64)
+
+
+def test_the_shields_overrides_are_kept_and_recorded_at_their_decisions(tmp_path):
+    from overtake.client.episode_recording import open_episode_recording
+    from overtake.client.episode_records import EpisodeRecorder
+    from overtake.client.episodes import make_vector_env, run_episodes
+    from overtake.viz.recording import close_recording
+
+    envs = make_vector_env("min2018", {"episode.max_decisions": 30}, 2, None)
+    policy = _OverriddenEveryFew(2)
+    recorder = EpisodeRecorder([5, 6], policy)
+    rrd = tmp_path / "shield.rrd"
+    recording, view = open_episode_recording(
+        RecordingConfig(sink="file", rrd=rrd), rrd, [0, 1], envs, policy, "test"
+    )
+    try:
+        run_episodes(envs, policy, 2, 5, watchers=[recorder, view])
+    finally:
+        close_recording(recording)
+        envs.close()
+    for record in recorder.records():
+        assert record.events["shield_overrides"] == (3, 10, 17, 24)
+    overrides = [(n, p, t) for n, p, t in _text_events(rrd) if t.startswith("the shield")]
+    assert sorted((n, p) for n, p, _ in overrides) == [
+        (f"episode {e}", d) for e in (0, 1) for d in (3, 10, 17, 24)
+    ]
+    assert all(" with keep at decision " in t for _, _, t in overrides)

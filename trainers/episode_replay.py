@@ -1,0 +1,311 @@
+"""``overtake-replay``: play recorded episodes again and watch them in Rerun.
+
+An episode record (``overtake-eval --episodes-out``, ``overtake-drive --episodes-out``, the
+experiments' evaluations) holds each episode's seed and actions; the simulator is
+deterministic, so sending the same actions from the same seed re-simulates the episode bit for
+bit. The replay records it as :mod:`overtake.viz.episode_view` lays out (the road with the cars
+of each collision coloured, the car's camera and LIDAR, its speed, the Q-values where a
+checkpoint or model drove, the action, the reward and its terms, the event log), each episode on
+its own timeline.
+
+The replay checks itself against the record and stops with a message naming what differs:
+before it starts, the configuration the record's preset and overrides resolve to now against
+the record's; while it runs, the policy's choice against the recorded action (a checkpoint, an
+exported model, and the deterministic reference drivers: rule, idle, planner); at the end, each
+episode's metrics and events against the record's.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import tyro
+from tyro.conf import Positional
+
+from overtake.client.commands import run_command
+from overtake.client.episode_recording import open_episode_recording
+from overtake.client.episode_records import (
+    EpisodeRecord,
+    EpisodeRecorder,
+    RecordError,
+    RecordHeader,
+    config_differences,
+    read_records,
+)
+from overtake.client.episodes import baseline_policy, make_vector_env, run_episodes
+from overtake.client.provenance import git_commit
+from overtake.client.shared_steps import Transport
+from overtake.client.shield import Shield
+from overtake.protocol.transport import SecurityConfig
+from overtake.protocol.vocabulary import ACTION_NAMES, METRIC_FIELDS
+from overtake.viz.recording import RecordingConfig, close_recording
+
+from .checkpoint import load_checkpoint
+from .evaluate import GreedyPolicy
+
+# Reference policies whose choices depend on nothing but what their arena shows: a replay
+# checks each of their decisions against the record (random draws for the whole batch).
+DETERMINISTIC_REFERENCES = ("rule", "idle", "planner")
+# Differences named in a refusal; more are counted.
+SHOWN_DIFFERENCES = 8
+
+
+class ReplayDiverged(RecordError):
+    """The replayed episode is not the recorded one; the message says where it parted."""
+
+
+@dataclass(frozen=True)
+class ReplayConfig:
+    """Play recorded episodes again, into Rerun."""
+
+    record: Positional[Path]
+    """an episode record (<name>.jsonl of overtake-eval --episodes-out)"""
+    episode: tuple[int, ...] = ()
+    """the episodes to replay, by their number in the record (default: all)"""
+    collisions: bool = False
+    """only the episodes with a collision"""
+    checkpoint: Path | None = None
+    """the checkpoint that drove, where it is not at the path the record names (its Q-values
+    are recorded, and its choices checked against the record)"""
+    recording: RecordingConfig = field(default_factory=RecordingConfig)
+    """where the replay is recorded (default: <record's name>-replay.rrd here)"""
+    connect: str | None = None
+    """replay on a simulator server at this Zenoh endpoint (None: in this process, which also
+    draws the road)"""
+    security: SecurityConfig = field(default_factory=SecurityConfig)
+    """usrpwd credentials and TLS certificates for --connect"""
+    transport: Transport = "auto"
+    """how a server's Steps reach this process (--connect): auto, shm or zenoh"""
+
+
+def select(episodes: list[EpisodeRecord], config: ReplayConfig) -> list[EpisodeRecord]:
+    """The episodes ``config`` asks for, in the record's order."""
+    numbers = {record.episode for record in episodes}
+    unknown = sorted(set(config.episode) - numbers)
+    if unknown:
+        raise RecordError(
+            f"{config.record} has no episode {', '.join(map(str, unknown))}: it holds "
+            f"episodes {min(numbers)}-{max(numbers)}"
+            if numbers
+            else f"{config.record} holds no episodes"
+        )
+    chosen = [r for r in episodes if not config.episode or r.episode in config.episode]
+    if config.collisions:
+        chosen = [r for r in chosen if r.collisions > 0]
+        if not chosen:
+            raise RecordError(f"no episode asked for in {config.record} has a collision")
+    if not chosen:
+        raise RecordError(f"{config.record} holds no episodes")
+    return chosen
+
+
+class RecordedActions:
+    """Sends each environment its episode's recorded actions (keep after the episode ended);
+    with ``policy`` (the one that drove, where it can be asked again) it also asks it, for its
+    Q-values and the shield's overrides, and stops at the first decision where it would now
+    choose otherwise than the record."""
+
+    def __init__(
+        self, episodes: list[EpisodeRecord], policy: Any, check: bool, header: RecordHeader
+    ) -> None:
+        self.episodes, self.policy, self.check, self.header = episodes, policy, check, header
+        self.actions = [record.action_array() for record in episodes]
+        self.decision = np.zeros(len(episodes), dtype=np.int64)
+        self.last_q: np.ndarray | None = None
+        self.last_overridden: np.ndarray | None = None
+        if policy is not None and hasattr(policy, "episode_extras"):
+            self.episode_extras = policy.episode_extras
+
+    def __call__(
+        self, obs: dict[str, np.ndarray], info: dict[str, Any], starting: np.ndarray
+    ) -> np.ndarray:
+        actions = np.zeros(len(self.episodes), dtype=np.int64)
+        playing = np.array([d < len(a) for d, a in zip(self.decision, self.actions, strict=True)])
+        for i in np.flatnonzero(playing):
+            actions[i] = self.actions[i][self.decision[i]]
+        if self.policy is not None:
+            chosen = np.asarray(self.policy(obs, info, starting))
+            self.last_q = getattr(self.policy, "last_q", None)
+            self.last_overridden = getattr(self.policy, "last_overridden", None)
+            if self.check:
+                parted = np.flatnonzero(playing & (chosen != actions))
+                if parted.size:
+                    first = int(parted[0])
+                    episode = self.episodes[first]
+                    raise ReplayDiverged(
+                        f"episode {episode.episode} (seed {episode.seed}) "
+                        f"parts from its record at decision {self.decision[first]}: the record "
+                        f"took {ACTION_NAMES[actions[first]]}, the policy now chooses "
+                        f"{ACTION_NAMES[chosen[first]]}, so what it observed differs"
+                        f"{_commits(self.header)}"
+                    )
+        self.decision += playing
+        return actions
+
+
+def _commits(header: RecordHeader) -> str:
+    now = git_commit()
+    if now == header.commit:
+        return ""
+    return f" (the record was made by commit {header.commit}, this is {now})"
+
+
+def _policy(header: RecordHeader, config: ReplayConfig, envs: Any) -> tuple[Any, bool]:
+    """The policy that drove, asked again during the replay (None: it cannot be, or need not
+    be), and whether its choices are checked against the record."""
+    source, n = header.policy, envs.num_envs
+    space, spec = envs.single_observation_space, envs.unwrapped.behaviour_spec
+    if source.kind == "checkpoint":
+        path = config.checkpoint or Path(source.name)
+        if not path.exists():
+            raise RecordError(
+                f"the record was driven by the checkpoint {source.name}, which is not there: "
+                "give its place with --checkpoint"
+            )
+        checkpoint = load_checkpoint(path)
+        if source.step is not None and checkpoint.step != source.step:
+            raise RecordError(
+                f"{path} is at step {checkpoint.step}, the record was driven at step "
+                f"{source.step}: its Q-values would not be the ones that drove"
+            )
+        shield = Shield(spec) if source.shield else None
+        return GreedyPolicy(checkpoint, n, space, header.preset, shield), True
+    if source.kind == "onnx":
+        from overtake.client.onnx_policy import OnnxPolicy
+
+        path = config.checkpoint or Path(source.name)
+        if not path.exists():
+            raise RecordError(
+                f"the record was driven by the model {source.name}, which is not there: give "
+                "its place with --checkpoint"
+            )
+        return OnnxPolicy(path, n, space, header.preset, spec=spec, shield=source.shield), True
+    if source.name in DETERMINISTIC_REFERENCES:
+        return baseline_policy(source.name, spec, 0, n, envs), True
+    return None, False
+
+
+def compare(recorded: list[EpisodeRecord], replayed: list[EpisodeRecord], header: Any) -> None:
+    """Each replayed episode's length, metrics and events against the record's."""
+    by_number = {record.episode: record for record in replayed}
+    for record in recorded:
+        again = by_number.get(record.episode)
+        if again is None:
+            raise ReplayDiverged(
+                f"episode {record.episode} did not end within its {len(record.actions)} "
+                f"recorded decisions{_commits(header)}"
+            )
+        for name in METRIC_FIELDS:
+            if again.metrics[name] != record.metrics[name]:
+                raise ReplayDiverged(
+                    f"episode {record.episode} (seed {record.seed}) replayed with {name} = "
+                    f"{again.metrics[name]!r}, the record says {record.metrics[name]!r}"
+                    f"{_commits(header)}"
+                )
+        events = {k: v for k, v in record.events.items() if k != "shield_overrides"}
+        events_again = {k: v for k, v in again.events.items() if k != "shield_overrides"}
+        if events != events_again:
+            raise ReplayDiverged(
+                f"episode {record.episode}: events at {events_again} replayed, the record "
+                f"has {events}{_commits(header)}"
+            )
+
+
+def main(config: ReplayConfig) -> dict[str, Any]:
+    """Replay the chosen episodes; returns what was replayed and where it was recorded."""
+    header, episodes = read_records(config.record)
+    chosen = select(episodes, config)
+    envs = make_vector_env(
+        header.preset,
+        header.overrides,
+        len(chosen),
+        config.connect,
+        config.security,
+        transport=config.transport,
+    )
+    recording = None
+    rrd = config.recording.rrd or Path(f"{config.record.stem}-replay.rrd")
+    try:
+        differences = sorted(
+            config_differences(header.config, envs.unwrapped.sim_config),
+            key=lambda text: not text.startswith("preset:"),  # the preset's name first
+        )
+        if differences:
+            shown = "; ".join(differences[:SHOWN_DIFFERENCES])
+            more = len(differences) - SHOWN_DIFFERENCES
+            raise RecordError(
+                f"preset {header.preset} with the record's overrides resolves to another "
+                f"simulator than the record's: {shown}"
+                + (f" (and {more} more)" if more > 0 else "")
+                + _commits(header)
+            )
+        policy, check = _policy(header, config, envs)
+        actions = RecordedActions(chosen, policy, check, header)
+        labels = [record.episode for record in chosen]
+        seeds = [record.seed for record in chosen]
+        recorder = EpisodeRecorder(seeds, actions)
+        recording, view = open_episode_recording(
+            config.recording,
+            rrd,
+            labels,
+            envs,
+            actions,
+            header.name or header.policy.name,
+            every=config.recording.record_every,
+        )
+        watchers: list[Any] = [recorder] if view is None else [recorder, view]
+        with torch.no_grad():
+            run_episodes(envs, actions, len(chosen), seeds, watchers=watchers)
+        if recording is not None and config.recording.sink == "web":
+            # The web viewer lives in this process: it serves until the user is done.
+            print(f"replayed: {config.recording.describe(rrd)}; Ctrl-C ends it")
+            with contextlib.suppress(KeyboardInterrupt):
+                threading.Event().wait()
+    finally:
+        close_recording(recording)
+        envs.close()
+    compare(chosen, _numbered(recorder.records(), labels), header)
+    where = config.recording.describe(rrd) if recording is not None else "not recorded"
+    for record in chosen:
+        collisions = record.events.get("collisions", ())
+        print(
+            f"episode {record.episode} (seed {record.seed}): {len(record.actions)} decisions, "
+            f"as recorded"
+            + (f"; collision at decision {', '.join(map(str, collisions))}" if collisions else "")
+        )
+    print(f"replay: {where}")
+    return {"episodes": labels, "rrd": str(rrd) if recording is not None else None}
+
+
+def _numbered(records: list[EpisodeRecord], labels: list[int]) -> list[EpisodeRecord]:
+    """The recorder numbers environments 0..n-1: give them the record's episode numbers."""
+    return [
+        EpisodeRecord(labels[r.episode], r.seed, r.actions, r.metrics, r.events) for r in records
+    ]
+
+
+def parse_args(argv: list[str] | None = None) -> ReplayConfig:
+    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
+    ``cli`` runs, and what the documentation's checks parse its commands with."""
+
+    return tyro.cli(
+        ReplayConfig,
+        args=argv,
+        config=(tyro.conf.OmitArgPrefixes,),
+        description="overtake-replay: recorded episodes played again, into Rerun",
+    )
+
+
+def cli(argv: list[str] | None = None) -> None:
+    config = parse_args(argv)
+    run_command("overtake-replay", main, config)
+
+
+if __name__ == "__main__":
+    cli()
