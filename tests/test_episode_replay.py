@@ -73,12 +73,34 @@ def test_a_recorded_episode_replays_to_the_same_metrics_in_process(tmp_path, pre
 
 def test_records_made_on_a_server_replay_in_process_and_on_the_server(tmp_path, start_server):
     server = start_server("episodes")
-    remote = _drive(tmp_path / "remote", "min2018", connect=server.endpoint)
-    local = _drive(tmp_path / "local", "min2018")
-    # The same episodes: a server's simulator is this one.
-    assert read_records(remote)[1] == read_records(local)[1]
-    replay(ReplayConfig(record=remote, recording=NO_RECORDING))
+    for preset in sorted(PRESETS):
+        remote = _drive(tmp_path / "remote" / preset, preset, connect=server.endpoint)
+        local = _drive(tmp_path / "local" / preset, preset)
+        # The same episodes: a server's simulator is this one.
+        assert read_records(remote)[1] == read_records(local)[1]
+        replay(ReplayConfig(record=remote, recording=NO_RECORDING))
     replay(ReplayConfig(record=local, recording=NO_RECORDING, connect=server.endpoint))
+    # overtake-eval --record on a server: the car and its events (the road is the server's).
+    from overtake.trainers.evaluate import EvalConfig
+    from overtake.trainers.evaluate import main as evaluate
+
+    rrd = tmp_path / "remote-eval.rrd"
+    result = evaluate(
+        EvalConfig(
+            policy="random",
+            preset="min2018",
+            episodes=4,
+            seed=3,
+            traffic="heavy",
+            max_decisions=80,
+            connect=server.endpoint,
+            record=rrd,
+            episodes_out=tmp_path / "remote-eval",
+        )
+    )
+    _, episodes = read_records(Path(result["episodes_record"]))
+    _assert_collisions_recorded(rrd, episodes)
+    assert not _entities(rrd) & {"/world/episode/arena0/road/cars"}
 
 
 def test_a_record_of_another_preset_or_other_overrides_is_refused(tmp_path):
@@ -281,3 +303,48 @@ def test_the_shields_overrides_are_kept_and_recorded_at_their_decisions(tmp_path
         (f"episode {e}", d) for e in (0, 1) for d in (3, 10, 17, 24)
     ]
     assert all(" with keep at decision " in t for _, _, t in overrides)
+
+
+def _entities(rrd: Path) -> set[str]:
+    import rerun as rr
+
+    return {c.entity_path for c in rr.chunk.RrdReader(str(rrd)).stream().to_chunks()}
+
+
+def _assert_collisions_recorded(rrd: Path, episodes: list[EpisodeRecord]) -> None:
+    """The recording's collision events are the record's, each at its decision."""
+    logged = {
+        (name, position)
+        for name, position, text in _text_events(rrd)
+        if text.startswith("collision at decision")
+    }
+    expected = {
+        (f"episode {e.episode}", d) for e in episodes for d in e.events.get("collisions", ())
+    }
+    assert expected and logged == expected
+
+
+def test_evaluation_records_its_episodes_as_it_drives_them(tmp_path):
+    from overtake.trainers.evaluate import EvalConfig
+    from overtake.trainers.evaluate import main as evaluate
+
+    rrd = tmp_path / "eval.rrd"
+    result = evaluate(
+        EvalConfig(
+            policy="random",
+            preset="min2018",
+            episodes=4,
+            seed=3,
+            traffic="heavy",
+            max_decisions=80,
+            record=rrd,
+            episodes_out=tmp_path / "records",
+        )
+    )
+    header, episodes = read_records(Path(result["episodes_record"]))
+    assert header.policy.kind == "reference" and header.policy.name == "random"
+    assert [e.metrics for e in episodes] == [
+        {k: v for k, v in row.items() if k != "shield_overrides"} for row in result["episodes"]
+    ]
+    _assert_collisions_recorded(rrd, episodes)
+    assert {"/world/episode/arena0/road/cars", "/episode/car/camera"} <= _entities(rrd)
