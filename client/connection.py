@@ -40,7 +40,7 @@ from overtake.protocol.transport import (
     open_session,
 )
 
-from .shared_steps import Transport, attach, steps_from_notice
+from .shared_steps import Transport, attach, reads_through, steps_from_notice
 
 log = logging.getLogger("overtake.client")
 
@@ -80,8 +80,10 @@ class RemoteConfig:
     --isolate-trainers) lets a user's session use only ids that begin with its user name."""
     steps_transport: Transport = "auto"
     """How Steps travel: ``auto`` through shared memory where the server is on this host (it
-    offers a segment and this trainer can map it), over Zenoh otherwise; ``shm`` shared memory
-    or a clear error; ``zenoh`` always over Zenoh."""
+    offers a segment and this trainer can map it) and the group's Steps are large enough to
+    gain by it (``overtake.client.shared_steps.AUTO_SHM_MIN_BYTES``, 256 KiB: about 32 arenas
+    of min2018 with both sensors), over Zenoh otherwise; ``shm`` shared memory or a clear
+    error; ``zenoh`` always over Zenoh."""
 
     @classmethod
     def from_connect(cls, connect: str | tuple[str, ...] | list[str] | None) -> RemoteConfig:
@@ -437,7 +439,7 @@ class Connection:
         segment = attach(server, offer, self.config.steps_transport)
         if segment is not None:
             self._segments[(server, group)] = segment
-        return segment is not None
+        return reads_through(segment, self.config.steps_transport)
 
     def _release_segment(self, server: str, group: int) -> None:
         segment = self._segments.pop((server, group), None)

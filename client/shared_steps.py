@@ -17,7 +17,15 @@ log = logging.getLogger("overtake.client")
 Transport = Literal["auto", "shm", "zenoh"]
 """How a trainer's Steps travel: ``shm`` through shared memory (the server must be on this host,
 sharing its ``/dev/shm``), ``zenoh`` always over Zenoh, ``auto`` through shared memory where the
-server's segment can be attached and over Zenoh otherwise."""
+server's segment can be attached and the Steps are large enough to gain by it
+(:data:`AUTO_SHM_MIN_BYTES`), over Zenoh otherwise."""
+
+# ``auto`` reads Steps through shared memory from this segment size on. Measured on the 2-core
+# VM (bench/RESULTS.md, issue 36): a round through the segment costs its notice (a Zenoh
+# message of its own) plus a copy in and out, which is more than msgpack's for small Steps
+# (1 and 8 arenas of min2018, 8.5 and 65 KB: 0.33x and 0.42x of in-process against 0.39x and
+# 0.48x over Zenoh) and less for large ones (64 arenas, 513 KB: 0.54x against 0.50x).
+AUTO_SHM_MIN_BYTES = 256 * 1024
 
 
 def attach(server: str, offer: ShmOffer | None, transport: Transport) -> Segment | None:
@@ -45,6 +53,15 @@ def attach(server: str, offer: ShmOffer | None, transport: Transport) -> Segment
             "server %s is not on this host's shared memory (%s): Steps over Zenoh", server, error
         )
         return None
+
+
+def reads_through(segment: Segment | None, transport: Transport) -> bool:
+    """Whether Steps come through ``segment`` (an attached one): always with ``shm``, with
+    ``auto`` where it is large enough to gain (:data:`AUTO_SHM_MIN_BYTES`). A segment attached
+    but not read is kept all the same: a trainer that finds its server dead removes it."""
+    if segment is None:
+        return False
+    return transport == "shm" or segment.size >= AUTO_SHM_MIN_BYTES
 
 
 def steps_from_notice(segment: Segment, notice: StepsInShm) -> Steps:

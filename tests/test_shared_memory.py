@@ -197,6 +197,33 @@ def test_remote_equals_in_process_on_each_transport(start_server, transport):
     wait_until(lambda: not segments_of(server.proc.pid), 5.0, "the group's segment to go")
 
 
+@pytest.mark.timeout(90)
+def test_auto_reads_shared_memory_where_the_steps_are_large_enough_to_gain(start_server):
+    from overtake.client.shared_steps import AUTO_SHM_MIN_BYTES
+
+    server = start_server("shm-auto")
+    for arenas, through_shm in ((2, False), (40, True)):
+        env = gym.make_vec(
+            REMOTE_HIGHWAY_ENV_ID,
+            num_envs=arenas,
+            vectorization_mode="vector_entry_point",
+            remote=remote_config(server.endpoint, server.name),
+            preset="min2018",
+        )
+        try:
+            group = env.unwrapped.group
+            # The server offers a segment either way; auto takes it by its size.
+            [segment] = segments_of(server.proc.pid)
+            assert (segment.stat().st_size >= AUTO_SHM_MIN_BYTES) == through_shm
+            assert group.shm is through_shm
+            env.reset(seed=1)
+            env.step(np.zeros(arenas, dtype=np.int64))
+            assert group.connection.rounds_through_shm == (1 if through_shm else 0)
+        finally:
+            env.close()
+        wait_until(lambda: not segments_of(server.proc.pid), 5.0, "the group's segment to go")
+
+
 @pytest.mark.timeout(60)
 def test_a_trainer_that_cannot_reach_the_segment_falls_back_or_says_why(
     start_server, tmp_path, monkeypatch
