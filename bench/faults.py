@@ -68,7 +68,7 @@ import threading
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import tyro
 
@@ -106,6 +106,9 @@ class FaultConfig:
     checkpoint_every: int = 100
     poll_s: float = 0.05
     seed: int = 0
+    transport: Literal["auto", "shm", "zenoh"] = "auto"
+    """how the trainers' Steps travel (shm: through shared memory, the trainer in the
+    namespace too, since the namespace has the host's /dev/shm)"""
     run_dir: Path = Path("runs/faults")
 
 
@@ -422,7 +425,7 @@ def run_case(config: FaultConfig, target: str, fault: str, index: int, rng: rand
              str(case_dir / f"trainer{i}"), "--resume-if-found", "--replay-size", "2000",
              "--learning-starts", "200", "--checkpoint-every", str(config.checkpoint_every),
              "--log-every", str(config.checkpoint_every), "--no-progress",
-             "--torch-threads", "1"],
+             "--torch-threads", "1", "--transport", config.transport],
             case_dir,
         )
         for i in range(2)

@@ -38,7 +38,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import msgpack
 import numpy as np
@@ -65,6 +65,9 @@ class FuzzConfig:
     """the server's --max-arenas-per-trainer: what bounds the stranger's replayed opens"""
     stall_s: float = 5.0
     """the longest gap between two of the honest trainer's steps that is not a stall"""
+    transport: Literal["auto", "shm", "zenoh"] = "auto"
+    """how the honest trainer's and the stranger's Steps travel (shm: through shared memory,
+    the stranger's notices then among what it replays and mutates)"""
     json: Path | None = None
 
 
@@ -86,14 +89,15 @@ def _write_atomically(path: Path, state: dict[str, Any]) -> None:
     os.replace(tmp, path)
 
 
-def honest_main(endpoint: str, report: str) -> None:
+def honest_main(endpoint: str, report: str, transport: str = "auto") -> None:
     """Trainer mode: step one arena until stdin closes; write how it went to ``report`` every
     second (steps, longest gap, errors) and once more at the end."""
     import threading
 
     from overtake.client.remote import RemoteConfig
 
-    env = make_env(REMOTE_ENV_ID, 1, remote=RemoteConfig(connect=(endpoint,)))
+    remote = RemoteConfig(connect=(endpoint,), steps_transport=transport)  # type: ignore[arg-type]
+    env = make_env(REMOTE_ENV_ID, 1, remote=remote)
     env.reset(seed=0)
     rng = np.random.default_rng(0)
     stop = threading.Event()
@@ -128,7 +132,7 @@ class Stranger:
     """This process on the wire: a raw session for any key, and a trainer with arenas of its
     own whose real messages the frames are made from."""
 
-    def __init__(self, endpoint: str) -> None:
+    def __init__(self, endpoint: str, transport: str = "auto") -> None:
         import zenoh
 
         from overtake.client.remote import ArenaGroup, Connection, RemoteConfig
@@ -136,7 +140,9 @@ class Stranger:
         from overtake.protocol.messages import OpenRequest, StatusReply, StatusRequest
 
         self.zenoh, self.keys = zenoh, keys
-        self.connection = Connection(RemoteConfig(connect=(endpoint,)))
+        self.connection = Connection(
+            RemoteConfig(connect=(endpoint,), steps_transport=transport)  # type: ignore[arg-type]
+        )
         [self.server] = [s.server for s in self.connection.discover()]
         self.session = self.connection.session
         open_request = OpenRequest(
@@ -164,8 +170,11 @@ class Stranger:
             CloseRequest,
             JoinRequest,
             ResetRequest,
+            ShmArray,
             StatusRequest,
+            StepsInShm,
         )
+        from overtake.protocol.shm_messages import STEPS_ARRAYS
 
         steps = self.group.step(np.array([0]), np.array([1]))  # one real Steps, ours
         mine = Actions(
@@ -201,6 +210,18 @@ class Stranger:
                 trainer=self.connection.trainer, arena=self.honest_group.arenas[0], agents=1
             ),
             steps,
+            # A shared-memory notice for the honest trainer's group (a write that is not the
+            # segment's, somewhere in it): mutated, it tries the notice's checks and the read's.
+            StepsInShm(
+                server=self.server,
+                group=self.honest_group.group,
+                round=self.honest_group.rounds,
+                generation=2,
+                arrays=tuple(
+                    ShmArray(name=name, offset=64 + 64 * i, dtype="float64", shape=(1,))
+                    for i, name in enumerate(STEPS_ARRAYS)
+                ),
+            ),
         ]
         return [codec.encode(m) for m in messages]
 
@@ -409,7 +430,15 @@ def main(config: FuzzConfig) -> dict[str, Any]:
     honest_log_path = report_path.with_suffix(".log")
     honest_log = honest_log_path.open("w")
     honest = subprocess.Popen(
-        [sys.executable, "-m", "bench.fuzz_wire", "--honest", endpoint, str(report_path)],
+        [
+            sys.executable,
+            "-m",
+            "bench.fuzz_wire",
+            "--honest",
+            endpoint,
+            str(report_path),
+            config.transport,
+        ],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         stderr=honest_log,
@@ -424,7 +453,7 @@ def main(config: FuzzConfig) -> dict[str, Any]:
     try:
         if honest.stdout is None or honest.stdout.readline().strip() != "ready":
             raise RuntimeError("the honest trainer did not start")
-        stranger = Stranger(endpoint)
+        stranger = Stranger(endpoint, config.transport)
         rss_start = rss_mib(server.pid)
         frames = frames_strategy(stranger.seeds)
 
@@ -536,7 +565,7 @@ def main(config: FuzzConfig) -> dict[str, Any]:
 
 def cli() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "--honest":
-        honest_main(sys.argv[2], sys.argv[3])
+        honest_main(*sys.argv[2:5])
         return
     result = main(tyro.cli(FuzzConfig))
     sys.exit(1 if result["failures"] else 0)

@@ -408,7 +408,9 @@ class Connection:
                 message = steps_from_notice(segment, message)
                 self.rounds_through_shm += 1
             except errors.ProtocolError as error:
-                self._errors.setdefault((sender, message.group), deque()).append(error)
+                # Stale or forged (anyone on the network may publish on our key): dropped as an
+                # unreadable frame is; the server's own notice for the round still comes.
+                self._drop("dropped a shared-memory notice from server %s: %s", sender, error)
                 return
         self._buffered.setdefault((sender, message.group), deque()).append(message)
 

@@ -225,6 +225,50 @@ def test_auto_reads_shared_memory_where_the_steps_are_large_enough_to_gain(start
 
 
 @pytest.mark.timeout(60)
+def test_a_forged_notice_is_dropped_and_the_trainer_steps_on(start_server, caplog):
+    from overtake.protocol import keys
+    from remote_support import RawClient
+
+    server = start_server("shm-forged")
+    remote = gym.make(
+        REMOTE_HIGHWAY_ENV_ID,
+        remote=remote_config(server.endpoint, server.name, steps_transport="shm"),
+        overrides=SHORT,
+    )
+    local = gym.make(HIGHWAY_ENV_ID, overrides=SHORT)
+    raw = RawClient(server.endpoint)
+    try:
+        group = remote.unwrapped.group
+        remote.reset(seed=2), local.reset(seed=2)
+        key = keys.trainer_steps(group.connection.trainer, server.name)
+        for step in range(20):
+            # Anyone on the network may publish on the trainer's key: a notice naming another
+            # write, and one pointing outside the segment.
+            for generation, offset in ((10**6, 64), (2, 2**27)):
+                forged = StepsInShm(
+                    server=server.name,
+                    group=group.group_id,
+                    round=step + 1,
+                    generation=generation,
+                    arrays=tuple(
+                        ShmArray(name=name, offset=offset, dtype="float64", shape=(1,))
+                        for name in STEPS_ARRAYS
+                    ),
+                )
+                raw.put(key, codec.encode(forged))
+            got, want = remote.step(step % 5), local.step(step % 5)
+            for name in want[0]:
+                assert np.array_equal(got[0][name], want[0][name]), (step, name)
+            assert got[1] == want[1]
+        assert group.connection.rounds_through_shm == 20
+        assert "dropped a shared-memory notice from server" in caplog.text
+    finally:
+        raw.close()
+        remote.close()
+        local.close()
+
+
+@pytest.mark.timeout(60)
 def test_a_trainer_that_cannot_reach_the_segment_falls_back_or_says_why(
     start_server, tmp_path, monkeypatch
 ):
