@@ -227,6 +227,7 @@ def test_auto_reads_shared_memory_where_the_steps_are_large_enough_to_gain(start
 @pytest.mark.timeout(60)
 def test_a_forged_notice_is_dropped_and_the_trainer_steps_on(start_server, caplog):
     from overtake.protocol import keys
+
     from remote_support import RawClient
 
     server = start_server("shm-forged")
