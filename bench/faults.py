@@ -43,6 +43,8 @@ Figures per case (``summary.json`` in ``--run-dir``, one line each printed):
   and may be -1 per server loss the trainer lived through (``server_losses``): the round whose
   actions reached the server but whose Steps did not reach the trainer, in the episode that
   the loss ended as truncated;
+- ``segments_left``: shared-memory segments (``--transport shm``) the case made that are
+  still in ``/dev/shm`` once everything has stopped (none expected);
 - ``checkpoints``: each trainer's checkpoint loads right after a kill (before the restart
   reads it) and at the end;
 - ``recordings``: every .rrd passes ``rerun rrd verify --check-footers false`` (the server's
@@ -431,6 +433,9 @@ def run_case(config: FaultConfig, target: str, fault: str, index: int, rng: rand
         for i in range(2)
     ]  # fmt: skip
     victim = {"router": router, "server": server, "trainer": trainers[0]}[target]
+    from overtake.protocol.shared_memory import NAME_PREFIX, shm_dir
+
+    segments_before = {p.name for p in shm_dir().glob(f"{NAME_PREFIX}*")}
     observer = None
     result: dict[str, Any] = {"target": target, "fault": fault}
     try:
@@ -501,6 +506,11 @@ def run_case(config: FaultConfig, target: str, fault: str, index: int, rng: rand
         stopped["server"] = server.stop(30)
         stopped["router"] = router.stop(30)
         result["stopped"] = stopped
+        # Shared-memory segments the case made and left behind (none may be: every life's
+        # segment goes with its trainer, its server, or the next server's sweep).
+        result["segments_left"] = sorted(
+            p.name for p in shm_dir().glob(f"{NAME_PREFIX}*") if p.name not in segments_before
+        )
 
         server_rounds = leave_rounds(server)
         steps = {}
@@ -548,6 +558,8 @@ def verdict(result: dict[str, Any]) -> list[str]:
         problems.append(f"{result['arenas_settled']} arenas in use after the fault, not 2")
     if result["arenas_after_stop"] != 0:
         problems.append(f"{result['arenas_after_stop']} arenas left after the trainers stopped")
+    if result.get("segments_left"):
+        problems.append(f"shared-memory segments left: {', '.join(result['segments_left'])}")
     for name, back in result["back_after_s"].items():
         if back is None:
             problems.append(f"{name} did not step again")
