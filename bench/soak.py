@@ -34,7 +34,7 @@ import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import tyro
@@ -70,6 +70,9 @@ class SoakConfig:
     record: bool = True
     """the server's own recording and the spectator's to .rrd files; --no-record: neither
     records (the spectator still receives every world frame)"""
+    transport: Literal["auto", "shm", "zenoh"] = "auto"
+    """how the learners' Steps travel (shm: through shared memory; segments are then among
+    what must not grow)"""
     run_dir: Path = Path("runs/soak")
     """where the processes' files, samples.jsonl and summary.json go (emptied first)"""
 
@@ -304,6 +307,7 @@ def main(config: SoakConfig) -> dict[str, Any]:
                     *("--learning-starts", str(config.learning_starts)),
                     *("--checkpoint-every", str(config.checkpoint_every)),
                     *("--no-progress", "--torch-threads", "1"),
+                    *("--transport", config.transport),
                 ],
                 run_dir / f"trainer-{index}.log",
             )
