@@ -81,23 +81,8 @@ def test_records_made_on_a_server_replay_in_process_and_on_the_server(tmp_path, 
         replay(ReplayConfig(record=remote, recording=NO_RECORDING))
     replay(ReplayConfig(record=local, recording=NO_RECORDING, connect=server.endpoint))
     # overtake-eval --record on a server: the car and its events (the road is the server's).
-    from overtake.trainers.evaluate import EvalConfig
-    from overtake.trainers.evaluate import main as evaluate
-
     rrd = tmp_path / "remote-eval.rrd"
-    result = evaluate(
-        EvalConfig(
-            policy="random",
-            preset="min2018",
-            episodes=4,
-            seed=3,
-            traffic="heavy",
-            max_decisions=80,
-            connect=server.endpoint,
-            record=rrd,
-            episodes_out=tmp_path / "remote-eval",
-        )
-    )
+    result = _evaluate_random(rrd, tmp_path / "remote-eval", connect=server.endpoint)
     _, episodes = read_records(Path(result["episodes_record"]))
     _assert_collisions_recorded(rrd, episodes)
     assert not _entities(rrd) & {"/world/episode/arena0/road/cars"}
@@ -123,6 +108,17 @@ def test_a_record_of_another_preset_or_other_overrides_is_refused(tmp_path):
 
     _rewrite(record, edit_header=other_overrides)
     with pytest.raises(RecordError, match="traffic.density: 'heavy' in the record, 'light' now"):
+        replay(ReplayConfig(record=record, recording=NO_RECORDING))
+
+
+def test_a_record_whose_checkpoint_is_gone_says_where_to_give_it(tmp_path):
+    record = _drive(tmp_path / "records", "min2018", policy="rule")
+
+    def moved(header):
+        header["policy"] = {"kind": "checkpoint", "name": "runs/gone/checkpoint.pt", "step": 5}
+
+    _rewrite(record, edit_header=moved)
+    with pytest.raises(RecordError, match="checkpoint runs/gone/checkpoint.pt, which is not"):
         replay(ReplayConfig(record=record, recording=NO_RECORDING))
 
 
@@ -324,12 +320,12 @@ def _assert_collisions_recorded(rrd: Path, episodes: list[EpisodeRecord]) -> Non
     assert expected and logged == expected
 
 
-def test_evaluation_records_its_episodes_as_it_drives_them(tmp_path):
+def _evaluate_random(rrd: Path, records: Path, connect: str | None = None) -> dict:
+    """``overtake-eval --policy random`` over the crowded episodes, recorded and kept."""
     from overtake.trainers.evaluate import EvalConfig
     from overtake.trainers.evaluate import main as evaluate
 
-    rrd = tmp_path / "eval.rrd"
-    result = evaluate(
+    return evaluate(
         EvalConfig(
             policy="random",
             preset="min2018",
@@ -337,10 +333,16 @@ def test_evaluation_records_its_episodes_as_it_drives_them(tmp_path):
             seed=3,
             traffic="heavy",
             max_decisions=80,
+            connect=connect,
             record=rrd,
-            episodes_out=tmp_path / "records",
+            episodes_out=records,
         )
     )
+
+
+def test_evaluation_records_its_episodes_as_it_drives_them(tmp_path):
+    rrd = tmp_path / "eval.rrd"
+    result = _evaluate_random(rrd, tmp_path / "records")
     header, episodes = read_records(Path(result["episodes_record"]))
     assert header.policy.kind == "reference" and header.policy.name == "random"
     assert [e.metrics for e in episodes] == [

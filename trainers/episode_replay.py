@@ -156,18 +156,25 @@ def _commits(header: RecordHeader) -> str:
     return f" (the record was made by commit {header.commit}, this is {now})"
 
 
+def _driver_file(header: RecordHeader, config: ReplayConfig) -> Path:
+    """The checkpoint or model that drove: where the record says, or ``--checkpoint``."""
+    path = config.checkpoint or Path(header.policy.name)
+    if not path.exists():
+        what = "checkpoint" if header.policy.kind == "checkpoint" else "model"
+        raise RecordError(
+            f"the record was driven by the {what} {header.policy.name}, which is not there: "
+            "give its place with --checkpoint"
+        )
+    return path
+
+
 def _policy(header: RecordHeader, config: ReplayConfig, envs: Any) -> tuple[Any, bool]:
     """The policy that drove, asked again during the replay (None: it cannot be, or need not
     be), and whether its choices are checked against the record."""
     source, n = header.policy, envs.num_envs
     space, spec = envs.single_observation_space, envs.unwrapped.behaviour_spec
     if source.kind == "checkpoint":
-        path = config.checkpoint or Path(source.name)
-        if not path.exists():
-            raise RecordError(
-                f"the record was driven by the checkpoint {source.name}, which is not there: "
-                "give its place with --checkpoint"
-            )
+        path = _driver_file(header, config)
         checkpoint = load_checkpoint(path)
         if source.step is not None and checkpoint.step != source.step:
             raise RecordError(
@@ -179,12 +186,7 @@ def _policy(header: RecordHeader, config: ReplayConfig, envs: Any) -> tuple[Any,
     if source.kind == "onnx":
         from overtake.client.onnx_policy import OnnxPolicy
 
-        path = config.checkpoint or Path(source.name)
-        if not path.exists():
-            raise RecordError(
-                f"the record was driven by the model {source.name}, which is not there: give "
-                "its place with --checkpoint"
-            )
+        path = _driver_file(header, config)
         return OnnxPolicy(path, n, space, header.preset, spec=spec, shield=source.shield), True
     if source.name in DETERMINISTIC_REFERENCES:
         return baseline_policy(source.name, spec, 0, n, envs), True
