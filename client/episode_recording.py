@@ -27,7 +27,7 @@ from overtake.viz.recording import (
     close_recording,
     open_recording,
 )
-from overtake.viz.world_view import WorldRecording
+from overtake.viz.world_view import BRAKE_COLOUR, EVENT_COLOUR, WorldRecording
 
 # Cars closer than this (m, beyond touching) to a car that collided are drawn as its partners.
 TOUCH_MARGIN_M = 0.5
@@ -53,6 +53,23 @@ def touching(frame: Any, agent: int = 0, margin_m: float = TOUCH_MARGIN_M) -> np
     if close.size == 0:
         close = others[[int(np.argmin(np.hypot(dx, dy)))]]
     return np.concatenate([[agent], close])
+
+
+def ahead_of(frame: Any, agent: int = 0) -> np.ndarray:
+    """Agent ``agent`` and the nearest car ahead of it in its lane (boxes overlapping
+    sideways), the car an emergency brake is for; the agent alone where there is none."""
+    active = np.flatnonzero(frame.active)
+    others = active[active != agent]
+    if frame.half_width_m is None or others.size == 0:
+        return np.array([agent])
+    dx = frame.x_m[others] - frame.x_m[agent]
+    beside = np.abs(frame.y_m[others] - frame.y_m[agent]) < (
+        frame.half_width_m[others] + frame.half_width_m[agent]
+    )
+    ahead = others[(dx > 0) & beside]
+    if ahead.size == 0:
+        return np.array([agent])
+    return np.array([agent, ahead[np.argmin(frame.x_m[ahead])]])
 
 
 class EpisodeRecording:
@@ -144,7 +161,11 @@ class EpisodeRecording:
                 )
                 # Every episode draws on the same road entities (its timeline tells them apart).
                 frame = dataclasses.replace(frame, server=ROAD_SERVER, arena=0)
-                highlight = touching(frame) if "collisions" in happened else None
+                highlight = {}
+                if "emergency_brakes" in happened:
+                    highlight[BRAKE_COLOUR] = ahead_of(frame)
+                if "collisions" in happened:
+                    highlight[EVENT_COLOUR] = touching(frame)
                 self.road.log(frame, (timeline(self.labels[i]), decision), highlight)
                 speed_kmh = float(frame.speed_mps[0]) * 3.6
             at = f"decision {decision}" + (

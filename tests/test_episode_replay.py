@@ -350,3 +350,24 @@ def test_evaluation_records_its_episodes_as_it_drives_them(tmp_path):
     ]
     _assert_collisions_recorded(rrd, episodes)
     assert {"/world/episode/arena0/road/cars", "/episode/car/camera"} <= _entities(rrd)
+
+
+def test_a_replayed_emergency_brake_is_marked_with_its_cars(tmp_path):
+    from overtake.viz.world_view import BRAKE_COLOUR
+
+    record = _drive(tmp_path / "records", "min2018", policy="rule")
+    _, episodes = read_records(record)
+    braked = [e for e in episodes if e.events.get("emergency_brakes")]
+    assert braked, "the rule driver in heavy traffic brakes hard now and then"
+    rrd = tmp_path / "brakes.rrd"
+    replay(ReplayConfig(record=record, recording=RecordingConfig(sink="file", rrd=rrd)))
+    events = {
+        (name, position) for name, position, text in _text_events(rrd) if "emergency brake" in text
+    }
+    packed = int.from_bytes(bytes([*BRAKE_COLOUR, 255]), "big")
+    for episode in braked:
+        timeline = f"episode {episode.episode}"
+        for decision in episode.events["emergency_brakes"]:
+            assert (timeline, decision) in events
+            # The braking car and the car it braked for.
+            assert (_car_colours(rrd, timeline, decision) == packed).sum() == 2

@@ -2,7 +2,8 @@
 above with the car in it, what the car's camera and LIDAR saw, its speed, the Q-values when a
 network drove, the action, the reward and its terms; and each event (a collision, an
 emergency brake, the safety shield overriding the network) as a line of the event log at the
-decision it happened, with the cars of a collision coloured on the road at that moment.
+decision it happened, with the cars of a collision (and of an emergency brake) coloured on the
+road at that moment.
 
 Every episode has a timeline of its own, ``episode <n>`` (positions: decisions, from 0), and
 all log to the same entities: choosing an episode's timeline in the viewer shows that episode,

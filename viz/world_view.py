@@ -67,7 +67,9 @@ DASH_PERIOD_M = 12.0
 DASH_M = 6.0
 LIDAR_HIT_COLOUR = [255, 128, 0]
 # The cars of a collision, at the decision it happened: a colour no behaviour or agent has.
-EVENT_COLOUR = np.array([0, 240, 255], dtype=np.uint8)
+EVENT_COLOUR: tuple[int, int, int] = (0, 240, 255)
+# An emergency brake's car and the car it braked for, at that decision.
+BRAKE_COLOUR: tuple[int, int, int] = (255, 255, 255)
 LIDAR_RAY_COLOUR = [255, 200, 120]
 
 
@@ -314,12 +316,13 @@ class WorldRecording:
         self,
         frame: WorldFrame,
         timeline: tuple[str, int] | None = None,
-        highlight: np.ndarray | None = None,
+        highlight: dict[tuple[int, int, int], np.ndarray] | None = None,
     ) -> None:
         """Draw ``frame``; ``timeline`` (name, position): on that timeline alone instead of
         the frame's round, sim time and step (an episode replayed on a timeline of its own);
-        ``highlight``: vehicles (indices into the frame's arrays) drawn in
-        :data:`EVENT_COLOUR` (the cars of a collision)."""
+        ``highlight``: vehicles (indices into the frame's arrays) drawn in another colour
+        than their own, by colour (:data:`EVENT_COLOUR`: the cars of a collision,
+        :data:`BRAKE_COLOUR`: an emergency brake's car and the car it braked for)."""
         rr, stream = self.rr, self.stream
         root = f"world/{frame.server}/arena{frame.arena}"
         if frame.trainer_step >= 0 and not self._on_step:
@@ -355,8 +358,10 @@ class WorldRecording:
             AGENT_COLOUR,
             KIND_COLOURS[np.clip(frame.kind[active], 0, len(KIND_COLOURS) - 1)],
         )
-        if highlight is not None and len(highlight):
-            colours = np.where(np.isin(active, highlight)[:, None], EVENT_COLOUR, colours)
+        for colour, vehicles in (highlight or {}).items():
+            colours = np.where(
+                np.isin(active, vehicles)[:, None], np.array(colour, dtype=np.uint8), colours
+            )
         stream.log(
             f"{root}/road/cars",
             rr.Boxes2D(
