@@ -168,6 +168,8 @@ class Connection:
         )
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._drop_logged_t, self._drops_unlogged = -math.inf, 0
+        self.dropped = 0
+        """messages dropped in all (unreadable, not for us, stale or forged notices)"""
         self.closed = False
 
     def _on_server_alive(self, sample: zenoh.Sample) -> None:
@@ -418,6 +420,7 @@ class Connection:
         """Log a message this connection dropped, at most once per DROPPED_LOG_INTERVAL_S,
         with how many went unlogged meanwhile: a flood of garbage in our name (bench/fuzz_wire)
         would otherwise write a line per frame."""
+        self.dropped += 1
         now = time.monotonic()
         if now - self._drop_logged_t < DROPPED_LOG_INTERVAL_S:
             self._drops_unlogged += 1

@@ -225,7 +225,7 @@ def test_auto_reads_shared_memory_where_the_steps_are_large_enough_to_gain(start
 
 
 @pytest.mark.timeout(60)
-def test_a_forged_notice_is_dropped_and_the_trainer_steps_on(start_server, caplog):
+def test_a_forged_notice_is_dropped_and_the_trainer_steps_on(start_server):
     from overtake.protocol import keys
 
     from remote_support import RawClient
@@ -262,7 +262,9 @@ def test_a_forged_notice_is_dropped_and_the_trainer_steps_on(start_server, caplo
                 assert np.array_equal(got[0][name], want[0][name]), (step, name)
             assert got[1] == want[1]
         assert group.connection.rounds_through_shm == 20
-        assert "dropped a shared-memory notice from server" in caplog.text
+        # Every forged notice dropped (the log says so once per 5 s; it is not read here: a
+        # library earlier in the suite may have disabled the project's loggers).
+        assert group.connection.dropped == 40
     finally:
         raw.close()
         remote.close()
