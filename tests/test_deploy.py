@@ -873,7 +873,10 @@ def test_isolation_settings_are_checked_with_the_user_named(tmp_path: Path):
 # --- the compose topology, without Docker ------------------------------------------------------
 
 
-# About 25 s on 2 cores (four PyTorch processes): the compose file's topology, as processes.
+# About 12 s on an idle 2-core machine (four PyTorch processes): the compose file's topology, as
+# processes. Slow: the usrpwd and TLS tests above run a router, a server and a trainer by
+# default; this adds the three trainers and the evaluation.
+@pytest.mark.slow
 @pytest.mark.timeout(400)
 def test_router_server_and_three_trainers_then_eval(tmp_path: Path, background):
     router_ep = f"tcp/{LOOPBACK}:{free_port()}"

@@ -56,29 +56,28 @@ def _rewrite(path: Path, edit_header=None, edit_episode=None) -> None:
     path.write_text("\n".join(json.dumps(line) for line in lines) + "\n")
 
 
-@pytest.mark.parametrize("preset", sorted(PRESETS))
-def test_a_recorded_episode_replays_to_the_same_metrics_in_process(tmp_path, preset):
-    record = _drive(tmp_path / "records", preset)
-    header, episodes = read_records(record)
-    assert header.preset == preset and header.policy.kind == "reference"
-    assert [e.seed for e in episodes] == [3, 4, 5, 6]
-    for episode in episodes:
-        assert len(episode.actions) == episode.metrics["decisions"]
-        # The decisions where the counts rose are as many as the metrics count.
-        for name in ("collisions", "emergency_brakes"):
-            assert len(episode.events.get(name, ())) == episode.metrics[name]
-    result = replay(ReplayConfig(record=record, recording=NO_RECORDING))
-    assert result["episodes"] == [0, 1, 2, 3]
-
-
 def test_records_made_on_a_server_replay_in_process_and_on_the_server(tmp_path, start_server):
+    # Every preset: kept on a server and in process, the same episodes (a server's simulator
+    # is this one), and each replays in process to its record.
     server = start_server("episodes")
     for preset in sorted(PRESETS):
         remote = _drive(tmp_path / "remote" / preset, preset, connect=server.endpoint)
         local = _drive(tmp_path / "local" / preset, preset)
-        # The same episodes: a server's simulator is this one.
-        assert read_records(remote)[1] == read_records(local)[1]
-        replay(ReplayConfig(record=remote, recording=NO_RECORDING))
+        header, episodes = read_records(remote)
+        assert header.preset == preset and header.policy.kind == "reference"
+        assert [e.seed for e in episodes] == [3, 4, 5, 6]
+        for episode in episodes:
+            assert len(episode.actions) == episode.metrics["decisions"]
+            # The decisions where the counts rose are as many as the metrics count.
+            for name in ("collisions", "emergency_brakes"):
+                assert len(episode.events.get(name, ())) == episode.metrics[name]
+        assert read_records(local)[1] == episodes
+        assert replay(ReplayConfig(record=remote, recording=NO_RECORDING))["episodes"] == [
+            0,
+            1,
+            2,
+            3,
+        ]
     replay(ReplayConfig(record=local, recording=NO_RECORDING, connect=server.endpoint))
     # overtake-eval --record on a server: the car and its events (the road is the server's).
     rrd = tmp_path / "remote-eval.rrd"

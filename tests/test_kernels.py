@@ -11,6 +11,7 @@ import os
 import subprocess
 import sys
 
+import pytest
 from numba.core.registry import CPUDispatcher
 
 from overtake.server.sim import kernels
@@ -18,6 +19,9 @@ from overtake.server.sim.sensors import kernels as sensor_kernels
 from overtake.server.sim.traffic import kernels as traffic_kernels
 
 
+# Slow (6 s: every kernel compiled into an empty cache); the images' build runs the same warm-up
+# (tests/test_compose_e2e.py, slow too).
+@pytest.mark.slow
 def test_warm_up_caches_every_kernel(tmp_path):
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
     done = subprocess.run(

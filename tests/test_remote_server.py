@@ -831,6 +831,7 @@ def test_a_flood_of_garbage_in_a_trainers_name_is_logged_once_per_interval(caplo
     connection = Connection.__new__(Connection)  # no session: only the filing is exercised
     connection._stepping = set()
     connection._drop_logged_t, connection._drops_unlogged = -math.inf, 0
+    connection.dropped = 0
     key = keys.trainer_steps("me", "sim-a")
     with caplog.at_level(logging.WARNING, logger="overtake.client"):
         for _ in range(100):
@@ -841,6 +842,7 @@ def test_a_flood_of_garbage_in_a_trainers_name_is_logged_once_per_interval(caplo
         connection._file(key, b"\x00garbage")
     assert len(caplog.records) == 2
     assert "and 99 more dropped unlogged" in caplog.records[1].getMessage()
+    assert connection.dropped == 101  # every one counted, logged or not
 
 
 def test_a_request_a_busy_server_did_not_queue_is_asked_again_until_the_timeout(monkeypatch):

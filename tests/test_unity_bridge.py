@@ -329,6 +329,9 @@ def test_ml_agents_gym_wrapper_drives_overtake_through_the_bridge(pair, start_se
     assert code == 0, log
 
 
+# Slow (8 s: it waits out ML-Agents' own timeout); a terminated bridge telling ML-Agents at once
+# and a dead trainer ending the bridge stay in the default run.
+@pytest.mark.slow
 @needs_ml_side
 def test_a_bridge_that_dies_is_a_timeout_on_ml_agents_side(pair, start_server):
     server = start_server("unity-bridge-dies")
