@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from overtake.protocol.vocabulary import ACTION_NAMES, EPISODE_COUNTS
+from overtake.protocol.vocabulary import ACTION_NAMES
 from overtake.viz.car_view import CarView
 from overtake.viz.episode_view import CAR, EVENTS, ROAD_SERVER, episode_blueprint, timeline
 from overtake.viz.recording import (
@@ -28,6 +28,8 @@ from overtake.viz.recording import (
     open_recording,
 )
 from overtake.viz.world_view import BRAKE_COLOUR, EVENT_COLOUR, WorldRecording
+
+from .episode_records import EventCounts
 
 # Cars closer than this (m, beyond touching) to a car that collided are drawn as its partners.
 TOUCH_MARGIN_M = 0.5
@@ -103,14 +105,13 @@ class EpisodeRecording:
         n = len(self.labels)
         self.running = np.ones(n, dtype=bool)
         self.decisions = np.zeros(n, dtype=np.int64)
-        self.counts = {name: np.zeros(n, dtype=np.int64) for name in EPISODE_COUNTS}
+        self.counts = EventCounts(n)
         self.seen: dict[str, np.ndarray] = {}
         self.seen_mask: np.ndarray | None = None
 
     def started(self, obs: dict[str, np.ndarray], info: dict[str, Any]) -> None:
         self._saw(obs, info)
-        for name in EPISODE_COUNTS:
-            self.counts[name][:] = 0
+        self.counts.reset()
 
     def _event(self, level: str, text: str) -> None:
         self.stream.log(EVENTS, self.rr.TextLog(text, level=level))
@@ -126,7 +127,7 @@ class EpisodeRecording:
     ) -> None:
         q = getattr(self.policy, "last_q", None)
         overridden = getattr(self.policy, "last_overridden", None)
-        counts = info.get("episode_counts", {})
+        rose = self.counts.rose(info)
         terms_of = info.get("reward_terms", {})
         applied = info.get("action_applied")
         for i in np.flatnonzero(self.running):
@@ -135,11 +136,7 @@ class EpisodeRecording:
             self.stream.set_time(timeline(self.labels[i]), sequence=decision)
             terms = {name: float(value[i]) for name, value in terms_of.items()}
             action = int(actions[i])
-            happened = [
-                name
-                for name in EPISODE_COUNTS
-                if name in counts and counts[name][i] > self.counts[name][i]
-            ]
+            happened = [name for name, now in rose.items() if now[i]]
             ends = bool(terminated[i] or truncated[i])
             drawn = decision % self.every == 0 or bool(happened) or ends
             if drawn:
@@ -184,9 +181,6 @@ class EpisodeRecording:
                 )
             if ends:
                 self._event("DEBUG", f"episode ends after {decision + 1} decisions")
-        for name in EPISODE_COUNTS:
-            if name in counts:
-                self.counts[name][:] = counts[name]
         self.decisions += self.running
         self.running &= ~(terminated | truncated)
         self._saw(obs, info)

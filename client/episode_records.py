@@ -210,6 +210,29 @@ def config_differences(recorded: Any, now: Any, prefix: str = "") -> list[str]:
     return [] if recorded == now else [f"{prefix}: {recorded!r} in the record, {now!r} now"]
 
 
+class EventCounts:
+    """Which of ``info["episode_counts"]`` rose at a step, per environment: the decisions
+    where a collision or an emergency brake happened (both episode watchers read it)."""
+
+    def __init__(self, num_envs: int) -> None:
+        self.counts = {name: np.zeros(num_envs, dtype=np.int64) for name in EPISODE_COUNTS}
+
+    def reset(self) -> None:
+        for value in self.counts.values():
+            value[:] = 0
+
+    def rose(self, info: dict[str, Any]) -> dict[str, np.ndarray]:
+        """Per count, the environments whose count rose since the last call (then kept)."""
+        counts = info.get("episode_counts", {})
+        rose = {}
+        for name, before in self.counts.items():
+            if name in counts:
+                now = np.asarray(counts[name])
+                rose[name] = now > before
+                before[:] = now
+        return rose
+
+
 class EpisodeRecorder:
     """Builds the records of the episodes :func:`~overtake.client.episodes.run_episodes`
     drives (one per environment: the first episode of each), as it steps them.
@@ -225,13 +248,12 @@ class EpisodeRecorder:
         n = len(seeds)
         self.actions: list[list[int]] = [[] for _ in range(n)]
         self.events: list[dict[str, list[int]]] = [{name: [] for name in EVENTS} for _ in range(n)]
-        self.counts = {name: np.zeros(n, dtype=np.int64) for name in EPISODE_COUNTS}
+        self.counts = EventCounts(n)
         self.metrics: list[dict[str, float] | None] = [None] * n
         self.running = np.ones(n, dtype=bool)
 
     def started(self, obs: dict[str, np.ndarray], info: dict[str, Any]) -> None:
-        for name in EPISODE_COUNTS:
-            self.counts[name][:] = 0
+        self.counts.reset()
 
     def stepped(
         self,
@@ -244,18 +266,15 @@ class EpisodeRecorder:
     ) -> None:
         running = np.flatnonzero(self.running)
         overridden = getattr(self.policy, "last_overridden", None)
-        counts = info.get("episode_counts", {})
+        rose = self.counts.rose(info)
         for i in running:
             decision = len(self.actions[i])
             self.actions[i].append(int(actions[i]))
-            for name in EPISODE_COUNTS:
-                if name in counts and counts[name][i] > self.counts[name][i]:
+            for name, happened in rose.items():
+                if happened[i]:
                     self.events[i][name].append(decision)
             if overridden is not None and overridden[i]:
                 self.events[i]["shield_overrides"].append(decision)
-        for name in EPISODE_COUNTS:
-            if name in counts:
-                self.counts[name][:] = counts[name]
         ended = (terminated | truncated) & self.running
         for i in np.flatnonzero(ended & info.get("_metrics", False)):
             self.metrics[i] = {name: float(info["metrics"][name][i]) for name in METRIC_FIELDS}
