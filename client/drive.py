@@ -122,7 +122,13 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
             )
         recorder = EpisodeRecorder([config.seed + i for i in range(config.episodes)], act)
         rows, decisions, elapsed = run_episodes(
-            envs, act, config.episodes, config.seed, realtime=clock, watchers=[recorder]
+            envs,
+            act,
+            config.episodes,
+            config.seed,
+            realtime=clock,
+            # Kept only where asked for (a list append per environment and decision).
+            watchers=[recorder] if config.episodes_out is not None else [],
         )
         header = RecordHeader(
             preset=preset,

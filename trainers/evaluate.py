@@ -274,7 +274,8 @@ def main(config: EvalConfig) -> dict[str, Any]:
         recorder = EpisodeRecorder(
             [config.seed + i for i in range(config.episodes)], policy, first_episode=0
         )
-        watchers: list[Any] = [recorder]
+        # Kept only where asked for: a list append per environment and decision otherwise.
+        watchers: list[Any] = [recorder] if config.episodes_out is not None else []
         recording = None
         if config.record is not None:
             recording, view = open_episode_recording(
