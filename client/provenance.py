@@ -9,9 +9,12 @@ from importlib import metadata
 from pathlib import Path
 
 
-def git_commit() -> str:
+def git_commit(where: Path | None = None) -> str:
+    """The commit of the checkout holding ``where`` (default: this code), with
+    ``+uncommitted`` where a tracked file differs from it. Untracked files (results, run
+    directories, scripts beside the code) do not count: they are not the code that ran."""
     try:
-        here = Path(__file__).resolve().parent
+        here = where if where is not None else Path(__file__).resolve().parent
         out = subprocess.run(
             ["git", "-C", str(here), "rev-parse", "HEAD"],
             capture_output=True,
@@ -20,7 +23,7 @@ def git_commit() -> str:
             check=True,
         ).stdout.strip()
         dirty = subprocess.run(
-            ["git", "-C", str(here), "status", "--porcelain"],
+            ["git", "-C", str(here), "status", "--porcelain", "--untracked-files=no"],
             capture_output=True,
             text=True,
             timeout=5,
