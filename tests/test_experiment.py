@@ -569,3 +569,19 @@ def test_min2018_safe_trains_the_paper_row_and_the_options_each_alone_and_togeth
     labels = {row.label: row.options for row in EXPERIMENTS["min2018-safe"].rows}
     assert labels["all"] == "shield, prioritized replay, 3-step returns"
     assert labels["paper"] == "-"
+
+
+def test_min2018_safe_both_repeats_the_safe_rows_on_both_inputs_one_chosen_by_rows(tmp_path):
+    safe, both = EXPERIMENTS["min2018-safe"], EXPERIMENTS["min2018-safe-both"]
+    assert [(r.label + "-both", r.options) for r in safe.rows] == [
+        (r.label, r.options) for r in both.rows
+    ]
+    assert all((r.algo, r.inputs, r.seeds) == ("dueling", "both", 1) for r in both.rows)
+    same = ("preset", "total_steps", "num_envs", "densities", "eval_episodes")
+    assert [getattr(both, f) for f in same] == [getattr(safe, f) for f in same]
+    plan = make_plan(
+        ExperimentConfig(experiment="min2018-safe-both", out=tmp_path, rows=["all-both"])
+    )
+    [run] = plan.runs
+    assert run.name == "all-both-seed0" and run.train.inputs == "both"
+    assert (run.train.shield, run.train.dqn.prioritized, run.train.dqn.n_step) == (True, True, 3)
