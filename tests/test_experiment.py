@@ -585,3 +585,47 @@ def test_min2018_safe_both_repeats_the_safe_rows_on_both_inputs_one_chosen_by_ro
     [run] = plan.runs
     assert run.name == "all-both-seed0" and run.train.inputs == "both"
     assert (run.train.shield, run.train.dqn.prioritized, run.train.dqn.n_step) == (True, True, 3)
+
+
+def test_device_reaches_every_training_run_and_does_not_split_an_experiment_directory(tmp_path):
+    from overtake.trainers.experiment import check_directory
+
+    plan = make_plan(ExperimentConfig(experiment="min2018-table3", out=tmp_path, device="cpu"))
+    assert {run.train.device for run in plan.runs} == {"cpu"}
+    check_directory(plan)
+    # A directory recorded when the device was part of a run's identity (ho2018-table8's runs
+    # of 2026-11-25 hold "device": "cpu") accepts the same runs now.
+    record = json.loads((tmp_path / "experiment.json").read_text())
+    assert all("device" not in run for run in record["runs"].values())
+    for run in record["runs"].values():
+        run["device"] = "cpu"
+    (tmp_path / "experiment.json").write_text(json.dumps(record))
+    check_directory(plan)
+    # Runs started on a GPU machine continue on the CPU, and the other way round; the command
+    # line says where each learns.
+    on_gpu = tuple(
+        dataclasses.replace(run, train=dataclasses.replace(run.train, device="cuda"))
+        for run in plan.runs
+    )
+    check_directory(dataclasses.replace(plan, runs=on_gpu))
+    command = train_command(on_gpu[0].train)
+    assert command[command.index("--device") + 1] == "cuda"
+    assert parse_args(command[3:]) == on_gpu[0].train
+    # Where what it learns changes, the directory is still refused.
+    bf16 = tuple(
+        dataclasses.replace(run, train=dataclasses.replace(run.train, precision="bf16"))
+        for run in plan.runs
+    )
+    with pytest.raises(UsageError, match=r"precision 'fp32' then, 'bf16' now"):
+        check_directory(dataclasses.replace(plan, runs=bf16))
+
+
+@pytest.mark.parametrize("device", ["cuda", "cuda:3", "tpu"])
+def test_a_device_this_machine_lacks_is_refused_before_anything_trains(tmp_path, device):
+    import torch
+
+    if device.startswith("cuda") and torch.cuda.is_available():
+        pytest.skip("this machine has a CUDA device")
+    with pytest.raises(UsageError, match=rf"--device: device {device!r}"):
+        make_plan(ExperimentConfig(experiment="min2018-table3", out=tmp_path, device=device))
+    assert not (tmp_path / "experiment.json").exists()

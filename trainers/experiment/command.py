@@ -17,7 +17,7 @@ from overtake.client.commands import UsageError, run_command
 from ..train import TrainConfig
 from .catalogue import ALGO_NAMES, EXPERIMENTS, INPUT_NAMES, ExperimentError
 from .files import LOCK_NAME, PLAN_NAME, lock, read_json, say, write_atomic
-from .plan import ExperimentConfig, Plan, make_plan, training_identity
+from .plan import ExperimentConfig, Plan, learned_settings, make_plan, training_identity
 from .report import Outputs, keep_evidence
 from .run import ExperimentRun
 
@@ -52,6 +52,8 @@ def check_directory(plan: Plan) -> None:
         )
     for run in plan.runs:
         before = stored["runs"].get(run.name)
+        if isinstance(before, dict):
+            before = learned_settings(before)
         now = training_identity(run.train)
         if before is not None and before != now:
             # A setting added to the trainer since the directory was recorded, at its default

@@ -19,6 +19,7 @@ from overtake.viz.recording import RecordingConfig
 
 from ..checkpoint import plain_data
 from ..evaluate import EvalConfig
+from ..learner import execution_device
 from ..train import TrainConfig
 from .catalogue import EXPERIMENTS, Density, Experiment, Row, Schedule
 
@@ -74,6 +75,10 @@ class ExperimentConfig:
     """usrpwd credentials and TLS certificates for --connect"""
     torch_threads: int | None = None
     """PyTorch threads per process; default the cores divided by --jobs"""
+    device: str = "cpu"
+    """where the training runs' networks learn (cpu, cuda, cuda:N, mps): the runs of one
+    machine share its GPU; a run may be continued on another device; evaluation runs on the
+    CPU"""
     record_training: bool = False
     """each training run also records its Rerun trainer.rrd (about 6 MB per 10,000 steps)"""
     curve_bins: int = 40
@@ -195,6 +200,10 @@ def make_plan(config: ExperimentConfig) -> Plan:
             f"unknown to overtake-eval --policy (it has {', '.join(known)}): pass "
             f"--references with some of those"
         )
+    try:
+        execution_device(config.device)
+    except ValueError as error:
+        raise UsageError(f"--device: {error}") from None
     total_steps = config.total_steps or experiment.total_steps
     scaled = Schedule.for_budget(total_steps)
     if not experiment.scale_schedule:
@@ -286,6 +295,7 @@ def _run_plan(
         checkpoint_every=schedule.checkpoint_every,
         log_every=experiment.reward_window_steps or base.log_every,
         torch_threads=threads,
+        device=config.device,
         progress=False,
         dqn=dqn,
         recording=RecordingConfig(
@@ -296,9 +306,12 @@ def _run_plan(
     return RunPlan(row=row, seed=seed, run_dir=run_dir, train=train)
 
 
-# Settings of a run that do not change what it learns: a restarted experiment may change them.
+# Settings of a run that do not change what it learns: a restarted experiment may change them
+# (a run trained on a GPU may be finished on the CPU: the same algorithm, its numbers rounded
+# differently).
 _UNLEARNED = (
     "connect",
+    "device",
     "security",
     "torch_threads",
     "progress",
@@ -311,10 +324,13 @@ _UNLEARNED = (
 
 def training_identity(train: TrainConfig) -> dict[str, Any]:
     """What a run's training is, for comparing a directory's runs with a new invocation's."""
-    data = plain_data(train)
-    for name in _UNLEARNED:
-        data.pop(name, None)
-    return data
+    return learned_settings(plain_data(train))
+
+
+def learned_settings(data: dict[str, Any]) -> dict[str, Any]:
+    """``data`` (a run's recorded training configuration) without the settings that do not
+    change what it learns; records written before a setting counted as such still hold it."""
+    return {name: value for name, value in data.items() if name not in _UNLEARNED}
 
 
 def command_args(config: Any, default: Any) -> list[str]:
