@@ -4,6 +4,8 @@ agent."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -155,12 +157,45 @@ def test_the_fig6_experiment_keeps_table_i_and_sums_the_reward_per_3000_steps(tm
         "a": [{"step": 3001, "reward_sum": 4.0}, {"step": 6002, "reward_sum": 10.0}],
         "b": [{"step": 3000, "reward_sum": 2.0}, {"step": 6000, "reward_sum": None}],
     }
+    # Each point is a reward per 3,000 steps: run a's first line covers 3,001.
     assert window_rewards(records, 3_000) == {
         "window_end_step": [3_000, 6_000],
-        "mean": [3.0, 10.0],
-        "run_min": [2.0, 10.0],
-        "run_max": [4.0, 10.0],
+        "mean": [pytest.approx((4.0 * 3_000 / 3_001 + 2.0) / 2), pytest.approx(10.0 * 3_000 / 3_001)],
+        "run_min": [2.0, pytest.approx(10.0 * 3_000 / 3_001)],
+        "run_max": [pytest.approx(4.0 * 3_000 / 3_001), pytest.approx(10.0 * 3_000 / 3_001)],
     }
+
+
+def test_a_short_window_before_a_stop_or_at_the_budget_is_neither_a_dip_nor_a_second_run():
+    from overtake.trainers.experiment import window_rewards
+
+    rate = 3.0  # reward per step, all along
+
+    def run(lines: list[tuple[int, int]], from_step: bool = True) -> list[dict[str, Any]]:
+        return [
+            {"step": end, "reward_sum": rate * (end - begin)}
+            | ({"from_step": begin} if from_step else {})
+            for begin, end in lines
+        ]
+
+    # Stopped (SIGTERM) at 3,695 just after its line at 3,000, resumed there; the budget ends
+    # at 7,000, 305 steps after the line at 6,695.
+    lines = [(0, 3_000), (3_000, 3_695), (3_695, 6_695), (6_695, 7_000)]
+    for records in (run(lines), run(lines, from_step=False)):
+        curve = window_rewards({"a": records}, 3_000)
+        # The stop's short line joins the next (6,695 -> 6,000), and so does the budget's,
+        # whose nearest multiple is that point's.
+        assert curve["window_end_step"] == [3_000, 6_000]
+        assert curve["mean"] == [pytest.approx(rate * 3_000)] * 2
+    # A longer last line is a point of its own, at its rate.
+    curve = window_rewards({"a": run([*lines[:3], (6_695, 8_900)])}, 3_000)
+    assert curve["window_end_step"] == [3_000, 6_000, 9_000]
+    assert curve["mean"] == [pytest.approx(rate * 3_000)] * 3
+    # Resumed from a checkpoint older than its last line (kill -9): the first line of the new
+    # life covers from the checkpoint, which only from_step tells.
+    resumed = run([(0, 3_000), (2_000, 5_000), (5_000, 8_000)])
+    curve = window_rewards({"a": resumed}, 3_000)
+    assert curve["mean"] == [pytest.approx(rate * 3_000)] * 3
 
 
 # --- the rule-based driver on the LIDAR map -----------------------------------------------------

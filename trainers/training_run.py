@@ -459,6 +459,9 @@ class TrainingRun:
             "loss": averages.pop("loss"),
             "q_taken": averages.pop("q_taken"),
             "reward_sum": averages.pop("reward_sum"),
+            # The step the line's window began: its sums cover from_step..step (a resumed
+            # run's first window begins at its checkpoint, not at the line before).
+            "from_step": self.window.start_step,
             **(
                 {"shield_overrides": averages.pop("shield_overrides")}
                 if self.shield is not None

@@ -105,15 +105,32 @@ def training_records(run_dir: Path, kind: str) -> list[dict[str, Any]]:
 
 
 def window_rewards(train_records_by_run: dict[str, list[dict[str, Any]]], window: int) -> Any:
-    """A row's reward per window of training steps (Fayjie et al.'s Fig. 6): each training
-    line's ``reward_sum`` (the runs log one per window), the mean over the row's runs of the
-    k-th window, and the lowest and highest of them."""
+    """A row's reward per ``window`` training steps (Fayjie et al.'s Fig. 6).
+
+    A run logs a training line about every ``window`` steps with the reward summed since the
+    window began (``from_step``; lines written before it was logged lack it, and the line
+    before stands in). A line that covers less than a window (the last before a stop, the
+    budget's last) is joined to the next, and each point is its reward per ``window`` steps,
+    so a short line is neither a dip nor a second run. Points are matched across runs by the
+    nearest multiple of ``window``: the mean over the row's runs, and the lowest and highest."""
     by_window: dict[int, list[float]] = {}
     for records in train_records_by_run.values():
+        points: dict[int, tuple[float, float]] = {}  # k -> (reward, steps)
+        last_step, reward, steps = 0, 0.0, 0.0
         for record in records:
-            if record.get("reward_sum") is not None:
-                k = max(1, round(record["step"] / window))
-                by_window.setdefault(k, []).append(float(record["reward_sum"]))
+            begin = record.get("from_step", last_step)
+            last_step = record["step"]
+            if record.get("reward_sum") is None:
+                continue
+            reward += float(record["reward_sum"])
+            steps += max(0, record["step"] - begin)
+            if steps >= window:
+                _add_point(points, max(1, round(record["step"] / window)), reward, steps)
+                reward, steps = 0.0, 0.0
+        if steps > 0:
+            _add_point(points, max(1, round(last_step / window)), reward, steps)
+        for k, (total, covered) in points.items():
+            by_window.setdefault(k, []).append(total * window / covered)
     windows = sorted(by_window)
     return {
         "window_end_step": [k * window for k in windows],
@@ -121,6 +138,13 @@ def window_rewards(train_records_by_run: dict[str, list[dict[str, Any]]], window
         "run_min": [min(by_window[k]) for k in windows],
         "run_max": [max(by_window[k]) for k in windows],
     }
+
+
+def _add_point(points: dict[int, tuple[float, float]], k: int, reward: float, steps: float) -> None:
+    """Add a run's ``reward`` over ``steps`` to its point ``k`` (a short last line whose
+    nearest multiple is the point before joins it)."""
+    before = points.get(k, (0.0, 0.0))
+    points[k] = (before[0] + reward, before[1] + steps)
 
 
 def utc_now() -> str:
