@@ -158,11 +158,12 @@ def test_the_fig6_experiment_keeps_table_i_and_sums_the_reward_per_3000_steps(tm
         "b": [{"step": 3000, "reward_sum": 2.0}, {"step": 6000, "reward_sum": None}],
     }
     # Each point is a reward per 3,000 steps: run a's first line covers 3,001.
+    a1, a2 = 4.0 * 3_000 / 3_001, 10.0 * 3_000 / 3_001
     assert window_rewards(records, 3_000) == {
         "window_end_step": [3_000, 6_000],
-        "mean": [pytest.approx((4.0 * 3_000 / 3_001 + 2.0) / 2), pytest.approx(10.0 * 3_000 / 3_001)],
-        "run_min": [2.0, pytest.approx(10.0 * 3_000 / 3_001)],
-        "run_max": [pytest.approx(4.0 * 3_000 / 3_001), pytest.approx(10.0 * 3_000 / 3_001)],
+        "mean": [pytest.approx((a1 + 2.0) / 2), pytest.approx(a2)],
+        "run_min": [2.0, pytest.approx(a2)],
+        "run_max": [pytest.approx(a1), pytest.approx(a2)],
     }
 
 
