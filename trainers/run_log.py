@@ -51,16 +51,37 @@ class LogWindow:
         self.timings.replay += t3 - t2
         self.timings.update += t4 - t3
 
-    def line(self, step: int, now: float) -> dict[str, Any]:
-        """The averages of the window ending at ``step``, ``now``: loss, Q of the taken
-        actions, the rewards of the transitions stored (Fayjie et al.'s Fig. 6 plots them per
-        3,000 steps), steps per second and the time split."""
+    def train_line(
+        self,
+        step: int,
+        now: float,
+        *,
+        episodes: int,
+        wall_s: float,
+        epsilon: float,
+        updates: int,
+        replay: int,
+        shielded: bool,
+    ) -> dict[str, Any]:
+        """The ``{"kind": "train", ...}`` line of the window ending at ``step``, ``now``: the
+        run's counters, then the window's averages: loss, Q of the taken actions, the rewards
+        of the transitions stored since ``from_step`` (Fayjie et al.'s Fig. 6 plots them per
+        3,000 steps; a resumed run's first window begins at its checkpoint, not at the line
+        before), the shield's overrides where it is on, steps per second and the time split."""
         return {
+            "kind": "train",
+            "step": step,
+            "episodes": episodes,
+            "wall_s": wall_s,
+            "epsilon": epsilon,
+            "updates": updates,
             "loss": float(np.mean(self.losses)) if self.losses else None,
             "q_taken": float(np.mean(self.q_taken)) if self.q_taken else None,
             "reward_sum": self.reward_sum,
-            "shield_overrides": self.shield_overrides,
+            "from_step": self.start_step,
+            **({"shield_overrides": self.shield_overrides} if shielded else {}),
             "steps_per_s": (step - self.start_step) / max(now - self.start_t, 1e-9),
+            "replay": replay,
             **self.timings.shares(),
         }
 

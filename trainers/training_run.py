@@ -448,29 +448,16 @@ class TrainingRun:
         """A ``{"kind": "train", ...}`` line (to metrics.jsonl, Rerun and the progress bar)
         over the steps since the last one."""
         now = time.perf_counter()
-        averages = self.window.line(self.step, now)
-        entry = {
-            "kind": "train",
-            "step": self.step,
-            "episodes": self.episodes,
-            "wall_s": round(now - self.started, 3),
-            "epsilon": epsilon,
-            "updates": self.learner.updates,
-            "loss": averages.pop("loss"),
-            "q_taken": averages.pop("q_taken"),
-            "reward_sum": averages.pop("reward_sum"),
-            # The step the line's window began: its sums cover from_step..step (a resumed
-            # run's first window begins at its checkpoint, not at the line before).
-            "from_step": self.window.start_step,
-            **(
-                {"shield_overrides": averages.pop("shield_overrides")}
-                if self.shield is not None
-                else {}
-            ),
-            "steps_per_s": averages.pop("steps_per_s"),
-            "replay": len(self.replay),
-            **{k: v for k, v in averages.items() if k != "shield_overrides"},
-        }
+        entry = self.window.train_line(
+            self.step,
+            now,
+            episodes=self.episodes,
+            wall_s=round(now - self.started, 3),
+            epsilon=epsilon,
+            updates=self.learner.updates,
+            replay=len(self.replay),
+            shielded=self.shield is not None,
+        )
         self.log.write(entry)
         if self.recording is not None:
             self.recording.learning(self.step, entry)
