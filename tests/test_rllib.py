@@ -17,6 +17,9 @@ pytest.importorskip("ray.rllib", reason="ray[rllib] is not installed (the rllib 
 ROOT = Path(__file__).resolve().parent.parent
 
 
+# Slow (about 30 s, most of it Ray starting its cluster): the default suite stays under 7
+# minutes on 2 cores; `pytest -m slow` runs it.
+@pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_rllib_env_runners_share_two_servers_and_learn(start_server):
     servers = [start_server("rllib-a"), start_server("rllib-b")]
