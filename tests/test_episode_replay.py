@@ -117,8 +117,24 @@ def test_a_record_whose_checkpoint_is_gone_says_where_to_give_it(tmp_path):
         header["policy"] = {"kind": "checkpoint", "name": "runs/gone/checkpoint.pt", "step": 5}
 
     _rewrite(record, edit_header=moved)
-    with pytest.raises(RecordError, match="checkpoint runs/gone/checkpoint.pt, which is not"):
+    with pytest.raises(
+        RecordError, match="checkpoint runs/gone/checkpoint.pt, which is not"
+    ) as gone:
         replay(ReplayConfig(record=record, recording=NO_RECORDING))
+    assert "--actions-only" in str(gone.value)
+    # Without the driver the recorded actions still play, checked by each episode's metrics
+    # and events; one changed action is caught there.
+    replayed = replay(ReplayConfig(record=record, recording=NO_RECORDING, actions_only=True))
+    assert replayed["episodes"] == [0, 1, 2, 3]
+
+    def changed(episode):
+        if episode["episode"] == 2:
+            flipped = "3" if episode["actions"][5] != "3" else "4"
+            episode["actions"] = episode["actions"][:5] + flipped + episode["actions"][6:]
+
+    _rewrite(record, edit_episode=changed)
+    with pytest.raises(ReplayDiverged, match="episode 2"):
+        replay(ReplayConfig(record=record, recording=NO_RECORDING, actions_only=True))
 
 
 def test_a_replay_that_parts_from_its_record_says_where(tmp_path):

@@ -427,22 +427,23 @@ def test_every_evaluation_keeps_its_episodes_and_the_table_names_the_collisions(
     out = tiny["out"]
     [light] = json.loads((out / "table.json").read_text())["densities"].values()
     table = (out / "table.md").read_text()
-    assert "Episodes with collisions, and the command that replays them in Rerun:" in table
+    assert "<summary>Episodes with collisions, and the command that replays them" in table
     entries = [run for row in light["rows"] for run in row["runs"]] + light["references"]
     for entry in entries:
-        record = Path(entry["episodes_record"])
-        _, episodes = read_records(record)
+        # Named within the experiment's directory, so that its kept copy names them too.
+        assert not Path(entry["episodes_record"]).is_absolute()
+        _, episodes = read_records(out / entry["episodes_record"])
         assert len(episodes) == 2
         crashed = [e.episode for e in episodes if e.collisions]
         assert crashed == entry["collision_episodes"]
         if crashed:
-            assert f"overtake-replay {record} --collisions" in table
+            assert f"overtake-replay {entry['episodes_record']} --collisions" in table
     # A checkpoint's episodes replay with its Q-values, each of its choices checked.
     [run] = light["rows"][1]["runs"]
     rrd = out.parent / "replayed.rrd"
     replayed = replay(
         ReplayConfig(
-            record=Path(run["episodes_record"]), recording=RecordingConfig(sink="file", rrd=rrd)
+            record=out / run["episodes_record"], recording=RecordingConfig(sink="file", rrd=rrd)
         )
     )
     assert replayed["episodes"] == [0, 1]
@@ -510,7 +511,7 @@ def test_work_another_invocation_did_meanwhile_is_not_done_again(tiny, capsys):
 
 def test_the_kept_evidence_is_the_table_and_curves_without_the_episodes(tiny, tmp_path):
     keep_evidence(tiny["out"], tmp_path / "kept")
-    kept = sorted(p.name for p in (tmp_path / "kept").iterdir())
+    kept = sorted(p.name for p in (tmp_path / "kept").iterdir() if p.name != "evaluations")
     assert kept == ["curves.png", "table.json", "table.md"]
     table = json.loads((tmp_path / "kept" / "table.json").read_text())
     assert table["commit"]
@@ -522,6 +523,57 @@ def test_the_kept_evidence_is_the_table_and_curves_without_the_episodes(tiny, tm
         assert "episodes" not in entry
     for entry in light["references"] + runs:
         assert (tiny["out"] / entry["evaluation"]).exists()
+
+
+def test_the_kept_copy_holds_the_collision_episodes_of_each_record_its_table_names(tmp_path):
+    from overtake.client.episode_records import (
+        EpisodeRecord,
+        PolicySource,
+        RecordHeader,
+        read_records,
+        write_records,
+    )
+    from overtake.protocol.vocabulary import METRIC_FIELDS
+
+    out, keep = tmp_path / "out", tmp_path / "kept"
+    header = RecordHeader("min2018", {}, {}, PolicySource("checkpoint", "x.pt", 5), "abc")
+
+    def record(path: str, collisions: list[int]) -> str:
+        episodes = [
+            EpisodeRecord(
+                i,
+                100 + i,
+                "0" * 3,
+                {
+                    **dict.fromkeys(METRIC_FIELDS, 0.0),
+                    "decisions": 3.0,
+                    "collisions": float(i in collisions),
+                },
+            )
+            for i in range(4)
+        ]
+        write_records(out / path, header, episodes)
+        return path
+
+    run = {
+        "run": "a-seed0",
+        "episodes_record": record("evaluations/a/m.episodes/a.jsonl", [1, 3]),
+        "collision_episodes": [1, 3],
+    }
+    calm = {
+        "policy": "rule",
+        "episodes_record": record("evaluations/r/m.episodes/r.jsonl", []),
+        "collision_episodes": [],
+    }
+    table = {"densities": {"medium": {"rows": [{"runs": [run]}], "references": [calm]}}}
+    (out / "table.json").write_text(json.dumps(table))
+    for name in ("table.md", "curves.png"):
+        (out / name).write_text(name)
+    keep_evidence(out, keep)
+    kept_header, kept = read_records(keep / run["episodes_record"])
+    assert kept_header == header and [e.episode for e in kept] == [1, 3]
+    assert [e.seed for e in kept] == [101, 103]
+    assert not (keep / calm["episodes_record"]).exists()
 
 
 def seeded_row(label: str, means: list[float]) -> dict[str, Any]:

@@ -73,6 +73,10 @@ class ReplayConfig:
     checkpoint: Path | None = None
     """the checkpoint that drove, where it is not at the path the record names (its Q-values
     are recorded, and its choices checked against the record)"""
+    actions_only: bool = False
+    """play the recorded actions without asking the checkpoint or model that drove (where it
+    is not at hand, as in an experiment's copy kept in bench/results): no Q-values, and its
+    choices are not checked; each episode's metrics and events still are"""
     recording: RecordingConfig = field(default_factory=RecordingConfig)
     """where the replay is recorded (default: <record's name>-replay.rrd here)"""
     connect: str | None = None
@@ -163,7 +167,8 @@ def _driver_file(header: RecordHeader, config: ReplayConfig) -> Path:
         what = "checkpoint" if header.policy.kind == "checkpoint" else "model"
         raise RecordError(
             f"the record was driven by the {what} {header.policy.name}, which is not there: "
-            "give its place with --checkpoint"
+            "give its place with --checkpoint, or play the recorded actions alone with "
+            "--actions-only"
         )
     return path
 
@@ -172,6 +177,8 @@ def _policy(header: RecordHeader, config: ReplayConfig, envs: Any) -> tuple[Any,
     """The policy that drove, asked again during the replay (None: it cannot be, or need not
     be), and whether its choices are checked against the record."""
     source, n = header.policy, envs.num_envs
+    if config.actions_only:
+        return None, False
     space, spec = envs.single_observation_space, envs.unwrapped.behaviour_spec
     if source.kind == "checkpoint":
         path = _driver_file(header, config)

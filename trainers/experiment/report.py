@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from overtake.client.episode_records import read_records, write_records
 from overtake.viz.recording import RecordingConfig, close_recording, open_recording
 
 from ..checkpoint import plain_data
@@ -99,8 +100,7 @@ def markdown_table(result: dict[str, Any]) -> str:
             for reference in table["references"]
             for line in _collision_lines(reference["policy"], reference)
         ]
-        lines += ["", "Episodes with collisions, and the command that replays them in Rerun:", ""]
-        lines += crashed or ["- none"]
+        lines += ["", *_folded(COLLISIONS_SUMMARY, [REPLAY_PATHS, "", *(crashed or ["- none"])])]
         several = [row for row in table["rows"] if len(row["runs"]) > 1]
         if several:
             lines += [
@@ -284,15 +284,31 @@ def _versions() -> dict[str, str]:
     return versions
 
 
-def _collisions(result: dict[str, Any]) -> dict[str, Any]:
+def _collisions(result: dict[str, Any], out: Path) -> dict[str, Any]:
     """An evaluation's episodes with a collision (their numbers: episode i had seed
-    eval_seed + i) and its episode record, which overtake-replay plays them from."""
+    eval_seed + i) and its episode record, which overtake-replay plays them from: its path
+    within the experiment's directory ``out``, so that the kept copy names it too."""
+    record = result.get("episodes_record")
     return {
         "collision_episodes": [
             i for i, episode in enumerate(result["episodes"]) if episode["collisions"] > 0
         ],
-        "episodes_record": result.get("episodes_record"),
+        "episodes_record": str(_relative(Path(record), out)) if record else None,
     }
+
+
+COLLISIONS_SUMMARY = "Episodes with collisions, and the command that replays them in Rerun"
+REPLAY_PATHS = (
+    "Run these in the experiment's directory. Its copy kept in bench/results/ holds the "
+    "collision episodes of each record but not the checkpoints: add `--actions-only` there "
+    "(the episodes play as recorded, without the network's Q-values)."
+)
+
+
+def _folded(summary: str, lines: list[str]) -> list[str]:
+    """``lines`` in a collapsed block that GitHub and the documentation site (md_in_html)
+    both render as Markdown: long lists stay out of the reader's way."""
+    return [f'<details markdown="1"><summary>{summary}</summary>', "", *lines, "", "</details>"]
 
 
 def _collision_lines(name: str, entry: dict[str, Any]) -> list[str]:
@@ -383,7 +399,7 @@ class Outputs:
                     "summary": episode_statistics(result["episodes"]),
                     "evaluation": str(_relative(task.cache, self.plan.out)),
                     "decisions_per_s": result["decisions_per_s"],
-                    **_collisions(result),
+                    **_collisions(result, self.plan.out),
                 }
             )
             pooled.extend(result["episodes"])
@@ -410,7 +426,7 @@ class Outputs:
             "summary": episode_statistics(result["episodes"]),
             "evaluation": str(_relative(task.cache, self.plan.out)),
             "decisions_per_s": result["decisions_per_s"],
-            **_collisions(result),
+            **_collisions(result, self.plan.out),
         }
 
     def write(self) -> dict[str, Any]:
@@ -427,10 +443,33 @@ class Outputs:
 EVIDENCE = ("table.md", "table.json", "curves.png")
 
 
+def kept_records(table: dict[str, Any]) -> dict[str, list[int]]:
+    """The episode records a table names for its collisions (paths within the experiment's
+    directory) and the episodes of each that collided."""
+    records: dict[str, list[int]] = {}
+    for density in table["densities"].values():
+        entries = [run for row in density["rows"] for run in row["runs"]]
+        for entry in entries + density["references"]:
+            if entry.get("collision_episodes") and entry.get("episodes_record"):
+                records[entry["episodes_record"]] = entry["collision_episodes"]
+    return records
+
+
 def keep_evidence(out: Path, keep: Path) -> None:
-    """Copy an experiment's table and curves (small: table.json holds summaries, the episodes
-    stay in the evaluations) from ``out`` into ``keep``, each written whole or not at all."""
+    """Copy an experiment's table and curves from ``out`` into ``keep``, each written whole or
+    not at all, and of each episode record its table names, the episodes with a collision, at
+    the same path within ``keep``: the table's replay commands play them there. Small:
+    table.json holds summaries, the other episodes stay in the evaluations."""
     keep.mkdir(parents=True, exist_ok=True)
     for name in EVIDENCE:
         write_atomic(keep / name, (out / name).read_bytes())
-    say(f"kept {', '.join(EVIDENCE)} in {keep}")
+    records = kept_records(json.loads((out / "table.json").read_text()))
+    for relative, crashed in records.items():
+        if Path(relative).is_absolute():
+            continue  # a table written before records were named within the directory
+        header, episodes = read_records(out / relative)
+        write_records(keep / relative, header, [e for e in episodes if e.episode in crashed])
+    say(
+        f"kept {', '.join(EVIDENCE)} in {keep}"
+        + (f", and the collision episodes of {len(records)} episode records" if records else "")
+    )
