@@ -100,7 +100,11 @@ def markdown_table(result: dict[str, Any]) -> str:
             for reference in table["references"]
             for line in _collision_lines(reference["policy"], reference)
         ]
-        lines += ["", *_folded(COLLISIONS_SUMMARY, [REPLAY_PATHS, "", *(crashed or ["- none"])])]
+        lines += (
+            ["", *_folded(COLLISIONS_SUMMARY, [REPLAY_PATHS, "", *crashed])]
+            if crashed
+            else ["", "Episodes with collisions: none."]
+        )
         several = [row for row in table["rows"] if len(row["runs"]) > 1]
         if several:
             lines += [
