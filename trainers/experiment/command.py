@@ -52,7 +52,7 @@ def check_directory(plan: Plan) -> None:
         )
     for run in plan.runs:
         before = stored["runs"].get(run.name)
-        if isinstance(before, dict):
+        if before is not None:
             before = learned_settings(before)
         now = training_identity(run.train)
         if before is not None and before != now:

@@ -449,13 +449,15 @@ EVIDENCE = ("table.md", "table.json", "curves.png")
 
 def kept_records(table: dict[str, Any]) -> dict[str, list[int]]:
     """The episode records a table names for its collisions (paths within the experiment's
-    directory) and the episodes of each that collided."""
+    directory) and the episodes of each that collided. A table written before records were
+    named within the directory names them by absolute paths: those stay out."""
     records: dict[str, list[int]] = {}
     for density in table["densities"].values():
         entries = [run for row in density["rows"] for run in row["runs"]]
         for entry in entries + density["references"]:
-            if entry.get("collision_episodes") and entry.get("episodes_record"):
-                records[entry["episodes_record"]] = entry["collision_episodes"]
+            record = entry.get("episodes_record")
+            if entry.get("collision_episodes") and record and not Path(record).is_absolute():
+                records[record] = entry["collision_episodes"]
     return records
 
 
@@ -469,8 +471,6 @@ def keep_evidence(out: Path, keep: Path) -> None:
         write_atomic(keep / name, (out / name).read_bytes())
     records = kept_records(json.loads((out / "table.json").read_text()))
     for relative, crashed in records.items():
-        if Path(relative).is_absolute():
-            continue  # a table written before records were named within the directory
         header, episodes = read_records(out / relative)
         write_records(keep / relative, header, [e for e in episodes if e.episode in crashed])
     say(
