@@ -203,7 +203,8 @@ def open_episode_recording(
 ) -> tuple[Recording | None, EpisodeRecording | None]:
     """A recording of the episodes ``labels`` (to ``default_rrd`` unless ``config`` says
     otherwise) and its watcher, drawing one decision in ``every`` (events always); (None,
-    None) where ``config.sink`` is off."""
+    None) where ``config.sink`` is off. The layout has a Q-values plot where ``policy`` says
+    them (has ``last_q``)."""
     spec = getattr(envs.unwrapped, "behaviour_spec", None)
     in_process = getattr(envs.unwrapped, "world_frame", None) is not None
     road_width_m = (
@@ -211,9 +212,8 @@ def open_episode_recording(
         if in_process and spec is not None and spec.road is not None
         else None
     )
-    recording = open_recording(
-        APPLICATION_ID, config, default_rrd, episode_blueprint(labels, road_width_m, title)
-    )
+    layout = episode_blueprint(labels, road_width_m, title, q_values=hasattr(policy, "last_q"))
+    recording = open_recording(APPLICATION_ID, config, default_rrd, layout)
     if recording is None:
         return None, None
     ego_fields = spec.observation("ego").columns if spec is not None and spec.has("ego") else ()

@@ -124,8 +124,17 @@ def test_a_record_whose_checkpoint_is_gone_says_where_to_give_it(tmp_path):
     assert "--actions-only" in str(gone.value)
     # Without the driver the recorded actions still play, checked by each episode's metrics
     # and events; one changed action is caught there.
-    replayed = replay(ReplayConfig(record=record, recording=NO_RECORDING, actions_only=True))
+    rrd = tmp_path / "actions-only.rrd"
+    replayed = replay(
+        ReplayConfig(
+            record=record, recording=RecordingConfig(sink="file", rrd=rrd), actions_only=True
+        )
+    )
     assert replayed["episodes"] == [0, 1, 2, 3]
+    # No network is asked, so the layout has no (empty) Q-values plot; the rest is there.
+    views = _view_names(rrd)
+    assert {"rule: camera", "rule: speed (km/h)", "rule: action"} <= views
+    assert not any(name.endswith("Q-values") for name in views)
 
     def changed(episode):
         if episode["episode"] == 2:
@@ -314,6 +323,15 @@ def test_the_shields_overrides_are_kept_and_recorded_at_their_decisions(tmp_path
         (f"episode {e}", d) for e in (0, 1) for d in (3, 10, 17, 24)
     ]
     assert all(" with keep at decision " in t for _, _, t in overrides)
+
+
+def _view_names(rrd: Path) -> set[str]:
+    """Every text of the recording's layout (its views' names among them)."""
+    import rerun as rr
+    from remote_support import blueprint_texts
+
+    reader = rr.chunk.RrdReader(str(rrd))
+    return set().union(*(blueprint_texts(reader, store) for store in reader.blueprints()))
 
 
 def _entities(rrd: Path) -> set[str]:

@@ -458,6 +458,11 @@ def test_every_evaluation_keeps_its_episodes_and_the_table_names_the_collisions(
         "/episode/car/lidar/hits",
         "/world/episode/arena0/road/cars",
     } <= logged
+    from remote_support import blueprint_texts
+
+    reader = rr.chunk.RrdReader(str(rrd))
+    views = set().union(*(blueprint_texts(reader, store) for store in reader.blueprints()))
+    assert any(name.endswith(": Q-values") for name in views)
 
 
 def test_the_curves_are_a_png_and_a_rerun_recording_of_every_row(tiny):

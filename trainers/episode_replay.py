@@ -113,7 +113,8 @@ class RecordedActions:
     """Sends each environment its episode's recorded actions (keep after the episode ended);
     with ``policy`` (the one that drove, where it can be asked again) it also asks it, for its
     Q-values and the shield's overrides, and stops at the first decision where it would now
-    choose otherwise than the record."""
+    choose otherwise than the record. It has ``last_q`` (what a recording's Q-values plot
+    shows) only where ``policy`` has."""
 
     def __init__(
         self, episodes: list[EpisodeRecord], policy: Any, check: bool, header: RecordHeader
@@ -121,7 +122,8 @@ class RecordedActions:
         self.episodes, self.policy, self.check, self.header = episodes, policy, check, header
         self.actions = [record.action_array() for record in episodes]
         self.decision = np.zeros(len(episodes), dtype=np.int64)
-        self.last_q: np.ndarray | None = None
+        if policy is not None and hasattr(policy, "last_q"):
+            self.last_q: np.ndarray | None = None
         self.last_overridden: np.ndarray | None = None
         if policy is not None and hasattr(policy, "episode_extras"):
             self.episode_extras = policy.episode_extras
@@ -135,7 +137,8 @@ class RecordedActions:
             actions[i] = self.actions[i][self.decision[i]]
         if self.policy is not None:
             chosen = np.asarray(self.policy(obs, info, starting))
-            self.last_q = getattr(self.policy, "last_q", None)
+            if hasattr(self.policy, "last_q"):
+                self.last_q = self.policy.last_q
             self.last_overridden = getattr(self.policy, "last_overridden", None)
             if self.check:
                 parted = np.flatnonzero(playing & (chosen != actions))
