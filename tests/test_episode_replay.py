@@ -328,6 +328,7 @@ def test_the_shields_overrides_are_kept_and_recorded_at_their_decisions(tmp_path
 def _view_names(rrd: Path) -> set[str]:
     """Every text of the recording's layout (its views' names among them)."""
     import rerun as rr
+
     from remote_support import blueprint_texts
 
     reader = rr.chunk.RrdReader(str(rrd))
