@@ -23,6 +23,10 @@ LIDAR being at the car's centre); ``c`` is how fast the gap in a region shrank b
 last two scans (the trainer stacks them; 0 where either scan saw nothing there, never
 negative). Ho's and Fayjie et al.'s presets do not observe a LIDAR scan and the car's speed
 (the grid, the camera and the LIDAR map): the shield refuses them, saying what it needs.
+
+What the rule does not see: a car two lanes over that changes into the target lane at the
+same time. Every collision left behind it in min2018-safe was of that kind
+(``bench/collision_causes.py`` classifies a record's collisions; bench/RESULTS.md).
 """
 
 from __future__ import annotations
