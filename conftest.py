@@ -241,6 +241,21 @@ pytest_collect_file = Sybil(
 ).pytest()
 
 
+# --- workers ---------------------------------------------------------------------------------
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Under pytest-xdist (``-n auto``), each worker and the processes its tests start get
+    their share of the cores for OpenMP and PyTorch's threads, so that N workers do not each
+    run a thread per core."""
+    workers = os.environ.get("PYTEST_XDIST_WORKER_COUNT")
+    if workers:
+        share = max(1, (os.cpu_count() or 1) // int(workers))
+        os.environ.setdefault("OMP_NUM_THREADS", str(share))
+        if "torch" in sys.modules:
+            sys.modules["torch"].set_num_threads(share)
+
+
 # --- a session that ends ---------------------------------------------------------------------
 
 _EXIT_STATUS: list[int] = []

@@ -2,22 +2,25 @@
 
 Reads episode records (``overtake-eval --episodes-out``, the experiments' evaluations, their
 copies kept in ``bench/results/``), replays each collision episode in process from its seed and
-recorded actions (the simulator is deterministic, as ``overtake-replay`` relies on), and, at the
-decision of its first collision, finds the car the agent touched (the partner). It then goes back to
-the agent's last lane change before the collision and says where the partner was when that
-lane change was decided:
+recorded actions up to its first collision (the simulator is deterministic, as
+``overtake-replay`` relies on; a replay that does not meet the recorded collision is refused),
+and finds the car the agent touched there (the partner). It then goes back to the last lane
+change the agent made (the action applied, not only sent) within ``--within-decisions`` before
+the collision, and says where the partner was when that change was decided, from the
+simulator's own lane state:
 
 - ``in the target lane``, ``in the car's own lane``;
-- ``two lanes over, already moving into the target lane`` (off its lane's centre towards the
-  target by more than ``--drift-lanes``), or ``two lanes over, not yet moving``: both cars then
-  change into the same lane from opposite sides;
-- ``elsewhere``; and ``no lane change within N decisions`` where the car kept its lane.
+- ``two lanes over, already changing into the target lane`` (its own lane change under way),
+  or ``two lanes over, not yet changing into the target lane`` (it began later): both cars
+  then change into the same lane from opposite sides;
+- ``elsewhere``; ``no lane change within N decisions`` where the car kept its lane; ``no
+  other car``.
 
 The safety shield (``overtake.client.shield``) judges a lane change by the cars in the target
 lane: this says which collisions its rule could not have seen coming. Figures, not times: it
 may run beside anything.
 
-    .venv/bin/python -m bench.collision_causes RECORD.jsonl [RECORD.jsonl ...] [--within 7]
+    .venv/bin/python -m bench.collision_causes RECORD.jsonl [RECORD.jsonl ...] [--out F.md]
 """
 
 from __future__ import annotations
@@ -25,7 +28,6 @@ from __future__ import annotations
 import collections
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import tyro
@@ -40,20 +42,39 @@ from overtake.client.episode_records import (
 )
 from overtake.client.episodes import make_vector_env
 from overtake.protocol.vocabulary import ACTION_NAMES
+from overtake.server.sim.units import KMH
 
-LANE_CHANGES = {"lane_left": +1, "lane_right": -1}  # lane index change (lanes count leftwards)
+# Lane index change of each lane-change action (lanes count leftwards, y grows with them).
+LANE_CHANGE_DIRECTION = {"lane_left": +1, "lane_right": -1}
 
 
 @dataclass(frozen=True)
 class CausesConfig:
     records: Positional[tuple[Path, ...]]
     """episode records (.jsonl); only their episodes with a collision are replayed"""
-    within: int = 7
+    within_decisions: int = 7
     """a lane change further back than this many decisions before the collision is not its
     cause"""
-    drift_lanes: float = 0.05
-    """how far (in lane widths) off its lane's centre towards the target lane a car two lanes
-    over must be to count as already moving into it"""
+    out: Path | None = None
+    """also write the lines and the table here (Markdown)"""
+
+
+@dataclass(frozen=True)
+class Road:
+    """Arena 0's vehicles when a decision is taken (index 0: the agent)."""
+
+    x_m: np.ndarray
+    """(V,) position along the road"""
+    speed_mps: np.ndarray
+    """(V,)"""
+    lane: np.ndarray
+    """(V,) the lane a vehicle is in (its origin lane while it changes)"""
+    target_lane: np.ndarray
+    """(V,) the lane it is changing into (its lane where it is not changing)"""
+    change_progress: np.ndarray
+    """(V,) 0..1 through its lane change"""
+    touching_agent: np.ndarray
+    """vehicles touching the agent (the agent among them), as the recordings colour them"""
 
 
 @dataclass(frozen=True)
@@ -65,108 +86,147 @@ class Cause:
     collision_decision: int
     lane_change_decision: int | None
     where: str
-    partner_dx_m: float | None
-    """the partner's position ahead of the car (m) when the lane change was decided"""
-    partner_dv_kmh: float | None
-    """the partner's speed minus the car's (km/h) then"""
+    partner_ahead_m: float | None
+    """the partner's position ahead of the agent when the lane change was decided"""
+    partner_faster_kmh: float | None
+    """the partner's speed minus the agent's then"""
+    partner_change_progress: float | None
+    """how far through its own lane change the partner was then (0..1; 0: not changing)"""
 
 
-def _frames(header: RecordHeader, episode: EpisodeRecord, until: int) -> list[Any]:
-    """The road before each decision up to ``until`` and after it, replayed; raises where the
-    replay has no collision at ``until`` (the record's)."""
+def replay(
+    header: RecordHeader, episode: EpisodeRecord, until: int
+) -> tuple[list[Road], list[int]]:
+    """The road before each decision up to ``until`` and after it (``until + 2`` roads), and
+    the actions applied; raises where the replay's first collision is not at ``until``."""
     envs = make_vector_env(header.preset, header.overrides, 1, None)
+    roads: list[Road] = []
+    applied: list[int] = []
     try:
-        env = envs.unwrapped
-        obs, info = envs.reset(seed=[episode.seed])
+        sim = envs.unwrapped.sim
+        _, info = envs.reset(seed=[episode.seed])
         counts = EventCounts(1)
         counts.rose(info)
 
-        def frame(obs: dict[str, np.ndarray]) -> Any:
-            return env.world_frame(0, {k: v[0] for k, v in obs.items()}, 0.0, -1, {})
+        def road() -> Road:
+            world = sim.world_snapshot(0)
+            return Road(
+                world.x_m,
+                world.speed_mps.astype(np.float64),
+                sim.state.lane[0].copy(),
+                sim.state.target_lane[0].copy(),
+                sim.state.change_progress[0].astype(np.float64),
+                touching(world),
+            )
 
-        frames = [frame(obs)]
+        roads.append(road())
         for decision, action in enumerate(episode.action_array()[: until + 1]):
-            obs, _, _, _, info = envs.step(np.array([action]))
-            frames.append(frame(obs))
+            _, _, _, _, info = envs.step(np.array([action]))
+            roads.append(road())
+            applied.append(int(info["action_applied"][0]))
             collided = bool(counts.rose(info).get("collisions", np.zeros(1, bool))[0])
             if collided != (decision == until):
                 raise RuntimeError(
-                    f"episode {episode.episode} replays with "
-                    f"{'a' if collided else 'no'} collision at decision {decision}, unlike its "
-                    "record (another simulator than the record's?)"
+                    f"episode {episode.episode} replays with {'a' if collided else 'no'} "
+                    f"collision at decision {decision}, unlike its record (another simulator "
+                    "than the record's?)"
                 )
     finally:
         envs.close()
-    return frames
+    if len(applied) != until + 1:
+        raise RuntimeError(
+            f"episode {episode.episode} has {len(applied)} recorded actions, its record's "
+            f"collision is at decision {until}"
+        )
+    return roads, applied
 
 
-def where_was(own_lanes: float, partner_lanes: float, direction: int, drift_lanes: float) -> str:
-    """Where the partner was when the car decided a lane change in ``direction`` (+1 left, -1
-    right): positions across the road in lane widths (lane k's centre at k + 0.5)."""
-    own = int(np.floor(own_lanes))
+def where_was(road: Road, partner: int, direction: int) -> str:
+    """Where ``partner`` was on ``road`` when the agent decided a lane change in ``direction``
+    (+1 left, -1 right)."""
+    own = int(road.lane[0])
     target = own + direction
-    theirs = int(np.floor(partner_lanes))
+    theirs = int(road.lane[partner])
     if theirs == target:
         return "in the target lane"
     if theirs == own:
         return "in the car's own lane"
     if theirs == target + direction:
-        # Off its centre towards the target lane: its own lane change has begun.
-        moving = (theirs + 0.5 - partner_lanes) * direction > drift_lanes
-        return f"two lanes over, {'already' if moving else 'not yet'} moving into the target lane"
+        already = int(road.target_lane[partner]) == target
+        return (
+            f"two lanes over, {'already' if already else 'not yet'} changing into the target lane"
+        )
     return "elsewhere"
 
 
-def cause(record: str, header: RecordHeader, episode: EpisodeRecord, config: CausesConfig) -> Cause:
+def cause(
+    record: str, header: RecordHeader, episode: EpisodeRecord, within_decisions: int
+) -> Cause:
     """Replay ``episode`` up to its first collision and say where the partner car was."""
-    collided = episode.events["collisions"][0]
-    frames = _frames(header, episode, collided)
-    actions = episode.action_array()[: collided + 1]
-    after = frames[-1]
-    partners = [int(v) for v in touching(after) if v != 0]
-    names = [ACTION_NAMES[int(a)] for a in actions]
-    changes = [d for d in range(len(names)) if names[d] in LANE_CHANGES]
-    if not changes or collided - changes[-1] > config.within:
-        where = f"no lane change within {config.within} decisions"
-        return Cause(record, episode.episode, collided, None, where, None, None)
+    collisions = episode.events.get("collisions", ())
+    if not collisions:
+        raise RuntimeError(
+            f"{record} episode {episode.episode} counts {episode.collisions} collisions but its "
+            "record names no decision for them (a record older than the events?)"
+        )
+    collision_decision = collisions[0]
+    roads, applied = replay(header, episode, collision_decision)
+    partners = [int(v) for v in roads[-1].touching_agent if v != 0]
+    names = [ACTION_NAMES[a] if a >= 0 else "" for a in applied]
+    changes = [d for d, name in enumerate(names) if name in LANE_CHANGE_DIRECTION]
     if not partners:
-        return Cause(record, episode.episode, collided, None, "no other car", None, None)
-    decided = changes[-1]
-    before = frames[decided]
+        return Cause(
+            record, episode.episode, collision_decision, None, "no other car", None, None, None
+        )
+    if not changes or collision_decision - changes[-1] > within_decisions:
+        where = f"no lane change within {within_decisions} decisions"
+        return Cause(record, episode.episode, collision_decision, None, where, None, None, None)
+    lane_change_decision = changes[-1]
+    before = roads[lane_change_decision]
     partner = partners[0]
-    lanes = before.y_m / before.lane_width_m
-    where = where_was(lanes[0], lanes[partner], LANE_CHANGES[names[decided]], config.drift_lanes)
+    direction = LANE_CHANGE_DIRECTION[names[lane_change_decision]]
     return Cause(
         record,
         episode.episode,
-        collided,
-        decided,
-        where,
+        collision_decision,
+        lane_change_decision,
+        where_was(before, partner, direction),
         float(before.x_m[partner] - before.x_m[0]),
-        float(before.speed_mps[partner] - before.speed_mps[0]) * 3.6,
+        float(before.speed_mps[partner] - before.speed_mps[0]) / KMH,
+        float(before.change_progress[partner]),
     )
 
 
 def main(config: CausesConfig) -> list[Cause]:
     causes: list[Cause] = []
+    lines: list[str] = []
     for path in config.records:
         header, episodes = read_records(path)
         for episode in episodes:
-            if episode.collisions:
-                found = cause(str(path), header, episode, config)
-                causes.append(found)
-                ahead = (
+            if not episode.collisions:
+                continue
+            found = cause(str(path), header, episode, config.within_decisions)
+            causes.append(found)
+            detail = ""
+            if found.lane_change_decision is not None:
+                assert found.partner_ahead_m is not None and found.partner_faster_kmh is not None
+                ahead, faster = found.partner_ahead_m, found.partner_faster_kmh
+                detail = (
                     f", {found.collision_decision - found.lane_change_decision} decisions after "
-                    f"the lane change; partner {found.partner_dx_m:+.1f} m ahead, "
-                    f"{found.partner_dv_kmh:+.1f} km/h"
-                    if found.lane_change_decision is not None
-                    else ""
+                    f"the lane change; the partner {abs(ahead):.1f} m "
+                    f"{'ahead' if ahead >= 0 else 'behind'}, {abs(faster):.1f} km/h "
+                    f"{'faster' if faster >= 0 else 'slower'}, "
+                    f"{found.partner_change_progress:.0%} through its own lane change"
                 )
-                print(f"{path} episode {episode.episode}: {found.where}{ahead}")
-    print("\n| where the other car was | collisions |\n|---|---:|")
+            lines.append(f"- {path} episode {episode.episode}: {found.where}{detail}")
+            print(lines[-1])
+    table = ["", "| where the other car was | collisions |", "|---|---:|"]
     for where, count in collections.Counter(c.where for c in causes).most_common():
-        print(f"| {where} | {count} |")
-    print(f"| all | {len(causes)} |")
+        table.append(f"| {where} | {count} |")
+    table.append(f"| all | {len(causes)} |")
+    print("\n".join(table))
+    if config.out is not None:
+        config.out.write_text("\n".join([*lines, *table]) + "\n", encoding="utf-8")
     return causes
 
 

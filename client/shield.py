@@ -25,8 +25,8 @@ negative). Ho's and Fayjie et al.'s presets do not observe a LIDAR scan and the 
 (the grid, the camera and the LIDAR map): the shield refuses them, saying what it needs.
 
 What the rule does not see: a car two lanes over that changes into the target lane at the
-same time. Every collision left behind it in min2018-safe was of that kind
-(``bench/collision_causes.py`` classifies a record's collisions; bench/RESULTS.md).
+same time. Every collision left behind it in min2018-safe and min2018-safe-both was of that
+kind (``bench/collision_causes.py`` classifies a record's collisions; bench/RESULTS.md).
 """
 
 from __future__ import annotations

@@ -6,31 +6,65 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from bench.collision_causes import CausesConfig, main, where_was
+from bench.collision_causes import CausesConfig, Road, cause, main, where_was
 from overtake.client.drive import DriveConfig
 from overtake.client.drive import main as drive
 from overtake.client.episode_records import read_records
 
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _road(partner_lane: int, partner_target_lane: int, own_lane: int = 2) -> Road:
+    return Road(
+        x_m=np.array([100.0, 101.0]),
+        speed_mps=np.array([20.0, 18.0]),
+        lane=np.array([own_lane, partner_lane]),
+        target_lane=np.array([own_lane, partner_target_lane]),
+        change_progress=np.array([0.0, 0.0 if partner_target_lane == partner_lane else 0.2]),
+        touching_agent=np.array([0, 1]),
+    )
+
 
 @pytest.mark.parametrize(
-    ("own", "partner", "direction", "expected"),
+    ("partner_lane", "partner_target", "direction", "expected"),
     [
-        (2.5, 3.4, +1, "in the target lane"),
-        (2.5, 2.9, +1, "in the car's own lane"),
-        (2.5, 4.5, +1, "two lanes over, not yet moving into the target lane"),
-        (2.5, 4.3, +1, "two lanes over, already moving into the target lane"),
-        (2.5, 4.8, +1, "two lanes over, not yet moving into the target lane"),  # moving away
-        (2.5, 0.7, -1, "two lanes over, already moving into the target lane"),
-        (2.5, 0.5, -1, "two lanes over, not yet moving into the target lane"),
-        (2.5, 1.2, -1, "in the target lane"),
-        (2.5, 0.5, +1, "elsewhere"),  # two lanes over, on the other side
-        (2.6, 5.5, +1, "elsewhere"),
+        (3, 3, +1, "in the target lane"),
+        (3, 4, +1, "in the target lane"),  # leaving it: still there when the agent decided
+        (2, 2, +1, "in the car's own lane"),
+        (4, 4, +1, "two lanes over, not yet changing into the target lane"),
+        (4, 3, +1, "two lanes over, already changing into the target lane"),
+        (4, 5, +1, "two lanes over, not yet changing into the target lane"),  # moving away
+        (0, 1, -1, "two lanes over, already changing into the target lane"),
+        (0, 0, -1, "two lanes over, not yet changing into the target lane"),
+        (1, 1, -1, "in the target lane"),
+        (0, 1, +1, "elsewhere"),  # two lanes over, on the other side
+        (5, 4, +1, "elsewhere"),
     ],
 )
-def test_the_partner_is_placed_relative_to_the_target_lane(own, partner, direction, expected):
-    assert where_was(own, partner, direction, drift_lanes=0.05) == expected
+def test_the_partner_is_placed_relative_to_the_target_lane(
+    partner_lane, partner_target, direction, expected
+):
+    assert where_was(_road(partner_lane, partner_target), 1, direction) == expected
+
+
+def test_a_kept_collision_behind_the_shield_is_two_cars_meeting_in_one_lane():
+    # min2018-safe-both's medium episode 96 (kept in bench/results): the agent changed right at
+    # decision 1 and collided at decision 4 with a car that had begun to change left from two
+    # lanes over, 3.6 m ahead of it and 15.5 km/h slower when the agent decided.
+    record = (
+        ROOT / "bench/results/min2018-safe-both/evaluations/all-both-seed0"
+        "/medium-step200000.episodes/all-both.jsonl"
+    )
+    header, episodes = read_records(record)
+    [episode] = [e for e in episodes if e.episode == 96]
+    found = cause(str(record), header, episode, within_decisions=7)
+    assert (found.lane_change_decision, found.collision_decision) == (1, 4)
+    assert found.where == "two lanes over, already changing into the target lane"
+    assert found.partner_ahead_m == pytest.approx(3.6, abs=0.05)
+    assert found.partner_faster_kmh == pytest.approx(-15.5, abs=0.05)
 
 
 def _record(out: Path) -> Path:
@@ -55,13 +89,13 @@ def test_each_collision_is_replayed_to_its_recorded_decision(tmp_path, capsys):
     _, episodes = read_records(record)
     crashed = {e.episode: e.events["collisions"][0] for e in episodes if e.collisions}
     assert crashed, "the random driver should collide in heavy traffic"
-    causes = main(CausesConfig(records=(record,)))
+    out = tmp_path / "causes.md"
+    causes = main(CausesConfig(records=(record,), out=out))
     assert {c.episode: c.collision_decision for c in causes} == crashed
-    for found in causes:
-        if found.lane_change_decision is not None:
-            assert 0 <= found.collision_decision - found.lane_change_decision <= 7
-    table = capsys.readouterr().out
-    assert f"| all | {len(crashed)} |" in table
+    assert f"| all | {len(crashed)} |" in capsys.readouterr().out
+    written = out.read_text()
+    assert f"| all | {len(crashed)} |" in written
+    assert all(f"episode {c.episode}: {c.where}" in written for c in causes)
 
     # A record whose collision the replay does not meet is refused, not classified.
     lines = [json.loads(line) for line in record.read_text().splitlines()]
