@@ -212,7 +212,7 @@ def open_episode_recording(
         if in_process and spec is not None and spec.road is not None
         else None
     )
-    layout = episode_blueprint(labels, road_width_m, title, q_values=hasattr(policy, "last_q"))
+    layout = episode_blueprint(labels, road_width_m, title, show_q_values=hasattr(policy, "last_q"))
     recording = open_recording(APPLICATION_ID, config, default_rrd, layout)
     if recording is None:
         return None, None

@@ -34,10 +34,10 @@ def episode_blueprint(
     episodes: Sequence[int],
     road_width_m: float | None,
     title: str = "episode",
-    q_values: bool = True,
+    show_q_values: bool = True,
 ) -> Any:
     """The layout of an episode recording, opening on the first episode's timeline;
-    ``road_width_m``: the road's width where the road is recorded (in process); ``q_values``:
+    ``road_width_m``: the road's width where the road is recorded (in process); ``show_q_values``:
     whether the driver says its Q-values (a network does; a rule, or recorded actions played
     alone, do not: no empty plot for them)."""
     import rerun.blueprint as rrb
@@ -51,7 +51,7 @@ def episode_blueprint(
             (ROAD, road_width_m) if road_width_m is not None else None,
             root=f"/{CAR}",
             below=(events,),
-            q_values=q_values,
+            show_q_values=show_q_values,
         ),
         rrb.TimePanel(timeline=timeline(episodes[0]) if episodes else None, state="expanded"),
         collapse_panels=True,

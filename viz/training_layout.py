@@ -75,20 +75,29 @@ def car_layout(
     road: tuple[str, float] | None = None,
     root: str | None = None,
     below: Sequence[Any] = (),
-    q_values: bool = True,
+    show_q_values: bool = True,
 ) -> Any:
     """What run ``run``'s first environment sees and does; with ``road`` (the entity path of
     its road and the road's width in metres: an in-process run's), the road from above on
     top, the way a spectator's recording shows a server's arenas. ``root``: the car's
     entities (default: the run's first environment's); ``below``: more views under the
-    rest (an episode's events); ``q_values``: whether a network's Q-values are there to show
+    rest (an episode's events); ``show_q_values``: whether a network's Q-values are there to show
     (not where a rule drove, or recorded actions are played without their network)."""
     import rerun.blueprint as rrb
 
     from .world_view import ROAD_AHEAD_M, ROAD_BEHIND_M
 
     car_root = root or f"/trainer/{run}/env0"
-    q_view = rrb.TimeSeriesView(origin=f"{car_root}/q", name=f"{run}: Q-values")
+    plots = [
+        rrb.TimeSeriesView(origin=f"{car_root}/speed_kmh", name=f"{run}: speed (km/h)"),
+        *(
+            [rrb.TimeSeriesView(origin=f"{car_root}/q", name=f"{run}: Q-values")]
+            if show_q_values
+            else []
+        ),
+        rrb.TimeSeriesView(origin=f"{car_root}/reward", name=f"{run}: reward and its terms"),
+        rrb.TimeSeriesView(origin=f"{car_root}/action", name=f"{run}: action"),
+    ]
     road_view = []
     if road is not None:
         origin, width_m = road
@@ -107,17 +116,9 @@ def car_layout(
             rrb.Spatial2DView(origin=f"{car_root}/camera", name=f"{run}: camera"),
             rrb.Spatial2DView(origin=f"{car_root}/lidar", name=f"{run}: LIDAR (m, left up)"),
         ),
-        rrb.TimeSeriesView(origin=f"{car_root}/speed_kmh", name=f"{run}: speed (km/h)"),
-        *([q_view] if q_values else []),
-        rrb.TimeSeriesView(origin=f"{car_root}/reward", name=f"{run}: reward and its terms"),
-        rrb.TimeSeriesView(origin=f"{car_root}/action", name=f"{run}: action"),
+        *plots,
         *below,
-        row_shares=[
-            *([2] if road is not None else []),
-            3,
-            *([1] * (4 if q_values else 3)),
-            *([1] * len(below)),
-        ],
+        row_shares=[*([2] * len(road_view)), 3, *([1] * (len(plots) + len(below)))],
         name=f"{run}: env 0",
     )
 
