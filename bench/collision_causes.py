@@ -28,6 +28,7 @@ from __future__ import annotations
 import collections
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import tyro
@@ -40,9 +41,10 @@ from overtake.client.episode_records import (
     RecordHeader,
     read_records,
 )
-from overtake.client.episodes import make_vector_env
+from overtake.client.episodes import make_vector_env, run_episodes
 from overtake.protocol.vocabulary import ACTION_NAMES
 from overtake.server.sim.units import KMH
+from overtake.trainers.episode_replay import RecordedActions
 
 # Lane index change of each lane-change action (lanes count leftwards, y grows with them).
 LANE_CHANGE_DIRECTION = {"lane_left": +1, "lane_right": -1}
@@ -61,7 +63,7 @@ class CausesConfig:
 
 @dataclass(frozen=True)
 class Road:
-    """Arena 0's vehicles when a decision is taken (index 0: the agent)."""
+    """An arena's vehicles when a decision is taken (index 0: the agent)."""
 
     x_m: np.ndarray
     """(V,) position along the road"""
@@ -73,8 +75,6 @@ class Road:
     """(V,) the lane it is changing into (its lane where it is not changing)"""
     change_progress: np.ndarray
     """(V,) 0..1 through its lane change"""
-    touching_agent: np.ndarray
-    """vehicles touching the agent (the agent among them), as the recordings colour them"""
 
 
 @dataclass(frozen=True)
@@ -94,51 +94,99 @@ class Cause:
     """how far through its own lane change the partner was then (0..1; 0: not changing)"""
 
 
-def replay(
-    header: RecordHeader, episode: EpisodeRecord, until: int
-) -> tuple[list[Road], list[int]]:
-    """The road before each decision up to ``until`` and after it (``until + 2`` roads), and
-    the actions applied; raises where the replay's first collision is not at ``until``."""
-    envs = make_vector_env(header.preset, header.overrides, 1, None)
-    roads: list[Road] = []
-    applied: list[int] = []
-    try:
-        sim = envs.unwrapped.sim
-        _, info = envs.reset(seed=[episode.seed])
-        counts = EventCounts(1)
-        counts.rose(info)
+@dataclass
+class Replayed:
+    """One episode replayed up to its first collision: the road before each decision, the
+    actions applied, and the vehicles touching the agent after the colliding decision."""
 
-        def road() -> Road:
-            world = sim.world_snapshot(0)
-            return Road(
-                world.x_m,
-                world.speed_mps.astype(np.float64),
-                sim.state.lane[0].copy(),
-                sim.state.target_lane[0].copy(),
-                sim.state.change_progress[0].astype(np.float64),
-                touching(world),
-            )
+    roads: list[Road]
+    applied: list[int]
+    touching_agent: np.ndarray | None = None
 
-        roads.append(road())
-        for decision, action in enumerate(episode.action_array()[: until + 1]):
-            _, _, _, _, info = envs.step(np.array([action]))
-            roads.append(road())
-            applied.append(int(info["action_applied"][0]))
-            collided = bool(counts.rose(info).get("collisions", np.zeros(1, bool))[0])
-            if collided != (decision == until):
+
+class _UntilCollision:
+    """A watcher of :func:`~overtake.client.episodes.run_episodes` over the recorded
+    ``episodes`` (environment i plays episode i): keeps each one's roads and applied actions
+    up to its record's first collision, and raises where the replay's collision is elsewhere."""
+
+    def __init__(self, envs: Any, episodes: list[EpisodeRecord]) -> None:
+        self.sim = envs.unwrapped.sim
+        self.episodes = episodes
+        self.until = [episode.events["collisions"][0] for episode in episodes]
+        self.replayed = [Replayed([], []) for _ in episodes]
+        self.counts = EventCounts(len(episodes))
+
+    def _road(self, arena: int) -> Road:
+        state = self.sim.state
+        return Road(
+            state.x_m[arena].astype(np.float64),
+            state.speed_mps[arena].astype(np.float64),
+            state.lane[arena].copy(),
+            state.target_lane[arena].copy(),
+            state.change_progress[arena].astype(np.float64),
+        )
+
+    def started(self, obs: dict[str, np.ndarray], info: dict[str, Any]) -> None:
+        self.counts.rose(info)
+        for arena, replayed in enumerate(self.replayed):
+            replayed.roads.append(self._road(arena))
+
+    def stepped(
+        self,
+        actions: np.ndarray,
+        obs: dict[str, np.ndarray],
+        reward: np.ndarray,
+        terminated: np.ndarray,
+        truncated: np.ndarray,
+        info: dict[str, Any],
+    ) -> None:
+        collided = self.counts.rose(info).get("collisions", np.zeros(len(self.episodes), bool))
+        for arena, replayed in enumerate(self.replayed):
+            decision, until = len(replayed.applied), self.until[arena]
+            if decision > until:
+                continue  # past its collision: the episode has ended, or goes on unwatched
+            replayed.roads.append(self._road(arena))
+            replayed.applied.append(int(info["action_applied"][arena]))
+            if bool(collided[arena]) != (decision == until):
                 raise RuntimeError(
-                    f"episode {episode.episode} replays with {'a' if collided else 'no'} "
-                    f"collision at decision {decision}, unlike its record (another simulator "
-                    "than the record's?)"
+                    f"episode {self.episodes[arena].episode} replays with "
+                    f"{'a' if collided[arena] else 'no'} collision at decision {decision}, "
+                    "unlike its record (another simulator than the record's?)"
                 )
+            if (terminated[arena] or truncated[arena]) and decision < until:
+                raise RuntimeError(
+                    f"episode {self.episodes[arena].episode} ends at decision {decision}, "
+                    f"before its record's collision at {until}"
+                )
+            if decision == until:
+                replayed.touching_agent = touching(self.sim.world_snapshot(arena))
+
+
+def replay(record: str, header: RecordHeader, episodes: list[EpisodeRecord]) -> list[Replayed]:
+    """Replay ``episodes`` of ``record`` (each with a collision) together, from their seeds and
+    recorded actions (:class:`~overtake.trainers.episode_replay.RecordedActions`), each up to
+    its record's first collision; raises where a replay's collision is not where the record's
+    is."""
+    for episode in episodes:
+        collisions = episode.events.get("collisions", ())
+        if not collisions:
+            raise RuntimeError(
+                f"{record} episode {episode.episode} counts {episode.collisions} collisions but "
+                "its record names no decision for them (a record older than the events?)"
+            )
+        if collisions[0] >= len(episode.actions):
+            raise RuntimeError(
+                f"{record} episode {episode.episode} has {len(episode.actions)} recorded "
+                f"actions, its record's collision is at decision {collisions[0]}"
+            )
+    envs = make_vector_env(header.preset, header.overrides, len(episodes), None)
+    watcher = _UntilCollision(envs, episodes)
+    try:
+        recorded = RecordedActions(episodes, None, False, header)
+        run_episodes(envs, recorded, len(episodes), [e.seed for e in episodes], watchers=[watcher])
     finally:
         envs.close()
-    if len(applied) != until + 1:
-        raise RuntimeError(
-            f"episode {episode.episode} has {len(applied)} recorded actions, its record's "
-            f"collision is at decision {until}"
-        )
-    return roads, applied
+    return watcher.replayed
 
 
 def where_was(road: Road, partner: int, direction: int) -> str:
@@ -159,42 +207,43 @@ def where_was(road: Road, partner: int, direction: int) -> str:
     return "elsewhere"
 
 
+def classify(
+    record: str, episode: EpisodeRecord, replayed: Replayed, within_decisions: int
+) -> Cause:
+    """Where ``episode``'s partner car was, from its replay up to its first collision."""
+    collision_decision = len(replayed.applied) - 1
+    touching_agent = replayed.touching_agent if replayed.touching_agent is not None else []
+    partners = [int(v) for v in touching_agent if v != 0]
+    names = [ACTION_NAMES[a] if a >= 0 else "" for a in replayed.applied]
+    changes = [d for d, name in enumerate(names) if name in LANE_CHANGE_DIRECTION]
+    if not partners:
+        where = "no other car"
+    elif not changes or collision_decision - changes[-1] > within_decisions:
+        where = f"no lane change within {within_decisions} decisions"
+    else:
+        lane_change_decision = changes[-1]
+        before = replayed.roads[lane_change_decision]
+        partner = partners[0]
+        direction = LANE_CHANGE_DIRECTION[names[lane_change_decision]]
+        return Cause(
+            record,
+            episode.episode,
+            collision_decision,
+            lane_change_decision,
+            where_was(before, partner, direction),
+            float(before.x_m[partner] - before.x_m[0]),
+            float(before.speed_mps[partner] - before.speed_mps[0]) / KMH,
+            float(before.change_progress[partner]),
+        )
+    return Cause(record, episode.episode, collision_decision, None, where, None, None, None)
+
+
 def cause(
     record: str, header: RecordHeader, episode: EpisodeRecord, within_decisions: int
 ) -> Cause:
     """Replay ``episode`` up to its first collision and say where the partner car was."""
-    collisions = episode.events.get("collisions", ())
-    if not collisions:
-        raise RuntimeError(
-            f"{record} episode {episode.episode} counts {episode.collisions} collisions but its "
-            "record names no decision for them (a record older than the events?)"
-        )
-    collision_decision = collisions[0]
-    roads, applied = replay(header, episode, collision_decision)
-    partners = [int(v) for v in roads[-1].touching_agent if v != 0]
-    names = [ACTION_NAMES[a] if a >= 0 else "" for a in applied]
-    changes = [d for d, name in enumerate(names) if name in LANE_CHANGE_DIRECTION]
-    if not partners:
-        return Cause(
-            record, episode.episode, collision_decision, None, "no other car", None, None, None
-        )
-    if not changes or collision_decision - changes[-1] > within_decisions:
-        where = f"no lane change within {within_decisions} decisions"
-        return Cause(record, episode.episode, collision_decision, None, where, None, None, None)
-    lane_change_decision = changes[-1]
-    before = roads[lane_change_decision]
-    partner = partners[0]
-    direction = LANE_CHANGE_DIRECTION[names[lane_change_decision]]
-    return Cause(
-        record,
-        episode.episode,
-        collision_decision,
-        lane_change_decision,
-        where_was(before, partner, direction),
-        float(before.x_m[partner] - before.x_m[0]),
-        float(before.speed_mps[partner] - before.speed_mps[0]) / KMH,
-        float(before.change_progress[partner]),
-    )
+    [replayed] = replay(record, header, [episode])
+    return classify(record, episode, replayed, within_decisions)
 
 
 def main(config: CausesConfig) -> list[Cause]:
@@ -202,10 +251,10 @@ def main(config: CausesConfig) -> list[Cause]:
     lines: list[str] = []
     for path in config.records:
         header, episodes = read_records(path)
-        for episode in episodes:
-            if not episode.collisions:
-                continue
-            found = cause(str(path), header, episode, config.within_decisions)
+        crashed = [episode for episode in episodes if episode.collisions]
+        replays = replay(str(path), header, crashed) if crashed else []
+        for episode, replayed in zip(crashed, replays, strict=True):
+            found = classify(str(path), episode, replayed, config.within_decisions)
             causes.append(found)
             detail = ""
             if found.lane_change_decision is not None:

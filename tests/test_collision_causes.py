@@ -24,7 +24,6 @@ def _road(partner_lane: int, partner_target_lane: int, own_lane: int = 2) -> Roa
         lane=np.array([own_lane, partner_lane]),
         target_lane=np.array([own_lane, partner_target_lane]),
         change_progress=np.array([0.0, 0.0 if partner_target_lane == partner_lane else 0.2]),
-        touching_agent=np.array([0, 1]),
     )
 
 
