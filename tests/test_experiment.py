@@ -517,7 +517,7 @@ def test_work_another_invocation_did_meanwhile_is_not_done_again(tiny, capsys):
     assert said.count("by another invocation") == len(ROWS) + 2
 
 
-def test_the_kept_evidence_is_the_table_and_curves_without_the_episodes(tiny, tmp_path):
+def test_the_kept_evidence_is_the_table_and_curves_without_the_calm_episodes(tiny, tmp_path):
     keep_evidence(tiny["out"], tmp_path / "kept")
     kept = sorted(p.name for p in (tmp_path / "kept").iterdir() if p.name != "evaluations")
     assert kept == ["curves.png", "table.json", "table.md"]
