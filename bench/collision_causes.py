@@ -41,10 +41,10 @@ from overtake.client.episode_records import (
     RecordHeader,
     read_records,
 )
-from overtake.client.episodes import make_vector_env, run_episodes
+from overtake.client.episodes import run_episodes
 from overtake.protocol.vocabulary import ACTION_NAMES
 from overtake.server.sim.units import KMH
-from overtake.trainers.episode_replay import RecordedActions
+from overtake.trainers.episode_replay import RecordedActions, replay_envs
 
 # Lane index change of each lane-change action (lanes count leftwards, y grows with them).
 LANE_CHANGE_DIRECTION = {"lane_left": +1, "lane_right": -1}
@@ -179,7 +179,7 @@ def replay(record: str, header: RecordHeader, episodes: list[EpisodeRecord]) -> 
                 f"{record} episode {episode.episode} has {len(episode.actions)} recorded "
                 f"actions, its record's collision is at decision {collisions[0]}"
             )
-    envs = make_vector_env(header.preset, header.overrides, len(episodes), None)
+    envs = replay_envs(header, len(episodes))
     watcher = _UntilCollision(envs, episodes)
     try:
         recorded = RecordedActions(episodes, None, False, header)

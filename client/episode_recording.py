@@ -58,16 +58,16 @@ def touching(frame: Any, agent: int = 0, margin_m: float = TOUCH_MARGIN_M) -> np
 
 
 def ahead_of(frame: Any, agent: int = 0) -> np.ndarray:
-    """Agent ``agent`` and the nearest car ahead of it in its lane (boxes overlapping
-    sideways), the car an emergency brake is for; the agent alone where there is none."""
+    """Agent ``agent`` and the nearest car ahead of it that shares a lane with it at least in
+    part (less than a lane's width apart sideways: in its lane, or moving into or out of it
+    as the agent or that car changes lanes, as car-following counts a leader), the car an
+    emergency brake is for; the agent alone where there is none."""
     active = np.flatnonzero(frame.active)
     others = active[active != agent]
-    if frame.half_width_m is None or others.size == 0:
+    if others.size == 0:
         return np.array([agent])
     dx = frame.x_m[others] - frame.x_m[agent]
-    beside = np.abs(frame.y_m[others] - frame.y_m[agent]) < (
-        frame.half_width_m[others] + frame.half_width_m[agent]
-    )
+    beside = np.abs(frame.y_m[others] - frame.y_m[agent]) < frame.lane_width_m
     ahead = others[(dx > 0) & beside]
     if ahead.size == 0:
         return np.array([agent])

@@ -69,3 +69,80 @@ BEHAVIOUR_COLOURS: tuple[tuple[int, int, int], ...] = (
     (200, 120, 230),
 )
 AGENT_COLOUR: tuple[int, int, int] = (230, 40, 40)
+
+# Simulator settings added after episode records were first kept (issue 44: the authors'
+# traffic). A record names only the settings of its day; a replay gives those that decide
+# anything the value that makes the simulator what it was before they existed
+# (EARLIER_SETTINGS; client/episode_records.py, replay_overrides), and the others, which then
+# do nothing, may hold whatever they hold now.
+ADDED_SETTINGS: tuple[str, ...] = (
+    *(
+        f"traffic.{name}.{field}"
+        for name in BEHAVIOUR_NAMES
+        for field in (
+            "speed_steps_per_s",
+            "speed_step_kmh",
+            "speed_step_up_prob",
+            "speed_step_down_prob",
+            "speed_walk_kmh",
+            "keeps_current_speed",
+            "random_lane_changes_when_slow",
+        )
+    ),
+    "traffic.following",
+    "traffic.safety_gap_m",
+    "traffic.entry",
+    "traffic.entry_prob_per_frame",
+    "traffic.entry_offset_m",
+    "traffic.entry_zone_ahead_m",
+    "traffic.entry_zone_behind_m",
+    "traffic.entry_speed_ahead_kmh",
+    "traffic.entry_speed_behind_kmh",
+    "episode.max_distance_m",
+    "ego.mask_refusals",
+    "grid.covered_by",
+)
+EARLIER_SETTINGS: dict[str, object] = {
+    **{
+        f"traffic.{name}.{field}": value
+        for name in BEHAVIOUR_NAMES
+        for field, value in (
+            ("speed_steps_per_s", 0.0),
+            ("keeps_current_speed", False),
+            ("random_lane_changes_when_slow", False),
+        )
+    },
+    "traffic.following": "idm",
+    "traffic.entry": "comfortable",
+    "episode.max_distance_m": None,
+    # The action mask carried driver assistance's refusals (with the lane-change check on).
+    "ego.mask_refusals": True,
+    "grid.covered_by": "any_part",
+}
+assert set(EARLIER_SETTINGS) <= set(ADDED_SETTINGS)
+# The settings of existing fields whose value in a preset changed since records were first
+# kept: a replay of a record of that preset takes them from the record
+# (server/sim/presets.py, BEFORE_AUTHORS_TRAFFIC, holds their earlier values too).
+CHANGED_PRESET_SETTINGS: dict[str, tuple[str, ...]] = {
+    "min2018": (
+        "ego.lane_change_check",
+        "traffic.random.desired_speed_kmh",
+        "traffic.random.speed_change_rate_per_s",
+        "traffic.random.random_lane_change_rate_per_s",
+        "traffic.keep_ahead_m",
+    ),
+    "ho2018": (
+        "traffic.density_vehicle_counts",
+        "traffic.steady.lane_change_threshold_mps2",
+        "traffic.road_max.lane_change_threshold_mps2",
+        "traffic.road_max.desired_speed_kmh",
+        "traffic.lane_changer.desired_speed_kmh",
+        "traffic.lane_changer.lane_change_threshold_mps2",
+        "traffic.lane_change_duration_s",
+        "ego.safety_gap_m",
+        "ego.lane_change_clear_ahead_m",
+        "ego.lane_change_clear_behind_m",
+        "ego.lane_change_closing_time_s",
+        "ego.lane_change_duration_s",
+    ),
+}

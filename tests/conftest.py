@@ -16,6 +16,7 @@ import numpy as np
 
 from overtake.protocol.vocabulary import AGENT_KIND, BEHAVIOUR_NAMES
 from overtake.server.sim import HighwaySim, make_config
+from overtake.server.sim.traffic.config import NEVER_MPS2
 from overtake.server.sim.units import KMH
 
 # The end-to-end fixtures that start (and stop, by PID) servers and trainer processes.
@@ -26,14 +27,17 @@ HALF_LENGTH = 2.25  # 4.5 m cars and ego
 HALF_WIDTH = 0.9  # 1.8 m cars and ego
 STEADY, ROAD_MAX, LANE_CHANGER = range(3)
 
-# Scripted traffic keeps to its lane and its speed: MOBIL never finds a change worth it and
-# nobody picks a new desired speed, so a scene only moves the way the test says.
+# Scripted traffic keeps to its lane and its speed: MOBIL never finds a change worth it,
+# nobody picks a new desired speed or walks it, and nobody holds a speed it was slowed to, so
+# a scene only moves the way the test says.
 CALM_TRAFFIC: dict[str, Any] = {}
 for _name in BEHAVIOUR_NAMES:
-    CALM_TRAFFIC[f"traffic.{_name}.lane_change_threshold_mps2"] = 10.0
+    CALM_TRAFFIC[f"traffic.{_name}.lane_change_threshold_mps2"] = NEVER_MPS2
     CALM_TRAFFIC[f"traffic.{_name}.politeness"] = 0.0
     CALM_TRAFFIC[f"traffic.{_name}.speed_change_rate_per_s"] = 0.0
     CALM_TRAFFIC[f"traffic.{_name}.random_lane_change_rate_per_s"] = 0.0
+    CALM_TRAFFIC[f"traffic.{_name}.speed_steps_per_s"] = 0.0
+    CALM_TRAFFIC[f"traffic.{_name}.keeps_current_speed"] = False
 
 
 @dataclass(frozen=True)
@@ -109,6 +113,7 @@ def place(
     st.y_m[arena, column] = lane_centre(lane)
     st.speed_mps[arena, column] = speed_kmh * KMH
     st.desired_speed_mps[arena, column] = (speed_kmh if desired_kmh is None else desired_kmh) * KMH
+    st.own_speed_mps[arena, column] = st.desired_speed_mps[arena, column]
     st.accel_mps2[arena, column] = 0.0
     st.active[arena, column] = True
     if kind is not None:

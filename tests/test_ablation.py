@@ -47,3 +47,30 @@ def test_the_warnings_ride_with_the_lidar():
     )
     assert not np.array_equal(crowded, away)
     assert observed("camera", CROWDED)["ego"].shape == (1,)  # the car's own speed
+
+
+def scene(inputs: str, cars: tuple[Car, ...], **extra):
+    overrides = {**TrainConfig(preset="min2018", inputs=inputs).overrides(), **extra}
+    return scripted_sim(cars, ego_lane=2, overrides=overrides)
+
+
+@pytest.mark.parametrize("inputs", ["camera", "lidar", "both"])
+def test_the_mask_a_row_acts_on_tells_nothing_of_the_cars_and_the_car_refuses_for_it(inputs):
+    """The authors' DAS refuses a lane change under a side warning; the action mask each row
+    chooses with is the same with a car beside and one ahead as with none near (it marks only
+    what cannot be done at all), so no row learns of the car beside from it: the camera row
+    acts without the warning and its car refuses."""
+    crowded, away = scene(inputs, CROWDED), scene(inputs, AWAY)
+    np.testing.assert_array_equal(crowded.action_mask(), away.action_mask())
+    assert crowded.action_mask()[0, 0].tolist() == [1, 1, 1, 1, 1]
+    # Left, into the car beside: refused by the car, for every row; right, clear: taken.
+    assert crowded.step(np.array([[3]])).action_applied[0, 0] == 0
+    assert crowded.state.target_lane[0, 0] == 2
+    assert scene(inputs, CROWDED).step(np.array([[4]])).action_applied[0, 0] == 4
+
+
+def test_a_mask_with_the_refusals_would_carry_the_car_beside():
+    """The test above is not vacuous: with ego.mask_refusals the mask would tell."""
+    crowded = scene("camera", CROWDED, **{"ego.mask_refusals": True})
+    away = scene("camera", AWAY, **{"ego.mask_refusals": True})
+    assert crowded.action_mask()[0, 0, 3] == 0 and away.action_mask()[0, 0, 3] == 1

@@ -75,7 +75,7 @@ def _record(out: Path) -> Path:
             episodes=8,
             seed=3,
             max_decisions=400,
-            set=("traffic.density=heavy",),
+            set=("traffic.density=heavy", "ego.lane_change_check=false"),
             episodes_out=out,
         )
     )

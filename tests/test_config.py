@@ -43,8 +43,12 @@ def test_default_preset_is_min2018_with_the_papers_numbers():
     assert config.reward.collision == -10.0 and config.reward.lane_change == -0.25
     assert config.reward.overtake == 0.5 and config.reward.warning == -0.1
     assert config.reward.terms == ("speed", "collision", "lane_change", "overtake", "warning")
-    # Actions set cruise control from the current speed; warnings are the car's to heed.
-    assert config.ego.cruise_mode == "current" and not config.ego.lane_change_check
+    # Actions set cruise control from the current speed; the car refuses a lane change under a
+    # side warning (the authors' DAS), and the mask leaves that refusal to the car.
+    assert config.ego.cruise_mode == "current" and config.ego.lane_change_check
+    assert not config.ego.mask_refusals
+    # Episodes end at 2,600 m (the authors' code), or after 1,000 decisions.
+    assert config.episode.max_distance_m == 2600.0 and config.episode.max_decisions == 1000
     assert config.ego_vector.fields == (
         "left_warning",
         "right_warning",

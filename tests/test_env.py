@@ -184,10 +184,22 @@ def test_truncation_at_the_episode_length(maker):
         assert info["metrics"]["decisions"] == 20
 
 
-def test_default_episode_length_is_1000_decisions():
-    env = HighwayEnv(
-        overrides={**FREE_ROAD, "lidar.enabled": False, "camera.width_px": 8, "camera.height_px": 8}
-    )
+def test_default_episode_ends_at_2600_m_or_1000_decisions():
+    small = {**FREE_ROAD, "lidar.enabled": False, "camera.width_px": 8, "camera.height_px": 8}
+    env = HighwayEnv(overrides=small)
+    env.reset(seed=0)
+    # 60 km/h on a free road: 2,600 m after 156 s, the 390th decision of 0.4 s (or the 391st,
+    # as the sum of 390 steps rounds).
+    truncations, distances = [], []
+    for _ in range(400):
+        _, _, _, truncated, _ = env.step(0)
+        truncations.append(truncated)
+        distances.append(float(env.sim.metrics()["distance_m"][0, 0]))
+    first = truncations.index(True)
+    assert first in (389, 390)
+    assert distances[first - 1] < 2600.0 <= distances[first]
+    # Without the distance, 1,000 decisions.
+    env = HighwayEnv(overrides={**small, "episode.max_distance_m": None})
     env.reset(seed=0)
     truncations = [env.step(0)[3] for _ in range(1000)]
     assert truncations.index(True) == 999

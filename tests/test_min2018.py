@@ -94,9 +94,23 @@ def test_side_and_forward_warnings():
     assert not warnings_of(scripted_sim([Car(60.0, 2, 50.0)], ego_speed_kmh=72.0))[FORWARD]
 
 
-def test_a_lane_change_against_a_side_warning_starts_costs_and_can_collide():
+def test_the_car_refuses_a_change_against_a_side_warning_and_the_attempt_still_costs():
+    # The authors' DAS (VehicleAgent.cs): no lane change under a side warning. The mask offers
+    # the change (the agent chooses among all five); the car keeps its lane, says so, pays the
+    # warning term and no lane-change term, and nothing collides.
     sim = scripted_sim([Car(0.0, 3, 60.0)], ego_lane=2)
-    assert sim.action_mask()[0, 0, LANE_LEFT] == 1  # not refused (lane_change_check off)
+    assert sim.action_mask()[0, 0, LANE_LEFT] == 1
+    result = sim.step(np.array([[LANE_LEFT]]))
+    assert result.action_applied[0, 0] == KEEP
+    assert result.reward_terms["warning"][0, 0] == -0.1
+    assert result.reward_terms["lane_change"][0, 0] == 0.0
+    assert sim.state.target_lane[0, 0] == 2
+    assert not any(keep(sim).terminated[0, 0] for _ in range(6))
+
+
+def test_with_the_check_off_a_change_against_a_side_warning_starts_costs_and_can_collide():
+    sim = scripted_sim([Car(0.0, 3, 60.0)], ego_lane=2, overrides={"ego.lane_change_check": False})
+    assert sim.action_mask()[0, 0, LANE_LEFT] == 1
     result = sim.step(np.array([[LANE_LEFT]]))
     assert result.action_applied[0, 0] == LANE_LEFT
     assert result.reward_terms["warning"][0, 0] == -0.1
@@ -117,9 +131,10 @@ def test_accelerating_against_a_forward_warning_costs_and_heeding_it_does_not():
     assert first_decision(LANE_RIGHT) == 0.0  # the right side is clear
 
 
-def test_the_check_refuses_changes_against_a_side_warning_when_on():
-    sim = scripted_sim([Car(0.0, 3, 60.0)], ego_lane=2, overrides={"ego.lane_change_check": True})
+def test_the_mask_carries_the_refusals_only_when_asked_to():
+    sim = scripted_sim([Car(0.0, 3, 60.0)], ego_lane=2, overrides={"ego.mask_refusals": True})
     assert sim.action_mask()[0, 0, LANE_LEFT] == 0
+    assert sim.action_mask()[0, 0, LANE_RIGHT] == 1
     assert sim.step(np.array([[LANE_LEFT]])).action_applied[0, 0] == KEEP
 
 
@@ -202,6 +217,58 @@ def test_random_traffic_changes_lanes_for_no_reason_and_safely():
     assert lane_changes(0.2) > 20
 
 
+def test_traffic_speeds_step_5_kmh_every_5_s_mostly_up_from_40_60_towards_80():
+    """The authors' TargetMovement.cs: a car starts at 40-60 km/h and every 5 s (the scene's
+    random-action slider at 3) steps 5 km/h, up with probability 0.75, within 40-80."""
+    arenas, decisions = 8, 600
+    sim = HighwaySim(
+        make_config(
+            overrides={
+                "camera.enabled": False,
+                "lidar.enabled": False,
+                "traffic.density": "heavy",
+                # Nobody leaves the road: every car walks for the whole run.
+                "traffic.keep_ahead_m": 5000.0,
+                "traffic.keep_behind_m": 5000.0,
+            }
+        ),
+        num_arenas=arenas,
+    )
+    sim.reset(seeds=list(range(arenas)))
+    st = sim.state
+    starts, ups, downs, held, steps_of_5 = [], 0, 0, 0, True
+    own = st.own_speed_mps[:, 1:].copy()
+    desired = st.desired_speed_mps[:, 1:].copy()
+    starts.append(desired[st.active[:, 1:]] / KMH)
+    for _ in range(decisions):
+        keep(sim)
+        new_own, new_desired = st.own_speed_mps[:, 1:], st.desired_speed_mps[:, 1:]
+        same_car = (new_own == own) & st.active[:, 1:]
+        entered = (new_own != own) & st.active[:, 1:]
+        starts.append(new_desired[entered] / KMH)
+        change = (new_desired - desired)[same_car] / KMH
+        moved = change[np.abs(change) > 1e-9]
+        # Every step is 5 km/h (or what is left of it to the bounds).
+        steps_of_5 &= bool(np.all((np.abs(np.abs(moved) - 5.0) < 1e-6) | (np.abs(moved) < 5.0)))
+        inside = same_car & (desired > 45.5 * KMH) & (desired < 74.5 * KMH)
+        inner = (new_desired - desired)[inside] / KMH
+        ups += int((inner > 1e-9).sum())
+        downs += int((inner < -1e-9).sum())
+        held += int(inside.sum())
+        own, desired = new_own.copy(), new_desired.copy()
+    starts = np.concatenate(starts)
+    assert starts.min() >= 40.0 - 1e-9 and starts.max() <= 60.0 + 1e-9
+    assert steps_of_5
+    final = st.desired_speed_mps[:, 1:][st.active[:, 1:]] / KMH
+    assert final.min() >= 40.0 - 1e-9 and final.max() <= 80.0 + 1e-9
+    # Up three times in four; a step every 5 s on average (a decision is 0.4 s).
+    assert ups / (ups + downs) == pytest.approx(0.75, abs=0.04)
+    assert (ups + downs) / held == pytest.approx(0.4 / 5.0, rel=0.12)
+    # So traffic drifts towards the 80 km/h the host may drive: after 4 minutes most cars want
+    # 70-80 km/h.
+    assert np.median(final) >= 70.0
+
+
 @pytest.mark.parametrize("density, cars", [("light", 10), ("medium", 20), ("heavy", 32)])
 def test_each_density_holds_its_cars_on_the_road(density, cars):
     envs = make_vector_env(
@@ -220,16 +287,31 @@ def test_each_density_holds_its_cars_on_the_road(density, cars):
     assert cars * 0.9 <= on_road <= cars
 
 
-def test_random_driving_crashes_and_brakes_in_medium_traffic():
-    # Driving at random is dangerous now: collisions and emergency brakes happen.
-    envs = make_vector_env(
-        "min2018", {"camera.enabled": False, "episode.max_decisions": 400}, 16, None
-    )
-    act = baseline_policy("random", envs.unwrapped.behaviour_spec, 0, 16, envs)
-    rows, _, _ = run_episodes(envs, act, 16, 100)
-    envs.close()
-    assert sum(row["collisions"] for row in rows) >= 1
-    assert sum(row["emergency_brakes"] for row in rows) >= 1
+def test_random_driving_crashes_only_without_the_authors_lane_change_check():
+    # Driving at random is dangerous where the car changes lanes blindly: collisions and
+    # emergency brakes happen. With the authors' DAS beneath, the same episodes do not crash.
+    def collisions_and_brakes(check: bool) -> tuple[float, float]:
+        envs = make_vector_env(
+            "min2018",
+            {
+                "camera.enabled": False,
+                "episode.max_decisions": 400,
+                "ego.lane_change_check": check,
+            },
+            16,
+            None,
+        )
+        act = baseline_policy("random", envs.unwrapped.behaviour_spec, 0, 16, envs)
+        rows, _, _ = run_episodes(envs, act, 16, 100)
+        envs.close()
+        return (
+            sum(row["collisions"] for row in rows),
+            sum(row["emergency_brakes"] for row in rows),
+        )
+
+    blind_collisions, blind_brakes = collisions_and_brakes(False)
+    assert blind_collisions >= 8 and blind_brakes >= 1
+    assert collisions_and_brakes(True)[0] == 0
 
 
 # --- reference policies ------------------------------------------------------------------------

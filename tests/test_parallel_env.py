@@ -18,8 +18,13 @@ from remote_support import remote_config
 
 # Short episodes on a road of 10 cars, where these seeds' random driving does not crash.
 SHORT = {"episode.max_decisions": 30, "traffic.vehicle_count": 10}
-# An empty road (no traffic) where car_1 and car_2 start in adjacent lanes, car_2 30 m behind.
-EMPTY_ROAD = {"episode.max_decisions": 60, "traffic.vehicle_count": 0}
+# An empty road (no traffic) where car_1 and car_2 start in adjacent lanes, car_2 30 m behind;
+# the cars change lanes as told (min2018's lane-change check off), so that one can cut in.
+EMPTY_ROAD = {
+    "episode.max_decisions": 60,
+    "traffic.vehicle_count": 0,
+    "ego.lane_change_check": False,
+}
 
 
 def test_pettingzoo_parallel_api_test_passes():

@@ -110,8 +110,8 @@ def test_idm_acceleration_formula():
     "overrides, least_cars",
     [
         ({"traffic.density": "heavy"}, 17),
-        # More cars than the kept range holds at comfortable gaps: as many as fit, packed.
-        ({"road.lane_count": 7, "traffic.vehicle_count": 90}, 45),
+        # More cars than the kept 200 m hold at comfortable gaps: as many as fit, packed.
+        ({"road.lane_count": 7, "traffic.vehicle_count": 90}, 40),
     ],
 )
 def test_heavy_traffic_never_overlaps(overrides, least_cars):
@@ -211,9 +211,10 @@ def test_lateral_action_during_a_change_is_ignored_and_masked():
 
 
 BODY = 2 * HALF_LENGTH  # centre to centre when two cars touch bumper to bumper
-# Driver assistance that refuses a lane change against a side warning (off in min2018, where
-# the car starts it and may collide).
-CHECKED = {"ego.lane_change_check": True}
+# Driver assistance that refuses a lane change against a side warning (min2018's, as the
+# authors' code), with the action mask saying so (min2018's mask does not: its agent chooses
+# among all five actions and the car refuses).
+CHECKED = {"ego.lane_change_check": True, "ego.mask_refusals": True}
 
 
 @pytest.mark.parametrize(
@@ -236,12 +237,18 @@ def test_driver_assistance_starts_a_lane_change_only_into_a_clear_lane(dx, clear
     assert result.action_applied[0, 0] == (3 if clear else 0)
     assert result.reward_terms["lane_change"][0, 0] == (-0.25 if clear else 0.0)
     assert sim.state.target_lane[0, 0] == (3 if clear else 2)
+    # The preset's own mask leaves the change to the car: it is offered, and refused.
+    unmasked = scripted_sim([Car(dx, 3, 60.0)], ego_lane=2)
+    assert unmasked.action_mask()[0, 0].tolist() == [1, 1, 1, 1, 1]
+    assert unmasked.step(np.array([[3]])).action_applied[0, 0] == (3 if clear else 0)
 
 
 def test_a_car_moving_into_the_target_lane_blocks_it_and_the_check_can_be_turned_off():
     for check in (True, False):
         sim = scripted_sim(
-            [Car(0.0, 4, 60.0)], ego_lane=2, overrides={"ego.lane_change_check": check}
+            [Car(0.0, 4, 60.0)],
+            ego_lane=2,
+            overrides={"ego.lane_change_check": check, "ego.mask_refusals": True},
         )
         sim.state.target_lane[0, 1] = 3  # the car two lanes over is moving into lane 3
         assert sim.action_mask()[0, 0, 3] == (0 if check else 1)

@@ -35,8 +35,9 @@ from overtake.client.episode_records import (
     EpisodeRecorder,
     RecordError,
     RecordHeader,
-    config_differences,
     read_records,
+    replay_overrides,
+    unexplained_differences,
 )
 from overtake.client.episodes import baseline_policy, make_vector_env, run_episodes
 from overtake.client.provenance import git_commit
@@ -229,23 +230,40 @@ def compare(recorded: list[EpisodeRecord], replayed: list[EpisodeRecord], header
             )
 
 
+def replay_envs(header: RecordHeader, count: int, config: ReplayConfig | None = None) -> Any:
+    """``count`` environments of the simulator a record was made on: its preset and
+    overrides, and where the preset has changed since, the overrides that undo the change
+    (:func:`~overtake.client.episode_records.replay_overrides`)."""
+    connect = config.connect if config is not None else None
+    security = config.security if config is not None else None
+    transport = config.transport if config is not None else "auto"
+    envs = make_vector_env(
+        header.preset, header.overrides, count, connect, security, transport=transport
+    )
+    undo = replay_overrides(header.config, envs.unwrapped.sim_config)
+    if not undo:
+        return envs
+    envs.close()
+    return make_vector_env(
+        header.preset,
+        {**header.overrides, **undo},
+        count,
+        connect,
+        security,
+        transport=transport,
+    )
+
+
 def main(config: ReplayConfig) -> dict[str, Any]:
     """Replay the chosen episodes; returns what was replayed and where it was recorded."""
     header, episodes = read_records(config.record)
     chosen = select(episodes, config)
-    envs = make_vector_env(
-        header.preset,
-        header.overrides,
-        len(chosen),
-        config.connect,
-        config.security,
-        transport=config.transport,
-    )
+    envs = replay_envs(header, len(chosen), config)
     recording = None
     rrd = config.recording.rrd or Path(f"{config.record.stem}-replay.rrd")
     try:
         differences = sorted(
-            config_differences(header.config, envs.unwrapped.sim_config),
+            unexplained_differences(header.config, envs.unwrapped.sim_config),
             key=lambda text: not text.startswith("preset:"),  # the preset's name first
         )
         if differences:

@@ -456,11 +456,21 @@ class DQNLearner:
             **({"grad_scaler": self.scaler.state_dict()} if self.scaler.is_enabled() else {}),
         }
 
-    def load_state_dict(self, state: dict[str, Any]) -> None:
+    def load_state_dict(self, state: dict[str, Any]) -> dict[str, bool]:
+        """Restore a :meth:`state_dict`. A checkpoint that carries the online network alone
+        (one brought back from another machine without its optimiser's moments) restores
+        that: the target network starts as a copy of it and the optimiser afresh. Returns
+        which parts were restored (``target``, ``optimizer``), for the run's provenance."""
         self.online.load_state_dict(state["online"])
-        self.target.load_state_dict(state["target"])
-        self.optimizer.load_state_dict(state["optimizer"])
-        self.updates = int(state["updates"])
+        restored = {"target": "target" in state, "optimizer": "optimizer" in state}
+        if restored["target"]:
+            self.target.load_state_dict(state["target"])
+        else:
+            self.target.load_state_dict(self.online.state_dict())
+        if restored["optimizer"]:
+            self.optimizer.load_state_dict(state["optimizer"])
+        self.updates = int(state.get("updates", 0))
         # An fp16 run resumed from a run in another precision starts with a fresh scale.
         if self.scaler.is_enabled() and "grad_scaler" in state:
             self.scaler.load_state_dict(state["grad_scaler"])
+        return restored

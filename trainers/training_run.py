@@ -74,6 +74,9 @@ class TrainingRun:
         self._build_learner()
         self.step, self.episodes, self.resumes = 0, 0, 0
         self.resumed_at_step: int | None = None
+        # What a resume restored of its checkpoint (the run's provenance): the learner's
+        # target network and optimiser, and the replay (else refilled before learning).
+        self.restored: dict[str, bool] | None = None
         self.env_seed = config.seed
         if resumed is not None:
             self._restore(resumed)
@@ -129,7 +132,7 @@ class TrainingRun:
     def _restore(self, resumed: Checkpoint) -> None:
         """Carry on from ``resumed``: the learner, the counts, the random generators, and the
         replay where it was saved."""
-        self.learner.load_state_dict(resumed.learner)
+        restored = self.learner.load_state_dict(resumed.learner)
         self.step, self.episodes = resumed.step, resumed.episodes
         self.resumed_at_step = resumed.step
         self.resumes = resumed.resumes + 1
@@ -137,8 +140,10 @@ class TrainingRun:
         torch.set_rng_state(resumed.torch_rng_state)
         # New episodes, not the ones of the first life: different environment seeds.
         self.env_seed = self.config.seed + 1_000_003 * self.resumes
-        if self.config.save_replay and self.replay_path.exists():
+        replay_restored = self.config.save_replay and self.replay_path.exists()
+        if replay_restored:
             self.replay.load(self.replay_path)
+        self.restored = {**restored, "replay": bool(replay_restored)}
 
     def _life_file(self, stem: str, suffix: str) -> Path:
         """``stem.suffix`` for a run's start, ``stem-resume-N.suffix`` for its N-th resume."""
@@ -210,8 +215,25 @@ class TrainingRun:
             trainer=self.env.remote_facts().get("trainer"),
             replay_bytes=self.replay.nbytes,
             replay_naive_bytes=self.replay.naive_nbytes(),
+            life=self._life(),
         )
         self._life_file("run", ".json").write_text(json.dumps(record, indent=2, default=str))
+
+    def _life(self) -> dict[str, Any]:
+        """This life of the run, for its provenance: the step it starts from, the device it
+        learns on, and what of the checkpoint it resumed from it restored (a target network
+        or an optimiser that was not restored starts afresh; a replay that was not restored
+        is refilled for ``refill_steps`` before learning resumes; None for a run's start)."""
+        restored = self.restored
+        return {
+            "from_step": self.step,
+            "device": str(self.learner.device),
+            "precision": self.config.precision,
+            "target_restored": None if restored is None else restored["target"],
+            "optimizer_restored": None if restored is None else restored["optimizer"],
+            "replay_restored": None if restored is None else restored["replay"],
+            "refill_steps": None if restored is None else (0 if restored["replay"] else self.warm),
+        }
 
     def _start_episodes(self) -> None:
         """Reset every environment and start its frame stack and its replay ring."""

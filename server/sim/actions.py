@@ -39,6 +39,7 @@ class DasActions:
         # (:class:`~.assist.SpeedSteps`): there is no cruise target to move.
         self.moves_cruise_target = ego.speed_control == "cruise"
         self.lane_changes = lane_changes
+        self.mask_refusals = ego.mask_refusals
 
     def check(self, actions: np.ndarray, expected: tuple[int, ...]) -> np.ndarray:
         """``actions`` as int64 if they are integers of shape ``expected`` in range; else a
@@ -68,8 +69,10 @@ class DasActions:
         return started, applied
 
     def mask(self, st: SimState) -> np.ndarray:
-        """(A, N, actions) int8: 1 where the action can be taken now."""
-        left, right = self.lane_changes.allowed(st)
+        """(A, N, actions) int8: 1 where the action can be taken now (with
+        ``ego.mask_refusals``, also 0 where driver assistance would refuse it)."""
+        changes = self.lane_changes
+        left, right = changes.allowed(st) if self.mask_refusals else changes.possible(st)
         mask = np.ones(left.shape + (self.count,), dtype=np.int8)
         mask[..., LANE_LEFT] = left
         mask[..., LANE_RIGHT] = right

@@ -71,11 +71,17 @@ class EgoConfig:
     # at the current speed, plus min_gap_m (the "two-second rule"; chosen here: the authors'
     # code warns when its cruise control follows a car ahead, and gives no distance).
     forward_warning_time_s: float = 2.0
-    # True: driver assistance refuses to start a lane change against a side warning (the
-    # authors' "Side warning: no lane change"), and the action mask says so. False (Min et
-    # al.'s preset, as the issue asks): the car starts it and may collide; the warning is
-    # observed, and acting against it costs the reward's "warning" term.
-    lane_change_check: bool = False
+    # True (Min et al.'s code, VehicleAgent.cs: a change starts only with that side's warning
+    # off; their README's "Side warning: No lane change"): driver assistance refuses to start
+    # a lane change against a side warning, and the car keeps its lane (the action applied is
+    # keep). False: the car starts it and may collide. Either way acting against a warning
+    # costs the reward's "warning" term.
+    lane_change_check: bool = True
+    # Whether the action mask marks the lane changes the check would refuse (True), or only
+    # those that cannot be done at all: no lane there, or a change under way (False: Min et
+    # al.'s agent chooses among all five actions and its car refuses; a mask that carried the
+    # side warnings would tell a camera-only network of the cars beside it).
+    mask_refusals: bool = False
     # How the agents' speed is controlled: "cruise" (Min et al.: the actions move a cruise
     # target that adaptive cruise control and emergency braking hold, above), or "speed_steps"
     # (Ho 2018, §4 and his code): accelerate and decelerate change the speed by
@@ -113,7 +119,7 @@ class EgoConfig:
         check_range("ego.aeb_decel_mps2", self.aeb_decel_mps2, 0.1, 15.0)
         check_range("ego.emergency_decel_mps2", self.emergency_decel_mps2, 0.1, 15.0)
         check_range("ego.emergency_speed_diff_kmh", self.emergency_speed_diff_kmh, 0.0, 300.0)
-        check_range("ego.lane_change_duration_s", self.lane_change_duration_s, 0.1, 10.0)
+        check_range("ego.lane_change_duration_s", self.lane_change_duration_s, 0.01, 10.0)
         check_range("ego.lane_change_clear_ahead_m", self.lane_change_clear_ahead_m, 0.0, 100.0)
         check_range("ego.lane_change_clear_behind_m", self.lane_change_clear_behind_m, 0.0, 100.0)
         check_range("ego.lane_change_closing_time_s", self.lane_change_closing_time_s, 0.0, 10.0)
@@ -125,6 +131,7 @@ class EgoConfig:
             "current or remembered",
         )
         check_flag("ego.lane_change_check", self.lane_change_check)
+        check_flag("ego.mask_refusals", self.mask_refusals)
         check(
             self.speed_control in ("cruise", "speed_steps"),
             "ego.speed_control",

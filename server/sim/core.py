@@ -136,6 +136,8 @@ class HighwaySim:
             if section.enabled
         ]
         self._lanes = LaneSorter(road.lane_count)
+        # Whether some lane change ends within its first frame (see _advance).
+        self.instant_changes = bool((kinds.change_duration <= self.dt).any())
         self.rngs = [np.random.default_rng() for _ in range(num_arenas)]
         self.state = SimState.empty(num_arenas, n, self.vehicles)
         self._needs_reset = np.ones(num_arenas, dtype=bool)
@@ -253,9 +255,12 @@ class HighwaySim:
         # members (changes that finish), so a frame-0 leader is never farther than the true
         # one: keeping it for the decision's frames is conservative. Traffic that starts a
         # change at frame 0 is seen in its new lane from the next decision: 0.3 s at most,
-        # less than a driver's reaction time, while it has moved sideways by under 2 cm.
+        # less than a driver's reaction time, while it has moved sideways by under 2 cm. A
+        # lane change done within one frame (Ho's) moves a car wholly into its new lane on
+        # frame 0: who follows whom is sorted out again after it, where some car did.
         index = self._lanes.build(st.x_m - st.x_m[:, :1], st.lane, st.target_lane, st.active)
         lead, valid = leaders(index)
+        lanes_before = st.lane.copy() if self.instant_changes and self.frames > 1 else None
         for frame in range(self.frames):
             self.physics.frame(
                 st,
@@ -268,6 +273,10 @@ class HighwaySim:
                 random_movers=random_movers,
                 speed_command=commands[0] if frame == 0 else commands[1],
             )
+            if frame == 0 and lanes_before is not None and (st.lane != lanes_before).any():
+                x_rel = st.x_m - st.x_m[:, :1]
+                index = self._lanes.build(x_rel, st.lane, st.target_lane, st.active)
+                lead, valid = leaders(index)
         gained, undone, passed = self.tracker.track(st)
         self.spawner.recycle(st, uniforms)
         self._note_warnings(st)

@@ -7,8 +7,9 @@ and a brake is applied", counted per decision: a decision in which some frame br
 ``ego.emergency_speed_diff_kmh``), the return, and the traffic cars on the road on average.
 :meth:`EpisodeBook.metrics_table` reports them as
 :data:`~overtake.protocol.vocabulary.METRIC_FIELDS`, with the average speed derived from
-distance and time. An episode is truncated after ``episode.max_decisions``; it terminates on a
-collision (the caller's ``terminated``).
+distance and time. An episode is truncated after ``episode.max_decisions``, or once the agent
+has driven ``episode.max_distance_m``; it terminates on a collision (the caller's
+``terminated``).
 """
 
 from __future__ import annotations
@@ -48,6 +49,9 @@ class EpisodeConfig:
     max_decisions: int = 1000
     frames_per_decision: int = 4
     physics_dt_s: float = 0.1
+    # An episode also ends (truncated) once the agent has driven this far (Min et al.'s code,
+    # VehicleAgent.cs: 2,600 m); None: only the decision limit ends it.
+    max_distance_m: float | None = None
 
     def __post_init__(self) -> None:
         check(
@@ -63,6 +67,8 @@ class EpisodeConfig:
             "an integer from 1 to 100",
         )
         check_range("episode.physics_dt_s", self.physics_dt_s, 0.0, 0.1, low_open=True)
+        if self.max_distance_m is not None:
+            check_range("episode.max_distance_m", self.max_distance_m, 0.0, 1e7, low_open=True)
 
     @property
     def decision_period_s(self) -> float:
@@ -75,6 +81,7 @@ class EpisodeBook:
 
     def __init__(self, episode: EpisodeConfig, ego: EgoConfig, agents: int) -> None:
         self.max_decisions = episode.max_decisions
+        self.max_distance_m = episode.max_distance_m
         self.decision_period_s = episode.decision_period_s
         self.brake_decel_mps2 = ego.emergency_decel_mps2
         self.brake_speed_diff_kmh = ego.emergency_speed_diff_kmh
@@ -117,7 +124,10 @@ class EpisodeBook:
         st.emergency_brakes += emergency_brakes
         n = self.agents
         st.traffic_cars_sum += st.active[:, n:].sum(axis=1, keepdims=True)
-        return st.agent_decisions >= self.max_decisions
+        limit = st.agent_decisions >= self.max_decisions
+        if self.max_distance_m is not None:
+            limit |= st.distance_m >= self.max_distance_m
+        return limit
 
     def metrics_table(self, st: SimState) -> np.ndarray:
         """(A, N, len(METRIC_FIELDS)) float64: each agent's episode so far."""

@@ -80,7 +80,13 @@ class Physics:
         )
         # Whether traffic's safety rule keeps it behind agents too, not only behind traffic.
         self.yield_to_agents = config.traffic.yield_to_agents
-        self.mobil = Mobil(config.traffic, kinds, road.lane_count)
+        # Ho's speed steps for traffic (frame seconds, safety gap, whether it yields to
+        # agents), or the IDM (frame 0).
+        steps = config.traffic.following == "speed_steps"
+        self._steps = np.array(
+            [self.dt if steps else 0.0, config.traffic.safety_gap_m, float(self.yield_to_agents)]
+        )
+        self.mobil = Mobil(config.traffic, kinds, road.lane_count, self.dt)
         self.episodes = episodes
         # The kernels' parameters of cruise control and emergency braking.
         self._cruise = np.array(
@@ -126,6 +132,9 @@ class Physics:
             closing_mps=np.empty(shape),
         )
         accel = np.empty(shape)
+        # The IDM's accelerations, which MOBIL weighs (the same as ``accel`` but under Ho's
+        # speed steps, whose instant matches are no measure of a lane's advantage).
+        idm_accel = accel if self._steps[0] == 0.0 else np.empty(shape)
         # Car-following, the agents' cruise control and emergency braking, within limits.
         follow_and_accelerate(
             st.x_m,
@@ -143,16 +152,18 @@ class Physics:
             self._aeb,
             self.max_decel_mps2,
             NO_GAP_M,
+            self._steps,
             following.gap_m,
             following.leader,
             following.has_leader,
             following.leader_speed_mps,
             following.closing_mps,
             accel,
+            idm_accel,
         )
         if mobil_index is not None:
             x_rel = st.x_m - st.x_m[:, :1]
-            self.mobil.decide(st, p, mobil_index, x_rel, accel, following, random_movers)
+            self.mobil.decide(st, p, mobil_index, x_rel, idm_accel, following, random_movers)
 
         # Traffic never drives into traffic: a speed cap keeps it behind a traffic leader even
         # if that leader brakes as hard as it can (Ho's simulator has the same safety rule).

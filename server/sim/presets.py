@@ -21,13 +21,14 @@ from .sensors.ego import EgoVectorConfig
 from .sensors.grid import OccupancyGridConfig
 from .sensors.lidar import LidarConfig
 from .sensors.lidar_map import LidarMapConfig
-from .traffic.config import BehaviourConfig, TrafficConfig
+from .traffic.config import NEVER_MPS2, BehaviourConfig, TrafficConfig
 
 
 def min2018() -> SimConfig:
     """Min, Kim and Huh (2018), "Deep Q Learning Based High Level Driving Policy Determination".
 
-    The dataclass defaults are this preset. Where each number comes from:
+    The dataclass defaults are this preset, with its 2,600 m episodes. Where each number comes
+    from:
 
     From the paper:
     - 5 lanes (§IV.A); the five DAS-level actions (§II.C): keep (cruise control at the current
@@ -41,30 +42,44 @@ def min2018() -> SimConfig:
       (and the episode ends), lane change -0.25, overtake +0.5.
 
     From the authors' code (../shared/notes/seed-repos.md):
-    - the LIDAR's 80 m range; the camera at 80x80; at most 32 traffic cars (its slider);
-      spawning 30-90 m ahead of or 30-60 m behind the host;
+    - the LIDAR's 80 m range; the camera at 80x80; spawning 30-90 m ahead of or 30-60 m
+      behind the host; a car more than 100 m from the host leaves (``TargetManagement.cs``);
+    - the densities from their scene's slider of 0-32 cars: 20 for medium (its saved value),
+      32 for heavy (its top);
+    - their traffic's speeds (``TargetMovement.cs``): a car starts at 40-60 km/h and every 5 s
+      steps 5 km/h, up with probability 0.75, within 40-80, so that traffic drifts towards
+      the 80 km/h the host may drive; every 5 s it picks a lane change left, right or none;
     - the ego vector: left, right and forward warnings, the distance to the car ahead and its
       speed, the host's speed; acting against a warning costs -0.1 (the reward's "warning"
-      term); a lane change against a side warning is not refused (the car may collide).
+      term), even where the car refuses;
+    - the car refuses a lane change under a side warning (``VehicleAgent.cs``: a change
+      starts only with that side's warning off; their README's "Side warning: No lane
+      change"): the action applied is keep (``ego.lane_change_check``); the action mask marks
+      only what cannot be done at all (``ego.mask_refusals`` off: their agent chooses among
+      all five actions), so that a camera-only network learns nothing of the cars beside it
+      from the mask;
+    - an episode ends once the host has driven 2,600 m (``VehicleAgent.cs``), or at a
+      collision.
 
-    Chosen here (the paper is silent):
-    - the densities: 10 / 20 / 32 traffic cars for light / medium / heavy, held on the road
-      (32 is the authors' slider's most; the paper's "dense traffic" is medium's 20, where
-      the rule-based driver averages well below the limit);
-    - traffic's desired speeds, 40-65 km/h, a new one about every 10 s, a random lane change
-      about every 20 s, MOBIL for overtaking a much slower car (threshold 1 m/s^2), braking at
-      most 6 m/s^2: with these a privileged planner averages over 75 km/h in medium traffic,
-      5 km/h more than the rule-based driver (bench/RESULTS.md);
-    - traffic kept within 150 m ahead of and 100 m behind the host; when the spawn windows are
-      full a car may appear anywhere in that range;
+    Chosen here (the paper and the code are silent, or their way is not ours):
+    - 10 traffic cars for light traffic; the cars held on the road at their density (theirs
+      spawn one every 2-8 s per spawner up to the slider's count);
+    - traffic's speed steps at random times, 5 s apart on average (theirs every 5 s from each
+      car's start), on the desired speed of an IDM (theirs on the speed itself: a car slowed
+      by the one ahead stays slow until it steps up; here it returns to its desired speed);
+      MOBIL for overtaking a much slower car (threshold 1 m/s^2), braking at most 6 m/s^2;
+    - when the spawn windows are full a car may appear anywhere in the kept range;
     - cruise control's speed controller (time constant 0.5 s, 2 m/s^2 at most) and its IDM
       distance keeping (headway 1.2 s), emergency braking below 1.5 s to collision;
-    - the forward warning: a car ahead, no faster, within 2 s at the current speed (+2 m);
-    - a decision every 0.4 s (4 physics frames of 0.1 s) and episodes of 1,000 decisions;
+    - the side warnings' zone (2 m ahead of the front bumper to 4 m behind the rear, growing
+      by 1 s of a closing car's speed) and the forward warning: a car ahead, no faster,
+      within 2 s at the current speed (+2 m);
+    - a decision every 0.4 s (4 physics frames of 0.1 s); at most 1,000 decisions an episode
+      besides the 2,600 m;
     - an emergency brake (Ho 2018, §6.2): a decision braking at least 1 m/s^2 with a car ahead
       slower by 20 km/h or more.
     """
-    return SimConfig(preset="min2018")
+    return SimConfig(preset="min2018", episode=EpisodeConfig(max_distance_m=2600.0))
 
 
 def ho2018() -> SimConfig:
@@ -73,20 +88,20 @@ def ho2018() -> SimConfig:
     One reading of the thesis and his code (songyanho/Reinforcement-Learning-for-Self-Driving-
     Cars, ../shared/notes/seed-repos.md) gives every length and time: his simulator counts in
     boxes (10 px) and frames. A box is taken as one metre, which the thesis' "20 meters ahead"
-    (§6.1) makes of his view's 21 boxes ahead of the bumper; his safety window of 8 boxes is
-    then 8 m. His cars move 4 boxes per metre of relative travel in frames of 1/50 s
-    (``car.py``): with a box of a metre that is a frame of 4/50 = 0.08 s for the speeds he
-    labels in km/h, so that a speed difference moves a car as many car lengths per frame as on
-    his screen, 1 km/h per frame is 3.5 m/s^2 (his 1/50 s would make it 14 m/s^2), and a
-    decision every 4th frame is 0.32 s, the "human response rate" §6.1 gives as its reason
-    (4 frames of 1/50 s would be 0.08 s). Where the two sources differ, that is said below.
+    (§6.1) makes of his view's 21 boxes ahead of the bumper. His cars move 4 boxes per metre of
+    relative travel in frames of 1/50 s (``car.py``): with a box of a metre that is a frame of
+    4/50 = 0.08 s for the speeds he labels in km/h, so that a speed difference moves a car as
+    many car lengths per frame as on his screen, 1 km/h per frame is 3.5 m/s^2 (his 1/50 s
+    would make it 14 m/s^2), and a decision every 4th frame is 0.32 s, the "human response
+    rate" §6.1 gives as its reason (4 frames of 1/50 s would be 0.08 s). Where the two sources
+    differ, that is said below. His traffic as his code makes it: with it the rule-based driver
+    makes the speeds it makes in his own code's loop (tests/test_ho2018.py, bench/RESULTS.md).
 
     From the thesis:
-    - a 7-lane expressway (§1, §6.1); 20 / 40 / 60 traffic cars for light / medium / heavy
-      traffic (Table 4), held on the road; the three driver behaviours of Table 5 deployed at
-      random (§6.1; equal shares, chosen here): ``steady`` sticks to a speed of its own,
-      ``road_max`` to the maximum allowed speed, ``lane_changer`` drives at the maximum and
-      switches lanes to get past whoever blocks it;
+    - a 7-lane expressway (§1, §6.1); 20 / 40 / 60 cars for light / medium / heavy traffic
+      (Table 4); the three driver behaviours of Table 5 deployed at random (§6.1): ``steady``
+      sticks to a speed of its own, ``road_max`` ("stick to max") wanders up to the maximum
+      allowed speed, ``lane_changer`` drives at the maximum (how each drives: his code, below);
     - the actions accelerate, decelerate, keep ("maintain"), left, right (§4), a decision every
       4th frame while training (§6.1);
     - the observation: the occupancy grid of the agent's lane and the lanes either side
@@ -116,54 +131,100 @@ def ho2018() -> SimConfig:
       off-road cells read -1;
     - cars 7 boxes long (7 m) and 3.4 wide, lanes 5 boxes wide (his sprites and lane
       markings at 10 px a box);
-    - the road around the agent: cars exist from 90 m ahead of the agent's front to 50 m
-      behind it (``car.py``: y in [-200, 1200] px, the agent at 700) and new ones enter 80 m
-      ahead or 31 m behind (``gui.py``: y = -100 and 1010), where no car is within 70-87 m
-      ahead or 23-37 m behind in that lane: 140 m of road per lane, 20 car lengths;
+    - how traffic comes onto the road (``traffic.entry = "free_zone"``, ``gui.py`` and
+      ``gui_util.identify_free_lane``): the road starts with the agent alone; in each frame,
+      with probability one half and while it holds fewer than Table 4's cars (the agent's
+      included: 19 / 39 / 59 traffic cars), a car enters 80 m ahead of the agent at 30-60 km/h
+      or 31 m behind it at 30-90 km/h (centre to centre; the side drawn evenly), in a lane
+      drawn among those whose entry zone is free (no car from 10 m behind to 7 m ahead of the
+      entry point ahead, 6 m behind to 8 m ahead of the one behind), whatever the gaps around
+      it; a car leaves the road 90 m ahead of the agent or 50 m behind it (``car.py``: y in
+      [-200, 1200] px, the agent at 700): 140 m of road per lane, 20 car lengths;
+    - each car's behaviour (one of the three, evenly) and its own speed (50-100 km/h) drawn
+      once, when it enters (``car.py``: one of his three players; ``players/player.py``: a
+      minimum speed from 50 to 99): it accelerates below its own speed, never drives over 100
+      km/h, and otherwise holds the speed it has, so that a car slowed by the one ahead keeps
+      the lower speed (``keeps_current_speed``) and one that entered faster keeps its entry
+      speed; ``steady`` (his Player) does nothing more; ``road_max`` (his StickyPlayer) takes
+      a random step of 1 km/h up or down, or none, each frame, wandering between its own
+      speed and 100; ``lane_changer`` (his AggresivePlayer) steps up 1 km/h in half of the
+      frames, to 100, and does not change lanes: his check for a car in front reads one row
+      of his road map (``car_in_front``: box 99, 29 m behind the agent), so it almost never
+      switches;
+    - traffic follows by his rule (``traffic.following = "speed_steps"``): its speed changes by
+      1 km/h a frame (3.5 m/s^2) towards its desired speed, and with a car within 3.5 m
+      bumper to bumper ahead (his check binds at 3-4 boxes: the 8 rows it reads against the
+      rows a car marks) it does not speed up, and takes a slower car's speed at once; the
+      agent obeys the same rule (``ego.safety_gap_m``): no accelerating, and a slower car's
+      speed matched at once; traffic obeys it behind the agent too
+      (``traffic.yield_to_agents``), so that, as in his simulator, nothing collides;
     - the agent's speed from 0 to 110 km/h, starting at 60, changed by 1 km/h per frame
-      (``ego.speed_control = "speed_steps"``); his safety rule instead of cruise control: no
-      accelerating with a car within 8 m ahead, and a car there that is slower is matched at
-      once; no lane change into an occupied side (``ego.lane_change_check``); traffic obeys
-      the same rule behind the agent too (``traffic.yield_to_agents``), so that, as in his
-      simulator, nothing collides;
-    - traffic's speeds: a speed of its own drawn from 50-100 km/h (``steady``), 100 km/h for
-      the other two; only the lane switcher changes lanes; traffic accelerates at 1 km/h per
-      frame (3.5 m/s^2).
+      (``ego.speed_control = "speed_steps"``); no lane change into a side where a car is
+      alongside (``ego.lane_change_check``; his check reads the rows of the agent's body in the
+      next lane, against the rows a car marks there: a car from 2.5 m ahead of its front to
+      1.5 m behind its rear, whatever its speed).
 
     Chosen here (the thesis and the code are silent):
     - lane changes of 0.24 s, 3 frames (his code jumps a lane in one frame; three keep the
       move visible to the grid and the collision test, and a change still ends within the
       decision that started it);
-    - traffic's car-following (IDM) and lane changes (MOBIL): the lane switcher with politeness
-      0 and threshold 0.1 m/s^2, the other two never leave their lane (threshold 10 m/s^2); a
-      time headway of 0.2 s and a standstill gap of 2 m, since his cars close up to his
-      8-box safety window at any speed: with more, 60 cars do not fit on 140 m of seven
-      lanes (tests/test_ho2018.py holds the densities to 10%).
+    - a new car's own and entry speeds drawn from the whole ranges, not from his integers;
+      tries at entering once a decision, as many as the decision has frames (his one a frame:
+      the same where a decision is a frame, as in his evaluation);
+    - a ``road_max`` walk of 2 km/h steps a decision of 4 frames (the same spread as his four
+      steps of 1 km/h; exactly his where a decision is a frame), a ``lane_changer``'s of 2 km/h
+      a decision;
+    - traffic's IDM (time headway 0.1 s, standstill gap 1 m) and MOBIL remain only as what
+      ``traffic.following = "idm"`` and ``traffic.entry = "comfortable"`` (the preset before
+      issue 44) use; ``comfortable`` spawns 70-87 m ahead and 23-37 m behind.
     """
-    never = 10.0  # m/s^2: a MOBIL advantage no lane change ever reaches
+    never = NEVER_MPS2  # no MOBIL advantage reaches it: his traffic keeps its lane
     car_length_m, car_width_m = 7.0, 3.4
+    frames_per_s = 1 / 0.08  # his frame, in the time of this preset
     return SimConfig(
         preset="ho2018",
         road=RoadConfig(lane_count=7, lane_width_m=5.0),
         traffic=TrafficConfig(
-            density_vehicle_counts=(20, 40, 60),
+            density_vehicle_counts=(19, 39, 59),
             steady=BehaviourConfig(
                 share=1.0,
                 desired_speed_kmh=(50.0, 100.0),
                 lane_change_threshold_mps2=never,
+                keeps_current_speed=True,
             ),
             road_max=BehaviourConfig(
                 share=1.0,
-                desired_speed_kmh=(100.0, 100.0),
+                desired_speed_kmh=(50.0, 100.0),
                 lane_change_threshold_mps2=never,
+                keeps_current_speed=True,
+                speed_steps_per_s=frames_per_s,
+                speed_step_kmh=1.0,
+                speed_step_up_prob=1 / 3,
+                speed_step_down_prob=1 / 3,
             ),
             lane_changer=BehaviourConfig(
                 share=1.0,
-                desired_speed_kmh=(100.0, 100.0),
+                desired_speed_kmh=(50.0, 100.0),
                 politeness=0.0,
-                lane_change_threshold_mps2=0.1,
+                lane_change_threshold_mps2=never,
+                keeps_current_speed=True,
+                speed_steps_per_s=frames_per_s,
+                speed_step_kmh=1.0,
+                speed_step_up_prob=0.5,
+                speed_step_down_prob=0.0,
+                random_lane_change_rate_per_s=3.0,
+                random_lane_changes_when_slow=True,
             ),
             random=dataclasses.replace(TrafficConfig().random, share=0.0),
+            entry="free_zone",
+            entry_prob_per_frame=0.5,
+            entry_offset_m=(80.0, 31.0),
+            entry_zone_ahead_m=(-10.0, 7.0),
+            entry_zone_behind_m=(-6.0, 8.0),
+            entry_speed_ahead_kmh=(30.0, 60.0),
+            entry_speed_behind_kmh=(30.0, 90.0),
+            following="speed_steps",
+            safety_gap_m=3.0,
             spawn_ahead_m=(70.0, 87.0),
             spawn_behind_m=(23.0, 37.0),
             keep_ahead_m=90.0,
@@ -176,7 +237,7 @@ def ho2018() -> SimConfig:
             comfort_decel_mps2=6.0,
             max_decel_mps2=15.0,
             enter_at_leader_speed=True,
-            lane_change_duration_s=0.24,
+            lane_change_duration_s=0.08,
             yield_to_agents=True,
         ),
         ego=EgoConfig(
@@ -188,15 +249,25 @@ def ho2018() -> SimConfig:
             speed_control="speed_steps",
             speed_step_kmh=1.0,
             skipped_frames="repeat",
-            safety_gap_m=8.0,
+            safety_gap_m=4.0,
             lane_change_check=True,
-            lane_change_duration_s=0.24,
+            mask_refusals=True,
+            lane_change_clear_ahead_m=2.5,
+            lane_change_clear_behind_m=1.5,
+            lane_change_closing_time_s=0.0,
+            lane_change_duration_s=0.08,
         ),
         lidar=LidarConfig(enabled=False),
         camera=CameraConfig(enabled=False),
         ego_vector=EgoVectorConfig(enabled=False),
         grid=OccupancyGridConfig(
-            enabled=True, ahead_m=24.5, behind_m=11.5, cells=36, side_lanes=1, off_road_value=-1
+            enabled=True,
+            ahead_m=24.5,
+            behind_m=11.5,
+            cells=36,
+            side_lanes=1,
+            off_road_value=-1,
+            covered_by="near_edge",
         ),
         action_history=ActionHistoryConfig(enabled=True),
         reward=RewardConfig(
@@ -238,7 +309,7 @@ def fayjie2018() -> SimConfig:
     - traffic: cars that keep a speed of their own, 40-70 km/h, follow (IDM), overtake (MOBIL)
       and keep behind the agent ("cooperative", §III.C: ``traffic.yield_to_agents``); 5 / 10 /
       20 of them for light / medium / heavy (the densities Min et al.'s preset had before
-      issue 32), in Min et al.'s windows;
+      issue 32), spawned in Min et al.'s windows and kept 150 m ahead and 100 m behind;
     - a decision every 0.4 s (4 frames of 0.1 s) and episodes of at most 1,000 decisions.
     """
     return SimConfig(
@@ -248,6 +319,7 @@ def fayjie2018() -> SimConfig:
             density_vehicle_counts=(5, 10, 20),
             steady=BehaviourConfig(share=1.0, desired_speed_kmh=(40.0, 70.0)),
             random=dataclasses.replace(TrafficConfig().random, share=0.0),
+            keep_ahead_m=150.0,
             yield_to_agents=True,
         ),
         ego=EgoConfig(
@@ -270,6 +342,51 @@ def fayjie2018() -> SimConfig:
         episode=EpisodeConfig(max_decisions=1000, frames_per_decision=4, physics_dt_s=0.1),
     )
 
+
+# The presets as issue 32 left them, before the authors' traffic (issue 44), as overrides of
+# today's: Min et al.'s with blind lane changes, desired speeds redrawn in 40-65 km/h, random
+# lane changes every 20 s, 150 m kept ahead and episodes of 1,000 decisions; Ho's with IDM and
+# MOBIL traffic entering where IDM finds a comfortable gap, "road_max" and "lane_changer" at a
+# constant 100 km/h, the lane changer switching by MOBIL, a safety gap of 8 m and the side
+# check of Min et al.'s preset. With them the tables kept in bench/results before issue 44 can
+# be made again: tests/test_golden.py holds them to the digests of then.
+BEFORE_AUTHORS_TRAFFIC: dict[str, dict[str, PlainValue]] = {
+    "min2018": {
+        "ego.lane_change_check": False,
+        "traffic.random.speed_steps_per_s": 0.0,
+        "traffic.random.speed_walk_kmh": None,
+        "traffic.random.desired_speed_kmh": (40.0, 65.0),
+        "traffic.random.speed_change_rate_per_s": 0.1,
+        "traffic.random.random_lane_change_rate_per_s": 0.05,
+        "traffic.keep_ahead_m": 150.0,
+        "episode.max_distance_m": None,
+    },
+    "ho2018": {
+        "traffic.density_vehicle_counts": (20, 40, 60),
+        "traffic.entry": "comfortable",
+        "traffic.following": "idm",
+        "traffic.steady.keeps_current_speed": False,
+        "traffic.steady.lane_change_threshold_mps2": 10.0,
+        "traffic.road_max.lane_change_threshold_mps2": 10.0,
+        "traffic.road_max.keeps_current_speed": False,
+        "traffic.road_max.speed_steps_per_s": 0.0,
+        "traffic.road_max.desired_speed_kmh": (100.0, 100.0),
+        "traffic.lane_changer.keeps_current_speed": False,
+        "traffic.lane_changer.speed_steps_per_s": 0.0,
+        "traffic.lane_changer.desired_speed_kmh": (100.0, 100.0),
+        "traffic.lane_changer.lane_change_threshold_mps2": 0.1,
+        "ego.safety_gap_m": 8.0,
+        "ego.lane_change_clear_ahead_m": 2.0,
+        "ego.lane_change_clear_behind_m": 4.0,
+        "ego.lane_change_closing_time_s": 1.0,
+        "ego.lane_change_duration_s": 0.24,
+        "traffic.lane_change_duration_s": 0.24,
+        "traffic.safety_gap_m": 3.5,
+        "traffic.lane_changer.random_lane_change_rate_per_s": 0.0,
+        "traffic.lane_changer.random_lane_changes_when_slow": False,
+        "grid.covered_by": "any_part",
+    },
+}
 
 PRESETS: dict[str, Callable[[], SimConfig]] = {
     "min2018": min2018,

@@ -10,6 +10,8 @@
   if it keeps IDM-comfortable gaps to everyone in its lane; when the window has none, the rest
   of the kept range on that side is tried, and a slot that still finds none tries again the
   next decision: the road holds the density it is labelled with.
+- Under ``traffic.entry = "free_zone"`` (Ho's code) the road starts with the agents alone, a
+  car out of range leaves it, and new cars enter by his rule instead (:mod:`.entry`).
 - An agent joining or restarting on a shared road is placed behind the agents still on it, at
   the first spot with comfortable gaps.
 
@@ -24,6 +26,7 @@ import numpy as np
 from overtake.protocol.vocabulary import AGENT_KIND
 
 from .config import SimConfig
+from .entry import FreeZoneEntry
 from .overtakes import OvertakeTracker
 from .randomness import SPAWN_CANDIDATES, U_ANCHOR, U_BEHAVIOUR, U_LANE, U_OFFSET, U_SIDE, U_SPEED
 from .road import Road
@@ -71,6 +74,11 @@ class Spawner:
 
         self._ahead_windows = windows(traffic.spawn_ahead_m, traffic.keep_ahead_m)
         self._behind_windows = windows(traffic.spawn_behind_m, traffic.keep_behind_m)
+        self.entry = (
+            FreeZoneEntry(traffic, kinds, road, agents, config.episode.frames_per_decision, tracker)
+            if traffic.entry == "free_zone"
+            else None
+        )
 
     def reset_arena(self, rng: np.random.Generator) -> SimState:
         """A new episode's state of one arena, drawn from ``rng``."""
@@ -89,7 +97,10 @@ class Spawner:
         # Traffic: spread over the kept window with a minimum spacing per lane: the k-th
         # smallest uniform of a lane is shifted by k spacings, so neighbours are at least that
         # far apart. Cars that would crowd an agent are left to spawn later.
-        count = self.traffic_slots
+        count = self.traffic_slots if self.entry is None else 0
+        # Empty slots (free_zone: all of them) move at a speed of their own until a car
+        # enters them: the car-following's arithmetic needs one.
+        fresh.speed_mps[0, n:] = fresh.desired_speed_mps[0, n:] = self.initial_speed_mps
         if count:
             lo = fresh.x_m[0, :n].min() - traffic.keep_behind_m
             hi = fresh.x_m[0, :n].max() + traffic.keep_ahead_m
@@ -110,6 +121,7 @@ class Spawner:
             fresh.kind[0, cols] = kind
             fresh.speed_mps[0, cols] = speed
             fresh.desired_speed_mps[0, cols] = speed
+            fresh.own_speed_mps[0, cols] = speed
             fresh.active[0, cols] = x <= hi
         fresh.target_lane[:] = fresh.lane
         fresh.y_m[:] = self.road.centre_y(fresh.lane)
@@ -160,7 +172,8 @@ class Spawner:
             self.tracker.start_agent(st, arena, int(slot))
 
     def recycle(self, st: SimState, uniforms: np.ndarray) -> None:
-        """Respawn traffic that is out of every agent's range, and fill empty slots."""
+        """Respawn traffic that is out of every agent's range, and fill empty slots (or, with
+        ``traffic.entry = "free_zone"``, take it off the road and let new cars enter)."""
         cfg = self.traffic
         n, lanes = self.agents, self.road.lane_count
         arenas, vehicles = st.x_m.shape
@@ -171,6 +184,10 @@ class Spawner:
         present = st.active[:, :n]
         anchors = (present | ~present.any(axis=1, keepdims=True))[:, :, None]
         kept = ((dx <= cfg.keep_ahead_m) & (dx >= -cfg.keep_behind_m) & anchors).any(axis=1)
+        if self.entry is not None:
+            st.active[:, n:] &= kept
+            self.entry.enter(st, uniforms)
+            return
         was_active = st.active[:, n:]
         # Out-of-range cars move at once; empty slots (no free spot found yet) try again every
         # decision, so that the road holds its density.
@@ -235,6 +252,7 @@ class Spawner:
         st.y_m[a, c] = self.road.centre_y(pick_lane[found])
         st.speed_mps[a, c] = pick_speed[found]
         st.desired_speed_mps[a, c] = desired[found]
+        st.own_speed_mps[a, c] = desired[found]
         st.accel_mps2[a, c] = 0.0
         st.kind[a, c] = kind[found]
         st.active[a, c] = True

@@ -25,6 +25,7 @@ class SimState:
     y_m: np.ndarray  # (A, V) lateral position, 0 at the right road edge
     speed_mps: np.ndarray  # (A, V)
     desired_speed_mps: np.ndarray  # (A, V) traffic's own; agents' cruise target
+    own_speed_mps: np.ndarray  # (A, V) traffic's draw from its behaviour's range, at entry
     accel_mps2: np.ndarray  # (A, V) last frame's acceleration
     lane: np.ndarray  # (A, V) int64 lane (the origin lane during a change)
     target_lane: np.ndarray  # (A, V) int64 == lane unless changing
@@ -61,6 +62,7 @@ class SimState:
             y_m=_f64(a, v),
             speed_mps=_f64(a, v),
             desired_speed_mps=_f64(a, v),
+            own_speed_mps=_f64(a, v),
             accel_mps2=_f64(a, v),
             lane=_i64(a, v),
             target_lane=_i64(a, v),

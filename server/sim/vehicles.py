@@ -18,7 +18,32 @@ from .units import KMH
 
 if TYPE_CHECKING:
     from .assist import EgoConfig
-    from .traffic.config import TrafficConfig
+    from .traffic.config import BehaviourConfig, TrafficConfig
+
+
+def speed_walk_per_decision(
+    behaviour: BehaviourConfig, decision_period_s: float
+) -> tuple[float, float, float]:
+    """A behaviour's speed walk as one step a decision: (step m/s, P(up), P(down)).
+
+    The walk takes ``speed_steps_per_s`` steps a second on average, each of
+    ``speed_step_kmh`` up or down with its probabilities: over a decision of ``T`` seconds
+    its mean moves by ``m = r T s (up - down)`` and its square by ``v = r T s^2 (up + down)``
+    (r steps a second of s). One draw a decision takes a step of ``S = s * max(1,
+    sqrt(r T))`` up or down with the probabilities that give the same ``m`` and ``v + m^2``:
+    exactly the walk where a decision holds at most one step (Min et al.'s 5 s against a
+    decision of 0.4 s; Ho's frame when a decision is a frame), and its mean and spread
+    otherwise (Ho's four frames a decision in training)."""
+    if not behaviour.walks:
+        return 0.0, 0.0, 0.0
+    steps = behaviour.speed_steps_per_s * decision_period_s
+    small = behaviour.speed_step_kmh * KMH
+    big = small * max(1.0, np.sqrt(steps))
+    mean = steps * small * (behaviour.speed_step_up_prob - behaviour.speed_step_down_prob)
+    square = steps * small**2 * (behaviour.speed_step_up_prob + behaviour.speed_step_down_prob)
+    moving = min((square + mean**2) / big**2, 1.0)
+    drift = max(min(mean / big, moving), -moving)
+    return big, (moving + drift) / 2, (moving - drift) / 2
 
 
 @dataclass(frozen=True, slots=True)
@@ -66,6 +91,29 @@ class VehicleKinds:
         self.change_prob = 1.0 - np.exp(-rates * decision_period_s)  # per decision
         lane_rates = np.array([b.random_lane_change_rate_per_s for b in behaviours] + [0.0])
         self.random_lane_prob = 1.0 - np.exp(-lane_rates * decision_period_s)  # per decision
+        # The desired speed's random walk (per decision; BehaviourConfig.speed_steps_per_s).
+        walk = [speed_walk_per_decision(b, decision_period_s) for b in behaviours]
+        self.walk_step = np.array([w[0] for w in walk] + [0.0])  # m/s
+        self.walk_up = np.array([w[1] for w in walk] + [0.0])
+        self.walk_down = np.array([w[2] for w in walk] + [0.0])
+        self.walks = bool(self.walk_step.any())
+        # Its bounds (m/s); a lower bound of -1 walks from the car's own speed.
+        self.walk_lo = np.array(
+            [-1.0 if b.speed_walk_kmh is None else b.speed_walk_kmh[0] * KMH for b in behaviours]
+            + [0.0]
+        )
+        self.walk_hi = np.array(
+            [
+                (b.desired_speed_kmh if b.speed_walk_kmh is None else b.speed_walk_kmh)[1] * KMH
+                for b in behaviours
+            ]
+            + [0.0]
+        )
+        self.keeps_current = np.array([b.keeps_current_speed for b in behaviours] + [False])
+        self.random_lane_when_slow = np.array(
+            [b.random_lane_changes_when_slow for b in behaviours] + [False]
+        )
+        self.holds = bool(self.keeps_current.any())
         shares = np.array([b.share for b in behaviours])
         self.behaviour_cdf = np.cumsum(shares / shares.sum())
         self.behaviour_count = len(behaviours)

@@ -6,17 +6,19 @@ agent's lane and one either side), from ``ahead_m`` ahead of the agent's centre 
 go from the leftmost lane to the rightmost (Ho's left to right, as his screen shows them): with
 one side lane, column 0 is the lane to the left, 1 the agent's own, 2 the lane to the right.
 
-A cell holds 1 where some other vehicle's body covers part of it, in its lane or in the lane it
-is moving into (a car changing lanes occupies both, as in Ho's code), and 0 where none does;
-the agent itself is not an obstacle. Cells of lanes beyond the road's edges hold
-``off_road_value`` (-1 in Ho's code, which pads its view with -1 there; 0 makes the grid purely
-Boolean, as the thesis words it).
+A cell holds 1 where some other vehicle's body covers part of it (``covered_by = "any_part"``),
+or where its near edge lies under a body (``"near_edge"``, Ho's code, ``car.py``'s
+``get_vision``: a car marks as many cells as it is long, from the one that holds its front
+bumper), in its lane or in the lane it is moving into (a car changing lanes occupies both, as in
+Ho's code), and 0 where none does; the agent itself is not an obstacle. Cells of lanes beyond
+the road's edges hold ``off_road_value`` (-1 in Ho's code, which pads its view with -1 there; 0
+makes the grid purely Boolean, as the thesis words it).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
@@ -37,6 +39,7 @@ class OccupancyGridConfig(SensorConfig):
     cells: int = 36
     side_lanes: int = 1
     off_road_value: int = -1
+    covered_by: Literal["any_part", "near_edge"] = "any_part"
 
     def __post_init__(self) -> None:
         check_flag("grid.enabled", self.enabled)
@@ -66,6 +69,12 @@ class OccupancyGridConfig(SensorConfig):
             self.off_road_value,
             "-1, 0 or 1",
         )
+        check(
+            self.covered_by in ("any_part", "near_edge"),
+            "grid.covered_by",
+            self.covered_by,
+            "any_part or near_edge",
+        )
 
     def build(self, config: SimConfig) -> OccupancyGrid:
         return OccupancyGrid(self, config.road.lane_count)
@@ -82,6 +91,7 @@ class OccupancyGrid:
         self.side_lanes = config.side_lanes
         self.lane_count = lane_count
         self.off_road_value = config.off_road_value
+        self.near_edge = config.covered_by == "near_edge"
         cell_m = (config.ahead_m + config.behind_m) / config.cells
         # Each row's far and near edge, metres ahead of the agent's centre (row 0 farthest).
         self._top_m = config.ahead_m - cell_m * np.arange(config.cells)
@@ -109,7 +119,10 @@ class OccupancyGrid:
         seen[:, np.arange(n), np.arange(n)] = False  # not the agent itself
         front = (dx + half[:, None, :])[..., None]  # (A, N, V, 1)
         rear = (dx - half[:, None, :])[..., None]
-        covers = (front > self._bottom_m) & (rear < self._top_m)  # (A, N, V, cells)
+        if self.near_edge:  # cells whose near edge is under the body: its length of them
+            covers = (front >= self._bottom_m) & (rear < self._bottom_m)  # (A, N, V, cells)
+        else:
+            covers = (front > self._bottom_m) & (rear < self._top_m)
         covers &= seen[..., None]
         # (A, N, 1, columns): the lane of each column, for each agent.
         column_lane = (st.lane[:, :n, None] + self._offsets)[:, :, None, :]

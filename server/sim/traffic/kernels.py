@@ -48,12 +48,14 @@ def follow_and_accelerate(
     aeb: np.ndarray,
     max_decel_mps2: float,
     no_gap_m: float,
+    steps: np.ndarray,
     gap: np.ndarray,
     leader: np.ndarray,
     has_leader: np.ndarray,
     leader_speed: np.ndarray,
     closing: np.ndarray,
     accel: np.ndarray,
+    idm_accel: np.ndarray,
 ) -> None:
     """One frame's car-following of every vehicle, (A, V) arrays: whom it follows (the nearer
     of its two lane entries' leaders, ``lead``/``valid`` (A, 2V) flat indices) into ``gap``,
@@ -62,9 +64,18 @@ def follow_and_accelerate(
     (``cruise``: time constant, comfortable deceleration, maximum acceleration) and emergency
     braking (``aeb``: time to collision, deceleration), within the vehicle's limits.
 
+    ``steps`` (frame seconds, safety gap m, 1 where traffic yields to agents; a frame of 0
+    keeps the IDM): traffic follows Ho's rule instead (``traffic.following =
+    "speed_steps"``): its speed steps towards its desired speed by at most its maximum
+    acceleration a frame, and with a vehicle ahead within the safety gap it does not speed up,
+    and takes a slower one's speed at once (an agent's only where traffic yields to agents).
+    ``idm_accel`` gets the IDM's (and the agents' assistance's) acceleration either way: what
+    MOBIL weighs.
+
     The settings are :class:`.assist.CruiseControl`'s and :class:`.assist.EmergencyBraking`'s,
     the IDM :func:`idm`.
     """
+    frame_s, safety_gap_m, yields = steps[0], steps[1], steps[2] > 0.0
     arenas, vehicles = x_m.shape
     time_constant_s, comfort_decel, cruise_max_accel = cruise[0], cruise[1], cruise[2]
     time_to_collision_s, aeb_decel = aeb[0], aeb[1]
@@ -111,7 +122,17 @@ def follow_and_accelerate(
                 acc = min(towards, acc)
                 if close > 0.0 and g < close * time_to_collision_s:
                     acc = min(acc, -aeb_decel)
-            accel[a, v] = max(min(acc, max_accel[a, v]), -max_decel_mps2)
+            acc = max(min(acc, max_accel[a, v]), -max_decel_mps2)
+            idm_accel[a, v] = acc
+            if v >= agents and frame_s > 0.0:
+                limit = max_accel[a, v]
+                acc = min(max((desired_speed[a, v] - own) / frame_s, -limit), limit)
+                if g < safety_gap_m:
+                    acc = min(acc, 0.0)
+                    if close > 0.0 and (yields or k - a * vehicles >= agents):
+                        # Matched at once, however hard that brakes (his rule).
+                        acc = -close / frame_s
+            accel[a, v] = acc
 
 
 @njit(cache=True, nogil=True)
@@ -137,6 +158,7 @@ def mobil_accept(
     half_length: np.ndarray,
     safe_decel_mps2: float,
     no_gap_m: float,
+    react_s: float,
 ) -> np.ndarray:
     """MOBIL's verdict for each candidate ``flat[i]`` (flat vehicle indices into the flattened
     (A, V) arrays ``x`` .. ``half_length``): its new lane's leader and follower and its old
@@ -202,7 +224,10 @@ def mobil_accept(
                 two_sqrt_ab[of],
             )
             of_gain = of_accel_after - accel[of]
-        safe = gap_new > min_gap[c] and gap_nf > min_gap[c] and not nf_brakes_hard
+        # The gaps must outlast ``react_s`` of closing in (Ho's followers react a frame later).
+        margin_new = min_gap[c] + max(closing_new, 0.0) * react_s
+        margin_nf = min_gap[c] + (max(speed[nf] - vc, 0.0) * react_s if nf >= 0 else 0.0)
+        safe = gap_new > margin_new and gap_nf > margin_nf and not nf_brakes_hard
         incentive = (accel_new - accel[c]) + politeness[i] * (nf_gain + of_gain)
         # A change for no reason must not make the mover itself brake hard either.
         random = random_mover[i] and accel_new >= -safe_decel_mps2

@@ -2,7 +2,9 @@
 
 A car changes lanes when its own acceleration would gain more than its behaviour's threshold,
 counting the gains and losses of the followers it leaves and joins weighted by its politeness,
-and when the new follower would not have to brake harder than ``traffic.safe_decel_mps2``.
+and when the new follower would not have to brake harder than ``traffic.safe_decel_mps2`` (under
+``traffic.following = "speed_steps"``, where a follower takes a slower car's speed at once, when
+the gaps ahead and behind exceed the standstill gap after a frame of closing in).
 Traffic considers changing left on even decisions and right on odd ones: cars from both sides
 never start into the same gap at the same moment. Decisions are taken on the first frame of a
 decision, for every arena and car at once: the neighbours from the lane index in numpy, the
@@ -28,10 +30,18 @@ if TYPE_CHECKING:
 class Mobil:
     """MOBIL for every traffic car of every arena."""
 
-    def __init__(self, traffic: TrafficConfig, kinds: VehicleKinds, lane_count: int) -> None:
+    def __init__(
+        self, traffic: TrafficConfig, kinds: VehicleKinds, lane_count: int, frame_s: float
+    ) -> None:
         self.kinds = kinds
         self.lane_count = lane_count
-        self.safe_decel_mps2 = traffic.safe_decel_mps2
+        # Under Ho's speed steps a follower takes a slower car's speed at once, however hard
+        # that brakes: a change is safe where the gaps are (his check: no car alongside).
+        steps = traffic.following == "speed_steps"
+        self.safe_decel_mps2 = np.inf if steps else traffic.safe_decel_mps2
+        # ... where they still are after the frame of closing in that passes before the cars
+        # around see the change (a change is done within its frame there).
+        self.react_s = frame_s if steps else 0.0
 
     def decide(
         self,
@@ -91,6 +101,7 @@ class Mobil:
             np.ascontiguousarray(p.half_length.reshape(-1)),
             self.safe_decel_mps2,
             NO_GAP_M,
+            self.react_s,
         )
         st.target_lane.reshape(-1)[flat[accept]] = new_lane[accept]
         st.change_progress.reshape(-1)[flat[accept]] = 0.0
