@@ -56,11 +56,11 @@ ROOT = Path(__file__).resolve().parent.parent
 def test_min2018_table3_lists_the_papers_rows_densities_and_references():
     experiment = EXPERIMENTS["min2018-table3"]
     rows = {(row.label, row.algo, row.inputs, row.seeds) for row in experiment.rows}
-    # The sensor rows with the paper's algorithm (Double + Dueling), two seeds each; DQN and
-    # Double DQN beside them for the algorithm comparison.
+    # The sensor rows with the paper's algorithm (Double + Dueling), and DQN and Double DQN
+    # beside them for the algorithm comparison, two seeds each.
     assert rows == {
-        ("dqn-both", "dqn", "both", 1),
-        ("ddqn-both", "ddqn", "both", 1),
+        ("dqn-both", "dqn", "both", 2),
+        ("ddqn-both", "ddqn", "both", 2),
         ("dueling-both", "dueling", "both", 2),
         ("dueling-camera", "dueling", "camera", 2),
         ("dueling-lidar", "dueling", "lidar", 2),
@@ -141,7 +141,9 @@ def test_each_runs_command_line_parses_back_to_its_training_configuration(tmp_pa
     plan = make_plan(config)
     assert [run.name for run in plan.runs] == [
         "dqn-both-seed0",
+        "dqn-both-seed1",
         "ddqn-both-seed0",
+        "ddqn-both-seed1",
         "dueling-both-seed0",
         "dueling-both-seed1",
         "dueling-camera-seed0",
@@ -152,7 +154,7 @@ def test_each_runs_command_line_parses_back_to_its_training_configuration(tmp_pa
     for run in plan.runs:
         assert parse(TrainConfig, command_args(run.train, TrainConfig())) == run.train
         assert parse_args(train_command(run.train)[3:]) == run.train
-    train = plan.runs[3].train
+    train = plan.runs[5].train
     assert (train.algo, train.inputs, train.seed, train.run_dir) == (
         "dueling",
         "both",

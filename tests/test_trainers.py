@@ -631,6 +631,69 @@ def test_resume_if_found_continues_a_run_and_starts_one_where_there_is_none(tmp_
         train(replace(config, algo="dqn", total_steps=200), envs=PickTheFreeLane(1))
 
 
+def test_each_life_of_a_run_says_what_it_restored_and_a_bare_network_resumes(tmp_path):
+    """A run's provenance: each life's run record says from which step it learned, on which
+    device, and what of the checkpoint it restored. A checkpoint carrying the online network
+    alone (brought back from another machine without the optimiser's moments) resumes with
+    the target network copied from it and a fresh optimiser, and says so."""
+    run_dir = tmp_path / "run"
+    config = TrainConfig(
+        inputs="lidar",
+        num_envs=1,
+        total_steps=100,
+        seed=3,
+        run_dir=run_dir,
+        progress=False,
+        log_every=50,
+        resume_if_found=True,
+        save_replay=False,
+        dqn=tiny_dqn(learning_starts=20),
+    )
+    train(config, envs=PickTheFreeLane(1, seed=1))
+    first = json.loads((run_dir / "run.json").read_text())["life"]
+    assert first == {
+        "from_step": 0,
+        "device": "cpu",
+        "precision": "fp32",
+        "target_restored": None,
+        "optimizer_restored": None,
+        "replay_restored": None,
+        "refill_steps": None,
+    }
+    # Strip the checkpoint to its online network, as a transfer from a GPU machine did.
+    payload = torch.load(run_dir / CHECKPOINT_NAME, weights_only=True)
+    online = payload["learner"]["online"]
+    payload["learner"] = {"online": online, "updates": payload["learner"]["updates"]}
+    torch.save(payload, run_dir / CHECKPOINT_NAME)
+    train(replace(config, total_steps=140), envs=PickTheFreeLane(1, seed=2))
+    life = json.loads((run_dir / "run-resume-1.json").read_text())["life"]
+    assert life["from_step"] == 100 and life["device"] == "cpu"
+    assert (life["target_restored"], life["optimizer_restored"], life["replay_restored"]) == (
+        False,
+        False,
+        False,
+    )
+    assert life["refill_steps"] == max(
+        20, config.dqn.batch_size
+    )  # learning_starts, a batch at least
+    learner = load_checkpoint(run_dir / CHECKPOINT_NAME).make_learner()
+    assert learner.updates > 0
+    # A whole checkpoint restores everything but the replay (not saved in this run).
+    train(replace(config, total_steps=160), envs=PickTheFreeLane(1, seed=3))
+    whole = json.loads((run_dir / "run-resume-2.json").read_text())["life"]
+    assert (whole["target_restored"], whole["optimizer_restored"]) == (True, True)
+
+
+def test_a_bare_network_restores_its_target_as_a_copy_of_it():
+    shape, config = small_shape(), DQNConfig(lstm_cells=8, hidden_units=16)
+    learner = DQNLearner(shape, "lidar", config, double=True, dueling=False)
+    other = DQNLearner(shape, "lidar", config, double=True, dueling=False)
+    restored = other.load_state_dict({"online": learner.online.state_dict()})
+    assert restored == {"target": False, "optimizer": False}
+    for a, b in zip(other.target.parameters(), learner.online.parameters(), strict=True):
+        assert torch.equal(a, b)
+
+
 def test_the_steps_after_the_last_log_line_get_a_line_of_their_own(tmp_path):
     # 130 steps logged every 50: lines at 50 and 100, and one for the last 30 steps, so a
     # curve of the reward per window keeps its last point and the windows add up to all of it.
