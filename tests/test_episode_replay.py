@@ -416,3 +416,25 @@ def test_a_replayed_emergency_brake_is_marked_with_its_cars(tmp_path):
             assert (timeline, decision) in events
             # The braking car and the car it braked for.
             assert (_car_colours(rrd, timeline, decision) == packed).sum() == 2
+
+
+def test_a_relative_checkpoint_name_is_found_within_the_records_experiment(tmp_path):
+    """Kept records name their checkpoint within the experiment (no machine's directories):
+    a replay finds it there, from wherever it runs."""
+    from overtake.client.episode_records import PolicySource, RecordHeader
+    from overtake.trainers.episode_replay import _driver_file
+
+    experiment = tmp_path / "experiment"
+    record = experiment / "evaluations" / "a-seed0" / "medium.episodes" / "a.jsonl"
+    record.parent.mkdir(parents=True)
+    (experiment / "experiment.json").write_text("{}")
+    checkpoint = experiment / "a-seed0" / "checkpoint.pt"
+    checkpoint.parent.mkdir()
+    checkpoint.write_bytes(b"")
+    header = RecordHeader(
+        "min2018", {}, {}, PolicySource("checkpoint", "a-seed0/checkpoint.pt", 5), "abc"
+    )
+    assert _driver_file(header, ReplayConfig(record=record)) == checkpoint
+    checkpoint.unlink()
+    with pytest.raises(RecordError, match="a-seed0/checkpoint.pt, which is not there"):
+        _driver_file(header, ReplayConfig(record=record))

@@ -5,6 +5,7 @@ the table's figures, and one tiny experiment run end to end: killed mid-training
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import math
 import os
@@ -535,6 +536,38 @@ def test_the_kept_evidence_is_the_table_and_curves_without_the_calm_episodes(tin
         assert (tiny["out"] / entry["evaluation"]).exists()
 
 
+def _strings(value: Any) -> list[str]:
+    if isinstance(value, dict):
+        return [s for item in value.values() for s in _strings(item)]
+    if isinstance(value, list):
+        return [s for item in value for s in _strings(item)]
+    return [value] if isinstance(value, str) else []
+
+
+def test_the_table_says_how_each_run_was_made_and_names_no_machine_s_directories(tiny):
+    out, at_kill = tiny["out"], tiny["at_kill"]
+    table = json.loads((out / "table.json").read_text())
+    [light] = table["densities"].values()
+    runs = {run["run"]: run for row in light["rows"] for run in row["runs"]}
+    for row in ROWS:
+        lives = runs[f"{row}-seed0"]["provenance"]
+        # The lives cover the budget, each on this machine's CPU, from this checkout's code.
+        assert lives[0]["from_step"] == 0 and lives[-1]["to_step"] == BUDGET
+        assert all(a["to_step"] == b["from_step"] for a, b in itertools.pairwise(lives))
+        assert {life["device"] for life in lives} == {"cpu"}
+        assert all(life["commit"] == table["commit"] for life in lives)
+        step = at_kill.get(row, 0)
+        if 0 < step < BUDGET:  # killed part-way: a second life resumed from the checkpoint
+            assert [life["from_step"] for life in lives] == [0, step]
+            assert lives[1]["target_restored"] and lives[1]["optimizer_restored"]
+    markdown = (out / "table.md").read_text()
+    assert "## How each run was made" in markdown
+    assert "- dqn-both-seed0: 0–" in markdown and " on cpu (fp32), commit " in markdown
+    # No absolute path anywhere: the run directories and the command's own are relative.
+    assert not [text for text in _strings(table) if text.startswith("/")]
+    assert table["plan"]["runs"]["dqn-both-seed0"]["run_dir"] == "dqn-both-seed0"
+
+
 def test_the_kept_copy_holds_the_collision_episodes_of_each_record_its_table_names(tmp_path):
     from overtake.client.episode_records import (
         EpisodeRecord,
@@ -582,6 +615,15 @@ def test_the_kept_copy_holds_the_collision_episodes_of_each_record_its_table_nam
     keep_evidence(out, keep)
     kept_header, kept = read_records(keep / run["episodes_record"])
     assert kept_header == header and [e.episode for e in kept] == [1, 3]
+    # A checkpoint named by an absolute path within the experiment is kept relative to it.
+    absolute = dataclasses.replace(
+        header, policy=PolicySource("checkpoint", str(out / "a-seed0" / "checkpoint.pt"), 5)
+    )
+    write_records(
+        out / run["episodes_record"], absolute, read_records(out / run["episodes_record"])[1]
+    )
+    keep_evidence(out, keep)
+    assert read_records(keep / run["episodes_record"])[0].policy.name == "a-seed0/checkpoint.pt"
     assert [e.seed for e in kept] == [101, 103]
     assert not (keep / calm["episodes_record"]).exists()
 

@@ -243,3 +243,39 @@ def test_the_rule_driver_drives_fayjie2018_from_its_map():
     rows, _, _ = run_episodes(envs, act, 2, 1000)
     envs.close()
     assert all(row["avg_speed_kmh"] > 80.0 for row in rows)  # idle holds 60, random about 55
+
+
+def test_fig6_draws_what_never_acting_earns_per_3000_steps_beside_the_curve(tmp_path):
+    """Fayjie et al.'s reward pays for keeping going: the curve's reference is what the idle
+    driver earns per 3,000 steps, its evaluation's reward per decision in the training
+    traffic times the window."""
+    from types import SimpleNamespace
+
+    from overtake.trainers.experiment import ExperimentConfig, make_plan
+    from overtake.trainers.experiment.report import Outputs, plot_curves
+
+    config = ExperimentConfig(experiment="fayjie2018-fig6", out=tmp_path)
+    plan = make_plan(config)
+    idle = SimpleNamespace(key={"policy": "idle", "density": "medium"})
+    episodes = [{"return": 300.0, "decisions": 100.0}, {"return": 500.0, "decisions": 100.0}]
+    run = SimpleNamespace(
+        reference_tasks=lambda: [idle], cached=lambda task: {"episodes": episodes}
+    )
+    outputs = Outputs(config, plan, run)  # type: ignore[arg-type]
+    assert outputs._never_acting(3_000) == pytest.approx(800.0 / 200.0 * 3_000)
+    # And the plot draws it as a line of its own on the reward panel.
+    curves = {
+        "dqn": {
+            "runs": 1,
+            "bin_end_step": [3_000, 6_000],
+            **{m: {"mean": [1.0, 2.0]} for m in ("avg_speed_kmh", "return")},
+            "window_reward": {"window_end_step": [3_000, 6_000], "mean": [5_000.0, 9_000.0]},
+            "window_reference": {"never acting (idle)": 12_000.0},
+        }
+    }
+    plot_curves(curves, "fig6", tmp_path / "curves.png")
+    assert (tmp_path / "curves.png").stat().st_size > 0
+    no_reference = {"dqn": {**curves["dqn"]}}
+    del no_reference["dqn"]["window_reference"]
+    plot_curves(no_reference, "fig6", tmp_path / "plain.png")
+    assert (tmp_path / "curves.png").read_bytes() != (tmp_path / "plain.png").read_bytes()

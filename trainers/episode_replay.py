@@ -164,9 +164,22 @@ def _commits(header: RecordHeader) -> str:
     return f" (the record was made by commit {header.commit}, this is {now})"
 
 
+def _experiment_root(record: Path) -> Path | None:
+    """The experiment directory a record lies in (the nearest folder above it holding an
+    experiment's plan or table), where its relative checkpoint names are rooted."""
+    for folder in Path(record).resolve().parents:
+        if (folder / "experiment.json").exists() or (folder / "table.json").exists():
+            return folder
+    return None
+
+
 def _driver_file(header: RecordHeader, config: ReplayConfig) -> Path:
-    """The checkpoint or model that drove: where the record says, or ``--checkpoint``."""
+    """The checkpoint or model that drove: ``--checkpoint``, or where the record says (a
+    relative name from the working directory, else from the record's experiment)."""
     path = config.checkpoint or Path(header.policy.name)
+    root = _experiment_root(config.record)
+    if not path.exists() and not path.is_absolute() and root is not None:
+        path = root / path
     if not path.exists():
         what = "checkpoint" if header.policy.kind == "checkpoint" else "model"
         raise RecordError(

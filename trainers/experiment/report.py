@@ -28,6 +28,7 @@ from .catalogue import (
 )
 from .files import (
     checkpoint_step,
+    run_lives,
     say,
     training_episodes,
     training_records,
@@ -142,12 +143,49 @@ def markdown_table(result: dict[str, Any]) -> str:
                         f"{pair['lower']} ({min(low):.1f}–{max(low):.1f}) by "
                         f"{pair['difference']:.1f} km/h: {verdict}"
                     )
+    runs = [run for row in next(iter(result["densities"].values()))["rows"] for run in row["runs"]]
+    if runs and any("provenance" in run for run in runs):
+        lines += ["", "## How each run was made", ""]
+        lines += [f"- {run['run']}: {provenance_line(run.get('provenance', []))}" for run in runs]
     experiment = EXPERIMENTS.get(result["experiment"])
     if experiment is not None and experiment.note:
         lines += ["", "## Reading it", "", experiment.note]
     if experiment is not None and experiment.paper:
         lines += ["", "## The paper's figures", "", experiment.paper]
     return "\n".join(lines) + "\n"
+
+
+def provenance_line(lives: list[dict[str, Any]]) -> str:
+    """A run's lives in a line of table.md: the steps each trained, where, from which code,
+    and what a resume restored or started afresh."""
+    if not lives:
+        return "not recorded"
+    parts = []
+    for number, life in enumerate(lives):
+        commit = str(life.get("commit") or "unknown")
+        short = commit[:7] + ("+uncommitted" if commit.endswith("+uncommitted") else "")
+        text = (
+            f"{life['from_step']:,}–{life['to_step']:,} on {life.get('device') or '?'} "
+            f"({life.get('precision') or 'fp32'}), commit {short}"
+        )
+        if number:
+            fresh = [
+                what
+                for key, what in (
+                    ("target_restored", "target network copied from the online network"),
+                    ("optimizer_restored", "optimiser started afresh"),
+                )
+                if life.get(key) is False
+            ]
+            if life.get("replay_restored") is False:
+                fresh.append(f"replay refilled for {life.get('refill_steps') or 0:,} steps")
+            if life.get("target_restored") is None:
+                fresh.append("what it restored not recorded")
+            text = "resumed " + text + (f" ({'; '.join(fresh)})" if fresh else "")
+        if "transfer" in life:
+            text += " (a transfer from another machine: transfer.json)"
+        parts.append(text)
+    return "; ".join(parts)
 
 
 def plot_curves(curves: dict[str, Any], title: str, path: Path) -> None:
@@ -165,9 +203,12 @@ def plot_curves(curves: dict[str, Any], title: str, path: Path) -> None:
         for row in windowed:
             window = curves[row]["window_reward"]
             ax.plot(window["window_end_step"], window["mean"], marker=".", label=row)
+        for name, value in curves[windowed[0]].get("window_reference", {}).items():
+            ax.axhline(value, linestyle="--", color="grey", label=f"{name}: {value:,.0f}")
         steps = curves[windowed[0]]["window_reward"]["window_end_step"]
         size = steps[0] if steps else 0
         ax.set_ylabel(f"reward per {size:,} steps")
+        ax.legend(fontsize="small")
         ax.grid(alpha=0.3)
     for ax, (metric, label) in zip(axes, CURVE_METRICS):
         for row, curve in curves.items():
@@ -204,6 +245,24 @@ def _relative(path: Path | None, root: Path) -> Path | None:
         return path.relative_to(root)
     except ValueError:
         return path
+
+
+def portable(value: Any, root: Path) -> Any:
+    """``value`` (table.json's data) with every absolute path made relative: to the
+    experiment's directory ``root`` where it lies within it, else to the working directory
+    where it lies within that (a repository's bench/results), else to ``root``. Kept evidence
+    names no machine's directories."""
+    if isinstance(value, dict):
+        return {key: portable(item, root) for key, item in value.items()}
+    if isinstance(value, list):
+        return [portable(item, root) for item in value]
+    if isinstance(value, str) and value.startswith("/") and os.path.isabs(value):
+        path = Path(value)
+        for base in (root.resolve(), Path.cwd().resolve()):
+            if path.is_relative_to(base):
+                return str(path.relative_to(base)) or "."
+        return os.path.relpath(path, root.resolve())
+    return value
 
 
 def _floats(values: list[float | None]) -> np.ndarray:
@@ -358,6 +417,11 @@ class Outputs:
                     {run.name: training_records(run.run_dir, "train") for run in runs}, window
                 )
             curves[row.label] = {"runs": len(runs), **curve}
+        window = plan.experiment.reward_window_steps
+        never_acting = self._never_acting(window) if window else None
+        if never_acting is not None:
+            for curve in curves.values():
+                curve["window_reference"] = {"never acting (idle)": never_acting}
         experiment = plan.experiment
         return {
             "experiment": experiment.name,
@@ -404,6 +468,7 @@ class Outputs:
                     "evaluation": str(_relative(task.cache, self.plan.out)),
                     "decisions_per_s": result["decisions_per_s"],
                     **_collisions(result, self.plan.out),
+                    "provenance": run_lives(run.run_dir, step),
                 }
             )
             pooled.extend(result["episodes"])
@@ -416,6 +481,25 @@ class Outputs:
             "seeds": seed_statistics([run["summary"] for run in runs]),
             "runs": runs,
         }
+
+    def _never_acting(self, window: int) -> float | None:
+        """What a driver that never acts (the idle reference) earns per ``window`` steps in
+        the traffic the runs trained in: its evaluation's reward per decision, pooled over
+        its episodes, times the window (a learning curve's reference line: Fayjie et al.'s
+        reward pays for keeping going). None where idle was not evaluated there."""
+        # Every preset trains in medium traffic unless the experiment names another.
+        density = self.plan.experiment.train_traffic or "medium"
+        tasks = [
+            t
+            for t in self.run.reference_tasks()
+            if t.key["policy"] == "idle" and t.key["density"] == density
+        ]
+        result = self.run.cached(tasks[0]) if tasks else None
+        if result is None:
+            return None
+        decisions = sum(episode["decisions"] for episode in result["episodes"])
+        reward = sum(episode["return"] for episode in result["episodes"])
+        return reward / decisions * window if decisions else None
 
     def _reference(self, policy: str, density: Density) -> dict[str, Any]:
         [task] = [
@@ -435,7 +519,7 @@ class Outputs:
 
     def write(self) -> dict[str, Any]:
         out = self.plan.out
-        result = self.result()
+        result = portable(self.result(), out)
         write_atomic(out / "table.json", json.dumps(result, indent=1))
         write_atomic(out / "table.md", markdown_table(result))
         title = f"{self.plan.experiment.name}: training episodes ({self.config.curve_bins} bins)"
@@ -472,7 +556,13 @@ def keep_evidence(out: Path, keep: Path) -> None:
     records = kept_records(json.loads((out / "table.json").read_text()))
     for relative, crashed in records.items():
         header, episodes = read_records(out / relative)
-        write_records(keep / relative, header, [e for e in episodes if e.episode in crashed])
+        # The checkpoint that drove, named within the experiment (a replay finds it there).
+        policy = dataclasses.replace(header.policy, name=portable(header.policy.name, out))
+        write_records(
+            keep / relative,
+            dataclasses.replace(header, policy=policy),
+            [e for e in episodes if e.episode in crashed],
+        )
     say(
         f"kept {', '.join(EVIDENCE)} in {keep}"
         + (f", and the collision episodes of {len(records)} episode records" if records else "")
