@@ -601,9 +601,8 @@ def test_checkpoint_round_trip_and_resume_continue_the_step_count(tmp_path):
         )
 
 
-def test_resume_if_found_continues_a_run_and_starts_one_where_there_is_none(tmp_path):
-    """What a restarted compose trainer does: same command, same --run-dir."""
-    run_dir = tmp_path / "run"
+def resumable(run_dir: Path, **changes: Any) -> TrainConfig:
+    """A short run that continues from its checkpoint when started again."""
     config = TrainConfig(
         inputs="lidar",
         num_envs=1,
@@ -615,6 +614,13 @@ def test_resume_if_found_continues_a_run_and_starts_one_where_there_is_none(tmp_
         resume_if_found=True,
         dqn=tiny_dqn(learning_starts=20),
     )
+    return replace(config, **changes)
+
+
+def test_resume_if_found_continues_a_run_and_starts_one_where_there_is_none(tmp_path):
+    """What a restarted compose trainer does: same command, same --run-dir."""
+    run_dir = tmp_path / "run"
+    config = resumable(run_dir)
     # No checkpoint yet: a fresh run, not a refusal.
     first = train(config, envs=PickTheFreeLane(1, seed=1))
     assert first["steps"] == 100
@@ -637,18 +643,7 @@ def test_each_life_of_a_run_says_what_it_restored_and_a_bare_network_resumes(tmp
     alone (brought back from another machine without the optimiser's moments) resumes with
     the target network copied from it and a fresh optimiser, and says so."""
     run_dir = tmp_path / "run"
-    config = TrainConfig(
-        inputs="lidar",
-        num_envs=1,
-        total_steps=100,
-        seed=3,
-        run_dir=run_dir,
-        progress=False,
-        log_every=50,
-        resume_if_found=True,
-        save_replay=False,
-        dqn=tiny_dqn(learning_starts=20),
-    )
+    config = resumable(run_dir, save_replay=False)
     train(config, envs=PickTheFreeLane(1, seed=1))
     first = json.loads((run_dir / "run.json").read_text())["life"]
     assert first == {

@@ -8,6 +8,7 @@ Min et al. (2018), Ho (2018) and Fayjie et al. (2018).
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable, Mapping
 
 from .assist import EgoConfig
@@ -148,66 +149,71 @@ def ho2018() -> SimConfig:
       speed; ``steady`` (his Player) does nothing more; ``road_max`` (his StickyPlayer) takes
       a random step of 1 km/h up or down, or none, each frame, wandering between its own
       speed and 100; ``lane_changer`` (his AggresivePlayer) steps up 1 km/h in half of the
-      frames, to 100, and does not change lanes: his check for a car in front reads one row
-      of his road map (``car_in_front``: box 99, 29 m behind the agent), so it almost never
-      switches;
+      frames, to 100, and while slower than its own speed tries lane changes (his
+      ``car_in_front`` check, whose bounds clamp to one row of his road map, 20-30 m behind
+      the agent, fires whenever another car stands in the switcher's lane there: in medium
+      traffic his switchers change lanes 1,400 times an episode); here it tries 3 times a
+      second while slower than its own speed, into gaps that hold after a frame of closing in
+      (MOBIL's gap criterion);
     - traffic follows by his rule (``traffic.following = "speed_steps"``): its speed changes by
-      1 km/h a frame (3.5 m/s^2) towards its desired speed, and with a car within 3.5 m
-      bumper to bumper ahead (his check binds at 3-4 boxes: the 8 rows it reads against the
-      rows a car marks) it does not speed up, and takes a slower car's speed at once; the
-      agent obeys the same rule (``ego.safety_gap_m``): no accelerating, and a slower car's
-      speed matched at once; traffic obeys it behind the agent too
-      (``traffic.yield_to_agents``), so that, as in his simulator, nothing collides;
+      1 km/h a frame (3.5 m/s^2) towards its desired speed, and with a car within 3 m bumper
+      to bumper ahead (``traffic.safety_gap_m``) it does not speed up, and takes a slower
+      car's speed at once; the agent obeys the same rule within 4 m (``ego.safety_gap_m``).
+      His check binds at a gap under 4 boxes less the fraction of a box the follower's front
+      stands into its box (the rows it reads against the rows a car marks): the agent's front
+      stands on a box edge (y = 700 px), so its gap is 4 m; a traffic car's moves between 3
+      and 4 m as it moves, and a follower creeps up whenever the bound slips under its gap.
+      Traffic obeys the rule behind the agent too (``traffic.yield_to_agents``), so that, as
+      in his simulator, nothing collides;
+    - lane changes within one frame, the agent's and traffic's (``check_switch_lane`` moves
+      a car a whole lane in the frame it starts);
     - the agent's speed from 0 to 110 km/h, starting at 60, changed by 1 km/h per frame
       (``ego.speed_control = "speed_steps"``); no lane change into a side where a car is
       alongside (``ego.lane_change_check``; his check reads the rows of the agent's body in the
       next lane, against the rows a car marks there: a car from 2.5 m ahead of its front to
-      1.5 m behind its rear, whatever its speed).
+      1.5 m behind its rear, whatever its speed); the action mask says so
+      (``ego.mask_refusals``; his agent chooses among all five and learns the action applied);
+    - the grid marks a car by as many cells as it is long, from the one that holds its front
+      bumper (``grid.covered_by = "near_edge"``, ``get_vision``).
 
     Chosen here (the thesis and the code are silent):
-    - lane changes of 0.24 s, 3 frames (his code jumps a lane in one frame; three keep the
-      move visible to the grid and the collision test, and a change still ends within the
-      decision that started it);
     - a new car's own and entry speeds drawn from the whole ranges, not from his integers;
       tries at entering once a decision, as many as the decision has frames (his one a frame:
       the same where a decision is a frame, as in his evaluation);
     - a ``road_max`` walk of 2 km/h steps a decision of 4 frames (the same spread as his four
       steps of 1 km/h; exactly his where a decision is a frame), a ``lane_changer``'s of 2 km/h
-      a decision;
+      a decision; the lane switcher's tries as a rate (his trigger, a car in a band behind the
+      agent, tried literally, brought the rule driver no closer to his code's speeds);
     - traffic's IDM (time headway 0.1 s, standstill gap 1 m) and MOBIL remain only as what
       ``traffic.following = "idm"`` and ``traffic.entry = "comfortable"`` (the preset before
-      issue 44) use; ``comfortable`` spawns 70-87 m ahead and 23-37 m behind.
+      issue 44, ``BEFORE_AUTHORS_TRAFFIC``) use; ``comfortable`` spawns 70-87 m ahead and
+      23-37 m behind.
     """
-    never = NEVER_MPS2  # no MOBIL advantage reaches it: his traffic keeps its lane
     car_length_m, car_width_m = 7.0, 3.4
     frames_per_s = 1 / 0.08  # his frame, in the time of this preset
+    # What his three players share: an own speed of 50-100 km/h, the speed they have held,
+    # no lane change for an advantage (NEVER_MPS2: none reaches it).
+    his_player = functools.partial(
+        BehaviourConfig,
+        share=1.0,
+        desired_speed_kmh=(50.0, 100.0),
+        lane_change_threshold_mps2=NEVER_MPS2,
+        keeps_current_speed=True,
+    )
     return SimConfig(
         preset="ho2018",
         road=RoadConfig(lane_count=7, lane_width_m=5.0),
         traffic=TrafficConfig(
             density_vehicle_counts=(19, 39, 59),
-            steady=BehaviourConfig(
-                share=1.0,
-                desired_speed_kmh=(50.0, 100.0),
-                lane_change_threshold_mps2=never,
-                keeps_current_speed=True,
-            ),
-            road_max=BehaviourConfig(
-                share=1.0,
-                desired_speed_kmh=(50.0, 100.0),
-                lane_change_threshold_mps2=never,
-                keeps_current_speed=True,
+            steady=his_player(),
+            road_max=his_player(
                 speed_steps_per_s=frames_per_s,
                 speed_step_kmh=1.0,
                 speed_step_up_prob=1 / 3,
                 speed_step_down_prob=1 / 3,
             ),
-            lane_changer=BehaviourConfig(
-                share=1.0,
-                desired_speed_kmh=(50.0, 100.0),
+            lane_changer=his_player(
                 politeness=0.0,
-                lane_change_threshold_mps2=never,
-                keeps_current_speed=True,
                 speed_steps_per_s=frames_per_s,
                 speed_step_kmh=1.0,
                 speed_step_up_prob=0.5,
