@@ -252,7 +252,8 @@ def test_fig6_draws_what_never_acting_earns_per_3000_steps_beside_the_curve(tmp_
     from types import SimpleNamespace
 
     from overtake.trainers.experiment import ExperimentConfig, make_plan
-    from overtake.trainers.experiment.report import Outputs, plot_curves
+    from overtake.trainers.experiment.curves import plot_curves
+    from overtake.trainers.experiment.report import Outputs
 
     config = ExperimentConfig(experiment="fayjie2018-fig6", out=tmp_path)
     plan = make_plan(config)

@@ -11,7 +11,7 @@ from typing import Any
 
 from overtake.client.provenance import git_commit, package_versions
 
-__all__ = ["git_commit", "package_versions"]
+__all__ = ["git_commit", "life_record", "package_versions"]
 
 
 class MetricsLog:
@@ -37,4 +37,23 @@ def run_record(**facts: Any) -> dict[str, Any]:
         "commit": git_commit(),
         "host": platform.node(),
         "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+    }
+
+
+def life_record(
+    step: int, device: str, precision: str, restored: dict[str, bool] | None, warm: int
+) -> dict[str, Any]:
+    """One life of a run (its start, or a resume from ``step``), for its provenance: the
+    device and precision it learns in, and what of the checkpoint it resumed from it restored
+    (``restored``: None for a run's start). A target network or an optimiser not restored
+    starts afresh; a replay not restored is refilled for ``warm`` steps before learning goes
+    on."""
+    return {
+        "from_step": step,
+        "device": device,
+        "precision": precision,
+        "target_restored": None if restored is None else restored["target"],
+        "optimizer_restored": None if restored is None else restored["optimizer"],
+        "replay_restored": None if restored is None else restored["replay"],
+        "refill_steps": None if restored is None else (0 if restored["replay"] else warm),
     }

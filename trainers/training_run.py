@@ -23,7 +23,7 @@ from .learner import ALGOS, DQNLearner, network_shape
 from .network import INPUT_SENSORS
 from .observations import describe_space, frame_shapes
 from .replay import FrameStacker, ReplayMemory
-from .run_files import MetricsLog, run_record
+from .run_files import MetricsLog, life_record, run_record
 from .run_log import LogWindow, progress_bar
 from .run_recording import RunRecording
 from .shielding import TrainingShield
@@ -74,8 +74,7 @@ class TrainingRun:
         self._build_learner()
         self.step, self.episodes, self.resumes = 0, 0, 0
         self.resumed_at_step: int | None = None
-        # What a resume restored of its checkpoint (the run's provenance): the learner's
-        # target network and optimiser, and the replay (else refilled before learning).
+        # What a resume restored of its checkpoint (run_files.life_record).
         self.restored: dict[str, bool] | None = None
         self.env_seed = config.seed
         if resumed is not None:
@@ -215,25 +214,11 @@ class TrainingRun:
             trainer=self.env.remote_facts().get("trainer"),
             replay_bytes=self.replay.nbytes,
             replay_naive_bytes=self.replay.naive_nbytes(),
-            life=self._life(),
+            life=life_record(
+                self.step, str(self.learner.device), self.config.precision, self.restored, self.warm
+            ),
         )
         self._life_file("run", ".json").write_text(json.dumps(record, indent=2, default=str))
-
-    def _life(self) -> dict[str, Any]:
-        """This life of the run, for its provenance: the step it starts from, the device it
-        learns on, and what of the checkpoint it resumed from it restored (a target network
-        or an optimiser that was not restored starts afresh; a replay that was not restored
-        is refilled for ``refill_steps`` before learning resumes; None for a run's start)."""
-        restored = self.restored
-        return {
-            "from_step": self.step,
-            "device": str(self.learner.device),
-            "precision": self.config.precision,
-            "target_restored": None if restored is None else restored["target"],
-            "optimizer_restored": None if restored is None else restored["optimizer"],
-            "replay_restored": None if restored is None else restored["replay"],
-            "refill_steps": None if restored is None else (0 if restored["replay"] else self.warm),
-        }
 
     def _start_episodes(self) -> None:
         """Reset every environment and start its frame stack and its replay ring."""

@@ -33,8 +33,9 @@ The experiment directory (default ``runs/experiments/<name>``) holds:
 
 The package, one idea a module: :mod:`.catalogue` (the experiments as data), :mod:`.plan`
 (resolved against a command line), :mod:`.files` and :mod:`.processes` (what the run reads,
-writes, locks and starts), :mod:`.run` (the scheduling), :mod:`.statistics` and :mod:`.report`
-(the table and curves), :mod:`.command` (``main`` and the command line).
+writes, locks and starts), :mod:`.run` (the scheduling), :mod:`.statistics`, :mod:`.report`
+and :mod:`.curves` (the table and curves), :mod:`.evidence` (how each run was made, and what
+is kept in git), :mod:`.command` (``main`` and the command line).
 """
 
 from .catalogue import (
@@ -48,6 +49,7 @@ from .catalogue import (
     Schedule,
 )
 from .command import check_directory, cli, describe_experiments, main, parse_args
+from .evidence import keep_evidence, run_lives
 from .files import LIVES_NAME, note_life, training_episodes, training_records, window_rewards
 from .plan import (
     ExperimentConfig,
@@ -60,7 +62,7 @@ from .plan import (
     train_command,
     training_identity,
 )
-from .report import Outputs, keep_evidence, markdown_table
+from .report import Outputs, markdown_table
 from .run import ExperimentRun
 from .statistics import episode_statistics, learning_curves, seed_order, seed_statistics
 
@@ -93,6 +95,7 @@ __all__ = [
     "note_life",
     "parse_args",
     "reference_policies",
+    "run_lives",
     "seed_order",
     "seed_statistics",
     "train_command",

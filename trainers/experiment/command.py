@@ -16,9 +16,10 @@ from overtake.client.commands import UsageError, run_command
 
 from ..train import TrainConfig
 from .catalogue import ALGO_NAMES, EXPERIMENTS, INPUT_NAMES, ExperimentError
+from .evidence import keep_evidence
 from .files import LOCK_NAME, PLAN_NAME, lock, read_json, say, write_atomic
 from .plan import ExperimentConfig, Plan, learned_settings, make_plan, training_identity
-from .report import Outputs, keep_evidence
+from .report import Outputs
 from .run import ExperimentRun
 
 

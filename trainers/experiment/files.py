@@ -7,7 +7,6 @@ import contextlib
 import fcntl
 import json
 import os
-import re
 import sys
 import time
 from pathlib import Path
@@ -154,43 +153,3 @@ def utc_now() -> str:
 
 def say(message: str) -> None:
     print(f"[{time.strftime('%H:%M:%S')}] {message}", file=sys.stderr, flush=True)
-
-
-def run_lives(run_dir: Path, final_step: int) -> list[dict[str, Any]]:
-    """A training run's provenance: its lives (its start and each resume, from their run
-    records), each with the steps it trained (up to the next life's start, the last to
-    ``final_step``), the device it learned on, the commit of its code, and for a resume what
-    of the checkpoint it restored (a target network or optimiser not restored started afresh;
-    a replay not restored was refilled before learning went on). A life that trained no
-    step of the final run (one resumed again from the same checkpoint) is left out."""
-    found = []
-    for path in run_dir.glob("run*.json"):
-        match = re.fullmatch(r"run(?:-resume-(\d+))?\.json", path.name)
-        record = read_json(path) if match else None
-        if record is not None:
-            found.append((int(match.group(1) or 0), record))  # type: ignore[union-attr]
-    lives: list[dict[str, Any]] = []
-    for _, record in sorted(found, key=lambda item: item[0]):
-        life = record.get("life") or {}
-        config = record.get("config") or {}
-        lives.append(
-            {
-                "from_step": int(life.get("from_step", record.get("resumed_at_step") or 0)),
-                "device": life.get("device", config.get("device")),
-                "precision": life.get("precision", config.get("precision")),
-                "commit": record.get("commit"),
-                "started_utc": record.get("started_utc"),
-                "target_restored": life.get("target_restored"),
-                "optimizer_restored": life.get("optimizer_restored"),
-                "replay_restored": life.get("replay_restored"),
-                "refill_steps": life.get("refill_steps"),
-            }
-        )
-    for life, following in zip(lives, [*lives[1:], None], strict=True):
-        life["to_step"] = final_step if following is None else following["from_step"]
-    kept = [life for life in lives if life["to_step"] > life["from_step"]]
-    # A transfer done by hand before lives recorded what they restored (transfer.json).
-    transfer = read_json(run_dir / "transfer.json")
-    if transfer is not None and kept:
-        kept[-1]["transfer"] = transfer
-    return kept

@@ -1,35 +1,27 @@
-"""The experiment's outputs: table.md, table.json, curves.png and curves.rrd, and the evidence
-kept in git."""
+"""The experiment's outputs: table.md and table.json from the cached evaluations and the runs'
+files, and the curves (:mod:`.curves`); what is kept of them is :mod:`.evidence`'s."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import math
-import os
 from pathlib import Path
 from typing import Any
-
-import numpy as np
-
-from overtake.client.episode_records import read_records, write_records
-from overtake.viz.recording import RecordingConfig, close_recording, open_recording
 
 from ..checkpoint import plain_data
 from ..run_files import git_commit, package_versions
 from .catalogue import (
     ALGO_NAMES,
-    CURVE_METRICS,
     EXPERIMENTS,
     INPUT_NAMES,
     TABLE_COLUMNS,
     Density,
     Row,
 )
+from .curves import plot_curves, record_curves
+from .evidence import portable, provenance_line, run_lives
 from .files import (
     checkpoint_step,
-    run_lives,
-    say,
     training_episodes,
     training_records,
     utc_now,
@@ -155,88 +147,6 @@ def markdown_table(result: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def provenance_line(lives: list[dict[str, Any]]) -> str:
-    """A run's lives in a line of table.md: the steps each trained, where, from which code,
-    and what a resume restored or started afresh."""
-    if not lives:
-        return "not recorded"
-    parts = []
-    for number, life in enumerate(lives):
-        commit = str(life.get("commit") or "unknown")
-        short = commit[:7] + ("+uncommitted" if commit.endswith("+uncommitted") else "")
-        text = (
-            f"{life['from_step']:,}–{life['to_step']:,} on {life.get('device') or '?'} "
-            f"({life.get('precision') or 'fp32'}), commit {short}"
-        )
-        if number:
-            fresh = [
-                what
-                for key, what in (
-                    ("target_restored", "target network copied from the online network"),
-                    ("optimizer_restored", "optimiser started afresh"),
-                )
-                if life.get(key) is False
-            ]
-            if life.get("replay_restored") is False:
-                fresh.append(f"replay refilled for {life.get('refill_steps') or 0:,} steps")
-            if life.get("target_restored") is None:
-                fresh.append("what it restored not recorded")
-            text = "resumed " + text + (f" ({'; '.join(fresh)})" if fresh else "")
-        if "transfer" in life:
-            text += " (a transfer from another machine: transfer.json)"
-        parts.append(text)
-    return "; ".join(parts)
-
-
-def plot_curves(curves: dict[str, Any], title: str, path: Path) -> None:
-    """curves.png: one panel per curve metric, one line per row (with the band between its
-    runs' lowest and highest bin means where it has several)."""
-    # The object-oriented API draws with the Agg canvas and touches no global pyplot state.
-    from matplotlib.figure import Figure
-
-    windowed = [row for row, curve in curves.items() if "window_reward" in curve]
-    panels = len(CURVE_METRICS) + (1 if windowed else 0)
-    figure = Figure(figsize=(7.0, 3.2 * panels), layout="constrained")
-    axes = figure.subplots(panels, 1, sharex=True, squeeze=False)[:, 0]
-    if windowed:
-        ax = axes[-1]
-        for row in windowed:
-            window = curves[row]["window_reward"]
-            ax.plot(window["window_end_step"], window["mean"], marker=".", label=row)
-        for name, value in curves[windowed[0]].get("window_reference", {}).items():
-            ax.axhline(value, linestyle="--", color="grey", label=f"{name}: {value:,.0f}")
-        steps = curves[windowed[0]]["window_reward"]["window_end_step"]
-        size = steps[0] if steps else 0
-        ax.set_ylabel(f"reward per {size:,} steps")
-        ax.legend(fontsize="small")
-        ax.grid(alpha=0.3)
-    for ax, (metric, label) in zip(axes, CURVE_METRICS):
-        for row, curve in curves.items():
-            steps = np.array(curve["bin_end_step"], dtype=float)
-            mean = _floats(curve[metric]["mean"])
-            # Bins no episode ended in are skipped, so that the line joins its neighbours.
-            ok = ~np.isnan(mean)
-            (line,) = ax.plot(steps[ok], mean[ok], marker=".", label=row)
-            if curve["runs"] > 1:
-                ax.fill_between(
-                    steps[ok],
-                    _floats(curve[metric]["run_min"])[ok],
-                    _floats(curve[metric]["run_max"])[ok],
-                    color=line.get_color(),
-                    alpha=0.2,
-                    linewidth=0,
-                )
-        ax.set_ylabel(label)
-        ax.grid(alpha=0.3)
-    axes[-1].set_xlabel("training steps")
-    axes[-1].set_xlim(0, max(max(c["bin_end_step"]) for c in curves.values()))
-    axes[0].legend(fontsize="small")
-    axes[0].set_title(title, fontsize="medium")
-    tmp = path.with_name(path.name + ".tmp")
-    figure.savefig(tmp, format="png", dpi=100)
-    os.replace(tmp, path)
-
-
 def _relative(path: Path | None, root: Path) -> Path | None:
     """``path`` within ``root`` (an evaluation's cache file, named in table.json)."""
     if path is None:
@@ -245,94 +155,6 @@ def _relative(path: Path | None, root: Path) -> Path | None:
         return path.relative_to(root)
     except ValueError:
         return path
-
-
-def portable(value: Any, root: Path) -> Any:
-    """``value`` (table.json's data) with every absolute path made relative: to the
-    experiment's directory ``root`` where it lies within it, else to the working directory
-    where it lies within that (a repository's bench/results), else to ``root``. Kept evidence
-    names no machine's directories."""
-    if isinstance(value, dict):
-        return {key: portable(item, root) for key, item in value.items()}
-    if isinstance(value, list):
-        return [portable(item, root) for item in value]
-    if isinstance(value, str) and value.startswith("/") and os.path.isabs(value):
-        path = Path(value)
-        for base in (root.resolve(), Path.cwd().resolve()):
-            if path.is_relative_to(base):
-                return str(path.relative_to(base)) or "."
-        return os.path.relpath(path, root.resolve())
-    return value
-
-
-def _floats(values: list[float | None]) -> np.ndarray:
-    return np.array([math.nan if v is None else v for v in values], dtype=float)
-
-
-# matplotlib's default cycle (tab10), so that curves.rrd and curves.png colour rows alike.
-ROW_COLORS = (
-    (31, 119, 180),
-    (255, 127, 14),
-    (44, 160, 44),
-    (214, 39, 40),
-    (148, 103, 189),
-    (140, 86, 75),
-    (227, 119, 194),
-    (127, 127, 127),
-    (188, 189, 34),
-    (23, 190, 207),
-)
-
-
-def record_curves(curves: dict[str, Any], experiment: str, path: Path) -> None:
-    """curves.rrd: ``curves/<metric>/<row>`` on the ``step`` timeline, one entity per row."""
-    import rerun as rr
-    import rerun.blueprint as rrb
-
-    metrics = list(CURVE_METRICS)
-    if any("window_reward" in curve for curve in curves.values()):
-        metrics.append(("window_reward", "reward per window of training steps"))
-    # Without a range the viewer shows a narrow window around the time cursor; a learning curve
-    # is read whole.
-    whole_run = rrb.archetypes.TimeAxis(
-        view_range=rr.TimeRange(
-            start=rr.TimeRangeBoundary.infinite(), end=rr.TimeRangeBoundary.infinite()
-        )
-    )
-    blueprint = rrb.Blueprint(
-        rrb.Vertical(
-            *(
-                rrb.TimeSeriesView(origin=f"/curves/{metric}", name=label, axis_x=whole_run)
-                for metric, label in metrics
-            )
-        ),
-        rrb.TimePanel(timeline="step"),
-        collapse_panels=True,
-    )
-    tmp = path.with_name(path.name + ".tmp")
-    recording = open_recording(
-        f"overtake-experiment {experiment}", RecordingConfig(sink="file", rrd=tmp), tmp, blueprint
-    )
-    assert recording is not None  # sink=file always opens one
-    stream = recording.stream
-    try:
-        for index, (row, curve) in enumerate(curves.items()):
-            color = ROW_COLORS[index % len(ROW_COLORS)]
-            for metric, _ in metrics:
-                if metric not in curve:
-                    continue
-                entity = f"curves/{metric}/{row}"
-                # One colour per row in every plot, as in curves.png; the viewer's own pick
-                # hashes the entity path and colours a row differently from plot to plot.
-                stream.log(entity, rr.SeriesLines(names=row, colors=color), static=True)
-                steps = curve[metric].get("window_end_step", curve["bin_end_step"])
-                for step, value in zip(steps, curve[metric]["mean"]):
-                    if value is not None:
-                        stream.set_time("step", sequence=step)
-                        stream.log(entity, rr.Scalars(value))
-    finally:
-        close_recording(recording)
-    os.replace(tmp, path)
 
 
 def _versions() -> dict[str, str]:
@@ -526,44 +348,3 @@ class Outputs:
         plot_curves(result["curves"], title, out / "curves.png")
         record_curves(result["curves"], self.plan.experiment.name, out / "curves.rrd")
         return result
-
-
-EVIDENCE = ("table.md", "table.json", "curves.png")
-
-
-def kept_records(table: dict[str, Any]) -> dict[str, list[int]]:
-    """The episode records a table names for its collisions (paths within the experiment's
-    directory) and the episodes of each that collided. A table written before records were
-    named within the directory names them by absolute paths: those stay out."""
-    records: dict[str, list[int]] = {}
-    for density in table["densities"].values():
-        entries = [run for row in density["rows"] for run in row["runs"]]
-        for entry in entries + density["references"]:
-            record = entry.get("episodes_record")
-            if entry.get("collision_episodes") and record and not Path(record).is_absolute():
-                records[record] = entry["collision_episodes"]
-    return records
-
-
-def keep_evidence(out: Path, keep: Path) -> None:
-    """Copy an experiment's table and curves from ``out`` into ``keep``, each written whole or
-    not at all, and of each episode record its table names, the episodes with a collision, at
-    the same path within ``keep``: the table's replay commands play them there. Small:
-    table.json holds summaries, the other episodes stay in the evaluations."""
-    keep.mkdir(parents=True, exist_ok=True)
-    for name in EVIDENCE:
-        write_atomic(keep / name, (out / name).read_bytes())
-    records = kept_records(json.loads((out / "table.json").read_text()))
-    for relative, crashed in records.items():
-        header, episodes = read_records(out / relative)
-        # The checkpoint that drove, named within the experiment (a replay finds it there).
-        policy = dataclasses.replace(header.policy, name=portable(header.policy.name, out))
-        write_records(
-            keep / relative,
-            dataclasses.replace(header, policy=policy),
-            [e for e in episodes if e.episode in crashed],
-        )
-    say(
-        f"kept {', '.join(EVIDENCE)} in {keep}"
-        + (f", and the collision episodes of {len(records)} episode records" if records else "")
-    )
