@@ -164,7 +164,7 @@ def test_a_slower_car_within_the_safety_gap_is_matched_at_once_and_counted_as_an
 
 def test_no_accelerating_with_a_car_within_the_safety_gap_even_a_faster_one():
     # 1.5 m bumper to bumper: the car 20 km/h faster opens the gap by 0.44 m a frame, still
-    # within his 3.5 m after the decision's four frames.
+    # within his 4 m after the decision's four frames.
     sim = ho_sim([Car(dx=8.5, lane=OWN_LANE, speed_kmh=80.0)], ego_speed_kmh=60.0)
     sim.step(np.array([[CRUISE_UP]]))
     assert speed_kmh(sim) == pytest.approx(60.0)
@@ -239,7 +239,7 @@ def test_every_crossing_counts_plus_or_minus_one():
 def test_a_lane_change_opposite_to_a_recent_one_costs_the_alternation_penalty():
     sim = ho_sim()
     rewards = []
-    # Left, then right once the change is over (0.24 s, within the decision of 0.32 s), while
+    # Left, then right once the change is over (within its first frame), while
     # the left is still among the last four actions; then right again, with no left among them.
     for action in (LANE_LEFT, KEEP, KEEP, KEEP, LANE_RIGHT, KEEP, KEEP, KEEP, KEEP, LANE_RIGHT):
         result = sim.step(np.array([[action]]))

@@ -3,7 +3,7 @@
 :class:`HighwaySim` is the orchestrator: it builds the parts its configuration chooses and
 steps them in order, on one structure-of-arrays state (:mod:`.state`), rows for arenas and
 columns for vehicle slots (the agents' cars first, then traffic). One :meth:`HighwaySim.step`
-is one decision:
+is one decision (:mod:`.decision` holds its order):
 
 1. the actions ask driver assistance for cruise targets and lane changes (:mod:`.actions`,
    :mod:`.assist`; the warnings the agents had are noted for the reward), and traffic now and
@@ -26,17 +26,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from overtake.protocol.vocabulary import AGENT_KIND, LANE_LEFT, LANE_RIGHT, METRIC_FIELDS
+from overtake.protocol.vocabulary import AGENT_KIND, METRIC_FIELDS
 
 from .actions import DasActions
 from .assist import DriverWarnings, LaneChangeAssist
 from .config import SimConfig
+from .decision import Decision, StepResult
 from .episodes import EpisodeBook
-from .lane_index import LaneSorter, leaders
 from .overtakes import OvertakeTracker
 from .physics import Physics, headings
 from .randomness import draw_uniforms
-from .rewards import Rewards, StepFacts
+from .rewards import Rewards
 from .road import Road
 from .sensors.base import Scene, Sensor, SensorFacts, SensorSpace
 from .spawning import Spawner
@@ -45,22 +45,6 @@ from .traffic.manoeuvres import RandomManoeuvres
 from .vehicles import VehicleKinds
 
 MAX_AGENTS_PER_LANE = 4
-
-
-@dataclass(frozen=True)
-class StepResult:
-    """What one decision produced, per arena and agent: (A, N) unless noted."""
-
-    reward: np.ndarray  # float64
-    reward_terms: dict[str, np.ndarray]  # name -> float64, in the preset's order
-    terminated: np.ndarray  # bool: collided
-    truncated: np.ndarray  # bool: the episode reached its decision limit
-    action_applied: np.ndarray  # int64: the action actually taken (refused -> keep)
-
-    @property
-    def ended(self) -> np.ndarray:
-        """(A, N) bool: episodes that ended (with an autoreset, they restart next round)."""
-        return self.terminated | self.truncated
 
 
 @dataclass(frozen=True)
@@ -124,20 +108,12 @@ class HighwaySim:
         # The state holds the agents' warnings (worked out once per decision) where the reward
         # needs them; otherwise a sensor that reads them works them out when it observes.
         self.keeps_warnings = self.rewards.needs_warnings
-        # The agents' recent actions are kept where the reward or a sensor reads them.
-        self.keeps_recent_actions = (
-            self.rewards.needs_recent_actions or config.action_history.enabled
-        )
-        # Ho's speed steps: each frame's speed commands come from the decision's actions.
-        self.speed_steps = self.physics.speed_steps
         self.sensors: list[Sensor] = [
             section.build(config)
             for section in config.sensor_sections().values()
             if section.enabled
         ]
-        self._lanes = LaneSorter(road.lane_count)
-        # Whether some lane change ends within its first frame (see _advance).
-        self.instant_changes = bool((kinds.change_duration <= self.dt).any())
+        self.decision = Decision(self)
         self.rngs = [np.random.default_rng() for _ in range(num_arenas)]
         self.state = SimState.empty(num_arenas, n, self.vehicles)
         self._needs_reset = np.ones(num_arenas, dtype=bool)
@@ -206,8 +182,8 @@ class HighwaySim:
 
     def _note_warnings(self, st: SimState) -> None:
         """Work out the warnings the agents of ``st`` are shown now, where the reward needs
-        them: with their next actions it looks back at them (:meth:`_advance`), and the
-        observation reads the same ones rather than working them out again."""
+        them: with their next actions it looks back at them (:class:`.decision.Decision`), and
+        the observation reads the same ones rather than working them out again."""
         if self.keeps_warnings:
             st.warnings[:] = self.warnings.compute(st)
 
@@ -235,94 +211,10 @@ class HighwaySim:
                 "before they can step"
             )
         st = self.state if arenas is None else self.state.select(rows)
-        result = self._advance(st, actions, draw_uniforms(self.rngs, rows, self.vehicles))
+        result = self.decision.advance(st, actions, draw_uniforms(self.rngs, rows, self.vehicles))
         if arenas is not None:
             self.state.assign(rows, st)
         return result
-
-    def _advance(self, st: SimState, actions: np.ndarray, uniforms: np.ndarray) -> StepResult:
-        n = self.agents
-        # What the agents were warned of when they chose (the observation they acted on).
-        warned = st.warnings.copy() if self.keeps_warnings else None
-        started, applied = self.actions.apply(st, actions)
-        alternated = self._remember_actions(st, applied)
-        commands = (None, None) if self.speed_steps is None else self.speed_steps.commands(actions)
-        random_movers = self.manoeuvres.decide(st, uniforms)
-        params = self.kinds.params(st.kind)
-        collided = np.zeros((st.x_m.shape[0], n), dtype=bool)
-        brakes = np.zeros((st.x_m.shape[0], n), dtype=bool)
-        # Who follows whom is sorted out once per decision. Within a decision lanes only lose
-        # members (changes that finish), so a frame-0 leader is never farther than the true
-        # one: keeping it for the decision's frames is conservative. Traffic that starts a
-        # change at frame 0 is seen in its new lane from the next decision: 0.3 s at most,
-        # less than a driver's reaction time, while it has moved sideways by under 2 cm. A
-        # lane change done within one frame (Ho's) moves a car wholly into its new lane on
-        # frame 0: who follows whom is sorted out again after it, where some car did.
-        index = self._lanes.build(st.x_m - st.x_m[:, :1], st.lane, st.target_lane, st.active)
-        lead, valid = leaders(index)
-        lanes_before = st.lane.copy() if self.instant_changes and self.frames > 1 else None
-        for frame in range(self.frames):
-            self.physics.frame(
-                st,
-                params,
-                lead,
-                valid,
-                collided,
-                brakes,
-                mobil_index=index if frame == 0 else None,
-                random_movers=random_movers,
-                speed_command=commands[0] if frame == 0 else commands[1],
-            )
-            if frame == 0 and lanes_before is not None and (st.lane != lanes_before).any():
-                x_rel = st.x_m - st.x_m[:, :1]
-                index = self._lanes.build(x_rel, st.lane, st.target_lane, st.active)
-                lead, valid = leaders(index)
-        gained, undone, passed = self.tracker.track(st)
-        self.spawner.recycle(st, uniforms)
-        self._note_warnings(st)
-        st.decisions += 1
-        st.agent_decisions += 1
-        reward, terms = self.rewards.compute(
-            StepFacts(
-                speed_mps=st.speed_mps[:, :n],
-                collided=collided,
-                lane_change_started=started,
-                overtakes=gained,
-                overtakes_undone=undone,
-                passed_by=passed,
-                against_warning=(
-                    self.actions.against_warnings(actions, warned)
-                    if warned is not None
-                    else np.zeros_like(collided)
-                ),
-                alternated=np.zeros_like(collided) if alternated is None else alternated,
-                applied=applied,
-            )
-        )
-        truncated = self.episodes.close_decision(
-            st, reward, started, collided, gained - undone, brakes
-        )
-        return StepResult(
-            reward=reward,
-            reward_terms=terms,
-            terminated=collided,
-            truncated=truncated & ~collided,
-            action_applied=applied,
-        )
-
-    def _remember_actions(self, st: SimState, applied: np.ndarray) -> np.ndarray | None:
-        """Push the decision's applied actions onto the agents' recent actions, where they are
-        kept; returns which agents changed lanes opposite to a change among the recent ones
-        (Ho's alternation), or None where they are not kept."""
-        if not self.keeps_recent_actions:
-            return None
-        recent = st.recent_actions
-        alternated = ((applied == LANE_LEFT) & (recent == LANE_RIGHT).any(axis=-1)) | (
-            (applied == LANE_RIGHT) & (recent == LANE_LEFT).any(axis=-1)
-        )
-        recent[..., :-1] = recent[..., 1:]
-        recent[..., -1] = applied
-        return alternated
 
     # --- what agents see ------------------------------------------------------------------------
 

@@ -77,7 +77,7 @@ class Planner:
         heeded (the preset's reward has no warning term)."""
         st, n = sim.state, sim.agents
         below = st.speed_mps[:, :n] < self.limit_mps - 1e-3
-        if sim.speed_steps is None:
+        if sim.physics.speed_steps is None:
             warnings = st.warnings if sim.keeps_warnings else sim.warnings.compute(st)
             below &= ~warnings[..., DriverWarnings.FORWARD]
         return np.where(below, CRUISE_UP, KEEP).astype(np.int64)
