@@ -73,9 +73,34 @@ def _sources(folder: str) -> list[Path]:
     return sorted((ROOT / folder).rglob("*.py"))
 
 
-def test_the_package_folders_exist_and_hold_code():
-    for folder in FOLDERS:
+def test_each_folder_is_its_overtake_package_and_nothing_else_is():
+    """pyproject maps each folder to ``overtake.<name>``, and a fresh interpreter (run from
+    elsewhere than the checkout) imports each from its folder; ``import <folder>`` alone
+    finds nothing: user code never writes ``import client``."""
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
+    mapped = project["tool"]["setuptools"]["package-dir"]
+    assert mapped == {f"overtake.{name}": folder for name, folder in FOLDERS.items()}
+    probe = (
+        "import importlib, importlib.util, json\n"
+        f"names = {sorted(FOLDERS)!r}\n"
+        "print(json.dumps({\n"
+        "    'files': {n: importlib.import_module('overtake.' + n).__file__ for n in names},\n"
+        "    'bare': [n for n in names if importlib.util.find_spec(n) is not None],\n"
+        "}))\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", probe],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+        cwd="/",
+    ).stdout
+    found = json.loads(out.strip().splitlines()[-1])
+    for name, folder in FOLDERS.items():
         assert _sources(folder), f"no Python files under {folder}/"
+        assert Path(found["files"][name]).resolve() == (ROOT / folder / "__init__.py").resolve()
+    assert found["bare"] == [], f"importable without overtake.: {found['bare']}"
 
 
 @pytest.mark.parametrize("package", sorted(ALLOWED))
@@ -205,3 +230,59 @@ def test_clients_and_trainers_read_the_behaviour_spec_not_the_servers_configurat
                 if "sim_config[" in line or "sim_config.get(" in line:
                     reads.append(f"{path.relative_to(ROOT)}:{number}: {line.strip()}")
     assert not reads, "read the behaviour spec instead:\n" + "\n".join(reads)
+
+
+def _runtime_imports(path: Path, modules: set[str]) -> set[str]:
+    """The project's modules ``path`` imports when it runs (local imports included, the
+    ``if TYPE_CHECKING:`` ones not; a module's own packages, already loaded, not)."""
+    module = _module_name(path)
+    tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+    typing_only = {
+        id(child)
+        for node in ast.walk(tree)
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test)
+        for child in ast.walk(node)
+    }
+    names = set()
+    for node in ast.walk(tree):
+        if id(node) in typing_only or not isinstance(node, (ast.Import, ast.ImportFrom)):
+            continue
+        names |= {name for name, line in _imports_of_node(path, node)}
+    return {
+        name
+        for name in names
+        if name in modules and name != module and not module.startswith(name + ".")
+    }
+
+
+def _imports_of_node(path: Path, node: ast.Import | ast.ImportFrom) -> list[tuple[str, int]]:
+    """What one import statement of ``path`` names (as :func:`_imports` reads it)."""
+    module = _module_name(path)
+    package = module if path.name == "__init__.py" else module.rsplit(".", 1)[0]
+    if isinstance(node, ast.Import):
+        return [(alias.name, node.lineno) for alias in node.names]
+    if node.level:
+        base = package.split(".")
+        name = ".".join(base[: len(base) - node.level + 1] + ([node.module] if node.module else []))
+    else:
+        name = node.module or ""
+    return [(name, node.lineno)] + [(f"{name}.{alias.name}", node.lineno) for alias in node.names]
+
+
+def test_no_module_imports_itself_back_not_even_from_inside_a_function():
+    """A cycle hidden by an import inside a function still ties two modules into one: each
+    is only half a module without the other. The import graph has none."""
+    paths = {_module_name(p): p for folder in FOLDERS.values() for p in _sources(folder)}
+    graph = {name: _runtime_imports(path, set(paths)) for name, path in paths.items()}
+    cycles = []
+    for start in graph:
+        stack, seen = [(start, [start])], set()
+        while stack:
+            node, trail = stack.pop()
+            for nxt in graph[node]:
+                if nxt == start:
+                    cycles.append(trail)
+                elif nxt not in seen:
+                    seen.add(nxt)
+                    stack.append((nxt, [*trail, nxt]))
+    assert not cycles, f"import cycles: {sorted({' -> '.join(sorted(c)) for c in cycles})}"

@@ -29,7 +29,7 @@ from .run_recording import RunRecording
 from .shielding import TrainingShield
 
 if TYPE_CHECKING:
-    from .train import TrainConfig
+    from .train_config import TrainConfig
 
 
 class TrainingRun:

@@ -10,6 +10,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+from .road_window import ROAD_AHEAD_M, ROAD_BEHIND_M
+
 # Plots of the episodes and of learning, one per quantity (title, the series in it): a run
 # keeps its colour in every plot, so one plot holding two quantities could not tell them apart.
 EPISODE_PLOTS: tuple[tuple[str, tuple[str, ...]], ...] = (
@@ -84,8 +86,6 @@ def car_layout(
     rest (an episode's events); ``show_q_values``: whether a network's Q-values are there to show
     (not where a rule drove, or recorded actions are played without their network)."""
     import rerun.blueprint as rrb
-
-    from .world_view import ROAD_AHEAD_M, ROAD_BEHIND_M
 
     car_root = root or f"/trainer/{run}/env0"
     plots = [

@@ -40,6 +40,9 @@ from overtake.protocol.messages import WorldFrame
 from overtake.protocol.vocabulary import ACTION_NAMES, BEHAVIOUR_COLOURS, BEHAVIOUR_NAMES
 from overtake.protocol.vocabulary import AGENT_COLOUR as AGENT_RGB
 
+from .road_window import ROAD_AHEAD_M, ROAD_BEHIND_M
+from .training_layout import curves_layout, key_curves_layout
+
 log = logging.getLogger("overtake.viz")
 
 # The vocabulary's colours: one per behaviour, and the agents' red.
@@ -54,10 +57,6 @@ ACTION_COLOURS = np.array(
 assert len(ACTION_COLOURS) == len(ACTION_NAMES)
 LANE_COLOUR = [200, 200, 200]
 HALF_SIZE_M = (2.25, 0.9)  # the default car, for frames of peers before protocol 1.2
-# The road view's window around the followed car (metres): more ahead than behind, as a
-# driver looks. At 950 px wide a car is about 35 px long.
-ROAD_BEHIND_M = 40.0
-ROAD_AHEAD_M = 80.0
 # Lane lines are drawn this far behind and ahead of the followed car: beyond the road view's
 # window, which a wide, low view (an overview of many arenas) shows more of.
 LINES_BEHIND_M = 150.0
@@ -217,8 +216,6 @@ def world_blueprint(
     the recording a line in each. A live viewer shows the layout it received last, and the
     roads' (sent as arenas open, after the trainers have started) then shows everything."""
     import rerun.blueprint as rrb
-
-    from .training_layout import curves_layout, key_curves_layout
 
     roads = [road_view(s, f"{s.server} arena {s.arena}") for s in shapes]
     arenas = [arena_layout(s, f"{s.server} arena {s.arena}") for s in shapes]

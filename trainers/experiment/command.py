@@ -14,7 +14,7 @@ import tyro
 
 from overtake.client.commands import UsageError, run_command
 
-from ..train import TrainConfig
+from ..train_config import TrainConfig
 from .catalogue import ALGO_NAMES, EXPERIMENTS, INPUT_NAMES, ExperimentError
 from .evidence import keep_evidence
 from .files import LOCK_NAME, PLAN_NAME, lock, read_json, say, write_atomic

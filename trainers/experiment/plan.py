@@ -20,7 +20,7 @@ from overtake.viz.recording import RecordingConfig
 from ..checkpoint import plain_data
 from ..evaluate import EvalConfig
 from ..learner import execution_device
-from ..train import TrainConfig
+from ..train_config import TrainConfig
 from .catalogue import EXPERIMENTS, Density, Experiment, Row, Schedule
 
 
