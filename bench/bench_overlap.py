@@ -64,7 +64,7 @@ def make_actor(env: Any, inputs: str, seed: int = 0) -> Any:
 
     from overtake.client.frames import FrameStacker
     from overtake.protocol.vocabulary import ACTION_COUNT
-    from overtake.trainers.learner import DQNConfig, DQNLearner
+    from overtake.trainers.learner import ALGOS, DQNConfig, DQNLearner
     from overtake.trainers.network import INPUT_SENSORS, NetworkShape
     from overtake.trainers.observations import frame_shapes
 
@@ -72,7 +72,7 @@ def make_actor(env: Any, inputs: str, seed: int = 0) -> Any:
     dqn = DQNConfig()
     torch.manual_seed(seed)
     shape = NetworkShape.from_space(space, ACTION_COUNT, dqn.stack)
-    learner = DQNLearner(shape, inputs, dqn, double=True, dueling=False, device="cpu")
+    learner = DQNLearner(shape, inputs, dqn, ALGOS["ddqn"], device="cpu")
     shapes = frame_shapes(space, inputs, "bench")
     stacker = FrameStacker(env.num_envs, shapes, dqn.stack, INPUT_SENSORS[inputs])
     return learner, stacker

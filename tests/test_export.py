@@ -38,22 +38,30 @@ SMALL = [
 ]  # fmt: skip
 
 
+# Three small runs: Min et al.'s camera + LIDAR network (convolutions and an LSTM), Ho's
+# network on the occupancy grid, and QR-DQN (a quantile head, its Q-values the quantiles' mean).
+RUNS = {
+    "min2018": ("min2018", ["--inputs", "both"]),
+    "ho2018": ("ho2018", ["--inputs", "grid"]),
+    "qr": ("min2018", ["--inputs", "lidar", "--algo", "qr", "--quantiles", "11"]),
+}
+
+
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
-    """Two small runs: Min et al.'s camera + LIDAR network (convolutions and an LSTM) and Ho's
-    network on the occupancy grid."""
     runs = {}
-    for preset, inputs in (("min2018", "both"), ("ho2018", "grid")):
-        run_dir = tmp_path_factory.mktemp(preset) / "run"
-        train_cli(["--preset", preset, "--inputs", inputs, "--run-dir", str(run_dir), *SMALL])
-        runs[preset] = run_dir
+    for name, (preset, options) in RUNS.items():
+        run_dir = tmp_path_factory.mktemp(name) / "run"
+        train_cli(["--preset", preset, *options, "--run-dir", str(run_dir), *SMALL])
+        runs[name] = run_dir
     return runs
 
 
 @pytest.mark.timeout(300)
-@pytest.mark.parametrize("preset", ["min2018", "ho2018"])
-def test_the_exported_model_matches_pytorch_and_drives_as_it_does(trained, preset, tmp_path):
-    checkpoint = trained[preset] / CHECKPOINT_NAME
+@pytest.mark.parametrize("run", sorted(RUNS))
+def test_the_exported_model_matches_pytorch_and_drives_as_it_does(trained, run, tmp_path):
+    preset = RUNS[run][0]
+    checkpoint = trained[run] / CHECKPOINT_NAME
     out = tmp_path / "policy.onnx"
     report = export(ExportConfig(checkpoint=checkpoint, out=out, check_decisions=40))
     assert report["max_abs_diff"] <= 1e-4 and report["same_actions"] == 1.0

@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from overtake.trainers.grid_network import GridNetworkShape, GridQNetwork
+from overtake.trainers.heads import HeadSpec
 
 SHAPE = GridNetworkShape(grid_hw=(36, 3), action_history=4, actions=5, stack=4)
 
@@ -31,7 +32,8 @@ def inputs(batch: int = 6, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
 @pytest.mark.parametrize("dueling", [False, True])
 def test_q_values_per_action(kind, dueling):
     grid, actions = inputs()
-    q = GridQNetwork(SHAPE, kind, dueling)(grid, actions)
+    head = HeadSpec("dueling" if dueling else "plain")
+    q = GridQNetwork(SHAPE, kind, head=head)(grid, actions)
     assert q.shape == (6, 5) and torch.isfinite(q).all()
 
 

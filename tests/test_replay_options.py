@@ -68,15 +68,15 @@ def test_n_step_returns_stop_at_terminations_time_limits_and_the_newest_frame():
     batch = replay.sample(400)
     seen = set()
     for i in range(400):
-        e, s = (int(v) for v in batch["lidar"][i, -1])
+        e, s = (int(v) for v in batch.obs["lidar"][i, -1])
         length, terminated = episodes[e]
         m = min(n, length - s)  # the window stops at the episode's last transition
         expected = sum(gamma**k * (s + k + 1) for k in range(m))
-        assert batch["steps"][i] == m
-        assert batch["reward"][i] == pytest.approx(expected)
-        assert bool(batch["terminated"][i]) == (terminated and s + m == length)
+        assert batch.steps[i] == m
+        assert batch.reward[i] == pytest.approx(expected)
+        assert bool(batch.terminated[i]) == (terminated and s + m == length)
         # The next state is the one m steps on, in the same episode.
-        assert batch["next_lidar"][i, -1].tolist() == [e, s + m]
+        assert batch.next_obs["lidar"][i, -1].tolist() == [e, s + m]
         seen.add((e, s))
     # Every transition was drawn: the windows at each kind of end were all checked.
     assert seen == {(e, s) for e, (length, _) in enumerate(episodes) for s in range(length)}
@@ -86,9 +86,9 @@ def test_one_step_returns_are_the_replay_of_before():
     one = ReplayMemory(100, 1, SHAPES, 2, ("lidar",), seed=4)
     play(one, [(6, True), (3, False)])
     batch = one.sample(50)
-    assert (batch["steps"] == 1).all()
-    assert (batch["reward"] == batch["lidar"][:, -1, 1] + 1).all()
-    assert "weight" not in batch and "index" not in batch
+    assert (batch.steps == 1).all()
+    assert (batch.reward == batch.obs["lidar"][:, -1, 1] + 1).all()
+    assert batch.weight is None and batch.leaves is None
 
 
 def test_prioritized_replay_draws_by_priority_and_weighs_by_importance():
@@ -96,18 +96,18 @@ def test_prioritized_replay_draws_by_priority_and_weighs_by_importance():
     play(replay, [(10, True)])
     # New transitions come in at the largest priority so far: all alike at first.
     first = replay.sample(2000, beta=1.0)
-    assert np.allclose(first["weight"], 1.0)
+    assert first.weight is not None and np.allclose(first.weight, 1.0)
     # Transition 3 (from step 3) gets a large TD error, the others a small one.
     leaves = np.arange(10)
     error = np.where(leaves == 3, 10.0, 0.1)
     replay.update_priorities(leaves, error)
     batch = replay.sample(5000, beta=1.0)
-    step = batch["lidar"][:, -1, 1].astype(int)
+    step = batch.obs["lidar"][:, -1, 1].astype(int)
     p = (error + replay.priority_eps) ** replay.priority_alpha
     assert abs(np.mean(step == 3) - p[3] / p.sum()) < 0.02
     # Importance weights undo the skew: (N P)^-beta over the batch's largest.
-    assert batch["weight"][step == 3].max() < batch["weight"][step != 3].min()
-    assert batch["weight"].max() == pytest.approx(1.0)
+    assert batch.weight[step == 3].max() < batch.weight[step != 3].min()
+    assert batch.weight.max() == pytest.approx(1.0)
     # A transition overwritten since it was drawn keeps its 0.
     assert replay.tree is not None
     replay.tree.update(np.array([5]), np.array([0.0]))
@@ -165,7 +165,7 @@ def test_a_checkpoint_carries_the_options_and_a_resume_restores_the_priorities(t
 def test_the_update_discounts_by_the_windows_steps_and_weighs_by_importance():
     from test_trainers import random_obs, reward_three_for_action_two, small_shape
 
-    from overtake.trainers.learner import DQNConfig, DQNLearner
+    from overtake.trainers.learner import ALGOS, DQNConfig, DQNLearner
 
     shape = small_shape()
     config = DQNConfig(lstm_cells=8, hidden_units=16, learning_rate=0.01, gamma=0.9)
@@ -174,8 +174,8 @@ def test_the_update_discounts_by_the_windows_steps_and_weighs_by_importance():
 
     def loss(**extra) -> tuple[float, DQNLearner]:
         torch.manual_seed(0)
-        learner = DQNLearner(shape, "lidar", config, double=False, dueling=False)
-        return learner.update({**batch, **extra})["loss"], learner
+        learner = DQNLearner(shape, "lidar", config, ALGOS["dqn"])
+        return learner.update(batch._replace(**extra))["loss"], learner
 
     one, _ = loss()
     assert loss(steps=np.ones(32, dtype=np.int64))[0] == one  # 1 step: the one-step target
@@ -185,8 +185,8 @@ def test_the_update_discounts_by_the_windows_steps_and_weighs_by_importance():
     # returns every sample's TD error for its new priority.
     zero, learner = loss(weight=np.zeros(32, np.float32))
     torch.manual_seed(0)
-    untouched = DQNLearner(shape, "lidar", config, double=False, dueling=False)
+    untouched = DQNLearner(shape, "lidar", config, ALGOS["dqn"])
     assert zero == 0.0
     assert np.allclose(learner.q_values(obs), untouched.q_values(obs))
-    stats = learner.update({**batch, "weight": np.ones(32, np.float32)})
+    stats = learner.update(batch._replace(weight=np.ones(32, np.float32)))
     assert stats["td_error"].shape == (32,) and (stats["td_error"] >= 0).all()

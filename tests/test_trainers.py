@@ -20,15 +20,11 @@ from overtake.trainers.checkpoint import CHECKPOINT_NAME, CheckpointError, load_
 from overtake.trainers.evaluate import EvalConfig
 from overtake.trainers.evaluate import cli as evaluate_cli
 from overtake.trainers.evaluate import main as evaluate
-from overtake.trainers.learner import (
-    DQNConfig,
-    DQNLearner,
-    execution_device,
-    masked,
-    td_target,
-)
-from overtake.trainers.network import NetworkShape, QNetwork, dueling_q
-from overtake.trainers.replay import FrameShapes, FrameStacker, ReplayMemory
+from overtake.trainers.heads import HeadSpec, dueling_q
+from overtake.trainers.learner import ALGOS, DQNConfig, DQNLearner, execution_device
+from overtake.trainers.network import NetworkShape, QNetwork
+from overtake.trainers.objectives import masked, td_target
+from overtake.trainers.replay import FrameShapes, FrameStacker, ReplayBatch, ReplayMemory
 from overtake.trainers.train import TrainConfig
 from overtake.trainers.train import cli as train_cli
 from overtake.trainers.train import main as train
@@ -93,11 +89,11 @@ def random_obs(shape: NetworkShape, batch: int, rng: np.random.Generator) -> dic
 def test_dueling_network_output_is_value_plus_centred_advantage(inputs):
     torch.manual_seed(0)
     shape = small_shape()
-    net = QNetwork(shape, inputs, dueling=True, lstm_cells=16, hidden=32)
+    net = QNetwork(shape, inputs, head=HeadSpec("dueling"), lstm_cells=16, hidden=32)
     obs = random_obs(shape, 3, np.random.default_rng(0))
     seen: dict[str, torch.Tensor] = {}
-    net.value.register_forward_hook(lambda _m, _i, out: seen.__setitem__("v", out))
-    net.advantage.register_forward_hook(lambda _m, _i, out: seen.__setitem__("a", out))
+    net.head.value.register_forward_hook(lambda _m, _i, out: seen.__setitem__("v", out))
+    net.head.advantage.register_forward_hook(lambda _m, _i, out: seen.__setitem__("a", out))
     q = net(
         torch.as_tensor(obs["camera"]), torch.as_tensor(obs["lidar"]), torch.as_tensor(obs["ego"])
     )
@@ -139,14 +135,12 @@ def test_paper_network_has_the_table_ii_layers():
     ]
     assert (net.lstm.input_size, net.lstm.hidden_size) == (360, 256)
     assert net.fuse[0].in_features == 64 * 7 * 7 + 256 + 6 and net.fuse[0].out_features == 512
-    assert net.q.out_features == 5
+    assert net.head.q_layer.out_features == 5
 
 
 def test_acting_never_picks_a_masked_action():
     shape = small_shape()
-    learner = DQNLearner(
-        shape, "lidar", DQNConfig(lstm_cells=8, hidden_units=16), double=True, dueling=False
-    )
+    learner = DQNLearner(shape, "lidar", DQNConfig(lstm_cells=8, hidden_units=16), ALGOS["ddqn"])
     rng = np.random.default_rng(0)
     obs = random_obs(shape, 64, rng)
     q = learner.q_values(obs)
@@ -173,24 +167,25 @@ def test_epsilon_falls_linearly_then_stays():
     assert [round(config.epsilon(s), 6) for s in (0, 50, 100, 1000)] == [1.0, 0.55, 0.1, 0.1]
 
 
-def reward_three_for_action_two(obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+def reward_three_for_action_two(obs: dict[str, np.ndarray]) -> ReplayBatch:
     """A replay batch of 32 one-step episodes: action 2 taken, reward 3, nothing after (with
     gamma 0, Q of action 2 should go to 3)."""
-    return {
-        **obs,
-        **{"next_" + k: v for k, v in obs.items()},
-        "action": np.full(32, 2),
-        "reward": np.full(32, 3.0, dtype=np.float32),
-        "terminated": np.zeros(32, dtype=bool),
-        "next_mask": np.ones((32, 5), np.int8),
-    }
+    return ReplayBatch(
+        obs=obs,
+        next_obs=obs,
+        action=np.full(32, 2),
+        reward=np.full(32, 3.0, dtype=np.float32),
+        terminated=np.zeros(32, dtype=bool),
+        steps=np.ones(32, dtype=np.int64),
+        next_mask=np.ones((32, 5), np.int8),
+    )
 
 
 def test_update_moves_q_towards_the_target():
     torch.manual_seed(0)
     shape = small_shape()
     config = DQNConfig(lstm_cells=8, hidden_units=16, learning_rate=0.01, gamma=0.0)
-    learner = DQNLearner(shape, "lidar", config, double=False, dueling=False)
+    learner = DQNLearner(shape, "lidar", config, ALGOS["dqn"])
     obs = random_obs(shape, 32, np.random.default_rng(2))
     batch = reward_three_for_action_two(obs)
     before = learner.q_values(obs)[:, 2].mean()
@@ -222,8 +217,8 @@ def test_bf16_runs_the_forward_passes_in_bf16_and_keeps_float32_weights(inputs):
     shape = small_shape()
     config = DQNConfig(lstm_cells=8, hidden_units=16, learning_rate=0.01, gamma=0.0)
     torch.manual_seed(0)
-    full = DQNLearner(shape, inputs, config, double=True, dueling=False)
-    mixed = DQNLearner(shape, inputs, config, double=True, dueling=False, precision="bf16")
+    full = DQNLearner(shape, inputs, config, ALGOS["ddqn"])
+    mixed = DQNLearner(shape, inputs, config, ALGOS["ddqn"], precision="bf16")
     mixed.load_state_dict(full.state_dict())
     obs = random_obs(shape, 32, np.random.default_rng(3))
     q_full, q_mixed = full.q_values(obs), mixed.q_values(obs)
@@ -249,9 +244,7 @@ def test_bf16_runs_the_forward_passes_in_bf16_and_keeps_float32_weights(inputs):
 def test_fp16_learns_with_loss_scaling_and_its_scale_survives_a_checkpoint():
     shape = small_shape()
     config = DQNConfig(lstm_cells=8, hidden_units=16, learning_rate=0.01, gamma=0.0)
-    learner = DQNLearner(
-        shape, "both", config, double=True, dueling=True, device="cuda", precision="fp16"
-    )
+    learner = DQNLearner(shape, "both", config, ALGOS["dueling"], device="cuda", precision="fp16")
     obs = random_obs(shape, 32, np.random.default_rng(3))
     batch = reward_three_for_action_two(obs)
     before = learner.q_values(obs)[:, 2].mean()
@@ -259,9 +252,7 @@ def test_fp16_learns_with_loss_scaling_and_its_scale_survives_a_checkpoint():
         assert np.isfinite(learner.update(batch)["loss"])
     assert abs(learner.q_values(obs)[:, 2].mean() - 3.0) < 0.15 < abs(before - 3.0)
     state = learner.state_dict()
-    restored = DQNLearner(
-        shape, "both", config, double=True, dueling=True, device="cuda", precision="fp16"
-    )
+    restored = DQNLearner(shape, "both", config, ALGOS["dueling"], device="cuda", precision="fp16")
     restored.load_state_dict(state)
     assert restored.scaler.get_scale() == learner.scaler.get_scale()
 
@@ -322,7 +313,7 @@ def test_replay_rebuilds_stacks_within_episodes_and_matches_the_stacker():
     assert len(replay) == 2 + 7 + 5 + 9 + 1 + 3
     batch = replay.sample(500)
     for i in range(500):
-        now, nxt = batch["lidar"][i], batch["next_lidar"][i]
+        now, nxt = batch.obs["lidar"][i], batch.next_obs["lidar"][i]
         env, episode, step = (int(v) for v in now[-1])
         # Every frame of a stack is of the same env and episode; before the episode's start
         # the first frame repeats.
@@ -332,30 +323,30 @@ def test_replay_rebuilds_stacks_within_episodes_and_matches_the_stacker():
         assert (nxt[:, :2] == now[:, :2]).all()  # never across a boundary
         assert np.array_equal(now, stacks[(env, episode, step)])
         assert np.array_equal(nxt, stacks[(env, episode, step + 1)])
-        assert batch["action"][i] == (step + 1) % 5 and batch["reward"][i] == step + 1
-        assert batch["ego"][i].tolist() == [episode, step]  # unstacked: the latest
-        assert batch["next_ego"][i].tolist() == [episode, step + 1]
+        assert batch.action[i] == (step + 1) % 5 and batch.reward[i] == step + 1
+        assert batch.obs["ego"][i].tolist() == [episode, step]  # unstacked: the latest
+        assert batch.next_obs["ego"][i].tolist() == [episode, step + 1]
         length = {0: [2, 7, 5], 1: [9, 1, 3]}[env][episode]
-        assert batch["terminated"][i] == (step + 1 == length)
+        assert batch.terminated[i] == (step + 1 == length)
 
 
 def test_truncated_episode_ends_are_not_terminal_and_never_followed_across():
     replay = ReplayMemory(100, 1, SHAPES, 4, ("lidar",), seed=1)
     fill(replay, None, {0: [3, 3]}, terminate=False)
     batch = replay.sample(200)
-    assert not batch["terminated"].any()
-    assert (batch["next_lidar"][:, -1, 1] == batch["lidar"][:, -1, 1]).all()
+    assert not batch.terminated.any()
+    assert (batch.next_obs["lidar"][:, -1, 1] == batch.obs["lidar"][:, -1, 1]).all()
 
 
 def test_replay_ring_never_samples_overwritten_frames():
     replay = ReplayMemory(12, 1, SHAPES, 4, ("lidar",), seed=2)
     fill(replay, None, {0: [30]})  # 31 frames through a ring of 12
     batch = replay.sample(300)
-    steps = batch["lidar"][:, :, 2]
+    steps = batch.obs["lidar"][:, :, 2]
     # The ring holds steps 19..30; a stack needs its 3 predecessors, the transition its next.
-    assert steps.min() >= 19 and batch["next_lidar"][:, -1, 2].max() <= 30
+    assert steps.min() >= 19 and batch.next_obs["lidar"][:, -1, 2].max() <= 30
     assert (np.diff(steps, axis=1) == 1).all()
-    assert set(batch["lidar"][:, -1, 2].astype(int).tolist()) == set(range(22, 30))
+    assert set(batch.obs["lidar"][:, -1, 2].astype(int).tolist()) == set(range(22, 30))
 
 
 def test_replay_refuses_to_sample_when_empty_and_to_add_before_start():
@@ -398,7 +389,12 @@ def test_replay_save_and_load_round_trip(tmp_path):
     other.load(tmp_path / "replay.npz")
     assert len(other) == len(replay)
     a, b = replay.sample(50), other.sample(50)
-    assert all(np.array_equal(a[k], b[k]) for k in a)
+    for part, again in zip(a, b, strict=True):
+        if isinstance(part, dict):
+            assert part.keys() == again.keys()
+            assert all(np.array_equal(part[k], again[k]) for k in part)
+        else:
+            assert (part is None and again is None) or np.array_equal(part, again)
     with pytest.raises(ValueError, match="same capacity"):
         ReplayMemory(80, 2, SHAPES, 4, ("lidar",)).load(tmp_path / "replay.npz")
 
@@ -572,7 +568,7 @@ def test_checkpoint_round_trip_and_resume_continue_the_step_count(tmp_path):
         "ego": np.zeros((3, 6), np.float32),
     }
     restored = checkpoint.make_learner()
-    assert restored.dueling and restored.double
+    assert restored.algo == ALGOS["dueling"] and restored.double
     assert restored.updates == first["updates"]
 
     # Running again without --resume refuses to overwrite the run.
@@ -681,8 +677,8 @@ def test_each_life_of_a_run_says_what_it_restored_and_a_bare_network_resumes(tmp
 
 def test_a_bare_network_restores_its_target_as_a_copy_of_it():
     shape, config = small_shape(), DQNConfig(lstm_cells=8, hidden_units=16)
-    learner = DQNLearner(shape, "lidar", config, double=True, dueling=False)
-    other = DQNLearner(shape, "lidar", config, double=True, dueling=False)
+    learner = DQNLearner(shape, "lidar", config, ALGOS["ddqn"])
+    other = DQNLearner(shape, "lidar", config, ALGOS["ddqn"])
     restored = other.load_state_dict({"online": learner.online.state_dict()})
     assert restored == {"target": False, "optimizer": False}
     for a, b in zip(other.target.parameters(), learner.online.parameters(), strict=True):
@@ -780,7 +776,7 @@ SMOKE_DQN = dict(
 )
 
 
-@pytest.mark.parametrize("algo", ["dqn", "ddqn", "dueling"])
+@pytest.mark.parametrize("algo", ["dqn", "ddqn", "dueling", "qr"])
 def test_each_algorithm_trains_in_process_and_its_checkpoint_evaluates(tmp_path, algo):
     run_dir = tmp_path / algo
     summary = train(
@@ -819,7 +815,7 @@ def test_each_algorithm_trains_in_process_and_its_checkpoint_evaluates(tmp_path,
     assert json.loads((tmp_path / "eval.json").read_text())["name"].startswith(f"{algo}/both")
 
 
-@pytest.mark.parametrize("algo", ["dqn", "ddqn", "dueling"])
+@pytest.mark.parametrize("algo", ["dqn", "ddqn", "dueling", "qr"])
 def test_each_algorithm_trains_against_a_real_server(tmp_path, start_server, algo):
     server = start_server(f"train-{algo}")
     summary = train(

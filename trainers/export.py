@@ -64,7 +64,8 @@ class ExportConfig:
 
 
 class UsedInputs(nn.Module):
-    """The Q-network with only the inputs it reads, in its own order (ONNX has no None)."""
+    """The Q-network with only the inputs it reads, in its own order (ONNX has no None), and
+    its head's output read as Q-values (a quantile head's means)."""
 
     def __init__(self, network: nn.Module) -> None:
         super().__init__()
@@ -76,7 +77,8 @@ class UsedInputs(nn.Module):
 
     def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
         given = dict(zip(self.names, inputs, strict=True))
-        return self.network(*(given.get(name) for name in self.all_names))
+        head: Any = self.network.head  # every Q-network ends in a head
+        return head.q(self.network(*(given.get(name) for name in self.all_names)))
 
 
 def policy_metadata(checkpoint: Checkpoint, names: tuple[str, ...]) -> dict[str, Any]:

@@ -9,8 +9,8 @@
   code feeds them) through two dense layers of 4 units with ReLU; both concatenated, a dense
   layer of 100 units with ReLU, then the Q-values.
 
-With ``dueling`` the last layer becomes a value and an advantage head (Wang et al.), combined as
-in :func:`~.network.dueling_q`; Ho used plain Q-values. Grids arrive as the simulator sends
+The last layer is the head a :class:`~.heads.HeadSpec` names (Ho used plain Q-values; dueling
+streams or QR-DQN's quantiles are options, :mod:`.heads`). Grids arrive as the simulator sends
 them (int8: -1 off the road, 0 free, 1 occupied) and are read as numbers unchanged.
 """
 
@@ -22,7 +22,7 @@ from typing import Literal
 import torch
 from torch import nn
 
-from .network import q_head
+from .heads import PLAIN, HeadSpec
 
 GridNetworkKind = Literal["baseline", "proposed"]
 GRID_NETWORKS: tuple[str, ...] = ("baseline", "proposed")
@@ -56,18 +56,21 @@ def _pooled(size: int) -> int:
 
 
 class GridQNetwork(nn.Module):
-    """Q-values (B, actions) from stacked grids (B, S, cells, lanes) and the action stack (B, K)."""
+    """The head's output from stacked grids (B, S, cells, lanes) and the action stack (B, K)."""
 
     # The observations forward() takes, in order.
     input_names: tuple[str, ...] = ("grid", "actions")
 
     def __init__(
-        self, shape: GridNetworkShape, kind: GridNetworkKind = "proposed", dueling: bool = False
+        self,
+        shape: GridNetworkShape,
+        kind: GridNetworkKind = "proposed",
+        head: HeadSpec = PLAIN,
     ) -> None:
         super().__init__()
         if kind not in GRID_NETWORKS:
             raise ValueError(f"kind must be one of {GRID_NETWORKS}, got {kind!r}")
-        self.shape, self.kind, self.dueling = shape, kind, dueling
+        self.shape, self.kind = shape, kind
         cells, lanes = shape.grid_hw
         if kind == "baseline":
             self.conv = nn.Sequential(
@@ -97,15 +100,11 @@ class GridQNetwork(nn.Module):
             self.used_inputs = ("grid", "actions")
             self.fuse = nn.Sequential(nn.Linear(features + 4, 100), nn.ReLU())
             last = 100
-        if dueling:
-            self.value = nn.Linear(last, 1)
-            self.advantage = nn.Linear(last, shape.actions)
-        else:
-            self.q = nn.Linear(last, shape.actions)
+        self.head = head.build(last, shape.actions)
 
     def forward(self, grid: torch.Tensor, actions: torch.Tensor | None = None) -> torch.Tensor:
         hidden = self.conv(grid.float())
         if self.uses_actions:
             assert actions is not None, "the proposed network reads the action stack"
             hidden = self.fuse(torch.cat([hidden, self.action_net(actions.float())], dim=1))
-        return q_head(self, hidden)
+        return self.head(hidden)

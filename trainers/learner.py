@@ -1,16 +1,20 @@
-"""One DQN learner with ``double`` and ``dueling`` switches (Min et al. Section III).
+"""One DQN learner made of parts (Min et al. Section III): a network that ends in a Q-head
+(:mod:`.heads`), an objective that owns its TD target and loss (:mod:`.objectives`), and a
+typed replay batch (:class:`.replay.ReplayBatch`). The algorithms are settings of the parts:
 
-- DQN: target r + gamma * max_a' Q_target(s', a').
+- DQN: a plain head, the target r + gamma * max_a' Q_target(s', a').
 - Double DQN (Eq. 8): the online network chooses a' = argmax Q_online(s', a'), the target
   network values it.
-- Dueling (Eq. 9): the network's value and advantage streams (see :mod:`.network`).
+- Dueling (Eq. 9): the value and advantage streams, with the Double DQN target.
+- QR-DQN (Dabney et al. 2018; Min et al.'s public code trains it too): a quantile head and the
+  quantile Huber loss, the next action chosen as Double DQN does.
 
 Invalid actions (the action mask, e.g. a lane change with no lane on that side) are never
 chosen: not when acting (greedy or random) and not in the target's max or argmax.
-The loss is Huber's or the squared error (``loss``), gradients are clipped by norm unless
-``grad_clip_norm`` is 0, the optimiser is Adam or RMSProp (``optimizer``); a target network
-copied every ``target_update_steps`` environment steps, epsilon-greedy with a linear schedule.
-The network is each preset's (:func:`build_network`).
+The loss is Huber's or the squared error (``loss``; QR-DQN's its quantile Huber loss),
+gradients are clipped by norm unless ``grad_clip_norm`` is 0, the optimiser is Adam or RMSProp
+(``optimizer``); a target network copied every ``target_update_steps`` environment steps,
+epsilon-greedy with a linear schedule. The network is each preset's (:func:`build_network`).
 """
 
 from __future__ import annotations
@@ -25,10 +29,13 @@ import torch
 from torch import nn
 
 from .grid_network import GridNetworkKind, GridNetworkShape, GridQNetwork
+from .heads import HeadKind, HeadSpec, legacy_state
 from .network import Inputs, NetworkShape, QNetwork
+from .objectives import Objective, QuantileObjective, TDObjective, Transitions
+from .replay import ReplayBatch
 from .two_stream_network import TwoStreamQNetwork, TwoStreamShape
 
-Algo = Literal["dqn", "ddqn", "dueling"]
+Algo = Literal["dqn", "ddqn", "dueling", "qr"]
 
 Precision = Literal["fp32", "bf16", "fp16"]
 """fp32: everything in float32. bf16 / fp16: mixed precision, the networks' forward passes
@@ -37,12 +44,23 @@ stay float32; fp16 (CUDA only) also scales the loss against gradient underflow."
 
 _AUTOCAST_DTYPES = {"bf16": torch.bfloat16, "fp16": torch.float16}
 
-# The algorithms as switch settings. Dueling uses the double target as well, as Wang et al.
-# (2016) did and as Min et al.'s code does (Double + Dueling DQN).
-ALGOS: dict[str, tuple[bool, bool]] = {
-    "dqn": (False, False),
-    "ddqn": (True, False),
-    "dueling": (True, True),
+
+@dataclass(frozen=True)
+class AlgoSpec:
+    """An algorithm as settings of the learner's parts: the Double DQN target's choice (the
+    online network picks the next action) and the network's head."""
+
+    double: bool
+    head: HeadKind
+
+
+# Dueling uses the double target as well, as Wang et al. (2016) did and as Min et al.'s code
+# does (Double + Dueling DQN); so does QR-DQN, as their QR-DQN code does.
+ALGOS: dict[str, AlgoSpec] = {
+    "dqn": AlgoSpec(double=False, head="plain"),
+    "ddqn": AlgoSpec(double=True, head="plain"),
+    "dueling": AlgoSpec(double=True, head="dueling"),
+    "qr": AlgoSpec(double=True, head="quantile"),
 }
 
 
@@ -99,6 +117,10 @@ class DQNConfig:
     budget (Schaul et al.'s 0.4)"""
     priority_eps: float = 1e-6
     """added to each TD error's magnitude, so that no transition is never drawn again"""
+    quantiles: int = 51
+    """QR-DQN's quantiles per action (Min et al.'s QR-DQN code: 51; Dabney et al.: 200)"""
+    quantile_kappa: float = 1.0
+    """QR-DQN's quantile Huber loss threshold (Dabney et al. and Min et al.'s code: 1)"""
 
     def __post_init__(self) -> None:
         for name in (
@@ -139,6 +161,11 @@ class DQNConfig:
                 "priority_alpha and priority_beta_start must be in [0, 1], got "
                 f"{self.priority_alpha} and {self.priority_beta_start}"
             )
+        if self.quantiles < 1 or self.quantile_kappa <= 0.0:
+            raise ValueError(
+                "quantiles must be >= 1 and quantile_kappa > 0, got "
+                f"{self.quantiles} and {self.quantile_kappa}"
+            )
         if self.priority_eps <= 0.0:
             raise ValueError(f"priority_eps must be > 0, got {self.priority_eps}")
         if not 0.0 < self.rmsprop_alpha < 1.0 or self.rmsprop_eps <= 0.0:
@@ -175,7 +202,7 @@ def build_network(
     shape: NetworkShape | GridNetworkShape | TwoStreamShape,
     inputs: Inputs,
     config: DQNConfig,
-    dueling: bool,
+    head: HeadSpec,
 ) -> nn.Module:
     """The Q-network ``config.network`` names, for ``inputs``: Min et al.'s multi-modal network
     on camera and / or LIDAR, one of Ho's on the occupancy grid, or Fayjie et al.'s two-stream
@@ -186,7 +213,7 @@ def build_network(
                 "inputs camera-map (Fayjie et al.'s camera and LIDAR map) need network "
                 f"two-stream, got network={config.network!r}"
             )
-        return TwoStreamQNetwork(shape, dueling=dueling)
+        return TwoStreamQNetwork(shape, head=head)
     if inputs == "grid":
         if config.network not in ("baseline", "proposed") or not isinstance(
             shape, GridNetworkShape
@@ -196,14 +223,14 @@ def build_network(
                 f"network={config.network!r}"
             )
         kind: GridNetworkKind = "baseline" if config.network == "baseline" else "proposed"
-        return GridQNetwork(shape, kind, dueling=dueling)
+        return GridQNetwork(shape, kind, head=head)
     if config.network != "multimodal" or not isinstance(shape, NetworkShape):
         raise ValueError(
             f"inputs {inputs} (Min et al.'s camera / LIDAR) need network multimodal, got "
             f"network={config.network!r}"
         )
     return QNetwork(
-        shape, inputs, dueling=dueling, lstm_cells=config.lstm_cells, hidden=config.hidden_units
+        shape, inputs, head=head, lstm_cells=config.lstm_cells, hidden=config.hidden_units
     )
 
 
@@ -219,33 +246,6 @@ def build_optimizer(parameters: Any, config: DQNConfig) -> torch.optim.Optimizer
             centered=config.rmsprop_centered,
         )
     return torch.optim.Adam(parameters, lr=config.learning_rate)
-
-
-def masked(q: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """``q`` with masked-out actions (mask 0) at -inf; an all-zero mask row masks nothing."""
-    allowed = mask.bool() | ~mask.bool().any(dim=1, keepdim=True)
-    return q.masked_fill(~allowed, float("-inf"))
-
-
-def td_target(
-    reward: torch.Tensor,
-    terminated: torch.Tensor,
-    gamma: float | torch.Tensor,
-    next_q_target: torch.Tensor,
-    next_mask: torch.Tensor,
-    next_q_online: torch.Tensor | None = None,
-) -> torch.Tensor:
-    """r + gamma * (1 - terminated) * value of s'. With ``next_q_online`` (Double DQN, Eq. 8)
-    the online network picks the action and the target network values it; without, the target
-    network's max. Both only over the actions ``next_mask`` allows. With n-step returns ``r``
-    is the discounted sum of the window's rewards and ``gamma`` (per sample) the discount to
-    the state after it, ``gamma ** steps``."""
-    if next_q_online is None:
-        next_value = masked(next_q_target, next_mask).max(dim=1).values
-    else:
-        choice = masked(next_q_online, next_mask).argmax(dim=1, keepdim=True)
-        next_value = next_q_target.gather(1, choice).squeeze(1)
-    return reward + gamma * (1.0 - terminated.float()) * next_value
 
 
 def execution_device(device: str, precision: Precision = "fp32") -> torch.device:
@@ -290,9 +290,9 @@ def execution_device(device: str, precision: Precision = "fp32") -> torch.device
 
 
 class DQNLearner:
-    """The online and target networks, the optimiser, acting and updating.
+    """The online and target networks, the objective, the optimiser, acting and updating.
 
-    ``double``: the Double DQN target (Eq. 8); ``dueling``: value and advantage streams (Eq. 9).
+    ``algo`` (:data:`ALGOS`): the network's head and whether the target is Double DQN's.
     ``device`` and ``precision`` say where and how the networks run (:data:`Precision`).
     """
 
@@ -301,31 +301,29 @@ class DQNLearner:
         shape: AnyShape,
         inputs: Inputs,
         config: DQNConfig,
+        algo: AlgoSpec,
         *,
-        double: bool,
-        dueling: bool,
         device: str = "cpu",
         precision: Precision = "fp32",
     ) -> None:
-        self.shape, self.inputs, self.config = shape, inputs, config
-        self.double, self.dueling = double, dueling
+        self.shape, self.inputs, self.config, self.algo = shape, inputs, config, algo
+        self.double = algo.double
         self.device = execution_device(device, precision)
         self.precision = precision
         # Loss scaling only for fp16 (bf16 has float32's range); disabled, it passes through.
         self.scaler = torch.amp.GradScaler("cuda", enabled=precision == "fp16")
-        self.online = build_network(shape, inputs, config, dueling).to(self.device)
+        head = HeadSpec(algo.head, quantiles=config.quantiles)
+        self.online = build_network(shape, inputs, config, head).to(self.device)
         self.target = copy.deepcopy(self.online).eval()
         for p in self.target.parameters():
             p.requires_grad_(False)
         self.optimizer = build_optimizer(self.online.parameters(), config)
-        self.loss_fn: nn.Module = (
-            nn.HuberLoss(delta=config.huber_delta) if config.loss == "huber" else nn.MSELoss()
-        )
-        # Per sample, for prioritized replay's importance weights.
-        self.loss_each: nn.Module = (
-            nn.HuberLoss(delta=config.huber_delta, reduction="none")
-            if config.loss == "huber"
-            else nn.MSELoss(reduction="none")
+        network: Any = self.online  # every network class ends in a head
+        self.head = network.head
+        self.objective: Objective = (
+            QuantileObjective(self.head, algo.double, config.quantile_kappa)
+            if algo.head == "quantile"
+            else TDObjective(self.head, algo.double, config.loss, config.huber_delta)
         )
         self.updates = 0
 
@@ -339,28 +337,19 @@ class DQNLearner:
         device: str = "cpu",
         precision: Precision = "fp32",
     ) -> DQNLearner:
-        """The learner of ``algo`` (dqn, ddqn or dueling: its :data:`ALGOS` switches)."""
+        """The learner of ``algo`` (one of :data:`ALGOS`)."""
         if algo not in ALGOS:
             raise ValueError(f"unknown algorithm {algo!r}: expected one of {', '.join(ALGOS)}")
-        double, dueling = ALGOS[algo]
-        return cls(
-            shape,
-            inputs,
-            config,
-            double=double,
-            dueling=dueling,
-            device=device,
-            precision=precision,
-        )
+        return cls(shape, inputs, config, ALGOS[algo], device=device, precision=precision)
 
     # --- inputs ---------------------------------------------------------------------------
 
-    def _tensors(self, obs: dict[str, np.ndarray], prefix: str = "") -> list[torch.Tensor | None]:
+    def _tensors(self, obs: dict[str, np.ndarray]) -> list[torch.Tensor | None]:
         """The network's inputs in the order it takes them (None for one it leaves out)."""
         network: Any = self.online  # every network class names its inputs
         used = set(network.used_inputs)
         return [
-            torch.as_tensor(obs[prefix + name], device=self.device) if name in used else None
+            torch.as_tensor(obs[name], device=self.device) if name in used else None
             for name in network.input_names
         ]
 
@@ -379,7 +368,7 @@ class DQNLearner:
         :class:`.replay.FrameStacker`)."""
         self.online.eval()
         with self._autocast():
-            q = self.online(*self._tensors(obs))
+            q = self.head.q(self.online(*self._tensors(obs)))
         return q.float().cpu().numpy()
 
     def act(
@@ -396,36 +385,36 @@ class DQNLearner:
 
     # --- learning -------------------------------------------------------------------------
 
-    def update(self, batch: dict[str, np.ndarray]) -> dict[str, Any]:
+    def update(self, batch: ReplayBatch) -> dict[str, Any]:
         """One gradient step on a replay batch; returns the loss and the mean Q of the taken
         actions, and with prioritized replay (the batch's ``weight``) each sample's TD error's
         magnitude (``td_error``), its new priority."""
         self.online.train()
         dev = self.device
-        action = torch.as_tensor(batch["action"], device=dev)
-        reward = torch.as_tensor(batch["reward"], device=dev, dtype=torch.float32)
-        terminated = torch.as_tensor(batch["terminated"], device=dev)
-        next_mask = torch.as_tensor(batch["next_mask"], device=dev)
         gamma: float | torch.Tensor = self.config.gamma
-        steps = batch.get("steps")
-        if steps is not None and np.any(steps != 1):  # n-step returns: gamma ** steps each
-            gamma = torch.as_tensor(self.config.gamma**steps, device=dev, dtype=torch.float32)
-        # Forward passes in the learner's precision; the TD target and the loss in float32.
+        if np.any(batch.steps != 1):  # n-step returns: gamma ** steps each
+            gamma = torch.as_tensor(self.config.gamma**batch.steps, device=dev, dtype=torch.float32)
+        transitions = Transitions(
+            action=torch.as_tensor(batch.action, device=dev),
+            reward=torch.as_tensor(batch.reward, device=dev, dtype=torch.float32),
+            terminated=torch.as_tensor(batch.terminated, device=dev),
+            next_mask=torch.as_tensor(batch.next_mask, device=dev),
+            gamma=gamma,
+        )
+        # Forward passes in the learner's precision; the heads, targets and loss in float32.
         with self._autocast():
-            q_all = self.online(*self._tensors(batch))
-        q_taken = q_all.float().gather(1, action[:, None]).squeeze(1)
+            online = self.online(*self._tensors(batch.obs))
         with torch.no_grad():
-            next_inputs = self._tensors(batch, "next_")
+            next_inputs = self._tensors(batch.next_obs)
             with self._autocast():
-                next_q_target = self.target(*next_inputs).float()
-                next_q_online = self.online(*next_inputs).float() if self.double else None
-            target = td_target(reward, terminated, gamma, next_q_target, next_mask, next_q_online)
-        weight = batch.get("weight")
-        if weight is None:
-            loss = self.loss_fn(q_taken, target)
+                next_target = self.target(*next_inputs)
+                next_online = self.online(*next_inputs) if self.double else None
+        terms = self.objective.terms(online, next_target, next_online, transitions)
+        if batch.weight is None:
+            loss = terms.loss.mean()
         else:  # prioritized replay: each sample's loss times its importance weight
-            each = self.loss_each(q_taken, target)
-            loss = (torch.as_tensor(weight, device=dev, dtype=torch.float32) * each).mean()
+            weight = torch.as_tensor(batch.weight, device=dev, dtype=torch.float32)
+            loss = (weight * terms.loss).mean()
         self.optimizer.zero_grad(set_to_none=True)
         self.scaler.scale(loss).backward()
         if self.config.grad_clip_norm > 0.0:
@@ -436,10 +425,10 @@ class DQNLearner:
         self.updates += 1
         stats: dict[str, Any] = {
             "loss": float(loss.item()),
-            "q_taken": float(q_taken.mean().item()),
+            "q_taken": float(terms.q_taken.mean().item()),
         }
-        if weight is not None:
-            stats["td_error"] = (target - q_taken).detach().abs().cpu().numpy()
+        if batch.weight is not None:
+            stats["td_error"] = terms.td_error.cpu().numpy()
         return stats
 
     def sync_target(self) -> None:
@@ -461,10 +450,10 @@ class DQNLearner:
         (one brought back from another machine without its optimiser's moments) restores
         that: the target network starts as a copy of it and the optimiser afresh. Returns
         which parts were restored (``target``, ``optimizer``), for the run's provenance."""
-        self.online.load_state_dict(state["online"])
+        self.online.load_state_dict(legacy_state(state["online"]))
         restored = {"target": "target" in state, "optimizer": "optimizer" in state}
         if restored["target"]:
-            self.target.load_state_dict(state["target"])
+            self.target.load_state_dict(legacy_state(state["target"]))
         else:
             self.target.load_state_dict(self.online.state_dict())
         if restored["optimizer"]:

@@ -9,9 +9,9 @@
   speed), which the authors' code feeds beside the LIDAR, for the LIDAR and multi-modal
   networks; the car's speed alone for the camera-only one (``TrainConfig.overrides``), so that
   each variant sees other cars only through its own sensors;
-- the concatenation goes through a 512-unit layer with ReLU, then either Q-values or, with
-  ``dueling``, a value and an advantage head combined as Q = V + A - mean(A) (Wang et al.,
-  Min et al. Eq. 9).
+- the concatenation goes through a 512-unit layer with ReLU, then the head a
+  :class:`~.heads.HeadSpec` names (plain Q-values, Min et al.'s dueling streams of Eq. 9, or
+  QR-DQN's quantiles: :mod:`.heads`).
 
 Inputs arrive as stored (camera uint8, LIDAR metres, ego in its own units) and are scaled here
 by the observation space's bounds, so the replay keeps the compact dtypes.
@@ -20,11 +20,13 @@ by the observation space's bounds, so the replay keeps the compact dtypes.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 import torch
 from torch import nn
+
+from .heads import PLAIN, HeadSpec
 
 Inputs = Literal["camera", "lidar", "both", "grid", "camera-map"]
 # The sensors each input configuration reads stacked over the last frames: Min et al.'s camera
@@ -92,8 +94,8 @@ def conv_output_size(height: int, width: int) -> int:
 
 
 class QNetwork(nn.Module):
-    """Q-values (B, actions) from stacked camera (B, S, H, W) uint8, LIDAR (B, S, R) and ego
-    (B, E)."""
+    """The head's output (Q-values (B, actions), or quantiles) from stacked camera (B, S, H, W)
+    uint8, LIDAR (B, S, R) and ego (B, E)."""
 
     ego_scale: torch.Tensor  # a buffer: 1 / each ego field's upper bound
     # The observations forward() takes, in order (None for one the inputs leave out).
@@ -103,7 +105,7 @@ class QNetwork(nn.Module):
         self,
         shape: NetworkShape,
         inputs: Inputs = "both",
-        dueling: bool = False,
+        head: HeadSpec = PLAIN,
         lstm_cells: int = 256,
         hidden: int = 512,
     ) -> None:
@@ -114,7 +116,7 @@ class QNetwork(nn.Module):
             )
         if inputs in ("lidar", "both") and shape.lidar_rays == 0:
             raise ValueError(f"inputs={inputs!r} needs the LIDAR, but the environment has none")
-        self.shape, self.inputs, self.dueling = shape, inputs, dueling
+        self.shape, self.inputs = shape, inputs
         self.uses_camera = "camera" in INPUT_SENSORS[inputs]
         self.uses_lidar = "lidar" in INPUT_SENSORS[inputs]
         self.used_inputs = ("ego", *INPUT_SENSORS[inputs])
@@ -134,11 +136,7 @@ class QNetwork(nn.Module):
             self.lstm = nn.LSTM(shape.lidar_rays, lstm_cells, batch_first=True)
             features += lstm_cells
         self.fuse = nn.Sequential(nn.Linear(features, hidden), nn.ReLU())
-        if dueling:
-            self.value = nn.Linear(hidden, 1)
-            self.advantage = nn.Linear(hidden, shape.actions)
-        else:
-            self.q = nn.Linear(hidden, shape.actions)
+        self.head = head.build(hidden, shape.actions)
         self.register_buffer(
             "ego_scale",
             torch.tensor(
@@ -157,23 +155,4 @@ class QNetwork(nn.Module):
             assert lidar is not None
             out, _ = self.lstm(lidar.float() / self.shape.lidar_max_m)
             parts.append(out[:, -1])
-        hidden = self.fuse(torch.cat(parts, dim=1))
-        return q_head(self, hidden)
-
-
-def q_head(net: Any, hidden: torch.Tensor) -> torch.Tensor:
-    """Q-values (N, actions) of the last hidden layer of ``net`` (any of the three networks):
-    its dueling streams combined (``net.value``, ``net.advantage``) or its plain head
-    (``net.q``). Always in float32, under mixed precision too: bf16's 8 bits of mantissa would
-    round Q-values of tens to steps of a quarter, tying actions that differ by less."""
-    with torch.autocast(device_type=hidden.device.type, enabled=False):
-        hidden = hidden.float()
-        if net.dueling:
-            return dueling_q(net.value(hidden), net.advantage(hidden))
-        return net.q(hidden)
-
-
-def dueling_q(value: torch.Tensor, advantage: torch.Tensor) -> torch.Tensor:
-    """Eq. 9: Q(s, a) = V(s) + A(s, a) - mean over a' of A(s, a'). value (B, 1), advantage
-    (B, actions)."""
-    return value + advantage - advantage.mean(dim=1, keepdim=True)
+        return self.head(self.fuse(torch.cat(parts, dim=1)))

@@ -21,14 +21,14 @@ last state it reached) and at the newest frame. **Prioritized replay** (``priori
 Schaul et al. 2016, proportional): transitions are drawn with probability ``p ** alpha`` over
 the sum (:class:`.sum_tree.SumTree`), new ones at the largest priority seen, and after each
 update at their TD error's magnitude plus a small constant; a sample carries its importance
-weight ``(N * P(i)) ** -beta`` over the batch's largest, and its ``index`` for the update.
+weight ``(N * P(i)) ** -beta`` over the batch's largest, and its ``leaves`` for the update.
 """
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -37,7 +37,26 @@ from overtake.client.frames import Frames, FrameShapes, FrameStacker
 
 from .sum_tree import SumTree
 
-__all__ = ["FrameShapes", "FrameStacker", "Frames", "ReplayMemory"]
+__all__ = ["FrameShapes", "FrameStacker", "Frames", "ReplayBatch", "ReplayMemory"]
+
+
+class ReplayBatch(NamedTuple):
+    """A sample of transitions, (B, ...) each: the states and next states as the network reads
+    them (stacked sensors and the latest frame of the others, by observation name), the taken
+    actions, rewards (an n-step window's discounted sum), whether the episodes terminated,
+    the transitions each covers (``steps``: the bootstrap is discounted by ``gamma ** steps``),
+    the next states' action masks; with prioritized replay each sample's importance weight
+    and its place in the sum tree (``leaves``, for its new priority), else None."""
+
+    obs: dict[str, np.ndarray]
+    next_obs: dict[str, np.ndarray]
+    action: np.ndarray
+    reward: np.ndarray
+    terminated: np.ndarray
+    steps: np.ndarray
+    next_mask: np.ndarray
+    weight: np.ndarray | None = None
+    leaves: np.ndarray | None = None
 
 
 class ReplayMemory:
@@ -166,7 +185,7 @@ class ReplayMemory:
         s = (oldest + (self.rng.random(count) * self.count[e]).astype(np.int64)) % self.per_env
         return e, s
 
-    def sample(self, batch: int, beta: float = 1.0) -> dict[str, np.ndarray]:
+    def sample(self, batch: int, beta: float = 1.0) -> ReplayBatch:
         """``batch`` transitions, states and next states as stacks (``beta``: the importance
         weights' exponent, with prioritized replay)."""
         if len(self) == 0:
@@ -192,28 +211,30 @@ class ReplayMemory:
             last, steps, reward, terminated = self._n_step(envs, slots)
         nxt = (last + 1) % self.per_env
         next_slots = self._stack_slots(nxt, self.ep_step[envs, last] + 1)
-        out: dict[str, np.ndarray] = {
-            "action": self.action[envs, slots],
-            "reward": reward,
-            "terminated": terminated,
-            "steps": steps,
-            "next_mask": self.mask[envs, nxt],
-        }
+        weight = index = None
         if self.tree is not None:
-            leaves = envs * self.per_env + slots
-            probability = self.tree.priorities[leaves] / self.tree.total
-            weight = (len(self) * probability) ** -beta
-            out["weight"] = (weight / weight.max()).astype(np.float32)
-            out["index"] = leaves
+            index = envs * self.per_env + slots
+            probability = self.tree.priorities[index] / self.tree.total
+            importance = (len(self) * probability) ** -beta
+            weight = (importance / importance.max()).astype(np.float32)
         rows = envs[:, None]
+        obs, next_obs = {}, {}
         for name, store in self.frames.items():
             if name in self.stacked:
-                out[name] = store[rows, now_slots]
-                out["next_" + name] = store[rows, next_slots]
+                obs[name], next_obs[name] = store[rows, now_slots], store[rows, next_slots]
             else:
-                out[name] = store[envs, slots]
-                out["next_" + name] = store[envs, nxt]
-        return out
+                obs[name], next_obs[name] = store[envs, slots], store[envs, nxt]
+        return ReplayBatch(
+            obs=obs,
+            next_obs=next_obs,
+            action=self.action[envs, slots],
+            reward=reward,
+            terminated=terminated,
+            steps=steps,
+            next_mask=self.mask[envs, nxt],
+            weight=weight,
+            leaves=index,
+        )
 
     def _n_step(
         self, envs: np.ndarray, slots: np.ndarray

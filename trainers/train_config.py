@@ -35,8 +35,10 @@ class TrainConfig:
     """Train a DQN-family learner on an overtake preset."""
 
     algo: Algo = "dueling"
-    """dqn, ddqn (Double DQN) or dueling (Dueling network with the Double DQN target: Min et
-    al.'s combination, the default of min2018)"""
+    """dqn, ddqn (Double DQN), dueling (Dueling network with the Double DQN target: Min et
+    al.'s combination, the default of min2018) or qr (QR-DQN: a quantile head and the quantile
+    Huber loss, the Double DQN choice of the next action, as Min et al.'s public code trains it;
+    --quantiles sets the quantiles per action)"""
     inputs: Inputs = "both"
     """camera, lidar or both (Min et al.'s multi-modal network), grid (Ho's occupancy grid and
     action stack) or camera-map (Fayjie et al.'s camera and LIDAR map); default the preset's"""

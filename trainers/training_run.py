@@ -200,10 +200,10 @@ class TrainingRun:
 
     def _write_run_record(self) -> None:
         """run.json (run-resume-N.json): what this life of the run is, to reproduce it."""
-        double, dueling = ALGOS[self.config.algo]
+        algo = ALGOS[self.config.algo]
         record = run_record(
             config=plain_data(self.config),
-            algo={"name": self.config.algo, "double": double, "dueling": dueling},
+            algo={"name": self.config.algo, "double": algo.double, "head": algo.head},
             overrides=self.overrides,
             sim_config=self.env.sim_config,
             observation_space=self.space_description,
@@ -443,8 +443,8 @@ class TrainingRun:
                 beta = self.dqn.priority_beta(self.step, self.config.total_steps)
                 batch = self.replay.sample(self.dqn.batch_size, beta=beta)
                 stats = self.learner.update(batch)
-                if "td_error" in stats:
-                    self.replay.update_priorities(batch["index"], stats["td_error"])
+                if batch.leaves is not None:
+                    self.replay.update_priorities(batch.leaves, stats["td_error"])
                 self.window.losses.append(stats["loss"])
                 self.window.q_taken.append(stats["q_taken"])
         if self.step >= self.next_sync:

@@ -6,9 +6,10 @@ stream per input (4 stacked RGB 80x80 camera frames, 4 stacked 80x80 LIDAR maps)
 a flatten layer, preceded by a dense layer and a pooling layer for each data type". Chosen here,
 sized for a CPU: per stream a convolution of 32 filters 5x5 with stride 2, then 64 3x3 and 64
 3x3, each followed by ReLU and a 2x2 max pooling, flattened into a dense layer of 256 (ReLU);
-the two streams concatenated through dense layers of 256 and 128 (ReLU) to the Q-values (with
-``dueling``, a value and an advantage head instead of the last). That is 3 convolutions per
-stream and 4 dense layers on each input's path. Inputs arrive as uint8 and are scaled to [0, 1].
+the two streams concatenated through dense layers of 256 and 128 (ReLU) to the head a
+:class:`~.heads.HeadSpec` names (plain Q-values by default, :mod:`.heads`). That is 3
+convolutions per stream and 4 dense layers on each input's path. Inputs arrive as uint8 and are
+scaled to [0, 1].
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from .network import q_head
+from .heads import PLAIN, HeadSpec
 
 
 @dataclass(frozen=True)
@@ -64,27 +65,23 @@ def _stream(channels: int, height: int, width: int) -> tuple[nn.Sequential, int]
 
 
 class TwoStreamQNetwork(nn.Module):
-    """Q-values (B, actions) from stacked camera frames (B, S, H, W[, C]) and LIDAR maps
+    """The head's output from stacked camera frames (B, S, H, W[, C]) and LIDAR maps
     (B, S, H, W), uint8."""
 
     # The observations forward() takes, in order.
     input_names: tuple[str, ...] = ("camera", "lidar_map")
     used_inputs: tuple[str, ...] = ("camera", "lidar_map")
 
-    def __init__(self, shape: TwoStreamShape, dueling: bool = False) -> None:
+    def __init__(self, shape: TwoStreamShape, head: HeadSpec = PLAIN) -> None:
         super().__init__()
-        self.shape, self.dueling = shape, dueling
+        self.shape = shape
         height, width, channels = shape.camera_hwc
         self.camera, camera_out = _stream(shape.stack * channels, height, width)
         self.lidar_map, map_out = _stream(shape.stack, *shape.map_hw)
         self.fuse = nn.Sequential(
             nn.Linear(camera_out + map_out, 256), nn.ReLU(), nn.Linear(256, 128), nn.ReLU()
         )
-        if dueling:
-            self.value = nn.Linear(128, 1)
-            self.advantage = nn.Linear(128, shape.actions)
-        else:
-            self.q = nn.Linear(128, shape.actions)
+        self.head = head.build(128, shape.actions)
 
     def forward(self, camera: torch.Tensor, lidar_map: torch.Tensor) -> torch.Tensor:
         if camera.dim() == 5:  # (B, S, H, W, C) -> (B, S * C, H, W)
@@ -97,5 +94,4 @@ class TwoStreamQNetwork(nn.Module):
             ],
             dim=1,
         )
-        hidden = self.fuse(features)
-        return q_head(self, hidden)
+        return self.head(self.fuse(features))

@@ -13,7 +13,7 @@ from ..network import Inputs
 
 Density = Literal["light", "medium", "heavy"]
 
-ALGO_NAMES = {"dqn": "DQN", "ddqn": "Double DQN", "dueling": "Dueling DQN"}
+ALGO_NAMES = {"dqn": "DQN", "ddqn": "Double DQN", "dueling": "Dueling DQN", "qr": "QR-DQN"}
 INPUT_NAMES = {
     "both": "camera + LIDAR",
     "camera": "camera",
