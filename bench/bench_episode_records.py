@@ -18,8 +18,8 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from overtake.client.drive import DriveConfig
-from overtake.client.drive import main as drive
+from overtake.client.episodes.drive import DriveConfig
+from overtake.client.episodes.drive import main as drive
 from overtake.server.sim.presets import PRESETS
 
 

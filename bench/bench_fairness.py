@@ -52,7 +52,7 @@ class FairnessConfig:
 
 def trainer_main(endpoint: str, arenas: int, preset: str, seconds: float, seed: int) -> None:
     """Trainer mode: open, say ready, wait for the go line, step, print one JSON line."""
-    from overtake.client.remote import RemoteConfig
+    from overtake.client.wire.remote import RemoteConfig
 
     env = make_env(REMOTE_ENV_ID, arenas, preset=preset, remote=RemoteConfig(connect=(endpoint,)))
     env.reset(seed=seed)

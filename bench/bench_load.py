@@ -80,7 +80,7 @@ def server_names(count: int) -> list[str]:
 def worker_main(endpoint: str, trainers: int, arenas: int, preset: str, rate_hz: float) -> None:
     """Open ``trainers`` environments (each its own session), say ready, wait for the go line
     with the seconds to step, step them paced in threads, print one JSON line."""
-    from overtake.client.remote import RemoteConfig
+    from overtake.client.wire.remote import RemoteConfig
     from overtake.protocol.errors import ServerFull
 
     remote = RemoteConfig(connect=(endpoint,), connect_timeout_s=60.0, request_timeout_s=60.0)
@@ -138,7 +138,7 @@ def worker_main(endpoint: str, trainers: int, arenas: int, preset: str, rate_hz:
 
 def start_topology(config: LoadConfig) -> tuple[str, list[subprocess.Popen[bytes]]]:
     """The servers (and a router when there are several); the endpoint trainers use."""
-    from overtake.client.remote import Connection, RemoteConfig
+    from overtake.client.wire.remote import Connection, RemoteConfig
 
     procs: list[subprocess.Popen[bytes]] = []
     server_args = ["--log-level", "warning", "--max-arenas", str(config.max_arenas)]
@@ -179,7 +179,7 @@ class StatusSampler:
     """The servers' queues, sampled in a thread while a level runs."""
 
     def __init__(self, endpoint: str) -> None:
-        from overtake.client.remote import Connection, RemoteConfig
+        from overtake.client.wire.remote import Connection, RemoteConfig
 
         self.connection = Connection(RemoteConfig(connect=(endpoint,), request_timeout_s=5.0))
         self.most_actions = self.most_requests = 0
@@ -273,7 +273,7 @@ def run_level(config: LoadConfig, endpoint: str, servers: list[int], trainers: i
 
 def past_capacity(config: LoadConfig, endpoint: str) -> str:
     """Ask for more arenas than the servers hold: the refusal, in the servers' words."""
-    from overtake.client.remote import RemoteConfig
+    from overtake.client.wire.remote import RemoteConfig
 
     remote = RemoteConfig(connect=(endpoint,), connect_timeout_s=30.0)
     try:

@@ -26,8 +26,8 @@ import numpy as np
 import torch
 import tyro
 
-from overtake.client.episodes import make_vector_env
-from overtake.client.onnx_policy import OnnxPolicy
+from overtake.client.episodes.runner import make_vector_env
+from overtake.client.policies.onnx_policy import OnnxPolicy
 from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.evaluate import GreedyPolicy
 from overtake.trainers.export import ExportConfig

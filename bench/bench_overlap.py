@@ -62,7 +62,7 @@ def make_actor(env: Any, inputs: str, seed: int = 0) -> Any:
     ``env``."""
     import torch
 
-    from overtake.client.frames import FrameStacker
+    from overtake.client.policies.frames import FrameStacker
     from overtake.protocol.vocabulary import ACTION_COUNT
     from overtake.trainers.learner import ALGOS, DQNConfig, DQNLearner
     from overtake.trainers.network import INPUT_SENSORS, NetworkShape
@@ -137,7 +137,7 @@ def main(config: OverlapBenchConfig) -> dict[str, Any]:
     import gymnasium as gym
     import torch
 
-    from overtake.client.remote import RemoteConfig
+    from overtake.client.wire.remote import RemoteConfig
     from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
     from overtake.trainers.train import TrainConfig
 

@@ -508,7 +508,7 @@ def start_server(
 ) -> subprocess.Popen[bytes]:
     """An ``overtake.server`` subprocess (``extra``: more flags; ``env``: its environment,
     by default this process's), returned once it answers a status request."""
-    from overtake.client.remote import Connection, RemoteConfig
+    from overtake.client.wire.remote import Connection, RemoteConfig
     from overtake.protocol import errors
 
     proc = subprocess.Popen(
@@ -641,7 +641,7 @@ def measure_arenas(
     arenas: int, config: BenchConfig, endpoint: str, server_pid: int, ping: PingPong
 ) -> dict[str, Any]:
     """All figures of one N: in-process, remote, ping-pongs and codec, in alternating rounds."""
-    from overtake.client.remote import RemoteConfig
+    from overtake.client.wire.remote import RemoteConfig
     from overtake.protocol import codec
 
     vector = arenas > 1

@@ -77,7 +77,7 @@ def _steps(arenas: int) -> Any:
 
 
 def measure(arenas: int, repeats: int) -> dict[str, float]:
-    from overtake.client.shared_steps import steps_from_notice
+    from overtake.client.wire.shared_steps import steps_from_notice
     from overtake.protocol import codec
     from overtake.protocol.messages import ShmArray, StepsInShm
     from overtake.protocol.shared_memory import Segment, layout_bytes

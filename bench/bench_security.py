@@ -85,7 +85,7 @@ def mode_options(mode: str, where: Path) -> tuple[list[str], list[str], Any, str
 
 
 def measure(mode: str, where: Path, config: SecurityBenchConfig, seed: int) -> dict[str, Any]:
-    from overtake.client.remote import RemoteConfig
+    from overtake.client.wire.remote import RemoteConfig
 
     router_opts, server_opts, security, scheme = mode_options(mode, where)
     endpoint = f"{scheme}/127.0.0.1:{free_port()}"

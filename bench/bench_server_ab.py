@@ -85,7 +85,7 @@ def baseline_checkout(revision: str) -> Iterator[Path]:
 def measure(config: ServerABConfig, baseline_path: Path) -> dict[str, Any]:
     import numpy as np
 
-    from overtake.client.remote import RemoteConfig
+    from overtake.client.wire.remote import RemoteConfig
 
     endpoints = {side: f"tcp/127.0.0.1:{free_port()}" for side in SIDES}
     # The baseline's server finds that revision's overtake first on its path.

@@ -58,7 +58,7 @@ def _remote(endpoint: str, config: StepThreadsConfig) -> Any:
     import gymnasium as gym
 
     import overtake.client  # noqa: F401 - registers the environments
-    from overtake.client.remote import RemoteConfig
+    from overtake.client.wire.remote import RemoteConfig
 
     return gym.make_vec(
         "overtake/RemoteHighway-v0",

@@ -53,7 +53,7 @@ class BridgeBenchConfig:
 
 def direct_round(endpoint: str, arenas: int, config: BridgeBenchConfig) -> float:
     """Steps per second of RemoteEnvironment driven as ML-Agents' API is."""
-    from overtake.client.environment import RemoteEnvironment
+    from overtake.client.mlagents.environment import RemoteEnvironment
 
     env = RemoteEnvironment(endpoint, preset="min2018", arenas=arenas, seed=0)
     rng = np.random.default_rng(0)
@@ -100,7 +100,7 @@ def bridge_round(endpoint: str, arenas: int, config: BridgeBenchConfig) -> float
             [
                 sys.executable,
                 "-m",
-                "overtake.client.unity_bridge",
+                "overtake.client.mlagents.unity_bridge",
                 "--connect",
                 endpoint,
                 "--port",

@@ -16,8 +16,8 @@ simulator's own lane state:
 - ``elsewhere``; ``no lane change within N decisions`` where the car kept its lane; ``no
   other car``.
 
-The safety shield (``overtake.client.shield``) judges a lane change by the cars in the target
-lane: this says which collisions its rule could not have seen coming. Figures, not times: it
+The safety shield (``overtake.client.policies.shield``) judges a lane change by the cars in the
+target lane: this says which collisions its rule could not have seen coming. Figures, not times: it
 may run beside anything.
 
     .venv/bin/python -m bench.collision_causes RECORD.jsonl [RECORD.jsonl ...] [--out F.md]
@@ -34,14 +34,14 @@ import numpy as np
 import tyro
 from tyro.conf import Positional
 
-from overtake.client.episode_recording import touching
-from overtake.client.episode_records import (
+from overtake.client.episodes.recording import touching
+from overtake.client.episodes.records import (
     EpisodeRecord,
     EventCounts,
     RecordHeader,
     read_records,
 )
-from overtake.client.episodes import run_episodes
+from overtake.client.episodes.runner import run_episodes
 from overtake.protocol.vocabulary import ACTION_NAMES
 from overtake.server.sim.units import KMH
 from overtake.trainers.episode_replay import RecordedActions, replay_envs
@@ -105,7 +105,7 @@ class Replayed:
 
 
 class _UntilCollision:
-    """A watcher of :func:`~overtake.client.episodes.run_episodes` over the recorded
+    """A watcher of :func:`~overtake.client.episodes.runner.run_episodes` over the recorded
     ``episodes`` (environment i plays episode i): keeps each one's roads and applied actions
     up to its record's first collision, and raises where the replay's collision is elsewhere."""
 

@@ -243,7 +243,7 @@ class Observer:
     """Polls the server's status in a thread: (time, arenas used, {trainer: (group, rounds)})."""
 
     def __init__(self, endpoint: str, poll_s: float) -> None:
-        from overtake.client.remote import Connection, RemoteConfig
+        from overtake.client.wire.remote import Connection, RemoteConfig
 
         self.connection = Connection(
             RemoteConfig(connect=(endpoint,), connect_timeout_s=30.0, request_timeout_s=1.0)

@@ -94,7 +94,7 @@ def honest_main(endpoint: str, report: str, transport: str = "auto") -> None:
     second (steps, longest gap, errors) and once more at the end."""
     import threading
 
-    from overtake.client.remote import RemoteConfig
+    from overtake.client.wire.remote import RemoteConfig
 
     remote = RemoteConfig(connect=(endpoint,), steps_transport=transport)  # type: ignore[arg-type]
     env = make_env(REMOTE_ENV_ID, 1, remote=remote)
@@ -135,7 +135,7 @@ class Stranger:
     def __init__(self, endpoint: str, transport: str = "auto") -> None:
         import zenoh
 
-        from overtake.client.remote import ArenaGroup, Connection, RemoteConfig
+        from overtake.client.wire.remote import ArenaGroup, Connection, RemoteConfig
         from overtake.protocol import keys
         from overtake.protocol.messages import OpenRequest, StatusReply, StatusRequest
 

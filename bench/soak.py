@@ -80,7 +80,7 @@ class SoakConfig:
 def random_trainer(endpoint: str, preset: str, arenas: int, seed: int) -> None:
     """--no-learners: step ``arenas`` remote arenas with random actions until SIGTERM."""
     from bench.bench_remote import REMOTE_ENV_ID, make_env, random_action
-    from overtake.client.remote import RemoteConfig
+    from overtake.client.wire.remote import RemoteConfig
 
     stop = []
     signal.signal(signal.SIGTERM, lambda *_: stop.append(True))
@@ -242,7 +242,7 @@ def check_outputs(run_dir: Path, trainers: int) -> dict[str, Any]:
 
 
 def main(config: SoakConfig) -> dict[str, Any]:
-    from overtake.client.remote import Connection, RemoteConfig
+    from overtake.client.wire.remote import Connection, RemoteConfig
 
     run_dir = config.run_dir
     if run_dir.exists():
@@ -283,7 +283,7 @@ def main(config: SoakConfig) -> dict[str, Any]:
         processes["spectator"] = start(
             [
                 python,
-                *("-m", "overtake.client.spectate", "--connect", endpoint),
+                *("-m", "overtake.client.wire.spectate", "--connect", endpoint),
                 *sink("spectator"),
             ],
             run_dir / "spectator.log",

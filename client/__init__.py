@@ -2,12 +2,7 @@
 low-level API over Zenoh), baseline drivers. Importing it registers ``overtake/Highway-v0``
 and ``overtake/RemoteHighway-v0`` without importing the simulator."""
 
-from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
-from overtake.protocol.transport import SecurityConfig
-
-from .connection import RemoteConfig
-from .drivers import RandomDriver, RuleDriver, RuleDriverConfig
-from .environment import (
+from overtake.client.mlagents.environment import (
     ActionSpec,
     ActionTuple,
     BehaviorSpec,
@@ -17,6 +12,10 @@ from .environment import (
     TerminalSteps,
     UnsupportedRequest,
 )
+from overtake.client.policies.drivers import RandomDriver, RuleDriver, RuleDriverConfig
+from overtake.client.wire.connection import RemoteConfig
+from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
+from overtake.protocol.transport import SecurityConfig
 
 register_environments()
 

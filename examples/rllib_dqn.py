@@ -53,7 +53,7 @@ def overtake_env(env_config: dict[str, Any]) -> Any:
     import gymnasium as gym
 
     import overtake.client  # noqa: F401  (registers overtake/RemoteHighway-v0)
-    from overtake.client.remote import RemoteConfig
+    from overtake.client.wire.remote import RemoteConfig
 
     endpoints = list(env_config["connect"])
     runner = max(getattr(env_config, "worker_index", 1), 1)
@@ -73,7 +73,7 @@ def main(args: Args) -> list[dict[str, Any]]:
     from ray.rllib.connectors.env_to_module import FlattenObservations
     from ray.tune.registry import register_env
 
-    from overtake.client.episodes import parse_overrides
+    from overtake.client.episodes.runner import parse_overrides
 
     overrides = {"camera.enabled": False, **parse_overrides(args.set)}
     register_env("overtake-remote", overtake_env)

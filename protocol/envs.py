@@ -36,8 +36,8 @@ def register_environments() -> None:
     if REMOTE_HIGHWAY_ENV_ID not in gym.registry:
         gym.register(
             id=REMOTE_HIGHWAY_ENV_ID,
-            entry_point="overtake.client.remote_gym:RemoteHighwayEnv",
-            vector_entry_point="overtake.client.remote_gym:RemoteHighwayVectorEnv",
+            entry_point="overtake.client.envs.remote_gym:RemoteHighwayEnv",
+            vector_entry_point="overtake.client.envs.remote_gym:RemoteHighwayVectorEnv",
             max_episode_steps=None,
         )
 

@@ -73,7 +73,7 @@ AGENT_COLOUR: tuple[int, int, int] = (230, 40, 40)
 # Simulator settings added after episode records were first kept (issue 44: the authors'
 # traffic). A record names only the settings of its day; a replay gives those that decide
 # anything the value that makes the simulator what it was before they existed
-# (EARLIER_SETTINGS; client/episode_records.py, replay_overrides), and the others, which then
+# (EARLIER_SETTINGS; client/episodes/records.py, replay_overrides), and the others, which then
 # do nothing, may hold whatever they hold now.
 ADDED_SETTINGS: tuple[str, ...] = (
     *(

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Install ML-Agents' Python API (mlagents-envs 1.1.0) into .venv beside overtake, for ML-Agents'
-# own wrappers over RemoteEnvironment (overtake.client.mlagents) and tests/test_mlagents.py.
+# own wrappers over RemoteEnvironment (overtake.client.mlagents.wrappers) and tests/test_mlagents.py.
 # mlagents-envs declares Python <= 3.10 and numpy < 1.24, yet runs on Python 3.11 and today's
 # numpy: it is installed without its dependencies, and what it imports comes from overtake's
 # `mlagents` extra (grpcio, gym 0.26.2, pettingzoo, ...; the protobuf there is the newer one ONNX

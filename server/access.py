@@ -9,7 +9,7 @@ by its key expression, its direction and the user of the session it comes from o
 - **trainers**, one user each, may ask servers for arenas, put actions and hold a liveliness
   token only under their own trainer names, and receive only their own steps: a trainer named
   ``alice-...`` (a trainer's name begins with its user name, see
-  ``overtake.client.remote``) neither reads ``bob-...``'s observations nor acts in his name,
+  ``overtake.client.wire.remote``) neither reads ``bob-...``'s observations nor acts in his name,
   and sees no world frames. Acting in another trainer's arenas is refused by the server
   already (the ticket); this makes the attempt not reach it at all.
 

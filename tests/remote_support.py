@@ -24,7 +24,7 @@ from typing import Any, TypeVar
 import pytest
 import zenoh
 
-from overtake.client.remote import Connection, RemoteConfig
+from overtake.client.wire.remote import Connection, RemoteConfig
 from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import Message, StatusReply, StatusRequest
 from overtake.protocol.transport import TransportConfig

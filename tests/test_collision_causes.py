@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from bench.collision_causes import CausesConfig, Road, cause, main, where_was
-from overtake.client.drive import DriveConfig
-from overtake.client.drive import main as drive
-from overtake.client.episode_records import read_records
+from overtake.client.episodes.drive import DriveConfig
+from overtake.client.episodes.drive import main as drive
+from overtake.client.episodes.records import read_records
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import pytest
 
-from overtake.client.remote import Connection, RemoteConfig
+from overtake.client.wire.remote import Connection, RemoteConfig
 from overtake.protocol import errors
 from overtake.protocol.transport import (
     PASSWORD_ENV,
@@ -430,7 +430,7 @@ def test_usrpwd_router_admits_only_listed_users(tmp_path: Path, background):
 
     # A wrong password: refused, and the message names it as the likely cause.
     refused = run(
-        [PY, "-m", "overtake.client.status", "--connect", router_ep, "--timeout-s", "1"],
+        [PY, "-m", "overtake.client.wire.status", "--connect", router_ep, "--timeout-s", "1"],
         env_with(**{USER_ENV: "trainer", PASSWORD_ENV: "not-the-password"}),
         timeout_s=60,
     )
@@ -494,7 +494,7 @@ def test_tls_router_with_server_and_trainer(tmp_path: Path, background, certific
     status = [
         PY,
         "-m",
-        "overtake.client.status",
+        "overtake.client.wire.status",
         "--connect",
         f"tls/{LOOPBACK}:{port}",
         "--tls-root-ca",
@@ -511,7 +511,7 @@ def test_tls_router_with_server_and_trainer(tmp_path: Path, background, certific
         [
             PY,
             "-m",
-            "overtake.client.status",
+            "overtake.client.wire.status",
             "--connect",
             f"tls/{LOOPBACK}:{port}",
             "--timeout-s",
@@ -735,7 +735,7 @@ def test_isolated_trainers_reach_only_their_own_arenas(tmp_path: Path, backgroun
     import gymnasium as gym
 
     import overtake.client  # noqa: F401  (registers the environments)
-    from overtake.client.spectator import Spectator
+    from overtake.client.wire.spectator import Spectator
     from overtake.protocol import REMOTE_HIGHWAY_ENV_ID as REMOTE_ENV
     from overtake.protocol import keys
     from overtake.protocol.transport import open_session
@@ -1022,7 +1022,7 @@ def test_trainer_in_another_network_namespace_reaches_the_router(
             namespace,
             PY,
             "-m",
-            "overtake.client.status",
+            "overtake.client.wire.status",
             "--connect",
             loopback_ep,
             "--timeout-s",
@@ -1120,7 +1120,7 @@ def test_compose_commands_parse_with_the_commands_own_options(tmp_path: Path):
     otherwise surface only in a container), and each trainer replica gets its own seed."""
     import tyro
 
-    from overtake.client.status import StatusConfig
+    from overtake.client.wire.status import StatusConfig
     from overtake.server.service import ServerConfig
     from overtake.trainers.train import TrainConfig
 

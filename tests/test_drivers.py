@@ -13,9 +13,9 @@ import pytest
 
 from overtake.client import HIGHWAY_ENV_ID, RandomDriver, RuleDriver, RuleDriverConfig
 from overtake.client.commands import UsageError
-from overtake.client.drive import DriveConfig, main
-from overtake.client.drive import cli as drive_cli
-from overtake.client.episodes import parse_overrides
+from overtake.client.episodes.drive import DriveConfig, main
+from overtake.client.episodes.drive import cli as drive_cli
+from overtake.client.episodes.runner import parse_overrides
 from overtake.protocol.vocabulary import (
     ACTION_COUNT,
     CRUISE_UP,
@@ -349,7 +349,7 @@ def test_drive_command_prints_what_is_wrong_and_exits_non_zero():
         [
             sys.executable,
             "-m",
-            "overtake.client.drive",
+            "overtake.client.episodes.drive",
             "--episodes",
             "1",
             "--set",

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from overtake.client.drive import DriveConfig
-from overtake.client.drive import main as drive
-from overtake.client.episode_records import (
+from overtake.client.episodes.drive import DriveConfig
+from overtake.client.episodes.drive import main as drive
+from overtake.client.episodes.records import (
     EpisodeRecord,
     RecordError,
     read_records,
@@ -302,9 +302,9 @@ class _OverriddenEveryFew:
 
 
 def test_the_shields_overrides_are_kept_and_recorded_at_their_decisions(tmp_path):
-    from overtake.client.episode_recording import open_episode_recording
-    from overtake.client.episode_records import EpisodeRecorder
-    from overtake.client.episodes import make_vector_env, run_episodes
+    from overtake.client.episodes.recording import open_episode_recording
+    from overtake.client.episodes.records import EpisodeRecorder
+    from overtake.client.episodes.runner import make_vector_env, run_episodes
     from overtake.viz.recording import close_recording
 
     envs = make_vector_env("min2018", {"episode.max_decisions": 30}, 2, None)
@@ -421,7 +421,7 @@ def test_a_replayed_emergency_brake_is_marked_with_its_cars(tmp_path):
 def test_a_relative_checkpoint_name_is_found_within_the_records_experiment(tmp_path):
     """Kept records name their checkpoint within the experiment (no machine's directories):
     a replay finds it there, from wherever it runs."""
-    from overtake.client.episode_records import PolicySource, RecordHeader
+    from overtake.client.episodes.records import PolicySource, RecordHeader
     from overtake.trainers.episode_replay import _driver_file
 
     experiment = tmp_path / "experiment"

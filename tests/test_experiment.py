@@ -423,7 +423,7 @@ def test_the_table_holds_every_row_and_reference_with_finite_figures(tiny):
 
 
 def test_every_evaluation_keeps_its_episodes_and_the_table_names_the_collisions(tiny):
-    from overtake.client.episode_records import read_records
+    from overtake.client.episodes.records import read_records
     from overtake.trainers.episode_replay import ReplayConfig
     from overtake.trainers.episode_replay import main as replay
 
@@ -569,7 +569,7 @@ def test_the_table_says_how_each_run_was_made_and_names_no_machine_s_directories
 
 
 def test_the_kept_copy_holds_the_collision_episodes_of_each_record_its_table_names(tmp_path):
-    from overtake.client.episode_records import (
+    from overtake.client.episodes.records import (
         EpisodeRecord,
         PolicySource,
         RecordHeader,

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from overtake.client.commands import UsageError
-from overtake.client.drive import DriveConfig
-from overtake.client.drive import main as drive
-from overtake.client.episodes import RealTime, make_vector_env, run_episodes
-from overtake.client.onnx_policy import read_metadata
+from overtake.client.episodes.drive import DriveConfig
+from overtake.client.episodes.drive import main as drive
+from overtake.client.episodes.runner import RealTime, make_vector_env, run_episodes
+from overtake.client.policies.onnx_policy import read_metadata
 from overtake.trainers.checkpoint import CHECKPOINT_NAME
 from overtake.trainers.evaluate import EvalConfig
 from overtake.trainers.evaluate import main as evaluate
@@ -92,7 +92,7 @@ def test_onnx_drives_with_pytorch_absent(trained, tmp_path):
         "        if name.split('.')[0] == 'torch':\n"
         "            raise ImportError('PyTorch is not installed here')\n"
         "sys.meta_path.insert(0, NoTorch())\n"
-        "from overtake.client.drive import cli\n"
+        "from overtake.client.episodes.drive import cli\n"
         f"cli(['--onnx', {str(out)!r}, '--episodes', '2', '--max-decisions', '15', "
         f"'--json-out', {str(table)!r}])\n"
         "assert not any(m.split('.')[0] == 'torch' for m in sys.modules)\n"

@@ -225,7 +225,7 @@ def car_at(image: np.ndarray, ahead_m: float, left_m: float) -> None:
     ],
 )
 def test_the_map_rule_driver_keeps_its_distance_and_changes_to_a_freer_lane(cars, expected):
-    from overtake.client.drivers import MapRuleDriver
+    from overtake.client.policies.drivers import MapRuleDriver
 
     image = blank_map()
     if expected == CRUISE_DOWN and len(cars) == 2:
@@ -236,7 +236,7 @@ def test_the_map_rule_driver_keeps_its_distance_and_changes_to_a_freer_lane(cars
 
 
 def test_the_rule_driver_drives_fayjie2018_from_its_map():
-    from overtake.client.episodes import baseline_policy, make_vector_env, run_episodes
+    from overtake.client.episodes.runner import baseline_policy, make_vector_env, run_episodes
 
     envs = make_vector_env("fayjie2018", {"traffic.density": "light"}, 2, None)
     act = baseline_policy("rule", envs.unwrapped.behaviour_spec, 0, 2, envs)

@@ -10,8 +10,8 @@ import pytest
 
 import overtake.client  # noqa: F401  (registers the environments)
 from overtake.client.commands import UsageError
-from overtake.client.drivers import GridRuleDriver
-from overtake.client.episodes import baseline_policy, make_vector_env, run_episodes
+from overtake.client.episodes.runner import baseline_policy, make_vector_env, run_episodes
+from overtake.client.policies.drivers import GridRuleDriver
 from overtake.protocol import HIGHWAY_ENV_ID
 from overtake.protocol.vocabulary import CRUISE_DOWN, CRUISE_UP, KEEP, LANE_LEFT, LANE_RIGHT
 from overtake.server.sim import HighwaySim, make_config

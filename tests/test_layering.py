@@ -232,6 +232,33 @@ def test_clients_and_trainers_read_the_behaviour_spec_not_the_servers_configurat
     assert not reads, "read the behaviour spec instead:\n" + "\n".join(reads)
 
 
+# client/ by audience (docs/development.md): the sub-packages each may import, besides the
+# modules all share (commands: the commands' errors; provenance: the code's commit).
+CLIENT_ALLOWED = {
+    "wire": set(),
+    "policies": set(),
+    "envs": {"wire"},
+    "episodes": {"wire", "policies"},
+    "mlagents": {"wire", "episodes"},
+}
+CLIENT_SHARED = {"commands", "provenance"}
+
+
+def test_client_s_sub_packages_import_only_those_below_them():
+    found = {p.name for p in (ROOT / "client").iterdir() if (p / "__init__.py").exists()}
+    assert found == set(CLIENT_ALLOWED), "a client/ sub-package the layering does not know"
+    wrong = []
+    for package, allowed in CLIENT_ALLOWED.items():
+        for path in sorted((ROOT / "client" / package).glob("*.py")):
+            for name, line in _imports(path):
+                parts = name.split(".")
+                if parts[:2] != ["overtake", "client"] or len(parts) < 3:
+                    continue
+                if parts[2] not in allowed | CLIENT_SHARED | {package}:
+                    wrong.append(f"client/{package}/{path.name}:{line} imports {name}")
+    assert not wrong, "\n".join(wrong)
+
+
 def _runtime_imports(path: Path, modules: set[str]) -> set[str]:
     """The project's modules ``path`` imports when it runs (local imports included, the
     ``if TYPE_CHECKING:`` ones not; a module's own packages, already loaded, not)."""

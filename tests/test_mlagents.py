@@ -14,8 +14,8 @@ import inspect
 import numpy as np
 import pytest
 
-from overtake.client import environment as ours
-from overtake.client.environment import RemoteEnvironment, UnsupportedRequest
+from overtake.client.mlagents import environment as ours
+from overtake.client.mlagents.environment import RemoteEnvironment, UnsupportedRequest
 from overtake.server.env import HighwayVectorEnv
 
 from remote_support import remote_config
@@ -27,7 +27,7 @@ base_env = pytest.importorskip(
 pytest.importorskip("gym", reason="gym 0.26 is not installed (scripts/setup-mlagents.sh)")
 pytest.importorskip("pettingzoo", reason="pettingzoo is not installed (scripts/setup-mlagents.sh)")
 
-from overtake.client.mlagents import load_wrappers  # noqa: E402
+from overtake.client.mlagents.wrappers import load_wrappers  # noqa: E402
 
 WRAPPERS = load_wrappers()
 # mlagents-envs 1.1.0's generated protobuf modules use descriptor calls protobuf deprecates.

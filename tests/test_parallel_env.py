@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from pettingzoo.test import parallel_api_test
 
-from overtake.client.parallel_env import RemoteHighwayParallelEnv
-from overtake.client.remote import ArenaGroup
+from overtake.client.envs.parallel_env import RemoteHighwayParallelEnv
+from overtake.client.wire.remote import ArenaGroup
 from overtake.protocol import errors
 from overtake.server.env import HighwayEnv
 from overtake.server.parallel_env import HighwayParallelEnv

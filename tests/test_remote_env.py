@@ -21,14 +21,14 @@ import pytest
 
 import overtake.client  # noqa: F401  (registers the environments)
 from overtake.client import ActionTuple, DecisionSteps, RemoteEnvironment, TerminalSteps
-from overtake.client.environment import (
+from overtake.client.mlagents.environment import (
     DimensionProperty,
     ObservationType,
     UnsupportedRequest,
     mlagents_observation_spec,
     mlagents_observations,
 )
-from overtake.client.remote import ArenaGroup
+from overtake.client.wire.remote import ArenaGroup
 from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, codec, errors, keys
 from overtake.protocol.errors import ConnectError, ServerLost
 from overtake.protocol.messages import WorldFrame

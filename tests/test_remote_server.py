@@ -23,7 +23,7 @@ import pytest
 
 import overtake.client  # noqa: F401  (registers the environments)
 from overtake.client import RemoteEnvironment
-from overtake.client.remote import Connection
+from overtake.client.wire.remote import Connection
 from overtake.protocol import REMOTE_HIGHWAY_ENV_ID, codec, errors, keys
 from overtake.protocol.codec import version_text
 from overtake.protocol.errors import ServerLost
@@ -96,7 +96,7 @@ def test_two_trainers_step_their_own_arenas_concurrently(start_server, start_tra
     assert all(g.late_agents == 0 for g in status.groups)
     # Both are idle now: nothing waits in the server's queues, and nothing was dropped.
     assert (status.queued_actions, status.queued_requests, status.dropped_frames) == (0, 0, 0)
-    from overtake.client.status import format_status
+    from overtake.client.wire.status import format_status
 
     text = format_status([status])
     assert f"{server.name}: 2/" in text and "0 frames dropped at the queues' bounds" in text
@@ -694,7 +694,7 @@ def test_equally_loaded_servers_are_picked_at_random_so_trainers_spread_out(monk
 
 @pytest.mark.timeout(60)
 def test_one_trainer_holds_at_most_its_share_of_arenas(start_server):
-    from overtake.client.remote import ArenaGroup
+    from overtake.client.wire.remote import ArenaGroup
     from overtake.protocol.errors import ServerFull
 
     server = start_server("e2e-share", max_arenas=8, extra=("--max-arenas-per-trainer", "3"))
@@ -826,7 +826,7 @@ def test_a_flood_of_garbage_in_a_trainers_name_is_logged_once_per_interval(caplo
     # bench/fuzz_wire's run): the first is logged, the rest counted into the next line.
     import logging
 
-    from overtake.client import connection as wire
+    from overtake.client.wire import connection as wire
 
     connection = Connection.__new__(Connection)  # no session: only the filing is exercised
     connection._stepping = set()
@@ -848,7 +848,7 @@ def test_a_flood_of_garbage_in_a_trainers_name_is_logged_once_per_interval(caplo
 def test_a_request_a_busy_server_did_not_queue_is_asked_again_until_the_timeout(monkeypatch):
     # Protocol 1.4: beyond its bound of waiting requests a server answers server_busy at
     # once; the client asks again with growing pauses, and names the cause when time is up.
-    from overtake.client import connection as wire
+    from overtake.client.wire import connection as wire
 
     connection = Connection.__new__(Connection)  # no session: only the asking is exercised
     connection.config = remote_config("tcp/127.0.0.1:1", request_timeout_s=5.0)

@@ -199,7 +199,7 @@ def test_remote_equals_in_process_on_each_transport(start_server, transport):
 
 @pytest.mark.timeout(90)
 def test_auto_reads_shared_memory_where_the_steps_are_large_enough_to_gain(start_server):
-    from overtake.client.shared_steps import AUTO_SHM_MIN_BYTES
+    from overtake.client.wire.shared_steps import AUTO_SHM_MIN_BYTES
 
     server = start_server("shm-auto")
     for arenas, through_shm in ((2, False), (40, True)):

@@ -1,5 +1,5 @@
-"""The safety shield (overtake.client.shield): what it masks on scenes built to tempt a driver,
-that it reads only what the car observes, and where it refuses to run."""
+"""The safety shield (overtake.client.policies.shield): what it masks on scenes built to tempt a
+driver, that it reads only what the car observes, and where it refuses to run."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from overtake.client.commands import UsageError
-from overtake.client.shield import Shield, overridden
+from overtake.client.policies.shield import Shield, overridden
 from overtake.protocol.vocabulary import CRUISE_DOWN, CRUISE_UP, KEEP, LANE_LEFT, LANE_RIGHT
 from overtake.server.env import HighwayEnv
 
@@ -132,10 +132,10 @@ def test_training_behind_the_shield_counts_its_overrides_and_evaluation_keeps_it
     assert "shield_overrides" not in bare["summary"]
     # Exported, the model says it was trained behind the shield, and the ONNX driver puts it
     # in front of the model as evaluation does: the same decisions, the same overrides.
-    from overtake.client.drive import DriveConfig
-    from overtake.client.drive import main as drive
-    from overtake.client.episodes import make_vector_env, run_episodes
-    from overtake.client.onnx_policy import OnnxPolicy, read_metadata
+    from overtake.client.episodes.drive import DriveConfig
+    from overtake.client.episodes.drive import main as drive
+    from overtake.client.episodes.runner import make_vector_env, run_episodes
+    from overtake.client.policies.onnx_policy import OnnxPolicy, read_metadata
     from overtake.trainers.export import ExportConfig
     from overtake.trainers.export import main as export
 

@@ -13,8 +13,8 @@ import pytest
 import rerun as rr
 
 import overtake.client  # noqa: F401  (registers the environments)
-from overtake.client.spectate import SpectateConfig
-from overtake.client.spectate import main as spectate
+from overtake.client.wire.spectate import SpectateConfig
+from overtake.client.wire.spectate import main as spectate
 from overtake.protocol import REMOTE_HIGHWAY_ENV_ID
 from overtake.viz.recording import RecordingConfig
 from overtake.viz.world_view import to_drawing
@@ -105,7 +105,7 @@ def test_spectate_logs_the_arena_and_the_lidar_the_trainer_received(start_server
 def test_spectate_command_prints_what_is_wrong_and_exits_non_zero():
     """A process, as a user runs it (cli() installs signal handlers, not for a test process)."""
     done = subprocess.run(
-        [sys.executable, "-m", "overtake.client.spectate", "--arena", "1"],
+        [sys.executable, "-m", "overtake.client.wire.spectate", "--arena", "1"],
         capture_output=True,
         text=True,
         timeout=120,

@@ -1066,7 +1066,9 @@ def test_evaluation_does_not_import_the_training_command():
     assert done.returncode == 0, done.stderr
     loaded = set(json.loads(done.stdout))
     assert "overtake.trainers.observations" in loaded
-    assert "overtake.trainers.train" not in loaded and "overtake.client.drive" not in loaded
+    assert (
+        "overtake.trainers.train" not in loaded and "overtake.client.episodes.drive" not in loaded
+    )
 
 
 def test_training_writes_a_rerun_recording_of_its_episodes_and_learning(tmp_path):

@@ -22,9 +22,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from overtake.client.episodes import parse_overrides
-from overtake.client.mlagents import MLAgentsMissing
-from overtake.client.unity_bridge import (
+from overtake.client.episodes.runner import parse_overrides
+from overtake.client.mlagents.unity_bridge import (
     COMPRESSION_NONE,
     COMPRESSION_PNG,
     ENVIRONMENT_PARAMETERS_CHANNEL,
@@ -37,6 +36,7 @@ from overtake.client.unity_bridge import (
     override_value,
     side_channel_messages,
 )
+from overtake.client.mlagents.wrappers import MLAgentsMissing
 from overtake.protocol.messages import Steps
 
 from remote_support import child_env, free_port, stop_process, wait_until
@@ -211,7 +211,7 @@ class Pair:
             [
                 sys.executable,
                 "-m",
-                "overtake.client.unity_bridge",
+                "overtake.client.mlagents.unity_bridge",
                 "--connect",
                 endpoint,
                 "--port",
@@ -416,7 +416,7 @@ def test_no_ml_agents_process_listening_is_a_clear_error(tmp_path, start_server)
         [
             sys.executable,
             "-m",
-            "overtake.client.unity_bridge",
+            "overtake.client.mlagents.unity_bridge",
             "--connect",
             server.endpoint,
             "--port",

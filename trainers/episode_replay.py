@@ -29,8 +29,8 @@ import tyro
 from tyro.conf import Positional
 
 from overtake.client.commands import run_command
-from overtake.client.episode_recording import open_episode_recording
-from overtake.client.episode_records import (
+from overtake.client.episodes.recording import open_episode_recording
+from overtake.client.episodes.records import (
     EpisodeRecord,
     EpisodeRecorder,
     RecordError,
@@ -39,10 +39,10 @@ from overtake.client.episode_records import (
     replay_overrides,
     unexplained_differences,
 )
-from overtake.client.episodes import baseline_policy, make_vector_env, run_episodes
+from overtake.client.episodes.runner import baseline_policy, make_vector_env, run_episodes
+from overtake.client.policies.shield import Shield
 from overtake.client.provenance import git_commit
-from overtake.client.shared_steps import Transport
-from overtake.client.shield import Shield
+from overtake.client.wire.shared_steps import Transport
 from overtake.protocol.transport import SecurityConfig
 from overtake.protocol.vocabulary import ACTION_NAMES, METRIC_FIELDS
 from overtake.viz.recording import RecordingConfig, close_recording
@@ -208,7 +208,7 @@ def _policy(header: RecordHeader, config: ReplayConfig, envs: Any) -> tuple[Any,
         shield = Shield(spec) if source.shield else None
         return GreedyPolicy(checkpoint, n, space, header.preset, shield), True
     if source.kind == "onnx":
-        from overtake.client.onnx_policy import OnnxPolicy
+        from overtake.client.policies.onnx_policy import OnnxPolicy
 
         path = _driver_file(header, config)
         return OnnxPolicy(path, n, space, header.preset, spec=spec, shield=source.shield), True
@@ -246,7 +246,7 @@ def compare(recorded: list[EpisodeRecord], replayed: list[EpisodeRecord], header
 def replay_envs(header: RecordHeader, count: int, config: ReplayConfig | None = None) -> Any:
     """``count`` environments of the simulator a record was made on: its preset and
     overrides, and where the preset has changed since, the overrides that undo the change
-    (:func:`~overtake.client.episode_records.replay_overrides`)."""
+    (:func:`~overtake.client.episodes.records.replay_overrides`)."""
     connect = config.connect if config is not None else None
     security = config.security if config is not None else None
     transport = config.transport if config is not None else "auto"

@@ -18,24 +18,24 @@ import numpy as np
 import torch
 
 from overtake.client.commands import UsageError, run_command
-from overtake.client.episode_recording import open_episode_recording
-from overtake.client.episode_records import (
+from overtake.client.episodes.recording import open_episode_recording
+from overtake.client.episodes.records import (
     EpisodeRecorder,
     PolicySource,
     RecordHeader,
     record_name,
     write_records,
 )
-from overtake.client.episodes import (
+from overtake.client.episodes.runner import (
     baseline_policy,
     make_vector_env,
     metric_summary,
     parse_overrides,
     run_episodes,
 )
+from overtake.client.policies.shield import Shield, ShieldedActing
 from overtake.client.provenance import git_commit
-from overtake.client.shared_steps import Transport
-from overtake.client.shield import Shield, ShieldedActing
+from overtake.client.wire.shared_steps import Transport
 from overtake.protocol.transport import SecurityConfig
 from overtake.viz.recording import RecordingConfig, close_recording
 
@@ -77,7 +77,7 @@ class EvalConfig:
     """episode length in decisions; None keeps the preset's (or its paper's evaluation's)"""
     shield: bool | None = None
     """the safety shield in front of the checkpoint's greedy choices; None: where the run was
-    trained with it (overtake.client.shield)"""
+    trained with it (overtake.client.policies.shield)"""
     paper_evaluation: bool = True
     """evaluate as the preset's paper does where it evaluates otherwise than it trains
     (ho2018: a decision every frame, 4,000 frames, as Ho's code evaluates); --no-paper-

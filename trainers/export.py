@@ -5,7 +5,7 @@ sensors it reads, the latest frame of the others; names, shapes and dtypes as th
 sends them, a free batch axis first) and gives ``q_values`` (batch, 5). What a driver needs to
 feed it is in the model's metadata (``overtake``, JSON: format, preset and overrides, inputs,
 stack, which inputs are stacked, each observation's space, action names, algorithm and step),
-so that :class:`overtake.client.onnx_policy.OnnxPolicy` drives with ONNX Runtime alone.
+so that :class:`overtake.client.policies.onnx_policy.OnnxPolicy` drives with ONNX Runtime alone.
 
 Before the file is kept, the export is checked: the checkpoint's own preset is driven greedily
 by PyTorch for ``--check-decisions`` decisions, and ONNX Runtime's Q-values on every one of
@@ -32,9 +32,9 @@ import tyro
 from torch import nn
 
 from overtake.client.commands import UsageError, run_command
-from overtake.client.episodes import make_vector_env
-from overtake.client.frames import FrameStacker
-from overtake.client.onnx_policy import METADATA_KEY, POLICY_FORMAT
+from overtake.client.episodes.runner import make_vector_env
+from overtake.client.policies.frames import FrameStacker
+from overtake.client.policies.onnx_policy import METADATA_KEY, POLICY_FORMAT
 from overtake.protocol.vocabulary import ACTION_NAMES
 
 from .checkpoint import Checkpoint, load_checkpoint

@@ -12,7 +12,7 @@ import gymnasium as gym
 import numpy as np
 
 from overtake.client.commands import UsageError
-from overtake.client.frames import FrameShapes, describe_space
+from overtake.client.policies.frames import FrameShapes, describe_space
 
 __all__ = ["describe_space", "frame_shapes"]
 from overtake.protocol import ACTION_COUNT

@@ -32,8 +32,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-# Frame stacking is shared with policies that act without PyTorch (overtake.client.frames).
-from overtake.client.frames import Frames, FrameShapes, FrameStacker
+# Frame stacking is shared with policies that act without PyTorch (overtake.client.policies.frames).
+from overtake.client.policies.frames import Frames, FrameShapes, FrameStacker
 
 from .sum_tree import SumTree
 

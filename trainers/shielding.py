@@ -1,5 +1,5 @@
 """The safety shield in a training run (``overtake-train --shield``): the shield of
-:mod:`overtake.client.shield` judging from the run's stacked frames, and the count of the
+:mod:`overtake.client.policies.shield` judging from the run's stacked frames, and the count of the
 decisions where it forbade the network's greedy choice."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from overtake.client.commands import UsageError
-from overtake.client.shield import Shield, overridden
+from overtake.client.policies.shield import Shield, overridden
 from overtake.protocol.messages import BehaviourSpec
 
 from .replay import FrameStacker

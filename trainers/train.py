@@ -33,7 +33,7 @@ from typing import Any
 import torch
 
 from overtake.client.commands import UsageError, run_command
-from overtake.client.episodes import make_vector_env
+from overtake.client.episodes.runner import make_vector_env
 
 from .checkpoint import (
     CHECKPOINT_NAME,

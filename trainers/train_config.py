@@ -12,8 +12,8 @@ from typing import Any, Literal
 
 import torch
 
-from overtake.client.episodes import parse_overrides
-from overtake.client.shared_steps import Transport
+from overtake.client.episodes.runner import parse_overrides
+from overtake.client.wire.shared_steps import Transport
 from overtake.protocol.transport import SecurityConfig
 from overtake.viz.recording import RecordingConfig
 
@@ -96,7 +96,7 @@ class TrainConfig:
     """show a progress bar"""
     shield: bool = False
     """mask the actions a safety shield judges unsafe, from what the car observes (its LIDAR
-    and speed), when acting, exploring and in the target's max (overtake.client.shield: the
+    and speed), when acting, exploring and in the target's max (overtake.client.policies.shield: the
     rule and its sources); evaluation, export and the ONNX driver use it where it was on"""
     dqn: DQNConfig = field(default_factory=DQNConfig)
     recording: RecordingConfig = field(

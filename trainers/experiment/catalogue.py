@@ -240,8 +240,8 @@ EXPERIMENTS: dict[str, Experiment] = {
         note=(
             "The bar (issue 34): a learned row drives 100 episodes of medium and 100 of heavy "
             "traffic with no collision, at least 3 km/h faster than the rule driver in medium "
-            "traffic. The shield's rule (overtake.client.shield) was fixed before the runs "
-            "and is not tuned on them."
+            "traffic. The shield's rule (overtake.client.policies.shield) was fixed before the "
+            "runs and is not tuned on them."
         ),
     ),
     "min2018-safe-both": Experiment(

@@ -12,7 +12,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from overtake.client.episode_records import read_records, write_records
+from overtake.client.episodes.records import read_records, write_records
 
 from .files import read_json, say, write_atomic
 

@@ -17,13 +17,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from overtake.client.commands import run_command
+from overtake.client.wire.connection import RemoteConfig
+from overtake.client.wire.spectator import Spectator
 from overtake.protocol.transport import SecurityConfig
 from overtake.viz.recording import APPLICATION_ID, RecordingConfig, close_recording, open_recording
 from overtake.viz.world_view import WorldRecording
-
-from .commands import run_command
-from .connection import RemoteConfig
-from .spectator import Spectator
 
 DEFAULT_RRD = Path("runs/spectate/world.rrd")
 

@@ -6,11 +6,10 @@ import json
 import sys
 from dataclasses import asdict, dataclass, field
 
+from overtake.client.commands import run_command
+from overtake.client.wire.connection import Connection, RemoteConfig
 from overtake.protocol.messages import StatusReply
 from overtake.protocol.transport import DEFAULT_ENDPOINT, SecurityConfig
-
-from .commands import run_command
-from .connection import Connection, RemoteConfig
 
 
 @dataclass(frozen=True)

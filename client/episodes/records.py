@@ -27,6 +27,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from overtake.client.commands import UsageError
 from overtake.protocol.vocabulary import (
     ACTION_COUNT,
     ADDED_SETTINGS,
@@ -35,8 +36,6 @@ from overtake.protocol.vocabulary import (
     EPISODE_COUNTS,
     METRIC_FIELDS,
 )
-
-from .commands import UsageError
 
 RECORD_FORMAT = "overtake-episodes"
 RECORD_VERSION = 1
@@ -287,7 +286,7 @@ class EventCounts:
 
 
 class EpisodeRecorder:
-    """Builds the records of the episodes :func:`~overtake.client.episodes.run_episodes`
+    """Builds the records of the episodes :func:`~overtake.client.episodes.runner.run_episodes`
     drives (one per environment: the first episode of each), as it steps them.
 
     ``policy`` may say, after each call, which environments' choices the safety shield

@@ -1,5 +1,5 @@
 """Episodes into Rerun as they are driven (``overtake-eval --record``, ``overtake-replay``): a
-watcher of :func:`~overtake.client.episodes.run_episodes` that logs each environment's first
+watcher of :func:`~overtake.client.episodes.runner.run_episodes` that logs each environment's first
 episode on a timeline of its own, laid out as :mod:`overtake.viz.episode_view` says.
 
 At decision ``d`` of an episode the recording holds what the car saw when it decided (camera,
@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from overtake.client.episodes.records import EventCounts
 from overtake.protocol.vocabulary import ACTION_NAMES
 from overtake.viz.car_view import CarView
 from overtake.viz.episode_view import CAR, EVENTS, ROAD_SERVER, episode_blueprint, timeline
@@ -28,8 +29,6 @@ from overtake.viz.recording import (
     open_recording,
 )
 from overtake.viz.world_view import BRAKE_COLOUR, EVENT_COLOUR, WorldRecording
-
-from .episode_records import EventCounts
 
 # Cars closer than this (m, beyond touching) to a car that collided are drawn as its partners.
 TOUCH_MARGIN_M = 0.5

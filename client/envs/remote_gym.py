@@ -25,6 +25,8 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector.utils import batch_space
 
+from overtake.client.wire.connection import Connection, RemoteConfig
+from overtake.client.wire.remote import ArenaGroup
 from overtake.protocol import errors
 from overtake.protocol.codec import version_text
 from overtake.protocol.envs import (
@@ -41,9 +43,6 @@ from overtake.protocol.messages import (
     Steps,
 )
 from overtake.protocol.vocabulary import ACTION_COUNT, EPISODE_COUNTS
-
-from .connection import Connection, RemoteConfig
-from .remote import ArenaGroup
 
 try:  # Gymnasium >= 1.1 names the autoreset modes; 1.0 only has next-step autoreset.
     from gymnasium.vector import AutoresetMode

@@ -8,7 +8,7 @@ imports the three wrapper modules with a stand-in for that package (the same fol
 registry), then returns the wrappers::
 
     from overtake.client import RemoteEnvironment
-    from overtake.client.mlagents import load_wrappers
+    from overtake.client.mlagents.wrappers import load_wrappers
 
     wrappers = load_wrappers()
     env = wrappers.gym(RemoteEnvironment("tcp/127.0.0.1:7447"), allow_multiple_obs=True)

@@ -20,6 +20,7 @@ from typing import Any, TypeVar
 
 import zenoh
 
+from overtake.client.wire.shared_steps import Transport, attach, reads_through, steps_from_notice
 from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import (
     Actions,
@@ -39,8 +40,6 @@ from overtake.protocol.transport import (
     connect_failure_cause,
     open_session,
 )
-
-from .shared_steps import Transport, attach, reads_through, steps_from_notice
 
 log = logging.getLogger("overtake.client")
 
@@ -81,7 +80,7 @@ class RemoteConfig:
     steps_transport: Transport = "auto"
     """How Steps travel: ``auto`` through shared memory where the server is on this host (it
     offers a segment and this trainer can map it) and the group's Steps are large enough to
-    gain by it (``overtake.client.shared_steps.AUTO_SHM_MIN_BYTES``, 256 KiB: about 32 arenas
+    gain by it (``overtake.client.wire.shared_steps.AUTO_SHM_MIN_BYTES``, 256 KiB: about 32 arenas
     of min2018 with both sensors), over Zenoh otherwise; ``shm`` shared memory or a clear
     error; ``zenoh`` always over Zenoh."""
 

@@ -14,13 +14,12 @@ from collections import deque
 
 import zenoh
 
+from overtake.client.wire.connection import RemoteConfig, unreachable_message
 from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import WorldFrame
 from overtake.protocol.transport import open_session
 
-from .connection import RemoteConfig, unreachable_message
-
-log = logging.getLogger("overtake.client.spectator")
+log = logging.getLogger("overtake.client.wire.spectator")
 
 
 class Spectator:

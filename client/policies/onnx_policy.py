@@ -2,7 +2,7 @@
 
 No PyTorch: the model's metadata says which observations it reads, how many frames it stacks
 and the spaces it was trained on; :class:`OnnxPolicy` stacks the frames as the trainer did
-(:class:`overtake.client.frames.FrameStacker`) and acts greedily among the allowed actions.
+(:class:`overtake.client.policies.frames.FrameStacker`) and acts greedily among the allowed actions.
 An environment whose observations differ from the model's (another preset, a sensor switched
 off, another camera size) is refused with an error naming both.
 
@@ -19,11 +19,10 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from overtake.client.commands import UsageError
+from overtake.client.policies.frames import FrameShapes, FrameStacker, describe_space
+from overtake.client.policies.shield import Shield, ShieldedActing
 from overtake.protocol.messages import BehaviourSpec
-
-from .commands import UsageError
-from .frames import FrameShapes, FrameStacker, describe_space
-from .shield import Shield, ShieldedActing
 
 POLICY_FORMAT = "overtake-policy/1"
 METADATA_KEY = "overtake"

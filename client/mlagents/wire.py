@@ -18,11 +18,10 @@ from typing import Any
 
 import numpy as np
 
+from overtake.client.commands import UsageError
+from overtake.client.mlagents.environment import mlagents_observation_spec, mlagents_observations
+from overtake.client.mlagents.wrappers import SUPPORTED_MLAGENTS_ENVS, MLAgentsMissing
 from overtake.protocol.messages import Scalar, Steps
-
-from .commands import UsageError
-from .environment import mlagents_observation_spec, mlagents_observations
-from .mlagents import SUPPORTED_MLAGENTS_ENVS, MLAgentsMissing
 
 log = logging.getLogger("overtake.unity_bridge")
 

@@ -21,11 +21,10 @@ from typing import Any
 import numpy as np
 from pettingzoo import ParallelEnv
 
+from overtake.client.envs.remote_gym import _Remote, _RemoteHandles, spaces_from_spec
+from overtake.client.wire.connection import RemoteConfig
 from overtake.protocol.envs import ParallelAgents, check_parallel_actions, check_render_mode
 from overtake.protocol.messages import Scalar, Steps
-
-from .connection import RemoteConfig
-from .remote_gym import _Remote, _RemoteHandles, spaces_from_spec
 
 AgentID = str
 RETIRE_SINCE_MINOR = 3  # the protocol minor version that lets a trainer retire its cars

@@ -18,14 +18,8 @@ from typing import Any, Protocol
 import gymnasium as gym
 import numpy as np
 
-from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
-from overtake.protocol.messages import BehaviourSpec
-from overtake.protocol.transport import SecurityConfig
-from overtake.protocol.vocabulary import METRIC_FIELDS
-
-from .commands import UsageError
-from .connection import RemoteConfig
-from .drivers import (
+from overtake.client.commands import UsageError
+from overtake.client.policies.drivers import (
     GridRuleDriver,
     GridRuleDriverConfig,
     MapRuleDriver,
@@ -34,7 +28,12 @@ from .drivers import (
     RuleDriver,
     RuleDriverConfig,
 )
-from .shared_steps import Transport
+from overtake.client.wire.connection import RemoteConfig
+from overtake.client.wire.shared_steps import Transport
+from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
+from overtake.protocol.messages import BehaviourSpec
+from overtake.protocol.transport import SecurityConfig
+from overtake.protocol.vocabulary import METRIC_FIELDS
 
 Policy = Callable[[dict[str, np.ndarray], dict[str, Any], np.ndarray], np.ndarray]
 """``act(obs, info, starting)`` -> actions, for :func:`run_episodes`."""
@@ -226,8 +225,8 @@ def baseline_policy(
     """A reference policy for :func:`run_episodes`:
 
     - ``rule``: the rule-based driver that reads what the preset observes (the LIDAR and ego
-      vector, Ho's grid or Fayjie et al.'s LIDAR map: :mod:`overtake.client.drivers`), tuned
-      to the environment's behaviour spec (its road, car and the observations' reach);
+      vector, Ho's grid or Fayjie et al.'s LIDAR map: :mod:`overtake.client.policies.drivers`),
+      tuned to the environment's behaviour spec (its road, car and the observations' reach);
     - ``random``: uniformly random among the allowed actions;
     - ``idle``: never acts (action 0 throughout): the floor any policy should beat;
     - ``planner``: the simulator's privileged planner, which reads the true state of every

@@ -4,7 +4,7 @@ ML-Agents' Python side (mlagents-envs' ``UnityEnvironment``, ``mlagents-learn``)
 gRPC port (5004 for the editor, ``base_port + worker_id`` for builds) and waits for a Unity
 process to dial in and call ``UnityToExternalProto.Exchange`` with ``UnityMessageProto``s. This
 bridge is that Unity process: it opens arenas on an overtake server over Zenoh (a
-:class:`~overtake.client.environment.RemoteEnvironment`), dials the ML-Agents process, and
+:class:`~overtake.client.mlagents.environment.RemoteEnvironment`), dials the ML-Agents process, and
 answers each exchange:
 
 1. initialisation: overtake's name, communication version and capabilities; the answer
@@ -48,16 +48,10 @@ from typing import Any
 
 import numpy as np
 
-from overtake.protocol import ProtocolError
-from overtake.protocol.messages import Scalar
-from overtake.protocol.transport import SecurityConfig
-
-from .commands import run_command
-from .connection import RemoteConfig
-from .environment import RemoteEnvironment
-from .episodes import parse_overrides
-from .mlagents import SUPPORTED_MLAGENTS_ENVS
-from .mlagents_wire import (
+from overtake.client.commands import run_command
+from overtake.client.episodes.runner import parse_overrides
+from overtake.client.mlagents.environment import RemoteEnvironment
+from overtake.client.mlagents.wire import (
     COMMAND_QUIT,
     COMMAND_RESET,
     COMMAND_STEP,
@@ -79,6 +73,11 @@ from .mlagents_wire import (
     override_value,
     side_channel_messages,
 )
+from overtake.client.mlagents.wrappers import SUPPORTED_MLAGENTS_ENVS
+from overtake.client.wire.connection import RemoteConfig
+from overtake.protocol import ProtocolError
+from overtake.protocol.messages import Scalar
+from overtake.protocol.transport import SecurityConfig
 
 __all__ = [
     "COMPRESSION_NONE",

@@ -35,10 +35,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from overtake.client.commands import UsageError
 from overtake.protocol.messages import BehaviourSpec
 from overtake.protocol.vocabulary import ACTION_COUNT, CRUISE_UP, LANE_LEFT, LANE_RIGHT
-
-from .commands import UsageError
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,7 @@
 our arenas when it disappears) and the subscriber our observations arrive on.
 :class:`ArenaGroup` is a set of arenas opened (or joined) in one request and stepped in lock
 step; it survives a server restart by reopening its arenas and reporting the broken episodes
-as truncated. :class:`~overtake.client.environment.RemoteEnvironment` and the Gymnasium
+as truncated. :class:`~overtake.client.mlagents.environment.RemoteEnvironment` and the Gymnasium
 environments are built on these two.
 
 Which server serves an open request: the client asks every server on the network for its
@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from overtake.client.wire.connection import Connection, RemoteConfig
 from overtake.protocol import errors
 from overtake.protocol.messages import (
     Ack,
@@ -35,8 +36,6 @@ from overtake.protocol.messages import (
     ResetRequest,
     Steps,
 )
-
-from .connection import Connection, RemoteConfig
 
 __all__ = ["ArenaGroup", "Connection", "RemoteConfig"]
 

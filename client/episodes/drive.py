@@ -15,18 +15,15 @@ from typing import Any, Literal
 
 import numpy as np
 
-from overtake.protocol.transport import SecurityConfig
-from overtake.protocol.vocabulary import METRIC_FIELDS
-
-from .commands import UsageError, run_command
-from .episode_records import (
+from overtake.client.commands import UsageError, run_command
+from overtake.client.episodes.records import (
     EpisodeRecorder,
     PolicySource,
     RecordHeader,
     record_name,
     write_records,
 )
-from .episodes import (
+from overtake.client.episodes.runner import (
     RealTime,
     baseline_policy,
     make_vector_env,
@@ -35,8 +32,10 @@ from .episodes import (
     parse_overrides,
     run_episodes,
 )
-from .provenance import git_commit
-from .shared_steps import Transport
+from overtake.client.provenance import git_commit
+from overtake.client.wire.shared_steps import Transport
+from overtake.protocol.transport import SecurityConfig
+from overtake.protocol.vocabulary import METRIC_FIELDS
 
 
 @dataclass(frozen=True)
@@ -49,7 +48,7 @@ class DriveConfig:
     """drive a policy exported by overtake-export (ONNX Runtime, no PyTorch) instead of
     --policy"""
     shield: bool | None = None
-    """with --onnx: the safety shield in front of the model (overtake.client.shield); None:
+    """with --onnx: the safety shield in front of the model (overtake.client.policies.shield); None:
     where the model was trained with it"""
     realtime: bool = False
     """advance the simulator on the wall clock, one decision period (0.4 s for min2018) per
@@ -87,7 +86,7 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
         raise UsageError(f"--episodes must be >= 1, got {config.episodes}")
     preset = config.preset or "min2018"
     if config.preset is None and config.onnx is not None:
-        from .onnx_policy import read_metadata
+        from overtake.client.policies.onnx_policy import read_metadata
 
         preset = read_metadata(config.onnx)["preset"]
     overrides = parse_overrides(config.set)
@@ -106,7 +105,7 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
     clock = RealTime(period_s=envs.unwrapped.decision_period_s) if config.realtime else None
     try:
         if config.onnx is not None:
-            from .onnx_policy import OnnxPolicy
+            from overtake.client.policies.onnx_policy import OnnxPolicy
 
             act: Any = OnnxPolicy(
                 config.onnx,

@@ -2,10 +2,11 @@
 
 It follows ``mlagents_envs.base_env`` (mlagents-envs 1.1.0) closely enough that ML-Agents' own
 wrappers drive it unchanged (``UnityToGymWrapper``, ``UnityParallelEnv``, ``UnityAECEnv``; see
-:mod:`overtake.client.mlagents` and tests/test_mlagents.py, which run them), without depending
-on mlagents-envs: ``behavior_specs``, ``get_steps``, ``set_actions``, ``set_action_for_agent``,
-``step``, ``reset``, ``close``; ``DecisionSteps`` / ``TerminalSteps`` (indexing by agent id,
-``agent_id_to_index``, ``group_id``, ``group_reward``, ``empty``), ``BehaviorSpec``,
+:mod:`overtake.client.mlagents.wrappers` and tests/test_mlagents.py, which run them), without
+depending on mlagents-envs: ``behavior_specs``, ``get_steps``, ``set_actions``,
+``set_action_for_agent``, ``step``, ``reset``, ``close``; ``DecisionSteps`` /
+``TerminalSteps`` (indexing by agent id, ``agent_id_to_index``, ``group_id``,
+``group_reward``, ``empty``), ``BehaviorSpec``,
 ``ObservationSpec`` (``dimension_property``, ``observation_type``), ``ActionSpec``
 (``is_discrete``, ``is_continuous``, ...) and ``ActionTuple``. One environment holds one group
 of arenas (one behaviour); agent ids are ids within the group, and several agents per arena
@@ -30,17 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from overtake.protocol.envs import arena_seeds
-from overtake.protocol.messages import (
-    JoinRequest,
-    OpenRequest,
-    Scalar,
-    Steps,
-)
-from overtake.protocol.vocabulary import ACTION_COUNT, DEFAULT_ACTION
-
-from .connection import Connection, RemoteConfig
-from .mlagents_types import (
+from overtake.client.mlagents.types import (
     ActionSpec,
     ActionTuple,
     BehaviorSpec,
@@ -56,7 +47,16 @@ from .mlagents_types import (
     mlagents_observation_spec,
     mlagents_observations,
 )
-from .remote import ArenaGroup
+from overtake.client.wire.connection import Connection, RemoteConfig
+from overtake.client.wire.remote import ArenaGroup
+from overtake.protocol.envs import arena_seeds
+from overtake.protocol.messages import (
+    JoinRequest,
+    OpenRequest,
+    Scalar,
+    Steps,
+)
+from overtake.protocol.vocabulary import ACTION_COUNT, DEFAULT_ACTION
 
 __all__ = [
     "ActionSpec",
