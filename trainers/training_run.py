@@ -94,7 +94,8 @@ class TrainingRun:
         self.in_flight: dict[int, tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]] = {}
         self.env_calls = 0  # envs.step, or with overlap send: one each, autoreset steps included
         self.unstored = 0  # transitions played past the budget, in its last step: not stored
-        # The safety shield (--shield), judging from what the cars observe (client/policies/shield.py).
+        # The safety shield (--shield), judging from what the cars observe
+        # (client/policies/shield.py).
         self.shield = (
             TrainingShield(self.env.behaviour_spec, self.stacker, config.inputs)
             if config.shield
