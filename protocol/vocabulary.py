@@ -54,6 +54,20 @@ METRIC_FIELDS: tuple[str, ...] = (
 EPISODE_COUNTS: tuple[str, ...] = ("collisions", "emergency_brakes")
 assert set(EPISODE_COUNTS) <= set(METRIC_FIELDS)
 
+# The keys of every overtake environment's ``info`` (the single, vector and PettingZoo faces
+# alike, in process or remote; overtake.protocol.faces.StepInfo builds it): the action mask,
+# the action applied, the reward's terms, the episode's event counts so far, the episode's
+# metrics (where it ended), whether the action was late, and whether the server was lost.
+INFO_KEYS: tuple[str, ...] = (
+    "action_mask",
+    "action_applied",
+    "reward_terms",
+    "episode_counts",
+    "metrics",
+    "late",
+    "server_restarted",
+)
+
 # Traffic driver types: Ho's three (2018, Table 5), and Min et al.'s cars that act at random
 # (2018, §IV.A). A vehicle's ``kind`` in world frames indexes this tuple, and a kind equal to
 # its length marks an agent's car.

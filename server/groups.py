@@ -60,6 +60,7 @@ class Member:
     ticket: bytes
     slots: np.ndarray  # (A, N) bool: the agent slots it owns
     pending: Actions | None = None  # its actions for the current round
+    count: int = 0  # how many slots it owns (slots.sum())
 
 
 # Group steps taken in this process, in order: what next_to_step compares.
@@ -114,7 +115,26 @@ class Group:
         agents_per_arena: int,
         seed: int | None,
     ) -> Group:
-        config = resolve_config(preset, overrides)
+        return cls.of_config(
+            group_id,
+            server,
+            arena_ids,
+            resolve_config(preset, overrides),
+            agents_per_arena,
+            seed,
+        )
+
+    @classmethod
+    def of_config(
+        cls,
+        group_id: int,
+        server: str,
+        arena_ids: list[int],
+        config: SimConfig,
+        agents_per_arena: int,
+        seed: int | None,
+    ) -> Group:
+        """A group of arenas running ``config``, every car off the road until claimed."""
         try:
             sim = HighwaySim(config, num_arenas=len(arena_ids), agents_per_arena=agents_per_arena)
         except ValueError as error:
@@ -136,7 +156,7 @@ class Group:
             group_id=group_id,
             server=server,
             arena_ids=list(arena_ids),
-            preset=preset,
+            preset=config.preset,
             sim=sim,
             spec=behaviour_spec(sim),
         )
@@ -175,6 +195,7 @@ class Group:
                 ticket=secrets.token_bytes(16), slots=np.zeros(self.shape, dtype=bool)
             )
         member.slots[arena_index, slots] = True
+        member.count = int(member.slots.sum())
         if fresh:
             self.sim.restore_agents(arena_index, slots)
         else:
@@ -281,22 +302,30 @@ class Group:
         arenas, n = self.shape
         actions = np.full((arenas, n), DEFAULT_ACTION, dtype=np.int64)
         late = np.zeros((arenas, n), dtype=bool)
-        acted = np.zeros((arenas, n), dtype=bool)
         for member in self.members.values():
             if member.pending is not None and member.pending.retire is not None:
                 self._retire(member.pending.retire)
+        # Whoever has no action (its trainer late, or it left the car out) keeps its lane.
         for member in self.members.values():
-            if member.pending is not None:
-                actions.reshape(-1)[member.pending.agents] = member.pending.actions
-                acted.reshape(-1)[member.pending.agents] = True
-                member.pending = None
-            # Whoever has no action (its trainer late, or left it out) keeps its lane.
-            late |= member.slots & ~acted
-        late &= ~self.ended & ~self.retired
-        self.late_agents += int(late.sum())
+            pending, member.pending = member.pending, None
+            if pending is None:
+                late |= member.slots
+                continue
+            actions.reshape(-1)[pending.agents] = pending.actions
+            # Its agents are distinct and its own (accept), so all of them when as many.
+            if pending.agents.size < member.count:
+                left_out = member.slots.copy()
+                left_out.reshape(-1)[pending.agents] = False
+                late |= left_out
+        if late.any():
+            late &= ~self.ended & ~self.retired
+            self.late_agents += int(late.sum())
 
         result = autoreset_round(sim, actions, self.ended & self.owned(), sim.agents_present())
-        terms = np.stack([result.reward_terms[name] for name in sim.reward_terms], axis=-1)
+        # Filled column by column: np.stack costs more than the copy on arrays this small.
+        terms = np.empty((arenas, n, len(sim.reward_terms)))
+        for i, name in enumerate(sim.reward_terms):
+            terms[..., i] = result.reward_terms[name]
         self.ended = result.ended
         self.last_reward, self.last_applied, self.last_terms = (
             result.reward,
@@ -412,7 +441,7 @@ class Group:
         arenas, n = self.shape
         total = arenas * n
         everyone = bool(slots.all())
-        flat = np.arange(total) if everyone else np.flatnonzero(slots)
+        flat = np.arange(total, dtype=np.int32) if everyone else np.flatnonzero(slots)
 
         def rows(value: np.ndarray) -> np.ndarray:
             value = value.reshape((total,) + value.shape[2:])

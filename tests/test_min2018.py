@@ -4,6 +4,8 @@ brakes per decision, and the reference policies (idle, planner)."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -12,6 +14,7 @@ import overtake.client  # noqa: F401  (registers the environments)
 from overtake.client.commands import UsageError
 from overtake.client.episodes.runner import baseline_policy, make_vector_env, run_episodes
 from overtake.protocol import HIGHWAY_ENV_ID
+from overtake.protocol.faces import VectorFace
 from overtake.protocol.vocabulary import CRUISE_DOWN, CRUISE_UP, KEEP, LANE_LEFT, LANE_RIGHT
 from overtake.server.sim import HighwaySim, make_config
 from overtake.server.sim.physics import traffic_overlaps
@@ -340,13 +343,11 @@ def test_idle_and_planner_are_reference_policies_in_process_only_for_the_planner
     planner = baseline_policy("planner", envs.unwrapped.behaviour_spec, 0, 2, envs)
     actions = planner(obs, info, np.ones(2, dtype=bool))
     assert actions.shape == (2,) and actions.dtype == np.int64
-    envs.close()
-
-    class Remote:  # an environment with no true state to read
-        unwrapped = object()
-
+    # A simulator with no road to read (as a remote one): the planner is refused.
+    remote_like = VectorFace(dataclasses.replace(envs.simulator, road=None), 2)
     with pytest.raises(UsageError, match="in-process"):
-        baseline_policy("planner", {}, 0, 1, Remote())
+        baseline_policy("planner", envs.behaviour_spec, 0, 2, remote_like)
+    envs.close()
     single = gym.make(HIGHWAY_ENV_ID, overrides={"camera.enabled": False})
     single.reset(seed=0)
     assert single.unwrapped.planner_action() in range(5)

@@ -43,6 +43,7 @@ from overtake.client.episodes.runner import baseline_policy, make_vector_env, ru
 from overtake.client.policies.shield import Shield
 from overtake.client.provenance import git_commit
 from overtake.client.wire.shared_steps import Transport
+from overtake.protocol.faces import VectorFace
 from overtake.protocol.transport import SecurityConfig
 from overtake.protocol.vocabulary import ACTION_NAMES, METRIC_FIELDS
 from overtake.viz.recording import RecordingConfig, close_recording
@@ -190,13 +191,13 @@ def _driver_file(header: RecordHeader, config: ReplayConfig) -> Path:
     return path
 
 
-def _policy(header: RecordHeader, config: ReplayConfig, envs: Any) -> tuple[Any, bool]:
+def _policy(header: RecordHeader, config: ReplayConfig, envs: VectorFace) -> tuple[Any, bool]:
     """The policy that drove, asked again during the replay (None: it cannot be, or need not
     be), and whether its choices are checked against the record."""
     source, n = header.policy, envs.num_envs
     if config.actions_only:
         return None, False
-    space, spec = envs.single_observation_space, envs.unwrapped.behaviour_spec
+    space, spec = envs.single_observation_space, envs.behaviour_spec
     if source.kind == "checkpoint":
         path = _driver_file(header, config)
         checkpoint = load_checkpoint(path)
@@ -243,7 +244,7 @@ def compare(recorded: list[EpisodeRecord], replayed: list[EpisodeRecord], header
             )
 
 
-def replay_envs(header: RecordHeader, count: int, config: ReplayConfig | None = None) -> Any:
+def replay_envs(header: RecordHeader, count: int, config: ReplayConfig | None = None) -> VectorFace:
     """``count`` environments of the simulator a record was made on: its preset and
     overrides, and where the preset has changed since, the overrides that undo the change
     (:func:`~overtake.client.episodes.records.replay_overrides`)."""
@@ -253,7 +254,7 @@ def replay_envs(header: RecordHeader, count: int, config: ReplayConfig | None = 
     envs = make_vector_env(
         header.preset, header.overrides, count, connect, security, transport=transport
     )
-    undo = replay_overrides(header.config, envs.unwrapped.sim_config)
+    undo = replay_overrides(header.config, envs.sim_config)
     if not undo:
         return envs
     envs.close()
@@ -276,7 +277,7 @@ def main(config: ReplayConfig) -> dict[str, Any]:
     rrd = config.recording.rrd or Path(f"{config.record.stem}-replay.rrd")
     try:
         differences = sorted(
-            unexplained_differences(header.config, envs.unwrapped.sim_config),
+            unexplained_differences(header.config, envs.sim_config),
             key=lambda text: not text.startswith("preset:"),  # the preset's name first
         )
         if differences:

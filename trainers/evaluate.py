@@ -257,11 +257,11 @@ def main(config: EvalConfig) -> dict[str, Any]:
                 config.episodes,
                 envs.single_observation_space,
                 preset,
-                Shield(envs.unwrapped.behaviour_spec) if shielded else None,
+                Shield(envs.behaviour_spec) if shielded else None,
             )
             name = config.name or f"{checkpoint.algo}/{checkpoint.inputs}@{checkpoint.step}"
         else:
-            spec = envs.unwrapped.behaviour_spec
+            spec = envs.behaviour_spec
             policy = baseline_policy(str(config.policy), spec, config.seed, config.episodes, envs)
             name = config.name or str(config.policy)
         source = (
@@ -297,7 +297,7 @@ def main(config: EvalConfig) -> dict[str, Any]:
         header = RecordHeader(
             preset=preset,
             overrides=overrides,
-            config=envs.unwrapped.sim_config,
+            config=envs.sim_config,
             policy=source,
             commit=git_commit(),
             name=name,

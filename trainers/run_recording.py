@@ -47,7 +47,7 @@ class RunRecording:
         spec = env.behaviour_spec
         road = (
             (IN_PROCESS_ROAD, spec.road.lane_count * spec.road.lane_width_m)
-            if env.world_frame is not None and spec is not None and spec.road is not None
+            if env.road is not None and spec is not None and spec.road is not None
             else None
         )
         recording, view = open_training_recording(
@@ -66,14 +66,13 @@ class RunRecording:
         self,
         step: int,
         seen: dict[str, np.ndarray],
-        obs: dict[str, np.ndarray],
         actions: np.ndarray,
         q: np.ndarray,
         reward: np.ndarray,
         info: dict[str, Any],
     ) -> None:
         """Environment 0's view (``seen``: what the network read), action, Q-values, reward
-        and reward terms; in process also its road, with ``obs`` (the latest observations)."""
+        and reward terms; in process also its road after the step."""
         terms = {name: float(v[0]) for name, v in info.get("reward_terms", {}).items()}
         self.view.car_view(
             step,
@@ -83,16 +82,9 @@ class RunRecording:
             float(reward[0]),
             terms,
         )
-        if self.world is not None and self.env.world_frame is not None:
-            frame = self.env.world_frame(
-                0,
-                {k: v[0] for k, v in obs.items()},
-                float(reward[0]),
-                int(info["action_applied"][0]) if "action_applied" in info else -1,
-                terms,
-                step,
-            )
-            self.world.log(frame)
+        if self.world is not None and self.env.road is not None:
+            # The road after the step, its frame on the run's step (EnvParts.label_step).
+            self.world.log(self.env.road.world_frame(0))
 
     def episode(self, step: int, metrics: dict[str, float]) -> None:
         self.view.episode(step, metrics)

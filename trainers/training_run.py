@@ -344,7 +344,7 @@ class TrainingRun:
             and not self.starting[0]
             and self.iteration % self.config.recording.record_every == 0
         ):
-            self.recording.car_view(self.step, seen, self.obs, actions, q, reward, info)
+            self.recording.car_view(self.step, seen, actions, q, reward, info)
         self.iteration += 1
 
     def _store(

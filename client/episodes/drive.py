@@ -102,7 +102,7 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
         config.security,
         transport=config.transport,
     )
-    clock = RealTime(period_s=envs.unwrapped.decision_period_s) if config.realtime else None
+    clock = RealTime(period_s=envs.decision_period_s) if config.realtime else None
     try:
         if config.onnx is not None:
             from overtake.client.policies.onnx_policy import OnnxPolicy
@@ -112,12 +112,12 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
                 config.episodes,
                 envs.single_observation_space,
                 preset,
-                spec=envs.unwrapped.behaviour_spec,
+                spec=envs.behaviour_spec,
                 shield=config.shield,
             )
         else:
             act = baseline_policy(
-                config.policy, envs.unwrapped.behaviour_spec, config.seed, config.episodes, envs
+                config.policy, envs.behaviour_spec, config.seed, config.episodes, envs
             )
         recorder = EpisodeRecorder([config.seed + i for i in range(config.episodes)], act)
         rows, decisions, elapsed = run_episodes(
@@ -132,7 +132,7 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
         header = RecordHeader(
             preset=preset,
             overrides=overrides,
-            config=envs.unwrapped.sim_config,
+            config=envs.sim_config,
             policy=(
                 PolicySource(
                     "onnx", str(config.onnx), shield=getattr(act, "guard", None) is not None

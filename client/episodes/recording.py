@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from overtake.client.episodes.records import EventCounts
+from overtake.protocol.faces import VectorFace
 from overtake.protocol.vocabulary import ACTION_NAMES
 from overtake.viz.car_view import CarView
 from overtake.viz.episode_view import CAR, EVENTS, ROAD_SERVER, episode_blueprint, timeline
@@ -76,14 +77,14 @@ def ahead_of(frame: Any, agent: int = 0) -> np.ndarray:
 class EpisodeRecording:
     """Logs the first episode of each environment of a vector environment to ``stream``;
     ``labels[i]`` numbers environment ``i``'s episode (its timeline). ``envs``: the vector
-    environment, whose ``world_frame`` (in process) draws the road; ``policy``: may say
+    environment, whose simulator's road (in process) is drawn too; ``policy``: may say
     ``last_q`` (N, actions) and ``last_overridden`` (N,) after each call."""
 
     def __init__(
         self,
         stream: Any,
         labels: Sequence[int],
-        envs: Any,
+        envs: VectorFace,
         policy: Any = None,
         ego_fields: Sequence[str] = (),
         every: int = 1,
@@ -95,10 +96,10 @@ class EpisodeRecording:
         self.every = max(1, every)
         self.rr, self.stream, self.labels, self.policy = rr, stream, list(labels), policy
         self.car = CarView(stream, CAR, ego_fields)
-        self.frame_of = getattr(getattr(envs, "unwrapped", envs), "world_frame", None)
+        self.world = envs.simulator.road
         self.road = (
             WorldRecording(stream, rays=False, lay_out=False, agent_series=False)
-            if self.frame_of is not None
+            if self.world is not None
             else None
         )
         n = len(self.labels)
@@ -128,7 +129,6 @@ class EpisodeRecording:
         overridden = getattr(self.policy, "last_overridden", None)
         rose = self.counts.rose(info)
         terms_of = info.get("reward_terms", {})
-        applied = info.get("action_applied")
         for i in np.flatnonzero(self.running):
             decision = int(self.decisions[i])
             self.stream.reset_time()
@@ -147,14 +147,8 @@ class EpisodeRecording:
                     terms,
                 )
             speed_kmh = None
-            if drawn and self.road is not None and self.frame_of is not None:
-                frame = self.frame_of(
-                    int(i),
-                    {name: value[i] for name, value in obs.items()},
-                    float(reward[i]),
-                    int(applied[i]) if applied is not None else -1,
-                    terms,
-                )
+            if drawn and self.road is not None and self.world is not None:
+                frame = self.world.world_frame(int(i))
                 # Every episode draws on the same road entities (its timeline tells them apart).
                 frame = dataclasses.replace(frame, server=ROAD_SERVER, arena=0)
                 highlight = {}
@@ -195,7 +189,7 @@ def open_episode_recording(
     config: RecordingConfig,
     default_rrd: Path,
     labels: Sequence[int],
-    envs: Any,
+    envs: VectorFace,
     policy: Any,
     title: str,
     every: int = 1,
@@ -204,18 +198,17 @@ def open_episode_recording(
     otherwise) and its watcher, drawing one decision in ``every`` (events always); (None,
     None) where ``config.sink`` is off. The layout has a Q-values plot where ``policy`` says
     them (has ``last_q``)."""
-    spec = getattr(envs.unwrapped, "behaviour_spec", None)
-    in_process = getattr(envs.unwrapped, "world_frame", None) is not None
+    spec = envs.behaviour_spec
     road_width_m = (
         spec.road.lane_count * spec.road.lane_width_m
-        if in_process and spec is not None and spec.road is not None
+        if envs.simulator.road is not None and spec.road is not None
         else None
     )
     layout = episode_blueprint(labels, road_width_m, title, show_q_values=hasattr(policy, "last_q"))
     recording = open_recording(APPLICATION_ID, config, default_rrd, layout)
     if recording is None:
         return None, None
-    ego_fields = spec.observation("ego").columns if spec is not None and spec.has("ego") else ()
+    ego_fields = spec.observation("ego").columns if spec.has("ego") else ()
     return recording, EpisodeRecording(
         recording.stream, labels, envs, policy, ego_fields=ego_fields, every=every
     )

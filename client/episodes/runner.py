@@ -31,6 +31,7 @@ from overtake.client.policies.drivers import (
 from overtake.client.wire.connection import RemoteConfig
 from overtake.client.wire.shared_steps import Transport
 from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
+from overtake.protocol.faces import VectorFace
 from overtake.protocol.messages import BehaviourSpec
 from overtake.protocol.transport import SecurityConfig
 from overtake.protocol.vocabulary import METRIC_FIELDS
@@ -62,32 +63,36 @@ def make_vector_env(
     security: SecurityConfig | None = None,
     parts: int = 1,
     transport: Transport = "auto",
-) -> Any:
+) -> VectorFace:
     """``num_envs`` arenas of ``preset`` as one vector environment: in this process, or on a
     simulator server reached at ``connect`` (with ``security``'s credentials and
     certificates), there in ``parts`` groups (see ``RemoteHighwayVectorEnv``), their Steps
     through shared memory or Zenoh as ``transport`` says (``RemoteConfig.steps_transport``)."""
     register_environments()
     if connect is None:
-        return gym.make_vec(
+        envs = gym.make_vec(
             HIGHWAY_ENV_ID,
             num_envs=num_envs,
             vectorization_mode="vector_entry_point",
             preset=preset,
             overrides=overrides,
         )
-    remote = RemoteConfig(
-        connect=(connect,), security=security or SecurityConfig(), steps_transport=transport
-    )
-    return gym.make_vec(
-        REMOTE_HIGHWAY_ENV_ID,
-        num_envs=num_envs,
-        vectorization_mode="vector_entry_point",
-        preset=preset,
-        overrides=overrides,
-        remote=remote,
-        parts=parts,
-    )
+    else:
+        remote = RemoteConfig(
+            connect=(connect,), security=security or SecurityConfig(), steps_transport=transport
+        )
+        envs = gym.make_vec(
+            REMOTE_HIGHWAY_ENV_ID,
+            num_envs=num_envs,
+            vectorization_mode="vector_entry_point",
+            preset=preset,
+            overrides=overrides,
+            remote=remote,
+            parts=parts,
+        )
+    # Gymnasium builds the registered entry point itself, no wrapper around it.
+    assert isinstance(envs, VectorFace)
+    return envs
 
 
 def metric_table(rows: list[dict[str, float]]) -> np.ndarray:
@@ -220,7 +225,7 @@ BASELINE_POLICIES = ("rule", "random", "idle", "planner")
 
 
 def baseline_policy(
-    policy: str, spec: BehaviourSpec, seed: int, num_envs: int, envs: Any = None
+    policy: str, spec: BehaviourSpec, seed: int, num_envs: int, envs: VectorFace | None = None
 ) -> Policy:
     """A reference policy for :func:`run_episodes`:
 
@@ -236,12 +241,13 @@ def baseline_policy(
     if policy == "idle":
         return lambda _obs, _info, _starting: np.zeros(num_envs, dtype=np.int64)
     if policy == "planner":
-        plan = getattr(getattr(envs, "unwrapped", None), "planner_actions", None)
-        if plan is None:
+        road = envs.simulator.road if envs is not None else None
+        if road is None:
             raise UsageError(
                 "the planner reads the simulator's true state: run it in-process (without "
                 "--connect)"
             )
+        plan = road.planner_actions
         return lambda _obs, _info, _starting: np.asarray(plan(), dtype=np.int64)
     if policy == "random":
         randomly = RandomDriver(seed)

@@ -1,0 +1,464 @@
+"""overtake's Gymnasium environments, written once over an engine.
+
+An :class:`Engine` is a group of arenas that answers actions with :class:`Steps`: the
+simulator in this process (:mod:`overtake.server.local`, the server's own arena group) or
+arenas on a server (:class:`overtake.client.wire.remote.ArenaGroup`). A :class:`Simulator`
+is what an environment is opened on: its engines (one, or one per part of a vector
+environment), the behaviour spec, and what only some simulators have, each a typed property
+that is None where it is absent: the :class:`Road` of an in-process simulator (world frames,
+pictures, the privileged planner) and the :class:`Network` of a remote one (the trainer's
+name, where the arenas are, how often their server was lost).
+
+The faces, :class:`SingleFace` (Gymnasium's ``Env``), :class:`VectorFace` (``VectorEnv``,
+next-step autoreset, optionally in parts) and, in :mod:`.parallel_face`, PettingZoo's
+``ParallelEnv``, read only Steps; their ``info`` is built here, in :class:`StepInfo`, whose
+fields are :data:`~overtake.protocol.vocabulary.INFO_KEYS`. An in-process environment and a
+remote one are the same face over a different engine, and so the same bit for bit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector.utils import batch_space
+
+from .envs import ReportsEpisodeLength, arena_seeds, check_actions, check_render_mode
+from .messages import BehaviourSpec, Steps, WorldFrame
+from .vocabulary import ACTION_COUNT, EPISODE_COUNTS, INFO_KEYS
+
+try:  # Gymnasium >= 1.1 names the autoreset modes; 1.0 only has next-step autoreset.
+    from gymnasium.vector import AutoresetMode
+
+    NEXT_STEP: Any = AutoresetMode.NEXT_STEP
+except ImportError:  # pragma: no cover - Gymnasium 1.0
+    NEXT_STEP = "NextStep"
+
+
+class Engine(Protocol):
+    """A group of arenas stepped together, answering actions with :class:`Steps`.
+
+    ``agents`` are this engine's agent ids, the rows of its Steps. ``restarts`` counts the
+    times its server was lost and its arenas reopened (each loss truncates the episodes under
+    way). ``trainer_step``, sent with the following actions, is the trainer's step count that
+    the road's world frames repeat (-1: none)."""
+
+    restarts: int
+    trainer_step: int
+
+    @property
+    def agents(self) -> np.ndarray: ...
+
+    def reset(self, arenas: tuple[int, ...], seeds: tuple[int | None, ...]) -> Steps: ...
+
+    def send(self, agents: np.ndarray, actions: np.ndarray, retire: Sequence[int] = ()) -> None:
+        """Actions for this round go out; :meth:`receive` takes the round's Steps."""
+
+    def receive(self) -> Steps: ...
+
+    def close(self) -> None: ...
+
+
+class Road(Protocol):
+    """What an in-process simulator shows of its road, which a remote one keeps to itself (its
+    roads reach a recording through a spectator)."""
+
+    def world_frame(self, arena: int) -> WorldFrame:
+        """Arena ``arena`` now, as a spectator of a server would see it (the observations,
+        reward, action and terms of its last round)."""
+
+    def picture(self, arena: int) -> np.ndarray:
+        """Arena ``arena`` drawn from above, an RGB array."""
+
+    def planner_actions(self) -> np.ndarray:
+        """What the privileged planner, reading the true state of every car, would do now: one
+        action per agent, in the rows of the Steps."""
+
+
+class Network(Protocol):
+    """Where a remote simulator's arenas are."""
+
+    @property
+    def trainer(self) -> str:
+        """This trainer's name on the network (the servers' status lists it)."""
+
+    def placements(self) -> tuple[tuple[str, tuple[int, ...]], ...]:
+        """Each part's server and arena ids there, in the order of the parts."""
+
+    def losses(self) -> int:
+        """How often a server was lost and its arenas reopened elsewhere."""
+
+    def close(self) -> None:
+        """Leave the network (after the engines are closed)."""
+
+
+@dataclass(eq=False)
+class Simulator:
+    """What an environment is opened on: its engines, one per part (consecutive rows), and
+    what the simulator also offers, typed (None where it has not got it)."""
+
+    parts: tuple[Engine, ...]
+    spec: BehaviourSpec
+    sim_config: dict[str, Any]
+    """the resolved configuration as plain nested data, a record (run records keep it): read
+    :attr:`spec` for what an agent sees and drives"""
+    road: Road | None = None
+    network: Network | None = None
+
+    def label_step(self, step: int) -> None:
+        """Send ``step`` (the trainer's count of environment steps, >= 0) with the following
+        actions: the road's world frames repeat it, so a recording of the road (a spectator's,
+        or the run's own in process) lies on the trainer's ``step`` timeline."""
+        if step < 0:
+            raise ValueError(f"a step count must be >= 0, got {step}")
+        for engine in self.parts:
+            engine.trainer_step = int(step)
+
+    def close(self) -> None:
+        try:
+            for engine in self.parts:
+                engine.close()
+        finally:
+            if self.network is not None:
+                self.network.close()
+
+
+def spaces_from_spec(spec: BehaviourSpec) -> spaces.Dict:
+    """The Dict observation space a behaviour spec describes: one Box per sensor."""
+    return spaces.Dict(
+        {
+            o.name: spaces.Box(low=o.low, high=o.high, shape=o.shape, dtype=np.dtype(o.dtype).type)
+            for o in spec.observations
+        }
+    )
+
+
+# --- info: built here and nowhere else --------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class StepInfo:
+    """What a step's ``info`` says, read from its Steps; the faces hand it out as a dict
+    (:meth:`vector`, :meth:`agent`) whose keys are these fields' names
+    (:data:`~overtake.protocol.vocabulary.INFO_KEYS`)."""
+
+    action_mask: np.ndarray
+    """(k, ACTION_COUNT) int8, 1 = the action can be taken now"""
+    action_applied: np.ndarray
+    """(k,) the action actually taken (a masked lateral action becomes keep; -1 at a reset)"""
+    reward_terms: dict[str, np.ndarray]
+    """each term of the reward, (k,) each"""
+    episode_counts: dict[str, np.ndarray]
+    """(k,) int64 each: the episode's collisions and emergency brakes so far; a decision whose
+    count rose had one"""
+    metrics: dict[str, np.ndarray]
+    """the papers' episode metrics, (k,) each: read where the episode ended"""
+    late: np.ndarray
+    """(k,) bool: the action missed the server's deadline, keep was applied instead"""
+    server_restarted: bool
+    """the server was lost in this step: the episodes under way were truncated"""
+    ended: np.ndarray
+    """(k,) bool: whose episode ended here (where :attr:`metrics` hold)"""
+
+    @classmethod
+    def of(cls, steps: Steps, spec: BehaviourSpec, *, restarted: bool = False) -> StepInfo:
+        fields = spec.metric_fields
+        return cls(
+            action_mask=steps.action_mask,
+            action_applied=steps.action_applied,
+            reward_terms={
+                name: steps.reward_terms[:, i] for i, name in enumerate(spec.reward_terms)
+            },
+            # The Steps' metrics are each episode's so far; the counts of events are integers.
+            episode_counts={
+                name: steps.metrics[:, fields.index(name)].astype(np.int64)
+                for name in EPISODE_COUNTS
+                if name in fields
+            },
+            metrics={name: steps.metrics[:, i] for i, name in enumerate(fields)},
+            late=steps.late,
+            server_restarted=restarted,
+            ended=steps.ended,
+        )
+
+    def vector(self) -> dict[str, Any]:
+        """A vector environment's info: arrays over its environments; ``metrics`` (0 where no
+        episode ended, ``_metrics`` marking where one did), ``late`` and ``server_restarted``
+        only when something happened."""
+        info: dict[str, Any] = {
+            "action_mask": self.action_mask,
+            "action_applied": self.action_applied,
+            "reward_terms": self.reward_terms,
+            "episode_counts": self.episode_counts,
+        }
+        if self.ended.any():
+            info["metrics"] = {
+                name: np.where(self.ended, value, 0.0) for name, value in self.metrics.items()
+            }
+            info["_metrics"] = self.ended
+        if self.late.any():
+            info["late"] = self.late
+        if self.server_restarted:
+            info["server_restarted"] = np.ones(self.ended.shape, dtype=bool)
+        return info
+
+    def agent(self, row: int) -> dict[str, Any]:
+        """One agent's info (row ``row`` of the Steps): scalars; ``metrics`` when its episode
+        ended, ``late`` and ``server_restarted`` only when true."""
+        info: dict[str, Any] = {
+            "action_mask": self.action_mask[row],
+            "action_applied": int(self.action_applied[row]),
+            "reward_terms": {name: float(v[row]) for name, v in self.reward_terms.items()},
+            "episode_counts": {name: int(v[row]) for name, v in self.episode_counts.items()},
+        }
+        if self.ended[row]:
+            info["metrics"] = {name: float(v[row]) for name, v in self.metrics.items()}
+        if self.late[row]:
+            info["late"] = True
+        if self.server_restarted:
+            info["server_restarted"] = True
+        return info
+
+
+assert tuple(f.name for f in dataclasses.fields(StepInfo))[: len(INFO_KEYS)] == INFO_KEYS
+
+
+def joined(parts: Sequence[Steps]) -> Steps:
+    """One Steps of several engines' Steps, rows in the order given (server, group and round
+    are the first part's: the rows are what a vector environment reads)."""
+    if len(parts) == 1:
+        return parts[0]
+    first = parts[0]
+
+    def rows(name: str) -> np.ndarray:
+        return np.concatenate([getattr(p, name) for p in parts])
+
+    return dataclasses.replace(
+        first,
+        agents=rows("agents"),
+        observations={
+            name: np.concatenate([p.observations[name] for p in parts])
+            for name in first.observations
+        },
+        reward=rows("reward"),
+        terminated=rows("terminated"),
+        truncated=rows("truncated"),
+        action_applied=rows("action_applied"),
+        late=rows("late"),
+        action_mask=rows("action_mask"),
+        reward_terms=rows("reward_terms"),
+        metrics=rows("metrics"),
+    )
+
+
+class _Faced:
+    """What every face offers of its simulator."""
+
+    simulator: Simulator
+
+    @property
+    def behaviour_spec(self) -> BehaviourSpec:
+        """What an agent sees and drives (the spec the arenas were opened with)."""
+        return self.simulator.spec
+
+    @property
+    def sim_config(self) -> dict[str, Any]:
+        """The resolved configuration, a record: read :attr:`behaviour_spec` for what an agent
+        sees and drives."""
+        return self.simulator.sim_config
+
+    def label_step(self, step: int) -> None:
+        """See :meth:`Simulator.label_step`."""
+        self.simulator.label_step(step)
+
+    def _render_modes(self) -> list[str]:
+        return ["rgb_array"] if self.simulator.road is not None else []
+
+
+class SingleFace(_Faced, ReportsEpisodeLength, gym.Env):
+    """One agent on one arena: Gymnasium's ``Env`` over a simulator of one engine."""
+
+    # Gymnasium's convention: a class attribute, replaced per instance (its render modes and
+    # frame rate are the simulator's).
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}  # noqa: RUF012
+
+    def __init__(self, simulator: Simulator, render_mode: str | None = None) -> None:
+        self.simulator = simulator
+        self.metadata = {
+            **self.metadata,
+            "render_modes": self._render_modes(),
+            "render_fps": 1.0 / simulator.spec.decision_period_s,
+        }
+        check_render_mode(render_mode, self.metadata["render_modes"])
+        self.render_mode = render_mode
+        (self._engine,) = simulator.parts
+        spec = simulator.spec
+        self.observation_space = spaces_from_spec(spec)
+        self.action_space = spaces.Discrete(ACTION_COUNT)
+        self.decision_period_s = spec.decision_period_s
+        self.max_episode_steps = spec.max_episode_steps
+        self._last: Steps | None = None
+
+    def _unpack(self, steps: Steps, restarted: bool) -> tuple[dict[str, np.ndarray], dict]:
+        self._last = steps
+        obs = {name: value[0] for name, value in steps.observations.items()}
+        return obs, StepInfo.of(steps, self.simulator.spec, restarted=restarted).agent(0)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        return self._unpack(self._engine.reset((0,), (seed,)), False)
+
+    def step(self, action):
+        if self._last is None:
+            raise RuntimeError("the environment must be reset before it can step")
+        actions = check_actions(action, 1, single=True)
+        engine = self._engine
+        restarts = engine.restarts
+        engine.send(engine.agents, actions)
+        steps = engine.receive()
+        obs, info = self._unpack(steps, engine.restarts != restarts)
+        return (
+            obs,
+            float(steps.reward[0]),
+            bool(steps.terminated[0]),
+            bool(steps.truncated[0]),
+            info,
+        )
+
+    def action_masks(self) -> np.ndarray:
+        """The current action mask (the name sb3-contrib's MaskablePPO looks for)."""
+        if self._last is None:
+            raise RuntimeError("no action mask before the first reset")
+        return self._last.action_mask[0]
+
+    # gymnasium 1.2 (which the rllib extra pins) types render with a TypeVar, 1.4 does not.
+    def render(self) -> np.ndarray | None:  # type: ignore[override, unused-ignore]
+        road = self.simulator.road
+        if self.render_mode == "rgb_array" and road is not None:
+            return road.picture(0)
+        return None
+
+    def close(self) -> None:
+        self.simulator.close()
+
+
+class VectorFace(_Faced, gym.vector.VectorEnv):
+    """``num_envs`` arenas stepped together, with Gymnasium 1.x next-step autoreset: the step
+    after an episode ends resets that arena (ignoring its action) and returns the first
+    observation of the new episode with reward 0 and both flags false.
+
+    A simulator of several parts (engines of consecutive environment indices,
+    :attr:`part_slices`) can be stepped part by part, in the manner of EnvPool's ``send`` /
+    ``recv``: :meth:`send` one part's actions, work on another part, :meth:`recv` the first.
+    Each arena has its own random stream, so every part of every step is the same as in one
+    part. :meth:`step` sends every part, then receives every part.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "autoreset_mode": NEXT_STEP}  # noqa: RUF012
+
+    def __init__(self, simulator: Simulator, num_envs: int, render_mode: str | None = None) -> None:
+        self.simulator = simulator
+        self.metadata = {**self.metadata, "render_modes": self._render_modes()}
+        check_render_mode(render_mode, self.metadata["render_modes"])
+        self.render_mode = render_mode
+        spec = simulator.spec
+        self.num_envs = num_envs
+        sizes = [len(engine.agents) for engine in simulator.parts]
+        if sum(sizes) != num_envs:
+            raise ValueError(f"the simulator's parts hold {sum(sizes)} agents, not {num_envs}")
+        bounds = np.cumsum([0, *sizes])
+        self.part_slices = tuple(slice(int(a), int(b)) for a, b in itertools.pairwise(bounds))
+        """each part's environment indices"""
+        self.single_observation_space: spaces.Dict = spaces_from_spec(spec)
+        self.single_action_space = spaces.Discrete(ACTION_COUNT)
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.action_space = spaces.MultiDiscrete(np.full(num_envs, ACTION_COUNT))
+        self.decision_period_s = spec.decision_period_s
+        self.max_episode_steps = spec.max_episode_steps
+        self._part_restarts: dict[int, int] = {}
+        self._started = False
+
+    def _outcome(self, steps: Steps, restarted: bool) -> tuple[Any, ...]:
+        info = StepInfo.of(steps, self.simulator.spec, restarted=restarted).vector()
+        return dict(steps.observations), steps.reward, steps.terminated, steps.truncated, info
+
+    def reset(
+        self,
+        *,
+        seed: int | Sequence[int | None] | None = None,
+        options: dict[str, Any] | None = None,
+    ):
+        seeds = arena_seeds(seed, self.num_envs)
+        if seed is not None:
+            self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seeds[0])
+        steps = joined(
+            [
+                engine.reset(tuple(range(part.stop - part.start)), tuple(seeds[part]))
+                for engine, part in zip(self.simulator.parts, self.part_slices, strict=True)
+            ]
+        )
+        self._started = True
+        obs, _, _, _, info = self._outcome(steps, False)
+        return obs, info
+
+    def step(self, actions):
+        self._check_started()
+        actions = check_actions(actions, self.num_envs, single=False)
+        parts = self.simulator.parts
+        restarts = [engine.restarts for engine in parts]
+        for engine, part in zip(parts, self.part_slices, strict=True):
+            engine.send(engine.agents, actions[part])
+        whole = joined([engine.receive() for engine in parts])
+        return self._outcome(whole, [engine.restarts for engine in parts] != restarts)
+
+    def send(self, part: int, actions: np.ndarray) -> None:
+        """Part ``part``'s actions (one per environment of :attr:`part_slices` [part]) go
+        out; the simulator plays its round while the caller works. :meth:`recv` takes it."""
+        self._check_started()
+        part_slice = self._part_slice(part)
+        actions = check_actions(actions, part_slice.stop - part_slice.start, single=False)
+        engine = self.simulator.parts[part]
+        self._part_restarts[part] = engine.restarts
+        engine.send(engine.agents, actions)
+
+    def recv(self, part: int):
+        """The step of part ``part`` that :meth:`send` started: ``(observations, rewards,
+        terminated, truncated, info)`` of its environments, as :meth:`step` returns them for
+        all."""
+        self._part_slice(part)
+        engine = self.simulator.parts[part]
+        steps = engine.receive()
+        return self._outcome(
+            steps, engine.restarts != self._part_restarts.get(part, engine.restarts)
+        )
+
+    def _check_started(self) -> None:
+        if not self._started:
+            raise RuntimeError("the environment must be reset before it can step")
+
+    def _part_slice(self, part: int) -> slice:
+        if not 0 <= part < len(self.part_slices):
+            raise ValueError(
+                f"part must be between 0 and {len(self.part_slices) - 1} "
+                f"(this environment has {len(self.part_slices)} part(s)), got {part}"
+            )
+        return self.part_slices[part]
+
+    def render(self) -> tuple[np.ndarray, ...] | None:  # type: ignore[override, unused-ignore]
+        road = self.simulator.road
+        if self.render_mode == "rgb_array" and road is not None:
+            return tuple(road.picture(i) for i in range(self.num_envs))
+        return None
+
+    def close_extras(self, **kwargs: Any) -> None:
+        # A constructor that raised (no server, every server full) leaves nothing to close;
+        # gymnasium's __del__ calls close all the same.
+        simulator = getattr(self, "simulator", None)
+        if simulator is not None:
+            simulator.close()
