@@ -26,7 +26,7 @@ import numpy as np
 import torch
 import tyro
 
-from overtake.client.episodes.runner import make_vector_env
+from overtake.client.episodes.scenario import Where
 from overtake.client.policies.onnx_policy import OnnxPolicy
 from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.evaluate import GreedyPolicy
@@ -66,7 +66,7 @@ def measure(preset: str, decisions: int, work: Path) -> dict[str, Any]:
     model = work / f"{preset}.onnx"
     export(ExportConfig(checkpoint=path, out=model, check_decisions=0))
     checkpoint = load_checkpoint(path)
-    envs = make_vector_env(preset, {}, 1, None)
+    envs = Where().open(preset, {}, 1)
     try:
         space = envs.single_observation_space
         by_torch = GreedyPolicy(checkpoint, 1, space, preset)

@@ -27,7 +27,7 @@ import tyro
 from torch import nn
 
 import overtake.client  # noqa: F401  (registers overtake/Highway-v0 and RemoteHighway-v0)
-from overtake.client.episodes.runner import parse_overrides
+from overtake.client.episodes.scenario import parse_overrides
 
 
 @dataclass(frozen=True)

@@ -73,7 +73,7 @@ def main(args: Args) -> list[dict[str, Any]]:
     from ray.rllib.connectors.env_to_module import FlattenObservations
     from ray.tune.registry import register_env
 
-    from overtake.client.episodes.runner import parse_overrides
+    from overtake.client.episodes.scenario import parse_overrides
 
     overrides = {"camera.enabled": False, **parse_overrides(args.set)}
     register_env("overtake-remote", overtake_env)

@@ -27,7 +27,7 @@ from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.monitor import Monitor
 
 import overtake.client  # noqa: F401  (registers overtake/Highway-v0 and RemoteHighway-v0)
-from overtake.client.episodes.runner import parse_overrides
+from overtake.client.episodes.scenario import parse_overrides
 
 
 @dataclass(frozen=True)

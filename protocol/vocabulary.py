@@ -11,6 +11,8 @@ listed here: it travels in each arena's :class:`~overtake.protocol.messages.Beha
 
 from __future__ import annotations
 
+from typing import Literal, get_args
+
 # Min et al.'s five DAS-level actions, in the order of the discrete action index.
 ACTION_NAMES: tuple[str, ...] = ("keep", "cruise_up", "cruise_down", "lane_left", "lane_right")
 ACTION_COUNT = len(ACTION_NAMES)
@@ -67,6 +69,15 @@ INFO_KEYS: tuple[str, ...] = (
     "late",
     "server_restarted",
 )
+
+# Traffic densities, the words a preset's ``traffic.density`` takes (each preset says how many
+# cars each brings: ``traffic.density_vehicle_counts``, in this order); what every command's
+# --traffic and every experiment's densities are spelled in.
+Density = Literal["light", "medium", "heavy"]
+DENSITIES: tuple[Density, ...] = get_args(Density)
+# The simulator settings a scenario names by its own options (--traffic, --max-decisions).
+DENSITY_SETTING = "traffic.density"
+EPISODE_LENGTH_SETTING = "episode.max_decisions"
 
 # Traffic driver types: Ho's three (2018, Table 5), and Min et al.'s cars that act at random
 # (2018, §IV.A). A vehicle's ``kind`` in world frames indexes this tuple, and a kind equal to

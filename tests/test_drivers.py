@@ -15,7 +15,7 @@ from overtake.client import HIGHWAY_ENV_ID, RandomDriver, RuleDriver, RuleDriver
 from overtake.client.commands import UsageError
 from overtake.client.episodes.drive import DriveConfig, main
 from overtake.client.episodes.drive import cli as drive_cli
-from overtake.client.episodes.runner import parse_overrides
+from overtake.client.episodes.scenario import parse_overrides
 from overtake.protocol.vocabulary import (
     ACTION_COUNT,
     CRUISE_UP,

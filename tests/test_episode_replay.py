@@ -304,10 +304,11 @@ class _OverriddenEveryFew:
 def test_the_shields_overrides_are_kept_and_recorded_at_their_decisions(tmp_path):
     from overtake.client.episodes.recording import open_episode_recording
     from overtake.client.episodes.records import EpisodeRecorder
-    from overtake.client.episodes.runner import make_vector_env, run_episodes
+    from overtake.client.episodes.runner import run_episodes
+    from overtake.client.episodes.scenario import Where
     from overtake.viz.recording import close_recording
 
-    envs = make_vector_env("min2018", {"episode.max_decisions": 30}, 2, None)
+    envs = Where().open("min2018", {"episode.max_decisions": 30}, 2)
     policy = _OverriddenEveryFew(2)
     recorder = EpisodeRecorder([5, 6], policy)
     rrd = tmp_path / "shield.rrd"

@@ -16,7 +16,8 @@ import pytest
 from overtake.client.commands import UsageError
 from overtake.client.episodes.drive import DriveConfig
 from overtake.client.episodes.drive import main as drive
-from overtake.client.episodes.runner import RealTime, make_vector_env, run_episodes
+from overtake.client.episodes.runner import RealTime, run_episodes
+from overtake.client.episodes.scenario import Where
 from overtake.client.policies.onnx_policy import read_metadata
 from overtake.trainers.checkpoint import CHECKPOINT_NAME
 from overtake.trainers.evaluate import EvalConfig
@@ -144,8 +145,8 @@ def test_a_failed_check_writes_nothing(trained, tmp_path):
 
 
 def test_on_the_wall_clock_a_slow_decision_is_late_and_the_car_keeps():
-    envs = make_vector_env("ho2018", {"episode.max_decisions": 12}, 1, None)
-    period = envs.unwrapped.decision_period_s  # 0.08 s: Ho's 4 frames of 1/50 s
+    envs = Where().open("ho2018", {"episode.max_decisions": 12}, 1)
+    period = envs.decision_period_s  # 0.08 s: Ho's 4 frames of 1/50 s
     calls = []
 
     def slow_every_third(obs, info, starting):

@@ -236,10 +236,11 @@ def test_the_map_rule_driver_keeps_its_distance_and_changes_to_a_freer_lane(cars
 
 
 def test_the_rule_driver_drives_fayjie2018_from_its_map():
-    from overtake.client.episodes.runner import baseline_policy, make_vector_env, run_episodes
+    from overtake.client.episodes.runner import baseline_policy, run_episodes
+    from overtake.client.episodes.scenario import Where
 
-    envs = make_vector_env("fayjie2018", {"traffic.density": "light"}, 2, None)
-    act = baseline_policy("rule", envs.unwrapped.behaviour_spec, 0, 2, envs)
+    envs = Where().open("fayjie2018", {"traffic.density": "light"}, 2)
+    act = baseline_policy("rule", envs.behaviour_spec, 0, 2, envs)
     rows, _, _ = run_episodes(envs, act, 2, 1000)
     envs.close()
     assert all(row["avg_speed_kmh"] > 80.0 for row in rows)  # idle holds 60, random about 55

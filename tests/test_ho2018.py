@@ -10,7 +10,8 @@ import pytest
 
 import overtake.client  # noqa: F401  (registers the environments)
 from overtake.client.commands import UsageError
-from overtake.client.episodes.runner import baseline_policy, make_vector_env, run_episodes
+from overtake.client.episodes.runner import baseline_policy, run_episodes
+from overtake.client.episodes.scenario import Where
 from overtake.client.policies.drivers import GridRuleDriver
 from overtake.protocol import HIGHWAY_ENV_ID
 from overtake.protocol.vocabulary import CRUISE_DOWN, CRUISE_UP, KEEP, LANE_LEFT, LANE_RIGHT
@@ -290,7 +291,7 @@ def test_the_rule_driver_drives_as_fast_as_in_his_code_among_his_traffic(
     evaluation = dict(item.split("=") for item in PRESET_TRAINING["ho2018"].evaluation)
     assert evaluation == {"episode.frames_per_decision": "1", "episode.max_decisions": "4000"}
     episodes = 40
-    envs = make_vector_env(
+    envs = Where().open(
         "ho2018",
         {
             "traffic.density": density,
@@ -298,9 +299,8 @@ def test_the_rule_driver_drives_as_fast_as_in_his_code_among_his_traffic(
             "episode.max_decisions": 4000,
         },
         episodes,
-        None,
     )
-    act = baseline_policy("rule", envs.unwrapped.behaviour_spec, 0, episodes, envs)
+    act = baseline_policy("rule", envs.behaviour_spec, 0, episodes, envs)
     census = RoadCensus(envs)
     rows, _, _ = run_episodes(envs, act, episodes, 1000, watchers=[census])
     envs.close()
@@ -488,8 +488,8 @@ def test_every_reference_policy_drives_ho2018_without_further_flags():
     short = {"episode.max_decisions": 60, "traffic.density": "medium"}
     speeds = {}
     for policy in ("idle", "random", "rule", "planner"):
-        envs = make_vector_env("ho2018", short, 3, None)
-        act = baseline_policy(policy, envs.unwrapped.behaviour_spec, 0, 3, envs)
+        envs = Where().open("ho2018", short, 3)
+        act = baseline_policy(policy, envs.behaviour_spec, 0, 3, envs)
         rows, decisions, _ = run_episodes(envs, act, 3, 100)
         envs.close()
         assert decisions == 3 * 60 and all(row["collisions"] == 0 for row in rows)
@@ -503,9 +503,9 @@ def test_every_reference_policy_drives_ho2018_without_further_flags():
 
 
 def test_the_grid_rule_driver_needs_the_lanes_either_side():
-    envs = make_vector_env("ho2018", {"grid.side_lanes": 2}, 1, None)
+    envs = Where().open("ho2018", {"grid.side_lanes": 2}, 1)
     with pytest.raises(UsageError, match="grid.side_lanes = 2"):
-        baseline_policy("rule", envs.unwrapped.behaviour_spec, 0, 1, envs)
+        baseline_policy("rule", envs.behaviour_spec, 0, 1, envs)
     envs.close()
 
 

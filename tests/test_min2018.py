@@ -12,7 +12,8 @@ import pytest
 
 import overtake.client  # noqa: F401  (registers the environments)
 from overtake.client.commands import UsageError
-from overtake.client.episodes.runner import baseline_policy, make_vector_env, run_episodes
+from overtake.client.episodes.runner import baseline_policy, run_episodes
+from overtake.client.episodes.scenario import Where
 from overtake.protocol import HIGHWAY_ENV_ID
 from overtake.protocol.faces import VectorFace
 from overtake.protocol.vocabulary import CRUISE_DOWN, CRUISE_UP, KEEP, LANE_LEFT, LANE_RIGHT
@@ -274,7 +275,7 @@ def test_traffic_speeds_step_5_kmh_every_5_s_mostly_up_from_40_60_towards_80():
 
 @pytest.mark.parametrize("density, cars", [("light", 10), ("medium", 20), ("heavy", 32)])
 def test_each_density_holds_its_cars_on_the_road(density, cars):
-    envs = make_vector_env(
+    envs = Where().open(
         "min2018",
         {
             "traffic.density": density,
@@ -282,7 +283,6 @@ def test_each_density_holds_its_cars_on_the_road(density, cars):
             "episode.max_decisions": 150,
         },
         4,
-        None,
     )
     rows, _, _ = run_episodes(envs, lambda o, i, s: np.full(4, CRUISE_UP), 4, 0)
     envs.close()
@@ -294,7 +294,7 @@ def test_random_driving_crashes_only_without_the_authors_lane_change_check():
     # Driving at random is dangerous where the car changes lanes blindly: collisions and
     # emergency brakes happen. With the authors' DAS beneath, the same episodes do not crash.
     def collisions_and_brakes(check: bool) -> tuple[float, float]:
-        envs = make_vector_env(
+        envs = Where().open(
             "min2018",
             {
                 "camera.enabled": False,
@@ -302,9 +302,8 @@ def test_random_driving_crashes_only_without_the_authors_lane_change_check():
                 "ego.lane_change_check": check,
             },
             16,
-            None,
         )
-        act = baseline_policy("random", envs.unwrapped.behaviour_spec, 0, 16, envs)
+        act = baseline_policy("random", envs.behaviour_spec, 0, 16, envs)
         rows, _, _ = run_episodes(envs, act, 16, 100)
         envs.close()
         return (
@@ -336,11 +335,11 @@ def test_the_planner_passes_a_slow_car_where_the_side_is_free_and_waits_where_it
 
 
 def test_idle_and_planner_are_reference_policies_in_process_only_for_the_planner():
-    envs = make_vector_env("min2018", {"camera.enabled": False}, 2, None)
-    idle = baseline_policy("idle", envs.unwrapped.behaviour_spec, 0, 2, envs)
+    envs = Where().open("min2018", {"camera.enabled": False}, 2)
+    idle = baseline_policy("idle", envs.behaviour_spec, 0, 2, envs)
     assert idle({}, {}, np.ones(2, dtype=bool)).tolist() == [KEEP, KEEP]
     obs, info = envs.reset(seed=0)
-    planner = baseline_policy("planner", envs.unwrapped.behaviour_spec, 0, 2, envs)
+    planner = baseline_policy("planner", envs.behaviour_spec, 0, 2, envs)
     actions = planner(obs, info, np.ones(2, dtype=bool))
     assert actions.shape == (2,) and actions.dtype == np.int64
     # A simulator with no road to read (as a remote one): the planner is refused.

@@ -134,7 +134,8 @@ def test_training_behind_the_shield_counts_its_overrides_and_evaluation_keeps_it
     # in front of the model as evaluation does: the same decisions, the same overrides.
     from overtake.client.episodes.drive import DriveConfig
     from overtake.client.episodes.drive import main as drive
-    from overtake.client.episodes.runner import make_vector_env, run_episodes
+    from overtake.client.episodes.runner import run_episodes
+    from overtake.client.episodes.scenario import Where
     from overtake.client.policies.onnx_policy import OnnxPolicy, read_metadata
     from overtake.trainers.export import ExportConfig
     from overtake.trainers.export import main as export
@@ -143,10 +144,8 @@ def test_training_behind_the_shield_counts_its_overrides_and_evaluation_keeps_it
     export(ExportConfig(checkpoint=checkpoint, out=onnx, check_decisions=0))
     assert read_metadata(onnx)["shield"] is True
     overrides = {"episode.max_decisions": 40, "camera.enabled": False}
-    envs = make_vector_env("min2018", overrides, 2, None)
-    policy = OnnxPolicy(
-        onnx, 2, envs.single_observation_space, "min2018", spec=envs.unwrapped.behaviour_spec
-    )
+    envs = Where().open("min2018", overrides, 2)
+    policy = OnnxPolicy(onnx, 2, envs.single_observation_space, "min2018", spec=envs.behaviour_spec)
     rows, _, _ = run_episodes(envs, policy, 2, 1000)
     envs.close()
     by_eval = {row["shield_overrides"] for row in shielded["episodes"]}

@@ -22,7 +22,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from overtake.client.episodes.runner import parse_overrides
+from overtake.client.episodes.scenario import parse_overrides
 from overtake.client.mlagents.unity_bridge import (
     COMPRESSION_NONE,
     COMPRESSION_PNG,

@@ -17,36 +17,31 @@ episode's metrics and events against the record's.
 
 from __future__ import annotations
 
-import contextlib
-import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 import tyro
 from tyro.conf import Positional
 
 from overtake.client.commands import run_command
-from overtake.client.episodes.recording import open_episode_recording
 from overtake.client.episodes.records import (
     EpisodeRecord,
-    EpisodeRecorder,
     RecordError,
     RecordHeader,
     read_records,
     replay_overrides,
     unexplained_differences,
 )
-from overtake.client.episodes.runner import baseline_policy, make_vector_env, run_episodes
+from overtake.client.episodes.runner import baseline_policy
+from overtake.client.episodes.scenario import Where
+from overtake.client.episodes.session import Driver, Episodes, Keeping, drive_episodes
 from overtake.client.policies.shield import Shield
 from overtake.client.provenance import git_commit
-from overtake.client.wire.shared_steps import Transport
 from overtake.protocol.faces import VectorFace
-from overtake.protocol.transport import SecurityConfig
 from overtake.protocol.vocabulary import ACTION_NAMES, METRIC_FIELDS
-from overtake.viz.recording import RecordingConfig, close_recording
+from overtake.viz.recording import RecordingConfig
 
 from .checkpoint import load_checkpoint
 from .evaluate import GreedyPolicy
@@ -63,8 +58,9 @@ class ReplayDiverged(RecordError):
 
 
 @dataclass(frozen=True)
-class ReplayConfig:
-    """Play recorded episodes again, into Rerun."""
+class ReplayConfig(Where):
+    """Play recorded episodes again, into Rerun (on the simulator --connect names, or in this
+    process, which also draws the road)."""
 
     record: Positional[Path]
     """an episode record (<name>.jsonl of overtake-eval --episodes-out)"""
@@ -81,13 +77,6 @@ class ReplayConfig:
     choices are not checked; each episode's metrics and events still are"""
     recording: RecordingConfig = field(default_factory=RecordingConfig)
     """where the replay is recorded (default: <record's name>-replay.rrd here)"""
-    connect: str | None = None
-    """replay on a simulator server at this Zenoh endpoint (None: in this process, which also
-    draws the road)"""
-    security: SecurityConfig = field(default_factory=SecurityConfig)
-    """usrpwd credentials and TLS certificates for --connect"""
-    transport: Transport = "auto"
-    """how a server's Steps reach this process (--connect): auto, shm or zenoh"""
 
 
 def select(episodes: list[EpisodeRecord], config: ReplayConfig) -> list[EpisodeRecord]:
@@ -244,78 +233,68 @@ def compare(recorded: list[EpisodeRecord], replayed: list[EpisodeRecord], header
             )
 
 
-def replay_envs(header: RecordHeader, count: int, config: ReplayConfig | None = None) -> VectorFace:
-    """``count`` environments of the simulator a record was made on: its preset and
-    overrides, and where the preset has changed since, the overrides that undo the change
+def replay_envs(header: RecordHeader, count: int, where: Where | None = None) -> VectorFace:
+    """``count`` environments of the simulator a record was made on (``where`` says where:
+    default in this process): its preset and overrides, and where the preset has changed
+    since, the overrides that undo the change
     (:func:`~overtake.client.episodes.records.replay_overrides`)."""
-    connect = config.connect if config is not None else None
-    security = config.security if config is not None else None
-    transport = config.transport if config is not None else "auto"
-    envs = make_vector_env(
-        header.preset, header.overrides, count, connect, security, transport=transport
-    )
+    where = where or Where()
+    envs = where.open(header.preset, header.overrides, count)
     undo = replay_overrides(header.config, envs.sim_config)
     if not undo:
         return envs
     envs.close()
-    return make_vector_env(
-        header.preset,
-        {**header.overrides, **undo},
-        count,
-        connect,
-        security,
-        transport=transport,
+    return where.open(header.preset, {**header.overrides, **undo}, count)
+
+
+def refuse_other_simulators(header: RecordHeader, envs: VectorFace) -> None:
+    """Refuse to replay where the record's preset and overrides resolve to another simulator
+    than the record's (beyond what :func:`replay_envs` undid)."""
+    differences = sorted(
+        unexplained_differences(header.config, envs.sim_config),
+        key=lambda text: not text.startswith("preset:"),  # the preset's name first
     )
+    if differences:
+        shown = "; ".join(differences[:SHOWN_DIFFERENCES])
+        more = len(differences) - SHOWN_DIFFERENCES
+        raise RecordError(
+            f"preset {header.preset} with the record's overrides resolves to another "
+            f"simulator than the record's: {shown}"
+            + (f" (and {more} more)" if more > 0 else "")
+            + _commits(header)
+        )
 
 
 def main(config: ReplayConfig) -> dict[str, Any]:
     """Replay the chosen episodes; returns what was replayed and where it was recorded."""
     header, episodes = read_records(config.record)
     chosen = select(episodes, config)
-    envs = replay_envs(header, len(chosen), config)
-    recording = None
     rrd = config.recording.rrd or Path(f"{config.record.stem}-replay.rrd")
-    try:
-        differences = sorted(
-            unexplained_differences(header.config, envs.sim_config),
-            key=lambda text: not text.startswith("preset:"),  # the preset's name first
-        )
-        if differences:
-            shown = "; ".join(differences[:SHOWN_DIFFERENCES])
-            more = len(differences) - SHOWN_DIFFERENCES
-            raise RecordError(
-                f"preset {header.preset} with the record's overrides resolves to another "
-                f"simulator than the record's: {shown}"
-                + (f" (and {more} more)" if more > 0 else "")
-                + _commits(header)
-            )
+    where = config.where()
+
+    def driver_for(envs: VectorFace) -> Driver:
         policy, check = _policy(header, config, envs)
         actions = RecordedActions(chosen, policy, check, header)
-        labels = [record.episode for record in chosen]
-        seeds = [record.seed for record in chosen]
-        recorder = EpisodeRecorder(seeds, actions)
-        recording, view = open_episode_recording(
-            config.recording,
-            rrd,
-            labels,
-            envs,
-            actions,
-            header.name or header.policy.name,
+        return Driver(actions, header.policy, header.name or header.policy.name)
+
+    driven = drive_episodes(
+        where,
+        header.preset,
+        header.overrides,
+        Episodes(tuple(r.seed for r in chosen), tuple(r.episode for r in chosen)),
+        driver_for,
+        Keeping(
+            records=True,
+            recording=config.recording,
+            rrd=rrd,
             every=config.recording.record_every,
-        )
-        watchers: list[Any] = [recorder] if view is None else [recorder, view]
-        with torch.no_grad():
-            run_episodes(envs, actions, len(chosen), seeds, watchers=watchers)
-        if recording is not None and config.recording.sink == "web":
-            # The web viewer lives in this process: it serves until the user is done.
-            print(f"replayed: {config.recording.describe(rrd)}; Ctrl-C ends it")
-            with contextlib.suppress(KeyboardInterrupt):
-                threading.Event().wait()
-    finally:
-        close_recording(recording)
-        envs.close()
-    compare(chosen, _numbered(recorder.records(), labels), header)
-    where = config.recording.describe(rrd) if recording is not None else "not recorded"
+        ),
+        open_envs=lambda: replay_envs(header, len(chosen), where),
+        check=lambda envs: refuse_other_simulators(header, envs),
+    )
+    assert driven.records is not None
+    compare(chosen, driven.records, header)
+    where_recorded = config.recording.describe(rrd) if driven.recorded else "not recorded"
     for record in chosen:
         collisions = record.events.get("collisions", ())
         print(
@@ -323,15 +302,11 @@ def main(config: ReplayConfig) -> dict[str, Any]:
             f"as recorded"
             + (f"; collision at decision {', '.join(map(str, collisions))}" if collisions else "")
         )
-    print(f"replay: {where}")
-    return {"episodes": labels, "rrd": str(rrd) if recording is not None else None}
-
-
-def _numbered(records: list[EpisodeRecord], labels: list[int]) -> list[EpisodeRecord]:
-    """The recorder numbers environments 0..n-1: give them the record's episode numbers."""
-    return [
-        EpisodeRecord(labels[r.episode], r.seed, r.actions, r.metrics, r.events) for r in records
-    ]
+    print(f"replay: {where_recorded}")
+    return {
+        "episodes": [r.episode for r in chosen],
+        "rrd": str(rrd) if driven.recorded else None,
+    }
 
 
 def parse_args(argv: list[str] | None = None) -> ReplayConfig:

@@ -10,7 +10,7 @@ collisions per 1,000 decisions (the issue's bar compares that one).
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
@@ -18,26 +18,14 @@ import numpy as np
 import torch
 
 from overtake.client.commands import UsageError, run_command
-from overtake.client.episodes.recording import open_episode_recording
-from overtake.client.episodes.records import (
-    EpisodeRecorder,
-    PolicySource,
-    RecordHeader,
-    record_name,
-    write_records,
-)
-from overtake.client.episodes.runner import (
-    baseline_policy,
-    make_vector_env,
-    metric_summary,
-    parse_overrides,
-    run_episodes,
-)
+from overtake.client.episodes.records import PolicySource
+from overtake.client.episodes.runner import baseline_policy, metric_summary
+from overtake.client.episodes.scenario import Scenario, parse_overrides
+from overtake.client.episodes.session import Driver, Episodes, Keeping, drive_episodes
 from overtake.client.policies.shield import Shield, ShieldedActing
-from overtake.client.provenance import git_commit
-from overtake.client.wire.shared_steps import Transport
-from overtake.protocol.transport import SecurityConfig
-from overtake.viz.recording import RecordingConfig, close_recording
+from overtake.protocol.faces import VectorFace
+from overtake.protocol.vocabulary import DENSITY_SETTING
+from overtake.viz.recording import RecordingConfig
 
 from .checkpoint import load_checkpoint
 from .network import INPUT_SENSORS
@@ -56,8 +44,10 @@ TABLE_METRICS = (
 
 
 @dataclass(frozen=True)
-class EvalConfig:
-    """Evaluate a trained checkpoint or a baseline driver on fixed seeds."""
+class EvalConfig(Scenario):
+    """Evaluate a trained checkpoint or a baseline driver on fixed seeds. The simulator and
+    where it runs are the scenario's options (--preset: None takes the checkpoint's, else
+    min2018; --max-decisions: None keeps the preset's, or its paper's evaluation's)."""
 
     checkpoint: Path | None = None
     """a checkpoint.pt written by overtake-train (evaluated greedily)"""
@@ -67,14 +57,6 @@ class EvalConfig:
     episodes: int = 10
     seed: int = 1_000
     """episode i uses seed + i (training uses other seeds by default)"""
-    traffic: Literal["light", "medium", "heavy"] | None = None
-    """traffic density; None keeps the preset's"""
-    preset: str | None = None
-    """default: the checkpoint's preset (min2018 for a baseline)"""
-    set: tuple[str, ...] = ()
-    """more simulator overrides as dotted.name=value"""
-    max_decisions: int | None = None
-    """episode length in decisions; None keeps the preset's (or its paper's evaluation's)"""
     shield: bool | None = None
     """the safety shield in front of the checkpoint's greedy choices; None: where the run was
     trained with it (overtake.client.policies.shield)"""
@@ -82,13 +64,6 @@ class EvalConfig:
     """evaluate as the preset's paper does where it evaluates otherwise than it trains
     (ho2018: a decision every frame, 4,000 frames, as Ho's code evaluates); --no-paper-
     evaluation decides as training does"""
-    connect: str | None = None
-    """a simulator server's (or router's) Zenoh endpoint; None runs the simulator in-process"""
-    security: SecurityConfig = field(default_factory=SecurityConfig)
-    """usrpwd credentials and TLS certificates for --connect"""
-    transport: Transport = "auto"
-    """how a server's Steps reach this process (--connect): auto (shared memory where the
-    server is on this host, Zenoh otherwise), shm (shared memory or an error), zenoh"""
     json_out: Path | None = None
     """also write the table (and every episode) as JSON here"""
     episodes_out: Path | None = None
@@ -137,6 +112,7 @@ class GreedyPolicy:
             # run_episodes adds each episode's overrides to its row.
             self.episode_extras = self.guard.episode_extras
 
+    @torch.no_grad()
     def __call__(
         self, obs: dict[str, np.ndarray], info: dict[str, Any], starting: np.ndarray
     ) -> np.ndarray:
@@ -227,32 +203,21 @@ def main(config: EvalConfig) -> dict[str, Any]:
     if config.episodes < 1:
         raise UsageError(f"--episodes must be >= 1, got {config.episodes}")
     checkpoint = load_checkpoint(config.checkpoint) if config.checkpoint is not None else None
-    preset = config.preset or (checkpoint.preset if checkpoint else "min2018")
-    overrides: dict[str, Any] = dict(checkpoint.overrides) if checkpoint else {}
-    overrides.pop("traffic.density", None)  # evaluation sets its own traffic
+    preset = config.preset_or(checkpoint.preset if checkpoint else None)
+    base: dict[str, Any] = dict(checkpoint.overrides) if checkpoint else {}
+    base.pop(DENSITY_SETTING, None)  # evaluation sets its own traffic
     if config.paper_evaluation:
-        overrides.update(parse_overrides(paper_evaluation(preset)))
-    overrides.update(parse_overrides(config.set))
-    if config.traffic is not None:
-        overrides["traffic.density"] = config.traffic
-    if config.max_decisions is not None:
-        overrides["episode.max_decisions"] = config.max_decisions
+        base.update(parse_overrides(paper_evaluation(preset)))
+    overrides = config.overrides(base)
     if config.policy == "rule":
         overrides.pop("lidar.enabled", None)  # the rule-based driver reads the LIDAR
-    envs = make_vector_env(
-        preset,
-        overrides,
-        config.episodes,
-        config.connect,
-        config.security,
-        transport=config.transport,
-    )
-    try:
+
+    def driver_for(envs: VectorFace) -> Driver:
         if checkpoint is not None:
             shielded = (
                 checkpoint.config.get("shield", False) if config.shield is None else config.shield
             )
-            policy: Any = GreedyPolicy(
+            policy = GreedyPolicy(
                 checkpoint,
                 config.episodes,
                 envs.single_observation_space,
@@ -260,57 +225,36 @@ def main(config: EvalConfig) -> dict[str, Any]:
                 Shield(envs.behaviour_spec) if shielded else None,
             )
             name = config.name or f"{checkpoint.algo}/{checkpoint.inputs}@{checkpoint.step}"
-        else:
-            spec = envs.behaviour_spec
-            policy = baseline_policy(str(config.policy), spec, config.seed, config.episodes, envs)
-            name = config.name or str(config.policy)
-        source = (
-            PolicySource(
+            source = PolicySource(
                 "checkpoint", str(config.checkpoint), checkpoint.step, policy.guard is not None
             )
-            if checkpoint is not None
-            else PolicySource("reference", str(config.policy))
+            return Driver(policy, source, name)
+        act = baseline_policy(
+            str(config.policy), envs.behaviour_spec, config.seed, config.episodes, envs
         )
-        recorder = EpisodeRecorder(
-            [config.seed + i for i in range(config.episodes)], policy, first_episode=0
+        return Driver(
+            act, PolicySource("reference", str(config.policy)), config.name or str(config.policy)
         )
-        # Kept only where asked for: a list append per environment and decision otherwise.
-        watchers: list[Any] = [recorder] if config.episodes_out is not None else []
-        recording = None
-        if config.record is not None:
-            recording, view = open_episode_recording(
-                RecordingConfig(sink="file", rrd=config.record),
-                config.record,
-                range(config.episodes),
-                envs,
-                policy,
-                name,
-            )
-            watchers.append(view)
-        try:
-            with torch.no_grad():
-                rows, decisions, elapsed = run_episodes(
-                    envs, policy, config.episodes, config.seed, watchers=watchers
-                )
-        finally:
-            close_recording(recording)
-        header = RecordHeader(
-            preset=preset,
-            overrides=overrides,
-            config=envs.sim_config,
-            policy=source,
-            commit=git_commit(),
-            name=name,
-        )
-    finally:
-        envs.close()
-    record_path = None
-    if config.episodes_out is not None:
-        record_path = write_records(
-            config.episodes_out / f"{record_name(name)}.jsonl", header, recorder.records()
-        )
-        print(f"episodes kept in {record_path} (overtake-replay {record_path} --rrd OUT.rrd)")
-    summary = summarise(rows)
+
+    driven = drive_episodes(
+        config.where(),
+        preset,
+        overrides,
+        Episodes.from_seed(config.episodes, config.seed),
+        driver_for,
+        Keeping(
+            records=config.episodes_out is not None,
+            recording=RecordingConfig(sink="file", rrd=config.record)
+            if config.record is not None
+            else None,
+            rrd=config.record,
+        ),
+    )
+    record_path = (
+        driven.write_records(config.episodes_out) if config.episodes_out is not None else None
+    )
+    name = driven.driver.name
+    summary = summarise(driven.rows)
     result = {
         "name": name,
         "preset": preset,
@@ -319,8 +263,8 @@ def main(config: EvalConfig) -> dict[str, Any]:
         "checkpoint": str(config.checkpoint) if config.checkpoint else None,
         "policy": config.policy,
         "summary": summary,
-        "episodes": rows,
-        "decisions_per_s": decisions / max(elapsed, 1e-9),
+        "episodes": driven.rows,
+        "decisions_per_s": driven.decisions / max(driven.elapsed_s, 1e-9),
         "episodes_record": str(record_path) if record_path is not None else None,
     }
     print(format_rows([(name, summary)]))

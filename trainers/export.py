@@ -32,7 +32,7 @@ import tyro
 from torch import nn
 
 from overtake.client.commands import UsageError, run_command
-from overtake.client.episodes.runner import make_vector_env
+from overtake.client.episodes.scenario import Where
 from overtake.client.policies.frames import FrameStacker
 from overtake.client.policies.onnx_policy import METADATA_KEY, POLICY_FORMAT
 from overtake.protocol.vocabulary import ACTION_NAMES
@@ -164,7 +164,7 @@ def check_against_torch(
     import onnxruntime as ort
 
     session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
-    envs = make_vector_env(checkpoint.preset, dict(checkpoint.overrides), config.check_envs, None)
+    envs = Where().open(checkpoint.preset, dict(checkpoint.overrides), config.check_envs)
     try:
         space = envs.single_observation_space
         shapes = frame_shapes(space, checkpoint.inputs, f"preset {checkpoint.preset}")

@@ -33,7 +33,6 @@ from typing import Any
 import torch
 
 from overtake.client.commands import UsageError, run_command
-from overtake.client.episodes.runner import make_vector_env
 
 from .checkpoint import (
     CHECKPOINT_NAME,
@@ -83,15 +82,7 @@ def main(
     overrides = config.overrides()
     own_envs = envs is None
     if own_envs:
-        envs = make_vector_env(
-            config.preset,
-            overrides,
-            config.num_envs,
-            config.connect,
-            config.security,
-            parts=config.parts,
-            transport=config.transport,
-        )
+        envs = config.open(config.preset, overrides, config.num_envs, parts=config.parts)
     elif envs.num_envs != config.num_envs:
         raise ValueError(
             f"the environment has {envs.num_envs} sub-environments, the "

@@ -6,15 +6,14 @@ from __future__ import annotations
 
 import dataclasses
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
 import torch
 
-from overtake.client.episodes.runner import parse_overrides
-from overtake.client.wire.shared_steps import Transport
-from overtake.protocol.transport import SecurityConfig
+from overtake.client.episodes.scenario import DEFAULT_PRESET, Scenario
 from overtake.viz.recording import RecordingConfig
 
 from .learner import Algo, DQNConfig, Precision
@@ -31,8 +30,9 @@ TRAINER_RECORD_EVERY = 10
 
 
 @dataclass(frozen=True)
-class TrainConfig:
-    """Train a DQN-family learner on an overtake preset."""
+class TrainConfig(Scenario):
+    """Train a DQN-family learner on an overtake preset (the simulator and where it runs are
+    the scenario's options)."""
 
     algo: Algo = "dueling"
     """dqn, ddqn (Double DQN), dueling (Dueling network with the Double DQN target: Min et
@@ -42,18 +42,9 @@ class TrainConfig:
     inputs: Inputs = "both"
     """camera, lidar or both (Min et al.'s multi-modal network), grid (Ho's occupancy grid and
     action stack) or camera-map (Fayjie et al.'s camera and LIDAR map); default the preset's"""
-    preset: str = "min2018"
-    traffic: Literal["light", "medium", "heavy"] | None = None
-    """traffic density; None keeps the preset's"""
-    set: tuple[str, ...] = ()
-    """more simulator overrides as dotted.name=value"""
-    connect: str | None = None
-    """a simulator server's (or router's) Zenoh endpoint; None runs the simulator in-process"""
-    security: SecurityConfig = field(default_factory=SecurityConfig)
-    """usrpwd credentials and TLS certificates for --connect"""
-    transport: Transport = "auto"
-    """how a server's Steps reach this process (--connect): auto (shared memory where the
-    server is on this host, Zenoh otherwise), shm (shared memory or an error), zenoh"""
+    preset: str = DEFAULT_PRESET
+    """the simulator preset: its paper's training is every option's default (--help with
+    --preset shows them)"""
     num_envs: int = 1
     """environments (arenas) stepped together"""
     overlap: Literal["auto", "on", "off"] = "auto"
@@ -134,15 +125,13 @@ class TrainConfig:
     def resolved_run_dir(self) -> Path:
         return self.run_dir or Path("runs") / f"{self.algo}-{self.inputs}-{self.seed}"
 
-    def overrides(self) -> dict[str, Any]:
+    def overrides(self, base: Mapping[str, Any] | None = None) -> dict[str, Any]:
         """Simulator overrides: the user's, the traffic, no sensor the network ignores
         (rendering a camera nobody looks at costs a third of a step), and for the camera alone
         an ego vector of the car's own speed only: the warnings and the car ahead's distance and
         speed ride with the LIDAR in the authors' code (its vector's elements 360-365), so a
         camera-only network sees other cars only through its camera (Min et al.'s ablation)."""
-        overrides = parse_overrides(self.set)
-        if self.traffic is not None:
-            overrides["traffic.density"] = self.traffic
+        overrides = super().overrides(base)
         if self.inputs == "lidar":
             overrides.setdefault("camera.enabled", False)
         if self.inputs == "camera":

@@ -9,38 +9,26 @@ from __future__ import annotations
 
 import json
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 
 from overtake.client.commands import UsageError, run_command
-from overtake.client.episodes.records import (
-    EpisodeRecorder,
-    PolicySource,
-    RecordHeader,
-    record_name,
-    write_records,
-)
-from overtake.client.episodes.runner import (
-    RealTime,
-    baseline_policy,
-    make_vector_env,
-    metric_summary,
-    metric_table,
-    parse_overrides,
-    run_episodes,
-)
-from overtake.client.provenance import git_commit
-from overtake.client.wire.shared_steps import Transport
-from overtake.protocol.transport import SecurityConfig
+from overtake.client.episodes.records import PolicySource
+from overtake.client.episodes.runner import baseline_policy, metric_summary, metric_table
+from overtake.client.episodes.scenario import Scenario
+from overtake.client.episodes.session import Driver, Episodes, Keeping, drive_episodes
+from overtake.protocol.faces import VectorFace
 from overtake.protocol.vocabulary import METRIC_FIELDS
 
 
 @dataclass(frozen=True)
-class DriveConfig:
-    """Drive a baseline policy through episodes of a preset and report the metrics."""
+class DriveConfig(Scenario):
+    """Drive a baseline policy through episodes of a preset and report the metrics. The
+    simulator and where it runs are the scenario's options (--preset: None takes the ONNX
+    model's own with --onnx, else min2018)."""
 
     policy: Literal["rule", "random", "idle", "planner"] = "rule"
     """which driver acts (unless --onnx is given)"""
@@ -54,105 +42,62 @@ class DriveConfig:
     """advance the simulator on the wall clock, one decision period (0.4 s for min2018) per
     decision: an action not ready in time is late (the car keeps its lane and speed), and the
     latency of every decision is reported"""
-    preset: str | None = None
-    """the simulator preset; None: the ONNX model's own (--onnx), else min2018"""
     episodes: int = 4
     """episodes to drive, all at once (one arena each)"""
     seed: int = 0
     """episode i uses seed + i"""
-    traffic: Literal["light", "medium", "heavy"] | None = None
-    """traffic density (Ho's Table 4: up to 20 / 40 / 60 cars); None keeps the preset's"""
-    max_decisions: int | None = None
-    """episode length in decisions (0.4 s each by default); None keeps the preset's"""
-    set: tuple[str, ...] = field(default_factory=tuple)
-    """more overrides as dotted.name=value (value read as JSON, else as a string)"""
     json_out: Path | None = None
     """also write the table as JSON here"""
     episodes_out: Path | None = None
     """keep every episode as a record in this folder (<policy>.jsonl), for overtake-replay"""
-    connect: str | None = None
-    """a simulator server's (or router's) Zenoh endpoint, e.g. tcp/127.0.0.1:7447; None runs
-    the simulator in this process"""
-    security: SecurityConfig = field(default_factory=SecurityConfig)
-    """usrpwd credentials and TLS certificates for --connect"""
-    transport: Transport = "auto"
-    """how a server's Steps reach this process (--connect): auto (shared memory where the
-    server is on this host, Zenoh otherwise), shm (shared memory or an error), zenoh"""
 
 
 def main(config: DriveConfig) -> dict[str, dict[str, float]]:
     """Drive the episodes; returns {metric: {"mean": .., "std": ..}} and prints the table."""
     if config.episodes < 1:
         raise UsageError(f"--episodes must be >= 1, got {config.episodes}")
-    preset = config.preset or "min2018"
+    model_preset = None
     if config.preset is None and config.onnx is not None:
         from overtake.client.policies.onnx_policy import read_metadata
 
-        preset = read_metadata(config.onnx)["preset"]
-    overrides = parse_overrides(config.set)
-    if config.traffic is not None:
-        overrides["traffic.density"] = config.traffic
-    if config.max_decisions is not None:
-        overrides["episode.max_decisions"] = config.max_decisions
-    envs = make_vector_env(
-        preset,
-        overrides,
-        config.episodes,
-        config.connect,
-        config.security,
-        transport=config.transport,
-    )
-    clock = RealTime(period_s=envs.decision_period_s) if config.realtime else None
-    try:
-        if config.onnx is not None:
-            from overtake.client.policies.onnx_policy import OnnxPolicy
+        model_preset = read_metadata(config.onnx)["preset"]
+    preset = config.preset_or(model_preset)
+    name = _policy_name(config)
 
-            act: Any = OnnxPolicy(
-                config.onnx,
-                config.episodes,
-                envs.single_observation_space,
-                preset,
-                spec=envs.behaviour_spec,
-                shield=config.shield,
-            )
-        else:
+    def driver_for(envs: VectorFace) -> Driver:
+        if config.onnx is None:
             act = baseline_policy(
                 config.policy, envs.behaviour_spec, config.seed, config.episodes, envs
             )
-        recorder = EpisodeRecorder([config.seed + i for i in range(config.episodes)], act)
-        rows, decisions, elapsed = run_episodes(
-            envs,
-            act,
-            config.episodes,
-            config.seed,
-            realtime=clock,
-            # Kept only where asked for (a list append per environment and decision).
-            watchers=[recorder] if config.episodes_out is not None else [],
-        )
-        header = RecordHeader(
-            preset=preset,
-            overrides=overrides,
-            config=envs.sim_config,
-            policy=(
-                PolicySource(
-                    "onnx", str(config.onnx), shield=getattr(act, "guard", None) is not None
-                )
-                if config.onnx is not None
-                else PolicySource("reference", config.policy)
-            ),
-            commit=git_commit(),
-            name=_policy_name(config),
-        )
-    finally:
-        envs.close()
-    if config.episodes_out is not None:
-        path = config.episodes_out / f"{record_name(_policy_name(config))}.jsonl"
-        write_records(path, header, recorder.records())
-        print(f"episodes kept in {path} (overtake-replay {path} --rrd OUT.rrd)")
+            return Driver(act, PolicySource("reference", config.policy), name)
+        from overtake.client.policies.onnx_policy import OnnxPolicy
 
+        model = OnnxPolicy(
+            config.onnx,
+            config.episodes,
+            envs.single_observation_space,
+            preset,
+            spec=envs.behaviour_spec,
+            shield=config.shield,
+        )
+        source = PolicySource("onnx", str(config.onnx), shield=model.guard is not None)
+        return Driver(model, source, name)
+
+    driven = drive_episodes(
+        config.where(),
+        preset,
+        config.overrides(),
+        Episodes.from_seed(config.episodes, config.seed),
+        driver_for,
+        Keeping(records=config.episodes_out is not None),
+        realtime=config.realtime,
+    )
+    if config.episodes_out is not None:
+        driven.write_records(config.episodes_out)
+    rows = driven.rows
     table = metric_table(rows)
     summary = metric_summary(rows)
-    _print_table(config, preset, table, summary, decisions, elapsed)
+    _print_table(config, preset, table, summary, driven.decisions, driven.elapsed_s)
     if rows and "shield_overrides" in rows[0]:
         overrides_per_episode = np.array([row["shield_overrides"] for row in rows])
         summary["shield_overrides"] = {
@@ -161,9 +106,10 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
         }
         print(
             f"the safety shield overrode the model {int(overrides_per_episode.sum())} times "
-            f"in {decisions} decisions"
+            f"in {driven.decisions} decisions"
         )
     timing: dict[str, float] = {}
+    clock = driven.clock
     if clock is not None:
         timing = {
             "period_s": clock.period_s,
@@ -182,10 +128,10 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
         config.json_out.write_text(
             json.dumps(
                 {
-                    "policy": _policy_name(config),
+                    "policy": name,
                     "preset": preset,
                     "seed": config.seed,
-                    "overrides": overrides,
+                    "overrides": driven.overrides,
                     "episodes": rows,
                     "summary": summary,
                     "realtime": timing or None,
@@ -221,7 +167,7 @@ def _print_table(
     )
     widths = [max(9, len(h)) for h in headers]
     line = "  ".join(h.rjust(w) for h, w in zip(headers, widths))
-    where = "in-process" if config.connect is None else f"on {config.connect}"
+    where = config.describe()
     print(
         f"policy={_policy_name(config)} preset={preset} episodes={config.episodes} "
         f"seed={config.seed} ({where})"

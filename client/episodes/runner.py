@@ -1,21 +1,19 @@
-"""Episode running and metric tables: what ``overtake-drive``, ``overtake-train`` and
-``overtake-eval`` share.
+"""Episode stepping and metric tables: what the commands that drive episodes share.
 
-A vector environment of a preset (in this process or on a server), simulator overrides from
-``dotted.name=value`` text, a policy stepping one episode per environment to its end, and the
-papers' metrics of those episodes (the columns of
-:data:`overtake.protocol.vocabulary.METRIC_FIELDS`) with their mean and spread.
+A policy stepping one episode per environment of a vector environment to its end (on the wall
+clock if asked), the reference policies, and the papers' metrics of those episodes (the columns
+of :data:`overtake.protocol.vocabulary.METRIC_FIELDS`) with their mean and spread. Which
+simulator and where is :mod:`.scenario`; a command's whole run of episodes (open, drive,
+record, close) is :mod:`.session`.
 """
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-import gymnasium as gym
 import numpy as np
 
 from overtake.client.commands import UsageError
@@ -28,71 +26,12 @@ from overtake.client.policies.drivers import (
     RuleDriver,
     RuleDriverConfig,
 )
-from overtake.client.wire.connection import RemoteConfig
-from overtake.client.wire.shared_steps import Transport
-from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
 from overtake.protocol.faces import VectorFace
 from overtake.protocol.messages import BehaviourSpec
-from overtake.protocol.transport import SecurityConfig
 from overtake.protocol.vocabulary import METRIC_FIELDS
 
 Policy = Callable[[dict[str, np.ndarray], dict[str, Any], np.ndarray], np.ndarray]
 """``act(obs, info, starting)`` -> actions, for :func:`run_episodes`."""
-
-
-def parse_overrides(items: tuple[str, ...]) -> dict[str, object]:
-    """Simulator overrides from ``dotted.name=value`` items (the value read as JSON, else kept
-    as a string)."""
-    overrides: dict[str, object] = {}
-    for item in items:
-        name, sep, text = item.partition("=")
-        if not sep or not name:
-            raise UsageError(f"--set expects dotted.name=value, got {item!r}")
-        try:
-            overrides[name] = json.loads(text)
-        except json.JSONDecodeError:
-            overrides[name] = text
-    return overrides
-
-
-def make_vector_env(
-    preset: str,
-    overrides: dict[str, Any],
-    num_envs: int,
-    connect: str | None,
-    security: SecurityConfig | None = None,
-    parts: int = 1,
-    transport: Transport = "auto",
-) -> VectorFace:
-    """``num_envs`` arenas of ``preset`` as one vector environment: in this process, or on a
-    simulator server reached at ``connect`` (with ``security``'s credentials and
-    certificates), there in ``parts`` groups (see ``RemoteHighwayVectorEnv``), their Steps
-    through shared memory or Zenoh as ``transport`` says (``RemoteConfig.steps_transport``)."""
-    register_environments()
-    if connect is None:
-        envs = gym.make_vec(
-            HIGHWAY_ENV_ID,
-            num_envs=num_envs,
-            vectorization_mode="vector_entry_point",
-            preset=preset,
-            overrides=overrides,
-        )
-    else:
-        remote = RemoteConfig(
-            connect=(connect,), security=security or SecurityConfig(), steps_transport=transport
-        )
-        envs = gym.make_vec(
-            REMOTE_HIGHWAY_ENV_ID,
-            num_envs=num_envs,
-            vectorization_mode="vector_entry_point",
-            preset=preset,
-            overrides=overrides,
-            remote=remote,
-            parts=parts,
-        )
-    # Gymnasium builds the registered entry point itself, no wrapper around it.
-    assert isinstance(envs, VectorFace)
-    return envs
 
 
 def metric_table(rows: list[dict[str, float]]) -> np.ndarray:
@@ -149,7 +88,7 @@ class EpisodeWatcher(Protocol):
 
 
 def run_episodes(
-    envs: Any,
+    envs: VectorFace,
     act: Policy,
     episodes: int,
     seed: int | Sequence[int],

@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 
 from overtake.client.commands import run_command
-from overtake.client.episodes.runner import parse_overrides
+from overtake.client.episodes.scenario import parse_overrides
 from overtake.client.mlagents.environment import RemoteEnvironment
 from overtake.client.mlagents.wire import (
     COMMAND_QUIT,

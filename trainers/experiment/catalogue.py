@@ -6,12 +6,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from overtake.protocol.vocabulary import METRIC_FIELDS
+from overtake.protocol.vocabulary import DENSITIES, METRIC_FIELDS, Density
 
 from ..learner import Algo
 from ..network import Inputs
-
-Density = Literal["light", "medium", "heavy"]
 
 ALGO_NAMES = {"dqn": "DQN", "ddqn": "Double DQN", "dueling": "Dueling DQN", "qr": "QR-DQN"}
 INPUT_NAMES = {
@@ -169,7 +167,7 @@ EXPERIMENTS: dict[str, Experiment] = {
         # As in bench/RESULTS.md: four arenas step together (the simulation is batched, and
         # the cost of a step is the network's update, one per 4 transitions either way).
         num_envs=4,
-        densities=("light", "medium", "heavy"),
+        densities=DENSITIES,
         references=("rule", "random", "idle", "planner"),
         eval_episodes=50,
         paper=(
@@ -204,7 +202,7 @@ EXPERIMENTS: dict[str, Experiment] = {
         # 2,000,000, a target copy every 10,000, replay 1,000,000): a smaller budget stops it
         # early rather than compressing it.
         scale_schedule=False,
-        densities=("light", "medium", "heavy"),
+        densities=DENSITIES,
         # The planner plans 6 s (75 of Ho's decisions) ahead: 200 episodes of it take hours
         # on 2 cores; add it with --references rule random idle planner.
         references=("rule", "random", "idle"),

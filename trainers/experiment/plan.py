@@ -7,14 +7,14 @@ import dataclasses
 import os
 import sys
 import typing
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import tyro
 
 from overtake.client.commands import UsageError
-from overtake.protocol.transport import SecurityConfig
+from overtake.client.episodes.scenario import Where
 from overtake.viz.recording import RecordingConfig
 
 from ..checkpoint import plain_data
@@ -25,10 +25,12 @@ from .catalogue import EXPERIMENTS, Density, Experiment, Row, Schedule
 
 
 @dataclass(frozen=True)
-class ExperimentConfig:
+class ExperimentConfig(Where):
     """Reproduce a paper's table: train its rows (resumable, in parallel), evaluate them and
     the reference policies on fixed seeds at each traffic density, write the table and the
-    learning curves. Run the same command again to continue after a kill."""
+    learning curves. Run the same command again to continue after a kill. Where the simulator
+    is (--connect: a server for training and evaluation alike; default one in each process)
+    is the scenario's option; which simulator is the experiment's."""
 
     experiment: Annotated[str, tyro.conf.Positional] = "min2018-table3"
     """the experiment to run (--list-experiments shows them)"""
@@ -68,11 +70,6 @@ class ExperimentConfig:
     None keeps the experiment's"""
     set: tuple[str, ...] = ()
     """simulator overrides (dotted.name=value) for training and evaluation alike"""
-    connect: str | None = None
-    """a simulator server's (or router's) Zenoh endpoint for training and evaluation; None runs
-    the simulator in each process"""
-    security: SecurityConfig = field(default_factory=SecurityConfig)
-    """usrpwd credentials and TLS certificates for --connect"""
     torch_threads: int | None = None
     """PyTorch threads per process; default the cores divided by --jobs"""
     device: str = "cpu"
@@ -285,8 +282,7 @@ def _run_plan(
         preset=experiment.preset,
         traffic=experiment.train_traffic,
         set=config.set,
-        connect=config.connect,
-        security=config.security,
+        **config.where_fields(),
         num_envs=config.num_envs or experiment.num_envs,
         total_steps=total_steps,
         seed=seed,
@@ -311,6 +307,7 @@ def _run_plan(
 # differently).
 _UNLEARNED = (
     "connect",
+    "transport",
     "device",
     "security",
     "torch_threads",

@@ -70,14 +70,15 @@ class ExperimentRun:
             traffic=density,
             set=config.set,
             max_decisions=config.eval_max_decisions,
-            # The planner reads the simulator's true state: it drives an in-process copy of
-            # the same preset and overrides even when the rows train on a server.
-            connect=None if base.policy == "planner" else config.connect,
-            security=config.security,
+            **config.where_fields(),
             json_out=cache.with_name(cache.name + ".out"),
             # Every episode kept, for overtake-replay (the table names those with collisions).
             episodes_out=cache.with_name(cache.stem + ".episodes"),
         )
+        if base.policy == "planner":
+            # The planner reads the simulator's true state: it drives an in-process copy of
+            # the same preset and overrides even when the rows train on a server.
+            evaluation = dataclasses.replace(evaluation, connect=None)
         full_key = {
             **key,
             "density": density,

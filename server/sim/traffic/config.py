@@ -13,16 +13,13 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal
 
-from overtake.protocol.vocabulary import BEHAVIOUR_NAMES
+from overtake.protocol.vocabulary import BEHAVIOUR_NAMES, DENSITIES, Density
 
 from ..validation import check, check_flag, check_interval, check_range
 
 # A MOBIL threshold no advantage reaches (accelerations stay within 15 m/s^2 either way): a
 # behaviour with it changes lanes only at random.
 NEVER_MPS2 = 1000.0
-
-Density = Literal["light", "medium", "heavy"]
-DENSITIES: tuple[str, ...] = ("light", "medium", "heavy")
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,0 +1,146 @@
+"""Which simulator a command runs, and where: typed once, for every command.
+
+:class:`Where` is where the simulator is (this process, or a server reached over Zenoh with
+its credentials and a transport for its Steps); :class:`Scenario` adds which simulator: a
+preset, its traffic (a :data:`~overtake.protocol.vocabulary.Density` word), its episode length
+and any other overrides. ``overtake-drive``, ``-eval`` and ``-train`` take a Scenario (their
+configurations are one, with the options of their own); ``overtake-replay`` (whose scenario is
+the record's) and ``overtake-experiment`` (whose scenario is its paper's) take a Where. The
+fields are keyword-only, so that a command's own fields may come in any order; on the command
+line (tyro, ``OmitArgPrefixes``) they are the same flags in every command.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import gymnasium as gym
+
+from overtake.client.commands import UsageError
+from overtake.client.wire.connection import RemoteConfig
+from overtake.client.wire.shared_steps import Transport
+from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
+from overtake.protocol.faces import VectorFace
+from overtake.protocol.transport import SecurityConfig
+from overtake.protocol.vocabulary import DENSITY_SETTING, EPISODE_LENGTH_SETTING, Density
+
+DEFAULT_PRESET = "min2018"
+
+
+def parse_overrides(items: tuple[str, ...]) -> dict[str, object]:
+    """Simulator overrides from ``dotted.name=value`` items (the value read as JSON, else kept
+    as a string)."""
+    overrides: dict[str, object] = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        if not sep or not name:
+            raise UsageError(f"--set expects dotted.name=value, got {item!r}")
+        try:
+            overrides[name] = json.loads(text)
+        except json.JSONDecodeError:
+            overrides[name] = text
+    return overrides
+
+
+@dataclass(frozen=True, kw_only=True)
+class Where:
+    """Where the simulator is: in this process, or on a server reached over Zenoh."""
+
+    connect: str | None = None
+    """a simulator server's (or router's) Zenoh endpoint, e.g. tcp/127.0.0.1:7447; None runs
+    the simulator in this process"""
+    security: SecurityConfig = field(default_factory=SecurityConfig)
+    """usrpwd credentials and TLS certificates for --connect"""
+    transport: Transport = "auto"
+    """how a server's Steps reach this process (--connect): auto (shared memory where the
+    server is on this host, Zenoh otherwise), shm (shared memory or an error), zenoh"""
+
+    def where(self) -> Where:
+        """Only where the simulator is (a command's configuration is also one)."""
+        return Where(**self.where_fields())
+
+    def where_fields(self) -> dict[str, Any]:
+        """Where the simulator is, as the fields of a configuration that is also a Where (to
+        carry it into another command's: ``dataclasses.replace(other, **where_fields())``)."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(Where)}
+
+    def describe(self) -> str:
+        return "in-process" if self.connect is None else f"on {self.connect}"
+
+    def open(
+        self, preset: str, overrides: Mapping[str, Any], num_envs: int, parts: int = 1
+    ) -> VectorFace:
+        """``num_envs`` arenas of ``preset`` with ``overrides`` as one vector environment:
+        in this process, or on the server, there in ``parts`` groups (see
+        ``RemoteHighwayVectorEnv``)."""
+        register_environments()
+        if self.connect is None:
+            envs = gym.make_vec(
+                HIGHWAY_ENV_ID,
+                num_envs=num_envs,
+                vectorization_mode="vector_entry_point",
+                preset=preset,
+                overrides=dict(overrides),
+            )
+        else:
+            remote = RemoteConfig(
+                connect=(self.connect,),
+                security=self.security,
+                steps_transport=self.transport,
+            )
+            envs = gym.make_vec(
+                REMOTE_HIGHWAY_ENV_ID,
+                num_envs=num_envs,
+                vectorization_mode="vector_entry_point",
+                preset=preset,
+                overrides=dict(overrides),
+                remote=remote,
+                parts=parts,
+            )
+        # Gymnasium builds the registered entry point itself, no wrapper around it.
+        assert isinstance(envs, VectorFace)
+        return envs
+
+
+@dataclass(frozen=True, kw_only=True)
+class Scenario(Where):
+    """Which simulator, and where: a preset, its traffic, its episode length and other
+    overrides."""
+
+    preset: str | None = None
+    """the simulator preset; None: the command's own default (a checkpoint's or model's
+    preset, else min2018)"""
+    traffic: Density | None = None
+    """traffic density (each preset's cars per density: docs/presets.md); None keeps the
+    preset's"""
+    max_decisions: int | None = None
+    """episode length in decisions; None keeps the preset's"""
+    set: tuple[str, ...] = ()
+    """more simulator overrides as dotted.name=value (the value read as JSON, else as a
+    string)"""
+
+    def scenario(self) -> Scenario:
+        """Only the scenario (a command's configuration is also one)."""
+        return Scenario(**{f.name: getattr(self, f.name) for f in dataclasses.fields(Scenario)})
+
+    def preset_or(self, default: str | None) -> str:
+        """The preset: this scenario's, else ``default``, else min2018."""
+        return self.preset or default or DEFAULT_PRESET
+
+    def overrides(self, base: Mapping[str, Any] | None = None) -> dict[str, Any]:
+        """The simulator overrides: ``base`` (a checkpoint's, a paper's evaluation), then
+        --set, then the traffic and the episode length this scenario names."""
+        overrides = dict(base or {})
+        overrides.update(parse_overrides(self.set))
+        if self.traffic is not None:
+            overrides[DENSITY_SETTING] = self.traffic
+        if self.max_decisions is not None:
+            overrides[EPISODE_LENGTH_SETTING] = self.max_decisions
+        return overrides
+
+
+__all__ = ["DEFAULT_PRESET", "Scenario", "Where", "parse_overrides"]
