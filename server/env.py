@@ -27,7 +27,7 @@ from .local import LocalEngine, LocalRoad, local_simulator
 from .sim import HighwaySim, SimConfig, make_config
 
 
-def resolve_config(
+def in_process_config(
     preset: str, overrides: Mapping[str, Any] | None, config: SimConfig | None
 ) -> SimConfig:
     """``config``, or the preset with its overrides (not both)."""
@@ -67,7 +67,7 @@ class HighwayEnv(_InProcess, SingleFace):
         config: SimConfig | None = None,
         render_mode: str | None = None,
     ) -> None:
-        self.config = resolve_config(preset, overrides, config)
+        self.config = in_process_config(preset, overrides, config)
         super().__init__(local_simulator(self.config, arenas=1), render_mode)
 
     def planner_action(self) -> int:
@@ -87,7 +87,7 @@ class HighwayVectorEnv(_InProcess, VectorFace):
         config: SimConfig | None = None,
         render_mode: str | None = None,
     ) -> None:
-        self.config = resolve_config(preset, overrides, config)
+        self.config = in_process_config(preset, overrides, config)
         super().__init__(local_simulator(self.config, arenas=num_envs), num_envs, render_mode)
 
     def planner_actions(self) -> np.ndarray:

@@ -115,14 +115,8 @@ class Group:
         agents_per_arena: int,
         seed: int | None,
     ) -> Group:
-        return cls.of_config(
-            group_id,
-            server,
-            arena_ids,
-            resolve_config(preset, overrides),
-            agents_per_arena,
-            seed,
-        )
+        config = resolve_config(preset, overrides)
+        return cls.of_config(group_id, server, arena_ids, config, agents_per_arena, seed)
 
     @classmethod
     def of_config(

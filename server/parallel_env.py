@@ -19,7 +19,7 @@ from typing import Any
 
 from overtake.protocol.parallel_face import ParallelFace
 
-from .env import _InProcess, resolve_config
+from .env import _InProcess, in_process_config
 from .local import local_simulator
 from .sim import SimConfig
 
@@ -35,7 +35,7 @@ class HighwayParallelEnv(_InProcess, ParallelFace):
         config: SimConfig | None = None,
         render_mode: str | None = None,
     ) -> None:
-        self.config = resolve_config(preset, overrides, config)
+        self.config = in_process_config(preset, overrides, config)
         super().__init__(
             local_simulator(self.config, arenas=1, agents_per_arena=agents), render_mode
         )

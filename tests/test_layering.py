@@ -313,3 +313,26 @@ def test_no_module_imports_itself_back_not_even_from_inside_a_function():
                     seen.add(nxt)
                     stack.append((nxt, [*trail, nxt]))
     assert not cycles, f"import cycles: {sorted({' -> '.join(sorted(c)) for c in cycles})}"
+
+
+LIBRARY_FILE_MAX_LINES = 500
+HIGHWAY_SIM_MAX_LINES = 250
+
+
+def test_every_library_file_and_the_simulation_s_class_stay_readable():
+    """Every library file within 500 lines (issues 33 and 45); HighwaySim, the class a reader
+    of the simulation starts from, within 250 (issue 12)."""
+    long = [
+        f"{path.relative_to(ROOT)}: {n} lines"
+        for folder in FOLDERS
+        for path in _sources(folder)
+        if (n := len(path.read_text(encoding="utf-8").splitlines())) > LIBRARY_FILE_MAX_LINES
+    ]
+    assert not long, "\n".join(long)
+    core = ROOT / "server" / "sim" / "core.py"
+    (sim,) = [
+        node
+        for node in ast.parse(core.read_text(encoding="utf-8")).body
+        if isinstance(node, ast.ClassDef) and node.name == "HighwaySim"
+    ]
+    assert sim.end_lineno - sim.lineno + 1 <= HIGHWAY_SIM_MAX_LINES
