@@ -10,7 +10,7 @@ What is measured, in one run so that every ratio is taken under the same machine
 * the peer, highway-env's ``highway-fast-v0`` on a comparable scene (5 lanes, 40 vehicles,
   DiscreteMetaAction, a LIDAR and an 84x84 grayscale image per decision), through
   :func:`bench.peers.highway_env_peer.measure_highway_env`: the peer every figure in
-  ``bench/RESULTS.md`` since the first run is a ratio to;
+  ``bench/RESULTS.md`` (and its journal) since the first run is a ratio to;
 * and highway-env on each preset's own scene (its lanes, traffic cars, physics and decision
   rates, and the closest observation: :func:`bench.peers.highway_env_peer.matched_scene`),
   "x own scene": ho2018 simulates 50 physics frames a second, 10 times highway-fast-v0's 5,

@@ -27,7 +27,7 @@ from pettingzoo import ParallelEnv
 
 from .envs import check_render_mode
 from .faces import Simulator, StepInfo, spaces_from_spec
-from .messages import Steps
+from .messages import BehaviourSpec, Steps
 from .vocabulary import ACTION_COUNT, ACTION_NAMES
 
 AgentID = str
@@ -75,7 +75,7 @@ class ParallelFace(ParallelEnv[AgentID, dict[str, np.ndarray], int]):
         self.max_episode_steps = spec.max_episode_steps
 
     @property
-    def behaviour_spec(self):
+    def behaviour_spec(self) -> BehaviourSpec:
         """What an agent sees and drives."""
         return self.simulator.spec
 

@@ -31,6 +31,10 @@ PAGES = {
     "results/benchmarks.md": ROOT / "bench" / "RESULTS.md",
     "results/reliability.md": ROOT / "bench" / "RELIABILITY.md",
 }
+# bench/RESULTS.md links its history, the dated journals in bench/journal/, as journal/NAME.md.
+PAGES.update(
+    {f"results/journal/{p.name}": p for p in sorted((ROOT / "bench" / "journal").glob("*.md"))}
+)
 
 
 def _link_api_sources() -> None:
