@@ -31,7 +31,7 @@ from gymnasium.vector.utils import batch_space
 
 from .envs import ReportsEpisodeLength, arena_seeds, check_actions, check_render_mode
 from .messages import BehaviourSpec, Steps, WorldFrame
-from .vocabulary import ACTION_COUNT, EPISODE_COUNTS, INFO_KEYS
+from .vocabulary import ACTION_COUNT, EPISODE_COUNTS, INFO_KEYS, WATCH_METRICS
 
 try:  # Gymnasium >= 1.1 names the autoreset modes; 1.0 only has next-step autoreset.
     from gymnasium.vector import AutoresetMode
@@ -155,7 +155,8 @@ class StepInfo:
     reward_terms: dict[str, np.ndarray]
     """each term of the reward, (k,) each"""
     episode_counts: dict[str, np.ndarray]
-    """(k,) int64 each: the episode's collisions and emergency brakes so far; a decision whose
+    """(k,) int64 each: the episode's collisions and emergency brakes so far (and, where driver
+    assistance watches lane changes through, the changes it turned back); a decision whose
     count rose had one"""
     metrics: dict[str, np.ndarray]
     """the papers' episode metrics, (k,) each: read where the episode ended"""
@@ -178,7 +179,7 @@ class StepInfo:
             # The Steps' metrics are each episode's so far; the counts of events are integers.
             episode_counts={
                 name: steps.metrics[:, fields.index(name)].astype(np.int64)
-                for name in EPISODE_COUNTS
+                for name in (*EPISODE_COUNTS, *WATCH_METRICS)
                 if name in fields
             },
             metrics={name: steps.metrics[:, i] for i, name in enumerate(fields)},

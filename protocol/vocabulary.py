@@ -75,6 +75,11 @@ INFO_KEYS: tuple[str, ...] = (
 # --traffic and every experiment's densities are spelled in.
 Density = Literal["light", "medium", "heavy"]
 DENSITIES: tuple[Density, ...] = get_args(Density)
+# Driver assistance that watches a lane change through (the shield's option,
+# overtake.server.sim.lane_watch): the setting that turns it on, and the metrics a simulator
+# with it reports after METRIC_FIELDS (an episode's lane changes turned back).
+WATCH_SETTING = "ego.lane_change_watch"
+WATCH_METRICS: tuple[str, ...] = ("lane_change_aborts",)
 # The simulator settings a scenario names by its own options (--traffic, --max-decisions).
 DENSITY_SETTING = "traffic.density"
 EPISODE_LENGTH_SETTING = "episode.max_decisions"

@@ -12,7 +12,7 @@ import dataclasses
 import json
 
 from overtake.protocol.messages import BehaviourSpec, CarSpec, ObservationSpec, Reach, RoadSpec
-from overtake.protocol.vocabulary import ACTION_COUNT, ACTION_NAMES, METRIC_FIELDS
+from overtake.protocol.vocabulary import ACTION_COUNT, ACTION_NAMES
 
 from .sim import HighwaySim
 from .sim.sensors import SensorFacts
@@ -50,7 +50,7 @@ def behaviour_spec(sim: HighwaySim) -> BehaviourSpec:
         action_branches=(ACTION_COUNT,),
         action_names=ACTION_NAMES,
         reward_terms=sim.reward_terms,
-        metric_fields=METRIC_FIELDS,
+        metric_fields=sim.metric_fields,
         decision_period_s=config.episode.decision_period_s,
         max_episode_steps=config.episode.max_decisions,
         agents_per_arena=sim.agents,

@@ -21,6 +21,7 @@ import tyro
 
 from overtake.client.commands import UsageError
 from overtake.protocol.transport import SecurityConfig
+from overtake.protocol.vocabulary import WATCH_SETTING
 from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.evaluate import EvalConfig
 from overtake.trainers.experiment import (
@@ -651,19 +652,31 @@ def test_the_order_of_rows_is_judged_against_the_seed_spread():
 def test_min2018_safe_trains_the_paper_row_and_the_options_each_alone_and_together(tmp_path):
     plan = make_plan(ExperimentConfig(experiment="min2018-safe", out=tmp_path))
     trained = {
-        run.name: (run.train.shield, run.train.dqn.prioritized, run.train.dqn.n_step)
+        run.name: (
+            run.train.shield,
+            run.train.dqn.prioritized,
+            run.train.dqn.n_step,
+            run.train.shield_watch,
+            run.train.dqn.store_applied,
+        )
         for run in plan.runs
     }
     assert trained == {
         f"{label}-seed{seed}": options
         for label, options in {
-            "paper": (False, False, 1),
-            "shield": (True, False, 1),
-            "per-3step": (False, True, 3),
-            "all": (True, True, 3),
+            "paper": (False, False, 1, False, False),
+            "shield": (True, False, 1, False, False),
+            "per-3step": (False, True, 3, False, False),
+            "all": (True, True, 3, False, False),
+            # Issue 46: the shield with lane changes watched through, the applied actions
+            # stored; alone and with everything else.
+            "watch": (True, False, 1, True, True),
+            "all-watch": (True, True, 3, True, True),
         }.items()
         for seed in (0, 1)
     }
+    watched = {run.name for run in plan.runs if run.train.overrides().get(WATCH_SETTING)}
+    assert watched == {f"{label}-seed{s}" for label in ("watch", "all-watch") for s in (0, 1)}
     assert all((run.train.algo, run.train.inputs) == ("dueling", "lidar") for run in plan.runs)
     assert plan.total_steps == 200_000 and plan.eval_episodes == 100
     assert plan.densities == ("medium", "heavy") and plan.references == ("rule", "planner")
@@ -672,6 +685,7 @@ def test_min2018_safe_trains_the_paper_row_and_the_options_each_alone_and_togeth
         assert parse_args(train_command(run.train)[3:]) == run.train
     labels = {row.label: row.options for row in EXPERIMENTS["min2018-safe"].rows}
     assert labels["all"] == "shield, prioritized replay, 3-step returns"
+    assert labels["watch"] == "shield, lane changes watched through, applied actions stored"
     assert labels["paper"] == "-"
 
 

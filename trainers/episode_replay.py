@@ -40,7 +40,7 @@ from overtake.client.episodes.session import Driver, Episodes, Keeping, drive_ep
 from overtake.client.policies.shield import Shield
 from overtake.client.provenance import git_commit
 from overtake.protocol.faces import VectorFace
-from overtake.protocol.vocabulary import ACTION_NAMES, METRIC_FIELDS
+from overtake.protocol.vocabulary import ACTION_NAMES
 from overtake.viz.recording import RecordingConfig
 
 from .checkpoint import load_checkpoint
@@ -217,11 +217,12 @@ def compare(recorded: list[EpisodeRecord], replayed: list[EpisodeRecord], header
                 f"episode {record.episode} did not end within its {len(record.actions)} "
                 f"recorded decisions{_commits(header)}"
             )
-        for name in METRIC_FIELDS:
-            if again.metrics[name] != record.metrics[name]:
+        # The papers' metrics, and any other the record kept (WATCH_METRICS).
+        for name, value in record.metrics.items():
+            if again.metrics.get(name) != value:
                 raise ReplayDiverged(
                     f"episode {record.episode} (seed {record.seed}) replayed with {name} = "
-                    f"{again.metrics[name]!r}, the record says {record.metrics[name]!r}"
+                    f"{again.metrics.get(name)!r}, the record says {value!r}"
                     f"{_commits(header)}"
                 )
         events = {k: v for k, v in record.events.items() if k != "shield_overrides"}

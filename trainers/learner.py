@@ -121,6 +121,14 @@ class DQNConfig:
     """QR-DQN's quantiles per action (Min et al.'s QR-DQN code: 51; Dabney et al.: 200)"""
     quantile_kappa: float = 1.0
     """QR-DQN's quantile Huber loss threshold (Dabney et al. and Min et al.'s code: 1)"""
+    store_applied: bool = False
+    """store the action the car applied (``info["action_applied"]``: a lane change driver
+    assistance refused is keep) instead of the one chosen, so that the learner learns what the
+    action did (Krasowski et al. 2023: replacing unsafe actions works best)"""
+    intervention_penalty: float = 0.0
+    """subtracted from a transition's reward where the safety layer stepped in: the shield
+    overrode the network's greedy choice, driver assistance refused the chosen action, or it
+    turned a lane change back (Krasowski et al. 2023: a penalty helps learning); 0: none"""
 
     def __post_init__(self) -> None:
         for name in (
@@ -156,6 +164,10 @@ class DQNConfig:
                 raise ValueError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
         if self.n_step < 1:
             raise ValueError(f"n_step must be >= 1, got {self.n_step}")
+        if not 0.0 <= self.intervention_penalty <= 100.0:
+            raise ValueError(
+                f"intervention_penalty must be in [0, 100], got {self.intervention_penalty}"
+            )
         if not 0.0 <= self.priority_alpha <= 1.0 or not 0.0 <= self.priority_beta_start <= 1.0:
             raise ValueError(
                 "priority_alpha and priority_beta_start must be in [0, 1], got "

@@ -1,16 +1,25 @@
-"""The safety shield in a training run (``overtake-train --shield``): the shield of
-:mod:`overtake.client.policies.shield` judging from the run's stacked frames, and the count of the
-decisions where it forbade the network's greedy choice."""
+"""Safety in a training run: the shield of :mod:`overtake.client.policies.shield` judging from
+the run's stacked frames (``overtake-train --shield``), the count of the decisions where it
+forbade the network's greedy choice, and what the replay stores where safety stepped in
+(:class:`SafetyLayer`)."""
 
 from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from overtake.client.commands import UsageError
 from overtake.client.policies.shield import Shield, overridden
 from overtake.protocol.messages import BehaviourSpec
+from overtake.protocol.vocabulary import WATCH_METRICS
 
 from .replay import FrameStacker
+
+if TYPE_CHECKING:
+    from .learner import DQNConfig
+
+(LANE_CHANGE_ABORTS,) = WATCH_METRICS
 
 
 class TrainingShield:
@@ -38,9 +47,66 @@ class TrainingShield:
         stacked = self.stacker.observation()
         return mask & self.shield.mask(stacked["lidar"][envs], stacked["ego"][envs])
 
-    def count(self, q: np.ndarray, env_mask: np.ndarray, mask: np.ndarray) -> int:
-        """Count (and return) the decisions of this batch where the shield forbade the
-        network's greedy choice."""
-        count = int(overridden(q, env_mask, mask).sum())
-        self.overrides += count
-        return count
+    def count(self, q: np.ndarray, env_mask: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """The decisions of this batch where the shield forbade the network's greedy choice,
+        (N,) bool; counted in :attr:`overrides`."""
+        flags = overridden(q, env_mask, mask)
+        self.overrides += int(flags.sum())
+        return flags
+
+
+class SafetyLayer:
+    """What a training run does about safety: the shield's mask (where ``shield`` is given),
+    the count of its overrides, and what the replay stores where safety stepped in
+    (``dqn.store_applied``, ``dqn.intervention_penalty``), for ``num_envs`` environments."""
+
+    def __init__(self, shield: TrainingShield | None, dqn: DQNConfig, num_envs: int) -> None:
+        self.shield = shield
+        self.store_applied = dqn.store_applied
+        self.penalty = dqn.intervention_penalty
+        # Per environment: where the shield overrode the greedy choice at its last decision,
+        # and the lane changes driver assistance had turned back in its episode so far.
+        self.overridden = np.zeros(num_envs, dtype=bool)
+        self.aborts_seen = np.zeros(num_envs, dtype=np.int64)
+
+    @property
+    def overrides(self) -> int | None:
+        """The shield's overrides so far (None without a shield)."""
+        return self.shield.overrides if self.shield is not None else None
+
+    def mask(self, envs: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """The action mask of the environments ``envs`` to act and learn under."""
+        return mask if self.shield is None else self.shield.mask(envs, mask)
+
+    def count(self, envs: np.ndarray, q: np.ndarray, env_mask: np.ndarray, mask: np.ndarray) -> int:
+        """Note (and return how many) of the environments ``envs`` had their greedy choice
+        overridden by the shield at this decision."""
+        if self.shield is None:
+            return 0
+        flags = self.shield.count(q, env_mask, mask)
+        self.overridden[envs] = flags
+        return int(flags.sum())
+
+    def stored(
+        self, envs: np.ndarray, actions: np.ndarray, reward: np.ndarray, info: dict[str, Any]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The actions and rewards of a step of ``envs`` to store: with ``store_applied`` the
+        actions the cars applied; less ``penalty`` where safety stepped in (the shield
+        overrode the greedy choice, driver assistance refused the action or turned a lane
+        change back)."""
+        applied = np.asarray(info.get("action_applied", actions))
+        chosen = actions
+        if self.store_applied:
+            # -1: the autoreset step, whose action was ignored (and is not stored).
+            actions = np.where(applied >= 0, applied, actions)
+        turned_back = np.zeros(len(envs), dtype=bool)
+        aborts = info.get("episode_counts", {}).get(LANE_CHANGE_ABORTS)
+        if aborts is not None:
+            aborts = np.asarray(aborts)
+            turned_back = aborts > self.aborts_seen[envs]
+            self.aborts_seen[envs] = aborts
+        if self.penalty > 0.0:
+            stepped_in = ((applied >= 0) & (applied != chosen)) | turned_back
+            stepped_in |= self.overridden[envs]
+            reward = reward - self.penalty * stepped_in
+        return actions, reward

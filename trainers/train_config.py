@@ -14,6 +14,7 @@ from typing import Any, Literal
 import torch
 
 from overtake.client.episodes.scenario import DEFAULT_PRESET, Scenario
+from overtake.protocol.vocabulary import WATCH_SETTING
 from overtake.viz.recording import RecordingConfig
 
 from .learner import Algo, DQNConfig, Precision
@@ -89,6 +90,11 @@ class TrainConfig(Scenario):
     """mask the actions a safety shield judges unsafe, from what the car observes (its LIDAR
     and speed), when acting, exploring and in the target's max (overtake.client.policies.shield: the
     rule and its sources); evaluation, export and the ONNX driver use it where it was on"""
+    shield_watch: bool = False
+    """the shield's second half: driver assistance also watches each lane change through
+    (ego.lane_change_watch, overtake.server.sim.lane_watch: an unsafe change turns back before
+    the lane marking, past it the car brakes as hard as needed); a simulator setting, so
+    evaluation and replays of the run's checkpoints have it too"""
     dqn: DQNConfig = field(default_factory=DQNConfig)
     recording: RecordingConfig = field(
         default_factory=lambda: RecordingConfig(record_every=TRAINER_RECORD_EVERY)
@@ -132,6 +138,8 @@ class TrainConfig(Scenario):
         speed ride with the LIDAR in the authors' code (its vector's elements 360-365), so a
         camera-only network sees other cars only through its camera (Min et al.'s ablation)."""
         overrides = super().overrides(base)
+        if self.shield_watch:
+            overrides.setdefault(WATCH_SETTING, True)
         if self.inputs == "lidar":
             overrides.setdefault("camera.enabled", False)
         if self.inputs == "camera":

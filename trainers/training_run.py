@@ -26,7 +26,7 @@ from .replay import FrameStacker, ReplayMemory
 from .run_files import MetricsLog, life_record, run_record
 from .run_log import LogWindow, progress_bar
 from .run_recording import RunRecording
-from .shielding import TrainingShield
+from .shielding import SafetyLayer, TrainingShield
 
 if TYPE_CHECKING:
     from .train_config import TrainConfig
@@ -95,11 +95,13 @@ class TrainingRun:
         self.env_calls = 0  # envs.step, or with overlap send: one each, autoreset steps included
         self.unstored = 0  # transitions played past the budget, in its last step: not stored
         # The safety shield (--shield), judging from what the cars observe
-        # (client/policies/shield.py).
-        self.shield = (
+        # (client/policies/shield.py), and what the replay stores where safety stepped in.
+        self.safety = SafetyLayer(
             TrainingShield(self.env.behaviour_spec, self.stacker, config.inputs)
             if config.shield
-            else None
+            else None,
+            self.dqn,
+            config.num_envs,
         )
 
     def _build_learner(self) -> None:
@@ -189,7 +191,7 @@ class TrainingRun:
             "env_steps_called": self.env_calls,
             "parts": self.env.count,
             # Decisions where the shield forbade the network's greedy choice (with --shield).
-            "shield_overrides": self.shield.overrides if self.shield is not None else None,
+            "shield_overrides": self.safety.overrides,
             # Transitions played beyond the budget in the last step (not stored nor learned).
             "unstored": self.unstored,
             **self.env.remote_facts(),
@@ -229,7 +231,7 @@ class TrainingRun:
         everyone = self.everyone = np.arange(self.config.num_envs)
         self.stacker.reset(everyone, self.obs)
         self.env_mask = np.array(info["action_mask"])
-        self.mask = self._shielded(everyone, self.env_mask)
+        self.mask = self.safety.mask(everyone, self.env_mask)
         self.replay.start(everyone, self.obs, self.mask)
         self.starting = np.zeros(self.config.num_envs, dtype=bool)
         self.started = time.perf_counter()
@@ -242,7 +244,9 @@ class TrainingRun:
         t0 = time.perf_counter()
         epsilon = self.dqn.epsilon(self.step)
         actions, q = self.learner.act(self.stacker.observation(), self.mask, epsilon, self.rng)
-        self._count_overrides(q, self.env_mask, self.mask)
+        self.window.shield_overrides += self.safety.count(
+            self.everyone, q, self.env_mask, self.mask
+        )
         t1 = time.perf_counter()
         seen = self.obs
         self.env.label_step(self.step)
@@ -250,7 +254,7 @@ class TrainingRun:
         self.env_calls += 1
         t2 = time.perf_counter()
         self._record_car_view(seen, actions, q, reward, info)
-        stored, taken = self._store(self.everyone, actions, reward, terminated, info["action_mask"])
+        stored, taken = self._store(self.everyone, actions, reward, terminated, info)
         self._end_episodes(self.everyone, terminated, truncated, info, taken)
         t3 = time.perf_counter()
         self._learn()
@@ -271,7 +275,9 @@ class TrainingRun:
         if self.env.count > 1:
             stacked = {k: v[rows] for k, v in stacked.items()}
         actions, q = self.learner.act(stacked, self.mask[rows], epsilon, self.rng)
-        self._count_overrides(q, self.env_mask[rows], self.mask[rows])
+        self.window.shield_overrides += self.safety.count(
+            self.env.indices[part], q, self.env_mask[rows], self.mask[rows]
+        )
         t1 = time.perf_counter()
         self.env.label_step(self.step)
         seen = {k: v[rows].copy() for k, v in self.obs.items()} if part == 0 else {}
@@ -318,7 +324,7 @@ class TrainingRun:
             self.obs[name][rows] = value
         if part == 0:
             self._record_car_view(seen, actions, q, reward, info)
-        stored, taken = self._store(envs, actions, reward, terminated, info["action_mask"])
+        stored, taken = self._store(envs, actions, reward, terminated, info)
         self._end_episodes(envs, terminated, truncated, info, taken)
         return stored, waited
 
@@ -353,7 +359,7 @@ class TrainingRun:
         actions: np.ndarray,
         reward: np.ndarray,
         terminated: np.ndarray,
-        mask: np.ndarray,
+        info: dict[str, Any],
     ) -> tuple[int, np.ndarray]:
         """Store what a step of the environments ``envs`` returned (their rows of
         ``self.obs``; the other arrays have a row per environment of ``envs``); returns how
@@ -367,8 +373,11 @@ class TrainingRun:
         transitions), so that a run's step N is N stored transitions everywhere (its
         checkpoint, its metrics, the experiments' tables, resume); the rest are counted in
         ``unstored`` and not learned from. With the shield, the masks stored (what the
-        target's max runs over) and acted on are the environment's and the shield's together.
+        target's max runs over) and acted on are the environment's and the shield's together;
+        the actions and rewards stored are those the safety layer says (:meth:`SafetyLayer.stored`).
         """
+        mask = info["action_mask"]
+        actions, reward = self.safety.stored(envs, actions, reward, info)
         starting = self.starting[envs]
         moving = np.flatnonzero(~starting)
         room = self.config.total_steps - self.step
@@ -383,7 +392,7 @@ class TrainingRun:
         if moving.size:
             self.stacker.push(envs[moving], {k: v[envs[moving]] for k, v in self.obs.items()})
         self.env_mask[envs] = mask
-        mask = self.mask[envs] = self._shielded(envs, mask)
+        mask = self.mask[envs] = self.safety.mask(envs, mask)
         if fresh.size:
             ids = envs[fresh]
             sub = {k: v[ids] for k, v in self.obs.items()}
@@ -397,13 +406,6 @@ class TrainingRun:
             self.step += moving.size
             self.window.reward_sum += float(reward[moving].sum())
         return int(moving.size), taken
-
-    def _shielded(self, envs: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        return mask if self.shield is None else self.shield.mask(envs, mask)
-
-    def _count_overrides(self, q: np.ndarray, env_mask: np.ndarray, mask: np.ndarray) -> None:
-        if self.shield is not None:
-            self.window.shield_overrides += self.shield.count(q, env_mask, mask)
 
     def _end_episodes(
         self,
@@ -464,7 +466,7 @@ class TrainingRun:
             epsilon=epsilon,
             updates=self.learner.updates,
             replay=len(self.replay),
-            shielded=self.shield is not None,
+            shielded=self.safety.shield is not None,
         )
         self.log.write(entry)
         if self.recording is not None:

@@ -21,7 +21,7 @@ from overtake.client.episodes.runner import baseline_policy, metric_summary, met
 from overtake.client.episodes.scenario import Scenario
 from overtake.client.episodes.session import Driver, Episodes, Keeping, drive_episodes
 from overtake.protocol.faces import VectorFace
-from overtake.protocol.vocabulary import METRIC_FIELDS
+from overtake.protocol.vocabulary import METRIC_FIELDS, WATCH_SETTING
 
 
 @dataclass(frozen=True)
@@ -56,11 +56,17 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
     """Drive the episodes; returns {metric: {"mean": .., "std": ..}} and prints the table."""
     if config.episodes < 1:
         raise UsageError(f"--episodes must be >= 1, got {config.episodes}")
-    model_preset = None
-    if config.preset is None and config.onnx is not None:
+    model_preset, base = None, {}
+    if config.onnx is not None:
         from overtake.client.policies.onnx_policy import read_metadata
 
-        model_preset = read_metadata(config.onnx)["preset"]
+        meta = read_metadata(config.onnx)
+        model_preset = meta["preset"]
+        shielded = meta.get("shield", False) if config.shield is None else config.shield
+        if shielded and meta.get("overrides", {}).get(WATCH_SETTING):
+            # Trained with driver assistance watching lane changes through: the shield's
+            # second half is the simulator's, and drives with the model.
+            base[WATCH_SETTING] = True
     preset = config.preset_or(model_preset)
     name = _policy_name(config)
 
@@ -86,7 +92,7 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
     driven = drive_episodes(
         config.where(),
         preset,
-        config.overrides(),
+        config.overrides(base),
         Episodes.from_seed(config.episodes, config.seed),
         driver_for,
         Keeping(records=config.episodes_out is not None),

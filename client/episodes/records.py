@@ -329,7 +329,7 @@ class EpisodeRecorder:
                 self.events[i]["shield_overrides"].append(decision)
         ended = (terminated | truncated) & self.running
         for i in np.flatnonzero(ended & info.get("_metrics", False)):
-            self.metrics[i] = {name: float(info["metrics"][name][i]) for name in METRIC_FIELDS}
+            self.metrics[i] = {name: float(v[i]) for name, v in info["metrics"].items()}
         self.running &= ~ended
 
     def records(self) -> list[EpisodeRecord]:

@@ -28,7 +28,7 @@ from overtake.client.policies.drivers import (
 )
 from overtake.protocol.faces import VectorFace
 from overtake.protocol.messages import BehaviourSpec
-from overtake.protocol.vocabulary import METRIC_FIELDS
+from overtake.protocol.vocabulary import METRIC_FIELDS, WATCH_METRICS
 
 Policy = Callable[[dict[str, np.ndarray], dict[str, Any], np.ndarray], np.ndarray]
 """``act(obs, info, starting)`` -> actions, for :func:`run_episodes`."""
@@ -40,11 +40,13 @@ def metric_table(rows: list[dict[str, float]]) -> np.ndarray:
 
 
 def metric_summary(rows: list[dict[str, float]]) -> dict[str, dict[str, float]]:
-    """Mean and spread of each metric over the episodes."""
-    table = metric_table(rows)
+    """Mean and spread of each metric over the episodes: the papers' metrics, and those the
+    simulator added to every episode (WATCH_METRICS where lane changes are watched)."""
+    names = [*METRIC_FIELDS, *(n for n in WATCH_METRICS if rows and all(n in r for r in rows))]
+    table = np.array([[row[name] for name in names] for row in rows])
     return {
         name: {"mean": float(table[:, j].mean()), "std": float(table[:, j].std())}
-        for j, name in enumerate(METRIC_FIELDS)
+        for j, name in enumerate(names)
     }
 
 
@@ -127,7 +129,8 @@ def run_episodes(
         ended = terminated | truncated
         for i in np.flatnonzero(ended & info.get("_metrics", False)):
             if rows[i] is None:
-                row = {name: float(info["metrics"][name][i]) for name in METRIC_FIELDS}
+                # The papers' metrics, and any the simulator adds (WATCH_METRICS).
+                row = {name: float(value[i]) for name, value in info["metrics"].items()}
                 rows[i] = row if extras is None else {**row, **extras(int(i))}
         # Gymnasium's next-step autoreset: an env that ended is reset by the following step,
         # whose observation is then the first of the new episode.

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, ClassVar, Literal
 import numpy as np
 
 from . import kernels
+from .lane_watch import LaneChangeWatch
 from .units import KMH
 from .validation import check, check_flag, check_range
 
@@ -82,6 +83,15 @@ class EgoConfig:
     # al.'s agent chooses among all five actions and its car refuses; a mask that carried the
     # side warnings would tell a camera-only network of the cars beside it).
     mask_refusals: bool = False
+    # Driver assistance that watches a lane change through (:mod:`.lane_watch`, issue 46;
+    # chosen here, the shield's option, off in the papers' presets, whose code has none): a
+    # change starts, goes on past the lane marking, or turns back, by whether each car in the
+    # target lane or moving into it could stop closing in, reacting after watch_response_s
+    # and braking at watch_brake_mps2 (UN R79's 0.4 s and 3 m/s^2), with min_gap_m left; and
+    # a car ahead that closes in is met by as hard a brake as it needs (to aeb_decel_mps2).
+    lane_change_watch: bool = False
+    watch_response_s: float = 0.4
+    watch_brake_mps2: float = 3.0
     # How the agents' speed is controlled: "cruise" (Min et al.: the actions move a cruise
     # target that adaptive cruise control and emergency braking hold, above), or "speed_steps"
     # (Ho 2018, §4 and his code): accelerate and decelerate change the speed by
@@ -132,6 +142,9 @@ class EgoConfig:
         )
         check_flag("ego.lane_change_check", self.lane_change_check)
         check_flag("ego.mask_refusals", self.mask_refusals)
+        check_flag("ego.lane_change_watch", self.lane_change_watch)
+        check_range("ego.watch_response_s", self.watch_response_s, 0.0, 5.0)
+        check_range("ego.watch_brake_mps2", self.watch_brake_mps2, 0.5, 15.0)
         check(
             self.speed_control in ("cruise", "speed_steps"),
             "ego.speed_control",
@@ -232,7 +245,8 @@ class LaneChangeAssist:
 
     A change needs a lane on that side and no change under way; with ``ego.lane_change_check``
     also a clear side (:meth:`side_clear`), and of two agents cleared into the same gap at the
-    same decision only the lower-numbered one goes.
+    same decision only the lower-numbered one goes; with ``ego.lane_change_watch`` also a
+    target lane the watch's rule finds safe (:mod:`.lane_watch`).
     """
 
     def __init__(self, ego: EgoConfig, kinds: VehicleKinds, lane_count: int, agents: int) -> None:
@@ -240,6 +254,7 @@ class LaneChangeAssist:
         self.kinds = kinds
         self.lane_count = lane_count
         self.agents = agents
+        self.watch = LaneChangeWatch(ego, kinds, agents) if ego.lane_change_watch else None
 
     def possible_lanes(self, st: SimState) -> tuple[np.ndarray, np.ndarray]:
         """(A, N) bool each, left and right: a lane there."""
@@ -260,7 +275,23 @@ class LaneChangeAssist:
             clear = self.side_clear(st)
             left &= clear[..., 1]
             right &= clear[..., 0]
+        if self.watch is not None:
+            left &= self._watch_allows(st, left, 1)
+            right &= self._watch_allows(st, right, -1)
         return left, right
+
+    def _watch_allows(self, st: SimState, asked: np.ndarray, side: int) -> np.ndarray:
+        """(A, N): where the watch would let a change to ``side`` (+1 left) start now."""
+        assert self.watch is not None
+        n = self.agents
+        if not asked.any():
+            return asked
+        saved = st.target_lane[:, :n].copy()
+        st.target_lane[:, :n] += np.where(asked, side, 0)
+        try:
+            return ~self.watch.unsafe(st)
+        finally:
+            st.target_lane[:, :n] = saved
 
     def start(self, st: SimState, want_left: np.ndarray, want_right: np.ndarray) -> np.ndarray:
         """Start the asked-for changes (A, N) that are allowed; returns which started."""
@@ -276,6 +307,8 @@ class LaneChangeAssist:
                 self._one_agent_per_gap(st, go_left, go_right)
         started = go_left | go_right
         st.target_lane[:, :n] += go_left.astype(np.int64) - go_right
+        if self.watch is not None and started.any():
+            started = self.watch.refuse_unsafe_starts(st, started)
         st.change_progress[:, :n] = np.where(started, 0.0, st.change_progress[:, :n])
         return started
 

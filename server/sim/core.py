@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from overtake.protocol.vocabulary import AGENT_KIND, METRIC_FIELDS
+from overtake.protocol.vocabulary import AGENT_KIND
 
 from .actions import DasActions
 from .assist import DriverWarnings, LaneChangeAssist
@@ -257,7 +257,13 @@ class HighwaySim:
     def metrics(self) -> dict[str, np.ndarray]:
         """Each agent's episode so far: the papers' metrics, (A, N) per name."""
         table = self.metrics_table()
-        return {name: table[..., i] for i, name in enumerate(METRIC_FIELDS)}
+        return {name: table[..., i] for i, name in enumerate(self.metric_fields)}
+
+    @property
+    def metric_fields(self) -> tuple[str, ...]:
+        """The metrics' names, in the columns of :meth:`metrics_table`: the papers'
+        (METRIC_FIELDS), and the lane-change watch's where it runs (WATCH_METRICS)."""
+        return self.episodes.fields
 
     def metrics_table(self) -> np.ndarray:
         """(A, N, metric fields) float64: :meth:`metrics` as one table (what travels)."""

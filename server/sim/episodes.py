@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from overtake.protocol.vocabulary import KEEP, METRIC_FIELDS
+from overtake.protocol.vocabulary import KEEP, METRIC_FIELDS, WATCH_METRICS
 
 from .units import KMH
 from .validation import check, check_range
@@ -37,6 +37,7 @@ EPISODE_COUNTERS = (
     "overtakes",
     "collisions",
     "emergency_brakes",
+    "lane_change_aborts",
     "episode_return",
     "traffic_cars_sum",
 )
@@ -86,6 +87,8 @@ class EpisodeBook:
         self.brake_decel_mps2 = ego.emergency_decel_mps2
         self.brake_speed_diff_kmh = ego.emergency_speed_diff_kmh
         self.agents = agents
+        # The columns of the metrics table: the papers' metrics, and the watch's where it runs.
+        self.fields = METRIC_FIELDS + (WATCH_METRICS if ego.lane_change_watch else ())
 
     def restart(self, st: SimState, arena: int, slot: int) -> None:
         """Start an agent's episode counters from zero."""
@@ -130,7 +133,7 @@ class EpisodeBook:
         return limit
 
     def metrics_table(self, st: SimState) -> np.ndarray:
-        """(A, N, len(METRIC_FIELDS)) float64: each agent's episode so far."""
+        """(A, N, len(fields)) float64: each agent's episode so far, columns :attr:`fields`."""
         elapsed_s = st.agent_decisions * self.decision_period_s
         with np.errstate(divide="ignore", invalid="ignore"):
             avg_speed = np.where(elapsed_s > 0, st.distance_m / elapsed_s / KMH, 0.0)
@@ -147,8 +150,9 @@ class EpisodeBook:
             "return": st.episode_return,
             "decisions": st.agent_decisions,
             "traffic_cars": traffic_cars,
+            "lane_change_aborts": st.lane_change_aborts,
         }
-        table = np.empty(elapsed_s.shape + (len(METRIC_FIELDS),))
-        for i, name in enumerate(METRIC_FIELDS):
+        table = np.empty(elapsed_s.shape + (len(self.fields),))
+        for i, name in enumerate(self.fields):
             table[..., i] = columns[name]
         return table

@@ -157,3 +157,46 @@ def side_clear(
                     if in_left:
                         clear[a, i, 1] = False
     return clear
+
+
+@njit(cache=True, nogil=True)
+def unsafe_changes(
+    x_m: np.ndarray,
+    speed: np.ndarray,
+    half_length: np.ndarray,
+    active: np.ndarray,
+    lane: np.ndarray,
+    target_lane: np.ndarray,
+    agents: int,
+    response_s: float,
+    brake_mps2: float,
+    min_gap_m: float,
+    unsafe: np.ndarray,
+) -> None:
+    """Into ``unsafe`` (A, N): the agents changing lanes whose target lane is not safe now
+    (:class:`.lane_watch.LaneChangeWatch`): some other active vehicle in it or moving into it
+    is nearer, bumper to bumper, than ``min_gap_m`` plus what the closing speed covers in
+    ``response_s`` and in braking it away at ``brake_mps2``, the follower of the two closing
+    in; a vehicle alongside is always too near."""
+    arenas, vehicles = x_m.shape
+    for a in range(arenas):
+        for i in range(agents):
+            unsafe[a, i] = False
+            target = target_lane[a, i]
+            if not active[a, i] or target == lane[a, i]:
+                continue
+            for v in range(vehicles):
+                if v == i or not active[a, v]:
+                    continue
+                if lane[a, v] != target and target_lane[a, v] != target:
+                    continue
+                dx = x_m[a, v] - x_m[a, i]
+                gap = abs(dx) - half_length[a, v] - half_length[a, i]
+                # The follower of the two: the agent behind a car ahead, a car behind the agent.
+                closing = speed[a, i] - speed[a, v] if dx >= 0.0 else speed[a, v] - speed[a, i]
+                needed = min_gap_m
+                if closing > 0.0:
+                    needed += closing * response_s + closing * closing / (2.0 * brake_mps2)
+                if gap < needed:
+                    unsafe[a, i] = True
+                    break

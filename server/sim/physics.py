@@ -23,6 +23,7 @@ import numpy as np
 from .assist import CruiseControl, EmergencyBraking, SpeedSteps
 from .kernels import integrate
 from .lane_index import NO_GAP_M
+from .lane_watch import LaneChangeWatch
 from .traffic.car_following import Following
 from .traffic.kernels import capped_speeds, follow_and_accelerate
 from .traffic.lane_changes import Mobil
@@ -87,6 +88,10 @@ class Physics:
             [self.dt if steps else 0.0, config.traffic.safety_gap_m, float(self.yield_to_agents)]
         )
         self.mobil = Mobil(config.traffic, kinds, road.lane_count, self.dt)
+        # Driver assistance watching the agents' lane changes through (the shield's option).
+        self.watch = (
+            LaneChangeWatch(config.ego, kinds, agents) if config.ego.lane_change_watch else None
+        )
         self.episodes = episodes
         # The kernels' parameters of cruise control and emergency braking.
         self._cruise = np.array(
@@ -164,6 +169,8 @@ class Physics:
         if mobil_index is not None:
             x_rel = st.x_m - st.x_m[:, :1]
             self.mobil.decide(st, p, mobil_index, x_rel, idm_accel, following, random_movers)
+        if self.watch is not None:
+            self.watch.frame(st, accel)
 
         # Traffic never drives into traffic: a speed cap keeps it behind a traffic leader even
         # if that leader brakes as hard as it can (Ho's simulator has the same safety rule).

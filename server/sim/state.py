@@ -43,6 +43,7 @@ class SimState:
     overtakes: np.ndarray
     collisions: np.ndarray
     emergency_brakes: np.ndarray
+    lane_change_aborts: np.ndarray  # changes turned back (ego.lane_change_watch)
     episode_return: np.ndarray
     traffic_cars_sum: np.ndarray  # (A, N) traffic cars on the road, summed over decisions
     # (A, N, 3) bool: the left, right and forward warnings each agent was shown with its last
@@ -79,6 +80,7 @@ class SimState:
             overtakes=_i64(a, n),
             collisions=_i64(a, n),
             emergency_brakes=_i64(a, n),
+            lane_change_aborts=_i64(a, n),
             episode_return=_f64(a, n),
             traffic_cars_sum=_f64(a, n),
             warnings=_bool(a, n, 3),

@@ -60,6 +60,10 @@ class Row:
     """None keeps the preset's"""
     shield: bool = False
     """train (and evaluate) behind the safety shield"""
+    shield_watch: bool = False
+    """with it, driver assistance watching each lane change through (issue 46)"""
+    store_applied: bool = False
+    """the replay stores the action the car applied (a refused lane change: keep)"""
     prioritized: bool = False
     """prioritized replay"""
     n_step: int = 1
@@ -70,6 +74,8 @@ class Row:
         """The options beyond the papers that are on, for the table (``-``: none)."""
         on = [
             *(["shield"] if self.shield else []),
+            *(["lane changes watched through"] if self.shield_watch else []),
+            *(["applied actions stored"] if self.store_applied else []),
             *(["prioritized replay"] if self.prioritized else []),
             *([f"{self.n_step}-step returns"] if self.n_step > 1 else []),
         ]
@@ -128,12 +134,13 @@ class Schedule:
           paper's 50,000;
         - epsilon falls from 1 to 0.1 over the first third of the budget. The paper decays over
           its whole budget; at a fifth of it that leaves too little training near the final
-          epsilon, and a third is what met the bar in bench/RESULTS.md (20,000 of 60,000);
+          epsilon, and a third is what met the bar in the journal (bench/journal/: 20,000 of
+          60,000);
         - the target network is copied every 1% of the budget (the paper: 10,000 of
           1,000,000), at most 10,000 steps apart;
         - the replay holds half the budget, at most the paper's 100,000 transitions (0.85 GB
           with both inputs): a run never stores more than its budget, and half kept 30,000 of
-          60,000 in bench/RESULTS.md;
+          60,000 in the journal (bench/journal/);
         - a checkpoint every 5% of the budget, at most 10,000 steps apart: a kill loses at most
           that much training (a few minutes of a run on 2 cores).
         """
@@ -164,8 +171,9 @@ EXPERIMENTS: dict[str, Experiment] = {
         ),
         preset="min2018",
         total_steps=200_000,
-        # As in bench/RESULTS.md: four arenas step together (the simulation is batched, and
-        # the cost of a step is the network's update, one per 4 transitions either way).
+        # As in the journal (bench/journal/): four arenas step together (the simulation is
+        # batched, and the cost of a step is the network's update, one per 4 transitions
+        # either way).
         num_envs=4,
         densities=DENSITIES,
         references=("rule", "random", "idle", "planner"),
@@ -228,6 +236,28 @@ EXPERIMENTS: dict[str, Experiment] = {
             Row("shield", "dueling", "lidar", seeds=2, shield=True),
             Row("per-3step", "dueling", "lidar", seeds=2, prioritized=True, n_step=3),
             Row("all", "dueling", "lidar", seeds=2, shield=True, prioritized=True, n_step=3),
+            # Issue 46: the shield with driver assistance watching each lane change through,
+            # the replay storing what the car did; alone, and with everything else.
+            Row(
+                "watch",
+                "dueling",
+                "lidar",
+                seeds=2,
+                shield=True,
+                shield_watch=True,
+                store_applied=True,
+            ),
+            Row(
+                "all-watch",
+                "dueling",
+                "lidar",
+                seeds=2,
+                shield=True,
+                shield_watch=True,
+                store_applied=True,
+                prioritized=True,
+                n_step=3,
+            ),
         ),
         preset="min2018",
         total_steps=200_000,
@@ -252,6 +282,19 @@ EXPERIMENTS: dict[str, Experiment] = {
             Row("shield-both", "dueling", "both", shield=True),
             Row("per-3step-both", "dueling", "both", prioritized=True, n_step=3),
             Row("all-both", "dueling", "both", shield=True, prioritized=True, n_step=3),
+            Row(
+                "watch-both", "dueling", "both", shield=True, shield_watch=True, store_applied=True
+            ),
+            Row(
+                "all-watch-both",
+                "dueling",
+                "both",
+                shield=True,
+                shield_watch=True,
+                store_applied=True,
+                prioritized=True,
+                n_step=3,
+            ),
         ),
         preset="min2018",
         total_steps=200_000,

@@ -274,11 +274,14 @@ def _run_plan(
         dqn = dataclasses.replace(dqn, learning_rate=row.learning_rate)
     if row.prioritized or row.n_step > 1:
         dqn = dataclasses.replace(dqn, prioritized=row.prioritized, n_step=row.n_step)
+    if row.store_applied:
+        dqn = dataclasses.replace(dqn, store_applied=True)
     train = dataclasses.replace(
         base,
         algo=row.algo,
         inputs=row.inputs,
         shield=row.shield,
+        shield_watch=row.shield_watch,
         preset=experiment.preset,
         traffic=experiment.train_traffic,
         set=config.set,

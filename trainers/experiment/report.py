@@ -8,6 +8,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from overtake.protocol.vocabulary import WATCH_METRICS
+
 from ..checkpoint import plain_data
 from ..run_files import git_commit, package_versions
 from .catalogue import (
@@ -37,6 +39,15 @@ def _cell(stats: dict[str, Any], metric: str, decimals: int) -> str:
     return f"{stats[metric]['mean']:.{decimals}f} ± {stats[metric]['std']:.{decimals}f}"
 
 
+def _safety_cell(stats: dict[str, Any], name: str) -> str:
+    """A safety count per episode (mean ± spread) and per km driven; ``-`` where it did not
+    run."""
+    if name not in stats:
+        return "-"
+    per_km = stats.get(f"{name}_per_km")
+    return _cell(stats, name, 1) + (f" ({per_km['mean']:.2f})" if per_km else "")
+
+
 def markdown_table(result: dict[str, Any]) -> str:
     """table.md: one table per density, the rows then the reference policies."""
     plan = result["plan"]
@@ -60,28 +71,37 @@ def markdown_table(result: dict[str, Any]) -> str:
     ]
     headings = [heading for _, heading, _ in TABLE_COLUMNS]
     for density, table in result["densities"].items():
+        # Safety's columns: the shield's overrides, and the lane changes turned back where
+        # any row's driver assistance watched them (per episode, and per km driven).
+        safety = [("shield_overrides", "shield overrides")]
+        if any(WATCH_METRICS[0] in row["summary"] for row in table["rows"]):
+            safety.append((WATCH_METRICS[0], "lane changes turned back"))
         lines += [
             "",
             f"## {density.capitalize()} traffic",
             "",
             "| policy | algorithm | inputs | training seeds | " + " | ".join(headings) + " | "
-            "options | shield overrides |",
-            "|---|---|---|---:|" + "---:|" * len(headings) + "---|---:|",
+            "options | " + " | ".join(f"{h} (per km)" for _, h in safety) + " |",
+            "|---|---|---|---:|" + "---:|" * len(headings) + "---|" + "---:|" * len(safety),
         ]
         for row in table["rows"]:
             cells = [_cell(row["summary"], m, d) for m, _, d in TABLE_COLUMNS]
-            overrides = row["summary"].get("shield_overrides")
             lines.append(
                 f"| {row['label']} | {ALGO_NAMES[row['algo']]} | {INPUT_NAMES[row['inputs']]} "
-                f"| {len(row['runs'])} | " + " | ".join(cells) + f" | {row.get('options', '-')} "
-                f"| {_cell(row['summary'], 'shield_overrides', 1) if overrides else '-'} |"
+                f"| {len(row['runs'])} | "
+                + " | ".join(cells)
+                + f" | {row.get('options', '-')} | "
+                + " | ".join(_safety_cell(row["summary"], name) for name, _ in safety)
+                + " |"
             )
         for reference in table["references"]:
             cells = [_cell(reference["summary"], m, d) for m, _, d in TABLE_COLUMNS]
             lines.append(
                 f"| {reference['policy']} | reference policy | - | - | "
                 + " | ".join(cells)
-                + " | - | - |"
+                + " | - | "
+                + " | ".join(_safety_cell(reference["summary"], name) for name, _ in safety)
+                + " |"
             )
         crashed = [
             line

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from overtake.protocol.vocabulary import METRIC_FIELDS
+from overtake.protocol.vocabulary import METRIC_FIELDS, WATCH_METRICS
 
 from .catalogue import CURVE_METRICS, EPISODE_METRICS
 
@@ -24,8 +24,13 @@ def episode_statistics(episodes: Sequence[dict[str, float]]) -> dict[str, Any]:
     table["collisions_per_1000_decisions"] = (
         1000.0 * table["collisions"] / np.maximum(table["decisions"], 1.0)
     )
-    if episodes and all("shield_overrides" in episode for episode in episodes):
-        table["shield_overrides"] = np.array([e["shield_overrides"] for e in episodes], float)
+    # What safety did, where it ran (the shield's overrides, the lane changes driver assistance
+    # turned back): per episode and per km driven.
+    km = np.maximum(table["distance_m"], 1.0) / 1000.0
+    for name in ("shield_overrides", *WATCH_METRICS):
+        if episodes and all(name in episode for episode in episodes):
+            table[name] = np.array([e[name] for e in episodes], float)
+            table[f"{name}_per_km"] = table[name] / km
     stats: dict[str, Any] = {
         name: {"mean": float(values.mean()), "std": float(values.std())}
         for name, values in table.items()
