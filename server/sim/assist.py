@@ -88,7 +88,8 @@ class EgoConfig:
     # change starts, goes on past the lane marking, or turns back, by whether each car in the
     # target lane or moving into it could stop closing in, reacting after watch_response_s
     # and braking at watch_brake_mps2 (UN R79's 0.4 s and 3 m/s^2), with min_gap_m left; and
-    # a car ahead that closes in is met by as hard a brake as it needs (to aeb_decel_mps2).
+    # a car ahead that closing in on would take more than comfort_decel_mps2 is met by as hard
+    # a brake as it needs (to aeb_decel_mps2).
     lane_change_watch: bool = False
     watch_response_s: float = 0.4
     watch_brake_mps2: float = 3.0

@@ -21,10 +21,13 @@ The rule, fixed before any run that measures it and not tuned on their results:
 - **Abort**: a change found unsafe before the car's centre reaches the lane marking (half way:
   the minimum-jerk move is symmetric) turns back: the car steers back to its lane along the
   path it came, for as long as it had moved; an episode counts these (``lane_change_aborts``).
-- **Fail-safe**: past the marking the change completes; and every frame the car brakes as hard
-  as its nearest car ahead needs (in its lane or the one it moves into, or moving into either:
-  a car cutting in is met by the same brake), up to ``ego.aeb_decel_mps2``: the deceleration
-  that stops the closing in before the gap falls under ``ego.min_gap_m``.
+- **Fail-safe**: past the marking the change completes; and in every frame where stopping the
+  closing in on its nearest car ahead (in its lane or the one it moves into, or moving into
+  either: a car cutting in is met by the same brake) before the gap falls under
+  ``ego.min_gap_m`` takes more than comfortable braking (``ego.comfort_decel_mps2``, where
+  cruise control stops), the car brakes as hard as that takes, up to ``ego.aeb_decel_mps2``
+  (emergency braking waits for a time to collision of 1.5 s). Below it, driving is as without
+  the watch.
 """
 
 from __future__ import annotations
@@ -55,6 +58,7 @@ class LaneChangeWatch:
         self.brake_mps2 = ego.watch_brake_mps2
         self.min_gap_m = ego.min_gap_m
         self.full_brake_mps2 = ego.aeb_decel_mps2
+        self.comfort_mps2 = ego.comfort_decel_mps2
         self.kinds = kinds
         self.agents = agents
 
@@ -124,5 +128,9 @@ class LaneChangeWatch:
                 closing * closing / (2.0 * np.maximum(room, _NO_ROOM_M)),
                 self.full_brake_mps2,
             )
-        needed = np.where(closing > 0.0, np.minimum(needed, self.full_brake_mps2), 0.0)
+        # Only where cruise control's comfortable braking would not do.
+        critical = (closing > 0.0) & (needed > self.comfort_mps2)
+        if not critical.any():
+            return
+        needed = np.where(critical, np.minimum(needed, self.full_brake_mps2), 0.0)
         np.minimum(accel[:, :n], -needed, out=accel[:, :n])
