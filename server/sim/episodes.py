@@ -133,26 +133,22 @@ class EpisodeBook:
         return limit
 
     def metrics_table(self, st: SimState) -> np.ndarray:
-        """(A, N, len(fields)) float64: each agent's episode so far, columns :attr:`fields`."""
-        elapsed_s = st.agent_decisions * self.decision_period_s
-        with np.errstate(divide="ignore", invalid="ignore"):
-            avg_speed = np.where(elapsed_s > 0, st.distance_m / elapsed_s / KMH, 0.0)
-            traffic_cars = np.where(
-                st.agent_decisions > 0, st.traffic_cars_sum / st.agent_decisions, 0.0
-            )
-        columns = {
-            "avg_speed_kmh": avg_speed,
-            "lane_changes": st.lane_changes,
-            "overtakes": st.overtakes,
-            "collisions": st.collisions,
-            "emergency_brakes": st.emergency_brakes,
-            "distance_m": st.distance_m,
-            "return": st.episode_return,
-            "decisions": st.agent_decisions,
-            "traffic_cars": traffic_cars,
-            "lane_change_aborts": st.lane_change_aborts,
-        }
-        table = np.empty(elapsed_s.shape + (len(self.fields),))
+        """(A, N, len(fields)) float64: each agent's episode so far, columns :attr:`fields`
+        (every round: written column by column, the two rates divided where defined)."""
+        table = np.zeros(st.distance_m.shape + (len(self.fields),))
         for i, name in enumerate(self.fields):
-            table[..., i] = columns[name]
+            if name == "avg_speed_kmh":
+                elapsed_s = st.agent_decisions * self.decision_period_s
+                speed = table[..., i]
+                np.divide(st.distance_m, elapsed_s, out=speed, where=elapsed_s > 0)
+                speed /= KMH
+            elif name == "traffic_cars":
+                decisions = st.agent_decisions
+                np.divide(st.traffic_cars_sum, decisions, out=table[..., i], where=decisions > 0)
+            else:
+                table[..., i] = getattr(st, _COLUMNS.get(name, name))
         return table
+
+
+# The state's name of each counted metric, where it differs.
+_COLUMNS = {"return": "episode_return", "decisions": "agent_decisions"}
