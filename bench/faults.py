@@ -43,8 +43,9 @@ Figures per case (``summary.json`` in ``--run-dir``, one line each printed):
   and may be -1 per server loss the trainer lived through (``server_losses``): the round whose
   actions reached the server but whose Steps did not reach the trainer, in the episode that
   the loss ended as truncated;
-- ``segments_left``: shared-memory segments (``--transport shm``) the case made that are
-  still in ``/dev/shm`` once everything has stopped (none expected);
+- ``segments_left``: shared-memory segments the case made that are still in ``/dev/shm`` once
+  everything has stopped, overtake's (``--transport shm``) and Zenoh's (``*.zenoh``: none since
+  its shared memory is off, TransportConfig.zenoh_shared_memory) (none expected);
 - ``checkpoints``: each trainer's checkpoint loads right after a kill (before the restart
   reads it) and at the end;
 - ``recordings``: every .rrd passes ``rerun rrd verify --check-footers false`` (the server's
@@ -435,7 +436,12 @@ def run_case(config: FaultConfig, target: str, fault: str, index: int, rng: rand
     victim = {"router": router, "server": server, "trainer": trainers[0]}[target]
     from overtake.protocol.shared_memory import NAME_PREFIX, shm_dir
 
-    segments_before = {p.name for p in shm_dir().glob(f"{NAME_PREFIX}*")}
+    def segments() -> set[str]:
+        return {
+            p.name for pattern in (f"{NAME_PREFIX}*", "*.zenoh") for p in shm_dir().glob(pattern)
+        }
+
+    segments_before = segments()
     observer = None
     result: dict[str, Any] = {"target": target, "fault": fault}
     try:
@@ -508,9 +514,7 @@ def run_case(config: FaultConfig, target: str, fault: str, index: int, rng: rand
         result["stopped"] = stopped
         # Shared-memory segments the case made and left behind (none may be: every life's
         # segment goes with its trainer, its server, or the next server's sweep).
-        result["segments_left"] = sorted(
-            p.name for p in shm_dir().glob(f"{NAME_PREFIX}*") if p.name not in segments_before
-        )
+        result["segments_left"] = sorted(segments() - segments_before)
 
         server_rounds = leave_rounds(server)
         steps = {}

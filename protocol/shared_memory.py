@@ -76,6 +76,8 @@ class Segment:
 
     def __init__(self, path: Path, memory: mmap.mmap, nonce: bytes) -> None:
         self.path, self.name, self.nonce = path, path.name, nonce
+        self.linked = True
+        """whether its name is still in the directory (see :meth:`unlink`)"""
         self._memory: mmap.mmap | None = memory
         self.size = len(memory)
         self._generation = np.frombuffer(memory, dtype="<i8", count=1, offset=GENERATION_OFFSET)
@@ -190,8 +192,11 @@ class Segment:
             memory.close()
 
     def unlink(self) -> None:
-        """Remove the segment's name (idempotent): no process can attach any more."""
-        self.path.unlink(missing_ok=True)
+        """Remove the segment's name (idempotent): no process can attach any more, and the
+        memory goes when the last process that mapped it unmaps it or ends, however it ends."""
+        if self.linked:
+            self.path.unlink(missing_ok=True)
+            self.linked = False
 
 
 def sweep_orphans(directory: Path | None = None) -> list[str]:

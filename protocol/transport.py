@@ -170,6 +170,12 @@ class TransportConfig:
     its peers declare it gone after this long, and its liveliness tokens vanish."""
     security: SecurityConfig = field(default_factory=SecurityConfig)
     """usrpwd credentials and TLS certificates."""
+    zenoh_shared_memory: bool = False
+    """Zenoh's own shared-memory transport (on by default in Zenoh 1.x). Off here: overtake's
+    Steps reach a trainer on the server's host through overtake's own segment
+    (:mod:`.shared_memory`), and Zenoh's leaves its segments in /dev/shm when a process ends
+    (a 1.3 MB one for each process, and each 16 MB pool a peer mapped stays with that peer
+    for its life: eclipse-zenoh/zenoh#2787), tmpfs memory no one gives back."""
     extra_json5: tuple[tuple[str, str], ...] = field(default=())
     """More Zenoh settings as (key, JSON5 value) pairs."""
 
@@ -203,6 +209,7 @@ class TransportConfig:
         lease_ms = max(int(self.lease_s * 1000), 200)
         conf.insert_json5("transport/link/tx/lease", str(lease_ms))
         conf.insert_json5("transport/link/tx/keep_alive", "4")
+        conf.insert_json5("transport/shared_memory/enabled", json.dumps(self.zenoh_shared_memory))
         for key, value in self.security.zenoh_settings() + list(self.extra_json5):
             conf.insert_json5(key, value)
         return conf

@@ -63,9 +63,15 @@ class Outbox:
         return ShmOffer(name=segment.name, nonce=segment.nonce, size_bytes=segment.size)
 
     def reads_shm(self, trainer: str, group: int, reads: bool) -> None:
-        """``trainer`` said (in its latest Actions for ``group``) whether it reads the segment."""
-        if (trainer, group) in self._segments:
+        """``trainer`` said (in its latest Actions for ``group``) whether it reads the segment.
+
+        Once it has said, the segment's name goes: the name was only for the trainer to find
+        it, and both sides keep it mapped, so that nothing is left in /dev/shm however either
+        of them ends (SIGKILL included)."""
+        segment = self._segments.get((trainer, group))
+        if segment is not None:
             self._reads_shm[(trainer, group)] = reads
+            segment.unlink()
 
     def send_steps(self, group: Group, trainer: str, steps: Message) -> None:
         """``trainer``'s Steps of a round of ``group``: through its segment, where it reads one

@@ -37,8 +37,20 @@ SHORT = {"episode.max_decisions": 40}
 
 
 def segments_of(pid: int) -> list[Path]:
-    """The segments a process (a server) has in shared memory."""
+    """The segments a process (a server) created that still have a name in shared memory:
+    what would be left there if everything ended now."""
     return sorted(shm_dir().glob(f"{NAME_PREFIX}{pid}-*"))
+
+
+def held_segments(holder: int, creator: int) -> list[str]:
+    """The segments ``creator`` made that process ``holder`` has mapped, named or not (a name
+    goes once the trainer has said whether it reads the segment; the memory stays mapped)."""
+    prefix = str(shm_dir() / f"{NAME_PREFIX}{creator}-")
+    try:
+        maps = Path(f"/proc/{holder}/maps").read_text().splitlines()
+    except OSError:
+        return []
+    return sorted({line.split(maxsplit=5)[-1] for line in maps if prefix in line})
 
 
 # --- the segment --------------------------------------------------------------------------------
@@ -180,6 +192,7 @@ def test_remote_equals_in_process_on_each_transport(start_server, transport):
         assert group.shm == (transport == "shm")
         assert len(segments_of(server.proc.pid)) == (1 if transport == "shm" else 0)
         rng = np.random.default_rng(5)
+        pid = server.proc.pid
         got, want = remote.reset(seed=3), local.reset(seed=3)
         for step in range(90):  # episodes end and restart on the way
             for name in want[0]:
@@ -188,6 +201,11 @@ def test_remote_equals_in_process_on_each_transport(start_server, transport):
             got, want = remote.step(actions), local.step(actions)
             for index in (1, 2, 3):
                 assert np.array_equal(got[index], want[index]), (step, index)
+            # Once the trainer has said it reads the segment, its name is gone: both sides
+            # hold the memory, and nothing is left in /dev/shm however they end.
+            assert not segments_of(pid)
+            held = 1 if transport == "shm" else 0
+            assert len(held_segments(pid, pid)) == len(held_segments(os.getpid(), pid)) == held
         rounds = group.connection.rounds_through_shm
         assert rounds == (90 if transport == "shm" else 0)
     finally:
@@ -319,9 +337,11 @@ def test_a_killed_trainer_leaves_no_segment_once_the_server_notices(start_server
     victim.expect("READY")
     victim.send("run")
     victim.expect("STEP")
-    assert len(segments_of(server.proc.pid)) == 1
+    pid = server.proc.pid
+    assert not segments_of(pid) and len(held_segments(pid, pid)) == 1
     assert victim.kill() == -signal.SIGKILL
-    wait_until(lambda: not segments_of(server.proc.pid), 10.0, "the trainer's segment to go")
+    assert not segments_of(pid)  # nothing left behind, whatever happens next
+    wait_until(lambda: not held_segments(pid, pid), 10.0, "the server to let the memory go")
     assert server.status().arenas_used == 0
 
 
@@ -333,7 +353,7 @@ def test_a_killed_server_leaves_no_segment_once_the_trainer_notices(start_server
     try:
         env.reset(seed=0)
         env.step(1)
-        assert len(segments_of(pid)) == 1
+        assert not segments_of(pid) and len(held_segments(os.getpid(), pid)) == 1
         server.proc.send_signal(signal.SIGKILL)
         server.proc.wait(10)
         with pytest.raises(errors.ServerLost):
@@ -341,4 +361,43 @@ def test_a_killed_server_leaves_no_segment_once_the_trainer_notices(start_server
                 env.step(1)
     finally:
         env.close()
+    assert not segments_of(pid) and not held_segments(os.getpid(), pid)
+
+
+def _zenoh_segments() -> set[str]:
+    """Zenoh's own shared-memory segments (``<number>.zenoh``), whoever made them."""
+    return {p.name for p in shm_dir().glob("*.zenoh")}
+
+
+@pytest.mark.timeout(90)
+@pytest.mark.parametrize("ending", ["clean", "SIGTERM", "SIGKILL"])
+def test_nothing_is_left_in_dev_shm_however_a_trainer_and_its_server_end(
+    start_server, start_trainer, ending
+):
+    """A trainer on the server's host (its Steps through shared memory) and the server end
+    cleanly, on SIGTERM or on SIGKILL: neither leaves a segment of any kind, overtake's or
+    Zenoh's (whose shared memory is off: TransportConfig.zenoh_shared_memory)."""
+    zenoh_before = _zenoh_segments()
+    server = start_server(f"shm-ends-{ending}")
+    pid = server.proc.pid
+    trainer = start_trainer(trainer_args(server, server.name, print_every=10), "trainer")
+    trainer.expect("READY")
+    trainer.send("run")
+    trainer.expect("STEP")
+    assert len(held_segments(pid, pid)) == 1  # the Steps do go through a segment
+    signals = {"SIGTERM": signal.SIGTERM, "SIGKILL": signal.SIGKILL}
+    if ending == "clean":
+        trainer.send("exit")
+        assert trainer.proc.wait(30) == 0
+    else:
+        trainer.proc.send_signal(signals[ending])
+        trainer.proc.wait(30)
     assert not segments_of(pid)
+    wait_until(lambda: not held_segments(pid, pid), 10.0, "the server to let the memory go")
+    if ending == "SIGKILL":
+        server.kill()
+    else:
+        server.proc.send_signal(signals.get(ending, signal.SIGTERM))
+        server.proc.wait(30)
+    assert not segments_of(pid)
+    assert _zenoh_segments() <= zenoh_before
