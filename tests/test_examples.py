@@ -17,14 +17,20 @@ EXAMPLES = ROOT / "examples"
 SHORT_EPISODES = "episode.max_decisions=30"
 
 
-def run_example(script: str, *args: str) -> str:
-    """Run ``examples/<script>``; its output (the test fails, showing it, unless it exits 0)."""
+def run_example(script: str, *args: str, log_dir: Path | None = None) -> str:
+    """Run ``examples/<script>``; its output (the test fails, showing it, unless it exits 0).
+
+    ``log_dir``: where Stable-Baselines3 may make its log folder (without SB3_LOGDIR it makes an
+    empty ``SB3-<date>`` folder in the system's temp directory on every run, left behind)."""
+    env = child_env()
+    if log_dir is not None:
+        env["SB3_LOGDIR"] = str(log_dir)
     done = subprocess.run(
         [sys.executable, str(EXAMPLES / script), *args],
         capture_output=True,
         text=True,
         timeout=240,
-        env=child_env(),
+        env=env,
         cwd=ROOT,
     )
     output = done.stdout + done.stderr
@@ -53,6 +59,7 @@ def test_stable_baselines3_dqn_trains_and_evaluates(where, start_server, tmp_pat
         SHORT_EPISODES,
         "--save",
         str(model),
+        log_dir=tmp_path / "sb3-log",
     )
     # Every step of a 30-decision episode pays at least the speed term, so a return came back.
     found = re.search(r"greedy return over 1 episode\(s\): (-?[\d.]+)", output)
