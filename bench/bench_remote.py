@@ -637,6 +637,18 @@ def codec_times(actions: Any, steps: Any, repeats: int) -> dict[str, float]:
     return times
 
 
+def transport_auto_picks(arenas: int, endpoint: str) -> str:
+    """The way the default transport (``auto``) takes for N arenas on this host: ``shm`` or
+    ``zenoh`` (its figures are that column's)."""
+    from overtake.client.wire.remote import RemoteConfig
+
+    env = make_env(REMOTE_ENV_ID, arenas, preset=PRESET, remote=RemoteConfig(connect=(endpoint,)))
+    try:
+        return "shm" if env.unwrapped.group.shm else "zenoh"
+    finally:
+        env.close()
+
+
 def measure_arenas(
     arenas: int, config: BenchConfig, endpoint: str, server_pid: int, ping: PingPong
 ) -> dict[str, Any]:
@@ -657,6 +669,7 @@ def measure_arenas(
         # The trainer on the server's host gets its Steps through shared memory (issue 36);
         # the same over Zenoh alone is what a trainer on another host pays (less the network).
         remote, remote_zenoh = remote_driver("shm"), remote_driver("zenoh")
+        auto_picks = transport_auto_picks(arenas, endpoint)
         local.drive(config.warmup_steps, timed=False)
         remote.drive(config.warmup_steps, timed=False)
         remote_zenoh.drive(config.warmup_steps, timed=False)
@@ -714,6 +727,7 @@ def measure_arenas(
         "throughput_ratio_zenoh": (
             zenoh_result["agent_steps_per_second"] / local_result["agent_steps_per_second"]
         ),
+        "auto_picks": auto_picks,
         "same_episodes": same,
         "wire": {"actions_bytes": request_bytes, "steps_bytes": reply_bytes},
         "ping_pong": pings,
@@ -821,6 +835,7 @@ def print_report(results: list[dict[str, Any]]) -> None:
                 "remote/s",
                 "remote/in-process",
                 "over Zenoh/in-process",
+                "auto picks",
                 "CPU in-proc",
                 "CPU client",
                 "CPU server",
@@ -836,6 +851,7 @@ def print_report(results: list[dict[str, Any]]) -> None:
                     f"{r['remote']['agent_steps_per_second']:,.0f}",
                     f"{r['throughput_ratio']:.2f}x",
                     f"{r['throughput_ratio_zenoh']:.2f}x",
+                    r["auto_picks"],
                     f"{r['in_process']['cpu_ms_per_step']:.3f}",
                     f"{r['remote']['cpu_ms_per_step']:.3f}",
                     f"{r['remote']['server_cpu_ms_per_step']:.3f}",

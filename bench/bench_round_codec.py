@@ -4,9 +4,10 @@ For min2018's real Steps of 1 and 64 arenas (both sensors), the median of a loop
 operation a round needs on either path:
 
 - over Zenoh: the server encodes the Steps, the trainer decodes them (``codec``);
-- through shared memory: the server writes the arrays into a segment and builds and encodes
-  the notice (``Segment.write``, ``StepsInShm``), the trainer decodes the notice and reads the
-  arrays back out (``steps_from_notice``).
+- through the shared-memory channel (protocol 1.7): the server writes the arrays into the
+  segment at the layout's places (``Segment.write_steps``), the trainer copies them back out
+  into a Steps (``ShmChannel.take``); the doorbell's rings are not in it
+  (``tests/test_shared_memory.py`` exercises them, ``bench.bench_remote`` times whole rounds).
 
 Zenoh's own cost of moving the bytes is not in it (``bench.bench_shm``, ``bench.bench_remote``).
 
@@ -77,57 +78,44 @@ def _steps(arenas: int) -> Any:
 
 
 def measure(arenas: int, repeats: int) -> dict[str, float]:
-    from overtake.client.wire.shared_steps import steps_from_notice
+    from overtake.client.wire.shm_channel import ShmChannel
     from overtake.protocol import codec
-    from overtake.protocol.messages import ShmArray, StepsInShm
-    from overtake.protocol.shared_memory import Segment, layout_bytes
-    from overtake.server.outbox import steps_arrays
+    from overtake.protocol.shared_memory import Segment, channel_plan
+    from overtake.server.channels.shm_channel import steps_arrays
 
     steps = _steps(arenas)
     frame = codec.encode(steps)
     arrays = steps_arrays(steps)
-    segment = Segment.create(layout_bytes((v.dtype, v.shape) for v in arrays.values()))
+    places, size = channel_plan(steps.agents.size, arrays)
+    segment = Segment.create(size)
+    segment.lay_out(places)
+    reader = ShmChannel(Segment.attach(segment.name, segment.nonce, size), places, "bench", 1)
     try:
+        rounds = iter(range(1, 10**9))
 
-        def notice_of(generation: int, places: Any) -> StepsInShm:
-            return StepsInShm.trusted(
-                server="bench",
-                group=1,
-                round=3,
-                generation=generation,
-                arrays=tuple(
-                    ShmArray.trusted(name=n, offset=o, dtype=d, shape=s) for n, o, d, s in places
-                ),
-            )
+        def server_writes() -> None:
+            assert segment.write_steps(next(rounds), steps_arrays(steps))
 
-        def server_writes() -> bytes:
-            written = segment.write(steps_arrays(steps))
-            assert written is not None
-            return codec.encode(notice_of(*written))
+        def trainer_reads() -> None:
+            server_writes()  # a new round each time (take returns each round once)
+            assert reader.take(segment.steps_round()) is not None
 
-        server_us = _median_us(server_writes, repeats)
-        notice_frame = server_writes()
-        notice = codec.decode(notice_frame)
+        write_us = _median_us(server_writes, repeats)
         figures = {
             "steps_bytes": float(len(frame)),
-            "notice_bytes": float(len(notice_frame)),
             "zenoh_server_encode_us": _median_us(lambda: codec.encode(steps), repeats),
             "zenoh_trainer_decode_us": _median_us(lambda: codec.decode(frame), repeats),
-            "shm_server_write_and_notice_us": server_us,
-            "shm_trainer_decode_notice_us": _median_us(lambda: codec.decode(notice_frame), repeats),
-            "shm_trainer_read_us": _median_us(lambda: steps_from_notice(segment, notice), repeats),
+            "shm_server_write_us": write_us,
+            "shm_trainer_read_us": _median_us(trainer_reads, repeats) - write_us,
         }
     finally:
+        reader.close(unlink=False)
         segment.unlink()
         segment.close()
     figures["zenoh_total_us"] = (
         figures["zenoh_server_encode_us"] + figures["zenoh_trainer_decode_us"]
     )
-    figures["shm_total_us"] = (
-        figures["shm_server_write_and_notice_us"]
-        + figures["shm_trainer_decode_notice_us"]
-        + figures["shm_trainer_read_us"]
-    )
+    figures["shm_total_us"] = figures["shm_server_write_us"] + figures["shm_trainer_read_us"]
     return figures
 
 
@@ -136,15 +124,14 @@ def main(config: RoundCodecConfig) -> dict[str, Any]:
     results = {arenas: measure(arenas, config.repeats) for arenas in config.arenas}
     print(
         f"{'arenas':>6} {'Steps B':>8} {'Zenoh: encode + decode µs':>27} "
-        f"{'shm: write+notice + notice decode + read µs':>45}"
+        f"{'shm channel: write + read µs':>30}"
     )
     for arenas, f in results.items():
         print(
             f"{arenas:>6} {f['steps_bytes']:>8.0f} "
             f"{f['zenoh_server_encode_us']:>8.1f} + {f['zenoh_trainer_decode_us']:.1f} = "
             f"{f['zenoh_total_us']:.1f}".ljust(46)
-            + f"{f['shm_server_write_and_notice_us']:.1f} + "
-            f"{f['shm_trainer_decode_notice_us']:.1f} + {f['shm_trainer_read_us']:.1f} = "
+            + f"{f['shm_server_write_us']:.1f} + {f['shm_trainer_read_us']:.1f} = "
             f"{f['shm_total_us']:.1f}"
         )
     report = {"machine": machine_description(), "threads": threads, "results": results}

@@ -170,11 +170,8 @@ class Stranger:
             CloseRequest,
             JoinRequest,
             ResetRequest,
-            ShmArray,
             StatusRequest,
-            StepsInShm,
         )
-        from overtake.protocol.shm_messages import STEPS_ARRAYS
 
         steps = self.group.step(np.array([0]), np.array([1]))  # one real Steps, ours
         mine = Actions(
@@ -210,18 +207,6 @@ class Stranger:
                 trainer=self.connection.trainer, arena=self.honest_group.arenas[0], agents=1
             ),
             steps,
-            # A shared-memory notice for the honest trainer's group (a write that is not the
-            # segment's, somewhere in it): mutated, it tries the notice's checks and the read's.
-            StepsInShm(
-                server=self.server,
-                group=self.honest_group.group,
-                round=self.honest_group.rounds,
-                generation=2,
-                arrays=tuple(
-                    ShmArray(name=name, offset=64 + 64 * i, dtype="float64", shape=(1,))
-                    for i, name in enumerate(STEPS_ARRAYS)
-                ),
-            ),
         ]
         return [codec.encode(m) for m in messages]
 

@@ -40,7 +40,7 @@ from .records import (
     check_name,
     check_range,
 )
-from .shm_messages import ShmArray, ShmOffer, StepsInShm
+from .shm_messages import ShmArray, ShmOffer
 from .specs import BehaviourSpec, CarSpec, ObservationSpec, Reach, RoadSpec
 from .version import PROTOCOL_HISTORY, PROTOCOL_VERSION, TYPED_SPEC_SINCE_MINOR
 from .vocabulary import ACTION_COUNT, ACTION_NAMES
@@ -81,7 +81,6 @@ __all__ = [
     "StatusReply",
     "StatusRequest",
     "Steps",
-    "StepsInShm",
     "WorldFrame",
     "check_array",
     "check_name",
@@ -301,8 +300,9 @@ class Actions(Message):
     # int32 (m,), distinct, none of them in ``agents``: cars of this trainer that leave the
     # road before this round and stay off (not restarted) until their arena is reset.
     retire: np.ndarray | None = field(default=None, metadata={"since": 3})
-    # The trainer reads this group's Steps from the offered segment: send a StepsInShm notice
-    # instead of the Steps frame.
+    # Whether the trainer reads this group's segment (ShmOffer). Sent over Zenoh, these say
+    # False (1.7: a trainer that reads it writes its Actions there); a 1.6 trainer said True
+    # to get its Steps through a 1.6 segment.
     shm: bool = field(default=False, metadata={"since": 6})
 
     def check(self) -> None:
@@ -447,7 +447,6 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
         Opened,
         ResetRequest,
         Steps,
-        StepsInShm,
         Actions,
         CloseRequest,
         Ack,

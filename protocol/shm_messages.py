@@ -1,23 +1,26 @@
-"""The messages of Steps through shared memory (protocol 1.6; the mechanism is described in
-:mod:`overtake.protocol.shared_memory`): the server's offer of a segment, and the notice that
-replaces a Steps frame once the trainer reads its Steps from the segment."""
+"""The message part of the shared-memory channel (protocol 1.7; the mechanism is described in
+:mod:`overtake.protocol.shared_memory`): the server's offer of a segment, with the layout of
+every array a round writes there. Once the trainer reads the segment, a round sends nothing
+over Zenoh: the layout is sent once, here, and each round is a ring of a doorbell.
+
+Protocol 1.6 sent a ``StepsInShm`` notice over Zenoh each round instead; a 1.7 peer refuses a
+1.6 peer's segment by its magic (and the 1.6 peer a 1.7 segment), and both fall back to Steps
+over Zenoh."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import ClassVar
+from dataclasses import dataclass, field
 
 from .errors import DecodeError
 from .records import (
     MAX_ARRAY_DIMS,
     MAX_FRAME_BYTES,
     WIRE_DTYPES,
-    Message,
     Part,
     check_name,
     check_range,
 )
-from .shared_memory import HEADER_BYTES, NONCE_BYTES
+from .shared_memory import ACTION_ARRAYS, HEADER_BYTES, NONCE_BYTES
 
 # The Steps fields a notice may name, besides ``obs/<observation name>``.
 STEPS_ARRAYS = (
@@ -32,21 +35,7 @@ STEPS_ARRAYS = (
     "metrics",
 )
 OBSERVATION_PREFIX = "obs/"
-
-
-@dataclass(frozen=True, eq=False)
-class ShmOffer(Part):
-    """A segment the server writes a group's Steps into, for a trainer on its host."""
-
-    name: str  # the segment's file name in /dev/shm (overtake-<pid>-<128 random bits>)
-    nonce: bytes  # 16 random bytes the segment begins with (after its magic)
-    size_bytes: int  # the segment's size, header included
-
-    def check(self) -> None:
-        check_name("segment name", self.name)
-        if len(self.nonce) != NONCE_BYTES:
-            raise DecodeError(f"a segment nonce is {NONCE_BYTES} bytes, got {len(self.nonce)}")
-        check_range("segment size", self.size_bytes, HEADER_BYTES, MAX_FRAME_BYTES)
+ACTION_ARRAY_NAMES = tuple(name for name, _ in ACTION_ARRAYS)
 
 
 @dataclass(frozen=True, eq=False)
@@ -62,9 +51,9 @@ class ShmArray(Part):
         observation = self.name.removeprefix(OBSERVATION_PREFIX)
         if observation != self.name:
             check_name("observation name", observation)
-        elif self.name not in STEPS_ARRAYS:
+        elif self.name not in STEPS_ARRAYS and self.name not in ACTION_ARRAY_NAMES:
             raise DecodeError(
-                f"array name must be one of {', '.join(STEPS_ARRAYS)} or "
+                f"array name must be one of {', '.join(STEPS_ARRAYS + ACTION_ARRAY_NAMES)} or "
                 f"{OBSERVATION_PREFIX}<observation>, got {self.name!r}"
             )
         if self.dtype not in WIRE_DTYPES:
@@ -77,24 +66,27 @@ class ShmArray(Part):
 
 
 @dataclass(frozen=True, eq=False)
-class StepsInShm(Message):
-    """A Steps written into the group's segment: the server sends this instead of the
-    :class:`~overtake.protocol.messages.Steps` frame to a trainer that said (``Actions.shm``)
-    it reads the segment. The trainer rebuilds the Steps from the arrays named here."""
+class ShmOffer(Part):
+    """A segment the server writes a group's Steps into, for a trainer on its host."""
 
-    TYPE: ClassVar[str] = "steps_shm"
-    server: str  # the server that stepped
-    group: int  # the group stepped
-    round: int  # the round the arrays answer, as Steps.round
-    generation: int  # the segment write holding them (even; see overtake.protocol.shared_memory)
-    arrays: tuple[ShmArray, ...]  # every Steps array, where it lies
+    name: str  # the segment's file name in /dev/shm (overtake-<pid>-<128 random bits>)
+    nonce: bytes  # 16 random bytes the segment begins with (after its magic)
+    size_bytes: int  # the segment's size, header included
+    # Where each array of a round lies: the Actions' (actions/...) and the Steps'. A 1.6
+    # server sends none (its segment holds Steps only, and a 1.7 trainer does not read it).
+    layout: tuple[ShmArray, ...] = field(default=(), metadata={"since": 7})
 
     def check(self) -> None:
-        check_name("server", self.server)
-        check_range("generation", self.generation, 2, 2**62)
-        names = [a.name for a in self.arrays]
-        missing = [n for n in STEPS_ARRAYS if n not in names]
+        check_name("segment name", self.name)
+        if len(self.nonce) != NONCE_BYTES:
+            raise DecodeError(f"a segment nonce is {NONCE_BYTES} bytes, got {len(self.nonce)}")
+        check_range("segment size", self.size_bytes, HEADER_BYTES, MAX_FRAME_BYTES)
+        if not self.layout:
+            return
+        names = [a.name for a in self.layout]
+        missing = [n for n in (*ACTION_ARRAY_NAMES, *STEPS_ARRAYS) if n not in names]
         if missing or len(set(names)) != len(names):
             raise DecodeError(
-                f"a notice names each Steps array once; missing {missing}, got {names}"
+                f"a segment's layout names each Actions and Steps array once; missing "
+                f"{missing}, got {names}"
             )

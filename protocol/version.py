@@ -4,7 +4,7 @@ ignores, and an older peer's messages decode with those fields at their defaults
 
 from __future__ import annotations
 
-PROTOCOL_VERSION: tuple[int, int] = (1, 6)
+PROTOCOL_VERSION: tuple[int, int] = (1, 7)
 PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
     (
         "1.0",
@@ -54,6 +54,15 @@ PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
         "each round's arrays there and sends a small StepsInShm notice instead of the Steps "
         "frame. Older peers' messages decode with no offer and no request, and get Steps "
         "frames as before.",
+    ),
+    (
+        "1.7",
+        "The shared-memory channel carries whole rounds: the offer's layout (ShmOffer.layout) "
+        "says once where every array lies, the trainer writes its Actions into the segment "
+        "and the server its Steps, and each side rings a futex doorbell in the segment's "
+        "header instead of sending a Zenoh message; what is not a round (an error) still "
+        "goes over Zenoh, counted in the header. The StepsInShm notice is gone: a 1.6 and a "
+        "1.7 peer refuse each other's segment by its magic and keep to Steps over Zenoh.",
     ),
 )
 # The minor version whose spec carries the road, the car and the observations' facts.

@@ -36,6 +36,20 @@ class ActionsArrived:
 
 
 @dataclass(frozen=True)
+class ActionsRung:
+    """A trainer wrote its Actions into its segment and rang (protocol 1.7's shared-memory
+    channel); the loop reads them from the segment."""
+
+    trainer: str
+    group: int
+
+    @property
+    def key(self) -> str:
+        """Its queue's key: one per segment, bounded as a Zenoh key's actions are."""
+        return f"shm/{self.trainer}/{self.group}"
+
+
+@dataclass(frozen=True)
 class TrainerPresence:
     """A trainer's liveliness token appeared (``present``) or went away."""
 
@@ -48,7 +62,7 @@ class Wake:
     """Nothing to do but look at the clock (a stop request, or a deadline)."""
 
 
-Event = QueryArrived | ActionsArrived | TrainerPresence | Wake
+Event = QueryArrived | ActionsArrived | ActionsRung | TrainerPresence | Wake
 WAKE = Wake()
 # Events handled before the ready groups step: bounds what a flood of messages can delay.
 MAX_EVENTS_PER_PASS = 256
@@ -116,13 +130,26 @@ class Inbox:
     def on_actions(self, sample: zenoh.Sample) -> None:
         """Queue actions, unless their key already has its share queued."""
         key = str(sample.key_expr)
+        if self._count_actions(key):
+            self._events.put(ActionsArrived(key, sample.payload.to_bytes()))
+
+    def on_ring(self, trainer: str, group: int) -> None:
+        """Queue a ring of a segment's Actions bell (from the channel's thread), unless its
+        share is queued already (a trainer ringing without waiting for its Steps)."""
+        event = ActionsRung(trainer, group)
+        if self._count_actions(event.key):
+            self._events.put(event)
+
+    def _count_actions(self, key: str) -> bool:
+        """Count one more actions event queued on ``key``; False (dropped, counted) where
+        its share is queued already."""
         with self._lock:
             waiting = self._queued_actions.get(key, 0)
             if waiting >= MAX_QUEUED_ACTIONS_PER_KEY:
                 self._dropped += 1
-                return
+                return False
             self._queued_actions[key] = waiting + 1
-        self._events.put(ActionsArrived(key, sample.payload.to_bytes()))
+        return True
 
     def on_presence(self, sample: zenoh.Sample) -> None:
         self._events.put(TrainerPresence(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT))
@@ -158,7 +185,7 @@ class Inbox:
         with self._lock:
             if isinstance(event, QueryArrived):
                 self._queued_requests -= 1
-            elif isinstance(event, ActionsArrived):
+            elif isinstance(event, (ActionsArrived, ActionsRung)):
                 left = self._queued_actions[event.key] - 1
                 if left:
                     self._queued_actions[event.key] = left

@@ -1,151 +1,144 @@
-"""What the server sends: each trainer's Steps (and error replies) on its own key, with blocking
-congestion control so that no step is silently lost, and each watched arena's world frames
-for spectators, dropped under congestion so that watching never holds the simulation back.
+"""What the server sends: each member's rounds through its channel
+(:mod:`overtake.server.channels`: Zenoh frames, or a shared-memory segment with a doorbell for
+a trainer on this host that holds its group alone), and each watched arena's world frames for
+spectators, dropped under congestion so that watching never holds the simulation back.
 
-A trainer on this host that asked for it gets its Steps through a shared-memory segment
-(:mod:`overtake.protocol.shared_memory`) and only a small notice on its key. The outbox owns
-the segments: one per group a trainer holds alone, removed when the trainer leaves the group,
-goes away or the server closes."""
+The outbox owns the channels: a Zenoh one per trainer holding arenas here, a shared-memory one
+per group a trainer holds alone and asked for, closed when the trainer leaves the group, goes
+away or the server closes."""
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 
-import numpy as np
 import zenoh
 
 from overtake.protocol import codec, keys
-from overtake.protocol.messages import Message, ShmArray, ShmOffer, Steps, StepsInShm
-from overtake.protocol.shared_memory import Segment, layout_bytes
-from overtake.protocol.shm_messages import OBSERVATION_PREFIX, STEPS_ARRAYS
+from overtake.protocol.doorbell import AVAILABLE as DOORBELL_AVAILABLE
+from overtake.protocol.messages import ErrorReply, Message, ShmOffer, Steps
 
+from .channels import StepsChannel
+from .channels.shm_channel import ShmChannel
+from .channels.zenoh_channel import ZenohChannel, send_once
 from .groups import Group
 
 log = logging.getLogger(__name__)
 
 
-def steps_arrays(steps: Steps) -> dict[str, np.ndarray]:
-    """A Steps' arrays by the names a notice gives them."""
-    arrays = {name: getattr(steps, name) for name in STEPS_ARRAYS}
-    arrays.update({OBSERVATION_PREFIX + k: v for k, v in steps.observations.items()})
-    return arrays
-
-
 class Outbox:
-    """The server's publishers on its Zenoh ``session``."""
+    """The server's channels to its trainers, and its world publishers, on its Zenoh
+    ``session``. ``on_ring(trainer, group)``: a trainer rang its segment's Actions bell (called
+    on the channel's thread; it should only enqueue)."""
 
-    def __init__(self, session: zenoh.Session, server: str, world_rate_hz: float) -> None:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        server: str,
+        world_rate_hz: float,
+        on_ring: Callable[[str, int], None] = lambda trainer, group: None,
+    ) -> None:
         self.session, self.server = session, server
         self.world_rate_hz = world_rate_hz
-        self._step_pubs: dict[str, zenoh.Publisher] = {}
+        self._on_ring = on_ring
+        self._zenoh: dict[str, ZenohChannel] = {}
+        self._shm: dict[tuple[str, int], ShmChannel] = {}
         self._world_pubs: dict[int, zenoh.Publisher] = {}
         self._last_world: dict[int, float] = {}
-        # (trainer, group id) -> its segment, and whether the trainer's latest Actions for the
-        # group said it reads it.
-        self._segments: dict[tuple[str, int], Segment] = {}
-        self._reads_shm: dict[tuple[str, int], bool] = {}
 
-    # --- shared memory ------------------------------------------------------------------------
+    # --- channels ------------------------------------------------------------------------------
+
+    def open_for(self, trainer: str) -> None:
+        """Keep a Zenoh channel for ``trainer`` (it holds arenas here)."""
+        if trainer not in self._zenoh:
+            self._zenoh[trainer] = ZenohChannel(self.session, self.server, trainer)
 
     def offer_segment(self, group: Group, trainer: str) -> ShmOffer | None:
-        """A segment for ``trainer``'s Steps of ``group`` (which it holds alone), sized for
-        its current Steps; None where one cannot be made (said in the log)."""
-        current = group.current_steps(trainer)
-        arrays = steps_arrays(current)
-        size = layout_bytes((value.dtype, value.shape) for value in arrays.values())
+        """A shared-memory channel for ``trainer``'s rounds of ``group`` (which it holds
+        alone), sized for its current Steps; None where one cannot be made (said in the log)."""
+        if not DOORBELL_AVAILABLE:
+            log.info("no futex doorbell on this machine: %s's Steps go over Zenoh", trainer)
+            return None
+        self.open_for(trainer)
+        self.forget_member(group.group_id, trainer)
         try:
-            segment = Segment.create(size)
+            channel = ShmChannel.create(
+                group.current_steps(trainer),
+                trainer,
+                group.members[trainer].ticket,
+                self._zenoh[trainer],
+                self._on_ring,
+            )
         except OSError as error:
             log.warning("no shared memory for %s (Steps go over Zenoh): %s", trainer, error)
             return None
-        self.forget_member(group.group_id, trainer)
-        self._segments[(trainer, group.group_id)] = segment
-        return ShmOffer(name=segment.name, nonce=segment.nonce, size_bytes=segment.size)
+        self._shm[(trainer, group.group_id)] = channel
+        return channel.offer()
 
-    def reads_shm(self, trainer: str, group: int, reads: bool) -> None:
-        """``trainer`` said (in its latest Actions for ``group``) whether it reads the segment.
+    def segment_channel(self, trainer: str, group: int) -> ShmChannel | None:
+        """``trainer``'s shared-memory channel of ``group``, if it has one."""
+        return self._shm.get((trainer, group))
 
-        Once it has said, the segment's name goes: the name was only for the trainer to find
-        it, and both sides keep it mapped, so that nothing is left in /dev/shm however either
-        of them ends (SIGKILL included)."""
-        segment = self._segments.get((trainer, group))
-        if segment is not None:
-            self._reads_shm[(trainer, group)] = reads
-            segment.unlink()
+    def actions_over_zenoh(self, trainer: str, group: int) -> None:
+        """``trainer``'s Actions for ``group`` came over Zenoh: it does not read the segment
+        (it chose Zenoh, could not map it, or speaks 1.6), so the segment goes."""
+        self.forget_member(group, trainer)
 
     def send_steps(self, group: Group, trainer: str, steps: Message) -> None:
-        """``trainer``'s Steps of a round of ``group``: through its segment, where it reads one
-        and holds the group alone (a shared group steps on a deadline, which could overwrite
-        a round a member is still reading), else on its key."""
-        key = (trainer, group.group_id)
-        segment = self._segments.get(key)
-        if (
-            segment is not None
-            and isinstance(steps, Steps)
-            and self._reads_shm.get(key)
-            and len(group.members) == 1
-        ):
-            written = segment.write(steps_arrays(steps))
-            if written is not None:
-                generation, places = written
-                # Built from the server's own arrays every round: unchecked, as its Steps are
-                # (the trainer checks the notice it decodes, and the arrays it reads).
-                notice = StepsInShm.trusted(
-                    server=steps.server,
-                    group=steps.group,
-                    round=steps.round,
-                    generation=generation,
-                    arrays=tuple(
-                        ShmArray.trusted(name=n, offset=o, dtype=d, shape=sh)
-                        for n, o, d, sh in places
-                    ),
-                )
-                self.send(trainer, notice)
-                return
-        self.send(trainer, steps)
-
-    def forget_member(self, group: int, trainer: str) -> None:
-        """Remove ``trainer``'s segment of ``group`` (it left the group)."""
-        self._reads_shm.pop((trainer, group), None)
-        segment = self._segments.pop((trainer, group), None)
-        if segment is not None:
-            segment.unlink()
-            segment.close()
-
-    def close(self) -> None:
-        """Remove every segment (the server stops)."""
-        for trainer, group in list(self._segments):
-            self.forget_member(group, trainer)
-
-    # --- Zenoh ----------------------------------------------------------------------------------
-
-    def open_for(self, trainer: str) -> None:
-        """Keep a publisher for ``trainer``'s Steps (it holds arenas here)."""
-        if trainer not in self._step_pubs:
-            self._step_pubs[trainer] = self.session.declare_publisher(
-                keys.trainer_steps(trainer, self.server),
-                congestion_control=zenoh.CongestionControl.BLOCK,
-                priority=zenoh.Priority.DATA_HIGH,
-            )
+        """``trainer``'s Steps of a round of ``group`` (or what replaced them): through its
+        segment where it has one and holds the group alone; a shared group steps on a
+        deadline, which could overwrite a round a member is still reading, so there the round
+        goes over Zenoh, rung in the segment all the same (its trainer sleeps on the bell)."""
+        shm = self._shm.get((trainer, group.group_id))
+        if shm is not None:
+            if isinstance(steps, Steps) and len(group.members) == 1:
+                shm.send_steps(steps)
+            else:
+                shm.send(steps)
+            return
+        channel = self._zenoh.get(trainer)
+        if channel is None:
+            send_once(self.session, self.server, trainer, steps)
+        else:
+            channel.send(steps)
 
     def send(self, trainer: str, message: Message) -> None:
-        pub = self._step_pubs.get(trainer)
-        if pub is not None:
-            pub.put(codec.encode(message))
-        else:  # a trainer with no arenas here (an error reply): no publisher kept for it
-            self.session.put(
-                keys.trainer_steps(trainer, self.server),
-                codec.encode(message),
-                congestion_control=zenoh.CongestionControl.BLOCK,
-            )
+        """What is not a round (an error reply): over Zenoh, and where it is about a group
+        whose rounds go through a segment, counted and rung there too."""
+        group = message.group if isinstance(message, ErrorReply) else None
+        channel: StepsChannel | None = None
+        if group is not None:
+            channel = self._shm.get((trainer, group))
+        if channel is None:
+            channel = self._zenoh.get(trainer)
+        if channel is not None:
+            channel.send(message)
+        else:  # a trainer with no arenas here: no channel kept for it
+            send_once(self.session, self.server, trainer, message)
+
+    def forget_member(self, group: int, trainer: str) -> None:
+        """Close ``trainer``'s segment of ``group`` (it left the group)."""
+        channel = self._shm.pop((trainer, group), None)
+        if channel is not None:
+            channel.close()
+
+    def close(self) -> None:
+        """Close every channel (the server stops)."""
+        for trainer, group in list(self._shm):
+            self.forget_member(group, trainer)
+        for channel in self._zenoh.values():
+            channel.close()
+        self._zenoh.clear()
 
     def forget_trainer(self, trainer: str) -> None:
-        for held_by, group in list(self._segments):
+        for held_by, group in list(self._shm):
             if held_by == trainer:
                 self.forget_member(group, trainer)
-        pub = self._step_pubs.pop(trainer, None)
-        if pub is not None:
-            pub.undeclare()
+        channel = self._zenoh.pop(trainer, None)
+        if channel is not None:
+            channel.close()
+
+    # --- spectators -----------------------------------------------------------------------------
 
     def publish_world(self, group: Group, now: float) -> None:
         """``group``'s arenas to whoever watches them, at most ``world_rate_hz`` frames a
@@ -172,7 +165,7 @@ class Outbox:
 
     def forget_group(self, group: Group) -> None:
         """The group's arenas are freed: their world publishers and segments go."""
-        for trainer, group_id in list(self._segments):
+        for trainer, group_id in list(self._shm):
             if group_id == group.group_id:
                 self.forget_member(group_id, trainer)
         for arena in group.arena_ids:

@@ -51,6 +51,7 @@ from .inbox import (
     MAX_EVENTS_PER_PASS,
     WAKE,
     ActionsArrived,
+    ActionsRung,
     Event,
     Inbox,
     QueryArrived,
@@ -89,7 +90,7 @@ class SimulatorServer:
         self.session = session if session is not None else open_session(config.transport())
         self.arenas = ArenaRegistry(self.name, config.max_arenas, config.max_arenas_per_trainer)
         self._alive_trainers: set[str] = set()
-        self.outbox = Outbox(self.session, self.name, config.world_rate_hz)
+        self.outbox = Outbox(self.session, self.name, config.world_rate_hz, self.inbox.on_ring)
         self._pool: ThreadPoolExecutor | None = None
         self.parallel_passes = 0
         """Passes that stepped several groups at once (on the stepping threads)."""
@@ -210,6 +211,8 @@ class SimulatorServer:
                 self._on_query(event.query, event.payload)
             elif isinstance(event, ActionsArrived):
                 self._on_actions(event.key, event.payload)
+            elif isinstance(event, ActionsRung):
+                self._on_ring(event.trainer, event.group)
             elif isinstance(event, TrainerPresence):
                 self._on_presence(event.key, event.present)
         except Exception:  # the loop must survive anything; a bug shows as a log line
@@ -329,8 +332,30 @@ class SimulatorServer:
                     actions.trainer,
                 )
                 return
+        except errors.ProtocolError as error:
+            self._refused(trainer, None, error)
+            return
+        if self._accept(trainer, actions):
+            # Over Zenoh: whatever segment the trainer was offered, it does not read it.
+            self.outbox.actions_over_zenoh(trainer, actions.group)
+
+    def _on_ring(self, trainer: str, group: int) -> None:
+        """``trainer`` wrote its Actions for ``group`` into its segment and rang."""
+        channel = self.outbox.segment_channel(trainer, group)
+        if channel is None:
+            return  # the segment closed since the ring (the trainer left)
+        try:
+            actions = channel.actions()
+        except errors.ProtocolError as error:
+            self._refused(trainer, group, error)
+            return
+        self._accept(trainer, actions)
+
+    def _accept(self, trainer: str, actions: Actions) -> bool:
+        """Hand ``actions`` to their group; whether it took them (a refusal is answered)."""
+        try:
             self.arenas.group(actions.group).accept(actions, self.config.step_deadline_s)
-            self.outbox.reads_shm(trainer, actions.group, actions.shm)
+            return True
         except errors.StaleActions as error:
             log.debug("dropped late actions from %s: %s", trainer, error)
         except errors.WrongTicket as error:
@@ -338,14 +363,17 @@ class SimulatorServer:
             # key would only disturb that trainer.
             log.warning("dropped actions in %s's name: %s", trainer, error)
         except errors.ProtocolError as error:
-            log.info("refused actions from %s: %s", trainer, error)
-            if trainer not in self._alive_trainers:
-                # Nobody of that name is connected: no reply to a key nobody reads. Each new
-                # key a reply goes to costs Zenoh memory for good (bench/fuzz_wire.py), so a
-                # stranger inventing names must not make the server write to them.
-                return
-            group = actions.group if isinstance(actions, Actions) else None
-            self.outbox.send(trainer, ErrorReply(code=error.code, message=str(error), group=group))
+            self._refused(trainer, actions.group, error)
+        return False
+
+    def _refused(self, trainer: str, group: int | None, error: errors.ProtocolError) -> None:
+        log.info("refused actions from %s: %s", trainer, error)
+        if trainer not in self._alive_trainers:
+            # Nobody of that name is connected: no reply to a key nobody reads. Each new
+            # key a reply goes to costs Zenoh memory for good (bench/fuzz_wire.py), so a
+            # stranger inventing names must not make the server write to them.
+            return
+        self.outbox.send(trainer, ErrorReply(code=error.code, message=str(error), group=group))
 
     def _step_groups(self, groups: list[Group]) -> None:
         """Step ``groups``, several at once on the stepping threads, and deliver each group's

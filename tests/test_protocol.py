@@ -54,10 +54,9 @@ from overtake.protocol.messages import (
     StatusReply,
     StatusRequest,
     Steps,
-    StepsInShm,
     WorldFrame,
 )
-from overtake.protocol.shm_messages import STEPS_ARRAYS
+from overtake.protocol.shm_messages import ACTION_ARRAY_NAMES, STEPS_ARRAYS
 
 MAJOR, MINOR = PROTOCOL_VERSION
 
@@ -226,31 +225,22 @@ def opened_messages(draw):
 
 @st.composite
 def shm_offers(draw):
-    return ShmOffer(
-        name=draw(names),
-        nonce=draw(st.binary(min_size=16, max_size=16)),
-        size_bytes=draw(st.integers(64, messages.MAX_FRAME_BYTES)),
-    )
-
-
-@st.composite
-def steps_in_shm(draw):
-    fields = [*STEPS_ARRAYS, *(f"obs/{n}" for n in draw(st.lists(names, max_size=3, unique=True)))]
-    arrays = tuple(
+    observations = draw(st.lists(names, max_size=3, unique=True))
+    fields = [*ACTION_ARRAY_NAMES, *STEPS_ARRAYS, *(f"obs/{n}" for n in observations)]
+    layout = tuple(
         ShmArray(
             name=name,
-            offset=draw(st.integers(64, 2**20)),
+            offset=draw(st.integers(128, 2**20)),
             dtype=draw(st.sampled_from(sorted(messages.WIRE_DTYPES))),
             shape=tuple(draw(st.lists(st.integers(0, 100), max_size=4))),
         )
         for name in fields
     )
-    return StepsInShm(
-        server=draw(names),
-        group=draw(ints),
-        round=draw(ints),
-        generation=draw(st.integers(2, 2**40)),
-        arrays=arrays,
+    return ShmOffer(
+        name=draw(names),
+        nonce=draw(st.binary(min_size=16, max_size=16)),
+        size_bytes=draw(st.integers(128, messages.MAX_FRAME_BYTES)),
+        layout=draw(st.just(()) | st.just(layout)),
     )
 
 
@@ -329,7 +319,6 @@ MESSAGES = {
     Opened.TYPE: opened_messages(),
     ResetRequest.TYPE: reset_requests(),
     Steps.TYPE: steps_messages(),
-    StepsInShm.TYPE: steps_in_shm(),
     Actions.TYPE: actions_messages(),
     CloseRequest.TYPE: st.builds(
         CloseRequest, trainer=names, ticket=st.binary(max_size=64), group=ints

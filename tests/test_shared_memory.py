@@ -20,16 +20,22 @@ import pytest
 import overtake.client  # noqa: F401  (registers the environments)
 from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, codec, errors
 from overtake.protocol.errors import DecodeError
-from overtake.protocol.messages import ShmArray, ShmOffer, Steps, StepsInShm
+from overtake.protocol.doorbell import AVAILABLE as DOORBELL_AVAILABLE
+from overtake.protocol.messages import ShmArray, ShmOffer, Steps
 from overtake.protocol.shared_memory import (
+    ACTION_ARRAYS,
+    ACTIONS_BELL_OFFSET,
+    ACTIONS_COUNT_OFFSET,
+    GENERATION_OFFSET,
     HEADER_BYTES,
     NAME_PREFIX,
+    STEPS_BELL_OFFSET,
     Segment,
-    layout_bytes,
+    channel_plan,
     shm_dir,
     sweep_orphans,
 )
-from overtake.protocol.shm_messages import STEPS_ARRAYS
+from overtake.protocol.shm_messages import ACTION_ARRAY_NAMES, STEPS_ARRAYS
 
 from remote_support import remote_config, trainer_args, wait_until
 
@@ -67,7 +73,8 @@ def test_a_segment_is_private_unguessable_and_round_trips_every_wire_dtype():
         "metrics": np.zeros((3, 0)),
         "action_applied": np.array([-1, 2, 4], dtype=np.int64),
     }
-    size = layout_bytes((v.dtype, v.shape) for v in arrays.values())
+    places, size = channel_plan(3, arrays)
+    assert [p[0] for p in places[:3]] == [name for name, _ in ACTION_ARRAYS]
     writer = Segment.create(size)
     try:
         mode = stat.S_IMODE(os.stat(writer.path).st_mode)
@@ -75,17 +82,32 @@ def test_a_segment_is_private_unguessable_and_round_trips_every_wire_dtype():
         pid, random_part = writer.name.removeprefix(NAME_PREFIX).split("-")
         assert int(pid) == os.getpid() and len(random_part) == 32
         reader = Segment.attach(writer.name, writer.nonce, writer.size)
-        written = writer.write(arrays)
-        assert written is not None
-        generation, places = written
-        assert generation == 2 and all(offset % 64 == 0 for _, offset, _, _ in places)
-        got = reader.read(generation, places)
+        writer.lay_out(places)
+        reader.lay_out(places)
+        assert all(offset % 64 == 0 for _, offset, _, _ in places)
+        assert writer.write_steps(7, arrays)
+        assert writer.generation == 2
+        round_, got = reader.read_steps(arrays)
+        assert round_ == 7
         for name, value in arrays.items():
             assert got[name].dtype == value.dtype and np.array_equal(got[name], value), name
         # Copies: the next write does not change what was read.
         arrays["reward"][:] = 9.0
-        assert writer.write(arrays) is not None
+        assert writer.write_steps(8, arrays)
         assert got["reward"][0] == 0.5
+        # The Actions the other way, as many as written (fewer than the cars, here).
+        reader.write_actions(
+            8,
+            1234,
+            np.array([2, 0], dtype=np.int32),
+            np.array([4, 1], dtype=np.int64),
+            np.array([1], dtype=np.int32),
+        )
+        round_, trainer_step, agents, actions, retire = writer.read_actions()
+        assert (round_, trainer_step) == (8, 1234)
+        assert agents.tolist() == [2, 0] and actions.tolist() == [4, 1] and retire.tolist() == [1]
+        with pytest.raises(ValueError, match="at most 3 cars"):
+            reader.write_actions(9, -1, np.zeros(4, np.int32), np.zeros(4, np.int64), _NONE)
         reader.close()
     finally:
         writer.unlink()
@@ -93,8 +115,13 @@ def test_a_segment_is_private_unguessable_and_round_trips_every_wire_dtype():
     assert not writer.path.exists()
 
 
+_NONE = np.zeros(0, dtype=np.int32)
+
+
 def test_a_segment_refuses_what_is_not_the_offer_and_torn_or_outside_reads():
-    writer = Segment.create(HEADER_BYTES + 256)
+    places, size = channel_plan(2, {"reward": np.ones(2)})
+    writer = Segment.create(size)
+    writer.lay_out(places)
     try:
         with pytest.raises(DecodeError, match="another nonce"):
             Segment.attach(writer.name, bytes(16), writer.size)
@@ -104,26 +131,108 @@ def test_a_segment_refuses_what_is_not_the_offer_and_torn_or_outside_reads():
             Segment.attach(writer.name + "x", writer.nonce, writer.size)
         with pytest.raises(DecodeError, match="plain file name"):
             Segment.attach("../etc", writer.nonce, writer.size)
-        # Too big for the segment: the caller is told (None) and sends the frame instead.
-        assert writer.write({"obs/x": np.zeros(1000)}) is None
-        written = writer.write({"reward": np.ones(4)})
-        assert written is not None
-        generation, places = written
         reader = Segment.attach(writer.name, writer.nonce, writer.size)
-        with pytest.raises(DecodeError, match="holds write 2, the notice names 4"):
-            reader.read(4, places)
+        # Nothing written yet, then arrays that are not the layout's: refused, nothing written.
+        with pytest.raises(DecodeError, match="no finished write"):
+            reader.read_steps(["reward"])
+        assert not writer.write_steps(1, {"reward": np.ones(3)})
+        assert not writer.write_steps(1, {"reward": np.ones(2, np.float32)})
+        assert not writer.write_steps(1, {"rewards": np.ones(2)})
+        assert writer.generation == 0
+        # A layout from the wire that points outside the segment, off its alignment or at no
+        # wire dtype is refused before any read.
         with pytest.raises(DecodeError, match="outside segment"):
-            reader.read(generation, [("reward", HEADER_BYTES, "float64", (1000,))])
+            reader.lay_out([("reward", HEADER_BYTES, "float64", (10_000,))])
+        with pytest.raises(DecodeError, match="alignment"):
+            reader.lay_out([("reward", HEADER_BYTES + 8, "float64", (1,))])
         with pytest.raises(DecodeError, match="not a wire dtype"):
-            reader.read(generation, [("reward", HEADER_BYTES, "float16", (4,))])
+            reader.lay_out([("reward", HEADER_BYTES, "float16", (4,))])
+        reader.lay_out(places)
+        # A write under way (odd generation) is not read.
+        assert writer.write_steps(1, {"reward": np.ones(2)})
+        writer._i64[GENERATION_OFFSET // 8] += 1
+        with pytest.raises(DecodeError, match="no finished write"):
+            reader.read_steps(["reward"])
+        # Counts out of range (the trainer's to write) are refused by the server.
+        reader._i32[ACTIONS_COUNT_OFFSET // 4] = 3
+        with pytest.raises(DecodeError, match="at most 2"):
+            writer.read_actions()
         reader.close()
     finally:
         writer.unlink()
         writer.close()
+    # A 1.6 peer's segment (another magic) is refused as such.
+    old = Segment.create(HEADER_BYTES)
+    try:
+        old.memory[:8] = b"OVTKSHM1"
+        with pytest.raises(DecodeError, match="another protocol version"):
+            Segment.attach(old.name, old.nonce, old.size)
+    finally:
+        old.unlink()
+        old.close()
 
 
-def test_the_notices_decode_and_refuse_what_they_must():
-    # Every array of a Steps has its place in a notice: a field added to Steps without one
+def _ring_back(name: str, nonce: bytes, size: int, rounds: int) -> None:
+    """In another process: answer each ring of the Steps bell with a ring of the Actions bell,
+    counting the rounds in the actions' round field."""
+    segment = Segment.attach(name, nonce, size)
+    steps_bell, actions_bell = segment.bell(STEPS_BELL_OFFSET), segment.bell(ACTIONS_BELL_OFFSET)
+    seen = 0  # not its value now: the first ring may have come before this process looked
+    for _ in range(rounds):
+        while steps_bell.value == seen:
+            steps_bell.wait(seen, 5.0)
+        seen += 1
+        actions_bell.ring()
+    segment.close()
+
+
+@pytest.mark.skipif(not DOORBELL_AVAILABLE, reason="no futex doorbell on this machine")
+def test_the_doorbell_wakes_another_process_and_times_out_without_a_ring():
+    import multiprocessing
+    import time
+
+    segment = Segment.create(HEADER_BYTES)
+    try:
+        steps_bell, actions_bell = segment.bell(STEPS_BELL_OFFSET), segment.bell(
+            ACTIONS_BELL_OFFSET
+        )
+        # Nobody rings: the wait ends at its timeout with the value it was given.
+        started = time.monotonic()
+        assert actions_bell.wait(actions_bell.value, 0.05) == 0
+        assert time.monotonic() - started >= 0.04
+        # A value that moved on returns at once.
+        assert actions_bell.wait(5, 10.0) == 0
+        rounds = 200
+        peer = multiprocessing.get_context("spawn").Process(
+            target=_ring_back, args=(segment.name, segment.nonce, segment.size, rounds)
+        )
+        peer.start()
+        try:
+            seen = actions_bell.value
+            for _ in range(rounds):
+                steps_bell.ring()
+                while actions_bell.value == seen:
+                    actions_bell.wait(seen, 5.0)
+                seen = actions_bell.value
+            assert seen == rounds and steps_bell.value == rounds
+        finally:
+            peer.join(10)
+            if peer.exitcode is None:
+                peer.kill()
+            assert peer.exitcode == 0
+        # The word wraps at 2**32 like the waiter's comparison expects, without a warning.
+        bell_word = np.frombuffer(segment.memory, "<u4", count=1, offset=STEPS_BELL_OFFSET)
+        bell_word[0] = 2**32 - 1
+        steps_bell.ring()
+        assert steps_bell.value == 0
+        del bell_word
+    finally:
+        segment.unlink()
+        segment.close()
+
+
+def test_the_offer_decodes_and_refuses_what_it_must():
+    # Every array of a Steps has its place in a layout: a field added to Steps without one
     # would not reach a trainer reading shared memory.
     names = [
         f.name
@@ -131,14 +240,18 @@ def test_the_notices_decode_and_refuse_what_they_must():
         if f.name not in ("server", "group", "round", "observations")
     ]
     assert tuple(names) == STEPS_ARRAYS
-    arrays = tuple(ShmArray(name=n, offset=64, dtype="int8", shape=(1,)) for n in names)
-    notice = StepsInShm(server="s", group=3, round=5, generation=2, arrays=arrays)
-    assert codec.decode(codec.encode(notice), StepsInShm) == notice
+    layout = tuple(
+        ShmArray(name=n, offset=128 + 64 * i, dtype="int8", shape=(1,))
+        for i, n in enumerate((*ACTION_ARRAY_NAMES, *names))
+    )
+    ShmOffer(name="overtake-1-ab", nonce=bytes(16), size_bytes=4096, layout=layout)
     with pytest.raises(DecodeError, match="missing \\['metrics'\\]"):
-        StepsInShm(server="s", group=3, round=5, generation=2, arrays=arrays[:-1])
+        ShmOffer(name="overtake-1-ab", nonce=bytes(16), size_bytes=4096, layout=layout[:-1])
+    with pytest.raises(DecodeError, match="missing \\['actions/retire'\\]"):
+        ShmOffer(name="overtake-1-ab", nonce=bytes(16), size_bytes=4096, layout=layout[:2] + layout[3:])
     with pytest.raises(DecodeError, match="array name must be one of"):
-        ShmArray(name="secret", offset=64, dtype="int8", shape=(1,))
-    with pytest.raises(DecodeError, match="offset must be from 64"):
+        ShmArray(name="secret", offset=128, dtype="int8", shape=(1,))
+    with pytest.raises(DecodeError, match="offset must be from 128"):
         ShmArray(name="obs/lidar", offset=0, dtype="int8", shape=(1,))
     with pytest.raises(DecodeError, match="nonce is 16 bytes"):
         ShmOffer(name="overtake-1-ab", nonce=b"x", size_bytes=128)
@@ -217,10 +330,10 @@ def test_remote_equals_in_process_on_each_transport(start_server, transport):
 
 @pytest.mark.timeout(90)
 def test_auto_reads_shared_memory_where_the_steps_are_large_enough_to_gain(start_server):
-    from overtake.client.wire.shared_steps import AUTO_SHM_MIN_BYTES
+    from overtake.client.wire.shm_channel import AUTO_SHM_MIN_BYTES
 
     server = start_server("shm-auto")
-    for arenas, through_shm in ((2, False), (40, True)):
+    for arenas in (1, 40):
         env = gym.make_vec(
             REMOTE_HIGHWAY_ENV_ID,
             num_envs=arenas,
@@ -232,7 +345,7 @@ def test_auto_reads_shared_memory_where_the_steps_are_large_enough_to_gain(start
             group = env.unwrapped.group
             # The server offers a segment either way; auto takes it by its size.
             [segment] = segments_of(server.proc.pid)
-            assert (segment.stat().st_size >= AUTO_SHM_MIN_BYTES) == through_shm
+            through_shm = segment.stat().st_size >= AUTO_SHM_MIN_BYTES
             assert group.shm is through_shm
             env.reset(seed=1)
             env.step(np.zeros(arenas, dtype=np.int64))
@@ -243,12 +356,12 @@ def test_auto_reads_shared_memory_where_the_steps_are_large_enough_to_gain(start
 
 
 @pytest.mark.timeout(60)
-def test_a_forged_notice_is_dropped_and_the_trainer_steps_on(start_server):
+def test_no_round_crosses_zenoh_and_forged_frames_on_the_trainers_key_change_nothing(start_server):
     from overtake.protocol import keys
 
     from remote_support import RawClient
 
-    server = start_server("shm-forged")
+    server = start_server("shm-silent")
     remote = gym.make(
         REMOTE_HIGHWAY_ENV_ID,
         remote=remote_config(server.endpoint, server.name, steps_transport="shm"),
@@ -258,35 +371,56 @@ def test_a_forged_notice_is_dropped_and_the_trainer_steps_on(start_server):
     raw = RawClient(server.endpoint)
     try:
         group = remote.unwrapped.group
+        trainer = group.connection.trainer
+        steps_key = keys.trainer_steps(trainer, server.name)
+        heard = raw.collect(steps_key)
+        actions_heard = raw.collect(keys.server_actions(server.name, trainer))
         remote.reset(seed=2), local.reset(seed=2)
-        key = keys.trainer_steps(group.connection.trainer, server.name)
         for step in range(20):
-            # Anyone on the network may publish on the trainer's key: a notice naming another
-            # write, and one pointing outside the segment.
-            for generation, offset in ((10**6, 64), (2, 2**27)):
-                forged = StepsInShm(
-                    server=server.name,
-                    group=group.group_id,
-                    round=step + 1,
-                    generation=generation,
-                    arrays=tuple(
-                        ShmArray(name=name, offset=offset, dtype="float64", shape=(1,))
-                        for name in STEPS_ARRAYS
-                    ),
+            # Anyone on the network may publish on the trainer's key: a Steps frame of the
+            # next round with other observations is not taken for the segment's.
+            if step % 5 == 0:
+                forged = dataclasses.replace(
+                    group.last,
+                    round=group.round + 1,
+                    observations={k: np.zeros_like(v) for k, v in group.last.observations.items()},
+                    server="someone-else",
                 )
-                raw.put(key, codec.encode(forged))
+                raw.put(steps_key, codec.encode(forged))
             got, want = remote.step(step % 5), local.step(step % 5)
             for name in want[0]:
                 assert np.array_equal(got[0][name], want[0][name]), (step, name)
             assert got[1] == want[1]
         assert group.connection.rounds_through_shm == 20
-        # Every forged notice dropped (the log says so once per 5 s; it is not read here: a
-        # library earlier in the suite may have disabled the project's loggers).
-        assert group.connection.dropped == 40
+        # Nothing of a round went over Zenoh either way: only the four forged frames.
+        assert heard.qsize() == 4 and actions_heard.qsize() == 0
+        assert group.connection.dropped == 4
     finally:
         raw.close()
         remote.close()
         local.close()
+
+
+@pytest.mark.timeout(60)
+def test_an_error_about_a_segment_round_reaches_the_trainer_asleep_on_the_bell(start_server):
+    """What is not a round (an error reply) goes over Zenoh, counted in the segment and rung:
+    a trainer waiting on the bell takes it from Zenoh at once."""
+    server = start_server("shm-error")
+    remote = gym.make(
+        REMOTE_HIGHWAY_ENV_ID,
+        remote=remote_config(server.endpoint, server.name, steps_transport="shm"),
+        overrides=SHORT,
+    )
+    try:
+        group = remote.unwrapped.group
+        remote.reset(seed=1)
+        remote.step(1)
+        # Actions for agents this trainer does not own, through the segment: refused.
+        group.send(np.array([99], dtype=np.int32), np.array([1]))
+        with pytest.raises(errors.BadAction, match="agent ids in group"):
+            group.receive()
+    finally:
+        remote.close()
 
 
 @pytest.mark.timeout(60)

@@ -22,7 +22,7 @@ import gymnasium as gym
 
 from overtake.client.commands import UsageError
 from overtake.client.wire.connection import RemoteConfig
-from overtake.client.wire.shared_steps import Transport
+from overtake.client.wire.shm_channel import Transport
 from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
 from overtake.protocol.faces import VectorFace
 from overtake.protocol.transport import SecurityConfig

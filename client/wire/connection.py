@@ -20,7 +20,7 @@ from typing import Any, TypeVar
 
 import zenoh
 
-from overtake.client.wire.shared_steps import Transport, attach, reads_through, steps_from_notice
+from overtake.client.wire.shm_channel import ShmChannel, Transport, attach, reads_through
 from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import (
     Actions,
@@ -30,9 +30,7 @@ from overtake.protocol.messages import (
     StatusReply,
     StatusRequest,
     Steps,
-    StepsInShm,
 )
-from overtake.protocol.shared_memory import Segment
 from overtake.protocol.transport import (
     DEFAULT_ENDPOINT,
     SecurityConfig,
@@ -78,11 +76,10 @@ class RemoteConfig:
     user, else "trainer". A router that isolates trainers (overtake-router
     --isolate-trainers) lets a user's session use only ids that begin with its user name."""
     steps_transport: Transport = "auto"
-    """How Steps travel: ``auto`` through shared memory where the server is on this host (it
-    offers a segment and this trainer can map it) and the group's Steps are large enough to
-    gain by it (``overtake.client.wire.shared_steps.AUTO_SHM_MIN_BYTES``, 256 KiB: about 32 arenas
-    of min2018 with both sensors), over Zenoh otherwise; ``shm`` shared memory or a clear
-    error; ``zenoh`` always over Zenoh."""
+    """How rounds travel: ``auto`` through shared memory where the server is on this host (it
+    offers a segment and this trainer can map it) and the round is large enough to gain by it
+    (``overtake.client.wire.shm_channel.AUTO_SHM_MIN_BYTES``), over Zenoh otherwise; ``shm``
+    shared memory or a clear error; ``zenoh`` always over Zenoh."""
 
     @classmethod
     def from_connect(cls, connect: str | tuple[str, ...] | list[str] | None) -> RemoteConfig:
@@ -147,10 +144,10 @@ class Connection:
         # The (server, group) pairs this connection steps: anything else that arrives is
         # stale or foreign and is dropped.
         self._stepping: set[tuple[str, int]] = set()
-        # The shared-memory segments of the groups whose Steps come through one.
-        self._segments: dict[tuple[str, int], Segment] = {}
-        self.rounds_through_shm = 0
-        """Steps that came through a shared-memory segment (the rest came over Zenoh)."""
+        # The shared-memory channels of the groups that were offered one (read or not).
+        self._channels: dict[tuple[str, int], ShmChannel] = {}
+        self._reading: set[tuple[str, int]] = set()  # ...and those whose rounds go through it
+        self._rounds_through_closed = 0
         self._servers_lost: set[str] = set()
         # Times each server's token disappeared: a group opened at one count is gone at the
         # next, even if a restarted server of the same name is back by the time we look.
@@ -184,6 +181,8 @@ class Connection:
                 self._servers_lost.add(server)
                 self._server_epoch[server] = self._server_epoch.get(server, 0) + 1
         self._inbox.put(("", b""))  # wake a waiter
+        for channel in tuple(self._channels.values()):
+            channel.wake()  # a waiter asleep on a segment's bell looks at the server too
 
     def server_lost(self, server: str) -> bool:
         with self._lock:
@@ -305,7 +304,17 @@ class Connection:
 
     # --- steps ----------------------------------------------------------------------------
 
+    @property
+    def rounds_through_shm(self) -> int:
+        """Rounds whose Steps came through a shared-memory segment (the rest over Zenoh)."""
+        return self._rounds_through_closed + sum(c.rounds for c in self._channels.values())
+
     def send_actions(self, server: str, actions: Actions) -> None:
+        """A round's Actions: into the group's segment where its rounds go through one (and
+        the bell rung), else over Zenoh."""
+        if (server, actions.group) in self._reading:
+            self._channels[(server, actions.group)].send_actions(actions)
+            return
         pub = self._publishers.get(server)
         if pub is None:
             pub = self._publishers[server] = self.session.declare_publisher(
@@ -340,13 +349,20 @@ class Connection:
                 break
             if key:
                 self._file(key, payload)
-        return self._take(server, group, round_)
+        steps = self._take(server, group, round_)
+        if steps is None and (server, group) in self._reading:
+            steps = self._channels[(server, group)].take(round_)
+        return steps
 
     def next_steps(self, server: str, group: int, round_: int, epoch: int) -> Steps:
-        """Block until the :class:`Steps` of ``group``'s ``round_`` arrive."""
+        """Block until the :class:`Steps` of ``group``'s ``round_`` arrive: over Zenoh, or
+        through the group's segment (asleep on its bell)."""
+        channel = self._channels.get((server, group)) if (server, group) in self._reading else None
         deadline = time.monotonic() + self.config.step_timeout_s
         while True:
             steps = self._take(server, group, round_)
+            if steps is None and channel is not None:
+                steps = channel.take(round_)
             if steps is not None:
                 return steps
             later = self._buffered.get((server, group))
@@ -367,17 +383,23 @@ class Connection:
                     f"within {self.config.step_timeout_s:g} s (the server's step deadline may "
                     "be longer; see RemoteConfig.step_timeout_s)"
                 )
+            if channel is not None and not channel.zenoh_pending() and self._inbox.empty():
+                # Nothing on Zenoh for us: sleep on the segment's bell.
+                channel.wait(min(remaining, 0.5))
+                continue
             try:
                 key, payload = self._inbox.get(timeout=min(remaining, 0.5))
             except queue.Empty:
                 continue
             if key:
                 self._file(key, payload)
+                if channel is not None and channel.zenoh_pending():
+                    channel.took_from_zenoh()
 
     def _file(self, key: str, payload: bytes) -> None:
         sender = key.rsplit("/", 1)[-1]
         try:
-            message = codec.decode(payload, (Steps, StepsInShm))
+            message = codec.decode(payload, Steps)
         except errors.ProtocolError as error:
             self._drop("dropped an unreadable message from server %s: %s", sender, error)
             return
@@ -390,7 +412,7 @@ class Connection:
                 errors.error_from_code(message.code, f"server {sender}: {message.message}")
             )
             return
-        assert isinstance(message, (Steps, StepsInShm))
+        assert isinstance(message, Steps)
         if message.server != sender or (sender, message.group) not in self._stepping:
             self._drop(
                 "dropped steps of group %d from %s on server %s's key",
@@ -399,20 +421,6 @@ class Connection:
                 sender,
             )
             return
-        if isinstance(message, StepsInShm):
-            segment = self._segments.get((sender, message.group))
-            try:
-                if segment is None:
-                    raise errors.DecodeError(
-                        f"a shared-memory notice for group {message.group}, which has no segment"
-                    )
-                message = steps_from_notice(segment, message)
-                self.rounds_through_shm += 1
-            except errors.ProtocolError as error:
-                # Stale or forged (anyone on the network may publish on our key): dropped as an
-                # unreadable frame is; the server's own notice for the round still comes.
-                self._drop("dropped a shared-memory notice from server %s: %s", sender, error)
-                return
         self._buffered.setdefault((sender, message.group), deque()).append(message)
 
     def _drop(self, message: str, *args: Any) -> None:
@@ -438,19 +446,23 @@ class Connection:
         self._stepping.add((server, group))
 
     def attach_segment(self, server: str, group: int, offer: ShmOffer | None) -> bool:
-        """Map the segment ``server`` offered for ``group``; whether its Steps will come
+        """Map the segment ``server`` offered for ``group``; whether its rounds will go
         through it (see :attr:`RemoteConfig.steps_transport`)."""
-        segment = attach(server, offer, self.config.steps_transport)
-        if segment is not None:
-            self._segments[(server, group)] = segment
-        return reads_through(segment, self.config.steps_transport)
+        self._release_segment(server, group)
+        channel = attach(server, group, offer, self.config.steps_transport)
+        if channel is not None:
+            self._channels[(server, group)] = channel
+        reads = reads_through(channel, self.config.steps_transport)
+        if reads:
+            self._reading.add((server, group))
+        return reads
 
     def _release_segment(self, server: str, group: int) -> None:
-        segment = self._segments.pop((server, group), None)
-        if segment is not None:
-            if self.server_lost(server):
-                segment.unlink()  # its server cannot any more
-            segment.close()
+        self._reading.discard((server, group))
+        channel = self._channels.pop((server, group), None)
+        if channel is not None:
+            self._rounds_through_closed += channel.rounds
+            channel.close(unlink=self.server_lost(server))  # its server cannot any more
 
     def forget(self, server: str, group: int) -> None:
         self._release_segment(server, group)
@@ -462,7 +474,7 @@ class Connection:
         if self.closed:
             return
         self.closed = True
-        for server, group in list(self._segments):
+        for server, group in list(self._channels):
             self._release_segment(server, group)
         # What went with the session already needs no undeclaring.
         declared: tuple[Any, ...] = (

@@ -62,7 +62,8 @@ class ArenaGroup:
     server_minor: int = 2
     """The server's minor protocol version (Opened.server_minor; a 1.2 server says none)."""
     shm: bool = False
-    """Steps come through the server's shared-memory segment (protocol 1.6), not Zenoh."""
+    """Rounds go through the server's shared-memory segment with its doorbell (protocol
+    1.7), not over Zenoh."""
     trainer_step: int = -1
     """Sent with every Actions (-1: not given): the trainer's step count, which the server
     repeats in its world frames so that recordings of the road share the trainer's timeline."""
@@ -200,7 +201,6 @@ class ArenaGroup:
                         actions=np.asarray(actions, dtype=np.int64),
                         trainer_step=self.trainer_step,
                         retire=np.asarray(retire, dtype=np.int32) if len(retire) else None,
-                        shm=self.shm,
                     ),
                 )
         except errors.ServerLost as error:

@@ -1,0 +1,161 @@
+"""Rounds through shared memory (protocol 1.7, :mod:`overtake.protocol.shared_memory`): for a
+trainer on this host that holds its group alone, the server writes each round's Steps into a
+segment and rings the Steps bell; the trainer writes its Actions there and rings the Actions
+bell, which a thread of this channel sleeps on and turns into an inbox event for the loop.
+No round crosses Zenoh; what is not a round (an error) does, counted in the segment's header
+and rung, so that the trainer looks for it.
+
+A shared group steps on a deadline, which could overwrite a round a member is still reading,
+so only a group's sole member is offered a channel.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable
+
+import numpy as np
+
+from overtake.protocol.messages import Actions, Message, ShmArray, ShmOffer, Steps
+from overtake.protocol.shared_memory import (
+    ACTIONS_BELL_OFFSET,
+    STEPS_BELL_OFFSET,
+    Place,
+    Segment,
+    channel_plan,
+)
+from overtake.protocol.shm_messages import OBSERVATION_PREFIX, STEPS_ARRAYS
+
+from .zenoh_channel import ZenohChannel
+
+log = logging.getLogger("overtake.server")
+
+# The bell thread looks at its stop flag at least this often (a close also wakes it at once).
+BELL_SLICE_S = 0.5
+
+
+def steps_arrays(steps: Steps) -> dict[str, np.ndarray]:
+    """A Steps' arrays by the names a layout gives them."""
+    arrays = {name: getattr(steps, name) for name in STEPS_ARRAYS}
+    arrays.update({OBSERVATION_PREFIX + k: v for k, v in steps.observations.items()})
+    return arrays
+
+
+class ShmChannel:
+    """One member's segment, its layout, and the thread that hears its Actions bell.
+
+    ``on_ring(trainer, group)`` is called on that thread when the trainer rings (it should
+    only enqueue); the loop then takes the Actions with :meth:`actions`."""
+
+    def __init__(
+        self,
+        segment: Segment,
+        places: list[Place],
+        trainer: str,
+        group: int,
+        ticket: bytes,
+        fallback: ZenohChannel,
+        on_ring: Callable[[str, int], None],
+    ) -> None:
+        self.segment, self.trainer, self.group, self.ticket = segment, trainer, group, ticket
+        self._fallback = fallback
+        self._places = places
+        segment.lay_out(places)
+        self.reads: bool | None = None
+        """whether the trainer reads the segment (None: it has not said yet)"""
+        self.rounds_sent = 0
+        self._steps_bell = segment.bell(STEPS_BELL_OFFSET)
+        self._actions_bell = segment.bell(ACTIONS_BELL_OFFSET)
+        self._closed = threading.Event()
+        self._on_ring = on_ring
+        self._thread = threading.Thread(
+            target=self._listen, name=f"overtake-bell-{group}", daemon=True
+        )
+        self._thread.start()
+
+    @classmethod
+    def create(
+        cls,
+        current: Steps,
+        trainer: str,
+        ticket: bytes,
+        fallback: ZenohChannel,
+        on_ring: Callable[[str, int], None],
+    ) -> ShmChannel:
+        """A channel sized for ``current`` (the member's Steps as they are); OSError where
+        no segment can be made."""
+        places, size = channel_plan(current.agents.size, steps_arrays(current))
+        segment = Segment.create(size)
+        try:
+            return cls(segment, places, trainer, current.group, ticket, fallback, on_ring)
+        except BaseException:
+            segment.unlink()
+            segment.close()
+            raise
+
+    def offer(self) -> ShmOffer:
+        return ShmOffer(
+            name=self.segment.name,
+            nonce=self.segment.nonce,
+            size_bytes=self.segment.size,
+            layout=tuple(
+                ShmArray.trusted(name=n, offset=o, dtype=d, shape=s) for n, o, d, s in self._places
+            ),
+        )
+
+    def _listen(self) -> None:
+        bell = self._actions_bell
+        seen = bell.value
+        while not self._closed.is_set():
+            value = bell.wait(seen, BELL_SLICE_S)
+            if value != seen and not self._closed.is_set():
+                seen = value
+                self._on_ring(self.trainer, self.group)
+
+    def said(self, reads: bool) -> None:
+        """The trainer said whether it reads the segment: its Actions came through it, or over
+        Zenoh. Either way the name goes (it was only for finding the segment), so nothing is
+        left in /dev/shm however either side ends, SIGKILL included."""
+        self.reads = reads
+        self.segment.unlink()
+
+    def actions(self) -> Actions:
+        """The Actions the trainer wrote, checked as a decoded frame is
+        (:class:`~overtake.protocol.errors.DecodeError` where they are malformed)."""
+        round_, trainer_step, agents, actions, retire = self.segment.read_actions()
+        if not self.reads:
+            self.said(True)
+        return Actions(
+            trainer=self.trainer,
+            ticket=self.ticket,
+            group=self.group,
+            round=round_,
+            agents=agents,
+            actions=actions,
+            trainer_step=trainer_step,
+            retire=retire if retire.size else None,
+        )
+
+    def send_steps(self, steps: Steps) -> None:
+        if self.reads and self.segment.write_steps(steps.round, steps_arrays(steps)):
+            self.rounds_sent += 1
+            self._steps_bell.ring()
+            return
+        self.send(steps)  # the trainer has not said it reads, or the round does not fit
+
+    def send(self, message: Message) -> None:
+        self._fallback.send(message)
+        if not self._closed.is_set():
+            self.segment.count_zenoh_sent()
+            self._steps_bell.ring()
+
+    def close(self) -> None:
+        """Stop the bell thread, then remove and unmap the segment (idempotent)."""
+        if self._closed.is_set():
+            return
+        self._closed.set()
+        self._actions_bell.wake()
+        self._thread.join()
+        self.segment.unlink()
+        self.segment.close()
