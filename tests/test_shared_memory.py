@@ -19,8 +19,8 @@ import pytest
 
 import overtake.client  # noqa: F401  (registers the environments)
 from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, codec, errors
-from overtake.protocol.errors import DecodeError
 from overtake.protocol.doorbell import AVAILABLE as DOORBELL_AVAILABLE
+from overtake.protocol.errors import DecodeError
 from overtake.protocol.messages import ShmArray, ShmOffer, Steps
 from overtake.protocol.shared_memory import (
     ACTION_ARRAYS,
@@ -177,11 +177,10 @@ def _ring_back(name: str, nonce: bytes, size: int, rounds: int) -> None:
     counting the rounds in the actions' round field."""
     segment = Segment.attach(name, nonce, size)
     steps_bell, actions_bell = segment.bell(STEPS_BELL_OFFSET), segment.bell(ACTIONS_BELL_OFFSET)
-    seen = 0  # not its value now: the first ring may have come before this process looked
-    for _ in range(rounds):
+    # Counted from 0, not from its value now: the first ring may come before this one looks.
+    for seen in range(rounds):
         while steps_bell.value == seen:
             steps_bell.wait(seen, 5.0)
-        seen += 1
         actions_bell.ring()
     segment.close()
 
@@ -193,8 +192,9 @@ def test_the_doorbell_wakes_another_process_and_times_out_without_a_ring():
 
     segment = Segment.create(HEADER_BYTES)
     try:
-        steps_bell, actions_bell = segment.bell(STEPS_BELL_OFFSET), segment.bell(
-            ACTIONS_BELL_OFFSET
+        steps_bell, actions_bell = (
+            segment.bell(STEPS_BELL_OFFSET),
+            segment.bell(ACTIONS_BELL_OFFSET),
         )
         # Nobody rings: the wait ends at its timeout with the value it was given.
         started = time.monotonic()
@@ -248,7 +248,9 @@ def test_the_offer_decodes_and_refuses_what_it_must():
     with pytest.raises(DecodeError, match="missing \\['metrics'\\]"):
         ShmOffer(name="overtake-1-ab", nonce=bytes(16), size_bytes=4096, layout=layout[:-1])
     with pytest.raises(DecodeError, match="missing \\['actions/retire'\\]"):
-        ShmOffer(name="overtake-1-ab", nonce=bytes(16), size_bytes=4096, layout=layout[:2] + layout[3:])
+        ShmOffer(
+            name="overtake-1-ab", nonce=bytes(16), size_bytes=4096, layout=layout[:2] + layout[3:]
+        )
     with pytest.raises(DecodeError, match="array name must be one of"):
         ShmArray(name="secret", offset=128, dtype="int8", shape=(1,))
     with pytest.raises(DecodeError, match="offset must be from 128"):
