@@ -9,6 +9,14 @@ file descriptor to pass and no name to clean up: the word lives in the segment, 
 kernel keys its waiters by the page, so two processes mapping the segment meet on it. The
 call goes through ctypes, which releases the GIL while the process sleeps.
 
+A waiter may spin first (``spin_s``), yielding the core at every look (``sched_yield``, which
+also lets the process's other threads take the GIL), and sleeps only when that time is up.
+Measured on this project's 2-core VM: a process that slept between two rounds computes the
+next one about 45% slower than one that did not (min2018, one arena: 1.17 against 0.80 ms for
+the same simulation step), as a sleeping virtual CPU loses its caches; a short spin keeps the
+CPU warm across a lock-step round trip, and a spinner that yields cannot hold a core another
+process needs (the unbounded spin that measured a 16 ms worst case did not yield).
+
 Each word has one writer (the server rings the Steps bell, the trainer the Actions bell), so
 a plain increment is enough; a waiter compares the word with the value it last saw, and the
 kernel checks that comparison again atomically before it sleeps, so no ring is lost between
@@ -25,8 +33,10 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import mmap
+import os
 import platform
 import sys
+import time
 
 import numpy as np
 
@@ -92,12 +102,22 @@ class Bell:
         assert _CALL is not None
         _CALL(_SYS_FUTEX, self._address, _FUTEX_WAKE, _WAKE_ALL, None, None, 0)
 
-    def wait(self, seen: int, timeout_s: float) -> int:
-        """Sleep while the bell still shows ``seen``, at most ``timeout_s``; its value now
-        (``seen`` again after a timeout, an interrupt, or a :meth:`wake` without a ring)."""
+    def wait(self, seen: int, timeout_s: float, spin_s: float = 0.0) -> int:
+        """Wait while the bell still shows ``seen``, at most ``timeout_s``: spinning (and
+        yielding) for the first ``spin_s`` of it, then asleep. Its value now (``seen`` again
+        after a timeout, an interrupt, or a :meth:`wake` without a ring)."""
         assert _CALL is not None and self._word is not None, "the bell was released"
-        if int(self._word[0]) != seen:
-            return int(self._word[0])
+        word = self._word
+        if int(word[0]) != seen:
+            return int(word[0])
+        if spin_s > 0:
+            started = time.perf_counter()
+            spin_s = min(spin_s, timeout_s)
+            while time.perf_counter() - started < spin_s:
+                os.sched_yield()
+                if int(word[0]) != seen:
+                    return int(word[0])
+            timeout_s -= spin_s
         timeout_s = max(timeout_s, 0.0)
         whole = int(timeout_s)
         span = _Timespec(whole, int((timeout_s - whole) * 1e9))

@@ -173,6 +173,10 @@ class Inbox:
         self._taken(event)
         return event
 
+    def empty(self) -> bool:
+        """Whether nothing waits (without waiting)."""
+        return self._events.empty()
+
     def backlog(self) -> Backlog:
         with self._lock:
             return Backlog(

@@ -79,6 +79,14 @@ class Outbox:
         """``trainer``'s shared-memory channel of ``group``, if it has one."""
         return self._shm.get((trainer, group))
 
+    def rung(self) -> list[ShmChannel]:
+        """The shared-memory channels whose trainer rang since the loop took its Actions."""
+        return [channel for channel in self._shm.values() if channel.rung()]
+
+    @property
+    def has_segments(self) -> bool:
+        return bool(self._shm)
+
     def actions_over_zenoh(self, trainer: str, group: int) -> None:
         """``trainer``'s Actions for ``group`` came over Zenoh: it does not read the segment
         (it chose Zenoh, could not map it, or speaks 1.6), so the segment goes."""

@@ -49,7 +49,12 @@ class ServerConfig:
     1 steps one group at a time."""
     shared_memory: bool = True
     """Offer a trainer that asks (one on this host, --transport auto or shm) a shared-memory
-    segment for its Steps; --no-shared-memory sends every Steps over Zenoh."""
+    channel for its rounds; --no-shared-memory sends every round over Zenoh."""
+    spin_s: float = 0.002
+    """With trainers on the shared-memory channel, how long the loop waits for their next
+    Actions spinning (yielding the core at every look) before it sleeps: a process that sleeps
+    between rounds computes the next one slower on a virtual machine
+    (overtake.protocol.doorbell). 0: always sleep."""
     lease_s: float = 3.0
     """Trainers notice within this that this server's host vanished (a trainer's own lease,
     RemoteConfig.lease_s, bounds how soon its arenas are freed when its host vanishes)."""

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import signal
 import sys
 import threading
@@ -173,9 +174,30 @@ class SimulatorServer:
                 if ready:
                     self._step_groups(ready)
                     continue
+                if self._spin():
+                    continue
                 self._handle(self.inbox.take(self._next_timeout()) or WAKE)
         finally:
             self.close()
+
+    def _spin(self) -> bool:
+        """With trainers on the shared-memory channel, wait up to ``spin_s`` for an event or a
+        ring, yielding the core at every look (``overtake.protocol.doorbell`` says why);
+        whether something came. A ring is handled here, not through the bell's thread."""
+        spin_s = self.config.spin_s
+        if spin_s <= 0 or not self.outbox.has_segments:
+            return False
+        started = time.perf_counter()
+        while time.perf_counter() - started < spin_s and not self._stopping.is_set():
+            if not self.inbox.empty():
+                return True
+            rung = self.outbox.rung()
+            if rung:
+                for channel in rung:
+                    self._on_ring(channel.trainer, channel.group)
+                return True
+            os.sched_yield()
+        return False
 
     def close(self) -> None:
         # Whatever is already gone with the session needs no undeclaring.
@@ -342,8 +364,8 @@ class SimulatorServer:
     def _on_ring(self, trainer: str, group: int) -> None:
         """``trainer`` wrote its Actions for ``group`` into its segment and rang."""
         channel = self.outbox.segment_channel(trainer, group)
-        if channel is None:
-            return  # the segment closed since the ring (the trainer left)
+        if channel is None or not channel.rung():
+            return  # the segment closed since (the trainer left), or the loop took them
         try:
             actions = channel.actions()
         except errors.ProtocolError as error:

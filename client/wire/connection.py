@@ -80,6 +80,10 @@ class RemoteConfig:
     offers a segment and this trainer can map it) and the round is large enough to gain by it
     (``overtake.client.wire.shm_channel.AUTO_SHM_MIN_BYTES``), over Zenoh otherwise; ``shm``
     shared memory or a clear error; ``zenoh`` always over Zenoh."""
+    spin_s: float = 0.002
+    """Through shared memory, how long to wait for a round spinning (yielding the core at
+    every look) before sleeping on the doorbell: a process that sleeps between rounds computes
+    the next one slower on a virtual machine (overtake.protocol.doorbell). 0: always sleep."""
 
     @classmethod
     def from_connect(cls, connect: str | tuple[str, ...] | list[str] | None) -> RemoteConfig:
@@ -385,7 +389,7 @@ class Connection:
                 )
             if channel is not None and not channel.zenoh_pending() and self._inbox.empty():
                 # Nothing on Zenoh for us: sleep on the segment's bell.
-                channel.wait(min(remaining, 0.5))
+                channel.wait(min(remaining, 0.5), self.config.spin_s)
                 continue
             try:
                 key, payload = self._inbox.get(timeout=min(remaining, 0.5))

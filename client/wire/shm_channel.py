@@ -95,10 +95,11 @@ class ShmChannel:
     def took_from_zenoh(self) -> None:
         self.zenoh_seen = (self.zenoh_seen + 1) & 0xFFFFFFFF
 
-    def wait(self, timeout_s: float) -> None:
-        """Sleep until the server rings (a round written or a message sent over Zenoh), a
-        :meth:`wake`, or ``timeout_s``."""
-        self._bell_seen = self._steps_bell.wait(self._bell_seen, timeout_s)
+    def wait(self, timeout_s: float, spin_s: float = 0.0) -> None:
+        """Wait until the server rings (a round written or a message sent over Zenoh), a
+        :meth:`wake`, or ``timeout_s``, spinning for the first ``spin_s`` of it
+        (:meth:`overtake.protocol.doorbell.Bell.wait`)."""
+        self._bell_seen = self._steps_bell.wait(self._bell_seen, timeout_s, spin_s)
 
     def wake(self) -> None:
         """End a :meth:`wait` (the server's token went: the waiter looks at it)."""

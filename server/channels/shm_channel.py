@@ -65,6 +65,8 @@ class ShmChannel:
         self.reads: bool | None = None
         """whether the trainer reads the segment (None: it has not said yet)"""
         self.rounds_sent = 0
+        self.handled = 0
+        """the Actions bell's value when the loop last took the Actions"""
         self._steps_bell = segment.bell(STEPS_BELL_OFFSET)
         self._actions_bell = segment.bell(ACTIONS_BELL_OFFSET)
         self._closed = threading.Event()
@@ -111,7 +113,12 @@ class ShmChannel:
             value = bell.wait(seen, BELL_SLICE_S)
             if value != seen and not self._closed.is_set():
                 seen = value
-                self._on_ring(self.trainer, self.group)
+                if value != self.handled:  # the loop did not take them while it spun
+                    self._on_ring(self.trainer, self.group)
+
+    def rung(self) -> bool:
+        """Whether the trainer rang since the loop last took its Actions."""
+        return not self._closed.is_set() and self._actions_bell.value != self.handled
 
     def said(self, reads: bool) -> None:
         """The trainer said whether it reads the segment: its Actions came through it, or over
@@ -123,6 +130,7 @@ class ShmChannel:
     def actions(self) -> Actions:
         """The Actions the trainer wrote, checked as a decoded frame is
         (:class:`~overtake.protocol.errors.DecodeError` where they are malformed)."""
+        self.handled = self._actions_bell.value
         round_, trainer_step, agents, actions, retire = self.segment.read_actions()
         if not self.reads:
             self.said(True)
