@@ -20,7 +20,7 @@ from typing import Any, TypeVar
 
 import zenoh
 
-from overtake.client.wire.shm_channel import ShmChannel, Transport, attach, reads_through
+from overtake.client.wire.shm_channel import ShmChannel, Transport, attach
 from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import (
     Actions,
@@ -77,9 +77,8 @@ class RemoteConfig:
     --isolate-trainers) lets a user's session use only ids that begin with its user name."""
     steps_transport: Transport = "auto"
     """How rounds travel: ``auto`` through shared memory where the server is on this host (it
-    offers a segment and this trainer can map it) and the round is large enough to gain by it
-    (``overtake.client.wire.shm_channel.AUTO_SHM_MIN_BYTES``), over Zenoh otherwise; ``shm``
-    shared memory or a clear error; ``zenoh`` always over Zenoh."""
+    offers a segment and this trainer can map it), over Zenoh otherwise; ``shm`` shared memory
+    or a clear error; ``zenoh`` always over Zenoh (overtake.client.wire.shm_channel)."""
     spin_s: float = 0.002
     """Through shared memory, how long to wait for a round spinning (yielding the core at
     every look) before sleeping on the doorbell: a process that sleeps between rounds computes
@@ -148,9 +147,8 @@ class Connection:
         # The (server, group) pairs this connection steps: anything else that arrives is
         # stale or foreign and is dropped.
         self._stepping: set[tuple[str, int]] = set()
-        # The shared-memory channels of the groups that were offered one (read or not).
+        # The shared-memory channels of the groups whose rounds go through one.
         self._channels: dict[tuple[str, int], ShmChannel] = {}
-        self._reading: set[tuple[str, int]] = set()  # ...and those whose rounds go through it
         self._rounds_through_closed = 0
         self._servers_lost: set[str] = set()
         # Times each server's token disappeared: a group opened at one count is gone at the
@@ -316,8 +314,9 @@ class Connection:
     def send_actions(self, server: str, actions: Actions) -> None:
         """A round's Actions: into the group's segment where its rounds go through one (and
         the bell rung), else over Zenoh."""
-        if (server, actions.group) in self._reading:
-            self._channels[(server, actions.group)].send_actions(actions)
+        channel = self._channels.get((server, actions.group))
+        if channel is not None:
+            channel.send_actions(actions)
             return
         pub = self._publishers.get(server)
         if pub is None:
@@ -354,14 +353,15 @@ class Connection:
             if key:
                 self._file(key, payload)
         steps = self._take(server, group, round_)
-        if steps is None and (server, group) in self._reading:
-            steps = self._channels[(server, group)].take(round_)
+        channel = self._channels.get((server, group))
+        if steps is None and channel is not None:
+            steps = channel.take(round_)
         return steps
 
     def next_steps(self, server: str, group: int, round_: int, epoch: int) -> Steps:
         """Block until the :class:`Steps` of ``group``'s ``round_`` arrive: over Zenoh, or
         through the group's segment (asleep on its bell)."""
-        channel = self._channels.get((server, group)) if (server, group) in self._reading else None
+        channel = self._channels.get((server, group))
         deadline = time.monotonic() + self.config.step_timeout_s
         while True:
             steps = self._take(server, group, round_)
@@ -456,13 +456,9 @@ class Connection:
         channel = attach(server, group, offer, self.config.steps_transport)
         if channel is not None:
             self._channels[(server, group)] = channel
-        reads = reads_through(channel, self.config.steps_transport)
-        if reads:
-            self._reading.add((server, group))
-        return reads
+        return channel is not None
 
     def _release_segment(self, server: str, group: int) -> None:
-        self._reading.discard((server, group))
         channel = self._channels.pop((server, group), None)
         if channel is not None:
             self._rounds_through_closed += channel.rounds

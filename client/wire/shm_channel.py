@@ -27,13 +27,10 @@ log = logging.getLogger("overtake.client")
 Transport = Literal["auto", "shm", "zenoh"]
 """How a trainer's rounds travel: ``shm`` through shared memory (the server must be on this
 host, sharing its ``/dev/shm``), ``zenoh`` always over Zenoh, ``auto`` through shared memory
-where the server's segment can be attached and the round is large enough to gain by it
-(:data:`AUTO_SHM_MIN_BYTES`), over Zenoh otherwise."""
-
-# ``auto`` takes the segment from this size on. With the doorbell a round through the segment
-# sends no Zenoh message at all, so it gains at every size measured (bench/RESULTS.md,
-# issue 47: 1 to 64 arenas of min2018).
-AUTO_SHM_MIN_BYTES = 0
+wherever the server's segment can be attached, over Zenoh otherwise. With the doorbell a round
+through the segment sends no Zenoh message at all, and it gains at every size measured
+(bench/RESULTS.md, issue 47: 1, 8 and 64 arenas of min2018), so ``auto`` no longer looks at the
+size as protocol 1.6's notice path had to (256 KiB)."""
 _EMPTY = np.zeros(0, dtype=np.int32)
 
 
@@ -158,13 +155,3 @@ def attach(
             "server %s is not on this host's shared memory (%s): rounds over Zenoh", server, error
         )
         return None
-
-
-def reads_through(channel: ShmChannel | None, transport: Transport) -> bool:
-    """Whether rounds go through ``channel`` (an attached one): always with ``shm``, with
-    ``auto`` where the segment is large enough to gain (:data:`AUTO_SHM_MIN_BYTES`). A
-    channel attached but not read is kept all the same: a trainer that finds its server dead
-    removes its segment."""
-    if channel is None:
-        return False
-    return transport == "shm" or channel.segment.size >= AUTO_SHM_MIN_BYTES
