@@ -1,6 +1,6 @@
 """``python -m overtake.server``: the same as ``overtake-server``."""
 
-from .service import cli
+from .cli import cli
 
 if __name__ == "__main__":
     cli()

@@ -12,8 +12,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
-import signal
-import sys
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -41,12 +39,9 @@ from overtake.protocol.messages import (
 from overtake.protocol.shared_memory import sweep_orphans
 from overtake.protocol.transport import (
     open_session,
-    warn_if_unconnected,
-    warn_if_unguarded,
 )
 
 from .arenas import ArenaRegistry, ready_to_step
-from .errors import StartError
 from .groups import Group
 from .inbox import (
     MAX_EVENTS_PER_PASS,
@@ -474,51 +469,3 @@ class SimulatorServer:
         self.outbox.forget_member(group.group_id, trainer)
         if self.arenas.leave(group, trainer, why):
             self.outbox.forget_group(group)
-
-
-def main(config: ServerConfig) -> None:
-    """Run a server until SIGINT or SIGTERM."""
-    logging.basicConfig(
-        level=config.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s"
-    )
-    zenoh.init_log_from_env_or("error")
-    try:
-        server = SimulatorServer(config)
-    except zenoh.ZError as error:
-        raise StartError(
-            f"could not open the Zenoh session ({config.transport().describe()}): "
-            f"{error}. Is the port in use, or the router unreachable?"
-        ) from None
-    except (RuntimeError, errors.ProtocolError) as error:
-        raise StartError(str(error)) from None
-    warn_if_unconnected(server.session, config.transport(), log)
-    warn_if_unguarded(config.transport(), log)
-
-    def on_signal(signum: int, _frame: Any) -> None:
-        log.info("received %s, shutting down", signal.Signals(signum).name)
-        server.stop()
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
-    server.serve()
-
-
-def parse_args(argv: list[str] | None = None) -> ServerConfig:
-    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
-    ``cli`` runs, and what the documentation's checks parse its commands with."""
-    import tyro
-
-    return tyro.cli(
-        ServerConfig,
-        args=argv,
-        config=(tyro.conf.OmitArgPrefixes,),
-        description="overtake-server: the highway simulator, served to trainers over Zenoh",
-    )
-
-
-def cli(argv: list[str] | None = None) -> None:
-    config = parse_args(argv)
-    try:
-        main(config)
-    except StartError as error:
-        sys.exit(f"overtake-server: {error}")

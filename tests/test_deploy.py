@@ -751,12 +751,15 @@ def test_isolated_trainers_reach_only_their_own_arenas(tmp_path: Path, backgroun
         return SecurityConfig(user=user, password_file=passwords[user])
 
     def remote(user: str) -> RemoteConfig:
+        # Over Zenoh: what is tested is what the router lets cross it. On the server's host
+        # the trainers would otherwise step through shared memory, and no round would cross.
         return RemoteConfig(
             connect=(endpoint,),
             connect_timeout_s=10.0,
             request_timeout_s=5.0,
             step_timeout_s=20.0,
             security=security(user),
+            steps_transport="zenoh",
         )
 
     def seen_by_bob() -> tuple[set[str], int]:

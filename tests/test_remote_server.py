@@ -38,8 +38,9 @@ from overtake.protocol.messages import (
     StatusRequest,
     WorldFrame,
 )
+from overtake.server.cli import main
 from overtake.server.errors import StartError
-from overtake.server.service import ServerConfig, main
+from overtake.server.service import ServerConfig
 
 from remote_support import (
     RawClient,

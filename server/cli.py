@@ -1,0 +1,67 @@
+"""``overtake-server``: the command line (``parse_args``) and the run it starts (``main``)."""
+
+from __future__ import annotations
+
+import logging
+import signal
+import sys
+from typing import Any
+
+import zenoh
+
+from overtake.protocol import errors
+from overtake.protocol.transport import warn_if_unconnected, warn_if_unguarded
+
+from .errors import StartError
+from .server_config import ServerConfig
+from .service import SimulatorServer
+
+log = logging.getLogger("overtake.server")
+
+
+def main(config: ServerConfig) -> None:
+    """Run a server until SIGINT or SIGTERM."""
+    logging.basicConfig(
+        level=config.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
+    zenoh.init_log_from_env_or("error")
+    try:
+        server = SimulatorServer(config)
+    except zenoh.ZError as error:
+        raise StartError(
+            f"could not open the Zenoh session ({config.transport().describe()}): "
+            f"{error}. Is the port in use, or the router unreachable?"
+        ) from None
+    except (RuntimeError, errors.ProtocolError) as error:
+        raise StartError(str(error)) from None
+    warn_if_unconnected(server.session, config.transport(), log)
+    warn_if_unguarded(config.transport(), log)
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        log.info("received %s, shutting down", signal.Signals(signum).name)
+        server.stop()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    server.serve()
+
+
+def parse_args(argv: list[str] | None = None) -> ServerConfig:
+    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
+    ``cli`` runs, and what the documentation's checks parse its commands with."""
+    import tyro
+
+    return tyro.cli(
+        ServerConfig,
+        args=argv,
+        config=(tyro.conf.OmitArgPrefixes,),
+        description="overtake-server: the highway simulator, served to trainers over Zenoh",
+    )
+
+
+def cli(argv: list[str] | None = None) -> None:
+    config = parse_args(argv)
+    try:
+        main(config)
+    except StartError as error:
+        sys.exit(f"overtake-server: {error}")
