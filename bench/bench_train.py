@@ -53,6 +53,9 @@ class TrainBenchConfig:
     runs in the first"""
     device: str = "cpu"
     """overtake-train --device"""
+    spin_s: float = 0.002
+    """the shared-memory channel's spin before sleeping, on both sides (overtake-server
+    --spin-s, overtake-train --spin-s)"""
     json: Path | None = None
 
 
@@ -84,6 +87,7 @@ def run_once(
             seed=0,
             run_dir=run_dir,
             connect=connect,
+            spin_s=config.spin_s,
             overlap="on" if overlap_parts > 0 else "off",
             overlap_parts=max(overlap_parts, 1),
             progress=False,
@@ -137,7 +141,7 @@ def main(config: TrainBenchConfig) -> dict[str, Any]:
 
     assert get_args(Precision) == get_args(learner.Precision), "Precision out of date"
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    server = start_server(endpoint, 60.0)
+    server = start_server(endpoint, 60.0, ("--spin-s", str(config.spin_s)))
     results = []
     try:
         with tempfile.TemporaryDirectory() as tmp:

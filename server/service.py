@@ -59,6 +59,9 @@ from .server_config import ServerConfig
 
 log = logging.getLogger("overtake.server")
 
+# The weight of the latest round in the average time trainers take to answer one (_spin).
+ANSWER_AVERAGE_WEIGHT = 0.2
+
 
 def _package_version() -> str:
     try:
@@ -89,6 +92,10 @@ class SimulatorServer:
         self.outbox = Outbox(self.session, self.name, config.world_rate_hz, self.inbox.on_ring)
         self._pool: ThreadPoolExecutor | None = None
         self.parallel_passes = 0
+        # How long trainers on the shared-memory channel have been taking to answer a round
+        # (an average): the loop spins only while it is within spin_s (see _spin).
+        self._answer_s = 0.0
+        self._round_sent = time.perf_counter()
         """Passes that stepped several groups at once (on the stepping threads)."""
         if config.shared_memory:
             swept = sweep_orphans()
@@ -176,11 +183,14 @@ class SimulatorServer:
             self.close()
 
     def _spin(self) -> bool:
-        """With trainers on the shared-memory channel, wait up to ``spin_s`` for an event or a
-        ring, yielding the core at every look (``overtake.protocol.doorbell`` says why);
-        whether something came. A ring is handled here, not through the bell's thread."""
+        """With trainers on the shared-memory channel answering within ``spin_s`` on average,
+        wait up to ``spin_s`` for an event or a ring, yielding the core at every look
+        (``overtake.protocol.doorbell`` says why); whether something came. A ring is handled
+        here, not through the bell's thread. Trainers that take longer (a learner updating
+        between rounds) are not spun for: the spin would take a core their update uses
+        (bench/RESULTS.md, issue 47)."""
         spin_s = self.config.spin_s
-        if spin_s <= 0 or not self.outbox.has_segments:
+        if spin_s <= 0 or not self.outbox.has_segments or self._answer_s > spin_s:
             return False
         started = time.perf_counter()
         while time.perf_counter() - started < spin_s and not self._stopping.is_set():
@@ -361,6 +371,8 @@ class SimulatorServer:
         channel = self.outbox.segment_channel(trainer, group)
         if channel is None or not channel.rung():
             return  # the segment closed since (the trainer left), or the loop took them
+        answer_s = time.perf_counter() - self._round_sent
+        self._answer_s += ANSWER_AVERAGE_WEIGHT * (answer_s - self._answer_s)
         try:
             actions = channel.actions()
         except errors.ProtocolError as error:
@@ -398,6 +410,7 @@ class SimulatorServer:
         nothing touches a group while a thread steps it."""
         if len(groups) == 1:
             self._step_group(groups[0], groups[0].step)
+            self._round_sent = time.perf_counter()
             return
         if self._pool is None:
             self._pool = ThreadPoolExecutor(self.config.step_threads, "overtake-step")
@@ -405,6 +418,7 @@ class SimulatorServer:
         stepping = [self._pool.submit(group.step) for group in groups]
         for group, future in zip(groups, stepping, strict=True):
             self._step_group(group, future.result)  # re-raises the step's failure here
+        self._round_sent = time.perf_counter()
 
     def _step_group(self, group: Group, step: Callable[[], Mapping[str, Message]]) -> None:
         """Take ``group``'s round from ``step`` (its step, or a stepping thread's result),

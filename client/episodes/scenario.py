@@ -58,6 +58,10 @@ class Where:
     transport: Transport = "auto"
     """how a server's Steps reach this process (--connect): auto (shared memory where the
     server is on this host, Zenoh otherwise), shm (shared memory or an error), zenoh"""
+    spin_s: float = 0.002
+    """through shared memory, how long to wait for a round spinning (yielding the core) before
+    sleeping: a process that sleeps between rounds computes the next one slower on a virtual
+    machine (RemoteConfig.spin_s); 0 always sleeps"""
 
     def where(self) -> Where:
         """Only where the simulator is (a command's configuration is also one)."""
@@ -91,6 +95,7 @@ class Where:
                 connect=(self.connect,),
                 security=self.security,
                 steps_transport=self.transport,
+                spin_s=self.spin_s,
             )
             envs = gym.make_vec(
                 REMOTE_HIGHWAY_ENV_ID,
