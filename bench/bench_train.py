@@ -13,7 +13,7 @@ half's Steps, replay = storing, update = sampling and gradient steps); the lock-
 share is simulation plus transport, and its transport part is estimated as remote env time
 minus in-process env time per step.
 
-    .venv/bin/python -m bench.bench_train [--steps 2000] [--json PATH]
+    .venv/bin/python -m bench.bench_train [--steps 2000] [--rounds 1] [--json PATH]
 """
 
 from __future__ import annotations
@@ -56,6 +56,10 @@ class TrainBenchConfig:
     spin_s: float = 0.002
     """the shared-memory channel's spin before sleeping, on both sides (overtake-server
     --spin-s, overtake-train --spin-s)"""
+    rounds: int = 1
+    """every run this many times, in-process and remote alternating which goes first, so that
+    the machine's drift between runs falls on both alike; ratios are of the means, and each
+    round's own ratios are printed too"""
     json: Path | None = None
 
 
@@ -145,30 +149,29 @@ def main(config: TrainBenchConfig) -> dict[str, Any]:
     results = []
     try:
         with tempfile.TemporaryDirectory() as tmp:
-            for inputs in config.inputs:
-                for index, precision in enumerate(config.precisions):
-                    results.append(
-                        run_once(
+            for round_ in range(config.rounds):
+                for inputs in config.inputs:
+                    runs = [
+                        (None, 0, index, precision)
+                        for index, precision in enumerate(config.precisions)
+                    ] + [(endpoint, parts, 0, config.precisions[0]) for parts in config.parts]
+                    if round_ % 2:
+                        runs.reverse()
+                    for connect, parts, index, precision in runs:
+                        if connect is None:
+                            name = f"{inputs}-inproc-{index}-{precision}-{round_}"
+                        else:
+                            name = f"{inputs}-{f'overlap{parts}' if parts else 'lockstep'}-{round_}"
+                        result = run_once(
                             config,
                             inputs,
-                            None,
-                            Path(tmp) / f"{inputs}-inproc-{index}-{precision}",
-                            overlap_parts=0,
+                            connect,
+                            Path(tmp) / name,
+                            overlap_parts=parts,
                             precision=precision,
                         )
-                    )
-                for parts in config.parts:
-                    where = f"overlap{parts}" if parts else "lockstep"
-                    results.append(
-                        run_once(
-                            config,
-                            inputs,
-                            endpoint,
-                            Path(tmp) / f"{inputs}-{where}",
-                            overlap_parts=parts,
-                            precision=config.precisions[0],
-                        )
-                    )
+                        result["round"] = round_
+                        results.append(result)
     finally:
         stop_process(server)
     print(
@@ -188,6 +191,7 @@ def main(config: TrainBenchConfig) -> dict[str, Any]:
             f"{ms['time_update']:7.2f}"
         )
     by = {(r["inputs"], r["where"]): r for r in results}
+    by_round = {(r["inputs"], r["where"], r["round"]): r for r in results}
     rate: dict[tuple[str, str], float] = {
         key: statistics.fmean(r["steps_per_s"] for r in results if (r["inputs"], r["where"]) == key)
         for key in by
@@ -205,6 +209,15 @@ def main(config: TrainBenchConfig) -> dict[str, Any]:
             )
         )
         print(f"{inputs}: steps/s against in-process: {ratios}")
+        if config.rounds > 1:
+            local_where = where_label(None, 0, config.precisions[0])
+            for where in (where_label("remote", k) for k in config.parts):
+                each = [
+                    by_round[(inputs, where, r)]["steps_per_s"]
+                    / by_round[(inputs, local_where, r)]["steps_per_s"]
+                    for r in range(config.rounds)
+                ]
+                print(f"{inputs}: {where} each round: {', '.join(f'{x:.2f}x' for x in each)}")
         if (inputs, "remote lock-step") in by:
             lock = by[(inputs, "remote lock-step")]
             transport = lock["ms_per_step"]["time_env"] - local["ms_per_step"]["time_env"]
