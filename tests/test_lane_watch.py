@@ -309,3 +309,23 @@ def test_the_experiments_report_safety_per_episode_and_per_km():
     assert stats["shield_overrides_per_km"]["mean"] == pytest.approx((5.0 + 0.0) / 2)
     plain = episode_statistics([dict.fromkeys(METRIC_FIELDS, 1.0)])
     assert "lane_change_aborts" not in plain and "shield_overrides_per_km" not in plain
+
+
+def test_the_fail_safe_brakes_only_the_agent_that_needs_it():
+    """One arena's agent closes fast on a slow car; the other's road is free: only the first
+    one's acceleration is lowered, the other keeps accelerating as without the watch."""
+    from conftest import CALM_TRAFFIC, place
+
+    overrides = {**CALM_TRAFFIC, "traffic.vehicle_count": 1, "ego.lane_change_watch": True}
+    sim = HighwaySim(make_config("min2018", overrides=overrides), num_arenas=2)
+    sim.reset(seeds=[0, 1])
+    for arena, car_x in ((0, HALF_LENGTH * 2 + 8.0), (1, 400.0)):
+        place(sim, 0, x=0.0, lane=2, speed_kmh=60.0, arena=arena)
+        place(sim, 1, x=car_x, lane=2, speed_kmh=10.0, arena=arena)
+    accel = np.full(sim.state.x_m.shape, 1.5)
+    watch = sim.physics.watch
+    assert watch is not None
+    watch.frame(sim.state, accel)
+    assert accel[0, 0] < -sim.config.ego.comfort_decel_mps2  # braking hard behind the slow car
+    assert accel[1, 0] == 1.5  # the free road: untouched
+    assert (accel[:, 1:] == 1.5).all()  # and traffic is not the watch's

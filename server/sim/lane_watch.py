@@ -122,7 +122,7 @@ class LaneChangeWatch:
         if not (closing > 0.0).any():
             return
         room = gap_m - self.min_gap_m
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore"):  # no car ahead: infinite gap
             needed = np.where(
                 room > _NO_ROOM_M,
                 closing * closing / (2.0 * np.maximum(room, _NO_ROOM_M)),
@@ -132,5 +132,6 @@ class LaneChangeWatch:
         critical = (closing > 0.0) & (needed > self.comfort_mps2)
         if not critical.any():
             return
-        needed = np.where(critical, np.minimum(needed, self.full_brake_mps2), 0.0)
-        np.minimum(accel[:, :n], -needed, out=accel[:, :n])
+        # Lowered where critical only: elsewhere the acceleration stays what it was.
+        braked = np.minimum(accel[:, :n], -np.minimum(needed, self.full_brake_mps2))
+        accel[:, :n] = np.where(critical, braked, accel[:, :n])
