@@ -8,9 +8,10 @@ What is measured, in one run on 127.0.0.1 (free ports), for 1, 8 and 64 arenas (
   min2018, as in ``bench/bench_sim.py``;
 * remote: an ``overtake.server`` subprocess (``--listen tcp/127.0.0.1:<port> --name bench``) and
   ``overtake/RemoteHighway-v0`` made the same two ways, with ``RemoteConfig(connect=(ep,))``:
-  "remote" with its Steps through shared memory (``steps_transport="shm"``, what a trainer on
-  the server's host gets), and the same over Zenoh alone (``steps_transport="zenoh"``, what a
-  trainer on another host pays, less the network), both in the same rounds;
+  "remote" with its rounds through the shared-memory channel (``steps_transport="shm"``, what a
+  trainer on the server's host gets), and the same over Zenoh alone (``steps_transport="zenoh"``,
+  what a trainer on another host pays, less the network), both in the same rounds; the report
+  names the one the default (``auto``) picks for each N;
 * the floor: a bare Zenoh ping-pong between this process and a child process (this script in
   echo mode), with a request exactly as long as the encoded ``Actions`` of N agents and a reply
   exactly as long as the encoded ``Steps`` of N agents (both measured by encoding the remote

@@ -66,8 +66,8 @@ class FuzzConfig:
     stall_s: float = 5.0
     """the longest gap between two of the honest trainer's steps that is not a stall"""
     transport: Literal["auto", "shm", "zenoh"] = "auto"
-    """how the honest trainer's and the stranger's Steps travel (shm: through shared memory,
-    the stranger's notices then among what it replays and mutates)"""
+    """how the honest trainer's and the stranger's rounds travel (shm: through shared memory,
+    where no frame of theirs crosses Zenoh for the flood to disturb)"""
     json: Path | None = None
 
 

@@ -22,7 +22,7 @@ from .records import (
 )
 from .shared_memory import ACTION_ARRAYS, HEADER_BYTES, NONCE_BYTES
 
-# The Steps fields a notice may name, besides ``obs/<observation name>``.
+# The Steps fields a layout names, besides ``obs/<observation name>``.
 STEPS_ARRAYS = (
     "agents",
     "reward",

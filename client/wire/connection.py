@@ -167,7 +167,7 @@ class Connection:
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._drop_logged_t, self._drops_unlogged = -math.inf, 0
         self.dropped = 0
-        """messages dropped in all (unreadable, not for us, stale or forged notices)"""
+        """messages dropped in all (unreadable, not for us, or forged in our name)"""
         self.closed = False
 
     def _on_server_alive(self, sample: zenoh.Sample) -> None:

@@ -11,7 +11,6 @@ so only a group's sole member is offered a channel.
 
 from __future__ import annotations
 
-import logging
 import threading
 from collections.abc import Callable
 
@@ -28,8 +27,6 @@ from overtake.protocol.shared_memory import (
 from overtake.protocol.shm_messages import OBSERVATION_PREFIX, STEPS_ARRAYS
 
 from .zenoh_channel import ZenohChannel
-
-log = logging.getLogger("overtake.server")
 
 # The bell thread looks at its stop flag at least this often (a close also wakes it at once).
 BELL_SLICE_S = 0.5
@@ -62,9 +59,9 @@ class ShmChannel:
         self._fallback = fallback
         self._places = places
         segment.lay_out(places)
-        self.reads: bool | None = None
-        """whether the trainer reads the segment (None: it has not said yet)"""
-        self.rounds_sent = 0
+        self.reads = False
+        """whether the trainer reads the segment: its first Actions came through it (Actions
+        over Zenoh close the channel instead: Outbox.actions_over_zenoh)"""
         self.handled = 0
         """the Actions bell's value when the loop last took the Actions"""
         self._steps_bell = segment.bell(STEPS_BELL_OFFSET)
@@ -120,20 +117,16 @@ class ShmChannel:
         """Whether the trainer rang since the loop last took its Actions."""
         return not self._closed.is_set() and self._actions_bell.value != self.handled
 
-    def said(self, reads: bool) -> None:
-        """The trainer said whether it reads the segment: its Actions came through it, or over
-        Zenoh. Either way the name goes (it was only for finding the segment), so nothing is
-        left in /dev/shm however either side ends, SIGKILL included."""
-        self.reads = reads
-        self.segment.unlink()
-
     def actions(self) -> Actions:
         """The Actions the trainer wrote, checked as a decoded frame is
         (:class:`~overtake.protocol.errors.DecodeError` where they are malformed)."""
         self.handled = self._actions_bell.value
         round_, trainer_step, agents, actions, retire = self.segment.read_actions()
         if not self.reads:
-            self.said(True)
+            # The name was only for finding the segment: once the trainer reads it, it goes,
+            # so nothing is left in /dev/shm however either side ends, SIGKILL included.
+            self.reads = True
+            self.segment.unlink()
         return Actions(
             trainer=self.trainer,
             ticket=self.ticket,
@@ -147,7 +140,6 @@ class ShmChannel:
 
     def send_steps(self, steps: Steps) -> None:
         if self.reads and self.segment.write_steps(steps.round, steps_arrays(steps)):
-            self.rounds_sent += 1
             self._steps_bell.ring()
             return
         self.send(steps)  # the trainer has not said it reads, or the round does not fit
