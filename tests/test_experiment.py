@@ -747,3 +747,20 @@ def test_a_device_this_machine_lacks_is_refused_before_anything_trains(tmp_path,
     with pytest.raises(UsageError, match=rf"--device: device {device!r}"):
         make_plan(ExperimentConfig(experiment="min2018-table3", out=tmp_path, device=device))
     assert not (tmp_path / "experiment.json").exists()
+
+
+def test_where_the_simulator_is_does_not_change_what_a_run_learns():
+    """A restarted experiment may reach its simulator another way (every field of Where:
+    endpoint, credentials, transport, the channel's spin) and still continue its runs; a
+    learned setting still makes another run."""
+    from overtake.client.episodes.scenario import Where
+    from overtake.trainers.experiment.plan import training_identity
+    from overtake.trainers.train_config import TrainConfig
+
+    base = TrainConfig()
+    elsewhere = dataclasses.replace(
+        base, connect="tcp/127.0.0.1:7447", transport="zenoh", spin_s=0.0
+    )
+    assert {f.name for f in dataclasses.fields(Where)} >= {"connect", "transport", "spin_s"}
+    assert training_identity(elsewhere) == training_identity(base)
+    assert training_identity(dataclasses.replace(base, num_envs=2)) != training_identity(base)

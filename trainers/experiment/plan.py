@@ -307,12 +307,10 @@ def _run_plan(
 
 # Settings of a run that do not change what it learns: a restarted experiment may change them
 # (a run trained on a GPU may be finished on the CPU: the same algorithm, its numbers rounded
-# differently).
+# differently). Where the simulator is (every field of Where) is one of them.
 _UNLEARNED = (
-    "connect",
-    "transport",
+    *(f.name for f in dataclasses.fields(Where)),
     "device",
-    "security",
     "torch_threads",
     "progress",
     "recording",
