@@ -237,6 +237,17 @@ def test_the_replay_stores_what_the_car_did_and_pays_where_safety_stepped_in():
     assert stored.tolist() == [3, 3, 4, 2] and reward.tolist() == [1.0] * 4
 
 
+def test_a_late_action_replaced_by_keep_is_stored_as_keep_and_not_penalised():
+    from overtake.trainers.learner import DQNConfig
+    from overtake.trainers.shielding import SafetyLayer
+
+    layer = SafetyLayer(None, DQNConfig(store_applied=True, intervention_penalty=0.5), 2)
+    info = {"action_applied": np.array([KEEP, KEEP]), "late": np.array([True, False])}
+    stored, reward = layer.stored(np.arange(2), np.array([LANE_LEFT, LANE_LEFT]), np.ones(2), info)
+    # Both cars kept their lane; only the second had its action refused by safety.
+    assert stored.tolist() == [KEEP, KEEP] and reward.tolist() == [1.0, 0.5]
+
+
 def test_the_shield_s_watch_is_a_simulator_setting_of_the_run_and_its_row():
     from overtake.trainers.experiment import EXPERIMENTS
     from overtake.trainers.train_config import TrainConfig
@@ -329,3 +340,12 @@ def test_the_fail_safe_brakes_only_the_agent_that_needs_it():
     assert accel[0, 0] < -sim.config.ego.comfort_decel_mps2  # braking hard behind the slow car
     assert accel[1, 0] == 1.5  # the free road: untouched
     assert (accel[:, 1:] == 1.5).all()  # and traffic is not the watch's
+
+
+def test_the_watch_is_refused_where_speed_steps_set_the_speed():
+    """Ho's speed steps set the agent's speed each frame: the fail-safe brake, which lowers
+    cruise control's acceleration, would do nothing there, so the two are not combined."""
+    from overtake.server.sim import ConfigError
+
+    with pytest.raises(ConfigError, match="speed_steps"):
+        make_config("ho2018", overrides={"ego.lane_change_watch": True})

@@ -106,7 +106,10 @@ class SafetyLayer:
             turned_back = aborts > self.aborts_seen[envs]
             self.aborts_seen[envs] = aborts
         if self.penalty > 0.0:
-            stepped_in = ((applied >= 0) & (applied != chosen)) | turned_back
+            # A late action (the trainer missed the server's deadline) was replaced by keep:
+            # not safety stepping in.
+            late = np.asarray(info.get("late", False))
+            stepped_in = ((applied >= 0) & (applied != chosen) & ~late) | turned_back
             stepped_in |= self.overridden[envs]
             reward = reward - self.penalty * stepped_in
         return actions, reward

@@ -153,6 +153,14 @@ class EgoConfig:
             "cruise or speed_steps",
         )
         check_range("ego.speed_step_kmh", self.speed_step_kmh, 0.0, 50.0, low_open=True)
+        # The watch's fail-safe lowers the acceleration cruise control gives; speed steps set
+        # the speed itself, so the brake would silently do nothing.
+        check(
+            not (self.lane_change_watch and self.speed_control == "speed_steps"),
+            "ego.lane_change_watch",
+            self.lane_change_watch,
+            "off with ego.speed_control = speed_steps (the fail-safe brakes through cruise control)",
+        )
         check(
             self.skipped_frames in ("table3", "repeat"),
             "ego.skipped_frames",
