@@ -159,7 +159,8 @@ class EgoConfig:
             not (self.lane_change_watch and self.speed_control == "speed_steps"),
             "ego.lane_change_watch",
             self.lane_change_watch,
-            "off with ego.speed_control = speed_steps (the fail-safe brakes through cruise control)",
+            "off with ego.speed_control = speed_steps (its fail-safe brakes through cruise "
+            "control)",
         )
         check(
             self.skipped_frames in ("table3", "repeat"),
