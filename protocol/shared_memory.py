@@ -9,7 +9,7 @@ bell, the server steps, writes the Steps into the segment and rings the Steps be
 (:mod:`overtake.protocol.doorbell`). What is not a round (an error, a round too large for the
 segment) still goes over Zenoh, counted in the header and rung, so a waiting trainer knows to
 look there. The lease and liveliness stay Zenoh's. Nothing is assumed: a trainer that cannot
-map the segment, or finds another nonce or another magic there (a 1.6 peer), reads its Steps
+map the segment, or finds another nonce or another protocol version's magic there, reads its Steps
 from Zenoh.
 
 The segment is a file in ``/dev/shm`` (``OVERTAKE_SHM_DIR`` moves it, for tests), created with

@@ -3,9 +3,9 @@
 every array a round writes there. Once the trainer reads the segment, a round sends nothing
 over Zenoh: the layout is sent once, here, and each round is a ring of a doorbell.
 
-Protocol 1.6 sent a ``StepsInShm`` notice over Zenoh each round instead; a 1.7 peer refuses a
-1.6 peer's segment by its magic (and the 1.6 peer a 1.7 segment), and both fall back to Steps
-over Zenoh."""
+Protocol 1.6 sent a ``StepsInShm`` notice over Zenoh each round instead; a 1.7 trainer
+declines a 1.6 offer (it has no layout), a 1.6 trainer refuses a 1.7 segment by its magic, and
+both fall back to Steps over Zenoh."""
 
 from __future__ import annotations
 

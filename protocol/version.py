@@ -61,8 +61,9 @@ PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
         "says once where every array lies, the trainer writes its Actions into the segment "
         "and the server its Steps, and each side rings a futex doorbell in the segment's "
         "header instead of sending a Zenoh message; what is not a round (an error) still "
-        "goes over Zenoh, counted in the header. The StepsInShm notice is gone: a 1.6 and a "
-        "1.7 peer refuse each other's segment by its magic and keep to Steps over Zenoh.",
+        "goes over Zenoh, counted in the header. The StepsInShm notice is gone: a 1.7 "
+        "trainer declines a 1.6 offer (it has no layout), a 1.6 trainer refuses a 1.7 "
+        "segment by its magic, and both keep to Steps over Zenoh.",
     ),
 )
 # The minor version whose spec carries the road, the car and the observations' facts.

@@ -136,7 +136,7 @@ def parse_args(args: list[str]) -> TrainConfig:
         args=args,
         default=TrainConfig.for_preset(preset_in(args)),
         config=(tyro.conf.OmitArgPrefixes,),
-        description="overtake-train: DQN / Double DQN / Dueling DQN on overtake",
+        description="overtake-train: DQN / Double DQN / Dueling DQN / QR-DQN on overtake",
     )
 
 
