@@ -20,7 +20,6 @@ from typing import Any
 
 from overtake.client.envs.remote_gym import _OnNetwork, remote_simulator
 from overtake.client.wire.connection import RemoteConfig
-from overtake.protocol.envs import check_render_mode
 from overtake.protocol.messages import Scalar
 from overtake.protocol.parallel_face import RETIRE_SINCE_MINOR, ParallelFace
 
@@ -42,14 +41,17 @@ class RemoteHighwayParallelEnv(_OnNetwork, ParallelFace):
         remote: RemoteConfig | None = None,
         render_mode: str | None = None,
     ) -> None:
-        check_render_mode(render_mode, [])  # before the network: a remote road is not drawn
         # A car whose episode ended must leave the road (Actions.retire, protocol 1.3).
         retire = (RETIRE_SINCE_MINOR, "several cars on one road in PettingZoo's API")
-        simulator = remote_simulator(
-            connect, remote, preset, overrides, arenas=1, agents_per_arena=agents, needs=(retire,)
+        self._open_on_network(
+            render_mode,
+            lambda: remote_simulator(
+                connect,
+                remote,
+                preset,
+                overrides,
+                arenas=1,
+                agents_per_arena=agents,
+                needs=(retire,),
+            ),
         )
-        try:
-            super().__init__(simulator, render_mode)
-        except BaseException:
-            simulator.close()
-            raise

@@ -16,7 +16,8 @@ server or another one), and the next step (or reset) starts the new episodes.
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -134,9 +135,23 @@ def remote_simulator(
 
 
 class _OnNetwork:
-    """What the remote faces offer of their network."""
+    """What the remote faces offer of their network, and how they open it."""
 
     simulator: Simulator
+
+    def _open_on_network(
+        self, render_mode: str | None, open_simulator: Callable[[], Simulator], *face_args: Any
+    ) -> None:
+        """Open the simulator and the face over it (the next class's ``__init__``, given the
+        simulator, ``face_args`` and ``render_mode``); the simulator closes again where the
+        face cannot be made."""
+        check_render_mode(render_mode, [])  # before the network: a remote road is not drawn
+        simulator = open_simulator()
+        try:
+            super().__init__(simulator, *face_args, render_mode)  # type: ignore[call-arg]
+        except BaseException:
+            simulator.close()
+            raise
 
     @property
     def network(self) -> RemoteNetwork:
@@ -173,13 +188,9 @@ class RemoteHighwayEnv(_OnNetwork, SingleFace):
         remote: RemoteConfig | None = None,
         render_mode: str | None = None,
     ) -> None:
-        check_render_mode(render_mode, [])  # before the network: a remote road is not drawn
-        simulator = remote_simulator(connect, remote, preset, overrides, arenas=1)
-        try:
-            super().__init__(simulator, render_mode)
-        except BaseException:
-            simulator.close()
-            raise
+        self._open_on_network(
+            render_mode, lambda: remote_simulator(connect, remote, preset, overrides, arenas=1)
+        )
 
 
 class RemoteHighwayVectorEnv(_OnNetwork, VectorFace):
@@ -200,12 +211,10 @@ class RemoteHighwayVectorEnv(_OnNetwork, VectorFace):
         render_mode: str | None = None,
         parts: int = 1,
     ) -> None:
-        check_render_mode(render_mode, [])  # before the network: a remote road is not drawn
-        simulator = remote_simulator(
-            connect, remote, preset, overrides, arenas=num_envs, parts=parts
+        self._open_on_network(
+            render_mode,
+            lambda: remote_simulator(
+                connect, remote, preset, overrides, arenas=num_envs, parts=parts
+            ),
+            num_envs,
         )
-        try:
-            super().__init__(simulator, num_envs, render_mode)
-        except BaseException:
-            simulator.close()
-            raise
