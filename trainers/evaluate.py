@@ -140,12 +140,6 @@ def summarise(rows: list[dict[str, float]]) -> dict[str, Any]:
     decisions = sum(row["decisions"] for row in rows)
     collisions = sum(row["collisions"] for row in rows)
     summary["collisions_per_1000_decisions"] = float(1000.0 * collisions / max(decisions, 1.0))
-    if rows and "shield_overrides" in rows[0]:
-        overrides = np.array([row["shield_overrides"] for row in rows])
-        summary["shield_overrides"] = {
-            "mean": float(overrides.mean()),
-            "std": float(overrides.std()),
-        }
     summary["episodes"] = len(rows)
     return summary
 

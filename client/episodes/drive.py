@@ -20,6 +20,7 @@ from overtake.client.episodes.records import PolicySource
 from overtake.client.episodes.runner import baseline_policy, metric_summary, metric_table
 from overtake.client.episodes.scenario import Scenario
 from overtake.client.episodes.session import Driver, Episodes, Keeping, drive_episodes
+from overtake.client.policies.shield import SHIELD_OVERRIDES
 from overtake.protocol.faces import VectorFace
 from overtake.protocol.vocabulary import METRIC_FIELDS, WATCH_SETTING
 
@@ -104,14 +105,10 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
     table = metric_table(rows)
     summary = metric_summary(rows)
     _print_table(config, preset, table, summary, driven.decisions, driven.elapsed_s)
-    if rows and "shield_overrides" in rows[0]:
-        overrides_per_episode = np.array([row["shield_overrides"] for row in rows])
-        summary["shield_overrides"] = {
-            "mean": float(overrides_per_episode.mean()),
-            "std": float(overrides_per_episode.std()),
-        }
+    if SHIELD_OVERRIDES in summary:
+        overrides = sum(row[SHIELD_OVERRIDES] for row in rows)
         print(
-            f"the safety shield overrode the model {int(overrides_per_episode.sum())} times "
+            f"the safety shield overrode the model {int(overrides)} times "
             f"in {driven.decisions} decisions"
         )
     timing: dict[str, float] = {}

@@ -28,6 +28,7 @@ from typing import Any, Literal
 import numpy as np
 
 from overtake.client.commands import UsageError
+from overtake.client.policies.shield import SHIELD_OVERRIDES
 from overtake.protocol.vocabulary import (
     ACTION_COUNT,
     ADDED_SETTINGS,
@@ -40,7 +41,7 @@ from overtake.protocol.vocabulary import (
 RECORD_FORMAT = "overtake-episodes"
 RECORD_VERSION = 1
 # The events a record marks, by decision: the simulator's counts, and the shield's overrides.
-EVENTS: tuple[str, ...] = (*EPISODE_COUNTS, "shield_overrides")
+EVENTS: tuple[str, ...] = (*EPISODE_COUNTS, SHIELD_OVERRIDES)
 
 
 class RecordError(UsageError):
@@ -326,7 +327,7 @@ class EpisodeRecorder:
                 if happened[i]:
                     self.events[i][name].append(decision)
             if overridden is not None and overridden[i]:
-                self.events[i]["shield_overrides"].append(decision)
+                self.events[i][SHIELD_OVERRIDES].append(decision)
         ended = (terminated | truncated) & self.running
         for i in np.flatnonzero(ended & info.get("_metrics", False)):
             self.metrics[i] = {name: float(v[i]) for name, v in info["metrics"].items()}

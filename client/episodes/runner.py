@@ -26,6 +26,7 @@ from overtake.client.policies.drivers import (
     RuleDriver,
     RuleDriverConfig,
 )
+from overtake.client.policies.shield import SHIELD_OVERRIDES
 from overtake.protocol.faces import VectorFace
 from overtake.protocol.messages import BehaviourSpec
 from overtake.protocol.vocabulary import METRIC_FIELDS, WATCH_METRICS
@@ -41,8 +42,10 @@ def metric_table(rows: list[dict[str, float]]) -> np.ndarray:
 
 def metric_summary(rows: list[dict[str, float]]) -> dict[str, dict[str, float]]:
     """Mean and spread of each metric over the episodes: the papers' metrics, and those the
-    simulator added to every episode (WATCH_METRICS where lane changes are watched)."""
-    names = [*METRIC_FIELDS, *(n for n in WATCH_METRICS if rows and all(n in r for r in rows))]
+    simulator or the policy added to every episode (WATCH_METRICS where lane changes are
+    watched, shield_overrides behind the safety shield)."""
+    added = (*WATCH_METRICS, SHIELD_OVERRIDES)
+    names = [*METRIC_FIELDS, *(n for n in added if rows and all(n in r for r in rows))]
     table = np.array([[row[name] for name in names] for row in rows])
     return {
         name: {"mean": float(table[:, j].mean()), "std": float(table[:, j].std())}

@@ -43,6 +43,10 @@ from overtake.client.commands import UsageError
 from overtake.protocol.messages import BehaviourSpec
 from overtake.protocol.vocabulary import ACTION_COUNT, CRUISE_UP, LANE_LEFT, LANE_RIGHT
 
+# The column the shield adds to each episode's row (and event to its record): how often it
+# overrode the policy.
+SHIELD_OVERRIDES = "shield_overrides"
+
 
 @dataclass(frozen=True)
 class ShieldRule:
@@ -168,4 +172,4 @@ class ShieldedActing:
         self.overrides += self.last_overridden
 
     def episode_extras(self, env: int) -> dict[str, float]:
-        return {"shield_overrides": float(self.overrides[env])}
+        return {SHIELD_OVERRIDES: float(self.overrides[env])}
