@@ -68,6 +68,7 @@ class Physics:
         agents: int,
         vehicles: int,
         episodes: EpisodeBook,
+        watch: LaneChangeWatch | None = None,
     ) -> None:
         self.dt = config.episode.physics_dt_s
         self.max_decel_mps2 = config.traffic.max_decel_mps2
@@ -88,10 +89,9 @@ class Physics:
             [self.dt if steps else 0.0, config.traffic.safety_gap_m, float(self.yield_to_agents)]
         )
         self.mobil = Mobil(config.traffic, kinds, road.lane_count, self.dt)
-        # Driver assistance watching the agents' lane changes through (the shield's option).
-        self.watch = (
-            LaneChangeWatch(config.ego, kinds, agents) if config.ego.lane_change_watch else None
-        )
+        # Driver assistance watching the agents' lane changes through (the shield's option):
+        # the one the lane-change assist checks starts with.
+        self.watch = watch
         self.episodes = episodes
         # The kernels' parameters of cruise control and emergency braking.
         self._cruise = np.array(
