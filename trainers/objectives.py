@@ -90,11 +90,9 @@ def td_target(
     ``next_q_online`` (Double DQN, Eq. 8) the online network picks the action and the target
     network values it; without, the target network's max. Both only over the actions
     ``next_mask`` allows."""
-    if next_q_online is None:
-        next_value = masked(next_q_target, next_mask).max(dim=1).values
-    else:
-        choice = masked(next_q_online, next_mask).argmax(dim=1, keepdim=True)
-        next_value = next_q_target.gather(1, choice).squeeze(1)
+    chooser = next_q_target if next_q_online is None else next_q_online
+    choice = masked(chooser, next_mask).argmax(dim=1, keepdim=True)
+    next_value = next_q_target.gather(1, choice).squeeze(1)
     return reward + gamma * (1.0 - terminated.float()) * next_value
 
 
@@ -136,8 +134,8 @@ class QuantileObjective:
     def __init__(self, head: QHead, double: bool, kappa: float) -> None:
         if not isinstance(head, QuantileHead):
             raise ValueError("the quantile objective learns a quantile head")
-        self.head: QHead = head
-        self.quantile_head = head
+        self.head: QHead = head  # as the Objective protocol types it (an attribute: invariant)
+        self.quantile_head = head  # the same head, typed for its taus
         self.double, self.kappa = double, kappa
 
     def terms(
