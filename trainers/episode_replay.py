@@ -112,6 +112,7 @@ class RecordedActions:
     ) -> None:
         self.episodes, self.policy, self.check, self.header = episodes, policy, check, header
         self.actions = [record.action_array() for record in episodes]
+        self.lengths = np.array([len(a) for a in self.actions], dtype=np.int64)
         self.decision = np.zeros(len(episodes), dtype=np.int64)
         if policy is not None and hasattr(policy, "last_q"):
             self.last_q: np.ndarray | None = None
@@ -123,7 +124,7 @@ class RecordedActions:
         self, obs: dict[str, np.ndarray], info: dict[str, Any], starting: np.ndarray
     ) -> np.ndarray:
         actions = np.zeros(len(self.episodes), dtype=np.int64)
-        playing = np.array([d < len(a) for d, a in zip(self.decision, self.actions, strict=True)])
+        playing = self.decision < self.lengths
         for i in np.flatnonzero(playing):
             actions[i] = self.actions[i][self.decision[i]]
         if self.policy is not None:

@@ -133,7 +133,6 @@ class EpisodeRecording:
             decision = int(self.decisions[i])
             self.stream.reset_time()
             self.stream.set_time(timeline(self.labels[i]), sequence=decision)
-            terms = {name: float(value[i]) for name, value in terms_of.items()}
             action = int(actions[i])
             happened = [name for name, now in rose.items() if now[i]]
             ends = bool(terminated[i] or truncated[i])
@@ -144,7 +143,7 @@ class EpisodeRecording:
                     action,
                     None if q is None else np.asarray(q[i]),
                     float(reward[i]),
-                    terms,
+                    {name: float(value[i]) for name, value in terms_of.items()},
                 )
             speed_kmh = None
             if drawn and self.road is not None and self.world is not None:
