@@ -41,12 +41,10 @@ from .checkpoint import (
     load_checkpoint,
 )
 from .learner import execution_device
-from .train_config import CAMERA_ONLY_EGO_FIELDS, TRAINER_RECORD_EVERY, TrainConfig
+from .train_config import TrainConfig
 from .training_run import TrainingRun
 
 __all__ = [
-    "CAMERA_ONLY_EGO_FIELDS",
-    "TRAINER_RECORD_EVERY",
     "TrainConfig",
     "cli",
     "main",
