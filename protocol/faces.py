@@ -161,7 +161,8 @@ class StepInfo:
     metrics: dict[str, np.ndarray]
     """the papers' episode metrics, (k,) each: read where the episode ended"""
     late: np.ndarray
-    """(k,) bool: the action missed the server's deadline, keep was applied instead"""
+    """(k,) bool: no action came for the car this round (the trainer missed the server's
+    deadline, or left the car out of its actions); keep was applied instead"""
     server_restarted: bool
     """the server was lost in this step: the episodes under way were truncated"""
     ended: np.ndarray
@@ -420,7 +421,8 @@ class VectorFace(_Faced, gym.vector.VectorEnv):
 
     def send(self, part: int, actions: np.ndarray) -> None:
         """Part ``part``'s actions (one per environment of :attr:`part_slices` [part]) go
-        out; the simulator plays its round while the caller works. :meth:`recv` takes it."""
+        out: a server plays the round while the caller works (in process it is played here,
+        before this returns). :meth:`recv` takes it."""
         self._check_started()
         part_slice = self._part_slice(part)
         actions = check_actions(actions, part_slice.stop - part_slice.start, single=False)
