@@ -17,8 +17,20 @@ simulator's own lane state:
   other car``.
 
 The safety shield (``overtake.client.policies.shield``) judges a lane change by the cars in the
-target lane: this says which collisions its rule could not have seen coming. Figures, not times: it
-may run beside anything.
+target lane: this says which collisions its rule could not have seen coming.
+
+Which rule would have caught it: each collision episode is replayed again, from its seed and
+recorded actions, under each rule in turn (:data:`RULES`): the decision shield (where it
+forbids the recorded action, judged as a trainer judges it on the last two LIDAR scans and the
+ego vector, the car keeps its lane instead), the lane-change watch
+(``ego.lane_change_watch``: the simulator's driver assistance aborts or brakes through the
+change), and both. A rule caught the collision where its replay has no collision up to
+``--within-decisions`` after the record's: the first such rule is named, or "none of them".
+The recorded actions go on after a rule changed one, so the replay is what the same driver
+would have met for the next few seconds, not what a learner trained under the rule would do.
+A rule the record's preset cannot have (the shield needs a LIDAR scan and the car's speed; the
+watch, acceleration control) is left out, saying so. Figures, not times: it may run beside
+anything.
 
     .venv/bin/python -m bench.collision_causes RECORD.jsonl [RECORD.jsonl ...] [--out F.md]
 """
@@ -26,6 +38,7 @@ may run beside anything.
 from __future__ import annotations
 
 import collections
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -42,12 +55,22 @@ from overtake.client.episodes.records import (
     read_records,
 )
 from overtake.client.episodes.runner import run_episodes
-from overtake.protocol.vocabulary import ACTION_NAMES
+from overtake.client.policies.shield import Shield
+from overtake.protocol.vocabulary import ACTION_NAMES, KEEP
 from overtake.server.sim.units import KMH
 from overtake.trainers.episode_replay import RecordedActions, replay_envs
 
 # Lane index change of each lane-change action (lanes count leftwards, y grows with them).
 LANE_CHANGE_DIRECTION = {"lane_left": +1, "lane_right": -1}
+WATCH_SETTING = "ego.lane_change_watch"
+# The rules a collision is replayed under, in the order the report tries them: (the decision
+# shield, the lane-change watch).
+RULES: dict[str, tuple[bool, bool]] = {
+    "the decision shield": (True, False),
+    "the lane-change watch": (False, True),
+    "shield and watch together": (True, True),
+}
+NO_RULE = "none of them"
 
 
 @dataclass(frozen=True)
@@ -59,6 +82,9 @@ class CausesConfig:
     cause"""
     out: Path | None = None
     """also write the lines and the table here (Markdown)"""
+    rules: bool = True
+    """replay each collision under each of RULES and name the first that avoids it
+    (--no-rules: only where the other car was)"""
 
 
 @dataclass(frozen=True)
@@ -92,6 +118,9 @@ class Cause:
     """the partner's speed minus the agent's then"""
     partner_change_progress: float | None
     """how far through its own lane change the partner was then (0..1; 0: not changing)"""
+    caught_by: str = ""
+    """the first of :data:`RULES` whose replay has no collision (:data:`NO_RULE`: none; empty:
+    not asked)"""
 
 
 @dataclass
@@ -246,6 +275,113 @@ def cause(
     return classify(record, episode, replayed, within_decisions)
 
 
+class _ShieldedRecording:
+    """The recorded actions, where the decision shield forbids one keeping the lane instead:
+    judged on the last two LIDAR scans (restarted with each episode) and the ego vector, as a
+    trainer's stacked frames give them."""
+
+    def __init__(self, recorded: RecordedActions, shield: Shield) -> None:
+        self.recorded, self.shield = recorded, shield
+        self.previous: np.ndarray | None = None
+
+    def __call__(
+        self, obs: dict[str, np.ndarray], info: dict[str, Any], starting: np.ndarray
+    ) -> np.ndarray:
+        actions = self.recorded(obs, info, starting)
+        scan = np.asarray(obs["lidar"], dtype=np.float64)
+        if self.previous is None:
+            self.previous = scan.copy()
+        self.previous[np.asarray(starting, dtype=bool)] = scan[np.asarray(starting, dtype=bool)]
+        allowed = self.shield.mask(np.stack([self.previous, scan], axis=1), obs["ego"])
+        self.previous = scan.copy()
+        forbidden = allowed[np.arange(len(actions)), actions] == 0
+        return np.where(forbidden, KEEP, actions)
+
+
+class _CollidesBy:
+    """Per environment: whether its first episode collides at or before decision ``until``."""
+
+    def __init__(self, until: list[int]) -> None:
+        self.until = np.asarray(until, dtype=np.int64)
+        self.counts = EventCounts(len(until))
+        self.decision = np.zeros(len(until), dtype=np.int64)
+        self.ended = np.zeros(len(until), dtype=bool)
+        self.collided = np.zeros(len(until), dtype=bool)
+
+    def started(self, obs: dict[str, np.ndarray], info: dict[str, Any]) -> None:
+        self.counts.rose(info)
+
+    def stepped(
+        self,
+        actions: np.ndarray,
+        obs: dict[str, np.ndarray],
+        reward: np.ndarray,
+        terminated: np.ndarray,
+        truncated: np.ndarray,
+        info: dict[str, Any],
+    ) -> None:
+        rose = self.counts.rose(info).get("collisions", np.zeros(len(self.until), bool))
+        watched = ~self.ended & (self.decision <= self.until)
+        self.collided |= rose & watched
+        self.ended |= np.asarray(terminated, bool) | np.asarray(truncated, bool)
+        self.decision += 1
+
+
+def rules_available(header: RecordHeader) -> tuple[dict[str, tuple[bool, bool]], list[str]]:
+    """The rules a record's preset can be replayed under, and why the others cannot."""
+    envs = replay_envs(header, 1)
+    why: list[str] = []
+    shield_ok = watch_ok = True
+    try:
+        try:
+            Shield(envs.behaviour_spec)
+        except ValueError as error:
+            shield_ok = False
+            why.append(f"no decision shield: {error}")
+    finally:
+        envs.close()
+    try:
+        replay_envs(header, 1, changes={WATCH_SETTING: True}).close()
+    except ValueError as error:
+        watch_ok = False
+        why.append(f"no lane-change watch: {error}")
+    rules = {
+        name: (shield, watch)
+        for name, (shield, watch) in RULES.items()
+        if (shield_ok or not shield) and (watch_ok or not watch)
+    }
+    return rules, why
+
+
+def caught_by(
+    header: RecordHeader,
+    episodes: list[EpisodeRecord],
+    within_decisions: int,
+    rules: dict[str, tuple[bool, bool]],
+) -> list[str]:
+    """For each of ``episodes`` (each with a collision), the first of ``rules`` under which
+    its replay meets no collision up to ``within_decisions`` after its record's first, or
+    :data:`NO_RULE`."""
+    until = [episode.events["collisions"][0] + within_decisions for episode in episodes]
+    found = [NO_RULE] * len(episodes)
+    for name, (shielded, watched) in rules.items():
+        envs = replay_envs(
+            header, len(episodes), changes={WATCH_SETTING: True} if watched else None
+        )
+        try:
+            act: Any = RecordedActions(episodes, None, False, header)
+            if shielded:
+                act = _ShieldedRecording(act, Shield(envs.behaviour_spec))
+            collides = _CollidesBy(until)
+            run_episodes(envs, act, len(episodes), [e.seed for e in episodes], watchers=[collides])
+        finally:
+            envs.close()
+        for index in np.flatnonzero(~collides.collided):
+            if found[index] == NO_RULE:
+                found[index] = name
+    return found
+
+
 def main(config: CausesConfig) -> list[Cause]:
     causes: list[Cause] = []
     lines: list[str] = []
@@ -253,8 +389,15 @@ def main(config: CausesConfig) -> list[Cause]:
         header, episodes = read_records(path)
         crashed = [episode for episode in episodes if episode.collisions]
         replays = replay(str(path), header, crashed) if crashed else []
-        for episode, replayed in zip(crashed, replays, strict=True):
+        rules, missing = rules_available(header) if crashed and config.rules else ({}, [])
+        for why in missing:
+            lines.append(f"- {path}: {why}")
+            print(lines[-1])
+        caught = caught_by(header, crashed, config.within_decisions, rules) if rules else []
+        for index, (episode, replayed) in enumerate(zip(crashed, replays, strict=True)):
             found = classify(str(path), episode, replayed, config.within_decisions)
+            if caught:
+                found = dataclasses.replace(found, caught_by=caught[index])
             causes.append(found)
             detail = ""
             if found.lane_change_decision is not None:
@@ -267,12 +410,19 @@ def main(config: CausesConfig) -> list[Cause]:
                     f"{'faster' if faster >= 0 else 'slower'}, "
                     f"{found.partner_change_progress:.0%} through its own lane change"
                 )
+            if found.caught_by:
+                detail += f"; caught by: {found.caught_by}"
             lines.append(f"- {path} episode {episode.episode}: {found.where}{detail}")
             print(lines[-1])
     table = ["", "| where the other car was | collisions |", "|---|---:|"]
     for where, count in collections.Counter(c.where for c in causes).most_common():
         table.append(f"| {where} | {count} |")
     table.append(f"| all | {len(causes)} |")
+    asked = [c for c in causes if c.caught_by]
+    if asked:
+        table += ["", "| which rule would have caught it | collisions |", "|---|---:|"]
+        for rule, count in collections.Counter(c.caught_by for c in asked).most_common():
+            table.append(f"| {rule} | {count} |")
     print("\n".join(table))
     if config.out is not None:
         config.out.write_text("\n".join([*lines, *table]) + "\n", encoding="utf-8")

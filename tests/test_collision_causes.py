@@ -9,7 +9,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.collision_causes import CausesConfig, Road, cause, main, where_was
+from bench.collision_causes import (
+    NO_RULE,
+    RULES,
+    CausesConfig,
+    Road,
+    caught_by,
+    cause,
+    main,
+    rules_available,
+    where_was,
+)
 from overtake.client.episodes.drive import DriveConfig
 from overtake.client.episodes.drive import main as drive
 from overtake.client.episodes.records import read_records
@@ -66,6 +76,43 @@ def test_a_kept_collision_behind_the_shield_is_two_cars_meeting_in_one_lane():
     assert found.partner_faster_kmh == pytest.approx(-15.5, abs=0.05)
 
 
+def test_the_lane_watch_would_have_caught_the_two_cars_meeting_in_one_lane():
+    # The same episode replayed under each rule: the record's driver already had the decision
+    # shield in front of it, so that rule alone meets the same collision; the lane-change watch
+    # aborts or brakes through the change and the collision is gone.
+    record = (
+        ROOT / "bench/results/min2018-safe-both/evaluations/all-both-seed0"
+        "/medium-step200000.episodes/all-both.jsonl"
+    )
+    header, episodes = read_records(record)
+    [episode] = [e for e in episodes if e.episode == 96]
+    rules, missing = rules_available(header)
+    assert rules == RULES and missing == []
+    assert caught_by(header, [episode], 7, {"shield": RULES["the decision shield"]}) == [NO_RULE]
+    assert caught_by(header, [episode], 7, rules) == ["the lane-change watch"]
+
+
+def test_a_rule_the_preset_cannot_have_is_left_out_saying_why(tmp_path):
+    # ho2018 observes an occupancy grid (no LIDAR scan for the shield) and steps its speed
+    # (no acceleration for the watch's brake): neither rule can be replayed there.
+    drive(
+        DriveConfig(
+            policy="rule",  # type: ignore[arg-type]
+            preset="ho2018",
+            episodes=1,
+            seed=0,
+            max_decisions=5,
+            episodes_out=tmp_path,
+        )
+    )
+    [path] = list(tmp_path.glob("*.jsonl"))
+    header, _ = read_records(path)
+    rules, missing = rules_available(header)
+    assert rules == {}
+    assert any("no decision shield" in why and "LIDAR" in why for why in missing), missing
+    assert any("no lane-change watch" in why for why in missing), missing
+
+
 def _record(out: Path) -> Path:
     # A random driver in heavy traffic: some of its short episodes end in a collision.
     drive(
@@ -89,7 +136,7 @@ def test_each_collision_is_replayed_to_its_recorded_decision(tmp_path, capsys):
     crashed = {e.episode: e.events["collisions"][0] for e in episodes if e.collisions}
     assert crashed, "the random driver should collide in heavy traffic"
     out = tmp_path / "causes.md"
-    causes = main(CausesConfig(records=(record,), out=out))
+    causes = main(CausesConfig(records=(record,), out=out, rules=False))
     assert {c.episode: c.collision_decision for c in causes} == crashed
     assert f"| all | {len(crashed)} |" in capsys.readouterr().out
     written = out.read_text()

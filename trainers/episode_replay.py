@@ -17,6 +17,7 @@ episode's metrics and events against the record's.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -235,18 +236,29 @@ def compare(recorded: list[EpisodeRecord], replayed: list[EpisodeRecord], header
             )
 
 
-def replay_envs(header: RecordHeader, count: int, where: Where | None = None) -> VectorFace:
+def replay_envs(
+    header: RecordHeader,
+    count: int,
+    where: Where | None = None,
+    changes: Mapping[str, Any] | None = None,
+) -> VectorFace:
     """``count`` environments of the simulator a record was made on (``where`` says where:
     default in this process): its preset and overrides, and where the preset has changed
     since, the overrides that undo the change
-    (:func:`~overtake.client.episodes.records.replay_overrides`)."""
+    (:func:`~overtake.client.episodes.records.replay_overrides`); ``changes``: overrides put on
+    top, for a replay that asks "what if" (bench/collision_causes.py)."""
     where = where or Where()
-    envs = where.open(header.preset, header.overrides, count)
-    undo = replay_overrides(header.config, envs.sim_config)
+    overrides = {**header.overrides, **(changes or {})}
+    envs = where.open(header.preset, overrides, count)
+    undo = {
+        name: value
+        for name, value in replay_overrides(header.config, envs.sim_config).items()
+        if name not in (changes or {})
+    }
     if not undo:
         return envs
     envs.close()
-    return where.open(header.preset, {**header.overrides, **undo}, count)
+    return where.open(header.preset, {**header.overrides, **undo, **(changes or {})}, count)
 
 
 def refuse_other_simulators(header: RecordHeader, envs: VectorFace) -> None:
