@@ -8,6 +8,7 @@ Only a command's ``cli()`` exits, through :func:`run_command`.
 
 from __future__ import annotations
 
+import logging
 import sys
 from collections.abc import Callable
 from typing import TypeVar
@@ -30,7 +31,14 @@ def run_command(prog: str, main: Callable[[ConfigT], ResultT], config: ConfigT) 
     :class:`UsageError`, a :class:`~overtake.protocol.ProtocolError` (the network or a server
     refused), a :class:`~overtake.viz.recording.RecordingError` (a Rerun sink could not be
     opened) or another ``ValueError`` (such as the in-process simulator's ``ConfigError`` for
-    a bad override); anything else is a bug and keeps its traceback."""
+    a bad override); anything else is a bug and keeps its traceback.
+
+    The library's lines at INFO and above go to stderr (Python's default shows warnings only):
+    which way a trainer's rounds go and why, a busy server, where a recording goes. A caller
+    that configured logging itself keeps its own."""
+    if not logging.getLogger().handlers:
+        logging.basicConfig(format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+        logging.getLogger("overtake").setLevel(logging.INFO)
     try:
         return main(config)
     except (UsageError, ProtocolError, RecordingError, ValueError) as error:
