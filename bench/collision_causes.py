@@ -56,13 +56,12 @@ from overtake.client.episodes.records import (
 )
 from overtake.client.episodes.runner import run_episodes
 from overtake.client.policies.shield import Shield
-from overtake.protocol.vocabulary import ACTION_NAMES, KEEP
+from overtake.protocol.vocabulary import ACTION_NAMES, KEEP, WATCH_SETTING
 from overtake.server.sim.units import KMH
 from overtake.trainers.episode_replay import RecordedActions, replay_envs
 
 # Lane index change of each lane-change action (lanes count leftwards, y grows with them).
 LANE_CHANGE_DIRECTION = {"lane_left": +1, "lane_right": -1}
-WATCH_SETTING = "ego.lane_change_watch"
 # The rules a collision is replayed under, in the order the report tries them: (the decision
 # shield, the lane-change watch).
 RULES: dict[str, tuple[bool, bool]] = {

@@ -299,6 +299,12 @@ def test_a_run_with_the_watch_trains_and_its_evaluation_keeps_the_watch(tmp_path
     )
     assert all("lane_change_aborts" in row for row in result["episodes"])
     assert "lane_change_aborts" in result["summary"]
+    # Without the shield its second half goes too, as in overtake-drive: no watch, no aborts.
+    bare = evaluate(
+        EvalConfig(checkpoint=run_dir / CHECKPOINT_NAME, episodes=2, max_decisions=30, shield=False)
+    )
+    assert "lane_change_aborts" not in bare["summary"]
+    assert "shield_overrides" not in bare["summary"]
 
 
 def test_the_experiments_report_safety_per_episode_and_per_km():

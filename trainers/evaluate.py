@@ -24,7 +24,7 @@ from overtake.client.episodes.scenario import Scenario, parse_overrides
 from overtake.client.episodes.session import Driver, Episodes, Keeping, drive_episodes
 from overtake.client.policies.shield import Shield, ShieldedActing
 from overtake.protocol.faces import VectorFace
-from overtake.protocol.vocabulary import DENSITY_SETTING
+from overtake.protocol.vocabulary import DENSITY_SETTING, WATCH_SETTING
 from overtake.viz.recording import RecordingConfig
 
 from .checkpoint import load_checkpoint
@@ -59,7 +59,8 @@ class EvalConfig(Scenario):
     """episode i uses seed + i (training uses other seeds by default)"""
     shield: bool | None = None
     """the safety shield in front of the checkpoint's greedy choices; None: where the run was
-    trained with it (overtake.client.policies.shield)"""
+    trained with it (overtake.client.policies.shield). False also drops the lane-change watch a
+    run trained with --shield-watch (the shield's second half), as overtake-drive does"""
     paper_evaluation: bool = True
     """evaluate as the preset's paper does where it evaluates otherwise than it trains
     (ho2018: a decision every frame, 4,000 frames, as Ho's code evaluates); --no-paper-
@@ -200,6 +201,10 @@ def main(config: EvalConfig) -> dict[str, Any]:
     preset = config.preset_or(checkpoint.preset if checkpoint else None)
     base: dict[str, Any] = dict(checkpoint.overrides) if checkpoint else {}
     base.pop(DENSITY_SETTING, None)  # evaluation sets its own traffic
+    if config.shield is False:
+        # The lane-change watch is the shield's second half (--shield-watch): without the
+        # shield it goes too, as in overtake-drive; --set ego.lane_change_watch=true keeps it.
+        base.pop(WATCH_SETTING, None)
     if config.paper_evaluation:
         base.update(parse_overrides(paper_evaluation(preset)))
     overrides = config.overrides(base)
