@@ -248,6 +248,43 @@ def test_a_late_action_replaced_by_keep_is_stored_as_keep_and_not_penalised():
     assert stored.tolist() == [KEEP, KEEP] and reward.tolist() == [1.0, 0.5]
 
 
+def test_the_logged_reward_is_what_the_driving_earned_not_the_penalised_reward(tmp_path):
+    """Two runs alike but for the learner's intervention penalty, stopped before learning
+    starts (so they drive the same random episodes): the training log's rewards are equal,
+    because the penalty changes what is learned from, not what the driving earned."""
+    import json
+
+    from overtake.trainers.learner import DQNConfig
+    from overtake.trainers.train import TrainConfig
+    from overtake.trainers.train import main as train
+
+    logged = {}
+    for penalty in (0.0, 1.0):
+        run_dir = tmp_path / f"penalty{penalty}"
+        train(
+            TrainConfig(
+                inputs="lidar",
+                num_envs=2,
+                total_steps=120,
+                log_every=60,
+                seed=4,
+                run_dir=run_dir,
+                progress=False,
+                set=("traffic.density=heavy",),
+                dqn=DQNConfig(
+                    learning_starts=1000,
+                    replay_size=500,
+                    lstm_cells=8,
+                    store_applied=True,
+                    intervention_penalty=penalty,
+                ),
+            )
+        )
+        lines = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+        logged[penalty] = [line["reward_sum"] for line in lines if line.get("kind") == "train"]
+    assert logged[0.0] and logged[0.0] == logged[1.0]
+
+
 def test_the_shield_s_watch_is_a_simulator_setting_of_the_run_and_its_row():
     from overtake.trainers.experiment import EXPERIMENTS
     from overtake.trainers.train_config import TrainConfig

@@ -377,6 +377,9 @@ class TrainingRun:
         the actions and rewards stored are those the safety layer says (:meth:`SafetyLayer.stored`).
         """
         mask = info["action_mask"]
+        # The log's reward is the environment's: a learner's penalty (dqn.intervention_penalty)
+        # changes what is learned from, not what the driving earned.
+        earned = reward
         actions, reward = self.safety.stored(envs, actions, reward, info)
         starting = self.starting[envs]
         moving = np.flatnonzero(~starting)
@@ -404,7 +407,7 @@ class TrainingRun:
                 ids, actions[moving], reward[moving], terminated[moving], sub, mask[moving]
             )
             self.step += moving.size
-            self.window.reward_sum += float(reward[moving].sum())
+            self.window.reward_sum += float(earned[moving].sum())
         return int(moving.size), taken
 
     def _end_episodes(
