@@ -43,9 +43,10 @@ Figures per case (``summary.json`` in ``--run-dir``, one line each printed):
   and may be -1 per server loss the trainer lived through (``server_losses``): the round whose
   actions reached the server but whose Steps did not reach the trainer, in the episode that
   the loss ended as truncated;
-- ``segments_left``: shared-memory segments the case made that are still in ``/dev/shm`` once
-  everything has stopped, overtake's (``--transport shm``) and Zenoh's (``*.zenoh``: none since
-  its shared memory is off, TransportConfig.zenoh_shared_memory) (none expected);
+- ``segments_left``: files the case made that are still in ``/dev/shm`` once everything has
+  stopped, whoever named them: overtake's segments (``--transport shm``), Zenoh's (none since
+  its shared memory is off, TransportConfig.zenoh_shared_memory) and any other (none expected;
+  run the matrix alone, since another program's new files would count too);
 - ``checkpoints``: each trainer's checkpoint loads right after a kill (before the restart
   reads it) and at the end;
 - ``recordings``: every .rrd passes ``rerun rrd verify --check-footers false`` (the server's
@@ -434,12 +435,12 @@ def run_case(config: FaultConfig, target: str, fault: str, index: int, rng: rand
         for i in range(2)
     ]  # fmt: skip
     victim = {"router": router, "server": server, "trainer": trainers[0]}[target]
-    from overtake.protocol.shared_memory import NAME_PREFIX, shm_dir
+    from overtake.protocol.shared_memory import shm_dir
 
     def segments() -> set[str]:
-        return {
-            p.name for pattern in (f"{NAME_PREFIX}*", "*.zenoh") for p in shm_dir().glob(pattern)
-        }
+        # Every file, whoever named it (overtake's segments, Zenoh's segments and pools, a
+        # library's): what is new after the case is what the case left.
+        return {p.name for p in shm_dir().iterdir()}
 
     segments_before = segments()
     observer = None
