@@ -30,6 +30,7 @@ from overtake.protocol.shared_memory import (
     HEADER_BYTES,
     NAME_PREFIX,
     STEPS_BELL_OFFSET,
+    STEPS_ROUND_OFFSET,
     Segment,
     channel_plan,
     shm_dir,
@@ -186,6 +187,47 @@ def _ring_back(name: str, nonce: bytes, size: int, rounds: int) -> None:
 
 
 @pytest.mark.skipif(not DOORBELL_AVAILABLE, reason="no futex doorbell on this machine")
+def test_a_round_whose_write_is_not_finished_is_waited_for_not_an_error():
+    """The server writes a round's number before the generation that closes the write: a
+    trainer looking in between (it spins on the segment) sees its round and an odd generation.
+    That is "not yet", not a broken segment (the fault matrix's no-fault case once ended a
+    trainer with 'holds no finished write')."""
+    from overtake.client.wire.shm_channel import ShmChannel
+
+    arrays = {
+        "agents": np.arange(2, dtype=np.int32),
+        "reward": np.ones(2),
+        "terminated": np.zeros(2, dtype=bool),
+        "truncated": np.zeros(2, dtype=bool),
+        "action_applied": np.zeros(2, dtype=np.int64),
+        "late": np.zeros(2, dtype=bool),
+        "action_mask": np.ones((2, 5), dtype=np.int8),
+        "reward_terms": np.zeros((2, 0)),
+        "metrics": np.zeros((2, 0)),
+        "obs/lidar": np.zeros((2, 4), dtype=np.float32),
+    }
+    assert set(STEPS_ARRAYS) < set(arrays)
+    places, size = channel_plan(2, arrays)
+    writer = Segment.create(size)
+    try:
+        writer.lay_out(places)
+        channel = ShmChannel(Segment.attach(writer.name, writer.nonce, writer.size), places, "s", 1)
+        assert writer.write_steps(1, arrays)
+        # Round 2's write stopped where the race caught it: its number down, the generation
+        # still odd.
+        index = GENERATION_OFFSET // 8
+        writer._i64[index] += 1
+        writer._i64[STEPS_ROUND_OFFSET // 8] = 2
+        assert channel.take(2) is None
+        writer._i64[index] += 1  # the write closes
+        steps = channel.take(2)
+        assert steps is not None and steps.round == 2 and steps.reward.tolist() == [1.0, 1.0]
+        channel.close(unlink=False)
+    finally:
+        writer.unlink()
+        writer.close()
+
+
 def test_the_doorbell_wakes_another_process_and_times_out_without_a_ring():
     import multiprocessing
     import time

@@ -67,6 +67,10 @@ class ShmChannel:
         segment = self.segment
         if round_ == self._taken_round or segment.steps_round() != round_:
             return None
+        if segment.generation % 2:
+            # The server has put the round's number down and not yet finished the write (the
+            # round comes before the closing generation): its bell rings when it has.
+            return None
         written_round, arrays = segment.read_steps(self._steps_names)
         if written_round != round_:
             return None  # the server wrote on meanwhile (it does not in lock step)
