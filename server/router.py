@@ -88,6 +88,10 @@ def zenoh_config(config: RouterConfig) -> tuple[zenoh.Config, TransportConfig]:
     else:
         conf = zenoh.Config()
     conf.insert_json5("mode", '"router"')
+    # Zenoh's shared memory is off in every overtake process (TransportConfig's
+    # zenoh_shared_memory says why): a router with it on made a segment at start that a
+    # SIGKILL left in /dev/shm for good, and relayed nothing through it.
+    conf.insert_json5("transport/shared_memory/enabled", "false")
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("scouting/gossip/enabled", "false")
     listen = config.listen or _endpoints(conf, "listen/endpoints") or (DEFAULT_ENDPOINT,)

@@ -22,6 +22,7 @@ from importlib import metadata
 from pathlib import Path
 
 import pytest
+import zenoh
 
 from overtake.client.wire.remote import Connection, RemoteConfig
 from overtake.protocol import errors
@@ -374,6 +375,37 @@ def test_security_options_are_refused_with_the_option_named(tmp_path: Path, monk
 
 
 @pytest.mark.timeout(240)
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("ending", ["SIGTERM", "SIGKILL"])
+def test_a_router_leaves_nothing_in_dev_shm_however_it_ends(background, ending):
+    """overtake-router with the deployment's file keeps Zenoh's shared memory off, as every
+    overtake process does: with it on, the router made a ``<number>.zenoh`` segment at start,
+    and SIGKILL left it in /dev/shm for good (found by the fault matrix, issue 47)."""
+    import signal as signals
+
+    from overtake.protocol.shared_memory import shm_dir
+
+    def zenoh_segments() -> set[str]:
+        return {p.name for p in shm_dir().glob("*.zenoh")}
+
+    before = zenoh_segments()
+    endpoint = f"tcp/{LOOPBACK}:{free_port()}"
+    router = start_router(background, "router", [endpoint])
+    # A peer's traffic through it, as a server's and a trainer's.
+    session = zenoh.open(TransportConfig(mode="client", connect=(endpoint,)).zenoh_config())
+    try:
+        got: list[int] = []
+        subscriber = session.declare_subscriber("shm-test/x", lambda s: got.append(len(s.payload)))
+        publisher = session.declare_publisher("shm-test/x")
+        wait_until(lambda: publisher.put(b"x" * 200_000) or bool(got), 10.0, "a put through it")
+        subscriber.undeclare()
+    finally:
+        session.close()
+    router.proc.send_signal(getattr(signals, ending))
+    router.proc.wait(30)
+    assert zenoh_segments() <= before
+
+
 def test_usrpwd_router_admits_only_listed_users(tmp_path: Path, background):
     credentials = tmp_path / "credentials.txt"
     credentials.write_text("simserver:server-secret\ntrainer:trainer-secret\n")
