@@ -294,10 +294,9 @@ class EpisodeRecorder:
     overrode (``last_overridden``, (N,) bool): those decisions are marked too.
     """
 
-    def __init__(self, seeds: list[int], policy: Any = None, first_episode: int = 0) -> None:
+    def __init__(self, seeds: list[int], policy: Any = None) -> None:
         self.seeds = seeds
         self.policy = policy
-        self.first_episode = first_episode
         n = len(seeds)
         self.actions: list[list[int]] = [[] for _ in range(n)]
         self.events: list[dict[str, list[int]]] = [{name: [] for name in EVENTS} for _ in range(n)]
@@ -337,7 +336,7 @@ class EpisodeRecorder:
         """The episodes that ended, in order."""
         return [
             EpisodeRecord(
-                episode=self.first_episode + i,
+                episode=i,
                 seed=self.seeds[i],
                 actions="".join(str(a) for a in self.actions[i]),
                 metrics=metrics,
