@@ -675,5 +675,13 @@ def markdown_table(results: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def _interrupt(signum: int, _frame: Any) -> None:
+    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
 if __name__ == "__main__":
+    # SIGTERM, and SIGINT (which a shell's background job ignores), end the matrix through the
+    # case's own cleanup: its processes stopped, its namespace and veth pair removed.
+    signal.signal(signal.SIGTERM, _interrupt)
+    signal.signal(signal.SIGINT, _interrupt)
     main(tyro.cli(FaultConfig))
