@@ -374,12 +374,9 @@ class TrainingRun:
         checkpoint, its metrics, the experiments' tables, resume); the rest are counted in
         ``unstored`` and not learned from. With the shield, the masks stored (what the
         target's max runs over) and acted on are the environment's and the shield's together;
-        the actions and rewards stored are those the safety layer says (:meth:`SafetyLayer.stored`).
-        """
+        the actions and rewards stored are the safety layer's (:meth:`SafetyLayer.stored`)."""
         mask = info["action_mask"]
-        # The log's reward is the environment's: a learner's penalty (dqn.intervention_penalty)
-        # changes what is learned from, not what the driving earned.
-        earned = reward
+        earned = reward  # the log's: a learner's penalty changes what is stored, not what it earned
         actions, reward = self.safety.stored(envs, actions, reward, info)
         starting = self.starting[envs]
         moving = np.flatnonzero(~starting)
