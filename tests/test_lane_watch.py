@@ -265,8 +265,8 @@ def test_the_logged_reward_is_what_the_driving_earned_not_the_penalised_reward(t
             TrainConfig(
                 inputs="lidar",
                 num_envs=2,
-                total_steps=120,
-                log_every=60,
+                total_steps=60,
+                log_every=30,
                 seed=4,
                 run_dir=run_dir,
                 progress=False,
