@@ -59,17 +59,24 @@ def test_the_partner_is_placed_relative_to_the_target_lane(
     assert where_was(_road(partner_lane, partner_target), 1, direction) == expected
 
 
-def test_a_kept_collision_behind_the_shield_is_two_cars_meeting_in_one_lane():
-    # min2018-safe-both's medium episode 96 (kept in bench/results): the agent changed right at
-    # decision 1 and collided at decision 4 with a car that had begun to change left from two
-    # lanes over, 3.6 m ahead of it and 15.5 km/h slower when the agent decided.
-    record = (
-        ROOT / "bench/results/min2018-safe-both/evaluations/all-both-seed0"
-        "/medium-step200000.episodes/all-both.jsonl"
-    )
-    header, episodes = read_records(record)
+# min2018-safe-both's medium episode 96 (kept in bench/results): the agent changed right at
+# decision 1 and collided at decision 4 with a car that had begun to change left from two lanes
+# over, 3.6 m ahead of it and 15.5 km/h slower when the agent decided.
+KEPT_RECORD = (
+    ROOT / "bench/results/min2018-safe-both/evaluations/all-both-seed0"
+    "/medium-step200000.episodes/all-both.jsonl"
+)
+
+
+def _kept_episode_96():
+    header, episodes = read_records(KEPT_RECORD)
     [episode] = [e for e in episodes if e.episode == 96]
-    found = cause(str(record), header, episode, within_decisions=7)
+    return header, episode
+
+
+def test_a_kept_collision_behind_the_shield_is_two_cars_meeting_in_one_lane():
+    header, episode = _kept_episode_96()
+    found = cause(str(KEPT_RECORD), header, episode, within_decisions=7)
     assert (found.lane_change_decision, found.collision_decision) == (1, 4)
     assert found.where == "two lanes over, already changing into the target lane"
     assert found.partner_ahead_m == pytest.approx(3.6, abs=0.05)
@@ -80,12 +87,7 @@ def test_the_lane_watch_would_have_caught_the_two_cars_meeting_in_one_lane():
     # The same episode replayed under each rule: the record's driver already had the decision
     # shield in front of it, so that rule alone meets the same collision; the lane-change watch
     # aborts or brakes through the change and the collision is gone.
-    record = (
-        ROOT / "bench/results/min2018-safe-both/evaluations/all-both-seed0"
-        "/medium-step200000.episodes/all-both.jsonl"
-    )
-    header, episodes = read_records(record)
-    [episode] = [e for e in episodes if e.episode == 96]
+    header, episode = _kept_episode_96()
     rules, missing = rules_available(header)
     assert rules == RULES and missing == []
     assert caught_by(header, [episode], 7, {"shield": RULES["the decision shield"]}) == [NO_RULE]
