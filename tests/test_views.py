@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import io
 import shutil
+import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -167,6 +169,15 @@ def test_the_viewer_draws_every_car_of_the_road(tmp_path):
     from overtake.viz.render import RenderConfig
     from overtake.viz.render import main as render
 
+    def viewer_leftovers() -> set[str]:
+        # What the viewer and xvfb-run, ended by a signal, used to leave in the temp folder.
+        return {
+            p.name
+            for pattern in ("rerun-data-*", "xvfb-run.*", "overtake-viewer-*")
+            for p in Path(tempfile.gettempdir()).glob(pattern)
+        }
+
+    before = viewer_leftovers()
     rrd = tmp_path / "road.rrd"
     record_world(rrd, [road_frame(0)])
     (picture,) = render(
@@ -182,6 +193,7 @@ def test_the_viewer_draws_every_car_of_the_road(tmp_path):
     steady = KIND_COLOURS[0]
     assert colour_runs(image, steady) == len(TRAFFIC)
     assert colour_runs(image, np.array([230, 40, 40])) >= 1  # the agent
+    assert viewer_leftovers() <= before
 
 
 def test_a_road_recording_shared_with_trainers_lays_out_their_plots_too(tmp_path):

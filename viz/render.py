@@ -104,12 +104,16 @@ def headless_viewer(width: int, height: int) -> Iterator[tuple[Any, float]]:
             )
         command = [xvfb, "-a", *command]
     output = tempfile.TemporaryFile()  # noqa: SIM115 - lives as long as the viewer
+    # The viewer's and xvfb-run's temporary folders (rerun-data-*, xvfb-run.*) in one of ours:
+    # ended by a signal they leave them behind, one each per picture.
+    scratch = tempfile.mkdtemp(prefix="overtake-viewer-")
     viewer = subprocess.Popen(
         command,
         stdin=subprocess.DEVNULL,
         stdout=output,
         stderr=subprocess.STDOUT,
         start_new_session=True,
+        env={**os.environ, "TMPDIR": scratch},
     )
 
     def said() -> str:
@@ -147,6 +151,7 @@ def headless_viewer(width: int, height: int) -> Iterator[tuple[Any, float]]:
                 os.killpg(viewer.pid, signal.SIGKILL)
             viewer.wait()
         output.close()
+        shutil.rmtree(scratch, ignore_errors=True)
 
 
 def settled_screenshot(
