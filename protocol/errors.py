@@ -94,6 +94,13 @@ class StepTimeout(ProtocolError):
     code = "timeout"
 
 
+class Interrupted(ProtocolError):
+    """This process was asked to stop while it waited on a server (a round that did not
+    come, a lost server not back yet); raised on this side only, never sent."""
+
+    code = "interrupted"
+
+
 ERRORS_BY_CODE: dict[str, type[ProtocolError]] = {
     cls.code: cls
     for cls in (
@@ -103,6 +110,7 @@ ERRORS_BY_CODE: dict[str, type[ProtocolError]] = {
         UnknownPreset,
         BadConfig,
         ServerFull,
+        Interrupted,
         ServerBusy,
         UnknownArena,
         NotOwner,

@@ -1149,6 +1149,52 @@ def test_training_writes_a_rerun_recording_of_its_episodes_and_learning(tmp_path
 
 
 @pytest.mark.timeout(120)
+def test_sigterm_ends_a_remote_run_whose_server_is_gone_with_its_checkpoint(tmp_path, start_server):
+    """docker compose stop after the server died: the step under way waits on a server that is
+    gone (its round, then a server to reopen the arenas on, for the reconnect timeout); the
+    stop ends that wait and the run ends as a stopped run does, with its checkpoint, status 0.
+    Without it the trainer waited out the reconnect timeout and failed, checkpoint unwritten."""
+    import signal
+
+    from remote_support import child_env, wait_until
+
+    server = start_server("gone")
+    run_dir = tmp_path / "run"
+    trainer = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "overtake.trainers.train",
+            *("--connect", server.endpoint, "--preset", "ho2018", "--total-steps", "1000000"),
+            *("--run-dir", str(run_dir), "--no-progress", "--log-every", "40"),
+            *("--checkpoint-every", "1000000", "--learning-starts", "64", "--replay-size", "500"),
+            *("--hidden-units", "32", "--torch-threads", "1"),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=child_env(),
+    )
+    try:
+        metrics = run_dir / "metrics.jsonl"
+        wait_until(
+            lambda: metrics.exists() and metrics.read_text().count("\n") >= 2, 90, "two log lines"
+        )
+        server.kill()  # gone without a word
+        trainer.send_signal(signal.SIGTERM)
+        out, err = trainer.communicate(timeout=90)
+    finally:
+        if trainer.poll() is None:
+            trainer.kill()
+            trainer.wait()
+    assert trainer.returncode == 0, err
+    assert "the run ends at its last whole step" in err
+    summary = json.loads(out[out.index("{") :])
+    assert summary["stopped"] is True
+    assert load_checkpoint(run_dir / CHECKPOINT_NAME).step == summary["steps"] > 0
+
+
+@pytest.mark.timeout(120)
 def test_sigterm_ends_a_training_run_with_a_checkpoint_and_a_whole_recording(tmp_path):
     # docker compose stop, a cluster's preemption, Ctrl-C: the run ends after the step under
     # way as it would at --total-steps, so nothing since the last periodic checkpoint is lost

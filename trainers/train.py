@@ -33,6 +33,7 @@ from typing import Any
 import torch
 
 from overtake.client.commands import UsageError, run_command
+from overtake.client.wire.connection import interrupt_waits
 
 from .checkpoint import (
     CHECKPOINT_NAME,
@@ -155,6 +156,9 @@ def cli(argv: list[str] | None = None) -> None:
             name,
         )
         stop.set()
+        # A step waiting on a server that is gone would hold the stop for the step timeout
+        # (or the reconnect timeout): such waits end now, a healthy round still completes.
+        interrupt_waits()
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import threading
 import time
 from pathlib import Path
@@ -15,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from overtake.protocol import ACTION_COUNT
+from overtake.protocol import ACTION_COUNT, errors
 
 from .checkpoint import CHECKPOINT_NAME, REPLAY_NAME, Checkpoint, plain_data, save_checkpoint
 from .env_parts import EnvParts
@@ -32,6 +33,9 @@ if TYPE_CHECKING:
     from .train_config import TrainConfig
 
 
+logger = logging.getLogger("overtake.trainer")
+
+
 class TrainingRun:
     """One life of a training run (its start or one resume) in its run directory.
 
@@ -40,9 +44,8 @@ class TrainingRun:
     the metrics log, the Rerun recording and the checkpoints.
     """
 
-    # Set by run(): its outputs, then, once the environments start, the latest observation
-    # and action mask, the environments whose next step is their autoreset, the clock, and
-    # what the next training log line averages.
+    # Set by run(): its outputs, then (the environments started) the latest observation and
+    # mask, the environments autoresetting next, the clock and the next log line's window.
     log: MetricsLog
     recording: RunRecording | None
     bar: Any
@@ -64,8 +67,7 @@ class TrainingRun:
     ) -> None:
         self.config, self.dqn, self.envs = config, config.dqn, envs
         self.stop = stop if stop is not None else threading.Event()
-        # Overlap steps the environments' parts (a remote vector env opened in parts) in turn:
-        # part p's actions go out, then the part sent longest ago comes back.
+        # Overlap steps the parts in turn: p's actions go out, the oldest part sent comes back.
         self.env = EnvParts(envs, config.num_envs)
         self.run_dir, self.overrides = run_dir, overrides
         self.checkpoint_path, self.replay_path = run_dir / CHECKPOINT_NAME, run_dir / REPLAY_NAME
@@ -83,8 +85,7 @@ class TrainingRun:
         self.next_sync = self.step + self.dqn.target_update_steps
         self.next_checkpoint = self.step + config.checkpoint_every
         self.next_log = self.step + config.log_every
-        # Updates wait for this many transitions: at the start of a run, and again after a
-        # resume without a saved replay (capped by what the replay can hold).
+        # Updates wait for this many transitions (again after a resume without its replay).
         self.warm = max(
             self.dqn.batch_size,
             min(self.dqn.learning_starts, (self.replay.per_env - 1) * config.num_envs),
@@ -94,8 +95,7 @@ class TrainingRun:
         self.in_flight: dict[int, tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]] = {}
         self.env_calls = 0  # envs.step, or with overlap send: one each, autoreset steps included
         self.unstored = 0  # transitions played past the budget, in its last step: not stored
-        # The safety shield (--shield), judging from what the cars observe
-        # (client/policies/shield.py), and what the replay stores where safety stepped in.
+        # The shield (--shield, client/policies/shield.py) and what is stored where it acted.
         self.safety = SafetyLayer(
             TrainingShield(self.env.behaviour_spec, self.stacker, config.inputs)
             if config.shield
@@ -168,12 +168,14 @@ class TrainingRun:
             )
             self._start_episodes()
             iteration = self._part_iteration if self.config.overlapped else self._iteration
-            while self.step < self.config.total_steps and not self.stop.is_set():
-                iteration()
-            self._finish_parts()
+            try:
+                while self.step < self.config.total_steps and not self.stop.is_set():
+                    iteration()
+                self._finish_parts()
+            except errors.Interrupted as error:  # stopped while its server was gone
+                logger.warning("%s: the run ends at its last whole step, %d", error, self.step)
             if self.step > self.window.start_step:
-                # The steps since the last line, a partial window: a learning curve (Fayjie
-                # et al.'s reward per 3,000 steps) keeps its last point.
+                # A partial window: a learning curve (Fayjie's per 3,000 steps) keeps its end.
                 self._log_training(self.dqn.epsilon(self.step))
             self._checkpoint()
         finally:
@@ -186,8 +188,7 @@ class TrainingRun:
             "run_dir": str(self.run_dir),
             "steps": self.step,
             "resumed_at_step": self.resumed_at_step,
-            # Calls of envs.step (with overlap: of send, a part each) in this life, autoreset
-            # steps included: a server's rounds for this trainer, plus two per server loss.
+            # envs.step (or send) calls this life, autoresets included: the server's rounds.
             "env_steps_called": self.env_calls,
             "parts": self.env.count,
             # Decisions where the shield forbade the network's greedy choice (with --shield).
@@ -292,8 +293,7 @@ class TrainingRun:
         if oldest in self.in_flight and len(self.in_flight) == self.env.count:
             stored, waited = self._receive_part(oldest)
         t4 = time.perf_counter()
-        # In _account's order (act, env, replay, update): the wait for the Steps counts as the
-        # environment's time, the rest of receiving as the replay's.
+        # In _account's order (act, env, replay, update): the wait is env's, the rest replay's.
         env_end = t2 + waited
         replay_end = env_end + (t4 - t3 - waited)
         self._account(epsilon, stored, (t0, t1, env_end, replay_end, t4))

@@ -14,6 +14,7 @@ import secrets
 import socket
 import threading
 import time
+import weakref
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
@@ -40,6 +41,20 @@ from overtake.protocol.transport import (
 )
 
 log = logging.getLogger("overtake.client")
+# A round on a healthy server comes within milliseconds; a wait this long after a stop was
+# asked for is a wait on a server that is gone, and it ends (interrupt_waits).
+INTERRUPT_AFTER_S = 1.0
+_OPEN_CONNECTIONS: weakref.WeakSet[Connection] = weakref.WeakSet()
+
+
+def interrupt_waits() -> None:
+    """End the long waits of every open connection of this process (a command's stop signal
+    calls it): a wait for a round that has lasted :data:`INTERRUPT_AFTER_S`, or for a lost
+    server to come back, raises :class:`~overtake.protocol.errors.Interrupted`. The round
+    under way on a healthy server still completes."""
+    for connection in list(_OPEN_CONNECTIONS):
+        connection.interrupted.set()
+
 
 M = TypeVar("M", bound=Message)
 
@@ -142,6 +157,9 @@ class Connection:
         except zenoh.ZError as error:
             raise errors.ConnectError(unreachable_message(config, error)) from None
         self._inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+        self.interrupted = threading.Event()
+        """set by :func:`interrupt_waits`: long waits end"""
+        _OPEN_CONNECTIONS.add(self)
         self._buffered: dict[tuple[str, int], deque[Steps]] = {}
         self._errors: dict[tuple[str, int], deque[errors.ProtocolError]] = {}
         # The (server, group) pairs this connection steps: anything else that arrives is
@@ -362,7 +380,8 @@ class Connection:
         """Block until the :class:`Steps` of ``group``'s ``round_`` arrive: over Zenoh, or
         through the group's segment (asleep on its bell)."""
         channel = self._channels.get((server, group))
-        deadline = time.monotonic() + self.config.step_timeout_s
+        started = time.monotonic()
+        deadline = started + self.config.step_timeout_s
         while True:
             steps = self._take(server, group, round_)
             if steps is None and channel is not None:
@@ -379,6 +398,11 @@ class Connection:
             if self.server_lost(server) or self.epoch(server) != epoch:
                 raise errors.ServerLost(
                     f"server {server} went away while we waited for round {round_} of group {group}"
+                )
+            if self.interrupted.is_set() and time.monotonic() - started > INTERRUPT_AFTER_S:
+                raise errors.Interrupted(
+                    f"asked to stop while waiting for round {round_} of group {group} from "
+                    f"server {server}"
                 )
             remaining = deadline - time.monotonic()
             if remaining <= 0:

@@ -277,6 +277,11 @@ class ArenaGroup:
             # Not on a timeout: the server may have opened the arenas anyway, and asking
             # again would open them twice.
             except (errors.ConnectError, errors.ServerLost) as error:
+                if conn.interrupted.is_set():
+                    raise errors.Interrupted(
+                        f"asked to stop while looking for a server to reopen "
+                        f"{len(self.arena_ids)} arena(s) on ({error})"
+                    ) from None
                 if time.monotonic() >= deadline:
                     raise errors.ServerLost(
                         f"lost server {self.server} and found no server to reopen "
