@@ -33,7 +33,7 @@ from typing import Any
 import torch
 
 from overtake.client.commands import UsageError, run_command
-from overtake.client.wire.connection import interrupt_waits
+from overtake.client.wire.stopping import interrupt_waits
 
 from .checkpoint import (
     CHECKPOINT_NAME,

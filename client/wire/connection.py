@@ -14,7 +14,6 @@ import secrets
 import socket
 import threading
 import time
-import weakref
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
@@ -22,6 +21,7 @@ from typing import Any, TypeVar
 import zenoh
 
 from overtake.client.wire.shm_channel import ShmChannel, Transport, attach
+from overtake.client.wire.stopping import INTERRUPT_AFTER_S, stop_event
 from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import (
     Actions,
@@ -41,21 +41,6 @@ from overtake.protocol.transport import (
 )
 
 log = logging.getLogger("overtake.client")
-# A round on a healthy server comes within milliseconds; a wait this long after a stop was
-# asked for is a wait on a server that is gone, and it ends (interrupt_waits).
-INTERRUPT_AFTER_S = 1.0
-_OPEN_CONNECTIONS: weakref.WeakSet[Connection] = weakref.WeakSet()
-
-
-def interrupt_waits() -> None:
-    """End the long waits of every open connection of this process (a command's stop signal
-    calls it): a wait for a round that has lasted :data:`INTERRUPT_AFTER_S`, or for a lost
-    server to come back, raises :class:`~overtake.protocol.errors.Interrupted`. The round
-    under way on a healthy server still completes."""
-    for connection in list(_OPEN_CONNECTIONS):
-        connection.interrupted.set()
-
-
 M = TypeVar("M", bound=Message)
 
 # Messages dropped (unreadable, or not for us) are logged at most once per this many seconds.
@@ -157,9 +142,7 @@ class Connection:
         except zenoh.ZError as error:
             raise errors.ConnectError(unreachable_message(config, error)) from None
         self._inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
-        self.interrupted = threading.Event()
-        """set by :func:`interrupt_waits`: long waits end"""
-        _OPEN_CONNECTIONS.add(self)
+        self.interrupted = stop_event()  # set by interrupt_waits: long waits end
         self._buffered: dict[tuple[str, int], deque[Steps]] = {}
         self._errors: dict[tuple[str, int], deque[errors.ProtocolError]] = {}
         # The (server, group) pairs this connection steps: anything else that arrives is
