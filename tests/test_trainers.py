@@ -1148,24 +1148,17 @@ def test_training_writes_a_rerun_recording_of_its_episodes_and_learning(tmp_path
         )
 
 
-@pytest.mark.timeout(120)
-def test_sigterm_ends_a_remote_run_whose_server_is_gone_with_its_checkpoint(tmp_path, start_server):
-    """docker compose stop after the server died: the step under way waits on a server that is
-    gone (its round, then a server to reopen the arenas on, for the reconnect timeout); the
-    stop ends that wait and the run ends as a stopped run does, with its checkpoint, status 0.
-    Without it the trainer waited out the reconnect timeout and failed, checkpoint unwritten."""
-    import signal
-
+def _long_ho2018_run(run_dir: Path, *options: str) -> subprocess.Popen:
+    """An overtake-train run of ho2018 too long to end by itself, logging every 40 steps and
+    checkpointing only when stopped, and a wait until it has logged twice."""
     from remote_support import child_env, wait_until
 
-    server = start_server("gone")
-    run_dir = tmp_path / "run"
     trainer = subprocess.Popen(
         [
             sys.executable,
             "-m",
             "overtake.trainers.train",
-            *("--connect", server.endpoint, "--preset", "ho2018", "--total-steps", "1000000"),
+            *("--preset", "ho2018", "--total-steps", "1000000", *options),
             *("--run-dir", str(run_dir), "--no-progress", "--log-every", "40"),
             *("--checkpoint-every", "1000000", "--learning-starts", "64", "--replay-size", "500"),
             *("--hidden-units", "32", "--torch-threads", "1"),
@@ -1175,11 +1168,30 @@ def test_sigterm_ends_a_remote_run_whose_server_is_gone_with_its_checkpoint(tmp_
         text=True,
         env=child_env(),
     )
+    metrics = run_dir / "metrics.jsonl"
     try:
-        metrics = run_dir / "metrics.jsonl"
         wait_until(
             lambda: metrics.exists() and metrics.read_text().count("\n") >= 2, 90, "two log lines"
         )
+    except BaseException:
+        trainer.kill()
+        trainer.wait()
+        raise
+    return trainer
+
+
+@pytest.mark.timeout(120)
+def test_sigterm_ends_a_remote_run_whose_server_is_gone_with_its_checkpoint(tmp_path, start_server):
+    """docker compose stop after the server died: the step under way waits on a server that is
+    gone (its round, then a server to reopen the arenas on, for the reconnect timeout); the
+    stop ends that wait and the run ends as a stopped run does, with its checkpoint, status 0.
+    Without it the trainer waited out the reconnect timeout and failed, checkpoint unwritten."""
+    import signal
+
+    server = start_server("gone")
+    run_dir = tmp_path / "run"
+    trainer = _long_ho2018_run(run_dir, "--connect", server.endpoint)
+    try:
         server.kill()  # gone without a word
         trainer.send_signal(signal.SIGTERM)
         out, err = trainer.communicate(timeout=90)
@@ -1202,28 +1214,9 @@ def test_sigterm_ends_a_training_run_with_a_checkpoint_and_a_whole_recording(tmp
     # (a killed writer's file lacks what it had not flushed).
     import signal
 
-    from remote_support import wait_until
-
     run_dir = tmp_path / "run"
-    trainer = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "overtake.trainers.train",
-            *("--preset", "ho2018", "--total-steps", "1000000", "--seed", "3"),
-            *("--run-dir", str(run_dir), "--no-progress", "--log-every", "40"),
-            *("--checkpoint-every", "1000000", "--learning-starts", "64", "--replay-size", "500"),
-            *("--hidden-units", "32", "--torch-threads", "1"),
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    trainer = _long_ho2018_run(run_dir, "--seed", "3")
     try:
-        metrics = run_dir / "metrics.jsonl"
-        wait_until(
-            lambda: metrics.exists() and metrics.read_text().count("\n") >= 2, 90, "two log lines"
-        )
         assert not (run_dir / CHECKPOINT_NAME).exists()  # none periodic: the stop writes it
         trainer.send_signal(signal.SIGTERM)
         out, err = trainer.communicate(timeout=60)
