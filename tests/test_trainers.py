@@ -1150,7 +1150,8 @@ def test_training_writes_a_rerun_recording_of_its_episodes_and_learning(tmp_path
 
 def _long_ho2018_run(run_dir: Path, *options: str) -> subprocess.Popen:
     """An overtake-train run of ho2018 too long to end by itself, logging every 40 steps and
-    checkpointing only when stopped, and a wait until it has logged twice."""
+    checkpointing only when stopped (its stderr in trainer.err beside ``run_dir``), and a wait
+    until it has logged twice."""
     from remote_support import child_env, wait_until
 
     trainer = subprocess.Popen(
@@ -1164,7 +1165,7 @@ def _long_ho2018_run(run_dir: Path, *options: str) -> subprocess.Popen:
             *("--hidden-units", "32", "--torch-threads", "1"),
         ],
         stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
+        stderr=(run_dir.parent / "trainer.err").open("w"),  # read while it runs
         text=True,
         env=child_env(),
     )
@@ -1188,13 +1189,19 @@ def test_sigterm_ends_a_remote_run_whose_server_is_gone_with_its_checkpoint(tmp_
     Without it the trainer waited out the reconnect timeout and failed, checkpoint unwritten."""
     import signal
 
+    from remote_support import wait_until
+
     server = start_server("gone")
     run_dir = tmp_path / "run"
     trainer = _long_ho2018_run(run_dir, "--connect", server.endpoint)
+    errors_file = tmp_path / "trainer.err"
     try:
         server.kill()  # gone without a word
+        # The stop must find the trainer waiting for a server to reopen its arena on.
+        wait_until(lambda: "reopening" in errors_file.read_text(), 60, "the trainer to notice")
         trainer.send_signal(signal.SIGTERM)
-        out, err = trainer.communicate(timeout=90)
+        out, _ = trainer.communicate(timeout=90)
+        err = errors_file.read_text()
     finally:
         if trainer.poll() is None:
             trainer.kill()
@@ -1216,10 +1223,12 @@ def test_sigterm_ends_a_training_run_with_a_checkpoint_and_a_whole_recording(tmp
 
     run_dir = tmp_path / "run"
     trainer = _long_ho2018_run(run_dir, "--seed", "3")
+    errors_file = tmp_path / "trainer.err"
     try:
         assert not (run_dir / CHECKPOINT_NAME).exists()  # none periodic: the stop writes it
         trainer.send_signal(signal.SIGTERM)
-        out, err = trainer.communicate(timeout=60)
+        out, _ = trainer.communicate(timeout=60)
+        err = errors_file.read_text()
     finally:
         if trainer.poll() is None:
             trainer.kill()
