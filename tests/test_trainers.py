@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import subprocess
 import sys
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -1148,37 +1150,49 @@ def test_training_writes_a_rerun_recording_of_its_episodes_and_learning(tmp_path
         )
 
 
-def _long_ho2018_run(run_dir: Path, *options: str) -> subprocess.Popen:
+@contextlib.contextmanager
+def _long_ho2018_run(run_dir: Path, *options: str) -> Iterator[tuple[subprocess.Popen, Path]]:
     """An overtake-train run of ho2018 too long to end by itself, logging every 40 steps and
-    checkpointing only when stopped (its stderr in trainer.err beside ``run_dir``), and a wait
-    until it has logged twice."""
+    checkpointing only when stopped, once it has logged twice; with the file its stderr goes
+    to (read while it runs). Killed on the way out if still running."""
     from remote_support import child_env, wait_until
 
-    trainer = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "overtake.trainers.train",
-            *("--preset", "ho2018", "--total-steps", "1000000", *options),
-            *("--run-dir", str(run_dir), "--no-progress", "--log-every", "40"),
-            *("--checkpoint-every", "1000000", "--learning-starts", "64", "--replay-size", "500"),
-            *("--hidden-units", "32", "--torch-threads", "1"),
-        ],
-        stdout=subprocess.PIPE,
-        stderr=(run_dir.parent / "trainer.err").open("w"),  # read while it runs
-        text=True,
-        env=child_env(),
-    )
+    errors_file = run_dir.parent / "trainer.err"
+    with errors_file.open("w") as errors_out:
+        trainer = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "overtake.trainers.train",
+                *("--preset", "ho2018", "--total-steps", "1000000", *options),
+                *("--run-dir", str(run_dir), "--no-progress", "--log-every", "40"),
+                *("--checkpoint-every", "1000000", "--learning-starts", "64"),
+                *("--replay-size", "500", "--hidden-units", "32", "--torch-threads", "1"),
+            ],
+            stdout=subprocess.PIPE,
+            stderr=errors_out,
+            text=True,
+            env=child_env(),
+        )
     metrics = run_dir / "metrics.jsonl"
     try:
         wait_until(
             lambda: metrics.exists() and metrics.read_text().count("\n") >= 2, 90, "two log lines"
         )
-    except BaseException:
-        trainer.kill()
-        trainer.wait()
-        raise
-    return trainer
+        yield trainer, errors_file
+    finally:
+        if trainer.poll() is None:
+            trainer.kill()
+            trainer.wait()
+
+
+def _sigterm(trainer: subprocess.Popen, errors_file: Path, timeout_s: float) -> tuple[str, str]:
+    """SIGTERM to ``trainer``; its stdout and stderr once it has ended."""
+    import signal
+
+    trainer.send_signal(signal.SIGTERM)
+    out, _ = trainer.communicate(timeout=timeout_s)
+    return out, errors_file.read_text()
 
 
 @pytest.mark.timeout(120)
@@ -1187,25 +1201,15 @@ def test_sigterm_ends_a_remote_run_whose_server_is_gone_with_its_checkpoint(tmp_
     gone (its round, then a server to reopen the arenas on, for the reconnect timeout); the
     stop ends that wait and the run ends as a stopped run does, with its checkpoint, status 0.
     Without it the trainer waited out the reconnect timeout and failed, checkpoint unwritten."""
-    import signal
-
     from remote_support import wait_until
 
     server = start_server("gone")
     run_dir = tmp_path / "run"
-    trainer = _long_ho2018_run(run_dir, "--connect", server.endpoint)
-    errors_file = tmp_path / "trainer.err"
-    try:
+    with _long_ho2018_run(run_dir, "--connect", server.endpoint) as (trainer, errors_file):
         server.kill()  # gone without a word
         # The stop must find the trainer waiting for a server to reopen its arena on.
         wait_until(lambda: "reopening" in errors_file.read_text(), 60, "the trainer to notice")
-        trainer.send_signal(signal.SIGTERM)
-        out, _ = trainer.communicate(timeout=90)
-        err = errors_file.read_text()
-    finally:
-        if trainer.poll() is None:
-            trainer.kill()
-            trainer.wait()
+        out, err = _sigterm(trainer, errors_file, 90)
     assert trainer.returncode == 0, err
     assert "the run ends at its last whole step" in err
     summary = json.loads(out[out.index("{") :])
@@ -1219,20 +1223,10 @@ def test_sigterm_ends_a_training_run_with_a_checkpoint_and_a_whole_recording(tmp
     # way as it would at --total-steps, so nothing since the last periodic checkpoint is lost
     # and the .rrd is closed with everything in it: the last log line, written at the stop
     # (a killed writer's file lacks what it had not flushed).
-    import signal
-
     run_dir = tmp_path / "run"
-    trainer = _long_ho2018_run(run_dir, "--seed", "3")
-    errors_file = tmp_path / "trainer.err"
-    try:
+    with _long_ho2018_run(run_dir, "--seed", "3") as (trainer, errors_file):
         assert not (run_dir / CHECKPOINT_NAME).exists()  # none periodic: the stop writes it
-        trainer.send_signal(signal.SIGTERM)
-        out, _ = trainer.communicate(timeout=60)
-        err = errors_file.read_text()
-    finally:
-        if trainer.poll() is None:
-            trainer.kill()
-            trainer.wait()
+        out, err = _sigterm(trainer, errors_file, 60)
     assert trainer.returncode == 0, err
     assert "SIGTERM: finishing the step under way, writing a checkpoint" in err
     summary = json.loads(out[out.index("{") :])
