@@ -56,7 +56,12 @@ from overtake.client.episodes.records import (
 )
 from overtake.client.episodes.runner import run_episodes
 from overtake.client.policies.shield import Shield
-from overtake.protocol.vocabulary import ACTION_NAMES, KEEP, WATCH_SETTING
+from overtake.protocol.vocabulary import (
+    ACTION_NAMES,
+    EPISODE_LENGTH_SETTING,
+    KEEP,
+    WATCH_SETTING,
+)
 from overtake.server.sim.units import KMH
 from overtake.trainers.episode_replay import RecordedActions, replay_envs
 
@@ -363,9 +368,12 @@ def caught_by(
     :data:`NO_RULE`."""
     until = [episode.events["collisions"][0] + within_decisions for episode in episodes]
     found = [NO_RULE] * len(episodes)
+    # The episodes end just past the window: what comes later is not looked at.
+    recorded_length = header.config.get("episode", {}).get("max_decisions", max(until) + 2)
+    window = {EPISODE_LENGTH_SETTING: min(recorded_length, max(until) + 2)}
     for name, (shielded, watched) in rules.items():
         envs = replay_envs(
-            header, len(episodes), changes={WATCH_SETTING: True} if watched else None
+            header, len(episodes), changes={**window, **({WATCH_SETTING: True} if watched else {})}
         )
         try:
             act: Any = RecordedActions(episodes, None, False, header)
