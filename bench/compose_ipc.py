@@ -2,8 +2,9 @@
 and what does it give there? (issue 47; docs/compose.md, "Trainers in containers beside the
 server")
 
-Two parts, on a running Docker engine, with the images ``bench/compose_e2e.py`` builds (built
-here through the compose file, with the cache, the same offline inputs):
+Two parts, on a running Docker engine, with the images ``bench/compose_e2e.py`` builds (the
+stack part builds them through the compose file, with the cache and the same offline inputs;
+``--parts measure`` alone needs them built already):
 
 1. **The stack** (``stack``). The real ``docker-compose.yml`` under its own project name, with
    compose_e2e's router substitution and the two lines docs/compose.md tells a user to add:
@@ -50,7 +51,6 @@ from bench.compose_e2e import (
     WHEEL_DIR,
     ComposeE2EConfig,
     E2EFailure,
-    Stack,
     check_status,
     engine_version,
     make_stack,
@@ -252,9 +252,9 @@ def check_stack(
         stack.compose("up", "-d")
         check_status(stack, figures, started)
         figures["segment_maps"] = maps = {
-            f"trainer-{algo}": segment_maps(_container(stack, f"trainer-{algo}")) for algo in ALGOS
+            f"trainer-{algo}": segment_maps(stack.container(f"trainer-{algo}")) for algo in ALGOS
         }
-        logs = {f"trainer-{a}": _logs(_container(stack, f"trainer-{a}")) for a in ALGOS}
+        logs = {f"trainer-{a}": _logs(stack.container(f"trainer-{a}")) for a in ALGOS}
         (config.run_dir / "stack.log").write_text(
             "".join(f"=== {name}\n{text}\n" for name, text in logs.items())
         )
@@ -284,13 +284,6 @@ def check_stack(
     finally:
         stack.compose("down", "-v", "-t", "20", check=False)
     return figures
-
-
-def _container(stack: Stack, service: str) -> str:
-    names = sorted(c["Name"] for c in stack.service_containers(service))
-    if not names:
-        raise E2EFailure(f"no container of {service}")
-    return names[0]
 
 
 def _logs(container: str) -> str:
