@@ -259,7 +259,7 @@ def joined(parts: Sequence[Steps]) -> Steps:
     )
 
 
-class _Faced:
+class Faced:
     """What every face offers of its simulator."""
 
     simulator: Simulator
@@ -283,7 +283,7 @@ class _Faced:
         return ["rgb_array"] if self.simulator.road is not None else []
 
 
-class SingleFace(_Faced, ReportsEpisodeLength, gym.Env):
+class SingleFace(Faced, ReportsEpisodeLength, gym.Env):
     """One agent on one arena: Gymnasium's ``Env`` over a simulator of one engine."""
 
     # Gymnasium's convention: a class attribute, replaced per instance (its render modes and
@@ -350,7 +350,7 @@ class SingleFace(_Faced, ReportsEpisodeLength, gym.Env):
         self.simulator.close()
 
 
-class VectorFace(_Faced, gym.vector.VectorEnv):
+class VectorFace(Faced, gym.vector.VectorEnv):
     """``num_envs`` arenas stepped together, with Gymnasium 1.x next-step autoreset: the step
     after an episode ends resets that arena (ignoring its action) and returns the first
     observation of the new episode with reward 0 and both flags false.

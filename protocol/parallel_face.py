@@ -26,8 +26,8 @@ import numpy as np
 from pettingzoo import ParallelEnv
 
 from .envs import check_render_mode
-from .faces import Simulator, StepInfo, spaces_from_spec
-from .messages import BehaviourSpec, Steps
+from .faces import Faced, Simulator, StepInfo, spaces_from_spec
+from .messages import Steps
 from .vocabulary import ACTION_COUNT, ACTION_NAMES
 
 AgentID = str
@@ -39,7 +39,7 @@ def agent_names(count: int) -> list[str]:
     return [f"car_{i}" for i in range(count)]
 
 
-class ParallelFace(ParallelEnv[AgentID, dict[str, np.ndarray], int]):
+class ParallelFace(Faced, ParallelEnv[AgentID, dict[str, np.ndarray], int]):
     """``agents`` learning cars on one road of a simulator of one engine."""
 
     # PettingZoo's convention: a class attribute, replaced per instance (the render modes and
@@ -56,7 +56,7 @@ class ParallelFace(ParallelEnv[AgentID, dict[str, np.ndarray], int]):
         spec = simulator.spec
         self.metadata = {
             **self.metadata,
-            "render_modes": ["rgb_array"] if simulator.road is not None else [],
+            "render_modes": self._render_modes(),
             "render_fps": 1.0 / spec.decision_period_s,
         }
         check_render_mode(render_mode, self.metadata["render_modes"])
@@ -73,11 +73,6 @@ class ParallelFace(ParallelEnv[AgentID, dict[str, np.ndarray], int]):
         self._retire_next: list[int] = []
         self.decision_period_s = spec.decision_period_s
         self.max_episode_steps = spec.max_episode_steps
-
-    @property
-    def behaviour_spec(self) -> BehaviourSpec:
-        """What an agent sees and drives."""
-        return self.simulator.spec
 
     def observation_space(self, agent: AgentID) -> gym.spaces.Space:
         self._slot(agent)
