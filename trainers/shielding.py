@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from overtake.client.commands import UsageError
+from overtake.client.episodes.records import EventCounts
 from overtake.client.policies.shield import Shield, overridden
 from overtake.protocol.messages import BehaviourSpec
 from overtake.protocol.vocabulary import WATCH_METRICS
@@ -67,7 +68,7 @@ class SafetyLayer:
         # Per environment: where the shield overrode the greedy choice at its last decision,
         # and the lane changes driver assistance had turned back in its episode so far.
         self.overridden = np.zeros(num_envs, dtype=bool)
-        self.aborts_seen = np.zeros(num_envs, dtype=np.int64)
+        self.aborts = EventCounts(num_envs, names=(LANE_CHANGE_ABORTS,))
 
     @property
     def overrides(self) -> int | None:
@@ -99,12 +100,9 @@ class SafetyLayer:
         if self.store_applied:
             # -1: the autoreset step, whose action was ignored (and is not stored).
             actions = np.where(applied >= 0, applied, actions)
-        turned_back = np.zeros(len(envs), dtype=bool)
-        aborts = info.get("episode_counts", {}).get(LANE_CHANGE_ABORTS)
-        if aborts is not None:
-            aborts = np.asarray(aborts)
-            turned_back = aborts > self.aborts_seen[envs]
-            self.aborts_seen[envs] = aborts
+        turned_back = self.aborts.rose(info, envs).get(
+            LANE_CHANGE_ABORTS, np.zeros(len(envs), dtype=bool)
+        )
         if self.penalty > 0.0:
             # A late action (the trainer missed the server's deadline) was replaced by keep:
             # not safety stepping in.

@@ -265,24 +265,29 @@ def config_differences(recorded: Any, now: Any, prefix: str = "") -> list[str]:
 
 class EventCounts:
     """Which of ``info["episode_counts"]`` rose at a step, per environment: the decisions
-    where a collision or an emergency brake happened (both episode watchers read it)."""
+    where a collision or an emergency brake happened (both episode watchers read it), or
+    where driver assistance turned a lane change back (a training run's safety layer reads
+    ``names=WATCH_METRICS``). A count that falls has started a new episode."""
 
-    def __init__(self, num_envs: int) -> None:
-        self.counts = {name: np.zeros(num_envs, dtype=np.int64) for name in EPISODE_COUNTS}
+    def __init__(self, num_envs: int, names: tuple[str, ...] = EPISODE_COUNTS) -> None:
+        self.counts = {name: np.zeros(num_envs, dtype=np.int64) for name in names}
 
     def reset(self) -> None:
         for value in self.counts.values():
             value[:] = 0
 
-    def rose(self, info: dict[str, Any]) -> dict[str, np.ndarray]:
-        """Per count, the environments whose count rose since the last call (then kept)."""
+    def rose(
+        self, info: dict[str, Any], envs: np.ndarray | slice = slice(None)
+    ) -> dict[str, np.ndarray]:
+        """Per count in ``info`` (whose rows are the environments ``envs``, all by default),
+        the rows whose count rose since the last call (then kept)."""
         counts = info.get("episode_counts", {})
         rose = {}
         for name, before in self.counts.items():
             if name in counts:
                 now = np.asarray(counts[name])
-                rose[name] = now > before
-                before[:] = now
+                rose[name] = now > before[envs]
+                before[envs] = now
         return rose
 
 
