@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, ClassVar, Literal
 import numpy as np
 
 from . import kernels
+from .ahead import CarsAhead, cars_ahead
 from .lane_watch import LaneChangeWatch
 from .units import KMH
 from .validation import check, check_flag, check_range
@@ -369,16 +370,6 @@ class LaneChangeAssist:
         go_right &= ~yields
 
 
-@dataclass(slots=True)
-class CarsAhead:
-    """Each agent's car ahead, (A, N): the nearest vehicle in front in a lane the agent is in
-    or moving into (or moving into the agent's), bumper to bumper."""
-
-    gap_m: np.ndarray  # inf where there is none
-    speed_mps: np.ndarray  # the agent's own speed where there is none
-    present: np.ndarray  # bool
-
-
 class DriverWarnings:
     """The authors' code's warnings, per agent: left, right (a side warning: that lane is not
     clear for a lane change, or there is none) and forward (a car ahead, no faster than the
@@ -396,21 +387,8 @@ class DriverWarnings:
         self.agents = agents
 
     def cars_ahead(self, st: SimState) -> CarsAhead:
-        """Each agent's car ahead (:class:`CarsAhead`), in a compiled loop."""
-        shape = st.x_m.shape[:1] + (self.agents,)
-        gap_m, speed = np.empty(shape), np.empty(shape)
-        kernels.cars_ahead(
-            st.x_m,
-            st.speed_mps,
-            st.lane,
-            st.target_lane,
-            st.active,
-            self.kinds.half_length[st.kind],
-            self.agents,
-            gap_m,
-            speed,
-        )
-        return CarsAhead(gap_m=gap_m, speed_mps=speed, present=np.isfinite(gap_m))
+        """Each agent's car ahead (:class:`.ahead.CarsAhead`)."""
+        return cars_ahead(st, self.kinds, self.agents)
 
     def compute(self, st: SimState, ahead: CarsAhead | None = None) -> np.ndarray:
         """(A, N, 3) bool: left, right and forward warnings now."""

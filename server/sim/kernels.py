@@ -89,8 +89,7 @@ def cars_ahead(
     """Each agent's nearest vehicle in front, (A, N) into ``gap_m`` (bumper to bumper, inf
     where there is none) and ``speed_ahead`` (its speed; the agent's own where there is none):
     among the other active vehicles ahead that share a lane with the agent, current or target
-    on either side (:meth:`.assist.DriverWarnings.cars_ahead`; of equal gaps the lowest
-    column)."""
+    on either side (:func:`.ahead.cars_ahead`; of equal gaps the lowest column)."""
     arenas, vehicles = x_m.shape
     for a in range(arenas):
         for n in range(agents):

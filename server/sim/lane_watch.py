@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from . import kernels
+from .ahead import cars_ahead
 
 if TYPE_CHECKING:
     from .assist import EgoConfig
@@ -105,19 +106,8 @@ class LaneChangeWatch:
                 st.target_lane[:, :n] = np.where(back, origin, st.target_lane[:, :n])
                 st.change_progress[:, :n] = np.where(back, 1.0 - progress, progress)
                 st.lane_change_aborts += back
-        shape = (st.x_m.shape[0], n)
-        gap_m, speed_ahead = np.empty(shape), np.empty(shape)
-        kernels.cars_ahead(
-            st.x_m,
-            st.speed_mps,
-            st.lane,
-            st.target_lane,
-            st.active,
-            self.kinds.half_length[st.kind],
-            n,
-            gap_m,
-            speed_ahead,
-        )
+        ahead = cars_ahead(st, self.kinds, n)
+        gap_m, speed_ahead = ahead.gap_m, ahead.speed_mps
         closing = st.speed_mps[:, :n] - speed_ahead
         if not (closing > 0.0).any():
             return

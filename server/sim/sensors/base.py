@@ -18,7 +18,8 @@ import numpy as np
 from ..physics import headings
 
 if TYPE_CHECKING:
-    from ..assist import CarsAhead, DriverWarnings
+    from ..ahead import CarsAhead
+    from ..assist import DriverWarnings
     from ..config import SimConfig
     from ..road import Road
     from ..state import SimState
