@@ -561,7 +561,12 @@ def test_the_table_says_how_each_run_was_made_and_names_no_machine_s_directories
         if 0 < step < BUDGET:  # killed part-way: a second life resumed from the checkpoint
             assert [life["from_step"] for life in lives] == [0, step]
             assert lives[1]["target_restored"] and lives[1]["optimizer_restored"]
+    # Each evaluation names the code that drove it (its episode record's header): this
+    # checkout's, as the table's header line says.
+    for entry in [*runs.values(), *light["references"]]:
+        assert entry["evaluated_by"] == table["commit"]
     markdown = (out / "table.md").read_text()
+    assert f"; evaluated by code {table['commit']};" in markdown
     assert "## How each run was made" in markdown
     assert "- dqn-both-seed0: 0–" in markdown and " on cpu (fp32), commit " in markdown
     # No absolute path anywhere: the run directories and the command's own are relative.

@@ -67,7 +67,9 @@ def markdown_table(result: dict[str, Any]) -> str:
         "deviation) over the episodes; a row with several training seeds pools the episodes "
         "of all of them (per-seed means below its table). Collisions per 1,000 decisions: "
         "each episode's own rate.",
-        f"Code {result['commit']}, written {result['written_utc']}.",
+        f"Tabulated by code {result['commit']}, written {result['written_utc']}; evaluated by "
+        f"code {', '.join(evaluation_commits(result))}; each run's training code is under "
+        "“How each run was made”.",
     ]
     headings = [heading for _, heading, _ in TABLE_COLUMNS]
     for density, table in result["densities"].items():
@@ -199,7 +201,31 @@ def _collisions(result: dict[str, Any], out: Path) -> dict[str, Any]:
             i for i, episode in enumerate(result["episodes"]) if episode["collisions"] > 0
         ],
         "episodes_record": str(_relative(Path(record), out)) if record else None,
+        "evaluated_by": _record_commit(Path(record)) if record else None,
     }
+
+
+def _record_commit(record: Path) -> str | None:
+    """The commit of the code that drove an evaluation's episodes (its record's header, the
+    first line); None where the record is gone or names none."""
+    try:
+        with record.open(encoding="utf-8") as file:
+            header = json.loads(file.readline())
+    except (OSError, ValueError):
+        return None
+    commit = header.get("commit") if isinstance(header, dict) else None
+    return commit if isinstance(commit, str) and commit else None
+
+
+def evaluation_commits(result: dict[str, Any]) -> list[str]:
+    """The commits whose code evaluated a table's rows and references (table.json's
+    ``evaluated_by``), in order of first appearance; "unknown" for evaluations without one."""
+    found: dict[str, None] = {}
+    for table in result["densities"].values():
+        entries = [run for row in table["rows"] for run in row["runs"]]
+        for entry in [*entries, *table["references"]]:
+            found[entry.get("evaluated_by") or "unknown"] = None
+    return list(found)
 
 
 COLLISIONS_SUMMARY = "Episodes with collisions, and the command that replays them in Rerun"
