@@ -16,6 +16,7 @@ from overtake.client.episodes.drive import main as drive
 from overtake.client.episodes.records import (
     EpisodeRecord,
     RecordError,
+    read_header,
     read_records,
     write_records,
 )
@@ -205,6 +206,8 @@ def test_a_file_that_is_not_a_record_is_refused_with_what_it_holds(tmp_path, lin
     path.write_text(line + "\n")
     with pytest.raises(RecordError, match=message):
         read_records(path)
+    with pytest.raises(RecordError, match=message):  # the header alone, checked the same
+        read_header(path)
 
 
 def test_an_episode_line_is_checked(tmp_path):
@@ -214,6 +217,8 @@ def test_an_episode_line_is_checked(tmp_path):
     write_records(tmp_path / "letters.jsonl", header, [bad])
     with pytest.raises(RecordError, match=r"line 2: actions must be digits 0-4, got \['0', '1'"):
         read_records(tmp_path / "letters.jsonl")
+    # The header alone is read without the episodes.
+    assert read_header(tmp_path / "letters.jsonl") == header
     short = EpisodeRecord(0, 3, "01", episodes[0].metrics)
     write_records(tmp_path / "short.jsonl", header, [short])
     with pytest.raises(RecordError, match="2 actions for an episode of 80 decisions"):

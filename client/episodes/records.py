@@ -180,6 +180,21 @@ def _episode(values: Any, path: Path, line: int) -> EpisodeRecord:
     return record
 
 
+def read_header(path: Path) -> RecordHeader:
+    """A record file's header alone (its first line: what every episode shares), without
+    reading its episodes; :class:`RecordError` as :func:`read_records`."""
+    try:
+        with Path(path).open(encoding="utf-8") as file:
+            first = file.readline()
+    except OSError as error:
+        raise RecordError(f"cannot read the episode record {path}: {error}") from None
+    try:
+        values = json.loads(first)
+    except json.JSONDecodeError as error:
+        raise RecordError(f"{path}, line 1: not JSON ({error})") from None
+    return _header(values, path)
+
+
 def read_records(path: Path) -> tuple[RecordHeader, list[EpisodeRecord]]:
     """A record file's header and episodes; :class:`RecordError` says what is wrong with a
     file that is not one."""

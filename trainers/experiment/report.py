@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from overtake.client.episodes.records import RecordError, read_header
 from overtake.protocol.vocabulary import WATCH_METRICS
 
 from ..checkpoint import plain_data
@@ -52,6 +53,8 @@ def markdown_table(result: dict[str, Any]) -> str:
     """table.md: one table per density, the rows then the reference policies."""
     plan = result["plan"]
     episodes, seed = plan["eval_episodes"], plan["eval_seed"]
+    runs = [run for row in next(iter(result["densities"].values()))["rows"] for run in row["runs"]]
+    runs_made = bool(runs) and any("provenance" in run for run in runs)  # the section below
     lines = [
         f"# {result['experiment']}: {plan['title']}",
         "",
@@ -68,8 +71,8 @@ def markdown_table(result: dict[str, Any]) -> str:
         "of all of them (per-seed means below its table). Collisions per 1,000 decisions: "
         "each episode's own rate.",
         f"Tabulated by code {result['commit']}, written {result['written_utc']}; evaluated by "
-        f"code {', '.join(evaluation_commits(result))}; each run's training code is under "
-        "“How each run was made”.",
+        f"code {', '.join(evaluation_commits(result))}"
+        + ("; each run's training code is under “How each run was made”." if runs_made else "."),
     ]
     headings = [heading for _, heading, _ in TABLE_COLUMNS]
     for density, table in result["densities"].items():
@@ -157,8 +160,7 @@ def markdown_table(result: dict[str, Any]) -> str:
                         f"{pair['lower']} ({min(low):.1f}–{max(low):.1f}) by "
                         f"{pair['difference']:.1f} km/h: {verdict}"
                     )
-    runs = [run for row in next(iter(result["densities"].values()))["rows"] for run in row["runs"]]
-    if runs and any("provenance" in run for run in runs):
+    if runs_made:
         lines += ["", "## How each run was made", ""]
         lines += [f"- {run['run']}: {provenance_line(run.get('provenance', []))}" for run in runs]
     experiment = EXPERIMENTS.get(result["experiment"])
@@ -191,10 +193,11 @@ def _versions() -> dict[str, str]:
     return versions
 
 
-def _collisions(result: dict[str, Any], out: Path) -> dict[str, Any]:
-    """An evaluation's episodes with a collision (their numbers: episode i had seed
-    eval_seed + i) and its episode record, which overtake-replay plays them from: its path
-    within the experiment's directory ``out``, so that the kept copy names it too."""
+def _from_record(result: dict[str, Any], out: Path) -> dict[str, Any]:
+    """What a table takes from an evaluation's episode record: the episodes with a collision
+    (their numbers: episode i had seed eval_seed + i), the record's path within the
+    experiment's directory ``out`` (so that the kept copy names it too: overtake-replay plays
+    them from it), and the commit of the code that drove them (its header's)."""
     record = result.get("episodes_record")
     return {
         "collision_episodes": [
@@ -206,15 +209,11 @@ def _collisions(result: dict[str, Any], out: Path) -> dict[str, Any]:
 
 
 def _record_commit(record: Path) -> str | None:
-    """The commit of the code that drove an evaluation's episodes (its record's header, the
-    first line); None where the record is gone or names none."""
+    """The commit in a record's header; None where the record is gone or is not one."""
     try:
-        with record.open(encoding="utf-8") as file:
-            header = json.loads(file.readline())
-    except (OSError, ValueError):
+        return read_header(record).commit or None
+    except RecordError:
         return None
-    commit = header.get("commit") if isinstance(header, dict) else None
-    return commit if isinstance(commit, str) and commit else None
 
 
 def evaluation_commits(result: dict[str, Any]) -> list[str]:
@@ -335,7 +334,7 @@ class Outputs:
                     "summary": episode_statistics(result["episodes"]),
                     "evaluation": str(_relative(task.cache, self.plan.out)),
                     "decisions_per_s": result["decisions_per_s"],
-                    **_collisions(result, self.plan.out),
+                    **_from_record(result, self.plan.out),
                     "provenance": run_lives(run.run_dir, step),
                 }
             )
@@ -382,7 +381,7 @@ class Outputs:
             "summary": episode_statistics(result["episodes"]),
             "evaluation": str(_relative(task.cache, self.plan.out)),
             "decisions_per_s": result["decisions_per_s"],
-            **_collisions(result, self.plan.out),
+            **_from_record(result, self.plan.out),
         }
 
     def write(self) -> dict[str, Any]:
