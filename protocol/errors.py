@@ -110,7 +110,6 @@ ERRORS_BY_CODE: dict[str, type[ProtocolError]] = {
         UnknownPreset,
         BadConfig,
         ServerFull,
-        Interrupted,
         ServerBusy,
         UnknownArena,
         NotOwner,
@@ -120,6 +119,7 @@ ERRORS_BY_CODE: dict[str, type[ProtocolError]] = {
         ConnectError,
         ServerLost,
         StepTimeout,
+        Interrupted,
     )
 }
 

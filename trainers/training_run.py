@@ -188,7 +188,7 @@ class TrainingRun:
             "run_dir": str(self.run_dir),
             "steps": self.step,
             "resumed_at_step": self.resumed_at_step,
-            # envs.step (or send) calls this life, autoresets included: the server's rounds.
+            # envs.step (or send) calls this life, autoresets included: rounds, +2 a server loss.
             "env_steps_called": self.env_calls,
             "parts": self.env.count,
             # Decisions where the shield forbade the network's greedy choice (with --shield).
