@@ -14,8 +14,8 @@ import threading
 import weakref
 
 INTERRUPT_AFTER_S = 1.0
-"""A wait for a round that has lasted this long after a stop was asked for ends (a round on a
-healthy server comes within milliseconds)."""
+"""Once a stop is asked for, a wait for a round ends when it has lasted this long since it began
+(a round on a healthy server comes within milliseconds)."""
 _STOP_EVENTS: weakref.WeakSet[threading.Event] = weakref.WeakSet()
 
 
