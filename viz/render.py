@@ -38,8 +38,8 @@ VIEWER_START_TIMEOUT_S = 60.0
 SETTLE_INTERVAL_S = 1.0
 SETTLE_SAME = 3
 # The viewer greets with notifications ("software rasterizer detected", the adapter, the port)
-# drawn over the right of the window; they fade after a few seconds. No screenshot is taken
-# before the viewer has run this long.
+# drawn over the right of the window; they fade after a few seconds. By default no screenshot
+# is taken before the viewer has run this long.
 NOTIFICATIONS_S = 12.0
 SETTLE_TIMEOUT_S = 60.0
 
@@ -69,6 +69,9 @@ class RenderConfig:
     """window width in pixels"""
     height: int = 1000
     """window height in pixels"""
+    notifications_s: float = NOTIFICATIONS_S
+    """seconds the viewer runs before the first picture: its greeting notifications, drawn
+    over the right of the window, have faded by then (0: draw at once, notifications and all)"""
     extra_args: tuple[str, ...] = field(default_factory=tuple)
     """more arguments for the viewer"""
 
@@ -80,9 +83,12 @@ def _free_port() -> int:
 
 
 @contextlib.contextmanager
-def headless_viewer(width: int, height: int) -> Iterator[tuple[Any, float]]:
+def headless_viewer(
+    width: int, height: int, notifications_s: float = NOTIFICATIONS_S
+) -> Iterator[tuple[Any, float]]:
     """A headless Rerun viewer: a :class:`rerun.experimental.ViewerClient` on it, and the
-    monotonic time before which its greeting notifications may still cover the window."""
+    monotonic time before which no picture is taken: ``notifications_s`` after it started,
+    while its greeting notifications may still cover the window."""
     import rerun as rr
 
     port = _free_port()
@@ -139,7 +145,7 @@ def headless_viewer(width: int, height: int) -> Iterator[tuple[Any, float]]:
             except Exception:
                 client = None
                 time.sleep(0.2)  # polling a port: there is nothing to wait on
-        yield client, started + NOTIFICATIONS_S
+        yield client, started + notifications_s
     finally:
         # xvfb-run starts Xvfb and the viewer in our new session: end the whole group.
         with contextlib.suppress(ProcessLookupError):
@@ -245,7 +251,10 @@ def main(config: RenderConfig) -> list[Path]:
     if missing:
         raise RenderError(f"no such recording: {', '.join(missing)}")
     written: list[Path] = []
-    with headless_viewer(config.width, config.height) as (client, quiet_from):
+    with headless_viewer(config.width, config.height, config.notifications_s) as (
+        client,
+        quiet_from,
+    ):
         client.open([str(p.resolve()) for p in config.recordings])
         if config.timeline_time is not None:
             client.set_time(sequence=config.timeline_time, play_state="paused")
