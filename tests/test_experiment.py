@@ -51,6 +51,9 @@ from overtake.viz.recording import RecordingConfig
 from remote_support import wait_until
 
 ROOT = Path(__file__).resolve().parent.parent
+# The killed-experiment fixture (``tiny``), which the first test to use it pays for, takes 20-40 s
+# on an idle machine, and took more than the suite's 300 s beside a training run on both cores.
+pytestmark = pytest.mark.timeout(600)
 
 # --- the registry and the checks ---------------------------------------------------------------
 
