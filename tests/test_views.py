@@ -324,3 +324,19 @@ def test_a_tab_pattern_draws_every_tab_it_names_each_to_its_own_file(tmp_path):
     assert len(names) >= 2 and len(set(names)) == len(names), names
     assert "demo-.png" not in names and "demo-compare.png" in names
     assert all(path.is_file() and path.stat().st_size > 1000 for path in written)
+
+
+@needs_viewer
+@pytest.mark.timeout(120)
+def test_extra_arguments_reach_the_viewer(tmp_path):
+    """``--extra-args`` go on the viewer's command line (they were accepted and dropped): one it
+    does not know ends it, and the error says what the viewer said."""
+    from overtake.viz.render import RenderConfig, RenderError
+    from overtake.viz.render import main as render
+
+    rrd = tmp_path / "road.rrd"
+    record_world(rrd, [road_frame(0)])
+    config = RenderConfig(recordings=(rrd,), out=tmp_path / "road.png", extra_args=("--no-such",))
+    with pytest.raises(RenderError, match="the viewer exited with code .*--no-such"):
+        render(config)
+    assert not config.out.exists()

@@ -71,7 +71,8 @@ class RenderConfig:
     """window height in pixels"""
     notifications_s: float = NOTIFICATIONS_S
     """seconds the viewer runs before the first picture: its greeting notifications, drawn
-    over the right of the window, have faded by then (0: draw at once, notifications and all)"""
+    over the right of the window, have faded by then (0: the first picture is taken once it
+    holds still, notifications or not)"""
     extra_args: tuple[str, ...] = field(default_factory=tuple)
     """more arguments for the viewer"""
 
@@ -84,11 +85,15 @@ def _free_port() -> int:
 
 @contextlib.contextmanager
 def headless_viewer(
-    width: int, height: int, notifications_s: float = NOTIFICATIONS_S
+    width: int,
+    height: int,
+    notifications_s: float = NOTIFICATIONS_S,
+    extra_args: tuple[str, ...] = (),
 ) -> Iterator[tuple[Any, float]]:
-    """A headless Rerun viewer: a :class:`rerun.experimental.ViewerClient` on it, and the
-    monotonic time before which no picture is taken: ``notifications_s`` after it started,
-    while its greeting notifications may still cover the window."""
+    """A headless Rerun viewer, started with ``extra_args`` besides its own: a
+    :class:`rerun.experimental.ViewerClient` on it, and the monotonic time before which no
+    picture is taken: ``notifications_s`` after it started, while its greeting notifications
+    may still cover the window."""
     import rerun as rr
 
     port = _free_port()
@@ -100,6 +105,7 @@ def headless_viewer(
         f"{width}x{height}",
         "--port",
         str(port),
+        *extra_args,
     ]
     if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
         xvfb = shutil.which("xvfb-run")
@@ -251,10 +257,8 @@ def main(config: RenderConfig) -> list[Path]:
     if missing:
         raise RenderError(f"no such recording: {', '.join(missing)}")
     written: list[Path] = []
-    with headless_viewer(config.width, config.height, config.notifications_s) as (
-        client,
-        quiet_from,
-    ):
+    viewer = headless_viewer(config.width, config.height, config.notifications_s, config.extra_args)
+    with viewer as (client, quiet_from):
         client.open([str(p.resolve()) for p in config.recordings])
         if config.timeline_time is not None:
             client.set_time(sequence=config.timeline_time, play_state="paused")
