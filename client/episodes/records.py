@@ -185,14 +185,12 @@ def read_header(path: Path) -> RecordHeader:
     reading its episodes; :class:`RecordError` as :func:`read_records`."""
     try:
         with Path(path).open(encoding="utf-8") as file:
-            first = file.readline()
+            first = next((line for line in file if line.strip()), None)
     except OSError as error:
-        raise RecordError(f"cannot read the episode record {path}: {error}") from None
-    try:
-        values = json.loads(first)
-    except json.JSONDecodeError as error:
-        raise RecordError(f"{path}, line 1: not JSON ({error})") from None
-    return _header(values, path)
+        raise _unreadable(path, error) from None
+    if first is None:
+        raise _empty(path)
+    return _header(_row(first, path, 1), path)
 
 
 def read_records(path: Path) -> tuple[RecordHeader, list[EpisodeRecord]]:
@@ -201,19 +199,30 @@ def read_records(path: Path) -> tuple[RecordHeader, list[EpisodeRecord]]:
     try:
         text = Path(path).read_text(encoding="utf-8")
     except OSError as error:
-        raise RecordError(f"cannot read the episode record {path}: {error}") from None
+        raise _unreadable(path, error) from None
     lines = [line for line in text.splitlines() if line.strip()]
     if not lines:
-        raise RecordError(f"{path} is empty: an episode record starts with its header")
-    rows = []
-    for number, line in enumerate(lines, start=1):
-        try:
-            rows.append(json.loads(line))
-        except json.JSONDecodeError as error:
-            raise RecordError(f"{path}, line {number}: not JSON ({error})") from None
+        raise _empty(path)
+    rows = [_row(line, path, number) for number, line in enumerate(lines, start=1)]
     header = _header(rows[0], path)
     episodes = [_episode(row, path, n) for n, row in enumerate(rows[1:], start=2)]
     return header, episodes
+
+
+# What the two readers say of a file that is not a record (blank lines are not counted).
+def _unreadable(path: Path, error: OSError) -> RecordError:
+    return RecordError(f"cannot read the episode record {path}: {error}")
+
+
+def _empty(path: Path) -> RecordError:
+    return RecordError(f"{path} is empty: an episode record starts with its header")
+
+
+def _row(line: str, path: Path, number: int) -> Any:
+    try:
+        return json.loads(line)
+    except json.JSONDecodeError as error:
+        raise RecordError(f"{path}, line {number}: not JSON ({error})") from None
 
 
 def _flat(config: Any, prefix: str = "") -> dict[str, Any]:
