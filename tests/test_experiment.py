@@ -9,6 +9,7 @@ import itertools
 import json
 import math
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -28,6 +29,7 @@ from overtake.trainers.experiment import (
     EXPERIMENTS,
     LIVES_NAME,
     ExperimentConfig,
+    ExperimentError,
     ExperimentRun,
     Schedule,
     cli,
@@ -44,6 +46,7 @@ from overtake.trainers.experiment import (
     train_command,
     training_episodes,
 )
+from overtake.trainers.experiment.files import LOCK_NAME, lock
 from overtake.trainers.learner import DQNConfig
 from overtake.trainers.train import TrainConfig, parse_args
 from overtake.viz.recording import RecordingConfig
@@ -522,6 +525,22 @@ def test_work_another_invocation_did_meanwhile_is_not_done_again(tiny, capsys):
     assert running == [] and pending == []
     said = capsys.readouterr().err
     assert said.count("by another invocation") == len(ROWS) + 2
+
+
+def test_a_second_invocation_in_a_running_experiments_directory_is_refused(tiny):
+    # docs/experiments.md: one invocation works in a directory at a time. Held here as a
+    # running invocation holds it; the second says so and touches nothing.
+    out = tiny["out"]
+    before = (out / "table.md").stat().st_mtime_ns
+    held = lock(out / LOCK_NAME)
+    assert held is not None
+    try:
+        refused = f"another overtake-experiment is running in {re.escape(str(out))}"
+        with pytest.raises(ExperimentError, match=refused):
+            main(tiny["config"])
+    finally:
+        os.close(held)
+    assert (out / "table.md").stat().st_mtime_ns == before
 
 
 def test_the_kept_evidence_is_the_table_and_curves_without_the_calm_episodes(tiny, tmp_path):

@@ -1,5 +1,5 @@
 """The experiment's run: every training run and evaluation scheduled at most ``jobs`` at once,
-what another invocation holds or has finished skipped."""
+what a process of an earlier invocation holds or has finished skipped."""
 
 from __future__ import annotations
 
@@ -179,11 +179,12 @@ class ExperimentRun:
             running.append(start_process(task, fd, self.plan.torch_threads))
 
     def _done_meanwhile(self, task: Task, pending: list[Task]) -> bool:
-        """Whether another invocation in the same directory (one that held the task's lock
-        while this one planned) has done ``task`` since; if so, drop it from ``pending`` and
-        add what it makes ready. Two invocations side by side then share the work instead of
-        repeating it (one started with --jobs 1 to evaluate the references while another
-        trains, for instance)."""
+        """Whether a process of an earlier invocation in the same directory (one that held
+        the task's lock while this one planned: a child that outlived its killed experiment,
+        where the system does not end it with its parent) has done ``task`` since; if so, drop
+        it from ``pending`` and add what it makes ready, instead of repeating it. Two
+        invocations do not run side by side: the command holds the directory's lock while it
+        runs."""
         if task.run is not None:
             step = checkpoint_step(task.run.run_dir) or 0
             if step < self.plan.total_steps:
