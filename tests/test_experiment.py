@@ -544,7 +544,12 @@ def test_a_second_invocation_in_a_running_experiments_directory_is_refused(tiny)
 
 
 def test_the_kept_evidence_is_the_table_and_curves_without_the_calm_episodes(tiny, tmp_path):
+    # A record an earlier keep left there, which this table does not name, goes.
+    stale = tmp_path / "kept" / "evaluations" / "gone-seed0" / "light-step1.episodes" / "x.jsonl"
+    stale.parent.mkdir(parents=True)
+    stale.write_text("{}\n")
     keep_evidence(tiny["out"], tmp_path / "kept")
+    assert not (tmp_path / "kept" / "evaluations" / "gone-seed0").exists()
     kept = sorted(p.name for p in (tmp_path / "kept").iterdir() if p.name != "evaluations")
     assert kept == ["curves.png", "table.json", "table.md"]
     table = json.loads((tmp_path / "kept" / "table.json").read_text())

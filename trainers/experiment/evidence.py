@@ -142,6 +142,15 @@ def keep_evidence(out: Path, keep: Path) -> None:
             dataclasses.replace(header, policy=policy),
             [e for e in episodes if e.episode in crashed],
         )
+    # A record an earlier keep copied that this table no longer names (another budget's
+    # checkpoint step, a row since removed) would stand beside the evidence as if it were some.
+    kept = {keep / relative for relative in records}
+    evaluations = keep / "evaluations"
+    for path in sorted(evaluations.rglob("*"), reverse=True) if evaluations.is_dir() else []:
+        if path.is_file() and path.suffix == ".jsonl" and path not in kept:
+            path.unlink()
+        elif path.is_dir() and not any(path.iterdir()):
+            path.rmdir()
     say(
         f"kept {', '.join(EVIDENCE)} in {keep}"
         + (f", and the collision episodes of {len(records)} episode records" if records else "")
