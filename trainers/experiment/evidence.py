@@ -127,8 +127,9 @@ def kept_records(table: dict[str, Any]) -> dict[str, list[int]]:
 def keep_evidence(out: Path, keep: Path) -> None:
     """Copy an experiment's table and curves from ``out`` into ``keep``, each written whole or
     not at all, and of each episode record its table names, the episodes with a collision, at
-    the same path within ``keep``: the table's replay commands play them there. Small:
-    table.json holds summaries, the other episodes stay in the evaluations."""
+    the same path within ``keep``: the table's replay commands play them there; a record an
+    earlier keep left there that this table does not name is removed. Small: table.json
+    holds summaries, the other episodes stay in the evaluations."""
     keep.mkdir(parents=True, exist_ok=True)
     for name in EVIDENCE:
         write_atomic(keep / name, (out / name).read_bytes())
