@@ -154,6 +154,25 @@ def test_a_passive_agent_is_never_hit():
     assert (sim.metrics()["collisions"] == 0).all()
 
 
+@pytest.mark.parametrize("frames_per_decision", [1, 4])
+def test_a_car_that_closes_into_the_agent_within_a_frame_collides_in_that_decision(
+    frames_per_decision,
+):
+    # The car behind is 0.5 m off the agent's bumper and 140 km/h faster: after one frame's
+    # move (0.1 s) the boxes overlap, before any gap of the arena was negative. Where that
+    # frame is the decision's last (one frame a decision, as Ho's presets step), the decision
+    # must end in the collision; the test once ran only where some gap of the batch was
+    # already negative, and saw it a decision late, or, alone, never if the overlap ended.
+    sim = scripted_sim(
+        [Car(-2 * HALF_LENGTH - 0.5, 2, 200.0)],
+        ego_lane=2,
+        overrides={"episode.frames_per_decision": frames_per_decision},
+    )
+    result = keep(sim)
+    assert result.terminated[0, 0]
+    assert sim.metrics()["collisions"][0, 0] == 1
+
+
 def test_traffic_overlaps_counts_overlapping_pairs():
     sim = scripted_sim([Car(30.0, 1, 60), Car(32.0, 1, 60), Car(33.0, 1, 60)])
     assert traffic_overlaps(sim.state, sim.kinds, sim.agents).tolist() == [3]

@@ -1,7 +1,7 @@
 """The physics frame's and driver assistance's compiled loops (numba): the minimum-jerk lateral
-profile, moving every vehicle by a frame, each agent's car ahead, and the side check before a
-lane change. The sensors' loops are in :mod:`.sensors.kernels`, car-following's in
-:mod:`.traffic.kernels`.
+profile, moving every vehicle by a frame, the agents' collisions, each agent's car ahead, and
+the side check before a lane change. The sensors' loops are in :mod:`.sensors.kernels`,
+car-following's in :mod:`.traffic.kernels`.
 
 Compiled on first use and cached on disk (``cache=True``: next to this file, or under
 ``NUMBA_CACHE_DIR`` where that is not writable); ``python -m overtake.server.sim.warm``
@@ -72,6 +72,35 @@ def integrate(
             change_progress[a, v] = progress
             shift = (target - lane[a, v]) * min_jerk(progress)
             y_m[a, v] = (lane[a, v] + 0.5 + shift) * lane_width_m
+
+
+@njit(cache=True, nogil=True)
+def agent_overlaps(
+    x_m: np.ndarray,
+    y_m: np.ndarray,
+    half_length_m: np.ndarray,
+    half_width_m: np.ndarray,
+    active: np.ndarray,
+    agents: int,
+    collided: np.ndarray,
+) -> None:
+    """Mark in ``collided`` (A, N) the agents whose box overlaps another active vehicle's
+    (boxes aligned with the road: |dx| below the half lengths' sum and |dy| below the half
+    widths'), arena by arena; an agent's own slot does not count."""
+    arenas, vehicles = x_m.shape
+    for a in range(arenas):
+        for i in range(agents):
+            if not active[a, i]:
+                continue
+            for v in range(vehicles):
+                if v == i or not active[a, v]:
+                    continue
+                if (
+                    abs(x_m[a, v] - x_m[a, i]) < half_length_m[a, i] + half_length_m[a, v]
+                    and abs(y_m[a, v] - y_m[a, i]) < half_width_m[a, i] + half_width_m[a, v]
+                ):
+                    collided[a, i] = True
+                    break
 
 
 @njit(cache=True, nogil=True)

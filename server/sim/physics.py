@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .assist import CruiseControl, EmergencyBraking, SpeedSteps
-from .kernels import integrate
+from .kernels import agent_overlaps, integrate
 from .lane_index import NO_GAP_M
 from .lane_watch import LaneChangeWatch
 from .traffic.car_following import Following
@@ -104,9 +104,6 @@ class Physics:
         self._aeb = np.array(
             [self.emergency_braking.time_to_collision_s, self.emergency_braking.decel_mps2]
         )
-        # (1, N, V): False where an agent would be compared with itself.
-        self._not_self = np.ones((1, agents, vehicles), dtype=bool)
-        self._not_self[0, np.arange(agents), np.arange(agents)] = False
 
     def frame(
         self,
@@ -209,24 +206,16 @@ class Physics:
             self.lane_width_m,
             dt,
         )
-        gap = following.gap_m
         st.frame += 1
 
-        # Two boxes can only overlap if they share a lane, and then some gap in that lane is
-        # negative: the exact test runs only on frames where one is.
-        if (gap < 0.0).any():
-            collided |= self._collisions(st, p)
+        # The exact test, every frame and in every arena on its own. (It once ran only on
+        # frames where some gap of the batch was negative: but the gaps are measured before
+        # the frame's move, so a car that moved into an agent's box this frame, by a lane
+        # change done within the frame (Ho's) or by closing faster than its gap, was seen a
+        # frame late or, where the overlap lasted one frame, never; and whether it was seen
+        # on time depended on the other arenas of the batch.)
+        agent_overlaps(st.x_m, st.y_m, p.half_length, p.half_width, st.active, n, collided)
         self.episodes.note_emergency_brakes(st, following, brakes)
-
-    def _collisions(self, st: SimState, p: VehicleParams) -> np.ndarray:
-        """(A, N) bool: agents whose box overlaps another vehicle's."""
-        n = self.agents
-        ax, ay = st.x_m[:, :n, None], st.y_m[:, :n, None]
-        overlap = (
-            np.abs(st.x_m[:, None, :] - ax) < p.half_length[:, :n, None] + p.half_length[:, None, :]
-        ) & (np.abs(st.y_m[:, None, :] - ay) < p.half_width[:, :n, None] + p.half_width[:, None, :])
-        overlap &= st.active[:, None, :] & self._not_self & st.active[:, :n, None]
-        return overlap.any(axis=-1)
 
 
 def traffic_overlaps(st: SimState, kinds: VehicleKinds, agents: int) -> np.ndarray:
