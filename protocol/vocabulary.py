@@ -131,6 +131,9 @@ ADDED_SETTINGS: tuple[str, ...] = (
     "episode.max_distance_m",
     "ego.mask_refusals",
     "grid.covered_by",
+    "ego.lane_change_watch",
+    "ego.watch_brake_mps2",
+    "ego.watch_response_s",
 )
 EARLIER_SETTINGS: dict[str, object] = {
     **{
@@ -148,6 +151,9 @@ EARLIER_SETTINGS: dict[str, object] = {
     # The action mask carried driver assistance's refusals (with the lane-change check on).
     "ego.mask_refusals": True,
     "grid.covered_by": "any_part",
+    # Nothing watched a lane change once it had begun (the watch's brake and response time
+    # then do nothing).
+    "ego.lane_change_watch": False,
 }
 assert set(EARLIER_SETTINGS) <= set(ADDED_SETTINGS)
 # The settings of existing fields whose value in a preset changed since records were first
