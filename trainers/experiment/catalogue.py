@@ -230,7 +230,8 @@ EXPERIMENTS: dict[str, Experiment] = {
         name="min2018-safe",
         title="A learned driver that is fast and never crashes: Double + Dueling DQN on the "
         "LIDAR (min2018) as the paper has it, behind the safety shield, with prioritized "
-        "replay and 3-step returns, and with all of them",
+        "replay and 3-step returns, with both, and behind the shield with lane changes "
+        "watched through, alone and with both",
         rows=(
             Row("paper", "dueling", "lidar", seeds=2),
             Row("shield", "dueling", "lidar", seeds=2, shield=True),
