@@ -103,9 +103,7 @@ class HighwaySim:
         self.actions = DasActions(config.ego, n, self.lane_changes)
         self.warnings = DriverWarnings(config.ego, kinds, self.lane_changes, n)
         self.manoeuvres = RandomManoeuvres(kinds)
-        self.physics = Physics(
-            config, kinds, road, n, self.vehicles, self.episodes, self.lane_changes.watch
-        )
+        self.physics = Physics(config, kinds, road, n, self.episodes, self.lane_changes.watch)
         self.rewards = Rewards(config.reward)
         # The state holds the agents' warnings (worked out once per decision) where the reward
         # needs them; otherwise a sensor that reads them works them out when it observes.

@@ -66,7 +66,6 @@ class Physics:
         kinds: VehicleKinds,
         road: Road,
         agents: int,
-        vehicles: int,
         episodes: EpisodeBook,
         watch: LaneChangeWatch | None = None,
     ) -> None:
