@@ -20,9 +20,9 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import gymnasium as gym
 import numpy as np
@@ -63,6 +63,19 @@ class Engine(Protocol):
     def receive(self) -> Steps: ...
 
     def close(self) -> None: ...
+
+
+@runtime_checkable
+class Restorable(Protocol):
+    """An engine that can keep its arenas' whole state and put it back: the next rounds after
+    a restore are those that followed the snapshot, bit for bit (an exact resume of a training
+    run). Snapshots are plain data (arrays, strings, numbers) for the caller to store."""
+
+    def snapshot(self) -> dict[str, Any]: ...
+
+    def restore(self, snapshot: Mapping[str, Any]) -> None:
+        """Put the arenas back as :meth:`snapshot` found them (raises ValueError, changing
+        nothing, for a snapshot of another configuration or size)."""
 
 
 class Road(Protocol):
@@ -119,6 +132,32 @@ class Simulator:
             raise ValueError(f"a step count must be >= 0, got {step}")
         for engine in self.parts:
             engine.trainer_step = int(step)
+
+    @property
+    def restorable(self) -> bool:
+        """Whether every engine can snapshot and restore its arenas (:class:`Restorable`)."""
+        return all(isinstance(engine, Restorable) for engine in self.parts)
+
+    def snapshot(self) -> tuple[dict[str, Any], ...]:
+        """Each engine's snapshot, in the order of the parts (see :attr:`restorable`)."""
+        return tuple(self._restorable(engine).snapshot() for engine in self.parts)
+
+    def restore(self, snapshots: Sequence[Mapping[str, Any]]) -> None:
+        if len(snapshots) != len(self.parts):
+            raise ValueError(
+                f"{len(snapshots)} snapshot(s) for a simulator of {len(self.parts)} part(s)"
+            )
+        for engine, snapshot in zip(self.parts, snapshots, strict=True):
+            self._restorable(engine).restore(snapshot)
+
+    @staticmethod
+    def _restorable(engine: Engine) -> Restorable:
+        if not isinstance(engine, Restorable):
+            raise TypeError(
+                f"{type(engine).__name__} cannot snapshot its arenas (they live in another "
+                "process); only an in-process simulator can"
+            )
+        return engine
 
     def close(self) -> None:
         try:
@@ -440,6 +479,19 @@ class VectorFace(Faced, gym.vector.VectorEnv):
         return self._outcome(
             steps, engine.restarts != self._part_restarts.get(part, engine.restarts)
         )
+
+    def snapshot(self) -> tuple[dict[str, Any], ...]:
+        """Every arena's whole state between steps (:meth:`Simulator.snapshot`), to
+        :meth:`restore` later: the steps after a restore are those that followed the
+        snapshot, bit for bit."""
+        self._check_started()
+        return self.simulator.snapshot()
+
+    def restore(self, snapshots: Sequence[Mapping[str, Any]]) -> None:
+        """Put every arena back as :meth:`snapshot` found them; the environment then steps
+        on from there (no reset needed)."""
+        self.simulator.restore(snapshots)
+        self._started = True
 
     def _check_started(self) -> None:
         if not self._started:

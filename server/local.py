@@ -11,13 +11,15 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
 from overtake.protocol.faces import Simulator
 from overtake.protocol.messages import Actions, Steps, WorldFrame
 
+from .group_snapshot import GroupSnapshot
 from .groups import Group
 from .sim import HighwaySim, SimConfig
 from .sim.planner import Planner
@@ -84,6 +86,15 @@ class LocalEngine:
         if steps is None:
             raise RuntimeError("no actions sent to receive Steps for")
         return steps
+
+    def snapshot(self) -> dict[str, Any]:
+        """The arenas' whole state (:class:`~.group_snapshot.GroupSnapshot`) as plain data."""
+        if self._steps is not None:
+            raise RuntimeError("a snapshot between rounds only: receive the Steps sent for")
+        return GroupSnapshot.of(self.group).to_plain()
+
+    def restore(self, snapshot: Mapping[str, Any]) -> None:
+        GroupSnapshot.from_plain(snapshot).restore_into(self.group)
 
     def close(self) -> None:
         """Nothing to release (the road lives in this process)."""

@@ -139,14 +139,12 @@ def test_the_learner_with_n_step_returns_and_prioritized_replay_beats_random(tmp
 
 
 def test_a_checkpoint_carries_the_options_and_a_resume_restores_the_priorities(tmp_path):
-    config = dataclasses.replace(
-        run_config(tmp_path, n_step=3, prioritized=True), total_steps=600, save_replay=True
-    )
+    config = dataclasses.replace(run_config(tmp_path, n_step=3, prioritized=True), total_steps=600)
     train(config, envs=PickTheFreeLane(4, seed=0))
     checkpoint = load_checkpoint(tmp_path / "run" / CHECKPOINT_NAME)
     assert checkpoint.dqn.n_step == 3 and checkpoint.dqn.prioritized
-    with np.load(tmp_path / "run" / "replay.npz") as saved:
-        priorities = saved["priority"]
+    nodes = checkpoint.resume["replay"]["tree_nodes"].numpy()
+    priorities = nodes[len(nodes) // 2 :]
     # Updated priorities differ from the largest, which new transitions got.
     assert len(np.unique(priorities[priorities > 0])) > 10
     resumed = train(
@@ -154,12 +152,23 @@ def test_a_checkpoint_carries_the_options_and_a_resume_restores_the_priorities(t
         envs=PickTheFreeLane(4, seed=1),
     )
     assert resumed["resumed_at_step"] == 600 and resumed["steps"] == 800
-    # A replay saved without priorities cannot feed a prioritized run.
-    plain = ReplayMemory(100, 1, SHAPES, 2, ("lidar",))
+    # A replay kept without priorities cannot feed a prioritized run.
+    plain = ReplayMemory(100, 1, SHAPES, 2, ("lidar",), directory=tmp_path / "plain", spare=4)
     play(plain, [(5, True)])
-    plain.save(tmp_path / "plain.npz")
-    with pytest.raises(ValueError, match="no priorities"):
-        ReplayMemory(100, 1, SHAPES, 2, ("lidar",), prioritized=True).load(tmp_path / "plain.npz")
+    state = plain.mark()
+    prioritized = ReplayMemory(
+        100,
+        1,
+        SHAPES,
+        2,
+        ("lidar",),
+        prioritized=True,
+        directory=tmp_path / "plain",
+        spare=4,
+        reopen=True,
+    )
+    with pytest.raises(ValueError, match="not prioritized"):
+        prioritized.load_state(state)
 
 
 def test_the_update_discounts_by_the_windows_steps_and_weighs_by_importance():

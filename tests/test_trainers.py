@@ -382,13 +382,15 @@ def test_replay_of_paper_size_stores_each_frame_once():
     assert replay.naive_nbytes() > 7 * replay.nbytes
 
 
-def test_replay_save_and_load_round_trip(tmp_path):
-    replay = ReplayMemory(60, 2, SHAPES, 4, ("lidar",), seed=3)
+def test_a_replay_on_disk_reopens_as_its_state_left_it(tmp_path):
+    replay = ReplayMemory(60, 2, SHAPES, 4, ("lidar",), seed=3, directory=tmp_path / "r", spare=8)
     fill(replay, None, {0: [5, 6], 1: [4]})
-    replay.save(tmp_path / "replay.npz")
-    assert not (tmp_path / "replay.npz.tmp").exists()
-    other = ReplayMemory(60, 2, SHAPES, 4, ("lidar",), seed=3)
-    other.load(tmp_path / "replay.npz")
+    state = replay.mark()
+    assert not (tmp_path / "r.tmp").exists()
+    other = ReplayMemory(
+        60, 2, SHAPES, 4, ("lidar",), seed=9, directory=tmp_path / "r", spare=8, reopen=True
+    )
+    other.load_state(state)
     assert len(other) == len(replay)
     a, b = replay.sample(50), other.sample(50)
     for part, again in zip(a, b, strict=True):
@@ -397,8 +399,12 @@ def test_replay_save_and_load_round_trip(tmp_path):
             assert all(np.array_equal(part[k], again[k]) for k in part)
         else:
             assert (part is None and again is None) or np.array_equal(part, again)
-    with pytest.raises(ValueError, match="same capacity"):
-        ReplayMemory(80, 2, SHAPES, 4, ("lidar",)).load(tmp_path / "replay.npz")
+    with pytest.raises(ValueError, match="same replay size"):
+        ReplayMemory(80, 2, SHAPES, 4, ("lidar",), directory=tmp_path / "r", spare=8, reopen=True)
+    with pytest.raises(ValueError, match="this run's"):
+        ReplayMemory(
+            60, 2, SHAPES, 4, ("lidar",), directory=tmp_path / "r", spare=8, reopen=True
+        ).load_state({**state, "layout": {**state["layout"], "capacity": 61}})
 
 
 # --- a purpose-built tiny environment: the learner learns ----------------------------------------
@@ -641,7 +647,7 @@ def test_each_life_of_a_run_says_what_it_restored_and_a_bare_network_resumes(tmp
     alone (brought back from another machine without the optimiser's moments) resumes with
     the target network copied from it and a fresh optimiser, and says so."""
     run_dir = tmp_path / "run"
-    config = resumable(run_dir, save_replay=False)
+    config = resumable(run_dir, replay_on_disk=False)
     train(config, envs=PickTheFreeLane(1, seed=1))
     first = json.loads((run_dir / "run.json").read_text())["life"]
     assert first == {
@@ -652,6 +658,7 @@ def test_each_life_of_a_run_says_what_it_restored_and_a_bare_network_resumes(tmp
         "optimizer_restored": None,
         "replay_restored": None,
         "refill_steps": None,
+        "arenas_restored": None,
     }
     # Strip the checkpoint to its online network, as a transfer from a GPU machine did.
     payload = torch.load(run_dir / CHECKPOINT_NAME, weights_only=True)
@@ -671,10 +678,12 @@ def test_each_life_of_a_run_says_what_it_restored_and_a_bare_network_resumes(tmp
     )  # learning_starts, a batch at least
     learner = load_checkpoint(run_dir / CHECKPOINT_NAME).make_learner()
     assert learner.updates > 0
-    # A whole checkpoint restores everything but the replay (not saved in this run).
+    # A whole checkpoint restores everything but the replay (kept in memory only in this run)
+    # and the episodes under way (a foreign environment's, which cannot be restored).
     train(replace(config, total_steps=160), envs=PickTheFreeLane(1, seed=3))
     whole = json.loads((run_dir / "run-resume-2.json").read_text())["life"]
     assert (whole["target_restored"], whole["optimizer_restored"]) == (True, True)
+    assert (whole["replay_restored"], whole["arenas_restored"]) == (False, False)
 
 
 def test_a_bare_network_restores_its_target_as_a_copy_of_it():
@@ -946,14 +955,13 @@ def test_training_loop_stores_no_transition_across_an_autoreset(tmp_path):
         total_steps=400,
         run_dir=tmp_path,
         progress=False,
-        save_replay=True,
         dqn=tiny_dqn(learning_starts=50),
     )
     summary = train(config, envs=CountingEnv(3))
     assert summary["episodes"] > 10
-    with np.load(tmp_path / "replay.npz") as saved:
-        frames, has_next = saved["frame_lidar"], saved["has_next"]
-        ep_step, count = saved["ep_step"], saved["count"]
+    saved = saved_replay(tmp_path)
+    frames, has_next = saved["frame_lidar"], saved["has_next"]
+    ep_step, count = saved["ep_step"], saved["count"]
     assert has_next.sum() == summary["steps"]
     for env in range(3):
         for j in range(int(count[env]) - 1):
@@ -963,6 +971,13 @@ def test_training_loop_stores_no_transition_across_an_autoreset(tmp_path):
                 assert nxt[1] == now[1] and nxt[2] == now[2] + 1
             else:  # an episode's end: the next frame starts the next one
                 assert nxt[1] == now[1] + 1 and nxt[2] == 0 and ep_step[env, j + 1] == 0
+
+
+def saved_replay(run_dir: Path) -> dict[str, np.ndarray]:
+    """A run's replay as its files and its last checkpoint hold it."""
+    saved = {path.stem: np.load(path) for path in (run_dir / "replay").glob("*.npy")}
+    state = load_checkpoint(run_dir / CHECKPOINT_NAME).resume["replay"]
+    return {**saved, "count": state["count"].numpy(), "pos": state["pos"].numpy()}
 
 
 def _last_train_line(run_dir: Path) -> dict:
@@ -980,7 +995,6 @@ def test_a_run_stores_exactly_its_budget_when_the_last_step_would_pass_it(tmp_pa
         total_steps=100,
         run_dir=tmp_path,
         progress=False,
-        save_replay=True,
         log_every=40,
         dqn=tiny_dqn(learning_starts=50),
     )
@@ -989,9 +1003,9 @@ def test_a_run_stores_exactly_its_budget_when_the_last_step_would_pass_it(tmp_pa
     assert summary["env_steps_called"] == 34
     assert load_checkpoint(tmp_path / CHECKPOINT_NAME).step == 100
     assert _last_train_line(tmp_path)["step"] == 100
-    with np.load(tmp_path / "replay.npz") as saved:
-        assert saved["has_next"].sum() == 100
-        assert saved["has_next"].sum(axis=1).tolist() == [34, 33, 33]
+    saved = saved_replay(tmp_path)
+    assert saved["has_next"].sum() == 100
+    assert saved["has_next"].sum(axis=1).tolist() == [34, 33, 33]
     # A resume to a larger budget carries on from exactly 100.
     more = train(replace(config, total_steps=131, resume=True), envs=PickTheFreeLane(3))
     assert more["steps"] == 131 and more["resumed_at_step"] == 100
@@ -1155,7 +1169,8 @@ def test_training_writes_a_rerun_recording_of_its_episodes_and_learning(tmp_path
 @contextlib.contextmanager
 def _long_ho2018_run(run_dir: Path, *options: str) -> Iterator[tuple[subprocess.Popen, Path]]:
     """An overtake-train run of ho2018 too long to end by itself, logging every 40 steps and
-    checkpointing only when stopped, once it has logged twice; with the file its stderr goes
+    checkpointing only when stopped (its replay in memory: a small replay on disk asks for a
+    checkpoint whenever its spare slots are taken), once it has logged twice; with the file its stderr goes
     to (read while it runs). Killed on the way out if still running."""
     from remote_support import child_env, wait_until
 
@@ -1170,6 +1185,7 @@ def _long_ho2018_run(run_dir: Path, *options: str) -> Iterator[tuple[subprocess.
                 *("--run-dir", str(run_dir), "--no-progress", "--log-every", "40"),
                 *("--checkpoint-every", "1000000", "--learning-starts", "64"),
                 *("--replay-size", "500", "--hidden-units", "32", "--torch-threads", "1"),
+                "--no-replay-on-disk",
             ],
             stdout=subprocess.PIPE,
             stderr=errors_out,

@@ -3,9 +3,10 @@
 A checkpoint is one ``torch.save`` file: a header (format, algorithm, inputs, preset and
 overrides, observation spaces, network shape, step, episodes, hyperparameters) and the learner's
 state (online and target networks, optimiser), plus the random generators' states for
-``--resume``. It is written to a temporary file in the same directory, flushed to disk and
-renamed over the old one, so the old checkpoint stays whole until the new one is.
-Loading uses ``weights_only=True``: a checkpoint cannot run code.
+``--resume``, and what an exact resume needs beyond them (:mod:`.resume`: the replay's account
+of its files, the episodes under way, the schedule). It is written to a temporary file in the
+same directory, flushed to disk and renamed over the old one, so the old checkpoint stays whole
+until the new one is. Loading uses ``weights_only=True``: a checkpoint cannot run code.
 """
 
 from __future__ import annotations
@@ -29,7 +30,8 @@ from .two_stream_network import TwoStreamShape
 
 CHECKPOINT_FORMAT = "overtake-dqn/1"
 CHECKPOINT_NAME = "checkpoint.pt"
-REPLAY_NAME = "replay.npz"
+REPLAY_DIR_NAME = "replay"
+"""the run directory's folder of the replay memory's memory-mapped files"""
 
 
 class CheckpointError(UsageError):
@@ -53,6 +55,8 @@ class Checkpoint:
     rng_state: dict[str, Any]
     torch_rng_state: torch.Tensor
     config: dict[str, Any]
+    resume: dict[str, Any] | None = None
+    """what an exact resume restores (:mod:`.resume`); None in a checkpoint from before it"""
 
     def check_compatible(self, algo: str, inputs: str, preset: str) -> None:
         if (algo, inputs, preset) != (self.algo, self.inputs, self.preset):
@@ -87,6 +91,7 @@ def save_checkpoint(
     episodes: int,
     rng_state: Mapping[str, Any],
     resumes: int,
+    resume: dict[str, Any] | None = None,
 ) -> None:
     header = {
         "format": CHECKPOINT_FORMAT,
@@ -108,6 +113,7 @@ def save_checkpoint(
         "learner": learner.state_dict(),
         "rng_state": json.dumps(rng_state),
         "torch_rng_state": torch.get_rng_state(),
+        **({"resume": resume} if resume is not None else {}),
     }
     tmp = partial_path(path)
     with open(tmp, "wb") as handle:
@@ -175,4 +181,5 @@ def load_checkpoint(path: Path) -> Checkpoint:
         rng_state=json.loads(payload["rng_state"]),
         torch_rng_state=payload["torch_rng_state"],
         config=json.loads(header["config_json"]),
+        resume=payload.get("resume"),
     )

@@ -12,6 +12,15 @@ following slot holds the next frame of the same episode. A transition is sampled
 next frame is there and the frames its stack needs have not been overwritten, so no stack or
 transition ever crosses an episode boundary or mixes old and new data.
 
+**On disk, for an exact resume** (``directory``): the per-slot arrays are memory-mapped
+``.npy`` files in that directory, written as they fill, so a checkpoint writes none of them
+(only :meth:`ReplayMemory.state`, a few small arrays) and a run's replay outlives its process.
+Each ring then has ``spare`` slots beyond the ``capacity // num_envs`` it holds: the writes
+after a checkpoint go into slots that the checkpoint's window does not cover, so a run killed
+between checkpoints and resumed from the last one finds that window as it was. The writer
+must checkpoint again before a ring has taken ``spare`` writes since the last one
+(:attr:`ReplayMemory.needs_checkpoint`).
+
 Two options of Rainbow's (Hessel et al. 2018), off by default: **n-step returns**
 (``n_step`` > 1): a sample's reward is the discounted sum of up to ``n_step`` rewards of its
 episode from that transition on, ``steps`` says how many (the target discounts the bootstrap
@@ -26,7 +35,7 @@ weight ``(N * P(i)) ** -beta`` over the batch's largest, and its ``leaves`` for 
 
 from __future__ import annotations
 
-import os
+import json
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -76,11 +85,16 @@ class ReplayMemory:
         prioritized: bool = False,
         priority_alpha: float = 0.6,
         priority_eps: float = 1e-6,
+        directory: Path | None = None,
+        spare: int = 0,
+        reopen: bool = False,
     ) -> None:
         if n_step < 1:
             raise ValueError(f"n_step must be >= 1, got {n_step}")
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        if spare < 0 or (spare == 0 and directory is not None):
+            raise ValueError(f"a replay on disk needs spare slots >= 1, got {spare}")
         per_env = capacity // num_envs
         if per_env < stack + 1:
             raise ValueError(
@@ -89,25 +103,82 @@ class ReplayMemory:
             )
         self.capacity, self.num_envs, self.per_env = capacity, num_envs, per_env
         self.shapes, self.stack, self.stacked = shapes, stack, stacked
-        size = (num_envs, per_env)
-        self.frames = {
-            name: np.zeros(size + tuple(shape), dtype=dtype)
-            for name, (shape, dtype) in shapes.shapes.items()
+        # Slots per ring: the per_env it holds, and the spare ones written after a checkpoint.
+        self.slots = per_env + spare
+        self.spare = spare
+        self.directory = directory
+        layout = {
+            **{
+                f"frame_{name}": (tuple(shape), dtype)
+                for name, (shape, dtype) in shapes.shapes.items()
+            },
+            "mask": ((shapes.actions,), np.int8),
+            "action": ((), np.int64),
+            "reward": ((), np.float32),
+            "terminated": ((), bool),
+            "has_next": ((), bool),
+            "ep_step": ((), np.int64),
         }
-        self.mask = np.zeros(size + (shapes.actions,), dtype=np.int8)
-        self.action = np.zeros(size, dtype=np.int64)
-        self.reward = np.zeros(size, dtype=np.float32)
-        self.terminated = np.zeros(size, dtype=bool)
-        self.has_next = np.zeros(size, dtype=bool)
-        self.ep_step = np.zeros(size, dtype=np.int64)
+        self._files: list[np.memmap] = []
+        arrays = self._allocate(layout, reopen)
+        self.frames = {name: arrays[f"frame_{name}"] for name in shapes.shapes}
+        self.mask = arrays["mask"]
+        self.action = arrays["action"]
+        self.reward = arrays["reward"]
+        self.terminated = arrays["terminated"]
+        self.has_next = arrays["has_next"]
+        self.ep_step = arrays["ep_step"]
         self.pos = np.zeros(num_envs, dtype=np.int64)  # next slot to write, per env
         self.count = np.zeros(num_envs, dtype=np.int64)  # frames held, per env
+        self.held = 0  # transitions held (has_next within the rings' windows)
+        # Frames written per ring since the last checkpoint (mark()).
+        self.written = np.zeros(num_envs, dtype=np.int64)
         self.rng = np.random.default_rng(seed)
         self.n_step, self.gamma = n_step, gamma
         self.priority_alpha, self.priority_eps = priority_alpha, priority_eps
-        # Leaf env * per_env + slot: the transition that left that slot.
-        self.tree = SumTree(num_envs * per_env) if prioritized else None
+        # Leaf env * slots + slot: the transition that left that slot.
+        self.tree = SumTree(num_envs * self.slots) if prioritized else None
         self.max_priority = 1.0
+
+    def _allocate(
+        self, layout: dict[str, tuple[tuple[int, ...], Any]], reopen: bool
+    ) -> dict[str, np.ndarray]:
+        """The per-slot arrays: in memory, or memory-mapped files in :attr:`directory`
+        (created afresh, or with ``reopen`` the ones there, checked against the layout)."""
+        size = (self.num_envs, self.slots)
+        if self.directory is None:
+            return {
+                name: np.zeros(size + shape, dtype=dtype) for name, (shape, dtype) in layout.items()
+            }
+        if not reopen:
+            # Made in a side directory, then renamed: a replay directory is never half made.
+            partial = self.directory.with_name(self.directory.name + ".tmp")
+            for old in (partial, self.directory):
+                if old.exists():
+                    for file in old.iterdir():
+                        file.unlink()
+                    old.rmdir()
+            partial.mkdir(parents=True)
+            for name, (shape, dtype) in layout.items():
+                np.lib.format.open_memmap(
+                    partial / f"{name}.npy", mode="w+", dtype=dtype, shape=size + shape
+                ).flush()
+            partial.rename(self.directory)
+        arrays = {}
+        for name, (shape, dtype) in layout.items():
+            path = self.directory / f"{name}.npy"
+            try:
+                mapped = np.lib.format.open_memmap(path, mode="r+")
+            except (OSError, ValueError) as error:
+                raise ReplayMismatch(f"{path} is not a readable replay file ({error})") from None
+            if mapped.shape != size + shape or mapped.dtype != np.dtype(dtype):
+                raise ReplayMismatch(
+                    f"{path} is {mapped.dtype}{mapped.shape}, this run needs "
+                    f"{np.dtype(dtype)}{size + shape} (same replay size, environments and inputs)"
+                )
+            self._files.append(mapped)
+            arrays[name] = mapped.view(np.ndarray)
+        return arrays
 
     # --- writing --------------------------------------------------------------------------
 
@@ -115,15 +186,24 @@ class ReplayMemory:
         self, envs: np.ndarray, frames: Frames, mask: np.ndarray, ep_step: np.ndarray
     ) -> None:
         slots = self.pos[envs]
+        # A full ring's oldest frame leaves its window (left as it is: a checkpoint's window
+        # may still hold it), and with it the transition that left that frame.
+        full = envs[self.count[envs] == self.per_env]
+        if full.size:
+            leaving = (self.pos[full] - self.per_env) % self.slots
+            self.held -= int(self.has_next[full, leaving].sum())
+            if self.tree is not None:
+                self.tree.update(full * self.slots + leaving, np.zeros(full.size))
         for name, store in self.frames.items():
             store[envs, slots] = frames[name]
         self.mask[envs, slots] = mask
         self.ep_step[envs, slots] = ep_step
         self.has_next[envs, slots] = False  # an overwritten slot's old transition is gone
         if self.tree is not None:
-            self.tree.update(envs * self.per_env + slots, np.zeros(envs.size))
-        self.pos[envs] = (slots + 1) % self.per_env
+            self.tree.update(envs * self.slots + slots, np.zeros(envs.size))
+        self.pos[envs] = (slots + 1) % self.slots
         self.count[envs] = np.minimum(self.count[envs] + 1, self.per_env)
+        self.written[envs] += 1
 
     def start(self, envs: np.ndarray, frames: Frames, mask: np.ndarray) -> None:
         """The first frames of new episodes in ``envs`` (after a reset)."""
@@ -144,26 +224,27 @@ class ReplayMemory:
         envs = np.asarray(envs, dtype=np.int64)
         if np.any(self.count[envs] == 0):
             raise RuntimeError("add() before start(): an environment has no current frame")
-        last = (self.pos[envs] - 1) % self.per_env
+        last = (self.pos[envs] - 1) % self.slots
         self.action[envs, last] = action
         self.reward[envs, last] = reward
         self.terminated[envs, last] = terminated
         next_step = self.ep_step[envs, last] + 1
         self._write(envs, frames, mask, next_step)
         self.has_next[envs, last] = True
+        self.held += envs.size
         if self.tree is not None:
-            leaves = envs * self.per_env + last
+            leaves = envs * self.slots + last
             self.tree.update(leaves, np.full(envs.size, self.max_priority**self.priority_alpha))
 
     def __len__(self) -> int:
         """Transitions held (those a sample may still draw are a few fewer)."""
-        return int(self.has_next.sum())
+        return self.held
 
     # --- sampling -------------------------------------------------------------------------
 
     def _valid(self, envs: np.ndarray, slots: np.ndarray) -> np.ndarray:
-        oldest = (self.pos[envs] - self.count[envs]) % self.per_env
-        age = (slots - oldest) % self.per_env
+        oldest = (self.pos[envs] - self.count[envs]) % self.slots
+        age = (slots - oldest) % self.slots
         needed = np.minimum(self.ep_step[envs, slots], self.stack - 1)
         return self.has_next[envs, slots] & (age >= needed) & (age < self.count[envs])
 
@@ -171,18 +252,18 @@ class ReplayMemory:
         """(B, stack) slots of the stack ending at ``slots``, oldest first, repeating the
         episode's first frame before its start."""
         back = np.minimum(np.arange(self.stack - 1, -1, -1)[None, :], ep_step[:, None])
-        return (slots[:, None] - back) % self.per_env
+        return (slots[:, None] - back) % self.slots
 
     def _draw(self, count: int) -> tuple[np.ndarray, np.ndarray]:
         """``count`` (env, slot) pairs: uniformly over the transitions held, or in proportion
         to their priorities."""
         if self.tree is not None:
             leaves = self.tree.sample(count, self.rng)
-            return leaves // self.per_env, leaves % self.per_env
+            return leaves // self.slots, leaves % self.slots
         weights = self.count / self.count.sum()
         e = self.rng.choice(self.num_envs, size=count, p=weights)
-        oldest = (self.pos[e] - self.count[e]) % self.per_env
-        s = (oldest + (self.rng.random(count) * self.count[e]).astype(np.int64)) % self.per_env
+        oldest = (self.pos[e] - self.count[e]) % self.slots
+        s = (oldest + (self.rng.random(count) * self.count[e]).astype(np.int64)) % self.slots
         return e, s
 
     def sample(self, batch: int, beta: float = 1.0) -> ReplayBatch:
@@ -209,11 +290,11 @@ class ReplayMemory:
             terminated = self.terminated[envs, slots]
         else:
             last, steps, reward, terminated = self._n_step(envs, slots)
-        nxt = (last + 1) % self.per_env
+        nxt = (last + 1) % self.slots
         next_slots = self._stack_slots(nxt, self.ep_step[envs, last] + 1)
         weight = index = None
         if self.tree is not None:
-            index = envs * self.per_env + slots
+            index = envs * self.slots + slots
             probability = self.tree.priorities[index] / self.tree.total
             importance = (len(self) * probability) ** -beta
             weight = (importance / importance.max()).astype(np.float32)
@@ -255,7 +336,7 @@ class ReplayMemory:
             ended = self.terminated[envs, slot]
             terminated = np.where(live, ended, terminated)
             discount = np.where(live, discount * self.gamma, discount)
-            following = (slot + 1) % self.per_env
+            following = (slot + 1) % self.slots
             # The window goes on only within the episode, to a transition already stored.
             live &= ~ended & self.has_next[envs, following] & (k + 1 < self.n_step)
             slot = np.where(live, following, slot)
@@ -300,60 +381,79 @@ class ReplayMemory:
         per_transition = 2 * (stacked + latest) + self.shapes.actions + 8 + 4 + 1
         return self.num_envs * self.per_env * per_transition
 
-    def save(self, path: Path) -> None:
-        """Write to ``path`` atomically (a temporary file, then a rename)."""
-        arrays: dict[str, Any] = {f"frame_{name}": store for name, store in self.frames.items()}
-        arrays.update(
-            mask=self.mask,
-            action=self.action,
-            reward=self.reward,
-            terminated=self.terminated,
-            has_next=self.has_next,
-            ep_step=self.ep_step,
-            pos=self.pos,
-            count=self.count,
-        )
+    # --- on disk ----------------------------------------------------------------------------
+
+    @property
+    def needs_checkpoint(self) -> bool:
+        """Whether a ring has taken as many writes since the last :meth:`mark` as it has spare
+        slots: the next write would overwrite a frame the last checkpoint's window holds, so
+        a checkpoint must come first (always False for a replay in memory)."""
+        return self.directory is not None and int(self.written.max()) >= self.spare
+
+    def mark(self) -> dict[str, Any]:
+        """At a checkpoint: the files flushed to disk and the writes counted from here; returns
+        :meth:`state`, what the checkpoint stores of the replay."""
+        for mapped in self._files:
+            mapped.flush()
+        self.written[:] = 0
+        return self.state()
+
+    def state(self) -> dict[str, Any]:
+        """What the per-slot arrays do not hold: the rings' positions and counts, the
+        transitions held, the sampling generator, and the priorities (plain data and
+        arrays; the arrays are copies)."""
+        state: dict[str, Any] = {
+            "layout": self._layout(),
+            "pos": self.pos.copy(),
+            "count": self.count.copy(),
+            "held": self.held,
+            "rng_json": json.dumps(self.rng.bit_generator.state),
+        }
         if self.tree is not None:
-            arrays.update(priority=self.tree.priorities, max_priority=np.array(self.max_priority))
-        tmp = path.with_name(path.name + ".tmp")
-        with open(tmp, "wb") as handle:
-            np.savez(handle, **arrays)
-            handle.flush()
-            os.fsync(handle.fileno())
-        tmp.replace(path)
+            state["tree_nodes"] = self.tree.nodes.copy()
+            state["max_priority"] = self.max_priority
+        return state
 
-    def load(self, path: Path) -> None:
-        with np.load(path) as data:
-            for name, store in self.frames.items():
-                _restore(store, data[f"frame_{name}"], f"frame {name}")
-            for name in (
-                "mask",
-                "action",
-                "reward",
-                "terminated",
-                "has_next",
-                "ep_step",
-                "pos",
-                "count",
-            ):
-                _restore(getattr(self, name), data[name], name)
-            if self.tree is not None:
-                if "priority" not in data:
-                    raise ValueError(
-                        "saved replay has no priorities (saved without prioritized replay); "
-                        "this run samples by priority"
-                    )
-                priorities = np.zeros(self.tree.size)
-                _restore(priorities, data["priority"], "priorities")
-                self.tree.update(np.arange(self.tree.size), priorities)
-                self.max_priority = float(data["max_priority"])
+    def load_state(self, state: dict[str, Any]) -> None:
+        """Back to a checkpoint's :meth:`state` (the per-slot arrays being the files it was
+        taken with): the frames written since then lie outside its windows, and the one
+        transition that may have been completed since (each ring's newest frame's) is
+        undone."""
+        if state.get("layout") != self._layout():
+            raise ReplayMismatch(
+                f"the checkpoint's replay is {state.get('layout')}, this run's {self._layout()}"
+            )
+        if (self.tree is not None) != ("tree_nodes" in state):
+            raise ReplayMismatch(
+                "the checkpoint's replay was "
+                + ("not " if self.tree is not None else "")
+                + "prioritized, this run's is"
+                + ("" if self.tree is not None else " not")
+            )
+        self.pos[:] = state["pos"]
+        self.count[:] = state["count"]
+        self.held = int(state["held"])
+        self.rng.bit_generator.state = json.loads(state["rng_json"])
+        newest = (self.pos - 1) % self.slots
+        envs = np.flatnonzero(self.count > 0)
+        self.has_next[envs, newest[envs]] = False
+        if self.tree is not None:
+            self.tree.nodes[:] = state["tree_nodes"]
+            self.max_priority = float(state["max_priority"])
+        self.written[:] = 0
+
+    def _layout(self) -> dict[str, Any]:
+        return {
+            "capacity": self.capacity,
+            "num_envs": self.num_envs,
+            "slots": self.slots,
+            "frames": {
+                name: [list(shape), np.dtype(dtype).name]
+                for name, (shape, dtype) in self.shapes.shapes.items()
+            },
+        }
 
 
-def _restore(target: np.ndarray, value: np.ndarray, what: str) -> None:
-    if value.shape != target.shape or value.dtype != target.dtype:
-        raise ValueError(
-            f"saved replay {what} is {value.dtype}{value.shape}, this run needs "
-            f"{target.dtype}{target.shape} (same capacity, environments and "
-            "inputs required)"
-        )
-    target[...] = value
+class ReplayMismatch(ValueError):
+    """A replay on disk, or a checkpoint's account of it, that does not fit the run that
+    opens it (another size, number of environments or inputs)."""

@@ -47,7 +47,9 @@ def life_record(
     device and precision it learns in, and what of the checkpoint it resumed from it restored
     (``restored``: None for a run's start). A target network or an optimiser not restored
     starts afresh; a replay not restored is refilled for ``warm`` steps before learning goes
-    on."""
+    on; episodes under way not restored (arenas on a server, a foreign environment, a
+    checkpoint from before exact resume) restart. A resume that restored all of them goes on
+    exactly as the run never stopped would have."""
     return {
         "from_step": step,
         "device": device,
@@ -56,4 +58,5 @@ def life_record(
         "optimizer_restored": None if restored is None else restored["optimizer"],
         "replay_restored": None if restored is None else restored["replay"],
         "refill_steps": None if restored is None else (0 if restored["replay"] else warm),
+        "arenas_restored": None if restored is None else restored.get("arenas", False),
     }

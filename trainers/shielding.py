@@ -70,6 +70,22 @@ class SafetyLayer:
         self.overridden = np.zeros(num_envs, dtype=bool)
         self.aborts = EventCounts(num_envs, names=(LANE_CHANGE_ABORTS,))
 
+    def state(self) -> dict[str, Any]:
+        """What it carries from one decision to the next (a training run's checkpoint keeps
+        it): the marks per environment and the shield's count."""
+        return {
+            "overridden": self.overridden.copy(),
+            "aborts": {name: value.copy() for name, value in self.aborts.counts.items()},
+            "shield_overrides": self.overrides,
+        }
+
+    def load_state(self, state: dict[str, Any]) -> None:
+        self.overridden[:] = state["overridden"]
+        for name, value in self.aborts.counts.items():
+            value[:] = state["aborts"][name]
+        if self.shield is not None:
+            self.shield.overrides = int(state["shield_overrides"] or 0)
+
     @property
     def overrides(self) -> int | None:
         """The shield's overrides so far (None without a shield)."""

@@ -72,8 +72,11 @@ class TrainConfig(Scenario):
     without a checkpoint)"""
     checkpoint_every: int = 50_000
     """environment steps between checkpoints (one is always written at the end)"""
-    save_replay: bool = False
-    """save the replay memory with each checkpoint (about 0.9 GB at the default size)"""
+    replay_on_disk: bool = True
+    """keep the replay memory in the run directory (replay/, memory-mapped files written as
+    they fill: as much disk as the replay's size, about 0.9 GB at min2018's default), so that
+    a stopped run resumes exactly (docs/training.md); --no-replay-on-disk keeps it in memory
+    only, and a resume then refills it"""
     log_every: int = 1_000
     """environment steps between training log lines"""
     device: str = "cpu"

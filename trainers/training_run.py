@@ -18,12 +18,13 @@ import torch
 
 from overtake.protocol import ACTION_COUNT, errors
 
-from .checkpoint import CHECKPOINT_NAME, REPLAY_NAME, Checkpoint, plain_data, save_checkpoint
+from . import resume as resuming
+from .checkpoint import CHECKPOINT_NAME, REPLAY_DIR_NAME, Checkpoint, plain_data, save_checkpoint
 from .env_parts import EnvParts
 from .learner import ALGOS, DQNLearner, network_shape
 from .network import INPUT_SENSORS
 from .observations import describe_space, frame_shapes
-from .replay import FrameStacker, ReplayMemory
+from .replay import FrameStacker
 from .run_files import MetricsLog, life_record, run_record
 from .run_log import LogWindow, progress_bar
 from .run_recording import RunRecording
@@ -70,26 +71,17 @@ class TrainingRun:
         # Overlap steps the parts in turn: p's actions go out, the oldest part sent comes back.
         self.env = EnvParts(envs, config.num_envs)
         self.run_dir, self.overrides = run_dir, overrides
-        self.checkpoint_path, self.replay_path = run_dir / CHECKPOINT_NAME, run_dir / REPLAY_NAME
+        self.checkpoint_path = run_dir / CHECKPOINT_NAME
         self.space = envs.single_observation_space
         self.space_description = describe_space(self.space)
+        # What an exact resume restores beyond the learner (resume.py), where it can.
+        self.resume_state = resumed.resume if resumed is not None else None
         self._build_learner()
         self.step, self.episodes, self.resumes = 0, 0, 0
         self.resumed_at_step: int | None = None
         # What a resume restored of its checkpoint (run_files.life_record).
         self.restored: dict[str, bool] | None = None
         self.env_seed = config.seed
-        if resumed is not None:
-            self._restore(resumed)
-        self.next_update = self.step + self.dqn.train_every
-        self.next_sync = self.step + self.dqn.target_update_steps
-        self.next_checkpoint = self.step + config.checkpoint_every
-        self.next_log = self.step + config.log_every
-        # Updates wait for this many transitions (again after a resume without its replay).
-        self.warm = max(
-            self.dqn.batch_size,
-            min(self.dqn.learning_starts, (self.replay.per_env - 1) * config.num_envs),
-        )
         self.last_episode: dict[str, float] = {}
         self.iteration = 0
         self.in_flight: dict[int, tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]] = {}
@@ -103,6 +95,19 @@ class TrainingRun:
             self.dqn,
             config.num_envs,
         )
+        if resumed is not None:
+            self._restore(resumed)
+        self.next_update = self.step + self.dqn.train_every
+        self.next_sync = self.step + self.dqn.target_update_steps
+        self.next_checkpoint = self.step + config.checkpoint_every
+        self.next_log = self.step + config.log_every
+        if self.resume_state is not None:
+            resuming.restore_counters(self, self.resume_state)
+        # Updates wait for this many transitions (again after a resume without its replay).
+        self.warm = max(
+            self.dqn.batch_size,
+            min(self.dqn.learning_starts, (self.replay.per_env - 1) * config.num_envs),
+        )
 
     def _build_learner(self) -> None:
         """The learner (seeded), its replay memory and frame stacker, and the random generator
@@ -115,18 +120,8 @@ class TrainingRun:
         self.learner = DQNLearner.for_algo(
             config.algo, self.net_shape, config.inputs, dqn, config.device, config.precision
         )
-        self.replay = ReplayMemory(
-            dqn.replay_size,
-            config.num_envs,
-            shapes,
-            dqn.stack,
-            stacked,
-            seed=config.seed,
-            n_step=dqn.n_step,
-            gamma=dqn.gamma,
-            prioritized=dqn.prioritized,
-            priority_alpha=dqn.priority_alpha,
-            priority_eps=dqn.priority_eps,
+        self.replay, self.resume_state = resuming.open_replay(
+            config, self.run_dir / REPLAY_DIR_NAME, shapes, stacked, self.resume_state
         )
         self.stacker = FrameStacker(config.num_envs, shapes, dqn.stack, stacked)
         self.rng = np.random.default_rng(config.seed)
@@ -140,12 +135,17 @@ class TrainingRun:
         self.resumes = resumed.resumes + 1
         self.rng.bit_generator.state = resumed.rng_state
         torch.set_rng_state(resumed.torch_rng_state)
-        # New episodes, not the ones of the first life: different environment seeds.
+        # Where the episodes under way cannot be restored, new ones, not the ones of the first
+        # life: different environment seeds.
         self.env_seed = self.config.seed + 1_000_003 * self.resumes
-        replay_restored = self.config.save_replay and self.replay_path.exists()
-        if replay_restored:
-            self.replay.load(self.replay_path)
-        self.restored = {**restored, "replay": bool(replay_restored)}
+        replay_restored = resuming.restore_replay(self, self.resume_state)
+        face = self.env.face
+        arenas = (
+            (self.resume_state or {}).get("episodes") is not None
+            and face is not None
+            and face.simulator.restorable
+        )
+        self.restored = {**restored, "replay": replay_restored, "arenas": arenas}
 
     def _life_file(self, stem: str, suffix: str) -> Path:
         """``stem.suffix`` for a run's start, ``stem-resume-N.suffix`` for its N-th resume."""
@@ -175,8 +175,11 @@ class TrainingRun:
             except errors.Interrupted as error:  # stopped while its server was gone
                 logger.warning("%s: the run ends at its last whole step, %d", error, self.step)
             if self.step > self.window.start_step:
-                # A partial window: a learning curve (Fayjie's per 3,000 steps) keeps its end.
+                # A partial window: a learning curve (Fayjie's per 3,000 steps) keeps its end;
+                # the next line stays due where it was (for a resume).
+                next_log = self.next_log
                 self._log_training(self.dqn.epsilon(self.step))
+                self.next_log = next_log
             self._checkpoint()
         finally:
             if self.bar is not None:
@@ -225,16 +228,24 @@ class TrainingRun:
         self._life_file("run", ".json").write_text(json.dumps(record, indent=2, default=str))
 
     def _start_episodes(self) -> None:
-        """Reset every environment and start its frame stack and its replay ring."""
-        obs, info = self.envs.reset(seed=self.env_seed)
-        # Own, writable copies: parts write their rows into them as their Steps come back.
-        self.obs = {k: np.array(v) for k, v in obs.items()}
+        """Reset every environment and start its frame stack and its replay ring; or, on a
+        resume that can, put the episodes under way back as the checkpoint left them."""
         everyone = self.everyone = np.arange(self.config.num_envs)
-        self.stacker.reset(everyone, self.obs)
-        self.env_mask = np.array(info["action_mask"])
-        self.mask = self.safety.mask(everyone, self.env_mask)
-        self.replay.start(everyone, self.obs, self.mask)
-        self.starting = np.zeros(self.config.num_envs, dtype=bool)
+        if not (self.restored and self.restored["arenas"]) or not resuming.restore_episodes(
+            self, self.resume_state
+        ):
+            obs, info = self.envs.reset(seed=self.env_seed)
+            # Own, writable copies: parts write their rows into them as their Steps come back.
+            self.obs = {k: np.array(v) for k, v in obs.items()}
+            self.stacker.reset(everyone, self.obs)
+            self.env_mask = np.array(info["action_mask"])
+            self.mask = self.safety.mask(everyone, self.env_mask)
+            self.replay.start(everyone, self.obs, self.mask)
+            self.starting = np.zeros(self.config.num_envs, dtype=bool)
+        elif not self.restored["replay"]:
+            # The episodes go on, into an empty replay: each ring starts from the frame now
+            # (its stacks repeat that frame until the ring holds the ones after it).
+            self.replay.start(everyone, self.obs, self.mask)
         self.started = time.perf_counter()
         self.window = LogWindow(self.step, self.started)
         self.bar = progress_bar(self.config, self.step)
@@ -309,8 +320,11 @@ class TrainingRun:
         if self.step >= self.next_log:
             self._log_training(epsilon)
         if self.step >= self.next_checkpoint:
-            self._checkpoint()
             self.next_checkpoint = self.step + self.config.checkpoint_every
+            self._checkpoint()
+        elif self.replay.needs_checkpoint:
+            # The replay's spare slots are taken: a checkpoint now, off the schedule.
+            self._checkpoint()
 
     def _receive_part(self, part: int) -> tuple[int, float]:
         """Take part ``part``'s Steps and store them; returns the transitions stored and the
@@ -484,6 +498,7 @@ class TrainingRun:
         self.next_log = self.step + self.config.log_every
 
     def _checkpoint(self) -> None:
+        replay_state = self.replay.mark() if self.replay.directory is not None else None
         save_checkpoint(
             self.checkpoint_path,
             learner=self.learner,
@@ -495,6 +510,5 @@ class TrainingRun:
             episodes=self.episodes,
             rng_state=self.rng.bit_generator.state,
             resumes=self.resumes,
+            resume=resuming.take(self, replay_state),
         )
-        if self.config.save_replay:
-            self.replay.save(self.replay_path)

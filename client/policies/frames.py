@@ -88,6 +88,21 @@ class FrameStacker:
     def observation(self) -> dict[str, np.ndarray]:
         return {**self.frames, **self.latest}
 
+    def state(self) -> dict[str, np.ndarray]:
+        """Copies of every stack and latest frame (a training run's checkpoint keeps them)."""
+        return {name: value.copy() for name, value in self.observation().items()}
+
+    def load_state(self, state: Mapping[str, np.ndarray]) -> None:
+        """Back to a :meth:`state` of a stacker of the same shapes."""
+        for name, value in self.observation().items():
+            saved = np.asarray(state[name])
+            if saved.shape != value.shape or saved.dtype != value.dtype:
+                raise ValueError(
+                    f"the saved stack {name} is {saved.dtype}{saved.shape}, this stacker's "
+                    f"{value.dtype}{value.shape}"
+                )
+            value[...] = saved
+
 
 def describe_space(space: gym.spaces.Dict) -> dict[str, Any]:
     """Each observation's shape, dtype and bounds, as JSON-ready data."""

@@ -22,6 +22,8 @@ whatever other arenas share the batch (:mod:`.randomness`).
 
 from __future__ import annotations
 
+import dataclasses
+import json
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,6 +41,7 @@ from .randomness import draw_uniforms
 from .rewards import Rewards
 from .road import Road
 from .sensors.base import Scene, Sensor, SensorFacts, SensorSpace
+from .snapshot import SimSnapshot
 from .spawning import Spawner
 from .state import SimState
 from .traffic.manoeuvres import RandomManoeuvres
@@ -117,6 +120,7 @@ class HighwaySim:
         self.rngs = [np.random.default_rng() for _ in range(num_arenas)]
         self.state = SimState.empty(num_arenas, n, self.vehicles)
         self._needs_reset = np.ones(num_arenas, dtype=bool)
+        self._config_json = json.dumps(dataclasses.asdict(config), sort_keys=True)
 
     @property
     def reward_terms(self) -> tuple[str, ...]:
@@ -194,6 +198,18 @@ class HighwaySim:
         if self.keeps_warnings:
             rows = np.arange(self.num_arenas) if arenas is None else np.asarray(arenas, np.int64)
             self.state.warnings[rows] = self.warnings.compute(self.state.select(rows))
+
+    # --- a moment kept ------------------------------------------------------------------------
+
+    def snapshot(self) -> SimSnapshot:
+        """Every arena as it is now, generators included (:mod:`.snapshot`)."""
+        return SimSnapshot.take(self._config_json, self.state, self.rngs, self._needs_reset)
+
+    def restore(self, snapshot: SimSnapshot) -> None:
+        """Put every arena back as ``snapshot`` took it: the next steps are those that
+        followed it (raises :class:`~.snapshot.SnapshotMismatch` for another configuration or
+        size, changing nothing)."""
+        snapshot.put_back(self._config_json, self.state, self.rngs, self._needs_reset)
 
     # --- stepping -------------------------------------------------------------------------------
 

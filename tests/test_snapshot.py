@@ -1,0 +1,77 @@
+"""A simulator's snapshot, restored, goes on exactly as the simulator it was taken from: for
+every preset, through episode ends and autoresets, in a fresh environment."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from overtake.server.env import HighwayVectorEnv
+from overtake.server.sim import PRESETS
+from overtake.server.sim.snapshot import SnapshotMismatch
+
+# Short episodes, so that the steps after the snapshot cross ends and autoresets.
+SHORT = {"episode.max_decisions": 7}
+
+
+def _play(env, actions):
+    out = []
+    for a in actions:
+        obs, reward, terminated, truncated, info = env.step(a)
+        out.append((obs, reward, terminated, truncated, info["action_mask"], info))
+    return out
+
+
+def _same(a, b):
+    for (obs_a, r_a, t_a, u_a, m_a, info_a), (obs_b, r_b, t_b, u_b, m_b, info_b) in zip(
+        a, b, strict=True
+    ):
+        for key in obs_a:
+            np.testing.assert_array_equal(obs_a[key], obs_b[key])
+        np.testing.assert_array_equal(r_a, r_b)
+        np.testing.assert_array_equal(t_a, t_b)
+        np.testing.assert_array_equal(u_a, u_b)
+        np.testing.assert_array_equal(m_a, m_b)
+        for name, value in info_a.get("metrics", {}).items():
+            np.testing.assert_array_equal(value, info_b["metrics"][name])
+
+
+@pytest.mark.parametrize("preset", sorted(PRESETS))
+def test_a_restored_snapshot_steps_on_as_the_simulator_it_was_taken_from(preset):
+    rng = np.random.default_rng(5)
+    before = rng.integers(0, 5, (9, 3))
+    after = rng.integers(0, 5, (12, 3))
+    env = HighwayVectorEnv(3, preset=preset, overrides=SHORT)
+    env.reset(seed=11)
+    _play(env, before)
+    snapshot = env.snapshot()
+    expected = _play(env, after)
+    env.close()
+
+    other = HighwayVectorEnv(3, preset=preset, overrides=SHORT)
+    other.reset(seed=99)  # another road entirely: the restore replaces all of it
+    _play(other, before[:3])
+    other.restore(snapshot)
+    _same(expected, _play(other, after))
+    # Never reset at all: a restore is enough to step.
+    fresh = HighwayVectorEnv(3, preset=preset, overrides=SHORT)
+    fresh.restore(snapshot)
+    _same(expected, _play(fresh, after))
+    other.close()
+    fresh.close()
+
+
+def test_a_snapshot_fits_only_its_own_configuration_and_size():
+    env = HighwayVectorEnv(2, preset="min2018", overrides={"traffic.density": "light"})
+    env.reset(seed=1)
+    snapshot = env.snapshot()
+    heavy = HighwayVectorEnv(2, preset="min2018", overrides={"traffic.density": "heavy"})
+    with pytest.raises(SnapshotMismatch, match="traffic.density is 'light' in the snapshot"):
+        heavy.restore(snapshot)
+    three = HighwayVectorEnv(3, preset="min2018", overrides={"traffic.density": "light"})
+    with pytest.raises(SnapshotMismatch, match=r"\(3, "):
+        three.restore(snapshot)
+    with pytest.raises(ValueError, match="2 snapshot"):
+        env.restore(snapshot * 2)
+    for e in (env, heavy, three):
+        e.close()

@@ -1,0 +1,176 @@
+"""What a checkpoint holds beyond the learner, so that a stopped run resumes exactly.
+
+A training run stopped (SIGTERM, the end of a machine) or killed between checkpoints and
+resumed from its last checkpoint goes on bit for bit as the run never stopped would have, on
+the same device: the learner and every generator are in the checkpoint already; this module
+adds the rest, in three parts that a resume restores separately where it can:
+
+- ``replay``: the replay memory's account of its rings (:meth:`.replay.ReplayMemory.state`);
+  its frames are the memory-mapped files in the run directory (``replay/``), which a
+  checkpoint does not rewrite;
+- ``episodes``: the episodes under way, on both sides: the environments' own state (the
+  in-process simulator's snapshot, :meth:`~overtake.protocol.faces.VectorFace.snapshot`) and
+  the trainer's of them (the latest observations and action masks, the frame stacks, which
+  environments restart next step, the safety layer's per-environment marks);
+- ``schedule``: when the next update, target copy, log line and checkpoint are due.
+
+Where a part cannot be restored (no replay files, or arenas that live on a server), the resume
+does what a resume did before: it refills the replay before learning goes on, or starts new
+episodes; the run's life record says which (:func:`.run_files.life_record`).
+
+Stored as plain data in the checkpoint (``torch.save`` with ``weights_only`` loading accepts
+tensors, not numpy arrays: :func:`storable` and :func:`loaded` convert).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import torch
+
+from .replay import FrameShapes, ReplayMemory, ReplayMismatch
+
+if TYPE_CHECKING:
+    from .train_config import TrainConfig
+    from .training_run import TrainingRun
+
+logger = logging.getLogger("overtake.trainer")
+
+# The counters of the training loop that say when things are next due, and how far it is.
+SCHEDULE = ("next_update", "next_sync", "next_checkpoint", "next_log", "iteration", "unstored")
+
+
+def storable(value: Any) -> Any:
+    """``value`` with every numpy array a tensor (a copy) and every numpy scalar a number."""
+    if isinstance(value, np.ndarray):
+        return torch.from_numpy(np.array(value, copy=True))
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, Mapping):
+        return {key: storable(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [storable(item) for item in value]
+    return value
+
+
+def loaded(value: Any) -> Any:
+    """:func:`storable`'s inverse: tensors back to numpy arrays."""
+    if isinstance(value, torch.Tensor):
+        return value.numpy()
+    if isinstance(value, Mapping):
+        return {key: loaded(item) for key, item in value.items()}
+    if isinstance(value, list):
+        return [loaded(item) for item in value]
+    return value
+
+
+def open_replay(
+    config: TrainConfig,
+    directory: Path,
+    shapes: FrameShapes,
+    stacked: tuple[str, ...],
+    state: dict[str, Any] | None,
+) -> tuple[ReplayMemory, dict[str, Any] | None]:
+    """The run's replay memory: in memory only (``replay_on_disk`` off), the files of the life
+    before in ``directory`` (a resume whose checkpoint accounts for them), or new files there;
+    and the resume ``state``, without its replay part where those files could not be used."""
+    dqn = config.dqn
+    options: dict[str, Any] = dict(
+        seed=config.seed,
+        n_step=dqn.n_step,
+        gamma=dqn.gamma,
+        prioritized=dqn.prioritized,
+        priority_alpha=dqn.priority_alpha,
+        priority_eps=dqn.priority_eps,
+    )
+    args = (dqn.replay_size, config.num_envs, shapes, dqn.stack, stacked)
+    if not config.replay_on_disk:
+        return ReplayMemory(*args, **options), state
+    saved = (state or {}).get("replay")
+    if saved is not None and directory.is_dir():
+        # The files of the life before: their spare slots are theirs.
+        spare = int(saved["layout"]["slots"]) - dqn.replay_size // config.num_envs
+        try:
+            replay = ReplayMemory(
+                *args, **options, directory=directory, spare=max(spare, 1), reopen=True
+            )
+            return replay, state
+        except ReplayMismatch as error:
+            logger.warning("%s: the replay starts empty and refills", error)
+    replay = ReplayMemory(*args, **options, directory=directory, spare=spare_slots(config))
+    return replay, None if state is None else {**state, "replay": None}
+
+
+def spare_slots(config: TrainConfig) -> int:
+    """Spare slots per replay ring (:class:`.replay.ReplayMemory`): a checkpoint interval's
+    writes, capped at a tenth of the ring (a checkpoint comes early where the spare slots
+    run out first, :attr:`~.replay.ReplayMemory.needs_checkpoint`)."""
+    per_env = config.dqn.replay_size // config.num_envs
+    interval = math.ceil(config.checkpoint_every / config.num_envs) + 2
+    return max(1, min(interval, max(per_env // 10, 2 * config.dqn.stack + 2)))
+
+
+def take(run: TrainingRun, replay_state: dict[str, Any] | None) -> dict[str, Any]:
+    """The run's resume state now, between two iterations (``replay_state``: what the replay's
+    :meth:`~.replay.ReplayMemory.mark` returned, None for a replay in memory only)."""
+    face = run.env.face
+    arenas = face.snapshot() if face is not None and face.simulator.restorable else None
+    state: dict[str, Any] = {
+        "replay": replay_state,
+        "episodes": None,
+        "schedule": {name: getattr(run, name) for name in SCHEDULE},
+        "episodes_done": run.episodes,
+        "last_episode": dict(run.last_episode),
+    }
+    if arenas is not None and not run.in_flight:
+        state["episodes"] = {
+            "arenas": list(arenas),
+            "obs": dict(run.obs),
+            "env_mask": run.env_mask,
+            "mask": run.mask,
+            "starting": run.starting,
+            "stacker": run.stacker.state(),
+            "safety": run.safety.state(),
+        }
+    return storable(state)
+
+
+def restore_replay(run: TrainingRun, state: Mapping[str, Any] | None) -> bool:
+    """Put the replay back as the checkpoint left it, where its files and the checkpoint's
+    account of them are both there; returns whether it did."""
+    replay_state = (state or {}).get("replay")
+    if replay_state is None or run.replay.directory is None:
+        return False
+    run.replay.load_state(loaded(replay_state))
+    return True
+
+
+def restore_counters(run: TrainingRun, state: Mapping[str, Any]) -> None:
+    """The schedule and the episode counters, as the checkpoint left them."""
+    for name, value in state["schedule"].items():
+        setattr(run, name, int(value))
+    run.last_episode = {k: float(v) for k, v in state.get("last_episode", {}).items()}
+
+
+def restore_episodes(run: TrainingRun, state: Mapping[str, Any] | None) -> bool:
+    """Put the episodes under way back, the environments' and the trainer's, where the
+    checkpoint holds them and the environment can take its snapshot; returns whether it did
+    (else the run starts new episodes)."""
+    episodes = (state or {}).get("episodes")
+    face = run.env.face
+    if episodes is None or face is None or not face.simulator.restorable:
+        return False
+    episodes = loaded(episodes)
+    face.restore(episodes["arenas"])
+    run.obs = {name: np.array(value) for name, value in episodes["obs"].items()}
+    run.env_mask = np.array(episodes["env_mask"])
+    run.mask = np.array(episodes["mask"])
+    run.starting = np.array(episodes["starting"])
+    run.stacker.load_state(episodes["stacker"])
+    run.safety.load_state(episodes["safety"])
+    return True
