@@ -33,6 +33,7 @@ from .heads import HeadKind, HeadSpec, legacy_state
 from .network import Inputs, NetworkShape, QNetwork
 from .objectives import Objective, QuantileObjective, TDObjective, Transitions
 from .replay import ReplayBatch
+from .tf_rmsprop import TFRMSprop
 from .two_stream_network import TwoStreamQNetwork, TwoStreamShape
 
 Algo = Literal["dqn", "ddqn", "dueling", "qr"]
@@ -95,13 +96,20 @@ class DQNConfig:
     """multimodal: Min et al.'s (camera / LIDAR inputs); baseline or proposed: Ho's networks
     on the occupancy grid (grid inputs; Figs. 4 and 5); two-stream: Fayjie et al.'s (camera-map
     inputs)"""
-    optimizer: Literal["adam", "rmsprop"] = "adam"
+    optimizer: Literal["adam", "rmsprop", "tf-rmsprop"] = "adam"
+    """adam; rmsprop (PyTorch's: epsilon added to the root); tf-rmsprop (TensorFlow 1.x's
+    RMSPropOptimizer: epsilon inside the root, the mean square starting at one,
+    :mod:`.tf_rmsprop`; Ho's code trains with it)"""
+    adam_eps: float = 1e-8
+    """Adam's epsilon (PyTorch's default; Min et al.'s notebook: 0.01)"""
     rmsprop_alpha: float = 0.95
-    """RMSProp's squared-gradient smoothing (Mnih et al. 2015: 0.95)"""
+    """RMSProp's squared-gradient smoothing (Mnih et al. 2015: 0.95; TensorFlow's decay: 0.9)"""
     rmsprop_eps: float = 0.01
-    """RMSProp's minimum squared gradient (Mnih et al. 2015: 0.01)"""
+    """RMSProp's epsilon (Mnih et al. 2015's minimum squared gradient: 0.01; TensorFlow's
+    default: 1e-10, inside the root)"""
     rmsprop_centered: bool = True
-    """RMSProp with a gradient momentum (a mean of the gradient, Mnih et al.'s 0.95 as alpha)"""
+    """RMSProp with a gradient momentum (a mean of the gradient, Mnih et al.'s 0.95 as alpha);
+    TensorFlow's default: not centred"""
     loss: Literal["huber", "mse"] = "huber"
     """of the TD error: Huber (Mnih et al. 2015) or squared (Ho's code)"""
     n_step: int = 1
@@ -156,7 +164,7 @@ class DQNConfig:
             raise ValueError(f"grad_clip_norm must be >= 0 (0: none), got {self.grad_clip_norm}")
         choices = {
             "network": ("multimodal", "baseline", "proposed", "two-stream"),
-            "optimizer": ("adam", "rmsprop"),
+            "optimizer": ("adam", "rmsprop", "tf-rmsprop"),
             "loss": ("huber", "mse"),
         }
         for name, allowed in choices.items():
@@ -180,6 +188,8 @@ class DQNConfig:
             )
         if self.priority_eps <= 0.0:
             raise ValueError(f"priority_eps must be > 0, got {self.priority_eps}")
+        if self.adam_eps <= 0.0:
+            raise ValueError(f"adam_eps must be > 0, got {self.adam_eps}")
         if not 0.0 < self.rmsprop_alpha < 1.0 or self.rmsprop_eps <= 0.0:
             raise ValueError(
                 "rmsprop_alpha must be in (0, 1) and rmsprop_eps > 0, got "
@@ -247,8 +257,16 @@ def build_network(
 
 
 def build_optimizer(parameters: Any, config: DQNConfig) -> torch.optim.Optimizer:
-    """Adam (Min et al.'s code) or RMSProp (Ho, Table 6, with Mnih et al.'s squared-gradient
-    settings)."""
+    """Adam (Min et al.'s code), PyTorch's RMSProp (Mnih et al.'s settings by default) or
+    TensorFlow's (Ho's code, :mod:`.tf_rmsprop`)."""
+    if config.optimizer == "tf-rmsprop":
+        return TFRMSprop(
+            parameters,
+            lr=config.learning_rate,
+            decay=config.rmsprop_alpha,
+            epsilon=config.rmsprop_eps,
+            centered=config.rmsprop_centered,
+        )
     if config.optimizer == "rmsprop":
         return torch.optim.RMSprop(
             parameters,
@@ -257,7 +275,7 @@ def build_optimizer(parameters: Any, config: DQNConfig) -> torch.optim.Optimizer
             eps=config.rmsprop_eps,
             centered=config.rmsprop_centered,
         )
-    return torch.optim.Adam(parameters, lr=config.learning_rate)
+    return torch.optim.Adam(parameters, lr=config.learning_rate, eps=config.adam_eps)
 
 
 def execution_device(device: str, precision: Precision = "fp32") -> torch.device:

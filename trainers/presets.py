@@ -6,15 +6,21 @@ network, optimiser and hyper-parameters. ``overtake-train --preset NAME`` starts
   (§IV: the three methods "are combined"; the authors' code runs Double + Dueling) on camera
   and LIDAR with the multi-modal network of Table II, Adam 2.5e-4 and the rest of
   :class:`.learner.DQNConfig`'s defaults.
-- ``ho2018`` (Ho 2018, Table 6): DQN with a target network (the thesis calls it DDQN but
-  describes a target network only) on the occupancy grid with the proposed network of Fig. 5;
-  RMSProp with learning rate 0.0005 and gradient momentum 0.95 (Table 7's runs vary the rate:
-  ``--learning-rate``), discount 0.99, minibatch 32, replay 1,000,000, learning from 100,000
-  transitions, epsilon 1 to 0.1 over 2,000,000 decisions, a target copy every 10,000 (counted
-  here in environment steps), 4 stacked grids; the squared TD error of his code, no gradient
-  clipping. Chosen here: RMSProp's other settings as Mnih et al. (2015), whose table Table 6
-  follows (squared-gradient smoothing 0.95, minimum 0.01, centred), and an update every 4
-  steps.
+- ``ho2018`` (Ho 2018, Table 6, and his code, ``songyanho/Reinforcement-Learning-for-Self-
+  Driving-Cars``): DQN with a target network (the thesis calls it DDQN but describes a target
+  network only) on the occupancy grid with the proposed network of Fig. 5, trained as his
+  code trains. From the thesis (Table 6): learning rate 0.0005 (Table 7's runs vary it:
+  ``--learning-rate``; his ``config.py``: 0.0001), discount 0.99 (his ``cnn.py``: 0.95),
+  4 stacked grids. From the thesis and his code alike: minibatch 32 (``config.py``), replay
+  1,000,000 (``MAX_MEM``), learning from 100,000 transitions (``LEARN_START``), epsilon 1 to
+  0.1 over 2,000,000 decisions (``EPSILON_GREEDY_MAX_STATES``), a target copy every 10,000
+  (``TARGET_NETWORK_UPDATE_FREQUENCY``, counted in decisions as here). From his code:
+  an update every decision (``deep_traffic_agent.py`` calls ``optimize`` in every
+  ``remember``); TensorFlow's RMSProp with its defaults (``cnn.py``:
+  ``tf.train.RMSPropOptimizer(learning_rate)``: decay 0.9, epsilon 1e-10 inside the square
+  root, no momentum, not centred, the mean square starting at one; :mod:`.tf_rmsprop`; the
+  thesis's "gradient momentum 0.95" is Mnih et al.'s table's, which his code does not
+  apply); the squared TD error (``cnn.py``), no gradient clipping.
   Evaluation as his code's (``gui.py`` skips frames only while training): a decision every
   frame, 4,000 of them an episode, the frames and actions stacked per decision as in training.
 - ``fayjie2018`` (Fayjie et al. 2018, §III.A and Table I): DQN with a target network copied
@@ -52,11 +58,11 @@ PRESET_TRAINING: dict[str, PresetTraining] = {
         inputs="grid",
         dqn=DQNConfig(
             network="proposed",
-            optimizer="rmsprop",
+            optimizer="tf-rmsprop",
             learning_rate=0.0005,
-            rmsprop_alpha=0.95,
-            rmsprop_eps=0.01,
-            rmsprop_centered=True,
+            rmsprop_alpha=0.9,
+            rmsprop_eps=1e-10,
+            rmsprop_centered=False,
             batch_size=32,
             replay_size=1_000_000,
             learning_starts=100_000,
@@ -65,7 +71,7 @@ PRESET_TRAINING: dict[str, PresetTraining] = {
             epsilon_end=0.1,
             epsilon_decay_steps=2_000_000,
             target_update_steps=10_000,
-            train_every=4,
+            train_every=1,
             loss="mse",
             grad_clip_norm=0.0,
             stack=4,

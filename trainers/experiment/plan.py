@@ -317,6 +317,10 @@ _UNLEARNED = (
     "resume",
     "resume_if_found",
     "run_dir",
+    # Where the replay lives (disk or memory; --save-replay before issue 56) changes how
+    # exactly a resume goes on, not what a run learns.
+    "replay_on_disk",
+    "save_replay",
 )
 
 

@@ -1,0 +1,75 @@
+"""RMSProp as TensorFlow 1.x's ``tf.train.RMSPropOptimizer`` computes it, for presets whose
+authors trained with it (Ho's ``cnn.py``: ``tf.train.RMSPropOptimizer(learning_rate)``, every
+other argument TensorFlow's default).
+
+It differs from ``torch.optim.RMSprop`` in three ways that change the updates:
+
+- epsilon is added *inside* the square root: ``lr * g / sqrt(ms + epsilon)`` (PyTorch:
+  ``lr * g / (sqrt(ms) + eps)``); TensorFlow's default epsilon is 1e-10;
+- the mean square starts at **one** (``_create_slots``: ``init_ops.ones_initializer``), not
+  zero, so the first updates are about ``lr * g``, not ``lr * sign(g) / sqrt(1 - decay)``;
+- its defaults: decay 0.9, momentum 0, not centred.
+
+The update (TensorFlow's ``ApplyRMSProp`` kernel, ``training_ops.cc``):
+``ms <- ms + (g^2 - ms) * (1 - decay)``; ``mom <- momentum * mom + lr * g / sqrt(ms + eps)``;
+``var <- var - mom``; centred, ``mg <- mg + (g - mg) * (1 - decay)`` and the root is of
+``ms - mg^2 + eps``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from typing import Any
+
+import torch
+
+
+class TFRMSprop(torch.optim.Optimizer):
+    """``tf.train.RMSPropOptimizer(lr, decay, momentum, epsilon, centered)``."""
+
+    def __init__(
+        self,
+        params: Iterable[torch.Tensor] | Iterable[dict[str, Any]],
+        lr: float,
+        decay: float = 0.9,
+        momentum: float = 0.0,
+        epsilon: float = 1e-10,
+        centered: bool = False,
+    ) -> None:
+        if lr <= 0.0 or not 0.0 <= decay < 1.0 or momentum < 0.0 or epsilon <= 0.0:
+            raise ValueError(
+                "TensorFlow's RMSProp needs lr > 0, decay in [0, 1), momentum >= 0 and epsilon "
+                f"> 0, got lr={lr}, decay={decay}, momentum={momentum}, epsilon={epsilon}"
+            )
+        defaults = dict(lr=lr, decay=decay, momentum=momentum, epsilon=epsilon, centered=centered)
+        super().__init__(params, defaults)
+
+    @torch.no_grad()
+    def step(self, closure: Callable[[], float] | None = None) -> float | None:  # type: ignore[override]
+        loss = None
+        if closure is not None:
+            with torch.enable_grad():
+                loss = closure()
+        for group in self.param_groups:
+            lr, decay, momentum = group["lr"], group["decay"], group["momentum"]
+            epsilon, centered = group["epsilon"], group["centered"]
+            for param in group["params"]:
+                if param.grad is None:
+                    continue
+                grad = param.grad
+                state = self.state[param]
+                if not state:
+                    state["ms"] = torch.ones_like(param)  # TensorFlow's "rms" slot: ones
+                    state["mom"] = torch.zeros_like(param)
+                    if centered:
+                        state["mg"] = torch.zeros_like(param)
+                ms, mom = state["ms"], state["mom"]
+                ms.add_((grad * grad - ms) * (1.0 - decay))
+                denominator = ms + epsilon
+                if centered:
+                    mg = state["mg"]
+                    mg.add_((grad - mg) * (1.0 - decay))
+                    denominator = denominator - mg * mg
+                mom.mul_(momentum).add_(grad * lr / denominator.sqrt())
+                param.sub_(mom)
+        return loss
