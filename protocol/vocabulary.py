@@ -134,6 +134,7 @@ ADDED_SETTINGS: tuple[str, ...] = (
     "ego.lane_change_watch",
     "ego.watch_brake_mps2",
     "ego.watch_response_s",
+    "ego.emergency_brake_count",
 )
 EARLIER_SETTINGS: dict[str, object] = {
     **{
@@ -154,6 +155,9 @@ EARLIER_SETTINGS: dict[str, object] = {
     # Nothing watched a lane change once it had begun (the watch's brake and response time
     # then do nothing).
     "ego.lane_change_watch": False,
+    # Every preset counted a deliberate brake with a slower car ahead (issue 56 counts Ho's
+    # as his code does, the brakes its safety rule forces).
+    "ego.emergency_brake_count": "deliberate",
 }
 assert set(EARLIER_SETTINGS) <= set(ADDED_SETTINGS)
 # The settings of existing fields whose value in a preset changed since records were first

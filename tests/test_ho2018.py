@@ -163,6 +163,41 @@ def test_a_slower_car_within_the_safety_gap_is_matched_at_once_and_counted_as_an
     assert mild.metrics()["emergency_brakes"][0, 0] == 0
 
 
+def test_emergency_brakes_are_counted_as_his_code_counts_them_the_brakes_his_rule_forces():
+    """car.py's hard_brake_count: the safety rule takes the speed of a car in the front window
+    more than 20 km/h slower (strictly); a deliberate brake towards a slow car farther ahead
+    is not one (the count before issue 56 counted it: ``ego.emergency_brake_count``)."""
+    exactly_20 = ho_sim([Car(dx=9.5, lane=OWN_LANE, speed_kmh=60.0)], ego_speed_kmh=80.0)
+    keep(exactly_20)
+    assert speed_kmh(exactly_20) == pytest.approx(60.0, abs=0.01)
+    assert exactly_20.metrics()["emergency_brakes"][0, 0] == 0
+    # A slow car 30 m ahead, braked for at 3.5 m/s^2 for a whole decision: no forced brake.
+    far = ho_sim(
+        [Car(dx=37.0, lane=OWN_LANE, speed_kmh=30.0)],
+        ego_speed_kmh=90.0,
+        **{"ego.skipped_frames": "repeat"},
+    )
+    far.step(np.array([[CRUISE_DOWN]]))
+    assert speed_kmh(far) == pytest.approx(86.0)
+    assert far.metrics()["emergency_brakes"][0, 0] == 0
+    deliberate = ho_sim(
+        [Car(dx=37.0, lane=OWN_LANE, speed_kmh=30.0)],
+        ego_speed_kmh=90.0,
+        **{"ego.skipped_frames": "repeat", "ego.emergency_brake_count": "deliberate"},
+    )
+    deliberate.step(np.array([[CRUISE_DOWN]]))
+    assert deliberate.metrics()["emergency_brakes"][0, 0] == 1
+    # Counted per frame the rule forces, as his code checks every frame: the car ahead
+    # slowing again past the margin is a second one.
+    twice = ho_sim([Car(dx=9.5, lane=OWN_LANE, speed_kmh=60.0)], ego_speed_kmh=90.0)
+    keep(twice)
+    twice.state.speed_mps[0, 1] = 35.0 * KMH
+    keep(twice)
+    assert twice.metrics()["emergency_brakes"][0, 0] == 2
+    with pytest.raises(ValueError, match="ego.emergency_brake_count"):
+        make_config("min2018", {"ego.emergency_brake_count": "forced"})
+
+
 def test_no_accelerating_with_a_car_within_the_safety_gap_even_a_faster_one():
     # 1.5 m bumper to bumper: the car 20 km/h faster opens the gap by 0.44 m a frame, still
     # within his 4 m after the decision's four frames.

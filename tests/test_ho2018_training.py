@@ -8,7 +8,6 @@ import json
 from dataclasses import replace
 
 import pytest
-import torch
 
 from overtake.client.commands import UsageError
 from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
@@ -22,6 +21,7 @@ from overtake.trainers.experiment import (
 )
 from overtake.trainers.grid_network import GridQNetwork
 from overtake.trainers.learner import DQNConfig
+from overtake.trainers.tf_rmsprop import TFRMSprop
 from overtake.trainers.train import TrainConfig, preset_in
 from overtake.trainers.train import cli as train_cli
 from overtake.trainers.train import main as train
@@ -44,14 +44,15 @@ def test_the_preset_names_its_training(ho_run):
     checkpoint = load_checkpoint(ho_run / CHECKPOINT_NAME)
     assert (checkpoint.algo, checkpoint.inputs, checkpoint.preset) == ("dqn", "grid", "ho2018")
     dqn = checkpoint.dqn
-    assert (dqn.network, dqn.optimizer, dqn.loss) == ("proposed", "rmsprop", "mse")
-    assert dqn.learning_rate == 0.0005 and dqn.rmsprop_alpha == 0.95 and dqn.gamma == 0.99
+    assert (dqn.network, dqn.optimizer, dqn.loss) == ("proposed", "tf-rmsprop", "mse")
+    assert dqn.learning_rate == 0.0005 and dqn.rmsprop_alpha == 0.9 and dqn.gamma == 0.99
+    assert dqn.rmsprop_eps == 1e-10 and not dqn.rmsprop_centered and dqn.train_every == 1
     assert dqn.epsilon_decay_steps == 2_000_000 and dqn.target_update_steps == 10_000
     # What the command line said still wins over the preset's.
     assert dqn.learning_starts == 48 and dqn.replay_size == 600
     learner = checkpoint.make_learner()
     assert isinstance(learner.online, GridQNetwork) and learner.online.kind == "proposed"
-    assert isinstance(learner.optimizer, torch.optim.RMSprop)
+    assert isinstance(learner.optimizer, TFRMSprop)
     run = json.loads((ho_run / "run.json").read_text())
     assert run["sim_config"]["grid"]["enabled"] and not run["sim_config"]["lidar"]["enabled"]
     assert checkpoint.step >= 160

@@ -1170,8 +1170,8 @@ def test_training_writes_a_rerun_recording_of_its_episodes_and_learning(tmp_path
 def _long_ho2018_run(run_dir: Path, *options: str) -> Iterator[tuple[subprocess.Popen, Path]]:
     """An overtake-train run of ho2018 too long to end by itself, logging every 40 steps and
     checkpointing only when stopped (its replay in memory: a small replay on disk asks for a
-    checkpoint whenever its spare slots are taken), once it has logged twice; with the file its stderr goes
-    to (read while it runs). Killed on the way out if still running."""
+    checkpoint whenever its spare slots are taken), once it has logged twice; with the file
+    its stderr goes to (read while it runs). Killed on the way out if still running."""
     from remote_support import child_env, wait_until
 
     errors_file = run_dir.parent / "trainer.err"

@@ -56,10 +56,15 @@ class EgoConfig:
     # Autonomous emergency braking: full braking when the time to collision falls below this.
     aeb_time_to_collision_s: float = 1.5
     aeb_decel_mps2: float = 8.0
-    # Ho's emergency brake (2018, §6.2), counted per decision: a brake applied (decelerating
-    # at least this hard, m/s^2, in some frame of the decision) ...
+    # Ho's emergency brake (2018, §6.2: "a brake applied" with the car in front slower by 20
+    # km/h or more), counted as ``emergency_brake_count`` says: "deliberate" counts a decision
+    # in which some frame braked at least emergency_decel_mps2 with the car ahead slower by at
+    # least emergency_speed_diff_kmh (a reading of the thesis); "forced" counts, frame by frame,
+    # the safety rule of speed steps taking the car ahead's speed when that car is slower by
+    # more than emergency_speed_diff_kmh (his code's hard_brake_count, car.py: the brake his
+    # car is forced into; speed_control "speed_steps" only).
+    emergency_brake_count: Literal["deliberate", "forced"] = "deliberate"
     emergency_decel_mps2: float = 1.0
-    # ... while the car ahead is slower by at least this much.
     emergency_speed_diff_kmh: float = 20.0
     lane_change_duration_s: float = 2.0
     # A side warning: a vehicle in the lane on that side, or moving into it, from
@@ -170,6 +175,14 @@ class EgoConfig:
             "table3 or repeat",
         )
         check_range("ego.safety_gap_m", self.safety_gap_m, 0.0, 100.0)
+        check(
+            self.emergency_brake_count == "deliberate"
+            or (self.emergency_brake_count == "forced" and self.speed_control == "speed_steps"),
+            "ego.emergency_brake_count",
+            self.emergency_brake_count,
+            "deliberate, or forced with ego.speed_control = speed_steps (the brake its safety "
+            "rule forces)",
+        )
 
 
 class CruiseControl:
@@ -228,6 +241,13 @@ class SpeedSteps:
     def commands(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(A, N) speed commands (-1, 0, +1) of the decision's first frame and of the others."""
         return self.FIRST[actions], self.skipped[actions]
+
+    def forced_brakes(self, st: SimState, following: Following, more_than_mps: float) -> np.ndarray:
+        """(A, N) bool: the agents whose speed the safety rule sets to a car ahead slower by
+        more than ``more_than_mps`` this frame (Ho's ``hard_brake_count``, ``car.py``)."""
+        n = self.agents
+        near = following.has_leader[:, :n] & (following.gap_m[:, :n] < self.safety_gap_m)
+        return near & (st.speed_mps[:, :n] - following.leader_speed_mps[:, :n] > more_than_mps)
 
     def speeds(self, st: SimState, following: Following, command: np.ndarray) -> np.ndarray:
         """The agents' (A, N) speeds at the end of this frame, given its commands."""

@@ -76,7 +76,7 @@ class Decision:
         random_movers = self.manoeuvres.decide(st, uniforms)
         params = self.kinds.params(st.kind)
         collided = np.zeros((st.x_m.shape[0], n), dtype=bool)
-        brakes = np.zeros((st.x_m.shape[0], n), dtype=bool)
+        brakes = np.zeros((st.x_m.shape[0], n), dtype=np.int64)
         # Who follows whom is sorted out once per decision. Within a decision lanes only lose
         # members (changes that finish), so a frame-0 leader is never farther than the true
         # one: keeping it for the decision's frames is conservative. Traffic that starts a

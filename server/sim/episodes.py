@@ -86,6 +86,7 @@ class EpisodeBook:
         self.decision_period_s = episode.decision_period_s
         self.brake_decel_mps2 = ego.emergency_decel_mps2
         self.brake_speed_diff_kmh = ego.emergency_speed_diff_kmh
+        self.counts_forced_brakes = ego.emergency_brake_count == "forced"
         self.agents = agents
         # The columns of the metrics table: the papers' metrics, and the watch's where it runs.
         self.fields = METRIC_FIELDS + (WATCH_METRICS if ego.lane_change_watch else ())
@@ -96,10 +97,19 @@ class EpisodeBook:
             getattr(st, name)[arena, slot] = 0
         st.recent_actions[arena, slot] = KEEP
 
-    def note_emergency_brakes(self, st: SimState, following: Following, brakes: np.ndarray) -> None:
-        """After a frame: mark in ``brakes`` (A, N) bool the agents that braked (at least
-        ``ego.emergency_decel_mps2``) with a car ahead slower by at least
-        ``ego.emergency_speed_diff_kmh``; a decision with such a frame is one emergency brake."""
+    def note_emergency_brakes(
+        self, st: SimState, following: Following, brakes: np.ndarray, forced: np.ndarray | None
+    ) -> None:
+        """After a frame: count in ``brakes`` (A, N) the agents' emergency brakes as
+        ``ego.emergency_brake_count`` says: "forced", the frames in which the safety rule made
+        the car take a slower car's speed (``forced``, from the physics); "deliberate", a mark
+        (1) for the agents that braked (at least ``ego.emergency_decel_mps2``) with a car ahead
+        slower by at least ``ego.emergency_speed_diff_kmh``, a decision with such a frame being
+        one emergency brake."""
+        if self.counts_forced_brakes:
+            assert forced is not None, "forced brakes are counted from the physics' safety rule"
+            brakes += forced
+            return
         n = self.agents
         braking = st.accel_mps2[:, :n] <= -self.brake_decel_mps2
         if braking.any():

@@ -27,6 +27,7 @@ from .lane_watch import LaneChangeWatch
 from .traffic.car_following import Following
 from .traffic.kernels import capped_speeds, follow_and_accelerate
 from .traffic.lane_changes import Mobil
+from .units import KMH
 
 if TYPE_CHECKING:
     from .config import SimConfig
@@ -116,8 +117,8 @@ class Physics:
         random_movers: np.ndarray,
         speed_command: np.ndarray | None = None,
     ) -> None:
-        """One frame for every arena of ``st``; collisions and emergency brakes (A, N) bool are
-        marked in ``collided`` and ``brakes``.
+        """One frame for every arena of ``st``; collisions (A, N) bool are marked in
+        ``collided``, emergency brakes counted in ``brakes`` (A, N) int.
 
         ``lead``/``valid`` (A, 2V): each lane entry's leader; with ``mobil_index`` traffic also
         considers lane changes this frame, ``random_movers`` (A, V) whatever their incentive.
@@ -186,8 +187,13 @@ class Physics:
             dt,
             new_speed,
         )
+        forced = None
         if self.speed_steps is not None:
             assert speed_command is not None, "speed_steps control needs the frame's commands"
+            if self.episodes.counts_forced_brakes:
+                forced = self.speed_steps.forced_brakes(
+                    st, following, self.episodes.brake_speed_diff_kmh * KMH
+                )
             new_speed[:, :n] = self.speed_steps.speeds(st, following, speed_command)
         # Along the road, and laterally minimum-jerk moves between lane centres.
         integrate(
@@ -214,7 +220,7 @@ class Physics:
         # frame late or, where the overlap lasted one frame, never; and whether it was seen
         # on time depended on the other arenas of the batch.)
         agent_overlaps(st.x_m, st.y_m, p.half_length, p.half_width, st.active, n, collided)
-        self.episodes.note_emergency_brakes(st, following, brakes)
+        self.episodes.note_emergency_brakes(st, following, brakes, forced)
 
 
 def traffic_overlaps(st: SimState, kinds: VehicleKinds, agents: int) -> np.ndarray:

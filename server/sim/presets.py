@@ -256,6 +256,7 @@ def ho2018() -> SimConfig:
             speed_step_kmh=1.0,
             skipped_frames="repeat",
             safety_gap_m=4.0,
+            emergency_brake_count="forced",
             lane_change_check=True,
             mask_refusals=True,
             lane_change_clear_ahead_m=2.5,
@@ -368,6 +369,8 @@ BEFORE_AUTHORS_TRAFFIC: dict[str, dict[str, PlainValue]] = {
         "episode.max_distance_m": None,
     },
     "ho2018": {
+        # Counted as any preset counted them then (issue 56 counts the brakes his rule forces).
+        "ego.emergency_brake_count": "deliberate",
         "traffic.density_vehicle_counts": (20, 40, 60),
         "traffic.entry": "comfortable",
         "traffic.following": "idm",
