@@ -67,15 +67,13 @@ class Engine(Protocol):
 
 @runtime_checkable
 class Restorable(Protocol):
-    """An engine that can keep its arenas' whole state and put it back: the next rounds after
-    a restore are those that followed the snapshot, bit for bit (an exact resume of a training
-    run). Snapshots are plain data (arrays, strings, numbers) for the caller to store."""
+    """An engine that can keep its arenas' whole state, as plain data, and put it back (a
+    ValueError, changing nothing, for another configuration or size): the rounds after a
+    restore are those that followed the snapshot, bit for bit (an exact resume)."""
 
     def snapshot(self) -> dict[str, Any]: ...
 
-    def restore(self, snapshot: Mapping[str, Any]) -> None:
-        """Put the arenas back as :meth:`snapshot` found them (raises ValueError, changing
-        nothing, for a snapshot of another configuration or size)."""
+    def restore(self, snapshot: Mapping[str, Any]) -> None: ...
 
 
 class Road(Protocol):
@@ -132,32 +130,6 @@ class Simulator:
             raise ValueError(f"a step count must be >= 0, got {step}")
         for engine in self.parts:
             engine.trainer_step = int(step)
-
-    @property
-    def restorable(self) -> bool:
-        """Whether every engine can snapshot and restore its arenas (:class:`Restorable`)."""
-        return all(isinstance(engine, Restorable) for engine in self.parts)
-
-    def snapshot(self) -> tuple[dict[str, Any], ...]:
-        """Each engine's snapshot, in the order of the parts (see :attr:`restorable`)."""
-        return tuple(self._restorable(engine).snapshot() for engine in self.parts)
-
-    def restore(self, snapshots: Sequence[Mapping[str, Any]]) -> None:
-        if len(snapshots) != len(self.parts):
-            raise ValueError(
-                f"{len(snapshots)} snapshot(s) for a simulator of {len(self.parts)} part(s)"
-            )
-        for engine, snapshot in zip(self.parts, snapshots, strict=True):
-            self._restorable(engine).restore(snapshot)
-
-    @staticmethod
-    def _restorable(engine: Engine) -> Restorable:
-        if not isinstance(engine, Restorable):
-            raise TypeError(
-                f"{type(engine).__name__} cannot snapshot its arenas (they live in another "
-                "process); only an in-process simulator can"
-            )
-        return engine
 
     def close(self) -> None:
         try:
@@ -480,18 +452,27 @@ class VectorFace(Faced, gym.vector.VectorEnv):
             steps, engine.restarts != self._part_restarts.get(part, engine.restarts)
         )
 
+    @property
+    def restorable(self) -> bool:
+        """Whether its arenas can be kept and put back (:class:`Restorable`: in process)."""
+        return all(isinstance(engine, Restorable) for engine in self.simulator.parts)
+
     def snapshot(self) -> tuple[dict[str, Any], ...]:
-        """Every arena's whole state between steps (:meth:`Simulator.snapshot`), to
-        :meth:`restore` later: the steps after a restore are those that followed the
-        snapshot, bit for bit."""
+        """Every arena between steps, a snapshot per part, to :meth:`restore`: the steps
+        after it are those that followed, bit for bit."""
         self._check_started()
-        return self.simulator.snapshot()
+        return tuple(engine.snapshot() for engine in self._restorable())
 
     def restore(self, snapshots: Sequence[Mapping[str, Any]]) -> None:
-        """Put every arena back as :meth:`snapshot` found them; the environment then steps
-        on from there (no reset needed)."""
-        self.simulator.restore(snapshots)
+        """Every arena back as :meth:`snapshot` found it (no reset needed to step on)."""
+        for engine, snapshot in zip(self._restorable(), snapshots, strict=True):
+            engine.restore(snapshot)
         self._started = True
+
+    def _restorable(self) -> list[Restorable]:
+        if not self.restorable:
+            raise TypeError("only an in-process simulator can snapshot its arenas")
+        return [engine for engine in self.simulator.parts if isinstance(engine, Restorable)]
 
     def _check_started(self) -> None:
         if not self._started:

@@ -189,7 +189,9 @@ def test_ho2018_table8_runs_train_ho_s_networks_with_the_presets_settings(tmp_pa
         assert command[:2] == ["--preset", "ho2018"]
         assert parse_args(command) == run.train
         assert (run.train.algo, run.train.inputs) == ("dqn", "grid")
-        assert run.train.dqn.optimizer == "rmsprop" and run.train.dqn.loss == "mse"
+        dqn = run.train.dqn
+        assert dqn.optimizer == "tf-rmsprop" and dqn.loss == "mse" and dqn.train_every == 1
+        assert (dqn.rmsprop_alpha, dqn.rmsprop_eps, dqn.rmsprop_centered) == (0.9, 1e-10, False)
     assert [run.train.dqn.network for run in plan.runs] == ["baseline"] + ["proposed"] * 4
     assert [run.train.dqn.learning_rate for run in plan.runs] == [
         0.0005, 0.0001, 0.00025, 0.0005, 0.00075

@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
+from .checkpoint import save_checkpoint
 from .replay import FrameShapes, ReplayMemory, ReplayMismatch
 
 if TYPE_CHECKING:
@@ -119,7 +120,7 @@ def take(run: TrainingRun, replay_state: dict[str, Any] | None) -> dict[str, Any
     """The run's resume state now, between two iterations (``replay_state``: what the replay's
     :meth:`~.replay.ReplayMemory.mark` returned, None for a replay in memory only)."""
     face = run.env.face
-    arenas = face.snapshot() if face is not None and face.simulator.restorable else None
+    arenas = face.snapshot() if face is not None and can_restore(run) else None
     state: dict[str, Any] = {
         "replay": replay_state,
         "episodes": None,
@@ -138,6 +139,32 @@ def take(run: TrainingRun, replay_state: dict[str, Any] | None) -> dict[str, Any
             "safety": run.safety.state(),
         }
     return storable(state)
+
+
+def write_checkpoint(run: TrainingRun) -> None:
+    """The run's checkpoint now (:mod:`.checkpoint`), with its resume state: the replay's files
+    flushed first, so that the checkpoint's account of them is on disk before it is."""
+    replay_state = run.replay.mark() if run.replay.directory is not None else None
+    save_checkpoint(
+        run.checkpoint_path,
+        learner=run.learner,
+        config=run.config,
+        overrides=run.overrides,
+        space=run.space_description,
+        net_shape=run.net_shape,
+        step=run.step,
+        episodes=run.episodes,
+        rng_state=run.rng.bit_generator.state,
+        resumes=run.resumes,
+        resume=take(run, replay_state),
+    )
+
+
+def can_restore(run: TrainingRun) -> bool:
+    """Whether the run's environment can snapshot and restore its arenas (overtake's own, in
+    process)."""
+    face = run.env.face
+    return face is not None and face.restorable
 
 
 def restore_replay(run: TrainingRun, state: Mapping[str, Any] | None) -> bool:
@@ -162,11 +189,10 @@ def restore_episodes(run: TrainingRun, state: Mapping[str, Any] | None) -> bool:
     checkpoint holds them and the environment can take its snapshot; returns whether it did
     (else the run starts new episodes)."""
     episodes = (state or {}).get("episodes")
-    face = run.env.face
-    if episodes is None or face is None or not face.simulator.restorable:
+    if episodes is None or not can_restore(run):
         return False
     episodes = loaded(episodes)
-    face.restore(episodes["arenas"])
+    run.env.face.restore(episodes["arenas"])  # type: ignore[union-attr]
     run.obs = {name: np.array(value) for name, value in episodes["obs"].items()}
     run.env_mask = np.array(episodes["env_mask"])
     run.mask = np.array(episodes["mask"])

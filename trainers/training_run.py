@@ -19,7 +19,7 @@ import torch
 from overtake.protocol import ACTION_COUNT, errors
 
 from . import resume as resuming
-from .checkpoint import CHECKPOINT_NAME, REPLAY_DIR_NAME, Checkpoint, plain_data, save_checkpoint
+from .checkpoint import CHECKPOINT_NAME, REPLAY_DIR_NAME, Checkpoint, plain_data
 from .env_parts import EnvParts
 from .learner import ALGOS, DQNLearner, network_shape
 from .network import INPUT_SENSORS
@@ -139,11 +139,8 @@ class TrainingRun:
         # life: different environment seeds.
         self.env_seed = self.config.seed + 1_000_003 * self.resumes
         replay_restored = resuming.restore_replay(self, self.resume_state)
-        face = self.env.face
-        arenas = (
-            (self.resume_state or {}).get("episodes") is not None
-            and face is not None
-            and face.simulator.restorable
+        arenas = (self.resume_state or {}).get("episodes") is not None and resuming.can_restore(
+            self
         )
         self.restored = {**restored, "replay": replay_restored, "arenas": arenas}
 
@@ -231,9 +228,8 @@ class TrainingRun:
         """Reset every environment and start its frame stack and its replay ring; or, on a
         resume that can, put the episodes under way back as the checkpoint left them."""
         everyone = self.everyone = np.arange(self.config.num_envs)
-        if not (self.restored and self.restored["arenas"]) or not resuming.restore_episodes(
-            self, self.resume_state
-        ):
+        restoring = self.restored is not None and self.restored["arenas"]
+        if not (restoring and resuming.restore_episodes(self, self.resume_state)):
             obs, info = self.envs.reset(seed=self.env_seed)
             # Own, writable copies: parts write their rows into them as their Steps come back.
             self.obs = {k: np.array(v) for k, v in obs.items()}
@@ -242,7 +238,7 @@ class TrainingRun:
             self.mask = self.safety.mask(everyone, self.env_mask)
             self.replay.start(everyone, self.obs, self.mask)
             self.starting = np.zeros(self.config.num_envs, dtype=bool)
-        elif not self.restored["replay"]:
+        elif self.restored is not None and not self.restored["replay"]:
             # The episodes go on, into an empty replay: each ring starts from the frame now
             # (its stacks repeat that frame until the ring holds the ones after it).
             self.replay.start(everyone, self.obs, self.mask)
@@ -498,17 +494,4 @@ class TrainingRun:
         self.next_log = self.step + self.config.log_every
 
     def _checkpoint(self) -> None:
-        replay_state = self.replay.mark() if self.replay.directory is not None else None
-        save_checkpoint(
-            self.checkpoint_path,
-            learner=self.learner,
-            config=self.config,
-            overrides=self.overrides,
-            space=self.space_description,
-            net_shape=self.net_shape,
-            step=self.step,
-            episodes=self.episodes,
-            rng_state=self.rng.bit_generator.state,
-            resumes=self.resumes,
-            resume=resuming.take(self, replay_state),
-        )
+        resuming.write_checkpoint(self)

@@ -52,7 +52,7 @@ class SimSnapshot:
         return cls(
             config_json=config_json,
             arrays={f.name: getattr(state, f.name).copy() for f in dataclasses.fields(state)},
-            rng_states=tuple(rng.bit_generator.state for rng in rngs),
+            rng_states=tuple(dict(rng.bit_generator.state) for rng in rngs),
             needs_reset=needs_reset.copy(),
         )
 
