@@ -59,13 +59,11 @@ def test_the_partner_is_placed_relative_to_the_target_lane(
     assert where_was(_road(partner_lane, partner_target), 1, direction) == expected
 
 
-# min2018-safe-both's medium episode 96 (kept in bench/results): the agent changed right at
-# decision 1 and collided at decision 4 with a car that had begun to change left from two lanes
-# over, 3.6 m ahead of it and 15.5 km/h slower when the agent decided.
-KEPT_RECORD = (
-    ROOT / "bench/results/min2018-safe-both/evaluations/all-both-seed0"
-    "/medium-step200000.episodes/all-both.jsonl"
-)
+# The retired min2018-safe-both's medium episode 96 (its record's collisions, kept as test data
+# when the experiment was retired, issue 56): the agent changed right at decision 1 and
+# collided at decision 4 with a car that had begun to change left from two lanes over, 3.6 m
+# ahead of it and 15.5 km/h slower when the agent decided (the preset before issue 44).
+KEPT_RECORD = ROOT / "tests/data/min2018-safe-both-all-both-medium.jsonl"
 
 
 def _kept_episode_96():

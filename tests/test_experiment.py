@@ -590,6 +590,10 @@ def test_the_table_says_how_each_run_was_made_and_names_no_machine_s_directories
         if 0 < step < BUDGET:  # killed part-way: a second life resumed from the checkpoint
             assert [life["from_step"] for life in lives] == [0, step]
             assert lives[1]["target_restored"] and lives[1]["optimizer_restored"]
+            # Exactly: the replay's files and the episodes under way were put back too.
+            assert lives[1]["replay_restored"] and lives[1]["arenas_restored"]
+            assert f"- {row}-seed0: 0–{step:,} on cpu" in (out / "table.md").read_text()
+            assert f"; resumed exactly {step:,}–" in (out / "table.md").read_text()
     # Each evaluation names the code that drove it (its episode record's header): this
     # checkout's, as the table's header line says.
     for entry in [*runs.values(), *light["references"]]:
@@ -723,20 +727,26 @@ def test_min2018_safe_trains_the_paper_row_and_the_options_each_alone_and_togeth
     assert labels["paper"] == "-"
 
 
-def test_min2018_safe_both_repeats_the_safe_rows_on_both_inputs_one_chosen_by_rows(tmp_path):
-    safe, both = EXPERIMENTS["min2018-safe"], EXPERIMENTS["min2018-safe-both"]
-    assert [(r.label + "-both", r.options) for r in safe.rows] == [
-        (r.label, r.options) for r in both.rows
-    ]
-    assert all((r.algo, r.inputs, r.seeds) == ("dueling", "both", 1) for r in both.rows)
-    same = ("preset", "total_steps", "num_envs", "densities", "eval_episodes")
-    assert [getattr(both, f) for f in same] == [getattr(safe, f) for f in same]
-    plan = make_plan(
-        ExperimentConfig(experiment="min2018-safe-both", out=tmp_path, rows=["all-both"])
+def test_min2018_notebook_trains_the_kept_dueling_row_as_the_authors_notebook_does(tmp_path):
+    """One row: min2018-table3's dueling-both, two seeds, at its budget and schedule, with the
+    notebook's Adam epsilon, squared error and update every step (and only those)."""
+    plan = make_plan(ExperimentConfig(experiment="min2018-notebook", out=tmp_path))
+    table3 = make_plan(
+        ExperimentConfig(experiment="min2018-table3", out=tmp_path / "t3", rows=("dueling-both",))
     )
-    [run] = plan.runs
-    assert run.name == "all-both-seed0" and run.train.inputs == "both"
-    assert (run.train.shield, run.train.dqn.prioritized, run.train.dqn.n_step) == (True, True, 3)
+    assert [run.name for run in plan.runs] == [
+        "dueling-both-notebook-seed0",
+        "dueling-both-notebook-seed1",
+    ]
+    run, kept = plan.runs[0].train, table3.runs[0].train
+    assert run.recipe == "notebook" and kept.recipe is None
+    assert (run.dqn.adam_eps, run.dqn.loss, run.dqn.train_every) == (0.01, "mse", 1)
+    assert dataclasses.replace(run.dqn, adam_eps=1e-8, loss="huber", train_every=4) == kept.dqn
+    assert dataclasses.replace(run, recipe=None, dqn=kept.dqn, run_dir=kept.run_dir) == kept
+    command = train_command(run)[3:]
+    assert command[:2] == ["--recipe", "notebook"] and parse_args(command) == run
+    with pytest.raises(UsageError, match="preset ho2018 has no recipes"):
+        TrainConfig.for_preset("ho2018", "notebook")
 
 
 def test_device_reaches_every_training_run_and_does_not_split_an_experiment_directory(tmp_path):

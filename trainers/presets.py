@@ -5,7 +5,9 @@ network, optimiser and hyper-parameters. ``overtake-train --preset NAME`` starts
 - ``min2018`` (Min et al. 2018 and the authors' code): Double DQN with the Dueling network
   (§IV: the three methods "are combined"; the authors' code runs Double + Dueling) on camera
   and LIDAR with the multi-modal network of Table II, Adam 2.5e-4 and the rest of
-  :class:`.learner.DQNConfig`'s defaults.
+  :class:`.learner.DQNConfig`'s defaults (an update every 4 steps, the Huber loss, Adam's
+  epsilon and the gradient clipping chosen here); the recipe ``notebook`` trains as the
+  authors' notebook does.
 - ``ho2018`` (Ho 2018, Table 6, and his code, ``songyanho/Reinforcement-Learning-for-Self-
   Driving-Cars``): DQN with a target network (the thesis calls it DDQN but describes a target
   network only) on the occupancy grid with the proposed network of Fig. 5, trained as his
@@ -33,7 +35,9 @@ network, optimiser and hyper-parameters. ``overtake-train --preset NAME`` starts
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
 
 from .learner import Algo, DQNConfig
 from .network import Inputs
@@ -46,13 +50,27 @@ class PresetTraining:
     algo: Algo
     inputs: Inputs
     dqn: DQNConfig
+    recipes: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    """named ways of training the preset other than its paper's (``overtake-train --recipe
+    NAME``): DQNConfig's fields that each changes"""
     evaluation: tuple[str, ...] = ()
     """simulator overrides (dotted.name=value) under which ``overtake-eval`` evaluates, as
     the paper (or its authors' code) evaluates; ``--no-paper-evaluation`` leaves them out"""
 
 
 PRESET_TRAINING: dict[str, PresetTraining] = {
-    "min2018": PresetTraining(algo="dueling", inputs="both", dqn=DQNConfig()),
+    "min2018": PresetTraining(
+        algo="dueling",
+        inputs="both",
+        dqn=DQNConfig(),
+        recipes={
+            # Min et al.'s notebook (RL_algorithms/Double_Dueling_image_sensor.ipynb), where
+            # the paper is silent: Adam with epsilon 0.01, the squared TD error, an update
+            # every step (its 50,000 steps of observing before training are the default's
+            # learning start). Its 512 LSTM cells are not taken: Table II says 256.
+            "notebook": {"adam_eps": 0.01, "loss": "mse", "train_every": 1},
+        },
+    ),
     "ho2018": PresetTraining(
         algo="dqn",
         inputs="grid",

@@ -9,15 +9,15 @@ The run directory holds:
   epsilon, Q of the taken actions, steps per second and where the time went);
 - ``checkpoint.pt``: the latest checkpoint, written to a temporary file and renamed, so a kill
   never leaves a broken one; it describes itself (algorithm, inputs, preset, spaces, step);
-- ``replay.npz`` with ``--save-replay``: the replay memory, saved beside each checkpoint.
+- ``replay/``: the replay memory as memory-mapped files, written as they fill (``--no-replay-
+  on-disk`` keeps it in memory).
 
 ``--resume`` continues a run from its checkpoint (``--resume-if-found`` too, and starts a
-fresh run where there is none yet): the step count, epsilon schedule, target network,
-optimiser state and random generators carry on. The environments start new episodes (the ones
-in flight at the checkpoint are not continued). The replay is restored if it was saved;
-otherwise it refills, and updates wait until it again holds ``learning_starts`` transitions
-(the same rule as at the start of a run), so a resumed learner never trains on a handful of
-fresh transitions.
+fresh run where there is none yet), exactly as the run never stopped would have gone on where
+it can (:mod:`.resume`): the learner, the generators, the schedule, the replay, the frame
+stacks and, in process, the episodes under way and the simulator's state. What it cannot
+restore (no replay files; arenas on a server) it says in the life's run record: the replay
+refills before learning goes on, the episodes restart.
 """
 
 from __future__ import annotations
@@ -116,24 +116,31 @@ def prepare_run_dir(config: TrainConfig, run_dir: Path) -> Checkpoint | None:
 
 def preset_in(argv: list[str]) -> str:
     """The ``--preset`` a command line names (its last), or the default preset."""
-    preset = TrainConfig().preset
+    return option_in(argv, "--preset") or TrainConfig().preset
+
+
+def option_in(argv: list[str], flag: str) -> str | None:
+    """The value a command line gives ``flag`` (its last), or None."""
+    value = None
     for i, arg in enumerate(argv):
-        if arg == "--preset" and i + 1 < len(argv):
-            preset = argv[i + 1]
-        elif arg.startswith("--preset="):
-            preset = arg.split("=", 1)[1]
-    return preset
+        if arg == flag and i + 1 < len(argv):
+            value = argv[i + 1]
+        elif arg.startswith(flag + "="):
+            value = arg.split("=", 1)[1]
+    return value
 
 
 def parse_args(args: list[str]) -> TrainConfig:
     """The configuration an ``overtake-train`` command line asks for: the named preset's
-    training (its defaults, which --help shows) with the options given."""
+    training, or its --recipe's (their defaults, which --help shows), with the options
+    given."""
     import tyro
 
+    recipe = option_in(args, "--recipe")
     return tyro.cli(
         TrainConfig,
         args=args,
-        default=TrainConfig.for_preset(preset_in(args)),
+        default=TrainConfig.for_preset(preset_in(args), None if recipe == "None" else recipe),
         config=(tyro.conf.OmitArgPrefixes,),
         description="overtake-train: DQN / Double DQN / Dueling DQN / QR-DQN on overtake",
     )

@@ -13,6 +13,7 @@ from typing import Any, Literal
 
 import torch
 
+from overtake.client.commands import UsageError
 from overtake.client.episodes.scenario import DEFAULT_PRESET, Scenario
 from overtake.protocol.vocabulary import WATCH_SETTING
 from overtake.viz.recording import RecordingConfig
@@ -98,6 +99,10 @@ class TrainConfig(Scenario):
     (ego.lane_change_watch, overtake.server.sim.lane_watch: an unsafe change turns back before
     the lane marking, past it the car brakes as hard as needed); a simulator setting, so
     evaluation and replays of the run's checkpoints have it too"""
+    recipe: str | None = None
+    """a named way of training the preset other than its paper's, whose settings become the
+    defaults (min2018: notebook, Min et al.'s notebook: Adam's epsilon 0.01, the squared TD
+    error, an update every step); None: the paper's"""
     dqn: DQNConfig = field(default_factory=DQNConfig)
     recording: RecordingConfig = field(
         default_factory=lambda: RecordingConfig(record_every=TRAINER_RECORD_EVERY)
@@ -119,16 +124,21 @@ class TrainConfig(Scenario):
         return self.overlap == "on" or torch.get_num_threads() < (os.cpu_count() or 1)
 
     @classmethod
-    def for_preset(cls, preset: str, **changes: Any) -> TrainConfig:
+    def for_preset(cls, preset: str, recipe: str | None = None, **changes: Any) -> TrainConfig:
         """The preset's training defaults (:mod:`.presets`: its paper's algorithm, inputs,
-        network and hyper-parameters; Min et al.'s for a preset without its own), with
-        ``changes`` (fields of TrainConfig) applied."""
-        base = cls(preset=preset)
+        network and hyper-parameters; Min et al.'s for a preset without its own), or those of
+        one of its ``recipe``s, with ``changes`` (fields of TrainConfig) applied."""
+        base = cls(preset=preset, recipe=recipe)
         defaults = PRESET_TRAINING.get(preset)
-        if defaults is not None:
-            base = dataclasses.replace(
-                base, algo=defaults.algo, inputs=defaults.inputs, dqn=defaults.dqn
+        recipes = defaults.recipes if defaults is not None else {}
+        if recipe is not None and recipe not in recipes:
+            raise UsageError(
+                f"--recipe {recipe}: preset {preset} has "
+                + (f"the recipes {', '.join(sorted(recipes))}" if recipes else "no recipes")
             )
+        if defaults is not None:
+            dqn = dataclasses.replace(defaults.dqn, **recipes.get(recipe or "", {}))
+            base = dataclasses.replace(base, algo=defaults.algo, inputs=defaults.inputs, dqn=dqn)
         return dataclasses.replace(base, **changes)
 
     def resolved_run_dir(self) -> Path:

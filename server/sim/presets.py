@@ -171,12 +171,16 @@ def ho2018() -> SimConfig:
       (``ego.speed_control = "speed_steps"``); no lane change into a side where a car is
       alongside (``ego.lane_change_check``; his check reads the rows of the agent's body in the
       next lane, against the rows a car marks there: a car from 2.5 m ahead of its front to
-      1.5 m behind its rear, whatever its speed); the action mask says so
-      (``ego.mask_refusals``; his agent chooses among all five and learns the action applied);
+      1.5 m behind its rear, whatever its speed);
+    - an emergency brake counted as his ``hard_brake_count`` (``car.py``): in every frame that
+      his safety rule makes the agent take the speed of a car ahead more than 20 km/h slower
+      (``ego.emergency_brake_count = "forced"``; the thesis, §6.2: "20 km/h or more");
     - the grid marks a car by as many cells as it is long, from the one that holds its front
       bumper (``grid.covered_by = "near_edge"``, ``get_vision``).
 
-    Chosen here (the thesis and the code are silent):
+    Chosen here (the thesis and the code are silent, or differ):
+    - the action mask marks a lane change into a side his check refuses (``ego.mask_refusals``;
+      his agent chooses among all five, and a refused one keeps its lane);
     - a new car's own and entry speeds drawn from the whole ranges, not from his integers;
       tries at entering once a decision, as many as the decision has frames (his one a frame:
       the same where a decision is a frame, as in his evaluation);

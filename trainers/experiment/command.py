@@ -59,7 +59,7 @@ def check_directory(plan: Plan) -> None:
         if before is not None and before != now:
             # A setting added to the trainer since the directory was recorded, at its default
             # (what the trainer did before the setting existed), is no difference.
-            default = training_identity(TrainConfig.for_preset(run.train.preset))
+            default = training_identity(TrainConfig.for_preset(run.train.preset, run.train.recipe))
             differ = sorted(_differences(before, now, added_at=default))
             if not differ:
                 stored["runs"][run.name] = now

@@ -47,6 +47,7 @@ def run_lives(run_dir: Path, final_step: int) -> list[dict[str, Any]]:
                 "optimizer_restored": life.get("optimizer_restored"),
                 "replay_restored": life.get("replay_restored"),
                 "refill_steps": life.get("refill_steps"),
+                "arenas_restored": life.get("arenas_restored"),
             }
         )
     for life, following in zip(lives, [*lives[1:], None], strict=True):
@@ -83,9 +84,12 @@ def provenance_line(lives: list[dict[str, Any]]) -> str:
             ]
             if life.get("replay_restored") is False:
                 fresh.append(f"replay refilled for {life.get('refill_steps') or 0:,} steps")
+            if life.get("arenas_restored") is not True:  # before issue 56 they always did
+                fresh.append("the episodes under way restarted")
             if life.get("target_restored") is None:
                 fresh.append("what it restored not recorded")
-            text = "resumed " + text + (f" ({'; '.join(fresh)})" if fresh else "")
+            text = ("resumed " if fresh else "resumed exactly ") + text
+            text += f" ({'; '.join(fresh)})" if fresh else ""
         if "transfer" in life:
             text += " (a transfer from another machine: transfer.json)"
         parts.append(text)

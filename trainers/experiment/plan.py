@@ -260,7 +260,7 @@ def _run_plan(
 ) -> RunPlan:
     run_dir = out / f"{row.label}-seed{seed}"
     # The preset's training (its paper's network and hyper-parameters), scaled to the budget.
-    base = TrainConfig.for_preset(experiment.preset)
+    base = TrainConfig.for_preset(experiment.preset, row.recipe)
     dqn = dataclasses.replace(
         base.dqn,
         learning_starts=schedule.learning_starts,
@@ -362,9 +362,10 @@ def train_command(train: TrainConfig) -> list[str]:
     """``overtake-train`` for ``train``, as this interpreter's module (found whether or not
     the environment's bin is on PATH)."""
     # overtake-train's defaults are the training of the preset it is given (--preset first).
-    base = TrainConfig.for_preset(train.preset)
+    base = TrainConfig.for_preset(train.preset, train.recipe)
     preset = [] if train.preset == TrainConfig().preset else ["--preset", train.preset]
-    args = [*preset, *command_args(train, base)]
+    recipe = [] if train.recipe is None else ["--recipe", train.recipe]
+    args = [*preset, *recipe, *command_args(train, base)]
     return [sys.executable, "-m", "overtake.trainers.train", *args]
 
 
