@@ -265,8 +265,20 @@ _SHM = Path("/dev/shm")
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:
-    if not hasattr(session.config, "workerinput") and _SHM.is_dir():
+    if hasattr(session.config, "workerinput"):
+        return
+    if _SHM.is_dir():
         _SHM_BEFORE.update(p.name for p in _SHM.iterdir())
+    # The simulator's compiled loops, compiled (or their cache checked) once before any worker
+    # starts: otherwise each worker, and each server a test starts, compiles what it first
+    # uses, and a server compiling highway-env's scene (about 10 s) misses a test's deadline
+    # to answer. Its own process, so that the controller does not load the simulator.
+    subprocess.run(
+        [sys.executable, "-m", "overtake.server.sim.warm"],
+        check=True,
+        stdout=subprocess.DEVNULL,
+        timeout=600,
+    )
 
 
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:

@@ -135,6 +135,10 @@ ADDED_SETTINGS: tuple[str, ...] = (
     "ego.watch_brake_mps2",
     "ego.watch_response_s",
     "ego.emergency_brake_count",
+    # Whole sections (issue 57: highway-env's scene and its Kinematics observation), off in
+    # every preset of before.
+    "highway_scene",
+    "kinematics",
 )
 EARLIER_SETTINGS: dict[str, object] = {
     **{

@@ -30,6 +30,7 @@ from overtake.server.env import HighwayEnv, HighwayVectorEnv
 from overtake.server.groups import Group
 from overtake.server.sim import PRESETS
 from overtake.server.sim.presets import BEFORE_AUTHORS_TRAFFIC
+from overtake.server.sim.sensors.kinematics import FEATURES as KINEMATICS_FEATURES
 
 DENSITIES = ("light", "medium", "heavy")
 ACTION_COUNT = 5
@@ -79,6 +80,20 @@ VARIANTS: dict[str, dict[str, dict[str, Any]]] = {
         # the count is all that issue changed.
         "deliberate": {**SHORT, "ego.emergency_brake_count": "deliberate"},
     },
+    # highway-env's scenes (issue 57): their own episodes of 30 / 40 decisions end in crashes
+    # and truncations; every Kinematics feature, absolute, seeing behind; every pair of cars
+    # tested for collisions in the fast scene.
+    "highway-fast": {
+        "default": {},
+        "features": {
+            "kinematics.features": list(KINEMATICS_FEATURES),
+            "kinematics.absolute": True,
+            "kinematics.see_behind": True,
+            "kinematics.vehicles_count": 8,
+        },
+        "all-pairs": {"highway_scene.collisions": "all"},
+    },
+    "highway": {"default": {}, "unnormalised": {"kinematics.normalize": False}},
 }
 SINGLE_STEPS = 120
 VECTOR_ARENAS, VECTOR_STEPS = 3, 90
@@ -381,6 +396,51 @@ GOLDEN: dict[tuple[str, str, str, str], str] = {
     ("ho2018", "heavy", "deliberate", "single"): "434663e11d0292b2",
     ("ho2018", "heavy", "deliberate", "vector"): "02393eebcb599968",
     ("ho2018", "heavy", "deliberate", "group"): "dab369f0e083fd74",
+    ("highway", "light", "default", "single"): "586738687e4d599d",
+    ("highway", "light", "default", "vector"): "421f4be563dda879",
+    ("highway", "light", "default", "group"): "cf781e937f921f28",
+    ("highway", "light", "unnormalised", "single"): "1a6ef7f6b0035bda",
+    ("highway", "light", "unnormalised", "vector"): "069ac79572df6b24",
+    ("highway", "light", "unnormalised", "group"): "bb67ffb8d6fda0f4",
+    ("highway", "medium", "default", "single"): "9426a18e9475e93b",
+    ("highway", "medium", "default", "vector"): "e8c54c8aa63965f1",
+    ("highway", "medium", "default", "group"): "ffacf9e727f985e9",
+    ("highway", "medium", "unnormalised", "single"): "4e8394e7ea933b55",
+    ("highway", "medium", "unnormalised", "vector"): "e9acdfdc08fed184",
+    ("highway", "medium", "unnormalised", "group"): "f6e1f111fd588e37",
+    ("highway", "heavy", "default", "single"): "359679b8e78bc978",
+    ("highway", "heavy", "default", "vector"): "d2af86ec4a82fe7c",
+    ("highway", "heavy", "default", "group"): "698bcdee59173322",
+    ("highway", "heavy", "unnormalised", "single"): "f182d1da503fb153",
+    ("highway", "heavy", "unnormalised", "vector"): "84a29078b3b42465",
+    ("highway", "heavy", "unnormalised", "group"): "d219cb5412d4a196",
+    ("highway-fast", "light", "default", "single"): "12f4912d6078a19f",
+    ("highway-fast", "light", "default", "vector"): "eaafdce46e8086f8",
+    ("highway-fast", "light", "default", "group"): "b42ebeed9da1780e",
+    ("highway-fast", "light", "features", "single"): "d5289321b0f76fe0",
+    ("highway-fast", "light", "features", "vector"): "5e61e8a8bf14a914",
+    ("highway-fast", "light", "features", "group"): "3c6848f9efd2aa8e",
+    ("highway-fast", "light", "all-pairs", "single"): "12f4912d6078a19f",
+    ("highway-fast", "light", "all-pairs", "vector"): "eaafdce46e8086f8",
+    ("highway-fast", "light", "all-pairs", "group"): "b42ebeed9da1780e",
+    ("highway-fast", "medium", "default", "single"): "20f780f8fb37fe7e",
+    ("highway-fast", "medium", "default", "vector"): "64a5a7a562d7628b",
+    ("highway-fast", "medium", "default", "group"): "2c8a74ce52b2dab6",
+    ("highway-fast", "medium", "features", "single"): "7f663a2b092b8ad6",
+    ("highway-fast", "medium", "features", "vector"): "34268789644444b3",
+    ("highway-fast", "medium", "features", "group"): "aead3d04d9042457",
+    ("highway-fast", "medium", "all-pairs", "single"): "20f780f8fb37fe7e",
+    ("highway-fast", "medium", "all-pairs", "vector"): "64a5a7a562d7628b",
+    ("highway-fast", "medium", "all-pairs", "group"): "fdb8d8e38b1a4411",
+    ("highway-fast", "heavy", "default", "single"): "a8bbf60bac8301c5",
+    ("highway-fast", "heavy", "default", "vector"): "57d10529917cd1d2",
+    ("highway-fast", "heavy", "default", "group"): "d34a3f32e3d4aeff",
+    ("highway-fast", "heavy", "features", "single"): "6959e26c4a48b8eb",
+    ("highway-fast", "heavy", "features", "vector"): "ed8894242d2be73c",
+    ("highway-fast", "heavy", "features", "group"): "1c2948a47ecfa363",
+    ("highway-fast", "heavy", "all-pairs", "single"): "a8bbf60bac8301c5",
+    ("highway-fast", "heavy", "all-pairs", "vector"): "57d10529917cd1d2",
+    ("highway-fast", "heavy", "all-pairs", "group"): "d34a3f32e3d4aeff",
 }
 
 

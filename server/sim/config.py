@@ -24,6 +24,7 @@ from typing import Any, Literal, get_args, get_origin, get_type_hints
 
 from .assist import EgoConfig
 from .episodes import EpisodeConfig
+from .highway_scene.config import HighwaySceneConfig
 from .rewards import RewardConfig
 from .road import RoadConfig
 from .sensors.action_history import ActionHistoryConfig
@@ -31,6 +32,7 @@ from .sensors.base import SensorConfig
 from .sensors.camera import CameraConfig
 from .sensors.ego import EgoVectorConfig
 from .sensors.grid import OccupancyGridConfig
+from .sensors.kinematics import KinematicsConfig
 from .sensors.lidar import LidarConfig
 from .sensors.lidar_map import LidarMapConfig
 from .traffic.config import TrafficConfig
@@ -57,6 +59,8 @@ class SimConfig:
     grid: OccupancyGridConfig = field(default_factory=OccupancyGridConfig)
     action_history: ActionHistoryConfig = field(default_factory=ActionHistoryConfig)
     lidar_map: LidarMapConfig = field(default_factory=LidarMapConfig)
+    kinematics: KinematicsConfig = field(default_factory=KinematicsConfig)
+    highway_scene: HighwaySceneConfig = field(default_factory=HighwaySceneConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
     episode: EpisodeConfig = field(default_factory=EpisodeConfig)
 

@@ -35,6 +35,13 @@ from .assist import DriverWarnings, LaneChangeAssist
 from .config import SimConfig
 from .decision import Decision, StepResult
 from .episodes import EpisodeBook
+from .highway_scene import (
+    REWARD_TERMS,
+    MetaActions,
+    SceneDecision,
+    ScenePlacement,
+    check_scene,
+)
 from .overtakes import OvertakeTracker
 from .physics import Physics, headings
 from .randomness import draw_uniforms
@@ -116,7 +123,14 @@ class HighwaySim:
             for section in config.sensor_sections().values()
             if section.enabled
         ]
-        self.decision = Decision(self)
+        self.decision: Decision | SceneDecision = Decision(self)
+        self.reward_names = self.rewards.names
+        if config.highway_scene.enabled:  # highway-env's scene in place of the papers' parts
+            check_scene(config)
+            self.spawner = ScenePlacement(config, n, self.vehicles, self.tracker)  # type: ignore[assignment]
+            self.actions = MetaActions(config, n)  # type: ignore[assignment]
+            self.decision = SceneDecision(self)
+            self.reward_names = REWARD_TERMS
         self.rngs = [np.random.default_rng() for _ in range(num_arenas)]
         self.state = SimState.empty(num_arenas, n, self.vehicles)
         self._needs_reset = np.ones(num_arenas, dtype=bool)
@@ -125,7 +139,7 @@ class HighwaySim:
     @property
     def reward_terms(self) -> tuple[str, ...]:
         """The names of the reward's terms, in order."""
-        return self.rewards.names
+        return self.reward_names
 
     def observation_spaces(self) -> dict[str, SensorSpace]:
         """One agent's observation, sensor by sensor (the observation's keys, in order)."""
@@ -227,7 +241,10 @@ class HighwaySim:
                 "before they can step"
             )
         st = self.state if arenas is None else self.state.select(rows)
-        result = self.decision.advance(st, actions, draw_uniforms(self.rngs, rows, self.vehicles))
+        uniforms = (
+            draw_uniforms(self.rngs, rows, self.vehicles) if self.decision.uses_uniforms else None
+        )
+        result = self.decision.advance(st, actions, uniforms)
         if arenas is not None:
             self.state.assign(rows, st)
         return result
@@ -243,6 +260,7 @@ class HighwaySim:
             self.agents,
             self.warnings,
             warnings=self.state.warnings if self.keeps_warnings else None,
+            vehicle_headings=self.vehicle_headings,
         )
         return {sensor.key: sensor.observe(scene) for sensor in self.sensors}
 
@@ -250,7 +268,7 @@ class HighwaySim:
         """Arena ``arena``'s road and vehicles now (:class:`WorldSnapshot`)."""
         st, n = self.state, self.agents
         body = np.clip(st.kind[arena], 0, AGENT_KIND)
-        heading = headings(st, self.kinds, self.road.lane_width_m, n)[arena]
+        heading = self.vehicle_headings()[arena, :n]
         return WorldSnapshot(
             sim_time_s=float(st.frame[arena] * self.dt),
             lane_count=self.road.lane_count,
@@ -265,6 +283,12 @@ class HighwaySim:
             half_width_m=self.kinds.half_width[body].astype(np.float32),
             agent_heading_rad=heading.astype(np.float32),
         )
+
+    def vehicle_headings(self) -> np.ndarray:
+        """(A, V) every car's heading now, radians from the road's direction, left positive."""
+        if self.config.highway_scene.enabled:
+            return self.state.heading_rad
+        return headings(self.state, self.kinds, self.road.lane_width_m, self.vehicles)
 
     def action_mask(self) -> np.ndarray:
         """(A, N, actions) int8: 1 where the action can be taken now."""

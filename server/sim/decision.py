@@ -42,6 +42,8 @@ class StepResult:
 class Decision:
     """The order of one decision's parts, over the parts of ``sim``."""
 
+    uses_uniforms = True  # each decision's block of random numbers (randomness.py)
+
     def __init__(self, sim: HighwaySim) -> None:
         self.agents = sim.agents
         self.frames = sim.frames
@@ -65,8 +67,11 @@ class Decision:
         # Whether some lane change ends within its first frame (see advance).
         self.instant_changes = bool((sim.kinds.change_duration <= sim.dt).any())
 
-    def advance(self, st: SimState, actions: np.ndarray, uniforms: np.ndarray) -> StepResult:
+    def advance(
+        self, st: SimState, actions: np.ndarray, uniforms: np.ndarray | None
+    ) -> StepResult:
         """One decision of the arenas of ``st``: (A, N) ``actions``, the decision's uniforms."""
+        assert uniforms is not None, "the papers' decision draws its random numbers (uses_uniforms)"
         n = self.agents
         # What the agents were warned of when they chose (the observation they acted on).
         warned = st.warnings.copy() if self.keeps_warnings else None

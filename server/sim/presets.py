@@ -2,7 +2,8 @@
 and their parameters, with where every number comes from: the paper, the authors' code, or a
 choice made here where both are silent.
 
-Min et al. (2018), Ho (2018) and Fayjie et al. (2018).
+Min et al. (2018), Ho (2018) and Fayjie et al. (2018); and highway-env's ``highway-fast-v0`` and
+``highway-v0`` (:mod:`.highway_scene.presets`).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from collections.abc import Callable, Mapping
 from .assist import EgoConfig
 from .config import ConfigError, PlainValue, SimConfig, apply_overrides
 from .episodes import EpisodeConfig
+from .highway_scene.presets import highway, highway_fast
 from .rewards import RewardConfig
 from .road import RoadConfig
 from .sensors.action_history import ActionHistoryConfig
@@ -405,6 +407,9 @@ PRESETS: dict[str, Callable[[], SimConfig]] = {
     "min2018": min2018,
     "ho2018": ho2018,
     "fayjie2018": fayjie2018,
+    # highway-env's own scenes (highway_scene/presets.py).
+    "highway-fast": highway_fast,
+    "highway": highway,
 }
 DEFAULT_PRESET = "min2018"
 

@@ -53,6 +53,18 @@ class SimState:
     # (A, N, ACTION_HISTORY) int64: each agent's last actions applied, oldest first (keep, 0,
     # before its episode's first decisions); kept only where a sensor or the reward reads them.
     recent_actions: np.ndarray
+    # highway-env's scene (highway_scene.enabled; zeros otherwise): each car's heading
+    # (radians, left positive), its lane-change timer (s), its IDM exponent, whether it
+    # crashed, the push a predicted collision gives it at its next step (m, and whether there
+    # is one), and each agent's index among the target speeds.
+    heading_rad: np.ndarray  # (A, V)
+    timer_s: np.ndarray  # (A, V)
+    idm_delta: np.ndarray  # (A, V)
+    crashed: np.ndarray  # (A, V) bool
+    impact_x_m: np.ndarray  # (A, V)
+    impact_y_m: np.ndarray  # (A, V)
+    has_impact: np.ndarray  # (A, V) bool
+    speed_index: np.ndarray  # (A, N) int64
 
     @classmethod
     def empty(cls, arenas: int, agents: int, vehicles: int) -> SimState:
@@ -85,6 +97,14 @@ class SimState:
             traffic_cars_sum=_f64(a, n),
             warnings=_bool(a, n, 3),
             recent_actions=_i64(a, n, ACTION_HISTORY),
+            heading_rad=_f64(a, v),
+            timer_s=_f64(a, v),
+            idm_delta=_f64(a, v),
+            crashed=_bool(a, v),
+            impact_x_m=_f64(a, v),
+            impact_y_m=_f64(a, v),
+            has_impact=_bool(a, v),
+            speed_index=_i64(a, n),
         )
 
     def select(self, rows: np.ndarray) -> SimState:

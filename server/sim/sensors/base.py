@@ -10,6 +10,7 @@ sensors: what each observer sees is worked out only if some sensor asks for it.
 from __future__ import annotations
 
 import abc
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -92,6 +93,7 @@ class Scene:
         agents: int,
         driver_warnings: DriverWarnings,
         warnings: np.ndarray | None = None,
+        vehicle_headings: Callable[[], np.ndarray] | None = None,
     ) -> None:
         self.state = state
         self.kinds = kinds
@@ -103,6 +105,21 @@ class Scene:
         self._ahead: CarsAhead | None = None
         # Given where the simulation already keeps them in its state.
         self._warnings: np.ndarray | None = warnings
+        self._vehicle_headings = vehicle_headings
+        self._headings: np.ndarray | None = None
+
+    @property
+    def headings(self) -> np.ndarray:
+        """(A, V) every car's heading, radians from the road's direction, left positive."""
+        if self._headings is None:
+            self._headings = (
+                self._vehicle_headings()
+                if self._vehicle_headings is not None
+                else headings(
+                    self.state, self.kinds, self.road.lane_width_m, self.state.x_m.shape[1]
+                )
+            )
+        return self._headings
 
     @property
     def views(self) -> ObserverViews:
@@ -133,7 +150,7 @@ class Scene:
         return ObserverViews(
             origin_x=x_rel[:, :n].reshape(-1),
             origin_y=st.y_m[:, :n].reshape(-1),
-            heading=headings(st, self.kinds, self.road.lane_width_m, n).reshape(-1),
+            heading=self.headings[:, :n].reshape(-1),
             car_x=np.repeat(x_rel, n, axis=0),
             car_y=np.repeat(st.y_m, n, axis=0),
             car_half_length=self.kinds.half_length[kind],

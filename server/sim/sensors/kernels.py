@@ -5,6 +5,8 @@ and the LIDAR grid map. Compiled and cached as
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -217,3 +219,100 @@ def lidar_grid(
             if 0 <= row < cells and 0 <= column < cells:
                 image[o, int(row) * cells + int(column)] = 255
     return image
+
+
+# --- highway-env's Kinematics observation (kinematics.py) ----------------------------------------
+
+# envs/common/abstract.py: PERCEPTION_DISTANCE = 5 * Vehicle.MAX_SPEED.
+PERCEPTION_M = 200.0
+
+
+@njit(cache=True, nogil=True)
+def _features(x, y_sim, speed, heading_sim, lanes, lane_width, codes, row):
+    """One car's features in highway-env's coordinates (Vehicle.to_dict, no route)."""
+    y = (lanes - 0.5) * lane_width - y_sim
+    heading = -heading_sim
+    lane = min(max(int(y / lane_width + 0.5), 0), lanes - 1)
+    for column in range(codes.shape[0]):
+        code = codes[column]
+        if code == 0:
+            value = 1.0
+        elif code == 1:
+            value = x
+        elif code == 2:
+            value = y
+        elif code == 3:
+            value = speed * math.cos(heading)
+        elif code == 4:
+            value = speed * math.sin(heading)
+        elif code == 5:
+            value = heading
+        elif code == 6:
+            value = math.cos(heading)
+        elif code == 7:
+            value = math.sin(heading)
+        elif code == 10:
+            value = x
+        elif code == 11:
+            value = y - lane * lane_width
+        elif code == 12:
+            value = ((heading + math.pi) % (2.0 * math.pi)) - math.pi
+        else:  # cos_d, sin_d: no destination, as highway-env's without a route
+            value = 0.0
+        row[column] = value
+
+
+@njit(cache=True, nogil=True)
+def _scale(row, codes, scaled, low, high, clip):
+    for column in range(codes.shape[0]):
+        code = codes[column]
+        if scaled[code]:
+            value = 2.0 * (row[column] - low[code]) / (high[code] - low[code]) - 1.0
+            row[column] = min(max(value, -1.0), 1.0) if clip else value
+
+
+@njit(cache=True, nogil=True)
+def observe_kinematics(
+    x, y, speed, heading, active, agents, lanes, lane_width, length, codes, scaled, low, high,
+    clip, absolute, see_behind, out,
+):  # fmt: skip
+    arenas, cars = x.shape
+    count = out.shape[2]
+    features = codes.shape[0]
+    order = np.empty(cars, dtype=np.int64)
+    key = np.empty(cars)
+    origin = np.empty(features)
+    row = np.empty(features)
+    for a in range(arenas):
+        for k in range(agents):
+            if not active[a, k]:
+                continue
+            _features(x[a, k], y[a, k], speed[a, k], heading[a, k], lanes, lane_width, codes,
+                      origin)  # fmt: skip
+            row[:] = origin
+            _scale(row, codes, scaled, low, high, clip)
+            out[a, k, 0, :] = row
+            found = 0
+            for v in range(cars):
+                if v == k or not active[a, v]:
+                    continue
+                dx, dy = x[a, v] - x[a, k], y[a, v] - y[a, k]
+                if math.sqrt(dx * dx + dy * dy) >= PERCEPTION_M:
+                    continue
+                if not see_behind and not dx > -2.0 * length:
+                    continue
+                order[found] = v
+                key[found] = abs(dx)
+                found += 1
+            # Nearest along the road first; equals keep the cars' order (a stable sort).
+            nearest = np.argsort(key[:found], kind="mergesort")
+            for r in range(min(found, count - 1)):
+                v = order[nearest[r]]
+                _features(x[a, v], y[a, v], speed[a, v], heading[a, v], lanes, lane_width,
+                          codes, row)  # fmt: skip
+                if not absolute:
+                    for column in range(features):
+                        if 1 <= codes[column] <= 4:  # x, y, vx, vy (Vehicle.to_dict's origin)
+                            row[column] -= origin[column]
+                _scale(row, codes, scaled, low, high, clip)
+                out[a, k, r + 1, :] = row
