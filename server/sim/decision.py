@@ -67,9 +67,7 @@ class Decision:
         # Whether some lane change ends within its first frame (see advance).
         self.instant_changes = bool((sim.kinds.change_duration <= sim.dt).any())
 
-    def advance(
-        self, st: SimState, actions: np.ndarray, uniforms: np.ndarray | None
-    ) -> StepResult:
+    def advance(self, st: SimState, actions: np.ndarray, uniforms: np.ndarray | None) -> StepResult:
         """One decision of the arenas of ``st``: (A, N) ``actions``, the decision's uniforms."""
         assert uniforms is not None, "the papers' decision draws its random numbers (uses_uniforms)"
         n = self.agents
