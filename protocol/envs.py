@@ -20,6 +20,11 @@ from .vocabulary import ACTION_COUNT, ACTION_NAMES
 
 HIGHWAY_ENV_ID = "overtake/Highway-v0"
 REMOTE_HIGHWAY_ENV_ID = "overtake/RemoteHighway-v0"
+# highway-env's own scenes with highway-env's interface (overtake.server.highway_env_ids).
+HIGHWAY_ENV_LIKE_IDS = {
+    "overtake/highway-fast-v0": "highway-fast",
+    "overtake/highway-v0": "highway",
+}
 
 
 def register_environments() -> None:
@@ -33,6 +38,15 @@ def register_environments() -> None:
             # override; a TimeLimit fixed here could not follow it. env.spec reports it.
             max_episode_steps=None,
         )
+    for env_id, preset in HIGHWAY_ENV_LIKE_IDS.items():
+        if env_id not in gym.registry:
+            gym.register(
+                id=env_id,
+                entry_point="overtake.server.highway_env_ids:HighwayEnvLike",
+                vector_entry_point="overtake.server.highway_env_ids:HighwayEnvLikeVector",
+                kwargs={"preset": preset},
+                max_episode_steps=None,
+            )
     if REMOTE_HIGHWAY_ENV_ID not in gym.registry:
         gym.register(
             id=REMOTE_HIGHWAY_ENV_ID,

@@ -24,7 +24,8 @@ import torch
 from overtake.client.commands import UsageError
 
 from .grid_network import GridNetworkShape
-from .learner import DQNConfig, DQNLearner, Precision
+from .learner import AnyShape, DQNConfig, DQNLearner, Precision
+from .mlp_network import MlpNetworkShape
 from .network import Inputs, NetworkShape
 from .two_stream_network import TwoStreamShape
 
@@ -46,7 +47,7 @@ class Checkpoint:
     preset: str
     overrides: dict[str, Any]
     space: dict[str, Any]
-    net_shape: NetworkShape | GridNetworkShape | TwoStreamShape
+    net_shape: AnyShape
     dqn: DQNConfig
     step: int
     episodes: int
@@ -86,7 +87,7 @@ def save_checkpoint(
     config: Any,
     overrides: dict[str, Any],
     space: dict[str, Any],
-    net_shape: NetworkShape | GridNetworkShape | TwoStreamShape,
+    net_shape: AnyShape,
     step: int,
     episodes: int,
     rng_state: Mapping[str, Any],
@@ -154,8 +155,12 @@ def load_checkpoint(path: Path) -> Checkpoint:
             f"{path}: expected inputs one of {list(get_args(Inputs))}, got {header.get('inputs')!r}"
         )
     shape = dict(header["net_shape"])
-    net_shape: NetworkShape | GridNetworkShape | TwoStreamShape
-    if header["inputs"] == "grid":
+    net_shape: AnyShape
+    if header["inputs"] == "kinematics":
+        shape["table_hw"] = tuple(shape["table_hw"])
+        shape["hidden"] = tuple(shape["hidden"])
+        net_shape = MlpNetworkShape(**shape)
+    elif header["inputs"] == "grid":
         shape["grid_hw"] = tuple(shape["grid_hw"])
         net_shape = GridNetworkShape(**shape)
     elif header["inputs"] == "camera-map":

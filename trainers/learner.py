@@ -30,6 +30,7 @@ from torch import nn
 
 from .grid_network import GridNetworkKind, GridNetworkShape, GridQNetwork
 from .heads import HeadKind, HeadSpec, legacy_state
+from .mlp_network import MlpNetworkShape, MlpQNetwork
 from .network import Inputs, NetworkShape, QNetwork
 from .objectives import Objective, QuantileObjective, TDObjective, Transitions
 from .replay import ReplayBatch
@@ -92,10 +93,10 @@ class DQNConfig:
     """frames (camera), scans (LIDAR) or grids stacked per observation"""
     lstm_cells: int = 256
     hidden_units: int = 512
-    network: Literal["multimodal", "baseline", "proposed", "two-stream"] = "multimodal"
+    network: Literal["multimodal", "baseline", "proposed", "two-stream", "mlp"] = "multimodal"
     """multimodal: Min et al.'s (camera / LIDAR inputs); baseline or proposed: Ho's networks
     on the occupancy grid (grid inputs; Figs. 4 and 5); two-stream: Fayjie et al.'s (camera-map
-    inputs)"""
+    inputs); mlp: a perceptron on highway-env's Kinematics table (kinematics inputs)"""
     optimizer: Literal["adam", "rmsprop", "tf-rmsprop"] = "adam"
     """adam; rmsprop (PyTorch's: epsilon added to the root); tf-rmsprop (TensorFlow 1.x's
     RMSPropOptimizer: epsilon inside the root, the mean square starting at one,
@@ -163,7 +164,7 @@ class DQNConfig:
         if self.grad_clip_norm < 0.0:
             raise ValueError(f"grad_clip_norm must be >= 0 (0: none), got {self.grad_clip_norm}")
         choices = {
-            "network": ("multimodal", "baseline", "proposed", "two-stream"),
+            "network": ("multimodal", "baseline", "proposed", "two-stream", "mlp"),
             "optimizer": ("adam", "rmsprop", "tf-rmsprop"),
             "loss": ("huber", "mse"),
         }
@@ -207,7 +208,7 @@ class DQNConfig:
         return self.epsilon_start + fraction * (self.epsilon_end - self.epsilon_start)
 
 
-AnyShape = NetworkShape | GridNetworkShape | TwoStreamShape
+AnyShape = NetworkShape | GridNetworkShape | TwoStreamShape | MlpNetworkShape
 
 
 def network_shape(space: Any, inputs: Inputs, actions: int, stack: int) -> AnyShape:
@@ -217,18 +218,22 @@ def network_shape(space: Any, inputs: Inputs, actions: int, stack: int) -> AnySh
         return GridNetworkShape.from_space(space, actions, stack)
     if inputs == "camera-map":
         return TwoStreamShape.from_space(space, actions, stack)
+    if inputs == "kinematics":
+        return MlpNetworkShape.from_space(space, actions, stack)
     return NetworkShape.from_space(space, actions, stack)
 
 
-def build_network(
-    shape: NetworkShape | GridNetworkShape | TwoStreamShape,
-    inputs: Inputs,
-    config: DQNConfig,
-    head: HeadSpec,
-) -> nn.Module:
+def build_network(shape: AnyShape, inputs: Inputs, config: DQNConfig, head: HeadSpec) -> nn.Module:
     """The Q-network ``config.network`` names, for ``inputs``: Min et al.'s multi-modal network
     on camera and / or LIDAR, one of Ho's on the occupancy grid, or Fayjie et al.'s two-stream
     network on the camera and the LIDAR map."""
+    if inputs == "kinematics":
+        if config.network != "mlp" or not isinstance(shape, MlpNetworkShape):
+            raise ValueError(
+                "inputs kinematics (highway-env's Kinematics table) need network mlp, got "
+                f"network={config.network!r}"
+            )
+        return MlpQNetwork(shape, head=head)
     if inputs == "camera-map":
         if config.network != "two-stream" or not isinstance(shape, TwoStreamShape):
             raise ValueError(

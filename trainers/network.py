@@ -28,7 +28,7 @@ from torch import nn
 
 from .heads import PLAIN, HeadSpec
 
-Inputs = Literal["camera", "lidar", "both", "grid", "camera-map"]
+Inputs = Literal["camera", "lidar", "both", "grid", "camera-map", "kinematics"]
 # The sensors each input configuration reads stacked over the last frames: Min et al.'s camera
 # and LIDAR, Ho's occupancy grid (:mod:`.grid_network`), or Fayjie et al.'s camera and LIDAR
 # map (:mod:`.two_stream_network`) ...
@@ -38,6 +38,7 @@ INPUT_SENSORS: dict[str, tuple[str, ...]] = {
     "both": ("camera", "lidar"),
     "grid": ("grid",),
     "camera-map": ("camera", "lidar_map"),
+    "kinematics": ("kinematics",),
 }
 # ... and those it reads at the latest decision only: the ego vector for Min et al.'s networks,
 # the action stack (itself the last four actions) for Ho's.
@@ -47,6 +48,7 @@ LATEST_SENSORS: dict[str, tuple[str, ...]] = {
     "both": ("ego",),
     "grid": ("actions",),
     "camera-map": (),
+    "kinematics": (),
 }
 INPUTS: tuple[str, ...] = tuple(INPUT_SENSORS)
 

@@ -58,6 +58,21 @@ class PresetTraining:
     the paper (or its authors' code) evaluates; ``--no-paper-evaluation`` leaves them out"""
 
 
+SB3_HIGHWAY_DQN = DQNConfig(
+    network="mlp",
+    learning_rate=5e-4,
+    replay_size=15_000,
+    learning_starts=200,
+    batch_size=32,
+    gamma=0.8,
+    train_every=1,
+    target_update_steps=50,
+    epsilon_start=1.0,
+    epsilon_end=0.05,
+    epsilon_decay_steps=2_000,
+    stack=1,
+)
+
 PRESET_TRAINING: dict[str, PresetTraining] = {
     "min2018": PresetTraining(
         algo="dueling",
@@ -98,6 +113,16 @@ PRESET_TRAINING: dict[str, PresetTraining] = {
         # evaluated driver decides every frame, over the episode's 4,000 frames.
         evaluation=("episode.frames_per_decision=1", "episode.max_decisions=4000"),
     ),
+    # highway-env's scenes: DQN on the Kinematics table as Stable-Baselines3's documented
+    # highway-fast recipe trains it (highway-env's docs, scripts/sb3_highway_dqn.py: MlpPolicy
+    # with net_arch [256, 256], learning rate 5e-4, buffer 15,000, learning from 200, batch 32,
+    # discount 0.8, an update every step, a target copy every 50; SB3's defaults beside them:
+    # epsilon 1 to 0.05 over a tenth of its 20,000 steps, the Huber loss, gradients clipped at
+    # 10, Adam); no stacking (the table holds velocities).
+    **{
+        preset: PresetTraining(algo="dqn", inputs="kinematics", dqn=SB3_HIGHWAY_DQN)
+        for preset in ("highway-fast", "highway")
+    },
     "fayjie2018": PresetTraining(
         algo="dqn",
         inputs="camera-map",

@@ -18,6 +18,7 @@ INPUT_NAMES = {
     "lidar": "LIDAR",
     "grid": "occupancy grid + actions",
     "camera-map": "camera + LIDAR map",
+    "kinematics": "Kinematics table",
 }
 
 # The table's columns: (metric, heading, decimals). Collisions per 1,000 decisions is each

@@ -1,0 +1,252 @@
+"""``overtake/highway-fast-v0`` and ``overtake/highway-v0``: the presets ``highway-fast`` and
+``highway`` as highway-env's own ids present them, so that a highway-env script changes its id
+and nothing else.
+
+What a highway-env user's code reads is highway-env's: the observation is the Kinematics array
+alone (not a dict), the actions are ``DiscreteMetaAction``'s numbers (0 LANE_LEFT, 1 IDLE, 2
+LANE_RIGHT, 3 FASTER, 4 SLOWER; overtake's own order is keep, cruise up, cruise down, left,
+right, and the ids translate), and ``config={...}`` takes highway-env's keys, those the presets
+honour (:data:`CONFIG_KEYS`), each turned into overtake's settings; any other key is refused by
+name with the nearest known one suggested. ``info`` holds overtake's entries (its action mask
+in highway-env's order) and highway-env's ``speed``, ``crashed`` and ``rewards``.
+"""
+
+from __future__ import annotations
+
+import difflib
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from .env import HighwayEnv, HighwayVectorEnv
+from .sim.validation import ConfigError
+
+# highway-env's DiscreteMetaAction numbers -> overtake's (keep 0, cruise up 1, cruise down 2,
+# lane left 3, lane right 4), and back.
+TO_OVERTAKE = np.array([3, 0, 4, 1, 2], dtype=np.int64)
+FROM_OVERTAKE = np.argsort(TO_OVERTAKE)
+ACTION_LABELS = ("LANE_LEFT", "IDLE", "LANE_RIGHT", "FASTER", "SLOWER")
+
+PRESET_OF_ID = {"overtake/highway-fast-v0": "highway-fast", "overtake/highway-v0": "highway"}
+
+# highway-env's keys these ids take, each with overtake's setting (or how it maps).
+_SCENE = "highway_scene."
+CONFIG_KEYS: dict[str, str] = {
+    "lanes_count": "road.lane_count",
+    "vehicles_count": "traffic.vehicle_count",
+    "vehicles_density": _SCENE + "vehicles_density",
+    "ego_spacing": _SCENE + "ego_spacing",
+    "duration": "episode.max_decisions (duration x policy_frequency)",
+    "simulation_frequency": "episode.physics_dt_s and frames_per_decision",
+    "policy_frequency": "episode.frames_per_decision",
+    "collision_reward": _SCENE + "collision_reward",
+    "right_lane_reward": _SCENE + "right_lane_reward",
+    "high_speed_reward": _SCENE + "high_speed_reward",
+    "lane_change_reward": _SCENE + "lane_change_reward",
+    "reward_speed_range": _SCENE + "reward_speed_range_mps",
+    "normalize_reward": _SCENE + "normalize_reward",
+    "offroad_terminal": _SCENE + "offroad_terminal",
+    "controlled_vehicles": "one controlled car (1)",
+    "initial_lane_id": "a random lane (None)",
+    "other_vehicles_type": "highway_env.vehicle.behavior.IDMVehicle",
+    "observation": 'kinematics.* ({"type": "Kinematics", ...})',
+    "action": 'highway_scene.target_speeds_mps ({"type": "DiscreteMetaAction", ...})',
+}
+OBSERVATION_KEYS = {
+    "type": "Kinematics",
+    "vehicles_count": "kinematics.vehicles_count",
+    "features": "kinematics.features",
+    "features_range": "kinematics.*_range_*",
+    "absolute": "kinematics.absolute",
+    "normalize": "kinematics.normalize",
+    "clip": "kinematics.clip",
+    "see_behind": "kinematics.see_behind",
+    "order": "sorted",
+}
+ACTION_KEYS = {"type": "DiscreteMetaAction", "target_speeds": _SCENE + "target_speeds_mps"}
+_RANGE_SETTINGS = {
+    "x": "kinematics.x_range_m",
+    "y": "kinematics.y_range_m",
+    "vx": "kinematics.vx_range_mps",
+    "vy": "kinematics.vy_range_mps",
+}
+_DIRECT = {key: value for key, value in CONFIG_KEYS.items() if value.startswith(_SCENE)} | {
+    "lanes_count": "road.lane_count",
+    "vehicles_count": "traffic.vehicle_count",
+}
+
+
+def _refuse_unknown(given: Mapping[str, Any], known: Sequence[str], where: str) -> None:
+    for key in given:
+        if key not in known:
+            near = difflib.get_close_matches(str(key), list(known), n=1)
+            hint = f"; did you mean {near[0]!r}?" if near else ""
+            raise ConfigError(
+                f"{where}: unknown key {key!r}{hint} (the keys taken: {', '.join(known)})"
+            )
+
+
+def _require(key: str, value: Any, allowed: Any) -> None:
+    if value != allowed:
+        raise ConfigError(f"config[{key!r}] = {value!r} is not allowed: expected {allowed!r}")
+
+
+def overrides_from_config(preset: str, config: Mapping[str, Any] | None) -> dict[str, Any]:
+    """overtake's settings for a highway-env ``config`` dict on ``preset`` (highway-fast or
+    highway): raises ConfigError for an unknown key (naming the nearest) or a value these
+    presets do not offer."""
+    from .sim import make_config
+
+    config = dict(config or {})
+    _refuse_unknown(config, list(CONFIG_KEYS), "config")
+    overrides: dict[str, Any] = {
+        setting: config[key] for key, setting in _DIRECT.items() if key in config
+    }
+    _require("controlled_vehicles", config.get("controlled_vehicles", 1), 1)
+    _require("initial_lane_id", config.get("initial_lane_id"), None)
+    _require(
+        "other_vehicles_type",
+        config.get("other_vehicles_type", CONFIG_KEYS["other_vehicles_type"]),
+        CONFIG_KEYS["other_vehicles_type"],
+    )
+    episode = make_config(preset).episode
+    policy = config.get("policy_frequency", 1)
+    simulation = config.get("simulation_frequency", round(episode.frames_per_decision * policy))
+    if not isinstance(policy, int) or not isinstance(simulation, int) or simulation % policy:
+        raise ConfigError(
+            "config: simulation_frequency must be a whole multiple of policy_frequency, "
+            f"both integers (Hz), got {simulation!r} and {policy!r}"
+        )
+    overrides["episode.frames_per_decision"] = simulation // policy
+    overrides["episode.physics_dt_s"] = 1.0 / simulation
+    duration = config.get("duration", episode.max_decisions)
+    overrides["episode.max_decisions"] = round(duration * policy)
+    observation = dict(config.get("observation", {"type": "Kinematics"}))
+    _refuse_unknown(observation, list(OBSERVATION_KEYS), "config['observation']")
+    _require("observation.type", observation.get("type", "Kinematics"), "Kinematics")
+    _require("observation.order", observation.get("order", "sorted"), "sorted")
+    for key in ("vehicles_count", "features", "absolute", "normalize", "clip", "see_behind"):
+        if key in observation:
+            value = observation[key]
+            overrides[OBSERVATION_KEYS[key]] = list(value) if key == "features" else value
+    ranges = dict(observation.get("features_range") or {})
+    _refuse_unknown(ranges, list(_RANGE_SETTINGS), "config['observation']['features_range']")
+    for feature, value in ranges.items():
+        overrides[_RANGE_SETTINGS[feature]] = list(value)
+    action = dict(config.get("action", {"type": "DiscreteMetaAction"}))
+    _refuse_unknown(action, list(ACTION_KEYS), "config['action']")
+    _require("action.type", action.get("type", "DiscreteMetaAction"), "DiscreteMetaAction")
+    if "target_speeds" in action:
+        overrides[ACTION_KEYS["target_speeds"]] = [float(s) for s in action["target_speeds"]]
+    return overrides
+
+
+def _highway_env_info(info: dict[str, Any], speed: np.ndarray, crashed: np.ndarray) -> None:
+    """highway-env's info entries beside overtake's, and overtake's action mask in
+    highway-env's action order."""
+    info["action_mask"] = np.asarray(info["action_mask"])[..., TO_OVERTAKE]
+    info["speed"] = speed
+    info["crashed"] = crashed
+    terms = info.get("reward_terms", {})
+    info["rewards"] = {
+        f"{name}_reward": value for name, value in terms.items() if name != "on_road"
+    } | {"on_road_reward": terms.get("on_road")}
+
+
+class HighwayEnvLike(gym.Env):
+    """highway-env's ``highway-fast-v0`` / ``highway-v0`` interface over the preset."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 1}  # noqa: RUF012
+
+    def __init__(
+        self,
+        preset: str = "highway-fast",
+        config: Mapping[str, Any] | None = None,
+        render_mode: str | None = None,
+    ) -> None:
+        self.env = HighwayEnv(
+            preset=preset, overrides=overrides_from_config(preset, config), render_mode=render_mode
+        )
+        self.render_mode = render_mode
+        self.observation_space = self.env.observation_space["kinematics"]
+        self.action_space = spaces.Discrete(len(ACTION_LABELS))
+        self.metadata = {**self.metadata, "render_fps": self.env.metadata["render_fps"]}
+
+    def _info(self, info: dict[str, Any]) -> dict[str, Any]:
+        state = self.env.sim.state
+        _highway_env_info(info, float(state.speed_mps[0, 0]), bool(state.crashed[0, 0]))
+        return info
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        obs, info = self.env.reset(seed=seed, options=options)
+        return obs["kinematics"], self._info(info)
+
+    def step(self, action):
+        if not self.action_space.contains(action):
+            raise ValueError(
+                f"expected an action in [0, 5) ({', '.join(ACTION_LABELS)}), got {action!r}"
+            )
+        obs, reward, terminated, truncated, info = self.env.step(int(TO_OVERTAKE[int(action)]))
+        return obs["kinematics"], reward, terminated, truncated, self._info(info)
+
+    def render(self) -> np.ndarray | None:  # type: ignore[override, unused-ignore]
+        return self.env.render()
+
+    def close(self) -> None:
+        self.env.close()
+
+
+class HighwayEnvLikeVector(gym.vector.VectorEnv):
+    """``gym.make_vec`` of these ids: ``num_envs`` arenas in one pass, next-step autoreset."""
+
+    metadata = HighwayVectorEnv.metadata
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        preset: str = "highway-fast",
+        config: Mapping[str, Any] | None = None,
+        render_mode: str | None = None,
+    ) -> None:
+        self.env = HighwayVectorEnv(
+            num_envs,
+            preset=preset,
+            overrides=overrides_from_config(preset, config),
+            render_mode=render_mode,
+        )
+        self.num_envs, self.render_mode = num_envs, render_mode
+        self.single_observation_space = self.env.single_observation_space["kinematics"]
+        self.single_action_space = spaces.Discrete(len(ACTION_LABELS))
+        self.observation_space = gym.vector.utils.batch_space(
+            self.single_observation_space, num_envs
+        )
+        self.action_space = spaces.MultiDiscrete(np.full(num_envs, len(ACTION_LABELS)))
+
+    def _info(self, info: dict[str, Any]) -> dict[str, Any]:
+        state = self.env.sim.state
+        _highway_env_info(info, state.speed_mps[:, 0].copy(), state.crashed[:, 0].copy())
+        return info
+
+    def reset(self, *, seed: int | Sequence[int | None] | None = None, options=None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        return obs["kinematics"], self._info(info)
+
+    def step(self, actions):
+        actions = np.asarray(actions)
+        if actions.shape != (self.num_envs,) or not np.isin(actions, range(5)).all():
+            raise ValueError(
+                f"expected {self.num_envs} actions in [0, 5) ({', '.join(ACTION_LABELS)}), "
+                f"got {actions!r}"
+            )
+        obs, reward, terminated, truncated, info = self.env.step(TO_OVERTAKE[actions])
+        return obs["kinematics"], reward, terminated, truncated, self._info(info)
+
+    def render(self):  # type: ignore[override, unused-ignore]
+        return self.env.render()
+
+    def close_extras(self, **kwargs: Any) -> None:
+        self.env.close()
