@@ -24,11 +24,11 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from importlib import metadata
 import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from importlib import metadata
 from pathlib import Path
 from typing import Any
 
@@ -138,7 +138,7 @@ def transfer(config: EquivalenceConfig, seeds: list[int]) -> dict[str, dict[str,
         trained_s = time.perf_counter() - start
         env.close()
 
-        def greedy(obs: np.ndarray, _rng: np.random.Generator) -> int:
+        def greedy(obs: np.ndarray, _rng: np.random.Generator, model: DQN = model) -> int:
             action, _ = model.predict(obs, deterministic=True)
             return int(action)
 
@@ -187,7 +187,8 @@ def write(config: EquivalenceConfig, record: dict[str, Any]) -> None:
         f"{config.scene}, side by side",
         "",
         f"Command: `{record['command']}`; commit {record['commit']}; {config.episodes} "
-        f"episodes per driver and simulator, seeds {config.seed}-{config.seed + config.episodes - 1} "
+        f"episodes per driver and simulator, seeds {config.seed}-"
+        f"{config.seed + config.episodes - 1} "
         "(the same numbers on both, not the same random streams). Mean ± standard deviation.",
         "",
         "## Fixed drivers",
@@ -202,8 +203,8 @@ def write(config: EquivalenceConfig, record: dict[str, Any]) -> None:
         lines += [
             "## Transfer",
             "",
-            f"Stable-Baselines3's documented highway-fast DQN, {config.train_steps:,} steps on each "
-            "simulator (seed 0), evaluated greedily on both over the same seeds.",
+            f"Stable-Baselines3's documented highway-fast DQN, {config.train_steps:,} steps on "
+            "each simulator (seed 0), evaluated greedily on both over the same seeds.",
             "",
             "| trained on | evaluated on | decisions | crash share | return | speed m/s |",
             "|---|---|---|---|---|---|",
