@@ -94,7 +94,7 @@ def test_the_ids_take_highway_env_s_config_and_refuse_an_unknown_key_by_name():
     assert obs.shape == (5, 5) and env.action_space == gym.spaces.Discrete(5)
     decisions = 0
     while True:  # always IDLE: the car holds 25 m/s into slower traffic
-        obs, reward, terminated, truncated, info = env.step(1)
+        obs, _reward, terminated, truncated, info = env.step(1)
         decisions += 1
         if terminated or truncated:
             break
@@ -130,7 +130,7 @@ def test_the_ids_pass_gymnasium_s_checker_and_vectorise():
     vector = gym.make_vec("overtake/highway-fast-v0", num_envs=3)
     obs, _ = vector.reset(seed=1)
     assert obs.shape == (3, 5, 5)
-    obs, reward, *_, info = vector.step(np.array([1, 3, 0]))
+    obs, _reward, *_, info = vector.step(np.array([1, 3, 0]))
     # The mask in highway-env's order: IDLE is always there.
     assert info["action_mask"].shape == (3, 5) and info["action_mask"][:, 1].all()
     vector.close()
