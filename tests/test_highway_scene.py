@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 import overtake.client  # noqa: F401  (registers the ids)
-from overtake.server.highway_env_ids import TO_OVERTAKE, overrides_from_config
+from overtake.protocol.errors import BadConfig
+from overtake.protocol.highway_env_like import TO_OVERTAKE, overrides_from_config
 from overtake.server.sim import HighwaySim, make_config
-from overtake.server.sim.validation import ConfigError
 
 highway_env = pytest.importorskip("highway_env", reason="highway-env is in the dev extra")
 
@@ -104,9 +104,9 @@ def test_the_ids_take_highway_env_s_config_and_refuse_an_unknown_key_by_name():
     config = wider.unwrapped.env.config
     assert config.road.lane_count == 4 and config.traffic.resolved_vehicle_count == 30
     wider.close()
-    with pytest.raises(ConfigError, match="'lanes_cuont'; did you mean 'lanes_count'"):
+    with pytest.raises(BadConfig, match="'lanes_cuont'; did you mean 'lanes_count'"):
         gym.make("overtake/highway-fast-v0", config={"lanes_cuont": 4})
-    with pytest.raises(ConfigError, match="did you mean 'vehicles_count'"):
+    with pytest.raises(BadConfig, match="did you mean 'vehicles_count'"):
         overrides_from_config("highway-fast", {"observation": {"vehicle_count": 7}})
     overrides = overrides_from_config(
         "highway",
@@ -116,7 +116,7 @@ def test_the_ids_take_highway_env_s_config_and_refuse_an_unknown_key_by_name():
     assert overrides["episode.frames_per_decision"] == 5
     assert overrides["episode.max_decisions"] == 40
     assert overrides["kinematics.x_range_m"] == [-100, 100]
-    with pytest.raises(ConfigError, match="OccupancyGrid"):
+    with pytest.raises(BadConfig, match="OccupancyGrid"):
         overrides_from_config("highway", {"observation": {"type": "OccupancyGrid"}})
 
 

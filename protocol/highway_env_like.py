@@ -1,6 +1,6 @@
 """``overtake/highway-fast-v0`` and ``overtake/highway-v0``: the presets ``highway-fast`` and
 ``highway`` as highway-env's own ids present them, so that a highway-env script changes its id
-and nothing else.
+and nothing else; in process, or on a simulator server with ``connect=``.
 
 What a highway-env user's code reads is highway-env's: the observation is the Kinematics array
 alone (not a dict), the actions are ``DiscreteMetaAction``'s numbers (0 LANE_LEFT, 1 IDLE, 2
@@ -8,7 +8,12 @@ LANE_RIGHT, 3 FASTER, 4 SLOWER; overtake's own order is keep, cruise up, cruise 
 right, and the ids translate), and ``config={...}`` takes highway-env's keys, those the presets
 honour (:data:`CONFIG_KEYS`), each turned into overtake's settings; any other key is refused by
 name with the nearest known one suggested. ``info`` holds overtake's entries (its action mask
-in highway-env's order) and highway-env's ``speed``, ``crashed`` and ``rewards``.
+in highway-env's order) and highway-env's ``speed`` (read from the observation's first row,
+where it has vx and vy), ``crashed`` and ``rewards``.
+
+The environment underneath is overtake's own, ``overtake/Highway-v0`` or, with ``connect``,
+``overtake/RemoteHighway-v0``, made through Gymnasium's registry. Over the wire a setting is a
+single value: the observation's ``features`` and ``features_range`` are taken in process only.
 """
 
 from __future__ import annotations
@@ -21,8 +26,9 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from .env import HighwayEnv, HighwayVectorEnv
-from .sim.validation import ConfigError
+from .envs import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID
+from .errors import BadConfig
+from .faces import NEXT_STEP
 
 # highway-env's DiscreteMetaAction numbers -> overtake's (keep 0, cruise up 1, cruise down 2,
 # lane left 3, lane right 4), and back.
@@ -30,7 +36,9 @@ TO_OVERTAKE = np.array([3, 0, 4, 1, 2], dtype=np.int64)
 FROM_OVERTAKE = np.argsort(TO_OVERTAKE)
 ACTION_LABELS = ("LANE_LEFT", "IDLE", "LANE_RIGHT", "FASTER", "SLOWER")
 
-PRESET_OF_ID = {"overtake/highway-fast-v0": "highway-fast", "overtake/highway-v0": "highway"}
+# Each preset's physics frames a second and episode length in seconds, at a decision a second
+# (server/sim/highway_scene/presets.py, from highway-env's configurations).
+PRESET_TIMES = {"highway-fast": (5, 30), "highway": (15, 40)}
 
 # highway-env's keys these ids take, each with overtake's setting (or how it maps).
 _SCENE = "highway_scene."
@@ -84,22 +92,20 @@ def _refuse_unknown(given: Mapping[str, Any], known: Sequence[str], where: str) 
         if key not in known:
             near = difflib.get_close_matches(str(key), list(known), n=1)
             hint = f"; did you mean {near[0]!r}?" if near else ""
-            raise ConfigError(
+            raise BadConfig(
                 f"{where}: unknown key {key!r}{hint} (the keys taken: {', '.join(known)})"
             )
 
 
 def _require(key: str, value: Any, allowed: Any) -> None:
     if value != allowed:
-        raise ConfigError(f"config[{key!r}] = {value!r} is not allowed: expected {allowed!r}")
+        raise BadConfig(f"config[{key!r}] = {value!r} is not allowed: expected {allowed!r}")
 
 
 def overrides_from_config(preset: str, config: Mapping[str, Any] | None) -> dict[str, Any]:
     """overtake's settings for a highway-env ``config`` dict on ``preset`` (highway-fast or
-    highway): raises ConfigError for an unknown key (naming the nearest) or a value these
+    highway): raises BadConfig for an unknown key (naming the nearest) or a value these
     presets do not offer."""
-    from .sim import make_config
-
     config = dict(config or {})
     _refuse_unknown(config, list(CONFIG_KEYS), "config")
     overrides: dict[str, Any] = {
@@ -112,17 +118,17 @@ def overrides_from_config(preset: str, config: Mapping[str, Any] | None) -> dict
         config.get("other_vehicles_type", CONFIG_KEYS["other_vehicles_type"]),
         CONFIG_KEYS["other_vehicles_type"],
     )
-    episode = make_config(preset).episode
+    default_hertz, default_duration = PRESET_TIMES[preset]
     policy = config.get("policy_frequency", 1)
-    simulation = config.get("simulation_frequency", round(episode.frames_per_decision * policy))
+    simulation = config.get("simulation_frequency", default_hertz * policy)
     if not isinstance(policy, int) or not isinstance(simulation, int) or simulation % policy:
-        raise ConfigError(
+        raise BadConfig(
             "config: simulation_frequency must be a whole multiple of policy_frequency, "
             f"both integers (Hz), got {simulation!r} and {policy!r}"
         )
     overrides["episode.frames_per_decision"] = simulation // policy
     overrides["episode.physics_dt_s"] = 1.0 / simulation
-    duration = config.get("duration", episode.max_decisions)
+    duration = config.get("duration", default_duration)
     overrides["episode.max_decisions"] = round(duration * policy)
     observation = dict(config.get("observation", {"type": "Kinematics"}))
     _refuse_unknown(observation, list(OBSERVATION_KEYS), "config['observation']")
@@ -144,16 +150,52 @@ def overrides_from_config(preset: str, config: Mapping[str, Any] | None) -> dict
     return overrides
 
 
-def _highway_env_info(info: dict[str, Any], speed: np.ndarray, crashed: np.ndarray) -> None:
+def _speed(obs: np.ndarray, features: Sequence[str], ranges: Mapping[str, Any]) -> np.ndarray:
+    """The cars' speed (m/s) from their rows' vx and vy (normalised by ``ranges`` where the
+    observation is); NaN where the features have no vx or vy."""
+    if "vx" not in features or "vy" not in features:
+        return np.full(obs.shape[:-2], np.nan)
+    parts = []
+    for name in ("vx", "vy"):
+        value = obs[..., 0, list(features).index(name)].astype(np.float64)
+        low, high = ranges.get(name, (-80.0, 80.0))
+        if ranges.get("normalize", True):
+            value = (value + 1.0) / 2.0 * (high - low) + low
+        parts.append(value)
+    return np.hypot(*parts)
+
+
+def _highway_env_info(info: dict[str, Any], obs: np.ndarray, features, ranges) -> dict[str, Any]:
     """highway-env's info entries beside overtake's, and overtake's action mask in
     highway-env's action order."""
     info["action_mask"] = np.asarray(info["action_mask"])[..., TO_OVERTAKE]
-    info["speed"] = speed
-    info["crashed"] = crashed
     terms = info.get("reward_terms", {})
+    speed = _speed(obs, features, ranges)
+    info["speed"] = float(speed) if np.ndim(speed) == 0 else speed
+    collision = np.asarray(terms.get("collision", 0.0)) > 0
+    info["crashed"] = bool(collision) if np.ndim(collision) == 0 else collision
     info["rewards"] = {
         f"{name}_reward": value for name, value in terms.items() if name != "on_road"
     } | {"on_road_reward": terms.get("on_road")}
+    return info
+
+
+def _inner(
+    preset: str, config: Mapping[str, Any] | None, connect: str | None, **kwargs: Any
+) -> tuple[dict[str, Any], Sequence[str], dict[str, Any]]:
+    """The keyword arguments of overtake's own environment for this configuration, and the
+    observation's features and normalisation (for the speed in info)."""
+    overrides = overrides_from_config(preset, config)
+    features = overrides.get("kinematics.features", ["presence", "x", "y", "vx", "vy"])
+    ranges = {
+        "vx": overrides.get("kinematics.vx_range_mps", (-80.0, 80.0)),
+        "vy": overrides.get("kinematics.vy_range_mps", (-80.0, 80.0)),
+        "normalize": overrides.get("kinematics.normalize", True),
+    }
+    made = {"preset": preset, "overrides": overrides, **kwargs}
+    if connect is not None:
+        made["connect"] = connect
+    return made, features, ranges
 
 
 class HighwayEnvLike(gym.Env):
@@ -166,24 +208,23 @@ class HighwayEnvLike(gym.Env):
         preset: str = "highway-fast",
         config: Mapping[str, Any] | None = None,
         render_mode: str | None = None,
+        connect: str | None = None,
     ) -> None:
-        self.env = HighwayEnv(
-            preset=preset, overrides=overrides_from_config(preset, config), render_mode=render_mode
+        made, self._features, self._ranges = _inner(
+            preset, config, connect, render_mode=render_mode
         )
+        env_id = HIGHWAY_ENV_ID if connect is None else REMOTE_HIGHWAY_ENV_ID
+        self.env = gym.make(env_id, **made).unwrapped
         self.render_mode = render_mode
         self.observation_space = self.env.observation_space["kinematics"]
         self.action_space = spaces.Discrete(len(ACTION_LABELS))
-        self.metadata = {**self.metadata, "render_fps": self.env.metadata["render_fps"]}
-
-    def _info(self, info: dict[str, Any]) -> dict[str, Any]:
-        state = self.env.sim.state
-        _highway_env_info(info, float(state.speed_mps[0, 0]), bool(state.crashed[0, 0]))
-        return info
+        self.metadata = {**self.metadata, **self.env.metadata}
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
         obs, info = self.env.reset(seed=seed, options=options)
-        return obs["kinematics"], self._info(info)
+        table = obs["kinematics"]
+        return table, _highway_env_info(info, table, self._features, self._ranges)
 
     def step(self, action):
         if not self.action_space.contains(action):
@@ -191,7 +232,9 @@ class HighwayEnvLike(gym.Env):
                 f"expected an action in [0, 5) ({', '.join(ACTION_LABELS)}), got {action!r}"
             )
         obs, reward, terminated, truncated, info = self.env.step(int(TO_OVERTAKE[int(action)]))
-        return obs["kinematics"], reward, terminated, truncated, self._info(info)
+        table = obs["kinematics"]
+        info = _highway_env_info(info, table, self._features, self._ranges)
+        return table, reward, terminated, truncated, info
 
     def render(self) -> np.ndarray | None:  # type: ignore[override, unused-ignore]
         return self.env.render()
@@ -203,7 +246,7 @@ class HighwayEnvLike(gym.Env):
 class HighwayEnvLikeVector(gym.vector.VectorEnv):
     """``gym.make_vec`` of these ids: ``num_envs`` arenas in one pass, next-step autoreset."""
 
-    metadata = HighwayVectorEnv.metadata
+    metadata = {"render_modes": ["rgb_array"], "autoreset_mode": NEXT_STEP}  # noqa: RUF012
 
     def __init__(
         self,
@@ -211,12 +254,14 @@ class HighwayEnvLikeVector(gym.vector.VectorEnv):
         preset: str = "highway-fast",
         config: Mapping[str, Any] | None = None,
         render_mode: str | None = None,
+        connect: str | None = None,
     ) -> None:
-        self.env = HighwayVectorEnv(
-            num_envs,
-            preset=preset,
-            overrides=overrides_from_config(preset, config),
-            render_mode=render_mode,
+        made, self._features, self._ranges = _inner(
+            preset, config, connect, render_mode=render_mode
+        )
+        env_id = HIGHWAY_ENV_ID if connect is None else REMOTE_HIGHWAY_ENV_ID
+        self.env = gym.make_vec(
+            env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", **made
         )
         self.num_envs, self.render_mode = num_envs, render_mode
         self.single_observation_space = self.env.single_observation_space["kinematics"]
@@ -226,14 +271,10 @@ class HighwayEnvLikeVector(gym.vector.VectorEnv):
         )
         self.action_space = spaces.MultiDiscrete(np.full(num_envs, len(ACTION_LABELS)))
 
-    def _info(self, info: dict[str, Any]) -> dict[str, Any]:
-        state = self.env.sim.state
-        _highway_env_info(info, state.speed_mps[:, 0].copy(), state.crashed[:, 0].copy())
-        return info
-
     def reset(self, *, seed: int | Sequence[int | None] | None = None, options=None):
         obs, info = self.env.reset(seed=seed, options=options)
-        return obs["kinematics"], self._info(info)
+        table = obs["kinematics"]
+        return table, _highway_env_info(info, table, self._features, self._ranges)
 
     def step(self, actions):
         actions = np.asarray(actions)
@@ -243,7 +284,9 @@ class HighwayEnvLikeVector(gym.vector.VectorEnv):
                 f"got {actions!r}"
             )
         obs, reward, terminated, truncated, info = self.env.step(TO_OVERTAKE[actions])
-        return obs["kinematics"], reward, terminated, truncated, self._info(info)
+        table = obs["kinematics"]
+        info = _highway_env_info(info, table, self._features, self._ranges)
+        return table, reward, terminated, truncated, info
 
     def render(self):  # type: ignore[override, unused-ignore]
         return self.env.render()
