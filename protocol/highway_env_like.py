@@ -214,7 +214,7 @@ class HighwayEnvLike(gym.Env):
             preset, config, connect, render_mode=render_mode
         )
         env_id = HIGHWAY_ENV_ID if connect is None else REMOTE_HIGHWAY_ENV_ID
-        self.env = gym.make(env_id, **made).unwrapped
+        self.env: Any = gym.make(env_id, **made).unwrapped
         self.render_mode = render_mode
         self.observation_space = self.env.observation_space["kinematics"]
         self.action_space = spaces.Discrete(len(ACTION_LABELS))
@@ -260,7 +260,7 @@ class HighwayEnvLikeVector(gym.vector.VectorEnv):
             preset, config, connect, render_mode=render_mode
         )
         env_id = HIGHWAY_ENV_ID if connect is None else REMOTE_HIGHWAY_ENV_ID
-        self.env = gym.make_vec(
+        self.env: Any = gym.make_vec(
             env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", **made
         )
         self.num_envs, self.render_mode = num_envs, render_mode
