@@ -216,7 +216,7 @@ class HighwayEnvLike(gym.Env):
         env_id = HIGHWAY_ENV_ID if connect is None else REMOTE_HIGHWAY_ENV_ID
         self.env: Any = gym.make(env_id, **made).unwrapped
         self.render_mode = render_mode
-        self.observation_space = self.env.observation_space["kinematics"]
+        self.observation_space = self.env.observation_space["kinematics"]  # type: ignore[index]
         self.action_space = spaces.Discrete(len(ACTION_LABELS))
         self.metadata = {**self.metadata, **self.env.metadata}
 
@@ -264,7 +264,7 @@ class HighwayEnvLikeVector(gym.vector.VectorEnv):
             env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", **made
         )
         self.num_envs, self.render_mode = num_envs, render_mode
-        self.single_observation_space = self.env.single_observation_space["kinematics"]
+        self.single_observation_space = self.env.single_observation_space["kinematics"]  # type: ignore[index]
         self.single_action_space = spaces.Discrete(len(ACTION_LABELS))
         self.observation_space = gym.vector.utils.batch_space(
             self.single_observation_space, num_envs
