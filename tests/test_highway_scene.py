@@ -160,3 +160,29 @@ def test_the_kinematics_table_is_highway_env_s():
             sim.observe()["kinematics"][0, 0], hw.observation_type.observe(), atol=1e-5
         )
         hw.close()
+
+
+def test_the_kinematics_table_is_a_sensor_of_every_preset():
+    """On Min et al.'s road (5 lanes of 3.5 m, lane 0 the rightmost): the car's own row in
+    absolute terms, a car 30 m ahead one lane to the right as its first neighbour, relative,
+    in highway-env's axes (y grows to the right); a car 40 m behind only with see_behind."""
+    from conftest import Car, scripted_sim
+
+    def table(**settings):
+        overrides = {"kinematics.enabled": True, "kinematics.normalize": False, **settings}
+        sim = scripted_sim(
+            [Car(dx=30.0, lane=1, speed_kmh=54.0), Car(dx=-40.0, lane=2, speed_kmh=90.0)],
+            ego_lane=2,
+            ego_speed_kmh=72.0,
+            overrides=overrides,
+        )
+        return sim.observe()["kinematics"][0, 0]
+
+    width = 3.5
+    front = table()
+    # Own row: absolute x 0, y from the leftmost lane's centre (lane 2 of 5: two lanes in).
+    np.testing.assert_allclose(front[0], [1, 0.0, 2 * width, 20.0, 0.0], atol=1e-4)
+    np.testing.assert_allclose(front[1], [1, 30.0, width, -5.0, 0.0], atol=1e-4)
+    assert not front[2:].any()  # the car behind is more than two car lengths back
+    behind = table(**{"kinematics.see_behind": True})
+    np.testing.assert_allclose(behind[2], [1, -40.0, 0.0, 5.0, 0.0], atol=1e-4)
