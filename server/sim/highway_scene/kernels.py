@@ -139,6 +139,8 @@ def steering(a, i, target, y, speed, heading, p) -> float:
     """controller.py's steering_control on a straight lane: a lateral position controller, a
     heading controller, and the bicycle's steering angle for the heading rate wanted."""
     lateral = y[a, i] - lane_centre(target, p)
+    if lateral == 0.0 and heading[a, i] == 0.0:
+        return 0.0  # on the lane's centre line, along it: what the formulas give, exactly
     v = not_zero(speed[a, i])
     lateral_speed = -p[P_KP_LATERAL] * lateral
     heading_command = math.asin(min(max(lateral_speed / v, -1.0), 1.0))
@@ -338,10 +340,16 @@ def play_decision(
                     acc = min(acc, p[P_MAX_SPEED] - speed[a, i])
                 elif speed[a, i] < -p[P_MAX_SPEED]:
                     acc = max(acc, -p[P_MAX_SPEED] - speed[a, i])
-                beta = math.atan(0.5 * math.tan(angle))
                 before = x[a, i]
-                x[a, i] += speed[a, i] * math.cos(heading[a, i] + beta) * dt
-                y[a, i] += speed[a, i] * math.sin(heading[a, i] + beta) * dt
+                beta = 0.0
+                if angle == 0.0 and heading[a, i] == 0.0:
+                    # Straight along the road (most cars, most frames): the same numbers
+                    # without the trigonometry (cos 0 = 1, sin 0 = 0, atan(tan 0) = 0).
+                    x[a, i] += speed[a, i] * dt
+                else:
+                    beta = math.atan(0.5 * math.tan(angle))
+                    x[a, i] += speed[a, i] * math.cos(heading[a, i] + beta) * dt
+                    y[a, i] += speed[a, i] * math.sin(heading[a, i] + beta) * dt
                 if has_impact[a, i]:
                     x[a, i] += impact_x[a, i]
                     y[a, i] += impact_y[a, i]
