@@ -152,31 +152,33 @@ def steering(a, i, target, y, speed, heading, p) -> float:
 
 
 @njit(cache=True, nogil=True)
-def mobil(a, i, lane_to, x, y, speed, heading, target_speed, delta, lane, active, p) -> bool:
+def mobil(a, i, lane_to, old_front, old_rear, self_a, x, y, speed, heading, target_speed,
+          delta, active, p) -> bool:  # fmt: skip
     """behavior.py's mobil: is the change of car ``i`` into ``lane_to`` safe for its new
-    follower, and worth at least the minimum gain (politeness weighing the others')?"""
+    follower, and worth at least the minimum gain (politeness weighing the others')? Its own
+    lane's neighbours and IDM (``old_front``, ``old_rear``, ``self_a``) are the caller's, who
+    needs them too; the others' accelerations are worked out only where politeness weighs
+    them (highway-env's 0 times them adds nothing, exactly)."""
     d = delta[a, i]
     new_front, new_rear = neighbours(a, i, lane_to, x, y, active, p)
-    new_rear_a = idm(a, new_rear, new_front, d, x, speed, heading, target_speed, p)
     new_rear_pred_a = idm(a, new_rear, i, d, x, speed, heading, target_speed, p)
     if new_rear_pred_a < -p[P_MAX_BRAKING]:
         return False
-    old_front, old_rear = neighbours(a, i, lane[a, i], x, y, active, p)
     self_pred_a = idm(a, i, new_front, d, x, speed, heading, target_speed, p)
-    self_a = idm(a, i, old_front, d, x, speed, heading, target_speed, p)
-    old_rear_a = idm(a, old_rear, i, d, x, speed, heading, target_speed, p)
-    old_rear_pred_a = idm(a, old_rear, old_front, d, x, speed, heading, target_speed, p)
-    jerk = (
-        self_pred_a
-        - self_a
-        + p[P_POLITENESS] * (new_rear_pred_a - new_rear_a + old_rear_pred_a - old_rear_a)
-    )
+    jerk = self_pred_a - self_a
+    if p[P_POLITENESS] != 0.0:
+        new_rear_a = idm(a, new_rear, new_front, d, x, speed, heading, target_speed, p)
+        old_rear_a = idm(a, old_rear, i, d, x, speed, heading, target_speed, p)
+        old_rear_pred_a = idm(a, old_rear, old_front, d, x, speed, heading, target_speed, p)
+        jerk += p[P_POLITENESS] * (new_rear_pred_a - new_rear_a + old_rear_pred_a - old_rear_a)
     return jerk >= p[P_MIN_GAIN]
 
 
 @njit(cache=True, nogil=True)
-def change_lane_policy(a, i, lanes, x, y, speed, heading, target_speed, delta, lane, target_lane,
-                       timer, active, p) -> None:  # fmt: skip
+def change_lane_policy(
+    a, i, lanes, old_front, old_rear, self_a, x, y, speed, heading, target_speed, delta, lane,
+    target_lane, timer, active, p,
+) -> None:  # fmt: skip
     """behavior.py's change_lane_policy: a change under way is given up where another car is
     changing into the same lane just ahead; otherwise, once a LANE_CHANGE_DELAY, each side
     lane MOBIL recommends becomes the target (highway-env's left side first, the right one
@@ -198,7 +200,8 @@ def change_lane_policy(a, i, lanes, x, y, speed, heading, target_speed, delta, l
     for side in (here + 1, here - 1):  # highway-env's id - 1 (left), then id + 1 (right)
         if side < 0 or side >= lanes or abs(speed[a, i]) < 1.0:
             continue
-        if mobil(a, i, side, x, y, speed, heading, target_speed, delta, lane, active, p):
+        if mobil(a, i, side, old_front, old_rear, self_a, x, y, speed, heading, target_speed,
+                 delta, active, p):  # fmt: skip
             target_lane[a, i] = side
 
 
@@ -317,12 +320,16 @@ def play_decision(
                     continue
                 if crashed[a, i]:
                     continue
-                change_lane_policy(a, i, lanes, x, y, speed, heading, target_speed, delta,
-                                   lane, target_lane, timer, active, p)  # fmt: skip
-                steer[a, i] = steering(a, i, target_lane[a, i], y, speed, heading, p)
+                # Its own lane's neighbours and IDM: MOBIL's and the IDM's below alike (nothing
+                # moves in between).
                 d = delta[a, i]
-                front, _ = neighbours(a, i, lane[a, i], x, y, active, p)
+                front, rear = neighbours(a, i, lane[a, i], x, y, active, p)
                 acc = idm(a, i, front, d, x, speed, heading, target_speed, p)
+                change_lane_policy(
+                    a, i, lanes, front, rear, acc, x, y, speed, heading, target_speed, delta,
+                    lane, target_lane, timer, active, p,
+                )  # fmt: skip
+                steer[a, i] = steering(a, i, target_lane[a, i], y, speed, heading, p)
                 if lane[a, i] != target_lane[a, i]:
                     front, _ = neighbours(a, i, target_lane[a, i], x, y, active, p)
                     acc = min(acc, idm(a, i, front, d, x, speed, heading, target_speed, p))
