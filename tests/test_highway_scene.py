@@ -186,3 +186,22 @@ def test_the_kinematics_table_is_a_sensor_of_every_preset():
     assert not front[2:].any()  # the car behind is more than two car lengths back
     behind = table(**{"kinematics.see_behind": True})
     np.testing.assert_allclose(behind[2], [1, -40.0, 0.0, 5.0, 0.0], atol=1e-4)
+
+
+def test_the_kernels_action_numbers_are_the_vocabulary_s():
+    from overtake.protocol import vocabulary as v
+    from overtake.server.sim.highway_scene import kernels
+
+    assert (
+        kernels.A_KEEP,
+        kernels.A_FASTER,
+        kernels.A_SLOWER,
+        kernels.A_LEFT,
+        kernels.A_RIGHT,
+    ) == (
+        v.KEEP,
+        v.CRUISE_UP,
+        v.CRUISE_DOWN,
+        v.LANE_LEFT,
+        v.LANE_RIGHT,
+    )

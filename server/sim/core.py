@@ -166,9 +166,10 @@ class HighwaySim:
             seed = None if seeds is None else seeds[i]
             if seed is not None:
                 self.rngs[row] = np.random.default_rng(seed)
-            fresh = self.spawner.reset_arena(self.rngs[row])
+        if rows.size:
+            fresh = self.spawner.reset_arenas([self.rngs[row] for row in rows])
             self._note_warnings(fresh)
-            self.state.assign(np.array([row]), fresh)
+            self.state.assign(rows, fresh)
         self._needs_reset[rows] = False
 
     def agents_present(self) -> np.ndarray:

@@ -12,6 +12,7 @@ appearance is never a pass.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from .state import SimState
 
@@ -25,9 +26,6 @@ class OvertakeTracker:
         self.agents = agents
         self.undo_when_passed_back = undo_when_passed_back
         self.every_pass = every_pass
-        # (1, N, V): False where an agent would be compared with itself.
-        self._not_self = np.ones((1, agents, vehicles), dtype=bool)
-        self._not_self[0, np.arange(agents), np.arange(agents)] = False
 
     def start(self, st: SimState, vehicles: np.ndarray) -> None:
         """Reset the tracking of the (A, V) ``vehicles`` that just appeared."""
@@ -48,18 +46,34 @@ class OvertakeTracker:
     def track(self, st: SimState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(A, N) each: cars the agent passed (the first time, or every time with
         ``every_pass``), overtakes undone, cars passing it."""
-        n = self.agents
-        ahead_now = st.x_m[:, None, :] > st.x_m[:, :n, None]
-        live = st.active[:, None, :] & self._not_self
-        overtook = st.ahead & ~ahead_now & live
-        got_passed = ~st.ahead & ahead_now & live
-        gained = (overtook if self.every_pass else overtook & ~st.credited).sum(axis=-1)
-        st.credited |= overtook
-        passed = got_passed.sum(axis=-1)
-        undone = np.zeros_like(gained)
-        if self.undo_when_passed_back:
-            taken_back = got_passed & st.credited
-            undone = taken_back.sum(axis=-1)
-            st.credited &= ~taken_back
-        st.ahead[:] = ahead_now
+        shape = st.distance_m.shape
+        gained, undone, passed = (np.zeros(shape, dtype=np.int64) for _ in range(3))
+        track_passes(
+            st.x_m, st.active, st.ahead, st.credited, self.every_pass,
+            self.undo_when_passed_back, gained, undone, passed,
+        )  # fmt: skip
         return gained, undone, passed
+
+
+@njit(cache=True, nogil=True)
+def track_passes(x, active, ahead, credited, every_pass, undo, gained, undone, passed):
+    """:meth:`OvertakeTracker.track` car by car, compiled: for each agent ``k`` and each
+    live car ``v`` (not itself), whether ``v`` went from ahead of it to behind it (an
+    overtake, counted where not credited already, or every time) or the other way (a pass
+    of the agent, taking back a credited overtake where ``undo``); ``ahead`` becomes now's."""
+    arenas, agents, cars = ahead.shape
+    for a in range(arenas):
+        for k in range(agents):
+            for v in range(cars):
+                ahead_now = x[a, v] > x[a, k]
+                if active[a, v] and v != k:
+                    if ahead[a, k, v] and not ahead_now:
+                        if every_pass or not credited[a, k, v]:
+                            gained[a, k] += 1
+                        credited[a, k, v] = True
+                    elif not ahead[a, k, v] and ahead_now:
+                        passed[a, k] += 1
+                        if undo and credited[a, k, v]:
+                            undone[a, k] += 1
+                            credited[a, k, v] = False
+                ahead[a, k, v] = ahead_now

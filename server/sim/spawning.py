@@ -80,6 +80,10 @@ class Spawner:
             else None
         )
 
+    def reset_arenas(self, rngs: list[np.random.Generator]) -> SimState:
+        """New episodes' states, one arena per generator, each drawn from its own."""
+        return SimState.stack([self.reset_arena(rng) for rng in rngs])
+
     def reset_arena(self, rng: np.random.Generator) -> SimState:
         """A new episode's state of one arena, drawn from ``rng``."""
         traffic = self.traffic

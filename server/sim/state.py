@@ -107,6 +107,16 @@ class SimState:
             speed_index=_i64(a, n),
         )
 
+    @classmethod
+    def stack(cls, states: list[SimState]) -> SimState:
+        """The arenas of ``states``, one after the other."""
+        return cls(
+            **{
+                f.name: np.concatenate([getattr(s, f.name) for s in states])
+                for f in dataclasses.fields(cls)
+            }
+        )
+
     def select(self, rows: np.ndarray) -> SimState:
         """A copy of some arenas' rows."""
         return SimState(**{f.name: getattr(self, f.name)[rows] for f in dataclasses.fields(self)})

@@ -12,6 +12,10 @@ the rightmost, headings positive to the left. highway-env's y grows to the right
 is the leftmost): every rule here is the mirror image of its own, which changes nothing but
 the side names (its LANE_LEFT is towards a higher lane number here), and where it breaks a tie
 by the lower index of its lanes, the higher lane number here does.
+
+The helpers are inlined into :func:`play_decision` (``inline="always"``): called, each would be
+passed a dozen arrays (their shapes, strides and reference counts) for a few flops, and the
+calls cost more than the work (about a fifth of a decision, measured).
 """
 
 from __future__ import annotations
@@ -56,24 +60,24 @@ _NEIGHBOUR_MARGIN_M = 1.0
 A_KEEP, A_FASTER, A_SLOWER, A_LEFT, A_RIGHT = 0, 1, 2, 3, 4
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def not_zero(x: float) -> float:
     if abs(x) > _EPS:
         return x
     return _EPS if x >= 0.0 else -_EPS
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def wrap_to_pi(x: float) -> float:
     return ((x + math.pi) % (2.0 * math.pi)) - math.pi
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def lane_centre(lane: int, p: np.ndarray) -> float:
     return (lane + 0.5) * p[P_LANE_WIDTH]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def closest_lane(y: float, lanes: int, p: np.ndarray) -> int:
     """road.py's get_closest_lane_index on a straight road: the nearest lane centre, a tie
     going to highway-env's lower index (the higher lane here)."""
@@ -85,7 +89,7 @@ def closest_lane(y: float, lanes: int, p: np.ndarray) -> int:
     return best
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def neighbours(a, i, lane, x, y, active, p):
     """road.py's neighbour_vehicles of car ``i`` on ``lane``: the nearest car ahead (at the
     same position or further) and behind, among the cars within the lane's half width and a
@@ -106,19 +110,23 @@ def neighbours(a, i, lane, x, y, active, p):
     return front, rear
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def desired_gap(a, ego, front, x, speed, heading, p) -> float:
     """behavior.py's desired_gap (projected): the IDM's desired distance, centre to centre."""
     v = speed[a, ego]
-    ch, sh = math.cos(heading[a, ego]), math.sin(heading[a, ego])
-    dvx = v * ch - speed[a, front] * math.cos(heading[a, front])
-    dvy = v * sh - speed[a, front] * math.sin(heading[a, front])
-    dv = dvx * ch + dvy * sh
+    if heading[a, ego] == 0.0 and heading[a, front] == 0.0:
+        # Both along the road (most pairs): the same number without the trigonometry.
+        dv = v - speed[a, front]
+    else:
+        ch, sh = math.cos(heading[a, ego]), math.sin(heading[a, ego])
+        dvx = v * ch - speed[a, front] * math.cos(heading[a, front])
+        dvy = v * sh - speed[a, front] * math.sin(heading[a, front])
+        dv = dvx * ch + dvy * sh
     ab = -p[P_COMFORT_ACC] * p[P_COMFORT_DEC]
     return p[P_DISTANCE_WANTED] + v * p[P_TIME_WANTED] + v * dv / (2.0 * math.sqrt(ab))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def idm(a, ego, front, delta, x, speed, heading, target_speed, p) -> float:
     """behavior.py's acceleration: the IDM of car ``ego`` behind ``front`` (-1: none), with
     the exponent of the car that asks (``delta``); 0 for no car."""
@@ -134,7 +142,7 @@ def idm(a, ego, front, delta, x, speed, heading, target_speed, p) -> float:
     return acceleration
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def steering(a, i, target, y, speed, heading, p) -> float:
     """controller.py's steering_control on a straight lane: a lateral position controller, a
     heading controller, and the bicycle's steering angle for the heading rate wanted."""
@@ -151,7 +159,7 @@ def steering(a, i, target, y, speed, heading, p) -> float:
     return min(max(angle, -p[P_MAX_STEERING]), p[P_MAX_STEERING])
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def mobil(a, i, lane_to, old_front, old_rear, self_a, x, y, speed, heading, target_speed,
           delta, active, p) -> bool:  # fmt: skip
     """behavior.py's mobil: is the change of car ``i`` into ``lane_to`` safe for its new
@@ -174,7 +182,7 @@ def mobil(a, i, lane_to, old_front, old_rear, self_a, x, y, speed, heading, targ
     return jerk >= p[P_MIN_GAIN]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def change_lane_policy(
     a, i, lanes, old_front, old_rear, self_a, x, y, speed, heading, target_speed, delta, lane,
     target_lane, timer, active, p,
@@ -205,7 +213,7 @@ def change_lane_policy(
             target_lane[a, i] = side
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _project(cx, cy, c, s, half_l, half_w, nx, ny):
     """The interval of a car's rectangle (centre, heading cos/sin, half sizes) on an axis."""
     lo, hi = 1e300, -1e300
@@ -219,12 +227,12 @@ def _project(cx, cy, c, s, half_l, half_w, nx, ny):
     return lo, hi
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _interval_distance(min_a, max_a, min_b, max_b):
     return min_b - max_a if min_a < min_b else min_a - max_b
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def rectangles_meet(a, i, j, dt, x, y, speed, heading, p):
     """utils.py's are_polygons_intersecting for two cars' rectangles, car i's moved by the
     difference of their velocities over ``dt``: (intersecting, will intersect, translation x,
@@ -384,3 +392,102 @@ def play_decision(
                         has_impact[a, i] = has_impact[a, j] = True
                     if meet:
                         crashed[a, i] = crashed[a, j] = True
+
+
+@njit(cache=True, nogil=True)
+def place_cars(
+    rng, row, order, agents, lanes, lane_width, spacing_factor, ego_speed, ego_spacing,
+    traffic_spacing, speed_limit, target_speeds, change_delay, delta_low, delta_high,
+    agent_kind, x, y, speed, desired, lane, target_lane, active, kind, speed_index, timer,
+    delta,
+):  # fmt: skip
+    """vehicle/kinematics.py's ``Vehicle.create_random``, car after car in ``order`` (column
+    numbers), into row ``row`` of the state arrays: each car in a random lane, ahead of the
+    foremost so far by its spacing; the draws from ``rng`` in highway-env's order (a traffic
+    car's speed, the lane, the spacing's factor, then its IDM exponent)."""
+    top = target_speeds.shape[0] - 1
+    foremost = 0.0
+    for n_placed in range(order.shape[0]):
+        column = order[n_placed]
+        is_agent = column < agents
+        if is_agent:
+            v, spacing = ego_speed, ego_spacing
+        else:
+            v, spacing = rng.uniform(0.7 * speed_limit, 0.8 * speed_limit), traffic_spacing
+        car_lane = lanes - 1 - rng.integers(0, lanes)
+        offset = spacing * (12.0 + v) * spacing_factor
+        at = 3.0 * offset if n_placed == 0 else foremost
+        at += offset * rng.uniform(0.9, 1.1)
+        foremost = at if n_placed == 0 else max(foremost, at)
+        x[row, column] = at
+        y[row, column] = (car_lane + 0.5) * lane_width
+        lane[row, column] = target_lane[row, column] = car_lane
+        speed[row, column] = desired[row, column] = v
+        active[row, column] = True
+        if is_agent:
+            kind[row, column] = agent_kind
+            # MDPVehicle.speed_to_index: the nearest of the evenly spaced target speeds.
+            ratio = (v - target_speeds[0]) / (target_speeds[top] - target_speeds[0])
+            index = int(min(max(np.round(ratio * top), 0.0), top))
+            speed_index[row, column] = index
+            desired[row, column] = target_speeds[index]
+        else:
+            # IDMVehicle's lane-change timer starts from its position (behavior.py), in
+            # highway-env's coordinates, whose y grows from the left lane.
+            y_highway_env = (lanes - 1 - car_lane) * lane_width
+            timer[row, column] = ((at + y_highway_env) * math.pi) % change_delay
+            delta[row, column] = rng.uniform(delta_low, delta_high)
+
+
+@njit(cache=True, nogil=True)
+def available(target_lane, speed_index, lanes, top, mask):
+    """DiscreteMetaAction's get_available_actions for each agent into ``mask`` (A, N, 5):
+    IDLE always, a lane change where there is a lane beyond the target lane, FASTER and
+    SLOWER where the speed index can move."""
+    arenas, agents = speed_index.shape
+    for a in range(arenas):
+        for k in range(agents):
+            mask[a, k, A_KEEP] = 1
+            mask[a, k, A_LEFT] = target_lane[a, k] < lanes - 1
+            mask[a, k, A_RIGHT] = target_lane[a, k] > 0
+            mask[a, k, A_FASTER] = speed_index[a, k] < top
+            mask[a, k, A_SLOWER] = speed_index[a, k] > 0
+
+
+@njit(cache=True, nogil=True)
+def rewards(
+    crashed, target_lane, lane, y, speed, heading, lanes, lane_width, low, high, weights,
+    normalize, out, collision, right_lane, high_speed, on_road,
+):  # fmt: skip
+    """envs/highway_env.py's _rewards and _reward for each agent: the terms (into
+    ``collision``, ``right_lane``, ``high_speed``, ``on_road``) and the reward (``out``): the
+    weighted sum (``weights``: collision, right lane, high speed), normalised to [0, 1] where
+    asked, times on-road."""
+    arenas, agents = out.shape
+    w_collision, w_right, w_fast = weights[0], weights[1], weights[2]
+    for a in range(arenas):
+        for k in range(agents):
+            hit = 1.0 if crashed[a, k] else 0.0
+            # highway-env's lane index of the target lane over the last: 1 on the right.
+            right = (lanes - 1 - target_lane[a, k]) / max(lanes - 1, 1)
+            forward = speed[a, k] * math.cos(heading[a, k])
+            fast = min(max((forward - low) / (high - low), 0.0), 1.0)
+            centre = (lane[a, k] + 0.5) * lane_width
+            road = 1.0 if abs(y[a, k] - centre) <= lane_width / 2 else 0.0
+            reward = w_collision * hit + w_right * right + w_fast * fast
+            if normalize:
+                reward = (reward - w_collision) / (w_fast + w_right - w_collision)
+            out[a, k] = reward * road
+            collision[a, k], right_lane[a, k], high_speed[a, k] = hit, right, fast
+            on_road[a, k] = road
+
+
+@njit(cache=True, nogil=True)
+def applied_actions(mask, actions, applied):
+    """What each agent's car does with its action (into ``applied``): the action where
+    ``mask`` allows it, IDLE otherwise (highway-env clips the lane or the speed index)."""
+    arenas, agents = actions.shape
+    for a in range(arenas):
+        for k in range(agents):
+            action = actions[a, k]
+            applied[a, k] = action if mask[a, k, action] == 1 else A_KEEP

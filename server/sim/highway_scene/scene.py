@@ -16,10 +16,6 @@ import numpy as np
 
 from overtake.protocol.vocabulary import (
     AGENT_KIND,
-    CRUISE_DOWN,
-    CRUISE_UP,
-    KEEP,
-    LANE_LEFT,
     LANE_RIGHT,
 )
 
@@ -95,56 +91,35 @@ class ScenePlacement:
         self.agents, self.vehicles = agents, vehicles
         self.tracker = tracker
         self.spacing_factor = math.exp(-5.0 / 40.0 * self.lanes)
-
-    def reset_arena(self, rng: np.random.Generator) -> SimState:
-        """A new episode's state of one arena, drawn from ``rng``."""
-        scene, n = self.scene, self.agents
-        fresh = SimState.empty(1, n, self.vehicles)
-        traffic = self.vehicles - n
-        shares = [traffic // n + (1 if i < traffic % n else 0) for i in range(n)]
+        self.target_speeds = np.asarray(self.scene.target_speeds_mps, dtype=np.float64)
+        # The order cars are placed in: each controlled car followed by its share of traffic.
+        traffic = vehicles - agents
         order: list[int] = []
-        slot = n
-        for agent, share in enumerate(shares):
+        slot = agents
+        for agent in range(agents):
+            share = traffic // agents + (1 if agent < traffic % agents else 0)
             order.append(agent)
             order.extend(range(slot, slot + share))
             slot += share
-        foremost: float | None = None
-        limit = scene.speed_limit_mps
-        for column in order:
-            is_agent = column < n
-            if is_agent:
-                speed, spacing = scene.ego_initial_speed_mps, scene.ego_spacing
-            else:
-                speed, spacing = rng.uniform(0.7 * limit, 0.8 * limit), 1.0 / scene.vehicles_density
-            lane = self.lanes - 1 - int(rng.integers(self.lanes))
-            offset = spacing * (12.0 + speed) * self.spacing_factor
-            x = 3.0 * offset if foremost is None else foremost
-            x += offset * rng.uniform(0.9, 1.1)
-            foremost = x if foremost is None else max(foremost, x)
-            self._put(fresh, column, x, lane, speed)
-            if not is_agent:
-                fresh.idm_delta[0, column] = rng.uniform(*scene.idm_delta_range)
-        self.tracker.start(fresh, np.ones((1, self.vehicles), dtype=bool))
-        return fresh
+        self.order = np.asarray(order, dtype=np.int64)
 
-    def _put(self, st: SimState, column: int, x: float, lane: int, speed: float) -> None:
-        n = self.agents
-        st.x_m[0, column] = x
-        st.y_m[0, column] = (lane + 0.5) * self.lane_width
-        st.lane[0, column] = st.target_lane[0, column] = lane
-        st.speed_mps[0, column] = speed
-        st.desired_speed_mps[0, column] = speed
-        st.active[0, column] = True
-        if column < n:
-            st.kind[0, column] = AGENT_KIND
-            index = speed_to_index(self.scene.target_speeds_mps, speed)
-            st.speed_index[0, column] = index
-            st.desired_speed_mps[0, column] = self.scene.target_speeds_mps[index]
-        else:
-            # IDMVehicle's lane-change timer starts from its position (behavior.py), in
-            # highway-env's coordinates, whose y grows from the left lane.
-            y_highway_env = (self.lanes - 1 - lane) * self.lane_width
-            st.timer_s[0, column] = ((x + y_highway_env) * math.pi) % self.scene.lane_change_delay_s
+    def reset_arenas(self, rngs: list[np.random.Generator]) -> SimState:
+        """New episodes' states, one arena per generator, each drawn from its own
+        (:func:`.kernels.place_cars`, compiled)."""
+        scene = self.scene
+        fresh = SimState.empty(len(rngs), self.agents, self.vehicles)
+        low, high = scene.idm_delta_range
+        for row, rng in enumerate(rngs):
+            k.place_cars(
+                rng, row, self.order, self.agents, self.lanes, self.lane_width,
+                self.spacing_factor, scene.ego_initial_speed_mps, scene.ego_spacing,
+                1.0 / scene.vehicles_density, scene.speed_limit_mps, self.target_speeds,
+                scene.lane_change_delay_s, low, high, AGENT_KIND, fresh.x_m, fresh.y_m,
+                fresh.speed_mps, fresh.desired_speed_mps, fresh.lane, fresh.target_lane,
+                fresh.active, fresh.kind, fresh.speed_index, fresh.timer_s, fresh.idm_delta,
+            )  # fmt: skip
+        self.tracker.start(fresh, np.ones((len(rngs), self.vehicles), dtype=bool))
+        return fresh
 
     def place_agents(
         self, st: SimState, arena: int, slots: np.ndarray, rng: np.random.Generator
@@ -194,14 +169,8 @@ class MetaActions:
         return actions.astype(np.int64)
 
     def mask(self, st: SimState) -> np.ndarray:
-        n = self.agents
-        target, index = st.target_lane[:, :n], st.speed_index[:, :n]
-        mask = np.zeros(target.shape + (LANE_RIGHT + 1,), dtype=np.int8)
-        mask[..., KEEP] = 1
-        mask[..., LANE_LEFT] = target < self.lanes - 1
-        mask[..., LANE_RIGHT] = target > 0
-        mask[..., CRUISE_UP] = index < self.top
-        mask[..., CRUISE_DOWN] = index > 0
+        mask = np.zeros(st.speed_index.shape + (LANE_RIGHT + 1,), dtype=np.int8)
+        k.available(st.target_lane, st.speed_index, self.lanes, self.top, mask)
         return mask
 
 
@@ -223,13 +192,17 @@ class SceneDecision:
         self.check_all = self.scene.collisions == "all"
         self.tracker, self.episodes = sim.tracker, sim.episodes
         self.actions = MetaActions(config, sim.agents)
+        scene = self.scene
+        self.weights = np.array(
+            [scene.collision_reward, scene.right_lane_reward, scene.high_speed_reward]
+        )
 
     def advance(self, st: SimState, actions: np.ndarray, uniforms: np.ndarray | None) -> StepResult:
         n = self.agents
         # What the car does with each action: one the mask rules out does nothing (highway-env
         # clips the lane or the speed index), as keep does.
-        allowed = np.take_along_axis(self.actions.mask(st), actions[..., None], axis=-1)[..., 0]
-        applied = np.where(allowed == 1, actions, KEEP)
+        applied = np.empty_like(actions)
+        k.applied_actions(self.actions.mask(st), actions, applied)
         started = np.zeros(actions.shape, dtype=bool)
         scratch = np.zeros(st.x_m.shape)
         k.play_decision(
@@ -261,23 +234,14 @@ class SceneDecision:
 
     def reward(self, st: SimState) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """highway-env's reward: the weighted terms, normalised to [0, 1], times on-road."""
-        scene, n = self.scene, self.agents
-        crashed = st.crashed[:, :n].astype(np.float64)
-        # highway-env's lane index of the target lane, over the last lane: 1 on the right.
-        right = (self.lanes - 1 - st.target_lane[:, :n]) / max(self.lanes - 1, 1)
-        forward = st.speed_mps[:, :n] * np.cos(st.heading_rad[:, :n])
-        low, high = scene.reward_speed_range_mps
-        fast = np.clip((forward - low) / (high - low), 0.0, 1.0)
-        centre = (st.lane[:, :n] + 0.5) * self.lane_width
-        on_road = (np.abs(st.y_m[:, :n] - centre) <= self.lane_width / 2).astype(np.float64)
-        reward = (
-            scene.collision_reward * crashed
-            + scene.right_lane_reward * right
-            + scene.high_speed_reward * fast
-        )
-        if scene.normalize_reward:
-            best = scene.high_speed_reward + scene.right_lane_reward
-            reward = (reward - scene.collision_reward) / (best - scene.collision_reward)
-        reward = reward * on_road
-        terms = {"collision": crashed, "right_lane": right, "high_speed": fast, "on_road": on_road}
+        shape = st.speed_index.shape
+        reward = np.empty(shape)
+        terms = {name: np.empty(shape) for name in REWARD_TERMS}
+        low, high = self.scene.reward_speed_range_mps
+        k.rewards(
+            st.crashed, st.target_lane, st.lane, st.y_m, st.speed_mps, st.heading_rad,
+            self.lanes, self.lane_width, low, high, self.weights, self.scene.normalize_reward,
+            reward, terms["collision"], terms["right_lane"], terms["high_speed"],
+            terms["on_road"],
+        )  # fmt: skip
         return reward, terms
