@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numba import njit
 
 from overtake.protocol.vocabulary import KEEP, METRIC_FIELDS, WATCH_METRICS
 
@@ -145,21 +146,44 @@ class EpisodeBook:
 
     def metrics_table(self, st: SimState) -> np.ndarray:
         """(A, N, len(fields)) float64: each agent's episode so far, columns :attr:`fields`
-        (every round: written column by column, the two rates divided where defined)."""
-        table = np.zeros(st.distance_m.shape + (len(self.fields),))
-        for i, name in enumerate(self.fields):
-            if name == "avg_speed_kmh":
-                elapsed_s = st.agent_decisions * self.decision_period_s
-                speed = table[..., i]
-                np.divide(st.distance_m, elapsed_s, out=speed, where=elapsed_s > 0)
-                speed /= KMH
-            elif name == "traffic_cars":
-                decisions = st.agent_decisions
-                np.divide(st.traffic_cars_sum, decisions, out=table[..., i], where=decisions > 0)
-            else:
-                table[..., i] = getattr(st, _COLUMNS.get(name, name))
+        (every round: :func:`fill_metrics`, compiled)."""
+        table = np.empty(st.distance_m.shape + (len(self.fields),))
+        fill_metrics(
+            st.agent_decisions, st.distance_m, st.lane_changes, st.overtakes, st.collisions,
+            st.emergency_brakes, st.episode_return, st.traffic_cars_sum, st.lane_change_aborts,
+            self.decision_period_s, KMH, len(self.fields) > len(METRIC_FIELDS), table,
+        )  # fmt: skip
         return table
 
 
-# The state's name of each counted metric, where it differs.
-_COLUMNS = {"return": "episode_return", "decisions": "agent_decisions"}
+@njit(cache=True, nogil=True)
+def fill_metrics(
+    decisions, distance_m, lane_changes, overtakes, collisions, brakes, episode_return,
+    traffic_cars_sum, aborts, decision_period_s, kmh, watch, table,
+):  # fmt: skip
+    """The columns of :meth:`Episodes.metrics_table` in METRIC_FIELDS' order (then
+    WATCH_METRICS' where ``watch``): the average speed over the decisions' time and the
+    traffic per decision where a decision was taken (0 before), the counts as they are."""
+    arenas, agents = decisions.shape
+    for a in range(arenas):
+        for k in range(agents):
+            d = decisions[a, k]
+            row = table[a, k]
+            row[0] = distance_m[a, k] / (d * decision_period_s) / kmh if d > 0 else 0.0
+            row[1] = lane_changes[a, k]
+            row[2] = overtakes[a, k]
+            row[3] = collisions[a, k]
+            row[4] = brakes[a, k]
+            row[5] = distance_m[a, k]
+            row[6] = episode_return[a, k]
+            row[7] = d
+            row[8] = traffic_cars_sum[a, k] / d if d > 0 else 0.0
+            if watch:
+                row[9] = aborts[a, k]
+
+
+# The columns fill_metrics writes, in its order.
+assert METRIC_FIELDS + WATCH_METRICS == (
+    "avg_speed_kmh", "lane_changes", "overtakes", "collisions", "emergency_brakes",
+    "distance_m", "return", "decisions", "traffic_cars", "lane_change_aborts",
+)  # fmt: skip
