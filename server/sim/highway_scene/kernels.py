@@ -90,23 +90,40 @@ def closest_lane(y: float, lanes: int, p: np.ndarray) -> int:
 
 
 @njit(cache=True, nogil=True, inline="always")
-def neighbours(a, i, lane, x, y, active, p):
+def lane_members(a, x, y, active, lanes, p, members, counts):
+    """Which cars mark each lane for their neighbours now (road.py, neighbour_vehicles: the
+    cars within the lane's half width and a metre of its centre, so that a car between two
+    lanes is in both): ``members[lane, :counts[lane]]``, in column order. Nothing a frame's
+    acts change moves a car, so one list serves every car's acts in the frame."""
+    reach = p[P_LANE_WIDTH] / 2.0 + _NEIGHBOUR_MARGIN_M
+    for lane in range(lanes):
+        counts[lane] = 0
+    for v in range(x.shape[1]):
+        if not active[a, v]:
+            continue
+        for lane in range(lanes):
+            if not abs(y[a, v] - lane_centre(lane, p)) > reach:
+                members[lane, counts[lane]] = v
+                counts[lane] += 1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def neighbours(a, i, lane, x, members, counts):
     """road.py's neighbour_vehicles of car ``i`` on ``lane``: the nearest car ahead (at the
-    same position or further) and behind, among the cars within the lane's half width and a
-    metre of it; -1 where there is none."""
+    same position or further) and behind among the lane's members (:func:`lane_members`,
+    in column order, as highway-env goes through its cars); -1 where there is none."""
     s = x[a, i]
     front, rear = -1, -1
-    s_front, s_rear = 0.0, 0.0
-    centre = lane_centre(lane, p)
-    reach = p[P_LANE_WIDTH] / 2.0 + _NEIGHBOUR_MARGIN_M
-    for v in range(x.shape[1]):
-        if v == i or not active[a, v] or abs(y[a, v] - centre) > reach:
-            continue
+    # Infinite bounds make the first candidate win, as highway-env's None does.
+    s_front, s_rear = math.inf, -math.inf
+    for m in range(counts[lane]):
+        v = members[lane, m]
         s_v = x[a, v]
-        if s <= s_v and (front < 0 or s_v <= s_front):
-            front, s_front = v, s_v
-        if s_v < s and (rear < 0 or s_v > s_rear):
-            rear, s_rear = v, s_v
+        if v != i:
+            if s <= s_v <= s_front:
+                front, s_front = v, s_v
+            elif s_rear < s_v < s:
+                rear, s_rear = v, s_v
     return front, rear
 
 
@@ -160,15 +177,15 @@ def steering(a, i, target, y, speed, heading, p) -> float:
 
 
 @njit(cache=True, nogil=True, inline="always")
-def mobil(a, i, lane_to, old_front, old_rear, self_a, x, y, speed, heading, target_speed,
-          delta, active, p) -> bool:  # fmt: skip
+def mobil(a, i, lane_to, old_front, old_rear, self_a, x, speed, heading, target_speed, delta,
+          members, counts, p) -> bool:  # fmt: skip
     """behavior.py's mobil: is the change of car ``i`` into ``lane_to`` safe for its new
     follower, and worth at least the minimum gain (politeness weighing the others')? Its own
     lane's neighbours and IDM (``old_front``, ``old_rear``, ``self_a``) are the caller's, who
     needs them too; the others' accelerations are worked out only where politeness weighs
     them (highway-env's 0 times them adds nothing, exactly)."""
     d = delta[a, i]
-    new_front, new_rear = neighbours(a, i, lane_to, x, y, active, p)
+    new_front, new_rear = neighbours(a, i, lane_to, x, members, counts)
     new_rear_pred_a = idm(a, new_rear, i, d, x, speed, heading, target_speed, p)
     if new_rear_pred_a < -p[P_MAX_BRAKING]:
         return False
@@ -184,8 +201,8 @@ def mobil(a, i, lane_to, old_front, old_rear, self_a, x, y, speed, heading, targ
 
 @njit(cache=True, nogil=True, inline="always")
 def change_lane_policy(
-    a, i, lanes, old_front, old_rear, self_a, x, y, speed, heading, target_speed, delta, lane,
-    target_lane, timer, active, p,
+    a, i, lanes, old_front, old_rear, self_a, x, speed, heading, target_speed, delta, lane,
+    target_lane, timer, active, members, counts, p,
 ) -> None:  # fmt: skip
     """behavior.py's change_lane_policy: a change under way is given up where another car is
     changing into the same lane just ahead; otherwise, once a LANE_CHANGE_DELAY, each side
@@ -208,8 +225,8 @@ def change_lane_policy(
     for side in (here + 1, here - 1):  # highway-env's id - 1 (left), then id + 1 (right)
         if side < 0 or side >= lanes or abs(speed[a, i]) < 1.0:
             continue
-        if mobil(a, i, side, old_front, old_rear, self_a, x, y, speed, heading, target_speed,
-                 delta, active, p):  # fmt: skip
+        if mobil(a, i, side, old_front, old_rear, self_a, x, speed, heading, target_speed,
+                 delta, members, counts, p):  # fmt: skip
             target_lane[a, i] = side
 
 
@@ -297,6 +314,8 @@ def play_decision(
     top = target_speeds.shape[0] - 1
     span = target_speeds[top] - target_speeds[0]
     diagonal = math.sqrt(p[P_LENGTH] ** 2 + p[P_WIDTH] ** 2)
+    members = np.empty((lanes, cars), dtype=np.int64)
+    counts = np.zeros(lanes, dtype=np.int64)
     for a in range(arenas):
         for k in range(agents):
             changes_started[a, k] = False
@@ -317,6 +336,7 @@ def play_decision(
                     target_lane[a, k] = wanted
                     changes_started[a, k] = True
         for _ in range(frames):
+            lane_members(a, x, y, active, lanes, p, members, counts)
             # Every car acts (road.py, Road.act): the agents' controllers; traffic's MOBIL,
             # steering and IDM (a crashed car does nothing: its step brakes it to a stop).
             for i in range(cars):
@@ -331,15 +351,15 @@ def play_decision(
                 # Its own lane's neighbours and IDM: MOBIL's and the IDM's below alike (nothing
                 # moves in between).
                 d = delta[a, i]
-                front, rear = neighbours(a, i, lane[a, i], x, y, active, p)
+                front, rear = neighbours(a, i, lane[a, i], x, members, counts)
                 acc = idm(a, i, front, d, x, speed, heading, target_speed, p)
                 change_lane_policy(
-                    a, i, lanes, front, rear, acc, x, y, speed, heading, target_speed, delta,
-                    lane, target_lane, timer, active, p,
+                    a, i, lanes, front, rear, acc, x, speed, heading, target_speed, delta,
+                    lane, target_lane, timer, active, members, counts, p,
                 )  # fmt: skip
                 steer[a, i] = steering(a, i, target_lane[a, i], y, speed, heading, p)
                 if lane[a, i] != target_lane[a, i]:
-                    front, _ = neighbours(a, i, target_lane[a, i], x, y, active, p)
+                    front, _ = neighbours(a, i, target_lane[a, i], x, members, counts)
                     acc = min(acc, idm(a, i, front, d, x, speed, heading, target_speed, p))
                 accel[a, i] = min(max(acc, -p[P_ACC_MAX]), p[P_ACC_MAX])
             # Every car steps (kinematics.py, Vehicle.step: the bicycle model).
@@ -376,11 +396,12 @@ def play_decision(
                 if i < agents:
                     agent_distance[a, i] += x[a, i] - before
             # Pairs of cars, each tested once (road.py, Road.step; objects.py).
-            for i in range(cars):
+            # Where only the controlled cars' collisions are tested, a pair's first car is one.
+            for i in range(cars if check_all else agents):
                 if not active[a, i]:
                     continue
                 for j in range(i + 1, cars):
-                    if not active[a, j] or not (check_all or i < agents or j < agents):
+                    if not active[a, j]:
                         continue
                     dx, dy = x[a, j] - x[a, i], y[a, j] - y[a, i]
                     if math.sqrt(dx * dx + dy * dy) > diagonal + speed[a, i] * dt:
