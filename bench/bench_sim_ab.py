@@ -41,7 +41,7 @@ from typing import Any, Literal
 
 import tyro
 
-from bench.bench_sim import write_report
+from bench.bench_sim import PRESET, write_report
 
 ROOT = Path(__file__).resolve().parents[1]
 SIDES = ("baseline", "working tree")
@@ -66,6 +66,9 @@ class SimABConfig:
     """instructions mode: D, the decisions of one arena counted (the child runs D and 2D)."""
     instruction_batch_steps: int = 6
     """instructions mode: D for the batch, in vector steps."""
+    preset: str = PRESET
+    """The preset both sides run, with its default sensors (``gymnasium.make`` of
+    overtake/Highway-v0)."""
     seed: int = 0
     json: Path | None = None
 
@@ -86,14 +89,14 @@ def _side_env(path: str | None) -> dict[str, str]:
 # decisions that advanced (a vector env's autoreset steps advance none).
 _WORKER = """
 import json, sys, time
-from bench.bench_sim import ENV_ID, PRESET, pin_threads
+from bench.bench_sim import ENV_ID, pin_threads
 pin_threads(1)
 import gymnasium, numpy as np
 import overtake.client, overtake.server
-arenas, seed = int(sys.argv[1]), int(sys.argv[2])
+arenas, seed, preset = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
 rng = np.random.default_rng(seed)
 if arenas == 1:
-    env = gymnasium.make(ENV_ID, preset=PRESET)
+    env = gymnasium.make(ENV_ID, preset=preset)
     env.reset(seed=seed)
     def drive(steps):
         for _ in range(steps):
@@ -103,7 +106,7 @@ if arenas == 1:
         return steps
 else:
     env = gymnasium.make_vec(ENV_ID, num_envs=arenas, vectorization_mode="vector_entry_point",
-                             preset=PRESET)
+                             preset=preset)
     env.reset(seed=seed)
     autoreset = np.zeros(arenas, dtype=bool)
     def drive(steps):
@@ -127,9 +130,9 @@ for line in sys.stdin:
 class Worker:
     """A process holding one side's environment, driving chunks on request."""
 
-    def __init__(self, path: str | None, arenas: int, seed: int) -> None:
+    def __init__(self, path: str | None, arenas: int, seed: int, preset: str) -> None:
         self.proc = subprocess.Popen(
-            [sys.executable, "-c", _WORKER, str(arenas), str(seed)],
+            [sys.executable, "-c", _WORKER, str(arenas), str(seed), preset],
             env=_side_env(path),
             cwd=ROOT,
             stdin=subprocess.PIPE,
@@ -175,7 +178,9 @@ def time_paired(config: SimABConfig, baseline_path: str) -> dict[str, Any]:
     results: dict[str, Any] = {}
     for key, (arenas, steps) in cases.items():
         workers = {
-            side: Worker(baseline_path if side == "baseline" else None, arenas, config.seed)
+            side: Worker(
+                baseline_path if side == "baseline" else None, arenas, config.seed, config.preset
+            )
             for side in SIDES
         }
         try:
@@ -236,14 +241,15 @@ import sys
 from bench.bench_sim import measure_overtake_batch, measure_overtake_single, pin_threads
 pin_threads(1)
 arenas, steps, seed = map(int, sys.argv[1:4])
+preset = sys.argv[4]
 if arenas == 1:
-    measure_overtake_single(steps, 0, seed)
+    measure_overtake_single(steps, 0, seed, preset)
 else:
-    measure_overtake_batch(arenas, arenas * steps, 0, seed)
+    measure_overtake_batch(arenas, arenas * steps, 0, seed, preset)
 """
 
 
-def _instructions(path: str | None, arenas: int, steps: int, seed: int) -> int:
+def _instructions(path: str | None, arenas: int, steps: int, seed: int, preset: str) -> int:
     """Instructions callgrind counts for a child running ``steps`` steps of ``arenas``."""
     with tempfile.TemporaryDirectory() as tmp:
         done = subprocess.run(
@@ -257,6 +263,7 @@ def _instructions(path: str | None, arenas: int, steps: int, seed: int) -> int:
                 str(arenas),
                 str(steps),
                 str(seed),
+                preset,
             ],
             env=_side_env(path),
             cwd=ROOT,
@@ -281,8 +288,8 @@ def count_instructions(config: SimABConfig, baseline_path: str) -> dict[str, Any
     for side, path in (("baseline", baseline_path), ("working tree", None)):
         counts[side] = {}
         for key, (arenas, steps) in cases.items():
-            once = _instructions(path, arenas, steps, config.seed)
-            twice = _instructions(path, arenas, 2 * steps, config.seed)
+            once = _instructions(path, arenas, steps, config.seed, config.preset)
+            twice = _instructions(path, arenas, 2 * steps, config.seed, config.preset)
             counts[side][key] = (twice - once) / (steps * arenas)
             print(
                 f"{side:>12}: {key} arena(s) {counts[side][key]:,.0f} instructions per "

@@ -204,13 +204,15 @@ class SceneDecision:
         applied = np.empty_like(actions)
         k.applied_actions(self.actions.mask(st), actions, applied)
         started = np.zeros(actions.shape, dtype=bool)
-        scratch = np.zeros(st.x_m.shape)
+        arenas, cars = st.x_m.shape
         k.play_decision(
             st.x_m, st.y_m, st.speed_mps, st.heading_rad, st.lane, st.target_lane,
             st.desired_speed_mps, st.timer_s, st.idm_delta, st.crashed, st.impact_x_m,
             st.impact_y_m, st.has_impact, st.active, st.distance_m, st.speed_index, actions,
             self.target_speeds, n, self.lanes, self.frames, self.dt, self.check_all,
-            self.parameters, started, scratch, np.zeros(st.x_m.shape),
+            self.parameters, started, np.empty((arenas, cars)), np.empty((arenas, cars)),
+            np.empty((arenas, self.lanes, cars), dtype=np.int64),
+            np.empty((arenas, self.lanes), dtype=np.int64),
         )  # fmt: skip
         st.frame += self.frames
         st.decisions += 1
