@@ -241,14 +241,12 @@ class HighwaySim:
                 f"arenas {rows[self._needs_reset[rows]].tolist()} must be reset "
                 "before they can step"
             )
-        st = self.state if arenas is None else self.state.select(rows)
         uniforms = (
             draw_uniforms(self.rngs, rows, self.vehicles) if self.decision.uses_uniforms else None
         )
-        result = self.decision.advance(st, actions, uniforms)
-        if arenas is not None:
-            self.state.assign(rows, st)
-        return result
+        return self.decision.advance(
+            self.state, actions, uniforms, rows=None if arenas is None else rows
+        )
 
     # --- what agents see ------------------------------------------------------------------------
 

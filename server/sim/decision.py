@@ -67,8 +67,26 @@ class Decision:
         # Whether some lane change ends within its first frame (see advance).
         self.instant_changes = bool((sim.kinds.change_duration <= sim.dt).any())
 
-    def advance(self, st: SimState, actions: np.ndarray, uniforms: np.ndarray | None) -> StepResult:
-        """One decision of the arenas of ``st``: (A, N) ``actions``, the decision's uniforms."""
+    def advance(
+        self,
+        st: SimState,
+        actions: np.ndarray,
+        uniforms: np.ndarray | None,
+        rows: np.ndarray | None = None,
+    ) -> StepResult:
+        """One decision of the arenas ``rows`` of ``st`` (None: all; the others do not move):
+        their ``actions`` and uniforms. A subset is stepped on a copy of its rows, written
+        back after."""
+        if rows is None:
+            return self._advance(st, actions, uniforms)
+        subset = st.select(rows)
+        result = self._advance(subset, actions, uniforms)
+        st.assign(rows, subset)
+        return result
+
+    def _advance(
+        self, st: SimState, actions: np.ndarray, uniforms: np.ndarray | None
+    ) -> StepResult:
         assert uniforms is not None, "the papers' decision draws its random numbers (uses_uniforms)"
         n = self.agents
         # What the agents were warned of when they chose (the observation they acted on).

@@ -129,19 +129,31 @@ class EpisodeBook:
         collided: np.ndarray,
         overtakes: np.ndarray,
         emergency_brakes: np.ndarray,
+        rows: np.ndarray | None = None,
     ) -> np.ndarray:
         """Add one decision's events (A, N) to the episodes; returns which reached their
-        decision limit (truncated)."""
-        st.episode_return += reward
-        st.lane_changes += lane_changes
-        st.collisions += collided
-        st.overtakes += overtakes
-        st.emergency_brakes += emergency_brakes
+        decision limit (truncated). With ``rows``, the events are those arenas' (rows of the
+        state), the others untouched."""
         n = self.agents
-        st.traffic_cars_sum += st.active[:, n:].sum(axis=1, keepdims=True)
-        limit = st.agent_decisions >= self.max_decisions
+        if rows is None:
+            st.episode_return += reward
+            st.lane_changes += lane_changes
+            st.collisions += collided
+            st.overtakes += overtakes
+            st.emergency_brakes += emergency_brakes
+            st.traffic_cars_sum += st.active[:, n:].sum(axis=1, keepdims=True)
+            decisions, distance = st.agent_decisions, st.distance_m
+        else:
+            st.episode_return[rows] += reward
+            st.lane_changes[rows] += lane_changes
+            st.collisions[rows] += collided
+            st.overtakes[rows] += overtakes
+            st.emergency_brakes[rows] += emergency_brakes
+            st.traffic_cars_sum[rows] += st.active[rows, n:].sum(axis=1, keepdims=True)
+            decisions, distance = st.agent_decisions[rows], st.distance_m[rows]
+        limit = decisions >= self.max_decisions
         if self.max_distance_m is not None:
-            limit |= st.distance_m >= self.max_distance_m
+            limit |= distance >= self.max_distance_m
         return limit
 
     def metrics_table(self, st: SimState) -> np.ndarray:

@@ -43,26 +43,33 @@ class OvertakeTracker:
         st.ahead[arena, :n, slot] = st.x_m[arena, slot] > st.x_m[arena, :n]
         st.credited[arena, :n, slot] = False
 
-    def track(self, st: SimState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def track(
+        self, st: SimState, stepped: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(A, N) each: cars the agent passed (the first time, or every time with
-        ``every_pass``), overtakes undone, cars passing it."""
+        ``every_pass``), overtakes undone, cars passing it; in the arenas ``stepped`` (A,)
+        bool (None: all), 0 in the others, whose tracking is left as it was."""
         shape = st.distance_m.shape
         gained, undone, passed = (np.zeros(shape, dtype=np.int64) for _ in range(3))
+        if stepped is None:
+            stepped = np.ones(shape[0], dtype=bool)
         track_passes(
             st.x_m, st.active, st.ahead, st.credited, self.every_pass,
-            self.undo_when_passed_back, gained, undone, passed,
+            self.undo_when_passed_back, stepped, gained, undone, passed,
         )  # fmt: skip
         return gained, undone, passed
 
 
 @njit(cache=True, nogil=True)
-def track_passes(x, active, ahead, credited, every_pass, undo, gained, undone, passed):
+def track_passes(x, active, ahead, credited, every_pass, undo, stepped, gained, undone, passed):
     """:meth:`OvertakeTracker.track` car by car, compiled: for each agent ``k`` and each
     live car ``v`` (not itself), whether ``v`` went from ahead of it to behind it (an
     overtake, counted where not credited already, or every time) or the other way (a pass
     of the agent, taking back a credited overtake where ``undo``); ``ahead`` becomes now's."""
     arenas, agents, cars = ahead.shape
     for a in range(arenas):
+        if not stepped[a]:
+            continue
         for k in range(agents):
             for v in range(cars):
                 ahead_now = x[a, v] > x[a, k]

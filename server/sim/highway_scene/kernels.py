@@ -421,15 +421,18 @@ def play_decision(
     x, y, speed, heading, lane, target_lane, target_speed, timer, delta, crashed,
     impact_x, impact_y, has_impact, active, agent_distance, speed_index,
     actions, target_speeds, agents, lanes, frames, dt, check_all, p,
-    changes_started, steer, accel, members, counts,
+    changes_started, steer, accel, members, counts, stepping,
 ):  # fmt: skip
-    """One decision of every arena (rows of the state arrays): the agents' meta-actions
+    """One decision of every arena where ``stepping`` (A,) (rows of the state arrays): the
+    agents' meta-actions
     (``actions``, the simulator's action numbers), then ``frames`` frames of highway-env's
     act, step and collision test. ``changes_started`` (A, N) is set where an agent's action
     changed its target lane. Scratch: ``steer`` and ``accel`` (A, V) float64, ``members``
     (A, lanes, V) and ``counts`` (A, lanes) int64."""
     arenas = x.shape[0]
     for a in range(arenas):
+        if not stepping[a]:
+            continue
         play_arena(
             a, x, y, speed, heading, lane, target_lane, target_speed, timer, delta, crashed,
             impact_x, impact_y, has_impact, active, agent_distance, speed_index, actions,
