@@ -98,6 +98,12 @@ class BenchConfig:
     blas_threads: int | None = 1
     """Threads of numpy's BLAS/OpenMP pools (set in OMP_NUM_THREADS, OPENBLAS_NUM_THREADS and
     MKL_NUM_THREADS before numpy is imported); None leaves the environment as it is."""
+    peers: bool = True
+    """Also measure highway-env's own scene against EnvPool's C++ port and highway-env
+    (:mod:`bench.bench_highway_peers`: 1, 64 and 256 environments, per CPU and wall second;
+    EnvPool needs the bench extra)."""
+    peer_steps: int = 20_000
+    """Timed agent-steps of each peer measurement (divided in quick mode)."""
     json: Path | None = None
     """Also write the results as JSON to this path."""
 
@@ -494,6 +500,18 @@ def main(config: BenchConfig) -> dict[str, Any]:
                 f"(on its own scene {own:.1f}x -> {'PASS' if own >= bar else 'FAIL'})"
             )
 
+    peers = None
+    if config.peers:
+        from bench.bench_highway_peers import PeersConfig
+        from bench.bench_highway_peers import main as peers_main
+
+        print()
+        print(
+            "highway-env's highway-fast-v0 scene: overtake/highway-fast-v0 against EnvPool's "
+            "HighwayFast-v0 and highway-env, agent-steps per second (the better of two rounds)"
+        )
+        peers = peers_main(PeersConfig(steps=config.timed(config.peer_steps)))
+
     report = {
         "timestamp_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "config": {
@@ -513,6 +531,7 @@ def main(config: BenchConfig) -> dict[str, Any]:
         "measurements": [row.as_dict() for row in rows],
         "ratios_sim_seconds_per_cpu_second": {f"{p} {a}": v for (p, a), v in ratios.items()},
         "bars": bars,
+        "highway_fast_peers": peers,
     }
     write_report(config.json, report)
     return report

@@ -18,10 +18,10 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numba import njit
 
 from overtake.protocol.vocabulary import KEEP, METRIC_FIELDS, WATCH_METRICS
 
+from .kernels import fill_metrics
 from .units import KMH
 from .validation import check, check_range
 
@@ -166,32 +166,6 @@ class EpisodeBook:
             self.decision_period_s, KMH, len(self.fields) > len(METRIC_FIELDS), table,
         )  # fmt: skip
         return table
-
-
-@njit(cache=True, nogil=True)
-def fill_metrics(
-    decisions, distance_m, lane_changes, overtakes, collisions, brakes, episode_return,
-    traffic_cars_sum, aborts, decision_period_s, kmh, watch, table,
-):  # fmt: skip
-    """The columns of :meth:`Episodes.metrics_table` in METRIC_FIELDS' order (then
-    WATCH_METRICS' where ``watch``): the average speed over the decisions' time and the
-    traffic per decision where a decision was taken (0 before), the counts as they are."""
-    arenas, agents = decisions.shape
-    for a in range(arenas):
-        for k in range(agents):
-            d = decisions[a, k]
-            row = table[a, k]
-            row[0] = distance_m[a, k] / (d * decision_period_s) / kmh if d > 0 else 0.0
-            row[1] = lane_changes[a, k]
-            row[2] = overtakes[a, k]
-            row[3] = collisions[a, k]
-            row[4] = brakes[a, k]
-            row[5] = distance_m[a, k]
-            row[6] = episode_return[a, k]
-            row[7] = d
-            row[8] = traffic_cars_sum[a, k] / d if d > 0 else 0.0
-            if watch:
-                row[9] = aborts[a, k]
 
 
 # The columns fill_metrics writes, in its order.

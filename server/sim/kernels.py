@@ -228,3 +228,55 @@ def unsafe_changes(
                 if gap < needed:
                     unsafe[a, i] = True
                     break
+
+
+@njit(cache=True, nogil=True)
+def track_passes(x, active, ahead, credited, every_pass, undo, stepped, gained, undone, passed):
+    """:meth:`.overtakes.OvertakeTracker.track` car by car, compiled: for each agent ``k`` and each
+    live car ``v`` (not itself), whether ``v`` went from ahead of it to behind it (an
+    overtake, counted where not credited already, or every time) or the other way (a pass
+    of the agent, taking back a credited overtake where ``undo``); ``ahead`` becomes now's."""
+    arenas, agents, cars = ahead.shape
+    for a in range(arenas):
+        if not stepped[a]:
+            continue
+        for k in range(agents):
+            for v in range(cars):
+                ahead_now = x[a, v] > x[a, k]
+                if active[a, v] and v != k:
+                    if ahead[a, k, v] and not ahead_now:
+                        if every_pass or not credited[a, k, v]:
+                            gained[a, k] += 1
+                        credited[a, k, v] = True
+                    elif not ahead[a, k, v] and ahead_now:
+                        passed[a, k] += 1
+                        if undo and credited[a, k, v]:
+                            undone[a, k] += 1
+                            credited[a, k, v] = False
+                ahead[a, k, v] = ahead_now
+
+
+@njit(cache=True, nogil=True)
+def fill_metrics(
+    decisions, distance_m, lane_changes, overtakes, collisions, brakes, episode_return,
+    traffic_cars_sum, aborts, decision_period_s, kmh, watch, table,
+):  # fmt: skip
+    """The columns of :meth:`.episodes.Episodes.metrics_table` in METRIC_FIELDS' order (then
+    WATCH_METRICS' where ``watch``): the average speed over the decisions' time and the
+    traffic per decision where a decision was taken (0 before), the counts as they are."""
+    arenas, agents = decisions.shape
+    for a in range(arenas):
+        for k in range(agents):
+            d = decisions[a, k]
+            row = table[a, k]
+            row[0] = distance_m[a, k] / (d * decision_period_s) / kmh if d > 0 else 0.0
+            row[1] = lane_changes[a, k]
+            row[2] = overtakes[a, k]
+            row[3] = collisions[a, k]
+            row[4] = brakes[a, k]
+            row[5] = distance_m[a, k]
+            row[6] = episode_return[a, k]
+            row[7] = d
+            row[8] = traffic_cars_sum[a, k] / d if d > 0 else 0.0
+            if watch:
+                row[9] = aborts[a, k]

@@ -12,8 +12,8 @@ appearance is never a pass.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from .kernels import track_passes
 from .state import SimState
 
 
@@ -58,29 +58,3 @@ class OvertakeTracker:
             self.undo_when_passed_back, stepped, gained, undone, passed,
         )  # fmt: skip
         return gained, undone, passed
-
-
-@njit(cache=True, nogil=True)
-def track_passes(x, active, ahead, credited, every_pass, undo, stepped, gained, undone, passed):
-    """:meth:`OvertakeTracker.track` car by car, compiled: for each agent ``k`` and each
-    live car ``v`` (not itself), whether ``v`` went from ahead of it to behind it (an
-    overtake, counted where not credited already, or every time) or the other way (a pass
-    of the agent, taking back a credited overtake where ``undo``); ``ahead`` becomes now's."""
-    arenas, agents, cars = ahead.shape
-    for a in range(arenas):
-        if not stepped[a]:
-            continue
-        for k in range(agents):
-            for v in range(cars):
-                ahead_now = x[a, v] > x[a, k]
-                if active[a, v] and v != k:
-                    if ahead[a, k, v] and not ahead_now:
-                        if every_pass or not credited[a, k, v]:
-                            gained[a, k] += 1
-                        credited[a, k, v] = True
-                    elif not ahead[a, k, v] and ahead_now:
-                        passed[a, k] += 1
-                        if undo and credited[a, k, v]:
-                            undone[a, k] += 1
-                            credited[a, k, v] = False
-                ahead[a, k, v] = ahead_now

@@ -9,13 +9,9 @@ highway-env's IDM and MOBIL whatever the traffic section says.
 
 from __future__ import annotations
 
-import functools
-import itertools
 import math
-from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING
 
-import numba
 import numpy as np
 
 from overtake.protocol.vocabulary import (
@@ -26,6 +22,7 @@ from overtake.protocol.vocabulary import (
 from ..decision import StepResult
 from ..state import SimState
 from ..validation import ConfigError
+from . import episode_kernels as ek
 from . import kernels as k
 
 if TYPE_CHECKING:
@@ -34,27 +31,6 @@ if TYPE_CHECKING:
 
 # The reward's terms, reported each step (envs/highway_env.py, _rewards).
 REWARD_TERMS = ("collision", "right_lane", "high_speed", "on_road")
-
-
-# Arenas in a block of the decision's threads: below twice this, one thread. Handing a block
-# to another thread takes the GIL in turns: at 64 arenas of highway-fast, two threads made
-# 48-54k agent-steps per wall-second against one's 47-48k, but cost a fifth more CPU (38-42k
-# per CPU-second); from 128 arenas they pay (256: 92k per wall-second against 66k).
-ARENAS_PER_THREAD_MIN = 64
-
-
-def arena_blocks(arenas: int) -> list[slice]:
-    """The arenas split into contiguous blocks, one per thread: numba's thread count
-    (``NUMBA_NUM_THREADS``, every core by default), at least :data:`ARENAS_PER_THREAD_MIN`
-    arenas each."""
-    threads = max(1, min(numba.get_num_threads(), arenas // ARENAS_PER_THREAD_MIN))
-    bounds = np.linspace(0, arenas, threads + 1).astype(int)
-    return [slice(int(lo), int(hi)) for lo, hi in itertools.pairwise(bounds)]
-
-
-@functools.cache
-def _thread_pool(workers: int) -> ThreadPoolExecutor:
-    return ThreadPoolExecutor(max_workers=workers, thread_name_prefix="overtake-decision")
 
 
 def kernel_parameters(config: SimConfig) -> np.ndarray:
@@ -135,7 +111,7 @@ class ScenePlacement:
         fresh = SimState.empty(len(rngs), self.agents, self.vehicles)
         low, high = scene.idm_delta_range
         for row, rng in enumerate(rngs):
-            k.place_cars(
+            ek.place_cars(
                 rng, row, self.order, self.agents, self.lanes, self.lane_width,
                 self.spacing_factor, scene.ego_initial_speed_mps, scene.ego_spacing,
                 1.0 / scene.vehicles_density, scene.speed_limit_mps, self.target_speeds,
@@ -195,7 +171,7 @@ class MetaActions:
 
     def mask(self, st: SimState) -> np.ndarray:
         mask = np.zeros(st.speed_index.shape + (LANE_RIGHT + 1,), dtype=np.int8)
-        k.available(st.target_lane, st.speed_index, self.lanes, self.top, mask)
+        ek.available(st.target_lane, st.speed_index, self.lanes, self.top, mask)
         return mask
 
 
@@ -242,14 +218,14 @@ class SceneDecision:
         # What the car does with each action: one the mask rules out does nothing (highway-env
         # clips the lane or the speed index), as keep does.
         applied = np.empty_like(actions)
-        k.applied_actions(self.actions.mask(st), actions, applied)
+        ek.applied_actions(self.actions.mask(st), actions, applied)
         started = np.zeros(actions.shape, dtype=bool)
-        blocks = arena_blocks(arenas)
+        blocks = k.arena_blocks(arenas)
         if len(blocks) == 1:
             self._play(st, actions, started, stepping, blocks[0])
         else:
             # The compiled decision lets go of the GIL: blocks of arenas on as many threads.
-            pool = _thread_pool(len(blocks) - 1)
+            pool = k.thread_pool(len(blocks) - 1)
             others = [
                 pool.submit(self._play, st, actions, started, stepping, b) for b in blocks[1:]
             ]
@@ -310,7 +286,7 @@ class SceneDecision:
         reward = np.empty(shape)
         terms = {name: np.empty(shape) for name in REWARD_TERMS}
         low, high = self.scene.reward_speed_range_mps
-        k.rewards(
+        ek.rewards(
             st.crashed, st.target_lane, st.lane, st.y_m, st.speed_mps, st.heading_rad,
             self.lanes, self.lane_width, low, high, self.weights, self.scene.normalize_reward,
             reward, terms["collision"], terms["right_lane"], terms["high_speed"],
