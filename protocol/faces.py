@@ -67,9 +67,10 @@ class Engine(Protocol):
 
 @runtime_checkable
 class Restorable(Protocol):
-    """An engine that can keep its arenas' whole state, as plain data, and put it back (a
-    ValueError, changing nothing, for another configuration or size): the rounds after a
-    restore are those that followed the snapshot, bit for bit (an exact resume)."""
+    """An engine that keeps its arenas' whole state as plain data and puts it back (another
+    configuration or size refused, nothing changed): then it plays on bit for bit as before."""
+
+    restorable: bool  # whether it can now (remote: a 1.8 server, arenas opened alone)
 
     def snapshot(self) -> dict[str, Any]: ...
 
@@ -454,12 +455,11 @@ class VectorFace(Faced, gym.vector.VectorEnv):
 
     @property
     def restorable(self) -> bool:
-        """Whether its arenas can be kept and put back (:class:`Restorable`: in process)."""
-        return all(isinstance(engine, Restorable) for engine in self.simulator.parts)
+        """Whether its arenas can be kept and put back (:class:`Restorable`)."""
+        return all(isinstance(e, Restorable) and e.restorable for e in self.simulator.parts)
 
     def snapshot(self) -> tuple[dict[str, Any], ...]:
-        """Every arena between steps, a snapshot per part, to :meth:`restore`: the steps
-        after it are those that followed, bit for bit."""
+        """Every arena between steps, a snapshot per part, for :meth:`restore`."""
         self._check_started()
         return tuple(engine.snapshot() for engine in self._restorable())
 
@@ -471,7 +471,7 @@ class VectorFace(Faced, gym.vector.VectorEnv):
 
     def _restorable(self) -> list[Restorable]:
         if not self.restorable:
-            raise TypeError("only an in-process simulator can snapshot its arenas")
+            raise TypeError("arenas are kept in process, or opened alone on a 1.8 server")
         return [engine for engine in self.simulator.parts if isinstance(engine, Restorable)]
 
     def _check_started(self) -> None:

@@ -11,6 +11,8 @@ Conversations (``T`` a trainer, ``S`` a server; queries are answered, puts are n
 - ``T -> S`` query :class:`OpenRequest` or :class:`JoinRequest`, reply :class:`Opened`.
 - ``T -> S`` query :class:`ResetRequest`, reply :class:`Steps`.
 - ``T -> S`` put :class:`Actions`; ``S -> T`` put :class:`Steps` when the group has stepped.
+- ``T -> S`` query :class:`SnapshotRequest`, reply :class:`GroupState`; query
+  :class:`RestoreRequest`, reply :class:`Steps` (1.8: an exact resume of a remote run).
 - ``T -> S`` query :class:`CloseRequest`, reply :class:`Ack`.
 - ``S -> anyone`` put :class:`WorldFrame` (spectators; dropped under congestion).
 - Any request may be answered with :class:`ErrorReply`; a bad :class:`Actions` put is
@@ -42,6 +44,7 @@ from .records import (
 )
 from .shm_messages import ShmArray, ShmOffer
 from .specs import BehaviourSpec, CarSpec, ObservationSpec, Reach, RoadSpec
+from .state_messages import GroupState, RestoreRequest, SnapshotRequest
 from .version import PROTOCOL_HISTORY, PROTOCOL_VERSION, TYPED_SPEC_SINCE_MINOR
 from .vocabulary import ACTION_COUNT, ACTION_NAMES
 
@@ -65,6 +68,7 @@ __all__ = [
     "CarSpec",
     "CloseRequest",
     "ErrorReply",
+    "GroupState",
     "GroupStatus",
     "JoinRequest",
     "Message",
@@ -74,10 +78,12 @@ __all__ = [
     "Part",
     "Reach",
     "ResetRequest",
+    "RestoreRequest",
     "RoadSpec",
     "Scalar",
     "ShmArray",
     "ShmOffer",
+    "SnapshotRequest",
     "StatusReply",
     "StatusRequest",
     "Steps",
@@ -449,6 +455,9 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
         Steps,
         Actions,
         CloseRequest,
+        SnapshotRequest,
+        GroupState,
+        RestoreRequest,
         Ack,
         ErrorReply,
         WorldFrame,

@@ -4,7 +4,7 @@ ignores, and an older peer's messages decode with those fields at their defaults
 
 from __future__ import annotations
 
-PROTOCOL_VERSION: tuple[int, int] = (1, 7)
+PROTOCOL_VERSION: tuple[int, int] = (1, 8)
 PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
     (
         "1.0",
@@ -65,6 +65,16 @@ PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
         "trainer declines a 1.6 offer (it has no layout), a 1.6 trainer refuses a 1.7 "
         "segment by its magic, and both keep to Steps over Zenoh.",
     ),
+    (
+        "1.8",
+        "A trainer alone in its group may keep the group's whole state between rounds "
+        "(SnapshotRequest, reply GroupState: opaque bytes) and put it back later, on this "
+        "server or another of the same configuration (RestoreRequest, reply Steps): a remote "
+        "run resumes exactly. A 1.7 server answers both with an error; a trainer reads "
+        "Opened.server_minor before asking.",
+    ),
 )
+# The minor version that keeps and restores a group's state (SnapshotRequest, RestoreRequest).
+GROUP_STATE_SINCE_MINOR = 8
 # The minor version whose spec carries the road, the car and the observations' facts.
 TYPED_SPEC_SINCE_MINOR = 5

@@ -12,11 +12,17 @@ now, not to the road.
 
 from __future__ import annotations
 
+import io
+import json
+import zipfile
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from overtake.protocol import errors
+from overtake.protocol.messages import GroupState, Steps
 
 from .sim.snapshot import SimSnapshot, SnapshotMismatch
 
@@ -58,6 +64,44 @@ class GroupSnapshot:
         # Spectators are shown the restored road, observed afresh.
         group.last_observations = None
 
+    def to_bytes(self) -> bytes:
+        """The snapshot as one ``.npz`` archive (arrays, and the generators' states and the
+        configuration as JSON text): what a remote trainer keeps (GroupState) and hands back."""
+        sim = self.sim.to_plain()
+        meta = {"config_json": sim["config_json"], "rng_states_json": sim["rng_states_json"]}
+        arrays = {f"sim.{name}": value for name, value in sim["arrays"].items()}
+        arrays.update({f"slot.{name}": value for name, value in self.slots.items()})
+        arrays["needs_reset"] = sim["needs_reset"]
+        arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)
+        out = io.BytesIO()
+        np.savez(out, **arrays)
+        return out.getvalue()
+
+    @classmethod
+    def from_bytes(cls, data: bytes) -> GroupSnapshot:
+        """Read :meth:`to_bytes`' archive (no pickles); anything else raises
+        :class:`~.sim.snapshot.SnapshotMismatch`."""
+        try:
+            with np.load(io.BytesIO(data), allow_pickle=False) as archive:
+                arrays = {name: archive[name] for name in archive.files}
+            meta = json.loads(arrays.pop("meta").tobytes().decode())
+            plain = {
+                "sim": {
+                    "config_json": meta["config_json"],
+                    "rng_states_json": meta["rng_states_json"],
+                    "needs_reset": arrays.pop("needs_reset"),
+                    "arrays": {
+                        k.removeprefix("sim."): v for k, v in arrays.items() if k.startswith("sim.")
+                    },
+                },
+                "slots": {
+                    k.removeprefix("slot."): v for k, v in arrays.items() if k.startswith("slot.")
+                },
+            }
+        except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile) as error:
+            raise SnapshotMismatch(f"not a group snapshot ({error!r})") from None
+        return cls.from_plain(plain)
+
     def to_plain(self) -> dict[str, Any]:
         return {"sim": self.sim.to_plain(), "slots": dict(self.slots)}
 
@@ -71,3 +115,38 @@ class GroupSnapshot:
             )
         except (KeyError, TypeError) as error:
             raise SnapshotMismatch(f"not a group snapshot ({error!r})") from None
+
+
+# --- what a trainer asks over the wire (protocol 1.8) ---------------------------------------------
+
+
+def keep_state(group: Group, trainer: str, ticket: bytes) -> GroupState:
+    """``group``'s whole state for ``trainer`` (alone in it, between rounds): SnapshotRequest."""
+    _alone_between_rounds(group, trainer, ticket, "keep")
+    return GroupState(group=group.group_id, state=GroupSnapshot.of(group).to_bytes())
+
+
+def restore_state(group: Group, trainer: str, ticket: bytes, state: bytes) -> Steps:
+    """Put back a state :func:`keep_state` gave (of a group of the same configuration and
+    size): RestoreRequest; returns ``trainer``'s Steps now."""
+    _alone_between_rounds(group, trainer, ticket, "restore")
+    try:
+        GroupSnapshot.from_bytes(state).restore_into(group)
+    except SnapshotMismatch as error:
+        raise errors.BadConfig(f"group {group.group_id} cannot take this state: {error}") from None
+    return group.current_steps(trainer)
+
+
+def _alone_between_rounds(group: Group, trainer: str, ticket: bytes, verb: str) -> None:
+    member = group.member(trainer, ticket)
+    if len(group.members) > 1 or not member.slots.all():
+        raise errors.NotOwner(
+            f"only a trainer that owns every car of group {group.group_id} may {verb} its "
+            f"state; {trainer!r} owns {member.count} of {member.slots.size} and "
+            f"{len(group.members) - 1} other trainer(s) are in it"
+        )
+    if member.pending is not None:
+        raise errors.BadAction(
+            f"group {group.group_id}: {trainer!r}'s actions for round {group.round} are "
+            f"waiting; {verb} its state between rounds (receive the round's Steps first)"
+        )

@@ -87,6 +87,8 @@ class LocalEngine:
             raise RuntimeError("no actions sent to receive Steps for")
         return steps
 
+    restorable = True  # the road lives here
+
     def snapshot(self) -> dict[str, Any]:
         """The arenas' whole state (:class:`~.group_snapshot.GroupSnapshot`) as plain data."""
         if self._steps is not None:

@@ -33,6 +33,8 @@ from overtake.protocol.messages import (
     Opened,
     OpenRequest,
     ResetRequest,
+    RestoreRequest,
+    SnapshotRequest,
     StatusReply,
     StatusRequest,
 )
@@ -42,6 +44,7 @@ from overtake.protocol.transport import (
 )
 
 from .arenas import ArenaRegistry, ready_to_step
+from .group_snapshot import keep_state, restore_state
 from .groups import Group
 from .inbox import (
     MAX_EVENTS_PER_PASS,
@@ -58,6 +61,11 @@ from .recorder import ServerRecorder
 from .server_config import ServerConfig
 
 log = logging.getLogger("overtake.server")
+# What a query may ask.
+_REQUESTS = (
+    StatusRequest, OpenRequest, JoinRequest, ResetRequest, SnapshotRequest, RestoreRequest,
+    CloseRequest,
+)  # fmt: skip
 
 # The weight of the latest round in the average time trainers take to answer one (_spin).
 ANSWER_AVERAGE_WEIGHT = 0.2
@@ -253,13 +261,11 @@ class SimulatorServer:
 
     def _on_query(self, query: zenoh.Query, payload: bytes) -> None:
         try:
-            request: Message = codec.decode(
-                payload, (StatusRequest, OpenRequest, JoinRequest, ResetRequest, CloseRequest)
-            )
+            request: Message = codec.decode(payload, _REQUESTS)
             if isinstance(request, ErrorReply):
                 raise errors.DecodeError(
-                    "expected a request (status_request, open, join, "
-                    "reset or close), got an error reply"
+                    "expected a request (status_request, open, join, reset, snapshot, "
+                    "restore or close), got an error reply"
                 )
             reply = self._dispatch(request)
         except errors.ProtocolError as error:
@@ -287,6 +293,11 @@ class SimulatorServer:
             return self.arenas.group(request.group).reset(
                 request.trainer, request.ticket, request.arenas, request.seeds
             )
+        if isinstance(request, SnapshotRequest):
+            return keep_state(self.arenas.group(request.group), request.trainer, request.ticket)
+        if isinstance(request, RestoreRequest):
+            group = self.arenas.group(request.group)
+            return restore_state(group, request.trainer, request.ticket, request.state)
         if isinstance(request, CloseRequest):
             group = self.arenas.group(request.group)
             group.member(request.trainer, request.ticket)

@@ -190,3 +190,25 @@ def test_the_replay_files_keep_a_checkpoints_window_through_the_writes_after_it(
         elif a is not None:
             np.testing.assert_array_equal(a, b)
     assert len(reopened) == state["held"] == 38
+
+
+@pytest.mark.timeout(240)
+def test_a_remote_run_stopped_and_resumed_ends_as_the_remote_run_never_stopped(
+    tmp_path, start_server
+):
+    """Over the wire (protocol 1.8): the checkpoint holds the server's kept state of the
+    arenas, the resumed run opens new arenas and has the server put that state into them."""
+    server = start_server("resume-remote")
+    # Half the in-process run's length (the wire makes each step dearer), the same stretches.
+    short = {"connect": server.endpoint, "total_steps": 300, "checkpoint_every": 100}
+    never = tmp_path / "never"
+    train(ddqn_run(never, **short))
+    run_dir = tmp_path / "run"
+    first = train(ddqn_run(run_dir, **short), stop=StopAfter(150))
+    assert first["stopped"] and first["steps"] < 300
+    resumed = train(ddqn_run(run_dir, resume=True, **short))
+    assert resumed["steps"] == 300 and resumed["resumed_at_step"] == first["steps"]
+    assert_same_weights(online_weights(run_dir), online_weights(never))
+    assert episodes(run_dir) == episodes(never)
+    life = json.loads((run_dir / "run-resume-1.json").read_text())["life"]
+    assert (life["replay_restored"], life["arenas_restored"]) == (True, True)

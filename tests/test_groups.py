@@ -8,6 +8,7 @@ import pytest
 from overtake.protocol import errors
 from overtake.protocol.messages import Actions
 from overtake.server.arenas import next_to_step
+from overtake.server.group_snapshot import keep_state, restore_state
 from overtake.server.groups import Group
 from overtake.server.sim import HighwaySim, make_config
 
@@ -334,3 +335,78 @@ def test_groups_of_equal_trainers_get_equal_shares_of_a_busy_server():
 
     before = sorted(_serve_on_virtual_time(every_ready_in_order, steps=120))
     assert before[2] >= 1.8 * before[1], before
+
+
+# --- a kept state (protocol 1.8) ----------------------------------------------------------------
+
+
+def _alone(preset: str = "min2018", seed: int = 1, arenas: int = 2) -> Group:
+    group = Group.open(0, "srv", list(range(arenas)), preset, dict(QUIET), 1, seed=seed)
+    for arena in range(arenas):
+        group.claim("a", arena, 1, fresh=True)
+    return group
+
+
+def _rounds(group: Group, actions: np.ndarray) -> list:
+    out = []
+    ticket = group.members["a"].ticket
+    agents = np.arange(group.shape[0] * group.shape[1], dtype=np.int32)
+    for row in actions:
+        group.accept(
+            Actions(trainer="a", ticket=ticket, group=0, round=group.round, agents=agents,
+                    actions=row.astype(np.int64)),
+            10.0,
+        )  # fmt: skip
+        out.append(group.step()["a"])
+    return out
+
+
+def test_a_kept_state_put_into_another_group_plays_the_rounds_that_followed_it():
+    actions = np.random.default_rng(4).integers(0, 5, (30, 2))
+    group = _alone()
+    _rounds(group, actions[:10])
+    kept = keep_state(group, "a", group.members["a"].ticket)
+    expected = _rounds(group, actions[10:])
+    other = _alone(seed=77)  # another road entirely
+    _rounds(other, actions[:3])
+    steps = restore_state(other, "a", other.members["a"].ticket, kept.state)
+    assert steps.reward.tolist() == [0.0, 0.0] and not steps.terminated.any()
+    for got, want in zip(_rounds(other, actions[10:]), expected, strict=True):
+        for name in want.observations:
+            np.testing.assert_array_equal(got.observations[name], want.observations[name])
+        np.testing.assert_array_equal(got.reward, want.reward)
+        np.testing.assert_array_equal(
+            got.terminated | got.truncated, want.terminated | want.truncated
+        )
+        np.testing.assert_array_equal(got.metrics, want.metrics)
+
+
+def test_a_state_is_kept_only_for_a_trainer_alone_between_rounds_and_put_only_where_it_fits():
+    group = _alone()
+    ticket = group.members["a"].ticket
+    kept = keep_state(group, "a", ticket)
+    with pytest.raises(errors.WrongTicket):
+        keep_state(group, "a", b"x" * 16)
+    # Actions waiting: not between rounds.
+    group.accept(
+        Actions(trainer="a", ticket=ticket, group=0, round=group.round,
+                agents=np.array([0], np.int32), actions=np.array([0], np.int64)),
+        10.0,
+    )  # fmt: skip
+    with pytest.raises(errors.BadAction, match="between rounds"):
+        keep_state(group, "a", ticket)
+    with pytest.raises(errors.BadAction, match="between rounds"):
+        restore_state(group, "a", ticket, kept.state)
+    # Another configuration, another size, or not a state at all: refused, nothing changed.
+    for other in (_alone("ho2018"), _alone(arenas=3)):
+        before = other.sim.snapshot().arrays["x_m"].copy()
+        with pytest.raises(errors.BadConfig, match="cannot take this state"):
+            restore_state(other, "a", other.members["a"].ticket, kept.state)
+        np.testing.assert_array_equal(other.sim.state.x_m, before)
+    fresh = _alone()
+    with pytest.raises(errors.BadConfig, match="not a group snapshot"):
+        restore_state(fresh, "a", fresh.members["a"].ticket, b"garbage")
+    # A shared group: another trainer's episodes would be rewound.
+    shared = _shared()
+    with pytest.raises(errors.NotOwner, match="owns every car"):
+        keep_state(shared, "a", shared.members["a"].ticket)

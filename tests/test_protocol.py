@@ -39,6 +39,7 @@ from overtake.protocol.messages import (
     CarSpec,
     CloseRequest,
     ErrorReply,
+    GroupState,
     GroupStatus,
     JoinRequest,
     Message,
@@ -48,9 +49,11 @@ from overtake.protocol.messages import (
     Part,
     Reach,
     ResetRequest,
+    RestoreRequest,
     RoadSpec,
     ShmArray,
     ShmOffer,
+    SnapshotRequest,
     StatusReply,
     StatusRequest,
     Steps,
@@ -322,6 +325,17 @@ MESSAGES = {
     Actions.TYPE: actions_messages(),
     CloseRequest.TYPE: st.builds(
         CloseRequest, trainer=names, ticket=st.binary(max_size=64), group=ints
+    ),
+    SnapshotRequest.TYPE: st.builds(
+        SnapshotRequest, trainer=names, ticket=st.binary(max_size=64), group=ints
+    ),
+    GroupState.TYPE: st.builds(GroupState, group=ints, state=st.binary(max_size=256)),
+    RestoreRequest.TYPE: st.builds(
+        RestoreRequest,
+        trainer=names,
+        ticket=st.binary(max_size=64),
+        group=ints,
+        state=st.binary(max_size=256),
     ),
     Ack.TYPE: st.builds(Ack, message=texts),
     ErrorReply.TYPE: st.builds(ErrorReply, code=texts, message=texts),

@@ -683,3 +683,49 @@ def test_a_group_that_fails_on_a_stepping_thread_closes_alone():
         server.stop()
         serving.join(10)
     assert not serving.is_alive()
+
+
+@pytest.mark.timeout(90)
+def test_a_remote_vector_env_kept_and_restored_steps_on_exactly(start_server):
+    """Protocol 1.8: the server keeps a group's state for the trainer alone in it, and puts it
+    into another group of the same configuration: the steps after are those that followed."""
+    server = start_server("e2e-keep")
+
+    def remote_env(preset: str = "min2018"):
+        return gym.make_vec(
+            REMOTE_HIGHWAY_ENV_ID,
+            num_envs=3,
+            vectorization_mode="vector_entry_point",
+            remote=remote_config(server.endpoint, server.name),
+            preset=preset,
+            overrides=SHORT,
+        )
+
+    rng = np.random.default_rng(8)
+    before, after = rng.integers(0, 5, (25, 3)), rng.integers(0, 5, (80, 3))
+    first, second, other = remote_env(), remote_env(), remote_env("ho2018")
+    local = HighwayVectorEnv(3, preset="min2018", overrides=SHORT)
+    try:
+        assert first.unwrapped.restorable and second.unwrapped.restorable
+        first.reset(seed=4)
+        for a in before:
+            first.step(a)
+        kept = first.unwrapped.snapshot()
+        expected = [first.step(a) for a in after]
+        second.reset(seed=123)  # another road entirely
+        second.unwrapped.restore(kept)
+        for step, a in enumerate(after):
+            assert_same(second.step(a), expected[step], f"step {step} after the restore")
+        assert any(e[2].any() or e[3].any() for e in expected)  # episodes ended in between
+        # Another configuration refuses it, changing nothing; an in-process snapshot is not a
+        # server's state.
+        other.reset(seed=1)
+        with pytest.raises(errors.BadConfig, match="cannot take this state"):
+            other.unwrapped.restore(kept)
+        other.step(np.zeros(3, dtype=np.int64))
+        local.reset(seed=1)
+        with pytest.raises(ValueError, match="server_state"):
+            second.unwrapped.restore(local.snapshot())
+    finally:
+        for env in (first, second, other, local):
+            env.close()

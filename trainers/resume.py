@@ -33,6 +33,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
+from overtake.protocol import errors
+
 from .checkpoint import save_checkpoint
 from .replay import FrameShapes, ReplayMemory, ReplayMismatch
 
@@ -192,7 +194,14 @@ def restore_episodes(run: TrainingRun, state: Mapping[str, Any] | None) -> bool:
     if episodes is None or not can_restore(run):
         return False
     episodes = loaded(episodes)
-    run.env.face.restore(episodes["arenas"])  # type: ignore[union-attr]
+    try:
+        run.env.face.restore(episodes["arenas"])  # type: ignore[union-attr]
+    except (errors.ProtocolError, ValueError) as error:
+        # A server of another configuration, or one that lost the group: new episodes.
+        logger.warning("the arenas' kept state was refused (%s): new episodes start", error)
+        if run.restored is not None:
+            run.restored["arenas"] = False
+        return False
     run.obs = {name: np.array(value) for name, value in episodes["obs"].items()}
     run.env_mask = np.array(episodes["env_mask"])
     run.mask = np.array(episodes["mask"])

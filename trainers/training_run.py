@@ -230,6 +230,8 @@ class TrainingRun:
         everyone = self.everyone = np.arange(self.config.num_envs)
         restoring = self.restored is not None and self.restored["arenas"]
         if not (restoring and resuming.restore_episodes(self, self.resume_state)):
+            if restoring:  # refused: restore_episodes noted it for the life record
+                self._write_run_record()
             obs, info = self.envs.reset(seed=self.env_seed)
             # Own, writable copies: parts write their rows into them as their Steps come back.
             self.obs = {k: np.array(v) for k, v in obs.items()}

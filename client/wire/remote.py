@@ -18,8 +18,9 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -30,12 +31,16 @@ from overtake.protocol.messages import (
     Actions,
     BehaviourSpec,
     CloseRequest,
+    GroupState,
     JoinRequest,
     Opened,
     OpenRequest,
     ResetRequest,
+    RestoreRequest,
+    SnapshotRequest,
     Steps,
 )
+from overtake.protocol.version import GROUP_STATE_SINCE_MINOR
 
 __all__ = ["ArenaGroup", "Connection", "RemoteConfig"]
 
@@ -158,6 +163,69 @@ class ArenaGroup:
         self.round = steps.round
         self.last = steps
         return steps
+
+    # --- a kept state (protocol 1.8): an exact resume of a remote run ------------------------
+
+    @property
+    def restorable(self) -> bool:
+        """Whether the server keeps this group's state for us: a 1.8 server, and arenas we
+        opened (alone in them; a joined arena is shared)."""
+        return self.server_minor >= GROUP_STATE_SINCE_MINOR and isinstance(
+            self.request, OpenRequest
+        )
+
+    def snapshot(self) -> dict[str, Any]:
+        """The group's whole state between rounds, kept by the server for us as bytes (in a
+        uint8 array, which a checkpoint stores): :meth:`restore` puts it back."""
+        self._check_keepable("keep")
+        kept = self.connection.request(
+            self.server,
+            SnapshotRequest(
+                trainer=self.connection.trainer, ticket=self.ticket, group=self.group_id
+            ),
+            GroupState,
+        )
+        return {"server_state": np.frombuffer(kept.state, dtype=np.uint8).copy()}
+
+    def restore(self, snapshot: Mapping[str, Any]) -> None:
+        """Put the group back as :meth:`snapshot` found it (this group or one opened the same
+        way, on this server or another): the rounds after are those that followed it. A
+        server refuses another configuration or size
+        (:class:`~overtake.protocol.errors.BadConfig`)."""
+        self._check_keepable("restore")
+        kept = snapshot.get("server_state")
+        if kept is None:
+            raise ValueError(
+                "not a remote group's state (no 'server_state'): an in-process snapshot "
+                "cannot be put on a server"
+            )
+        steps = self.connection.request(
+            self.server,
+            RestoreRequest(
+                trainer=self.connection.trainer,
+                ticket=self.ticket,
+                group=self.group_id,
+                state=np.asarray(kept, dtype=np.uint8).tobytes(),
+            ),
+            Steps,
+        )
+        self.connection.track(self.server, self.group_id)  # earlier rounds' Steps are stale
+        self._pending_restart = None
+        self.round = steps.round
+        self.last = steps
+
+    def _check_keepable(self, verb: str) -> None:
+        if self._in_flight:
+            raise RuntimeError(
+                f"group {self.group_id}: {verb} its state between rounds; receive the round "
+                "in flight first"
+            )
+        if not self.restorable:
+            raise TypeError(
+                f"group {self.group_id} on server {self.server} cannot {verb} its state: it "
+                f"needs a server of protocol 1.{GROUP_STATE_SINCE_MINOR} or later (this one is "
+                f"1.{self.server_minor}) and arenas this trainer opened (not joined)"
+            )
 
     def step(self, agents: np.ndarray, actions: np.ndarray, retire: Sequence[int] = ()) -> Steps:
         """Send our actions for this round and wait for the next round's Steps.

@@ -84,6 +84,20 @@ class SimSnapshot:
                     f"the snapshot's {field.name} is {have.dtype}{have.shape}, the simulator "
                     f"needs {want.dtype}{want.shape} (other counts of arenas, agents or cars)"
                 )
+        if self.needs_reset.shape != needs_reset.shape:
+            raise SnapshotMismatch(
+                f"the snapshot's needs_reset is {self.needs_reset.shape}, the simulator needs "
+                f"{needs_reset.shape}"
+            )
+        for rng, saved in zip(rngs, self.rng_states, strict=True):
+            # Tried on a fresh generator first: a damaged state is refused before anything
+            # is written.
+            try:
+                type(rng.bit_generator)().state = dict(saved)
+            except (TypeError, ValueError, KeyError) as error:
+                raise SnapshotMismatch(
+                    f"the snapshot's generator state is not one ({error})"
+                ) from None
         for field in dataclasses.fields(state):
             getattr(state, field.name)[...] = self.arrays[field.name]
         for rng, saved in zip(rngs, self.rng_states, strict=True):
