@@ -457,6 +457,8 @@ def arena_blocks(arenas: int) -> list[slice]:
     """The arenas split into contiguous blocks, one per thread: numba's thread count
     (``NUMBA_NUM_THREADS``, every core by default), at least :data:`ARENAS_PER_THREAD_MIN`
     arenas each."""
+    if arenas < 2 * ARENAS_PER_THREAD_MIN:
+        return [slice(0, arenas)]  # the common case, without numpy's costs
     threads = max(1, min(numba.get_num_threads(), arenas // ARENAS_PER_THREAD_MIN))
     bounds = np.linspace(0, arenas, threads + 1).astype(int)
     return [slice(int(lo), int(hi)) for lo, hi in itertools.pairwise(bounds)]
