@@ -41,6 +41,7 @@ class SizeBenchConfig:
 def world_frames(arenas: int, rounds: int) -> list[Any]:
     """The frames a server publishes for ``arenas`` arenas over ``rounds`` rounds."""
     from overtake.server.groups import Group
+    from overtake.server.world import group_world_frame
 
     group = Group.open(0, "bench", list(range(arenas)), "min2018", {}, 1, seed=0)
     sim = group.sim
@@ -53,7 +54,7 @@ def world_frames(arenas: int, rounds: int) -> list[Any]:
         group.round = round_ + 1
         group.trainer_step = round_ * arenas
         observations = sim.observe()
-        frames += [group.world_frame(arena, observations) for arena in range(arenas)]
+        frames += [group_world_frame(group, arena, observations) for arena in range(arenas)]
     return frames
 
 

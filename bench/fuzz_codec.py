@@ -63,6 +63,7 @@ def seed_messages(preset: str) -> list[bytes]:
         StatusRequest,
     )
     from overtake.server.groups import Group
+    from overtake.server.world import group_world_frame
 
     group = Group.open(7, "srv", [3, 4], preset, {}, 2, seed=1)
     group.claim("alice", 0, 2, fresh=True)
@@ -96,7 +97,7 @@ def seed_messages(preset: str) -> list[bytes]:
         deadline_s=1.0,
     )
     stepped = group.step()
-    world = group.world_frame(0, group.latest_observations())
+    world = group_world_frame(group, 0, group.latest_observations())
     messages = [
         StatusRequest(),
         StatusReply(

@@ -31,7 +31,6 @@ from overtake.protocol.messages import (
     GroupStatus,
     Scalar,
     Steps,
-    WorldFrame,
 )
 from overtake.protocol.vocabulary import (
     DEFAULT_ACTION,
@@ -39,7 +38,6 @@ from overtake.protocol.vocabulary import (
 
 from .sim import PRESETS, ConfigError, HighwaySim, SimConfig, autoreset_round, make_config
 from .spec import behaviour_spec
-from .world import world_frame
 
 
 def resolve_config(preset: str, overrides: Mapping[str, Scalar]) -> SimConfig:
@@ -292,7 +290,6 @@ class Group:
     def step(self) -> dict[str, Steps]:
         """Run one round; returns each member's :class:`Steps`."""
         self.last_stepped = next(_GROUP_STEPS)
-        sim = self.sim
         arenas, n = self.shape
         actions = np.full((arenas, n), DEFAULT_ACTION, dtype=np.int64)
         late = np.zeros((arenas, n), dtype=bool)
@@ -311,6 +308,27 @@ class Group:
                 left_out = member.slots.copy()
                 left_out.reshape(-1)[pending.agents] = False
                 late |= left_out
+        return self._play(actions, late)
+
+    def play_alone(self, agents: np.ndarray, actions: np.ndarray, retire: np.ndarray) -> Steps:
+        """:meth:`step`'s round for an in-process engine, owner of every car: its face checked
+        ``agents``' actions (the others keep their lane, late); no message, ticket, deadline."""
+        self.last_stepped = next(_GROUP_STEPS)
+        if retire.size:
+            self._retire(retire)
+        full = np.full(self.shape, DEFAULT_ACTION, dtype=np.int64)
+        full.reshape(-1)[agents] = actions
+        late = np.zeros(self.shape, dtype=bool)
+        if agents.size < late.size:
+            late[...] = True
+            late.reshape(-1)[agents] = False
+        (trainer,) = self.members
+        return self._play(full, late)[trainer]
+
+    def _play(self, actions: np.ndarray, late: np.ndarray) -> dict[str, Steps]:
+        """The round itself: every member's ``actions`` (A, N), whose are missing ``late``."""
+        sim = self.sim
+        arenas, n = self.shape
         if late.any():
             late &= ~self.ended & ~self.retired
             self.late_agents += int(late.sum())
@@ -478,20 +496,3 @@ class Group:
     def latest_observations(self) -> dict[str, np.ndarray]:
         """Every agent's observation of the last round (observed now before the first)."""
         return self.last_observations or self.sim.observe()
-
-    def world_frame(self, arena: int, observations: dict[str, np.ndarray]) -> WorldFrame:
-        """Arena ``arena`` (an index in the group) as spectators and recordings see it: the
-        simulator's snapshot of its road, with the agents' latest observations and rewards."""
-        return world_frame(
-            self.sim,
-            arena,
-            server=self.server,
-            group=self.group_id,
-            arena_id=self.arena_ids[arena],
-            round_=self.round,
-            observations={name: value[arena] for name, value in observations.items()},
-            reward=self.last_reward[arena],
-            action_applied=self.last_applied[arena],
-            reward_terms=self.last_terms[arena],
-            trainer_step=self.trainer_step,
-        )

@@ -17,19 +17,18 @@ from typing import Any
 import numpy as np
 
 from overtake.protocol.faces import Simulator
-from overtake.protocol.messages import Actions, Steps, WorldFrame
+from overtake.protocol.messages import Steps, WorldFrame
 
 from .group_snapshot import GroupSnapshot
 from .groups import Group
 from .sim import HighwaySim, SimConfig
 from .sim.planner import Planner
 from .sim.render import render_top_down
+from .world import group_world_frame
 
 IN_PROCESS = "in-process"
 """The server name in an in-process simulator's Steps and world frames."""
 _TRAINER = "in-process"
-# Rounds wait for nobody: the one member always sends before the group steps.
-_NO_DEADLINE_S = float("inf")
 
 
 class LocalEngine:
@@ -62,24 +61,14 @@ class LocalEngine:
     def send(self, agents: np.ndarray, actions: np.ndarray, retire: Sequence[int] = ()) -> None:
         if self._steps is not None:
             raise RuntimeError("actions sent twice for one round; receive its Steps first")
-        group = self.group
-        # Built from arrays the face checked: the message's own checks are skipped, the
-        # group's (ownership, ids in range) are not.
-        group.accept(
-            Actions.trusted(
-                trainer=_TRAINER,
-                ticket=self._ticket,
-                group=group.group_id,
-                round=group.round,
-                agents=np.asarray(agents, dtype=np.int32),
-                actions=np.asarray(actions, dtype=np.int64),
-                trainer_step=self.trainer_step,
-                retire=np.asarray(retire, dtype=np.int32) if len(retire) else None,
-                shm=False,
-            ),
-            _NO_DEADLINE_S,
+        # The face checked the actions; every car is ours: the round is played directly.
+        if self.trainer_step >= 0:  # what world frames repeat (Actions.trainer_step remotely)
+            self.group.trainer_step = self.trainer_step
+        self._steps = self.group.play_alone(
+            np.asarray(agents, dtype=np.int64),
+            np.asarray(actions, dtype=np.int64),
+            np.asarray(retire, dtype=np.int32),
         )
-        self._steps = group.step()[_TRAINER]
 
     def receive(self) -> Steps:
         steps, self._steps = self._steps, None
@@ -111,7 +100,7 @@ class LocalRoad:
 
     def world_frame(self, arena: int) -> WorldFrame:
         group = self._engine.group
-        return group.world_frame(arena, group.latest_observations())
+        return group_world_frame(group, arena, group.latest_observations())
 
     def picture(self, arena: int) -> np.ndarray:
         return render_top_down(self._engine.sim, arena=arena)

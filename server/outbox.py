@@ -22,6 +22,7 @@ from .channels import StepsChannel
 from .channels.shm_channel import ShmChannel
 from .channels.zenoh_channel import ZenohChannel, send_once
 from .groups import Group
+from .world import group_world_frame
 
 log = logging.getLogger(__name__)
 
@@ -169,7 +170,7 @@ class Outbox:
                 continue
             if observations is None:
                 observations = group.latest_observations()
-            pub.put(codec.encode(group.world_frame(index, observations)))
+            pub.put(codec.encode(group_world_frame(group, index, observations)))
 
     def forget_group(self, group: Group) -> None:
         """The group's arenas are freed: their world publishers and segments go."""

@@ -59,6 +59,7 @@ from .inbox import (
 from .outbox import Outbox
 from .recorder import ServerRecorder
 from .server_config import ServerConfig
+from .world import group_world_frame
 
 log = logging.getLogger("overtake.server")
 # What a query may ask.
@@ -468,7 +469,7 @@ class SimulatorServer:
                 if not self.recorder.has_room():
                     self.recorder.count_dropped(len(group.arena_ids) - index)
                     break
-                self.recorder.offer(group.world_frame(index, observations))
+                self.recorder.offer(group_world_frame(group, index, observations))
         except Exception:
             log.exception("could not record group %d's round %d", group.group_id, group.round)
 

@@ -4,12 +4,17 @@ send them to spectators; an in-process environment gives them to its trainer's r
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from overtake.protocol.messages import WorldFrame
 from overtake.protocol.vocabulary import AGENT_KIND
 
 from .sim import HighwaySim
+
+if TYPE_CHECKING:
+    from .groups import Group
 
 
 def world_frame(
@@ -55,4 +60,22 @@ def world_frame(
         half_length_m=world.half_length_m,
         half_width_m=world.half_width_m,
         agent_heading_rad=world.agent_heading_rad,
+    )
+
+
+def group_world_frame(group: Group, arena: int, observations: dict[str, np.ndarray]) -> WorldFrame:
+    """Arena ``arena`` (an index in ``group``) as spectators and recordings see it: the
+    simulator's snapshot of its road, with the agents' latest observations and rewards."""
+    return world_frame(
+        group.sim,
+        arena,
+        server=group.server,
+        group=group.group_id,
+        arena_id=group.arena_ids[arena],
+        round_=group.round,
+        observations={name: value[arena] for name, value in observations.items()},
+        reward=group.last_reward[arena],
+        action_applied=group.last_applied[arena],
+        reward_terms=group.last_terms[arena],
+        trainer_step=group.trainer_step,
     )
