@@ -131,6 +131,7 @@ class HighwaySim:
             self.actions = MetaActions(config, n)  # type: ignore[assignment]
             self.decision = SceneDecision(self)
             self.reward_names = REWARD_TERMS
+            self.keeps_warnings = False  # its reward reads none
         self.rngs = [np.random.default_rng() for _ in range(num_arenas)]
         self.state = SimState.empty(num_arenas, n, self.vehicles)
         self._needs_reset = np.ones(num_arenas, dtype=bool)
@@ -182,8 +183,10 @@ class HighwaySim:
         A removed car is invisible to sensors and other cars, cannot collide and anchors no
         traffic; its slot keeps stepping unseen until it is restored or respawned.
         """
-        self.state.active[arena, np.asarray(slots, dtype=np.int64)] = False
-        self.state_written([arena])
+        slots = np.asarray(slots, dtype=np.int64)
+        if slots.size:  # (a reset of an arena alone on its road removes none)
+            self.state.active[arena, slots] = False
+            self.state_written([arena])
 
     def restore_agents(self, arena: int, slots: list[int] | np.ndarray) -> None:
         """Put removed cars back where the arena's last reset placed them (right after it)."""
