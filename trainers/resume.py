@@ -121,8 +121,14 @@ def spare_slots(config: TrainConfig) -> int:
 def take(run: TrainingRun, replay_state: dict[str, Any] | None) -> dict[str, Any]:
     """The run's resume state now, between two iterations (``replay_state``: what the replay's
     :meth:`~.replay.ReplayMemory.mark` returned, None for a replay in memory only)."""
-    face = run.env.face
-    arenas = face.snapshot() if face is not None and can_restore(run) else None
+    face, arenas = run.env.face, None
+    # Between rounds only: where the loop learns while a round is in flight (--overlap), the
+    # arenas are not kept, and a resume starts new episodes.
+    if face is not None and can_restore(run) and not run.in_flight:
+        try:
+            arenas = face.snapshot()
+        except errors.ProtocolError as error:  # a server gone: the checkpoint goes on without
+            logger.warning("the arenas' state could not be kept (%s)", error)
     state: dict[str, Any] = {
         "replay": replay_state,
         "episodes": None,
@@ -130,7 +136,7 @@ def take(run: TrainingRun, replay_state: dict[str, Any] | None) -> dict[str, Any
         "episodes_done": run.episodes,
         "last_episode": dict(run.last_episode),
     }
-    if arenas is not None and not run.in_flight:
+    if arenas is not None:
         state["episodes"] = {
             "arenas": list(arenas),
             "obs": dict(run.obs),

@@ -178,6 +178,8 @@ class ArenaGroup:
         """The group's whole state between rounds, kept by the server for us as bytes (in a
         uint8 array, which a checkpoint stores): :meth:`restore` puts it back."""
         self._check_keepable("keep")
+        if self._server_restarted():
+            raise errors.ServerLost(f"server {self.server} restarted: group {self.group_id} gone")
         kept = self.connection.request(
             self.server,
             SnapshotRequest(
