@@ -106,7 +106,7 @@ class ScenePlacement:
 
     def reset_arenas(self, rngs: list[np.random.Generator]) -> SimState:
         """New episodes' states, one arena per generator, each drawn from its own
-        (:func:`.kernels.place_cars`, compiled)."""
+        (:func:`.episode_kernels.place_cars`, compiled)."""
         scene = self.scene
         fresh = SimState.empty(len(rngs), self.agents, self.vehicles)
         low, high = scene.idm_delta_range
