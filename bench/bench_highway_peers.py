@@ -40,20 +40,24 @@ class PeersConfig:
     out: Path | None = None
 
 
+def single_stepper(env: Any) -> Stepper:
+    """One environment, reset where its episode ends (a batch of 1)."""
+
+    def step(action: np.ndarray) -> Any:
+        _, _, terminated, truncated, _ = env.step(int(action[0]))
+        if terminated or truncated:
+            env.reset()
+
+    return (lambda: env.reset(seed=0)), step, 1
+
+
 def overtake_stepper(batch: int) -> Stepper:
     import gymnasium as gym
 
     import overtake.client  # noqa: F401
 
     if batch == 1:
-        env = gym.make("overtake/highway-fast-v0")
-
-        def step(action: np.ndarray) -> Any:
-            _, _, terminated, truncated, _ = env.step(int(action[0]))
-            if terminated or truncated:
-                env.reset()
-
-        return (lambda: env.reset(seed=0)), step, 1
+        return single_stepper(gym.make("overtake/highway-fast-v0"))
     envs = gym.make_vec("overtake/highway-fast-v0", num_envs=batch)
     return (lambda: envs.reset(seed=0)), envs.step, batch
 
@@ -70,14 +74,7 @@ def highway_env_stepper(batch: int) -> Stepper:
     import gymnasium as gym
     import highway_env  # noqa: F401
 
-    env = gym.make("highway-fast-v0")
-
-    def step(action: np.ndarray) -> Any:
-        _, _, terminated, truncated, _ = env.step(int(action[0]))
-        if terminated or truncated:
-            env.reset()
-
-    return (lambda: env.reset(seed=0)), step, 1
+    return single_stepper(gym.make("highway-fast-v0"))
 
 
 PEERS = {
