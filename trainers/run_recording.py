@@ -12,6 +12,7 @@ import numpy as np
 
 from overtake.protocol.messages import BehaviourSpec
 from overtake.viz.recording import Recording, RecordingConfig, close_recording
+from overtake.viz.training_layout import CAR_PICTURES
 from overtake.viz.world_view import WorldRecording
 
 from .env_parts import EnvParts
@@ -50,8 +51,10 @@ class RunRecording:
             if env.road is not None and spec is not None and spec.road is not None
             else None
         )
+        # The pictures the car has (an environment of the caller's: both panels, as ever).
+        pictures = CAR_PICTURES if spec is None else [p for p in CAR_PICTURES if spec.has(p)]
         recording, view = open_training_recording(
-            config, path, run_name, algo, _ego_fields(spec), env.recorded_arenas(), road
+            config, path, run_name, algo, _ego_fields(spec), env.recorded_arenas(), road, pictures
         )
         if recording is None or view is None:
             return None

@@ -24,7 +24,7 @@ with the default decimation the training loop loses nothing measurable (``bench/
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +32,7 @@ import numpy as np
 
 from overtake.viz.car_view import CarView
 from overtake.viz.recording import APPLICATION_ID, Recording, RecordingConfig, open_recording
-from overtake.viz.training_layout import training_blueprint
+from overtake.viz.training_layout import CAR_PICTURES, training_blueprint
 
 from .learner import ALGOS
 
@@ -123,16 +123,20 @@ def open_training_recording(
     ego_fields: Sequence[str],
     arenas: tuple[str, tuple[int, ...]] | None,
     road: tuple[str, float] | None = None,
+    pictures: Collection[str] = CAR_PICTURES,
 ) -> tuple[Recording | None, TrainingRecording | None]:
     """A training run's recording (to ``rrd`` with a file sink) and its view: coloured by
     algorithm (DQN, Double DQN and Dueling keep their colours in every recording that holds
     several runs), with the server's ``arenas`` environment 0 lies among (None in-process).
     No footer: a run may write for days, and the SDK would hold the footer's index in memory
     until the end (overtake.viz.recording, on footers; bench/recording_memory.py). ``road``:
-    an in-process run's road (its entity path and width, m), drawn above its car's view."""
-    recording = open_recording(
-        APPLICATION_ID, config, rrd, training_blueprint(run_name, road=road), footer=False
+    an in-process run's road (its entity path and width, m), drawn above its car's view;
+    ``pictures``: which of the camera and the LIDAR its car observes (the view shows those,
+    and the speed where the ego vector has it)."""
+    layout = training_blueprint(
+        run_name, road=road, pictures=pictures, show_speed="speed_mps" in ego_fields
     )
+    recording = open_recording(APPLICATION_ID, config, rrd, layout, footer=False)
     if recording is None:
         return None, None
     view = TrainingRecording(

@@ -7,10 +7,13 @@ Entity paths: ``training/episode/<metric>/<run>``, ``training/learning/<name>/<r
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from typing import Any
 
 from .road_window import ROAD_AHEAD_M, ROAD_BEHIND_M
+
+# What a car's view can show of its observations (car_view logs both where they are there).
+CAR_PICTURES = ("camera", "lidar")
 
 # Plots of the episodes and of learning, one per quantity (title, the series in it): a run
 # keeps its colour in every plot, so one plot holding two quantities could not tell them apart.
@@ -78,18 +81,26 @@ def car_layout(
     root: str | None = None,
     below: Sequence[Any] = (),
     show_q_values: bool = True,
+    pictures: Collection[str] = CAR_PICTURES,
+    show_speed: bool = True,
 ) -> Any:
     """What run ``run``'s first environment sees and does; with ``road`` (the entity path of
     its road and the road's width in metres: an in-process run's), the road from above on
     top, the way a spectator's recording shows a server's arenas. ``root``: the car's
     entities (default: the run's first environment's); ``below``: more views under the
     rest (an episode's events); ``show_q_values``: whether a network's Q-values are there to show
-    (not where a rule drove, or recorded actions are played without their network)."""
+    (not where a rule drove, or recorded actions are played without their network);
+    ``pictures``: which of the camera and the LIDAR the car has (no empty panel for one it
+    lacks); ``show_speed``: whether its speed is known (an ego vector with the speed)."""
     import rerun.blueprint as rrb
 
     car_root = root or f"/trainer/{run}/env0"
     plots = [
-        rrb.TimeSeriesView(origin=f"{car_root}/speed_kmh", name=f"{run}: speed (km/h)"),
+        *(
+            [rrb.TimeSeriesView(origin=f"{car_root}/speed_kmh", name=f"{run}: speed (km/h)")]
+            if show_speed
+            else []
+        ),
         *(
             [rrb.TimeSeriesView(origin=f"{car_root}/q", name=f"{run}: Q-values")]
             if show_q_values
@@ -110,15 +121,22 @@ def car_layout(
                 ),
             )
         )
+    seen = [
+        rrb.Spatial2DView(origin=f"{car_root}/{picture}", name=f"{run}: {title}")
+        for picture, title in (("camera", "camera"), ("lidar", "LIDAR (m, left up)"))
+        if picture in pictures
+    ]
+    pictures_row = [rrb.Horizontal(*seen)] if seen else []
     return rrb.Vertical(
         *road_view,
-        rrb.Horizontal(
-            rrb.Spatial2DView(origin=f"{car_root}/camera", name=f"{run}: camera"),
-            rrb.Spatial2DView(origin=f"{car_root}/lidar", name=f"{run}: LIDAR (m, left up)"),
-        ),
+        *pictures_row,
         *plots,
         *below,
-        row_shares=[*([2] * len(road_view)), 3, *([1] * (len(plots) + len(below)))],
+        row_shares=[
+            *([2] * len(road_view)),
+            *([3] * len(pictures_row)),
+            *([1] * (len(plots) + len(below))),
+        ],
         name=f"{run}: env 0",
     )
 
@@ -127,10 +145,12 @@ def training_blueprint(
     runs: str | Sequence[str],
     extra_tabs: Sequence[Any] = (),
     road: tuple[str, float] | None = None,
+    pictures: Collection[str] = CAR_PICTURES,
+    show_speed: bool = True,
 ) -> Any:
     """One run's layout, or several runs' side by side: the curves (every run in each plot),
-    then each run's car view, as tabs. ``extra_tabs`` (for example the road's) follow; ``road``:
-    one in-process run's road (:func:`car_layout`)."""
+    then each run's car view, as tabs. ``extra_tabs`` (for example the road's) follow; ``road``,
+    ``pictures``, ``show_speed``: one run's road and what its car has (:func:`car_layout`)."""
     import rerun.blueprint as rrb
 
     names = [runs] if isinstance(runs, str) else list(runs)
@@ -139,7 +159,7 @@ def training_blueprint(
             curves_layout(names),
             rrb.Horizontal(*(car_layout(run) for run in names), name="cars")
             if len(names) > 1
-            else car_layout(names[0], road),
+            else car_layout(names[0], road, pictures=pictures, show_speed=show_speed),
             *extra_tabs,
         ),
         rrb.TimePanel(timeline="step", state="collapsed"),
