@@ -134,26 +134,16 @@ class EpisodeBook:
         """Add one decision's events (A, N) to the episodes; returns which reached their
         decision limit (truncated). With ``rows``, the events are those arenas' (rows of the
         state), the others untouched."""
-        n = self.agents
-        if rows is None:
-            st.episode_return += reward
-            st.lane_changes += lane_changes
-            st.collisions += collided
-            st.overtakes += overtakes
-            st.emergency_brakes += emergency_brakes
-            st.traffic_cars_sum += st.active[:, n:].sum(axis=1, keepdims=True)
-            decisions, distance = st.agent_decisions, st.distance_m
-        else:
-            st.episode_return[rows] += reward
-            st.lane_changes[rows] += lane_changes
-            st.collisions[rows] += collided
-            st.overtakes[rows] += overtakes
-            st.emergency_brakes[rows] += emergency_brakes
-            st.traffic_cars_sum[rows] += st.active[rows, n:].sum(axis=1, keepdims=True)
-            decisions, distance = st.agent_decisions[rows], st.distance_m[rows]
-        limit = decisions >= self.max_decisions
+        n, where = self.agents, slice(None) if rows is None else rows
+        st.episode_return[where] += reward
+        st.lane_changes[where] += lane_changes
+        st.collisions[where] += collided
+        st.overtakes[where] += overtakes
+        st.emergency_brakes[where] += emergency_brakes
+        st.traffic_cars_sum[where] += st.active[where, n:].sum(axis=1, keepdims=True)
+        limit = st.agent_decisions[where] >= self.max_decisions
         if self.max_distance_m is not None:
-            limit |= distance >= self.max_distance_m
+            limit |= st.distance_m[where] >= self.max_distance_m
         return limit
 
     def metrics_table(self, st: SimState) -> np.ndarray:
