@@ -1,11 +1,11 @@
 """Who is where on the lanes: every arena's vehicles sorted by (arena, lane, position).
 
-The index answers the two questions car-following and lane changes ask, vectorised over every
-arena and vehicle, with no loop over either: the vehicle next ahead of each one in its lane
-(:func:`leaders`), and the vehicles just ahead and behind any position of any lane
-(:func:`neighbours_at`). Neighbours are found by sorting one key per (arena, lane, position)
-entry: a vehicle that is changing lanes has an entry in both lanes, so the cars in either lane
-react to it.
+The index answers the two questions car-following and lane changes ask, over every arena and
+vehicle at once: the vehicle next ahead of each one in its lane (:func:`leaders`), and the
+vehicles just ahead and behind any position of any lane (a binary search of the sorted keys, in
+MOBIL's compiled loop: :func:`.traffic.kernels.mobil_decide`). Neighbours are found by sorting
+one key per (arena, lane, position) entry: a vehicle that is changing lanes has an entry in
+both lanes, so the cars in either lane react to it.
 """
 
 from __future__ import annotations
@@ -99,23 +99,3 @@ def leaders(index: LaneIndex) -> tuple[np.ndarray, np.ndarray]:
     pos = index.entry_position
     return next_vehicle[pos], has_next[pos]
 
-
-def neighbours_at(
-    index: LaneIndex, arena: np.ndarray, lane: np.ndarray, x_rel: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """The vehicles just ahead and just behind position ``x_rel`` in ``lane`` of ``arena``.
-
-    Returns (ahead, behind) flat vehicle indices, -1 where there is none. Inputs broadcast.
-    """
-    group = arena * float(index.lanes_plus_one) + lane
-    query = group * KEY_SPAN + (x_rel + KEY_OFFSET)
-    size = index.sorted_keys.size
-    pos = np.searchsorted(index.sorted_keys, query, side="left")
-    ahead_pos = np.minimum(pos, size - 1)
-    behind_pos = np.maximum(pos - 1, 0)
-    ahead_ok = (pos < size) & (index.sorted_group[ahead_pos] == group)
-    behind_ok = (pos > 0) & (index.sorted_group[behind_pos] == group)
-    return (
-        np.where(ahead_ok, index.sorted_vehicle[ahead_pos], -1),
-        np.where(behind_ok, index.sorted_vehicle[behind_pos], -1),
-    )

@@ -4,7 +4,7 @@ Traffic follows its leader with an IDM of its behaviour's parameters; the agents
 control (:mod:`..assist`) keeps the IDM's distance-keeping term and replaces its free-road term
 with a speed controller towards the cruise target. The physics frame does this in one compiled
 loop (:func:`.kernels.follow_and_accelerate`), MOBIL the accelerations a lane change would
-bring in another (:func:`.kernels.mobil_accept`, with :func:`.kernels.idm`);
+bring in another (:func:`.kernels.mobil_decide`, with :func:`.kernels.idm`);
 :func:`idm_desired_gap` here is the spawner's, for the room a new car needs.
 """
 

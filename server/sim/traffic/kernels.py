@@ -135,18 +135,52 @@ def follow_and_accelerate(
             accel[a, v] = acc
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _neighbours(
+    sorted_keys: np.ndarray,
+    sorted_group: np.ndarray,
+    sorted_vehicle: np.ndarray,
+    group: float,
+    query: float,
+) -> tuple[int, int]:
+    """The vehicles just ahead of and just behind the key ``query`` in the lane ``group`` of a
+    lane index (:class:`..lane_index.LaneIndex`), -1 where there is none: the first entry at
+    or above the key (numpy's ``searchsorted(side="left")``), and the one before it."""
+    size = sorted_keys.size
+    lo, hi = 0, size
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if sorted_keys[mid] < query:
+            lo = mid + 1
+        else:
+            hi = mid
+    ahead = sorted_vehicle[lo] if lo < size and sorted_group[lo] == group else -1
+    behind = sorted_vehicle[lo - 1] if lo > 0 and sorted_group[lo - 1] == group else -1
+    return ahead, behind
+
+
 @njit(cache=True, nogil=True)
-def mobil_accept(
-    flat: np.ndarray,
-    new_lane_leader: np.ndarray,
-    new_lane_follower: np.ndarray,
-    old_lane_follower: np.ndarray,
+def mobil_decide(
+    decisions: np.ndarray,
+    is_candidate_kind: np.ndarray,
+    kind: np.ndarray,
+    active: np.ndarray,
+    lane: np.ndarray,
+    target_lane: np.ndarray,
+    change_progress: np.ndarray,
+    lane_count: int,
+    sorted_keys: np.ndarray,
+    sorted_group: np.ndarray,
+    sorted_vehicle: np.ndarray,
+    lanes_plus_one: int,
+    key_span: float,
+    key_offset: float,
     own_gap: np.ndarray,
     own_has_leader: np.ndarray,
     own_leader: np.ndarray,
     random_mover: np.ndarray,
-    politeness: np.ndarray,
-    threshold: np.ndarray,
+    politeness_of_kind: np.ndarray,
+    threshold_of_kind: np.ndarray,
     x: np.ndarray,
     speed: np.ndarray,
     desired_speed: np.ndarray,
@@ -159,80 +193,102 @@ def mobil_accept(
     safe_decel_mps2: float,
     no_gap_m: float,
     react_s: float,
-) -> np.ndarray:
-    """MOBIL's verdict for each candidate ``flat[i]`` (flat vehicle indices into the flattened
-    (A, V) arrays ``x`` .. ``half_length``): its new lane's leader and follower and its old
-    lane's follower (-1: none), its own gap, leader and whether it has one, whether it is a
-    random mover, and its behaviour's politeness and threshold. True where the change is safe
-    and worth it (or random and not braking hard).
+) -> None:
+    """Start the lane changes MOBIL accepts, in place (``target_lane``, ``change_progress``).
 
-    The arithmetic of :class:`.traffic.lane_changes.Mobil`, which gathers the neighbours."""
-    accept = np.zeros(flat.size, dtype=np.bool_)
-    for i in range(flat.size):
-        c = flat[i]
-        xc, vc, half = x[c], speed[c], half_length[c]
-        nl = new_lane_leader[i]
-        if nl >= 0:
-            gap_new = ((x[nl] - xc) - half_length[nl]) - half
-            closing_new = vc - speed[nl]
-        else:
-            gap_new = no_gap_m
-            closing_new = 0.0
-        accel_new = idm(
-            vc,
-            desired_speed[c],
-            gap_new,
-            closing_new,
-            headway[c],
-            min_gap[c],
-            max_accel[c],
-            two_sqrt_ab[c],
-        )
-        nf = new_lane_follower[i]
-        nf_gain = 0.0
-        gap_nf = no_gap_m
-        nf_brakes_hard = False
-        if nf >= 0:
-            gap_nf = ((xc - x[nf]) - half) - half_length[nf]
-            nf_accel_new = idm(
-                speed[nf],
-                desired_speed[nf],
-                gap_nf,
-                speed[nf] - vc,
-                headway[nf],
-                min_gap[nf],
-                max_accel[nf],
-                two_sqrt_ab[nf],
+    Every array but ``decisions`` (A,) and the per-kind tables is a flattened (A, V) one;
+    ``x`` is relative to each arena's first agent, as the lane index's keys are. A candidate
+    is an active car of a traffic kind (``is_candidate_kind``) not changing lanes, whose lane
+    on this decision's side (left on even decisions, right on odd ones) exists. Its new lane's
+    leader and follower and its old lane's follower come from the lane index; then the change
+    must be safe and worth it (or random and not braking hard): the arithmetic of
+    :class:`.traffic.lane_changes.Mobil`."""
+    arenas = decisions.size
+    vehicles = x.size // arenas if arenas else 0
+    for a in range(arenas):
+        direction = 1 if decisions[a] % 2 == 0 else -1
+        for v in range(vehicles):
+            c = a * vehicles + v
+            new_lane = lane[c] + direction
+            if not (
+                is_candidate_kind[kind[c]]
+                and active[c]
+                and target_lane[c] == lane[c]
+                and new_lane >= 0
+                and new_lane < lane_count
+            ):
+                continue
+            xc, vc, half = x[c], speed[c], half_length[c]
+            shifted = xc + key_offset
+            group_new = a * float(lanes_plus_one) + new_lane
+            nl, nf = _neighbours(
+                sorted_keys, sorted_group, sorted_vehicle, group_new, group_new * key_span + shifted
             )
-            nf_gain = nf_accel_new - accel[nf]
-            nf_brakes_hard = not (nf_accel_new >= -safe_decel_mps2)
-        of = old_lane_follower[i]
-        of_gain = 0.0
-        if of >= 0:
-            # The old follower would follow the old leader across the gap this car leaves.
-            left_gap = own_gap[i] + 2 * half if own_has_leader[i] else no_gap_m
-            of_gap_after = left_gap + (((xc - x[of]) - half) - half_length[of])
-            ol_speed = speed[own_leader[i]] if own_has_leader[i] else speed[of]
-            of_accel_after = idm(
-                speed[of],
-                desired_speed[of],
-                of_gap_after,
-                speed[of] - ol_speed,
-                headway[of],
-                min_gap[of],
-                max_accel[of],
-                two_sqrt_ab[of],
+            group_old = a * float(lanes_plus_one) + lane[c]
+            _, of = _neighbours(
+                sorted_keys, sorted_group, sorted_vehicle, group_old, group_old * key_span + shifted
             )
-            of_gain = of_accel_after - accel[of]
-        # The gaps must outlast ``react_s`` of closing in (Ho's followers react a frame later).
-        margin_new = min_gap[c] + max(closing_new, 0.0) * react_s
-        margin_nf = min_gap[c] + (max(speed[nf] - vc, 0.0) * react_s if nf >= 0 else 0.0)
-        safe = gap_new > margin_new and gap_nf > margin_nf and not nf_brakes_hard
-        incentive = (accel_new - accel[c]) + politeness[i] * (nf_gain + of_gain)
-        # A change for no reason must not make the mover itself brake hard either.
-        random = random_mover[i] and accel_new >= -safe_decel_mps2
-        accept[i] = safe and (incentive > threshold[i] or random)
-    return accept
+            if nl >= 0:
+                gap_new = ((x[nl] - xc) - half_length[nl]) - half
+                closing_new = vc - speed[nl]
+            else:
+                gap_new = no_gap_m
+                closing_new = 0.0
+            accel_new = idm(
+                vc,
+                desired_speed[c],
+                gap_new,
+                closing_new,
+                headway[c],
+                min_gap[c],
+                max_accel[c],
+                two_sqrt_ab[c],
+            )
+            nf_gain = 0.0
+            gap_nf = no_gap_m
+            nf_brakes_hard = False
+            if nf >= 0:
+                gap_nf = ((xc - x[nf]) - half) - half_length[nf]
+                nf_accel_new = idm(
+                    speed[nf],
+                    desired_speed[nf],
+                    gap_nf,
+                    speed[nf] - vc,
+                    headway[nf],
+                    min_gap[nf],
+                    max_accel[nf],
+                    two_sqrt_ab[nf],
+                )
+                nf_gain = nf_accel_new - accel[nf]
+                nf_brakes_hard = not (nf_accel_new >= -safe_decel_mps2)
+            of_gain = 0.0
+            if of >= 0:
+                # The old follower would follow the old leader across the gap this car leaves.
+                left_gap = own_gap[c] + 2 * half if own_has_leader[c] else no_gap_m
+                of_gap_after = left_gap + (((xc - x[of]) - half) - half_length[of])
+                ol_speed = speed[own_leader[c]] if own_has_leader[c] else speed[of]
+                of_accel_after = idm(
+                    speed[of],
+                    desired_speed[of],
+                    of_gap_after,
+                    speed[of] - ol_speed,
+                    headway[of],
+                    min_gap[of],
+                    max_accel[of],
+                    two_sqrt_ab[of],
+                )
+                of_gain = of_accel_after - accel[of]
+            # The gaps must outlast ``react_s`` of closing in (Ho's followers react a frame
+            # later).
+            margin_new = min_gap[c] + max(closing_new, 0.0) * react_s
+            margin_nf = min_gap[c] + (max(speed[nf] - vc, 0.0) * react_s if nf >= 0 else 0.0)
+            safe = gap_new > margin_new and gap_nf > margin_nf and not nf_brakes_hard
+            incentive = (accel_new - accel[c]) + politeness_of_kind[kind[c]] * (nf_gain + of_gain)
+            # A change for no reason must not make the mover itself brake hard either.
+            random = random_mover[c] and accel_new >= -safe_decel_mps2
+            if safe and (incentive > threshold_of_kind[kind[c]] or random):
+                target_lane[c] = new_lane
+                change_progress[c] = 0.0
 
 
 @njit(cache=True, nogil=True)

@@ -7,8 +7,8 @@ and when the new follower would not have to brake harder than ``traffic.safe_dec
 the gaps ahead and behind exceed the standstill gap after a frame of closing in).
 Traffic considers changing left on even decisions and right on odd ones: cars from both sides
 never start into the same gap at the same moment. Decisions are taken on the first frame of a
-decision, for every arena and car at once: the neighbours from the lane index in numpy, the
-accelerations and the verdict in a compiled loop (:func:`.kernels.mobil_accept`).
+decision, for every arena and car at once, in one compiled loop (:func:`.kernels.mobil_decide`):
+the neighbours from the lane index, the accelerations and the verdict.
 """
 
 from __future__ import annotations
@@ -17,7 +17,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..lane_index import NO_GAP_M, LaneIndex, neighbours_at
+from overtake.protocol.vocabulary import AGENT_KIND
+
+from ..lane_index import KEY_OFFSET, KEY_SPAN, NO_GAP_M, LaneIndex
 from . import kernels
 from .car_following import Following
 
@@ -42,6 +44,8 @@ class Mobil:
         # ... where they still are after the frame of closing in that passes before the cars
         # around see the change (a change is done within its frame there).
         self.react_s = frame_s if steps else 0.0
+        # Per kind: whether it is traffic's (agents decide their own lane changes).
+        self._traffic_kind = np.arange(kinds.politeness.size) < AGENT_KIND
 
     def decide(
         self,
@@ -60,48 +64,42 @@ class Mobil:
         ``random_movers`` (A, V) the cars that change lanes whatever their incentive, where
         the safety criterion allows (Min et al.'s random lane changes).
         """
-        direction = np.where(st.decisions % 2 == 0, 1, -1)
-        target = st.lane + direction[:, None]
-        candidate = (
-            p.is_traffic
-            & st.active
-            & (st.target_lane == st.lane)
-            & (target >= 0)
-            & (target < self.lane_count)
-        )
-        flat = np.flatnonzero(candidate)
-        if flat.size == 0:
-            return
-        vehicles = st.x_m.shape[1]
-        arena = flat // vehicles
-        xf = x_rel.reshape(-1)
-        new_lane = target.reshape(-1)[flat]
-        new_leader, new_follower = neighbours_at(index, arena, new_lane, xf[flat])
-        _, old_follower = neighbours_at(index, arena, st.lane.reshape(-1)[flat], xf[flat])
-        kind = st.kind.reshape(-1)[flat]
-        accept = kernels.mobil_accept(
-            flat,
-            new_leader,
-            new_follower,
-            old_follower,
-            following.gap_m.reshape(-1)[flat],
-            following.has_leader.reshape(-1)[flat],
-            following.leader.reshape(-1)[flat],
-            random_movers.reshape(-1)[flat],
-            self.kinds.politeness[kind],
-            self.kinds.threshold[kind],
-            np.ascontiguousarray(xf),
-            st.speed_mps.reshape(-1),
-            st.desired_speed_mps.reshape(-1),
-            accel.reshape(-1),
-            np.ascontiguousarray(p.headway.reshape(-1)),
-            np.ascontiguousarray(p.min_gap.reshape(-1)),
-            np.ascontiguousarray(p.max_accel.reshape(-1)),
-            np.ascontiguousarray(p.two_sqrt_ab.reshape(-1)),
-            np.ascontiguousarray(p.half_length.reshape(-1)),
+        # The state's arrays are C-ordered, so the flat views write through.
+        kernels.mobil_decide(
+            st.decisions,
+            self._traffic_kind,
+            _flat(st.kind),
+            _flat(st.active),
+            _flat(st.lane),
+            _flat(st.target_lane),
+            _flat(st.change_progress),
+            self.lane_count,
+            index.sorted_keys,
+            index.sorted_group,
+            index.sorted_vehicle,
+            index.lanes_plus_one,
+            KEY_SPAN,
+            KEY_OFFSET,
+            _flat(following.gap_m),
+            _flat(following.has_leader),
+            _flat(following.leader),
+            _flat(random_movers),
+            self.kinds.politeness,
+            self.kinds.threshold,
+            _flat(x_rel),
+            _flat(st.speed_mps),
+            _flat(st.desired_speed_mps),
+            _flat(accel),
+            _flat(p.headway),
+            _flat(p.min_gap),
+            _flat(p.max_accel),
+            _flat(p.two_sqrt_ab),
+            _flat(p.half_length),
             self.safe_decel_mps2,
             NO_GAP_M,
             self.react_s,
         )
-        st.target_lane.reshape(-1)[flat[accept]] = new_lane[accept]
-        st.change_progress.reshape(-1)[flat[accept]] = 0.0
+
+
+def _flat(value: np.ndarray) -> np.ndarray:
+    return value.reshape(-1)
