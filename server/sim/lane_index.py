@@ -98,4 +98,3 @@ def leaders(index: LaneIndex) -> tuple[np.ndarray, np.ndarray]:
     next_vehicle[-1:] = index.sorted_vehicle[:1]
     pos = index.entry_position
     return next_vehicle[pos], has_next[pos]
-
