@@ -5,8 +5,8 @@ where each ray meets the road: asphalt, lane markings (dashed between lanes, sol
 edges), shoulder and grass, sky above the horizon. Cars are boxes ``VEHICLE_HEIGHT_M`` tall,
 drawn as the screen rectangle that bounds their eight projected corners, so they grow as they
 come closer. All cars share one colour, so their union is all that is needed. Projections are
-numpy over all observers and cars; the per-pixel shading and filling are compiled loops
-(:mod:`..kernels`).
+numpy over all observers, the cars' projection and the per-pixel shading and filling compiled
+loops (:mod:`..kernels`).
 
 Image rows run top to bottom, columns left to right; (H, W) uint8 for grey, (H, W, 3) for RGB.
 """
@@ -21,7 +21,7 @@ import numpy as np
 from ..road import RoadConfig
 from ..validation import check, check_range
 from .base import ObserverViews, Scene, SensorConfig, SensorFacts, SensorSpace
-from .kernels import colour, paint_boxes, paint_ground
+from .kernels import colour, paint_cars, paint_ground
 
 if TYPE_CHECKING:
     from ..config import SimConfig
@@ -149,8 +149,8 @@ class Camera:
         self._corner_l = np.array([-1.0, 1.0, 1.0, -1.0])
         self._corner_w = np.array([-1.0, -1.0, 1.0, 1.0])
         # Height of a box's bottom and top corners relative to the camera.
-        drop = (np.array([0.0, VEHICLE_HEIGHT_M]) - camera.mount_height_m)[:, None, None, None]
-        self._drop_sin = drop * self._sin_p  # (2, 1, 1, 1)
+        drop = np.array([0.0, VEHICLE_HEIGHT_M]) - camera.mount_height_m
+        self._drop_sin = drop * self._sin_p  # (2,)
         self._drop_cos = drop * self._cos_p
 
     def _ground(
@@ -207,8 +207,6 @@ class Camera:
         their car, each seeing its ``car_visible`` cars. The views' x values are relative to a
         reference at ``road_x`` (O,) along the road, which places the dashes."""
         cam_x, cam_y, heading = views.origin_x, views.origin_y, views.heading
-        car_x, car_y, car_visible = views.car_x, views.car_y, views.car_visible
-        car_half_length, car_half_width = views.car_half_length, views.car_half_width
         mount = self.config.mount_forward_m
         cos_h = np.cos(heading)
         sin_h = np.sin(heading)
@@ -217,48 +215,29 @@ class Camera:
 
         surface = self._ground(eye_x, eye_y, cos_h, sin_h, road_x)
 
-        # Cars: the screen rectangle bounding each box's eight corners, arrays led by the
-        # corner axes (2 heights, 4 ground corners) so that bounds reduce over leading axes.
-        dx = car_x - eye_x[:, None]
-        dy = car_y - eye_y[:, None]
-        corner_dx = dx + self._corner_l[:, None, None] * car_half_length  # (4, O, V)
-        corner_dy = dy + self._corner_w[:, None, None] * car_half_width
-        rel_fwd = cos_h[:, None] * corner_dx + sin_h[:, None] * corner_dy
-        rel_left = cos_h[:, None] * corner_dy - sin_h[:, None] * corner_dx
-        cam_fwd = rel_fwd * self._cos_p - self._drop_sin  # (2, 4, O, V)
-        cam_up = rel_fwd * self._sin_p + self._drop_cos
-        inv_depth = self.focal_px / np.maximum(cam_fwd, NEAR_PLANE_M)
-        col = rel_left * inv_depth  # screen offsets left of and above the centre (px)
-        row = cam_up * inv_depth
-        seen = (
-            car_visible
-            & (cam_fwd.max(axis=(0, 1)) > NEAR_PLANE_M)
-            & (rel_fwd.min(axis=0) < self.config.max_distance_m)
+        # Cars: the screen rectangle bounding each box's eight corners, painted over the
+        # ground, car by car in one compiled loop.
+        paint_cars(
+            surface,
+            eye_x,
+            eye_y,
+            cos_h,
+            sin_h,
+            views.car_x,
+            views.car_y,
+            views.car_half_length,
+            views.car_half_width,
+            views.car_visible,
+            self._corner_l,
+            self._corner_w,
+            self._cos_p,
+            self._sin_p,
+            self._drop_sin,
+            self._drop_cos,
+            self.focal_px,
+            NEAR_PLANE_M,
+            self.config.max_distance_m,
+            self._stage_value[CAR],
         )
-        # Only the cars some observer sees take part: compacted to the front (K <= V).
-        observers, vehicles = seen.shape
-        seen_count = int(seen.sum(axis=1).max()) if seen.size else 0
-        if seen_count == 0:
-            return colour(surface, self._rgb_palette) if self.config.rgb else surface
-        order = np.argsort(~seen, axis=1, kind="stable")[:, :seen_count]
-        pick = (order + np.arange(observers)[:, None] * vehicles).reshape(-1)
-
-        def bounds(offsets: np.ndarray, half_size: float) -> tuple[np.ndarray, np.ndarray]:
-            # Pixel p covers [p, p + 1); the first and last pixel centres inside the span,
-            # and a sliver narrower than a pixel still covers one.
-            lo = (half_size - offsets.max(axis=(0, 1))).reshape(-1)[pick]
-            hi = (half_size - offsets.min(axis=(0, 1))).reshape(-1)[pick]
-            first, last = np.ceil(lo - 0.5), np.floor(hi - 0.5)
-            sliver = last < first
-            middle = np.floor(0.5 * (lo + hi))
-            shape = (observers, seen_count)
-            return np.where(sliver, middle, first).reshape(shape), np.where(
-                sliver, middle, last
-            ).reshape(shape)
-
-        col_lo, col_hi = bounds(col, self.width / 2.0)
-        row_lo, row_hi = bounds(row, self.height / 2.0)
-        shown = seen.reshape(-1)[pick].reshape(observers, seen_count)
         image = surface
-        paint_boxes(image, shown, row_lo, row_hi, col_lo, col_hi, self._stage_value[CAR])
         return colour(image, self._rgb_palette) if self.config.rgb else image

@@ -147,28 +147,90 @@ def paint_ground(
                     out[c] = grass
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _pixel_span(lo: float, hi: float) -> tuple[float, float]:
+    """The first and last pixel centres inside the span [lo, hi] of screen offsets (pixel p
+    covers [p, p + 1)); a sliver narrower than a pixel still covers one."""
+    first, last = np.ceil(lo - 0.5), np.floor(hi - 0.5)
+    if last < first:
+        middle = np.floor(0.5 * (lo + hi))
+        return middle, middle
+    return first, last
+
+
 @njit(cache=True, nogil=True)
-def paint_boxes(
+def paint_cars(
     image: np.ndarray,
-    shown: np.ndarray,
-    row_lo: np.ndarray,
-    row_hi: np.ndarray,
-    col_lo: np.ndarray,
-    col_hi: np.ndarray,
+    eye_x: np.ndarray,
+    eye_y: np.ndarray,
+    cos_h: np.ndarray,
+    sin_h: np.ndarray,
+    car_x: np.ndarray,
+    car_y: np.ndarray,
+    car_half_length: np.ndarray,
+    car_half_width: np.ndarray,
+    car_visible: np.ndarray,
+    corner_l: np.ndarray,
+    corner_w: np.ndarray,
+    cos_p: float,
+    sin_p: float,
+    drop_sin: np.ndarray,
+    drop_cos: np.ndarray,
+    focal_px: float,
+    near_m: float,
+    max_distance_m: float,
     value: np.uint8,
 ) -> None:
-    """Fill each shown (O, K) car's screen rectangle, inclusive pixel bounds (float, whole
-    numbers, possibly off screen), with ``value`` in ``image`` (O, H, W) uint8."""
-    observers, cars = shown.shape
+    """Paint every car some observer sees into its image (O, H, W) uint8, in place: the
+    screen rectangle bounding the box's eight corners (four ground corners ``corner_l`` x
+    ``corner_w`` half sizes, at the heights whose drops below the camera ``drop_sin`` /
+    ``drop_cos`` (2,) give, pitched by ``cos_p`` / ``sin_p``), seen where it is visible, some
+    corner is beyond the near plane and the nearest is within ``max_distance_m``.
+
+    ``eye_*``, ``cos_h``, ``sin_h`` (O,) the camera of each observer; ``car_*`` (O, V). The
+    arithmetic of :meth:`..camera.Camera.render`, car by car."""
+    observers, vehicles = car_x.shape
     height, width = image.shape[1], image.shape[2]
+    half_h, half_w = height / 2.0, width / 2.0
     for o in range(observers):
-        for k in range(cars):
-            if not shown[o, k]:
+        ex, ey, ch, sh = eye_x[o], eye_y[o], cos_h[o], sin_h[o]
+        for v in range(vehicles):
+            if not car_visible[o, v]:
                 continue
-            r0 = max(row_lo[o, k], 0.0)
-            r1 = min(row_hi[o, k], height - 1.0)
-            c0 = max(col_lo[o, k], 0.0)
-            c1 = min(col_hi[o, k], width - 1.0)
+            dx = car_x[o, v] - ex
+            dy = car_y[o, v] - ey
+            hl, hw = car_half_length[o, v], car_half_width[o, v]
+            fwd_max = -np.inf
+            fwd_min = np.inf
+            col_max = -np.inf
+            col_min = np.inf
+            row_max = -np.inf
+            row_min = np.inf
+            for k in range(4):
+                cdx = dx + corner_l[k] * hl
+                cdy = dy + corner_w[k] * hw
+                rel_fwd = ch * cdx + sh * cdy
+                rel_left = ch * cdy - sh * cdx
+                fwd_min = min(fwd_min, rel_fwd)
+                for h in range(2):
+                    cam_fwd = rel_fwd * cos_p - drop_sin[h]
+                    cam_up = rel_fwd * sin_p + drop_cos[h]
+                    fwd_max = max(fwd_max, cam_fwd)
+                    inv_depth = focal_px / max(cam_fwd, near_m)
+                    col = rel_left * inv_depth
+                    row = cam_up * inv_depth
+                    col_max = max(col_max, col)
+                    col_min = min(col_min, col)
+                    row_max = max(row_max, row)
+                    row_min = min(row_min, row)
+            if not (fwd_max > near_m and fwd_min < max_distance_m):
+                continue
+            c_lo, c_hi = _pixel_span(half_w - col_max, half_w - col_min)
+            r_lo, r_hi = _pixel_span(half_h - row_max, half_h - row_min)
+            r0 = max(r_lo, 0.0)
+            r1 = min(r_hi, height - 1.0)
+            c0 = max(c_lo, 0.0)
+            c1 = min(c_hi, width - 1.0)
             if r0 > r1 or c0 > c1:
                 continue
             for r in range(int(r0), int(r1) + 1):
