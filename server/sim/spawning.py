@@ -4,12 +4,14 @@
   initial cruise speed, and traffic is spread over the kept window around them with a minimum
   spacing per lane; cars that would crowd an agent wait to spawn later.
 - Each decision traffic that fell out of every agent's range (``traffic.keep_ahead_m`` /
-  ``keep_behind_m``) is recycled: a car left behind comes back ahead, in the spawn window
-  ``traffic.spawn_ahead_m`` (the authors' code's 30-90 m), and one left ahead comes back
-  behind (``spawn_behind_m``, 30-60 m), so episodes can run indefinitely. A spot is taken only
-  if it keeps IDM-comfortable gaps to everyone in its lane; when the window has none, the rest
-  of the kept range on that side is tried, and a slot that still finds none tries again the
-  next decision: the road holds the density it is labelled with.
+  ``keep_behind_m``) is recycled, so episodes can run indefinitely: it comes back ahead of a
+  drawn agent, in the spawn window ``traffic.spawn_ahead_m`` (the authors' code's 30-90 m),
+  or behind it (``spawn_behind_m``, 30-60 m), the side drawn evenly (the numpy code before
+  issue 58 meant a car left behind to come back ahead and one left ahead behind, but in
+  effect drew every side; the kept tables ran so, and the compiled loop keeps it). A spot is
+  taken only if it keeps IDM-comfortable gaps to everyone in its lane; when the window has
+  none, the rest of the kept range on that side is tried, and a slot that still finds none
+  tries again the next decision: the road holds the density it is labelled with.
 - Under ``traffic.entry = "free_zone"`` (Ho's code) the road starts with the agents alone, a
   car out of range leaves it, and new cars enter by his rule instead (:mod:`.entry`).
 - An agent joining or restarting on a shared road is placed behind the agents still on it, at
@@ -30,6 +32,7 @@ from .entry import FreeZoneEntry
 from .overtakes import OvertakeTracker
 from .randomness import SPAWN_CANDIDATES, U_ANCHOR, U_BEHAVIOUR, U_LANE, U_OFFSET, U_SIDE, U_SPEED
 from .road import Road
+from .spawning_kernels import kept_in_range, respawn
 from .state import SimState
 from .traffic.car_following import idm_desired_gap
 from .units import KMH
@@ -74,6 +77,7 @@ class Spawner:
 
         self._ahead_windows = windows(traffic.spawn_ahead_m, traffic.keep_ahead_m)
         self._behind_windows = windows(traffic.spawn_behind_m, traffic.keep_behind_m)
+        self._lane_centre_y = road.centre_y(np.arange(road.lane_count))
         self.entry = (
             FreeZoneEntry(traffic, kinds, road, agents, config.episode.frames_per_decision, tracker)
             if traffic.entry == "free_zone"
@@ -177,118 +181,30 @@ class Spawner:
 
     def recycle(self, st: SimState, uniforms: np.ndarray) -> None:
         """Respawn traffic that is out of every agent's range, and fill empty slots (or, with
-        ``traffic.entry = "free_zone"``, take it off the road and let new cars enter)."""
+        ``traffic.entry = "free_zone"``, take it off the road and let new cars enter): one
+        compiled loop (:func:`.spawning_kernels.respawn`)."""
         cfg = self.traffic
-        n, lanes = self.agents, self.road.lane_count
+        n = self.agents
         arenas, vehicles = st.x_m.shape
         if vehicles == n:
             return
-        dx = st.x_m[:, None, n:] - st.x_m[:, :n, None]  # (A, N, T) traffic relative to agents
-        # Agents off the road (a shared arena's free slots) anchor nothing, unless none is on.
-        present = st.active[:, :n]
-        anchors = (present | ~present.any(axis=1, keepdims=True))[:, :, None]
-        kept = ((dx <= cfg.keep_ahead_m) & (dx >= -cfg.keep_behind_m) & anchors).any(axis=1)
         if self.entry is not None:
+            kept = np.empty((arenas, vehicles - n), dtype=bool)
+            kept_in_range(st.x_m, st.active, n, cfg.keep_ahead_m, cfg.keep_behind_m, kept)
             st.active[:, n:] &= kept
             self.entry.enter(st, uniforms)
             return
-        was_active = st.active[:, n:]
-        # Out-of-range cars move at once; empty slots (no free spot found yet) try again every
-        # decision, so that the road holds its density.
-        need = (was_active & ~kept) | ~was_active
-        arena, tcol = np.nonzero(need)
-        if arena.size == 0:
-            return
-        col = tcol + n
-        st.active[arena, col] = False
-        u = uniforms[arena, col]
-        # A car that fell behind every agent comes back ahead, and one left ahead comes back
-        # behind; an empty slot picks a side at random.
-        fell_behind = ((dx[arena, :, tcol] < 0.0) | ~anchors[arena, :, 0]).all(axis=1)
-        ahead_side = np.where(was_active[arena, tcol], fell_behind, u[:, U_SIDE] < 0.5)
-        anchor = np.minimum((u[:, U_ANCHOR] * n).astype(np.int64), n - 1)
-        anchor = np.where(
-            anchors[arena, anchor, 0], anchor, np.argmax(anchors[arena, :, 0], axis=1)
-        )
-        lane = np.minimum(
-            (u[:, U_LANE : U_LANE + SPAWN_CANDIDATES] * lanes).astype(np.int64), lanes - 1
-        )
-        # The spawn window, then, for the later half of the candidates, all of the kept range
-        # beyond its near edge: a full window must not leave the road short of cars.
-        window = np.where(ahead_side[:, None, None], self._ahead_windows, self._behind_windows)
-        distance = window[:, 0] + u[:, U_OFFSET : U_OFFSET + SPAWN_CANDIDATES] * (
-            window[:, 1] - window[:, 0]
-        )
-        x = st.x_m[arena, anchor][:, None] + np.where(ahead_side[:, None], distance, -distance)
-        kind = self.kinds.behaviour_of(u[:, U_BEHAVIOUR])
-        desired = self.kinds.desired_speed(kind, u[:, U_SPEED])
-        shape = lane.shape
-        speed = np.broadcast_to(desired[:, None], shape)
-        if cfg.enter_at_leader_speed:
-            speed = self.entry_speeds(st, arena, lane, x, speed, st.active[arena])
-        ok = self.clearance_ok(
-            st,
-            arena,
-            lane,
-            x,
-            speed,
-            np.broadcast_to(kind[:, None], shape),
-            st.active[arena],
-        )
-        found = np.asarray(ok.any(axis=1))
-        pick = np.argmax(ok, axis=1)
-        picked = (np.arange(arena.size), pick)
-        pick_lane, pick_x, pick_speed = lane[picked], x[picked], speed[picked]
-        # Two spawns of this decision may not land on each other: the later one waits.
-        same_place = (
-            (arena[:, None] == arena[None, :])
-            & (pick_lane[:, None] == pick_lane[None, :])
-            & (np.abs(pick_x[:, None] - pick_x[None, :]) < SPAWN_SEPARATION_M)
-            & found[:, None]
-            & found[None, :]
-        )
-        found &= ~np.tril(same_place, k=-1).any(axis=1)
-        a, c = arena[found], col[found]
-        st.x_m[a, c] = pick_x[found]
-        st.lane[a, c] = pick_lane[found]
-        st.target_lane[a, c] = pick_lane[found]
-        st.change_progress[a, c] = 0.0
-        st.y_m[a, c] = self.road.centre_y(pick_lane[found])
-        st.speed_mps[a, c] = pick_speed[found]
-        st.desired_speed_mps[a, c] = desired[found]
-        st.own_speed_mps[a, c] = desired[found]
-        st.accel_mps2[a, c] = 0.0
-        st.kind[a, c] = kind[found]
-        st.active[a, c] = True
         spawned = np.zeros((arenas, vehicles), dtype=bool)
-        spawned[a, c] = True
-        self.tracker.start(st, spawned)
-
-    def entry_speeds(
-        self,
-        st: SimState,
-        arena: np.ndarray,
-        lane: np.ndarray,
-        x: np.ndarray,
-        speed: np.ndarray,
-        others: np.ndarray,
-    ) -> np.ndarray:
-        """(K, M) the candidates' speeds, each lowered to its leader's where that is slower
-        (``traffic.enter_at_leader_speed``): a car arrives in the traffic it meets.
-
-        ``arena`` (K,) rows of ``st``; lane, x, speed (K, M) the candidates; ``others`` (K, V)
-        the vehicles that can lead them.
-        """
-        o_x = st.x_m[arena][:, None, :]
-        in_lane = (
-            (st.lane[arena][:, None, :] == lane[..., None])
-            | (st.target_lane[arena][:, None, :] == lane[..., None])
-        ) & others[:, None, :]
-        ahead = np.where(in_lane & (o_x >= x[..., None]), o_x - x[..., None], np.inf)
-        leader = np.argmin(ahead, axis=-1)
-        has_leader = np.isfinite(np.take_along_axis(ahead, leader[..., None], axis=-1)[..., 0])
-        leader_speed = st.speed_mps[arena[:, None], leader]
-        return np.where(has_leader, np.minimum(speed, leader_speed), speed)
+        k = self.kinds
+        if respawn(
+            st.x_m, st.lane, st.target_lane, st.change_progress, st.y_m, st.speed_mps,
+            st.desired_speed_mps, st.own_speed_mps, st.accel_mps2, st.kind, st.active, n,
+            cfg.keep_ahead_m, cfg.keep_behind_m, uniforms, U_SIDE, U_ANCHOR, U_LANE, U_OFFSET,
+            U_BEHAVIOUR, U_SPEED, self._ahead_windows, self._behind_windows, self._lane_centre_y,
+            k.behaviour_cdf, k.speed_lo, k.speed_hi, k.half_length, k.headway, k.min_gap,
+            k.two_sqrt_ab, cfg.enter_at_leader_speed, SPAWN_SEPARATION_M, spawned,
+        ):  # fmt: skip
+            self.tracker.start(st, spawned)
 
     def clearance_ok(
         self,
