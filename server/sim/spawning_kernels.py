@@ -141,7 +141,7 @@ def respawn(
             # back behind; but it read that from a view of ``active`` it had just cleared, so
             # every side was drawn. The kept tables were made so; this keeps it.)
             ahead_side = u[u_side] < 0.5
-            anchor = min(np.int64(u[u_anchor] * agents), agents - 1)
+            anchor = min(int(u[u_anchor] * agents), agents - 1)
             if not (active[a, anchor] or not any_present):
                 anchor = first_anchor
             windows = ahead_windows if ahead_side else behind_windows
@@ -154,7 +154,7 @@ def respawn(
             new_kind[t] = k
             new_desired[t] = desired
             for m in range(candidates):
-                c_lane = min(np.int64(u[u_lane + m] * lanes), lanes - 1)
+                c_lane = min(int(u[u_lane + m] * lanes), lanes - 1)
                 distance = windows[0, m] + u[u_offset + m] * (windows[1, m] - windows[0, m])
                 c_x = x[a, anchor] + (distance if ahead_side else -distance)
                 c_speed = desired
