@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .entry_kernels import enter_free_zones
 from .randomness import U_BEHAVIOUR, U_OFFSET, U_SPEED, UNIFORMS_PER_VEHICLE
 from .units import KMH
 
@@ -39,7 +40,7 @@ MAX_ENTRY_TRIES = UNIFORMS_PER_VEHICLE // TRY_DRAWS
 
 
 class FreeZoneEntry:
-    """Ho's entry rule for every arena at once."""
+    """Ho's entry rule for every arena at once, in one compiled loop (:mod:`.entry_kernels`)."""
 
     def __init__(
         self,
@@ -63,60 +64,18 @@ class FreeZoneEntry:
         self.speed_mps = (
             np.array([traffic.entry_speed_ahead_kmh, traffic.entry_speed_behind_kmh]) * KMH
         )
-        self._lanes = np.arange(road.lane_count)
+        self._lane_centre_y = road.centre_y(np.arange(road.lane_count))
 
     def enter(self, st: SimState, uniforms: np.ndarray) -> None:
         """This decision's entries into the free traffic slots of ``st`` (uniforms: the
         decision's (A, V, UNIFORMS_PER_VEHICLE))."""
-        n = self.agents
-        arenas = st.x_m.shape[0]
-        rows = np.arange(arenas)
         entered = np.zeros(st.active.shape, dtype=bool)
-        present = st.active[:, :n]
-        # Agents off the road (a shared arena's free slots) anchor nothing, unless none is on.
-        anchors = present | ~present.any(axis=1, keepdims=True)
-        for attempt in range(self.tries):
-            draws = uniforms[:, 0, attempt * TRY_DRAWS : (attempt + 1) * TRY_DRAWS]
-            empty = ~st.active[:, n:]
-            go = (draws[:, 0] < self.prob) & empty.any(axis=1)
-            if not go.any():
-                continue
-            side = (draws[:, 1] >= 0.5).astype(np.int64)  # 0 ahead, 1 behind
-            anchor = np.minimum((draws[:, 3] * n).astype(np.int64), n - 1)
-            anchor = np.where(anchors[rows, anchor], anchor, np.argmax(anchors, axis=1))
-            point = st.x_m[rows, anchor] + self.offset_m[side]
-            zone = self.zone_m[side]
-            dx = st.x_m - point[:, None]
-            in_zone = st.active & (dx >= zone[:, :1]) & (dx <= zone[:, 1:])
-            lanes = self._lanes[None, None, :]
-            occupied = (
-                in_zone[..., None]
-                & ((st.lane[..., None] == lanes) | (st.target_lane[..., None] == lanes))
-            ).any(axis=1)
-            free = ~occupied
-            count = free.sum(axis=1)
-            go &= count > 0
-            if not go.any():
-                continue
-            pick = np.minimum((draws[:, 2] * count).astype(np.int64), np.maximum(count - 1, 0))
-            lane = np.argmax(np.cumsum(free, axis=1) > pick[:, None], axis=1)
-            a = rows[go]
-            c = n + np.argmax(empty[go], axis=1)
-            own = uniforms[a, c]
-            kind = self.kinds.behaviour_of(own[:, U_BEHAVIOUR])
-            own_speed = self.kinds.desired_speed(kind, own[:, U_SPEED])
-            low, high = self.speed_mps[side[go], 0], self.speed_mps[side[go], 1]
-            speed = low + own[:, U_OFFSET] * (high - low)
-            st.x_m[a, c] = point[go]
-            st.lane[a, c] = st.target_lane[a, c] = lane[go]
-            st.y_m[a, c] = self.road.centre_y(lane[go])
-            st.change_progress[a, c] = 0.0
-            st.speed_mps[a, c] = speed
-            st.own_speed_mps[a, c] = own_speed
-            st.desired_speed_mps[a, c] = np.maximum(own_speed, speed)
-            st.accel_mps2[a, c] = 0.0
-            st.kind[a, c] = kind
-            st.active[a, c] = True
-            entered[a, c] = True
-        if entered.any():
+        k = self.kinds
+        if enter_free_zones(
+            st.x_m, st.lane, st.target_lane, st.change_progress, st.y_m, st.speed_mps,
+            st.desired_speed_mps, st.own_speed_mps, st.accel_mps2, st.kind, st.active,
+            self.agents, uniforms, self.tries, TRY_DRAWS, self.prob, self.offset_m, self.zone_m,
+            self.speed_mps, U_BEHAVIOUR, U_SPEED, U_OFFSET, self._lane_centre_y,
+            k.behaviour_cdf, k.speed_lo, k.speed_hi, entered,
+        ):  # fmt: skip
             self.tracker.start(st, entered)
