@@ -242,22 +242,24 @@ class SpeedSteps:
         """(A, N) speed commands (-1, 0, +1) of the decision's first frame and of the others."""
         return self.FIRST[actions], self.skipped[actions]
 
-    def forced_brakes(self, st: SimState, following: Following, more_than_mps: float) -> np.ndarray:
-        """(A, N) bool: the agents whose speed the safety rule sets to a car ahead slower by
-        more than ``more_than_mps`` this frame (Ho's ``hard_brake_count``, ``car.py``)."""
-        n = self.agents
-        near = following.has_leader[:, :n] & (following.gap_m[:, :n] < self.safety_gap_m)
-        return near & (st.speed_mps[:, :n] - following.leader_speed_mps[:, :n] > more_than_mps)
-
-    def speeds(self, st: SimState, following: Following, command: np.ndarray) -> np.ndarray:
-        """The agents' (A, N) speeds at the end of this frame, given its commands."""
-        n = self.agents
-        speed = st.speed_mps[:, :n]
-        near = following.has_leader[:, :n] & (following.gap_m[:, :n] < self.safety_gap_m)
-        command = np.where(near & (command > 0), 0, command)
-        new = np.minimum(np.maximum(speed + command * self.step_mps, self.min_mps), self.max_mps)
-        leader_speed = following.leader_speed_mps[:, :n]
-        return np.where(near & (leader_speed < speed), leader_speed, new)
+    def speeds(
+        self,
+        st: SimState,
+        following: Following,
+        command: np.ndarray,
+        more_than_mps: float,
+        new_speed: np.ndarray,
+        forced: np.ndarray,
+    ) -> None:
+        """The agents' speeds at the end of this frame, given its commands (A, N), into the
+        agent columns of ``new_speed`` (A, V); ``forced`` (A, N) marks those the safety rule set
+        to a car ahead slower by more than ``more_than_mps`` this frame (Ho's
+        ``hard_brake_count``, ``car.py``). One compiled loop (:func:`.kernels.speed_steps`)."""
+        kernels.speed_steps(
+            st.speed_mps, following.has_leader, following.gap_m, following.leader_speed_mps,
+            command, self.step_mps, self.min_mps, self.max_mps, self.safety_gap_m,
+            more_than_mps, new_speed, forced,
+        )  # fmt: skip
 
 
 class EmergencyBraking:

@@ -75,6 +75,43 @@ def integrate(
 
 
 @njit(cache=True, nogil=True)
+def speed_steps(
+    speed: np.ndarray,
+    has_leader: np.ndarray,
+    gap_m: np.ndarray,
+    leader_speed: np.ndarray,
+    command: np.ndarray,
+    step_mps: float,
+    min_mps: float,
+    max_mps: float,
+    safety_gap_m: float,
+    more_than_mps: float,
+    new_speed: np.ndarray,
+    forced: np.ndarray,
+) -> None:
+    """Ho's speed steps for the agents (the first N columns of the (A, V) arrays): each one's
+    speed moves by its ``command`` (A, N) (-1, 0, +1) steps within [min, max], but not up
+    within ``safety_gap_m`` of a leader, where the safety rule takes a slower leader's speed
+    at once; written to ``new_speed``'s agent columns. ``forced`` (A, N) marks the agents that
+    rule sets to a leader slower by more than ``more_than_mps`` (his ``hard_brake_count``).
+    The arithmetic of :class:`.assist.SpeedSteps`."""
+    arenas, agents = command.shape
+    for a in range(arenas):
+        for i in range(agents):
+            own = speed[a, i]
+            lead = leader_speed[a, i]
+            near = has_leader[a, i] and gap_m[a, i] < safety_gap_m
+            step = command[a, i]
+            if near and step > 0:
+                step = 0
+            new = min(max(own + step * step_mps, min_mps), max_mps)
+            if near and lead < own:
+                new = lead
+            new_speed[a, i] = new
+            forced[a, i] = near and own - lead > more_than_mps
+
+
+@njit(cache=True, nogil=True)
 def agent_overlaps(
     x_m: np.ndarray,
     y_m: np.ndarray,

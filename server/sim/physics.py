@@ -190,11 +190,17 @@ class Physics:
         forced = None
         if self.speed_steps is not None:
             assert speed_command is not None, "speed_steps control needs the frame's commands"
-            if self.episodes.counts_forced_brakes:
-                forced = self.speed_steps.forced_brakes(
-                    st, following, self.episodes.brake_speed_diff_kmh * KMH
-                )
-            new_speed[:, :n] = self.speed_steps.speeds(st, following, speed_command)
+            forced = np.empty(speed_command.shape, dtype=bool)
+            self.speed_steps.speeds(
+                st,
+                following,
+                speed_command,
+                self.episodes.brake_speed_diff_kmh * KMH,
+                new_speed,
+                forced,
+            )
+            if not self.episodes.counts_forced_brakes:
+                forced = None
         # Along the road, and laterally minimum-jerk moves between lane centres.
         integrate(
             st.speed_mps,
