@@ -327,3 +327,64 @@ def capped_speeds(
                     )
                     s = min(s, max(cap, 0.0))
             new_speed[a, v] = s
+
+
+@njit(cache=True, nogil=True)
+def random_manoeuvres(
+    kind: np.ndarray,
+    active: np.ndarray,
+    speed: np.ndarray,
+    own_speed: np.ndarray,
+    desired_speed: np.ndarray,
+    uniforms: np.ndarray,
+    u_change: int,
+    u_new_speed: int,
+    u_random_lane: int,
+    traffic_kinds: int,
+    change_prob: np.ndarray,
+    speed_lo: np.ndarray,
+    speed_hi: np.ndarray,
+    keeps_current: np.ndarray,
+    walk_step: np.ndarray,
+    walk_up: np.ndarray,
+    walk_down: np.ndarray,
+    walk_lo: np.ndarray,
+    walk_hi: np.ndarray,
+    random_lane_prob: np.ndarray,
+    random_lane_when_slow: np.ndarray,
+    movers: np.ndarray,
+) -> None:
+    """One decision's random manoeuvres of every traffic car (a kind below ``traffic_kinds``,
+    on the road), in place on ``desired_speed`` (A, V): a new desired speed drawn with the
+    kind's ``change_prob``, a holding kind's pace kept (``keeps_current``), a walking kind's
+    step (``walk_step`` > 0); and ``movers`` (A, V) marks the cars that want a lane change
+    whatever their incentive. Draws from ``uniforms`` (A, V, U) at the ``u_*`` columns, the
+    per-kind tables indexed by ``kind``. The arithmetic of
+    :class:`.traffic.manoeuvres.RandomManoeuvres`, car by car."""
+    arenas, vehicles = kind.shape
+    for a in range(arenas):
+        for v in range(vehicles):
+            k = kind[a, v]
+            if not (k < traffic_kinds and active[a, v]):
+                movers[a, v] = False
+                continue
+            u = uniforms[a, v]
+            desired = desired_speed[a, v]
+            if u[u_change] < change_prob[k]:
+                desired = speed_lo[k] + u[u_new_speed] * (speed_hi[k] - speed_lo[k])
+            if keeps_current[k]:
+                desired = min(max(speed[a, v], own_speed[a, v]), walk_hi[k])
+            if walk_step[k] > 0:
+                draw, up = u[u_change], walk_up[k]
+                up_step = 1.0 if draw < up else 0.0
+                down_step = 1.0 if draw >= up and draw < up + walk_down[k] else 0.0
+                step = walk_step[k] * (up_step - down_step)
+                lo = walk_lo[k]
+                if lo < 0.0:
+                    lo = own_speed[a, v]
+                desired = min(max(desired + step, lo), walk_hi[k])
+            desired_speed[a, v] = desired
+            # Ho's lane switcher tries only while slower than its own speed.
+            movers[a, v] = u[u_random_lane] < random_lane_prob[k] and (
+                not random_lane_when_slow[k] or speed[a, v] < own_speed[a, v]
+            )

@@ -22,6 +22,7 @@ import numpy as np
 from overtake.protocol.vocabulary import AGENT_KIND
 
 from ..randomness import U_CHANGE, U_NEW_SPEED, U_RANDOM_LANE
+from . import kernels
 
 if TYPE_CHECKING:
     from ..state import SimState
@@ -36,43 +37,18 @@ class RandomManoeuvres:
 
     def decide(self, st: SimState, uniforms: np.ndarray) -> np.ndarray:
         """Apply new desired speeds; return (A, V) bool: the traffic cars that try a lane
-        change this decision regardless of MOBIL's incentive."""
-        kinds = self.kinds
-        traffic = (st.kind < AGENT_KIND) & st.active
-        change = traffic & (uniforms[..., U_CHANGE] < kinds.change_prob[st.kind])
-        if change.any():
-            new_speed = kinds.desired_speed(st.kind, uniforms[..., U_NEW_SPEED])
-            st.desired_speed_mps[:] = np.where(change, new_speed, st.desired_speed_mps)
-        if kinds.holds:
-            self._hold(st, traffic)
-        if kinds.walks:
-            self._walk(st, traffic, uniforms[..., U_CHANGE])
-        movers = traffic & (uniforms[..., U_RANDOM_LANE] < kinds.random_lane_prob[st.kind])
-        # Ho's lane switcher tries only while slower than its own speed.
-        return movers & (~kinds.random_lane_when_slow[st.kind] | (st.speed_mps < st.own_speed_mps))
-
-    def _hold(self, st: SimState, traffic: np.ndarray) -> None:
-        """The holding behaviours' desired speeds become the speeds they have, within their
-        own speed and the top of their range (a car the car ahead slowed keeps its pace)."""
-        kinds, kind = self.kinds, st.kind
-        held = np.minimum(np.maximum(st.speed_mps, st.own_speed_mps), kinds.walk_hi[kind])
-        st.desired_speed_mps[:] = np.where(
-            traffic & kinds.keeps_current[kind], held, st.desired_speed_mps
-        )
-
-    def _walk(self, st: SimState, traffic: np.ndarray, uniform: np.ndarray) -> None:
-        """One decision's step of the walking behaviours' desired speeds (``uniform`` (A, V):
-        below P(up) a step up, then for P(down) a step down), kept within the walk's bounds
-        (from the car's own speed where the behaviour names none)."""
-        kinds, kind = self.kinds, st.kind
-        up = kinds.walk_up[kind]
-        down = kinds.walk_down[kind]
-        step = kinds.walk_step[kind] * (
-            (uniform < up).astype(np.float64) - ((uniform >= up) & (uniform < up + down))
-        )
-        lo = kinds.walk_lo[kind]
-        lo = np.where(lo < 0.0, st.own_speed_mps, lo)
-        walked = np.minimum(np.maximum(st.desired_speed_mps + step, lo), kinds.walk_hi[kind])
-        st.desired_speed_mps[:] = np.where(
-            traffic & (kinds.walk_step[kind] > 0), walked, st.desired_speed_mps
-        )
+        change this decision regardless of MOBIL's incentive. One compiled loop
+        (:func:`.kernels.random_manoeuvres`): a new desired speed with the behaviour's chance,
+        then a holding behaviour's pace (its speed, within its own speed and the top of its
+        range: a car the car ahead slowed keeps its pace), then a walking behaviour's step
+        (below P(up) a step up, then for P(down) a step down, within the walk's bounds, from
+        the car's own speed where the behaviour names none)."""
+        k = self.kinds
+        movers = np.empty(st.kind.shape, dtype=bool)
+        kernels.random_manoeuvres(
+            st.kind, st.active, st.speed_mps, st.own_speed_mps, st.desired_speed_mps, uniforms,
+            U_CHANGE, U_NEW_SPEED, U_RANDOM_LANE, AGENT_KIND, k.change_prob, k.speed_lo,
+            k.speed_hi, k.keeps_current, k.walk_step, k.walk_up, k.walk_down, k.walk_lo,
+            k.walk_hi, k.random_lane_prob, k.random_lane_when_slow, movers,
+        )  # fmt: skip
+        return movers
