@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .lane_index_kernels import entry_leaders, sort_entries
+
 # Keys are group * KEY_SPAN + (x relative to the arena's first agent) + KEY_OFFSET, so that one
 # sort orders entries by arena, then lane, then position. Positions stay within +-KEY_OFFSET of
 # the reference agent because traffic is recycled far closer than that.
@@ -34,52 +36,29 @@ class LaneIndex:
 
 
 class LaneSorter:
-    """Builds :class:`LaneIndex` objects, keeping the per-shape constants between frames."""
+    """Builds :class:`LaneIndex` objects (one compiled loop, :mod:`.lane_index_kernels`)."""
 
     def __init__(self, lane_count: int) -> None:
         self.lane_count = lane_count
-        self._constants: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-
-    def _for_shape(self, arenas: int, vehicles: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        key = (arenas, vehicles)
-        if key not in self._constants:
-            entries = arenas * 2 * vehicles
-            flat_entry = np.arange(entries)
-            vehicle_of_entry = (
-                flat_entry // (2 * vehicles) * vehicles + flat_entry % (2 * vehicles) % vehicles
-            )
-            group_base = (np.arange(arenas, dtype=np.float64) * (self.lane_count + 1))[:, None]
-            self._constants[key] = (flat_entry, vehicle_of_entry, group_base)
-        return self._constants[key]
 
     def build(
         self, x_rel: np.ndarray, lane: np.ndarray, target_lane: np.ndarray, active: np.ndarray
     ) -> LaneIndex:
         """Sort the entries: each vehicle's lane and, while it changes lanes, its target lane."""
         arenas, vehicles = x_rel.shape
-        flat_entry, vehicle_of_entry, group_base = self._for_shape(arenas, vehicles)
-        unused = self.lane_count
-        group = np.empty((arenas, 2 * vehicles))
-        np.copyto(group[:, :vehicles], np.where(active, lane, unused))
-        np.copyto(
-            group[:, vehicles:], np.where(active & (target_lane != lane), target_lane, unused)
-        )
-        group += group_base
-        keys = group * KEY_SPAN
-        shifted = x_rel + KEY_OFFSET
-        keys[:, :vehicles] += shifted
-        keys[:, vehicles:] += shifted
-        flat_keys = keys.reshape(-1)
-        order = np.argsort(flat_keys, kind="stable")
-        position = np.empty_like(order)
-        position[order] = flat_entry
-        return LaneIndex(
-            sorted_keys=flat_keys[order],
-            sorted_group=group.reshape(-1)[order],
-            sorted_vehicle=vehicle_of_entry[order],
-            entry_position=position.reshape(arenas, 2 * vehicles),
+        entries = arenas * 2 * vehicles
+        index = LaneIndex(
+            sorted_keys=np.empty(entries),
+            sorted_group=np.empty(entries),
+            sorted_vehicle=np.empty(entries, dtype=np.int64),
+            entry_position=np.empty((arenas, 2 * vehicles), dtype=np.int64),
             lanes_plus_one=self.lane_count + 1,
         )
+        sort_entries(
+            x_rel, lane, target_lane, active, self.lane_count, KEY_SPAN, KEY_OFFSET,
+            index.sorted_keys, index.sorted_group, index.sorted_vehicle, index.entry_position,
+        )  # fmt: skip
+        return index
 
 
 def leaders(index: LaneIndex) -> tuple[np.ndarray, np.ndarray]:
@@ -88,13 +67,10 @@ def leaders(index: LaneIndex) -> tuple[np.ndarray, np.ndarray]:
     Returns (leader, valid); where not valid (no leader, or an entry in the unused lane) the
     leader is some other vehicle's index: safe to index with, its values must be masked.
     """
-    group = index.sorted_group
-    lanes_plus_one = index.lanes_plus_one
-    has_next = np.zeros(group.size, dtype=bool)
-    np.equal(group[1:], group[:-1], out=has_next[:-1])
-    has_next &= (group % lanes_plus_one) != lanes_plus_one - 1
-    next_vehicle = np.empty_like(index.sorted_vehicle)
-    next_vehicle[:-1] = index.sorted_vehicle[1:]
-    next_vehicle[-1:] = index.sorted_vehicle[:1]
-    pos = index.entry_position
-    return next_vehicle[pos], has_next[pos]
+    lead = np.empty(index.entry_position.shape, dtype=np.int64)
+    valid = np.empty(index.entry_position.shape, dtype=bool)
+    entry_leaders(
+        index.sorted_group, index.sorted_vehicle, index.entry_position, index.lanes_plus_one,
+        lead, valid,
+    )  # fmt: skip
+    return lead, valid
