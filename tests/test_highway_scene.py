@@ -205,3 +205,29 @@ def test_the_kernels_action_numbers_are_the_vocabulary_s():
         v.LANE_LEFT,
         v.LANE_RIGHT,
     )
+
+
+def test_arenas_split_over_threads_step_as_in_one_block(monkeypatch):
+    """The decision's blocks of arenas on several threads (from 64 arenas) give the very
+    state one block gives: each arena is written by one thread only."""
+    from overtake.server.sim.highway_scene import kernels as scene_kernels
+
+    arenas, decisions = 64, 30
+    rng = np.random.default_rng(3)
+    actions = rng.integers(0, 5, size=(decisions, arenas, 1))
+
+    def run(blocks) -> dict[str, np.ndarray]:
+        monkeypatch.setattr(scene_kernels, "arena_blocks", blocks)
+        sim = HighwaySim(make_config("highway-fast"), num_arenas=arenas)
+        sim.reset(seeds=list(range(arenas)))
+        for chosen in actions:
+            sim.step(chosen)
+        st = sim.state
+        return {name: getattr(st, name).copy() for name in ("x_m", "y_m", "speed_mps", "crashed")}
+
+    one = run(lambda count: [slice(0, count)])
+    split = run(lambda count: [slice(0, 20), slice(20, 41), slice(41, count)])
+    for name, value in one.items():
+        np.testing.assert_array_equal(split[name], value, err_msg=name)
+    # Not a trivial comparison: the arenas went their own ways.
+    assert len({round(float(x), 6) for x in one["x_m"][:, 0]}) > arenas // 2

@@ -446,11 +446,11 @@ def play_decision(
         )  # fmt: skip
 
 
-# Arenas in a block of the decision's threads: below twice this, one thread. Handing a block
-# to another thread takes the GIL in turns: at 64 arenas of highway-fast, two threads made
-# 48-54k agent-steps per wall-second against one's 47-48k, but cost a fifth more CPU (38-42k
-# per CPU-second); from 128 arenas they pay (256: 92k per wall-second against 66k).
-ARENAS_PER_THREAD_MIN = 64
+# Arenas in a block of the decision's threads: below twice this, one thread. Two threads cost
+# about a fifth more CPU per step (the two vCPUs share a core's caches), and pay from 64 arenas
+# of highway-fast on an idle 2-core machine: 76k agent-steps per wall-second against one
+# thread's 68k (57k against 68k per CPU-second); at 256, 120k per wall-second (78k per CPU-s).
+ARENAS_PER_THREAD_MIN = 32
 
 
 def arena_blocks(arenas: int) -> list[slice]:
