@@ -21,7 +21,7 @@ import numpy as np
 
 from overtake.protocol.vocabulary import KEEP, METRIC_FIELDS, WATCH_METRICS
 
-from .kernels import fill_metrics
+from .kernels import close_episodes, fill_metrics
 from .units import KMH
 from .validation import check, check_range
 
@@ -90,6 +90,7 @@ class EpisodeBook:
         self.brake_speed_diff_kmh = ego.emergency_speed_diff_kmh
         self.counts_forced_brakes = ego.emergency_brake_count == "forced"
         self.agents = agents
+        self._rows = np.arange(0)  # every arena's row, kept between decisions
         # The columns of the metrics table: the papers' metrics, and the watch's where it runs.
         self.fields = METRIC_FIELDS + (WATCH_METRICS if ego.lane_change_watch else ())
 
@@ -134,17 +135,22 @@ class EpisodeBook:
         """Add one decision's events (A, N) to the episodes; returns which reached their
         decision limit (truncated). With ``rows``, the events are those arenas' (rows of the
         state), the others untouched."""
-        n, where = self.agents, slice(None) if rows is None else rows
-        st.episode_return[where] += reward
-        st.lane_changes[where] += lane_changes
-        st.collisions[where] += collided
-        st.overtakes[where] += overtakes
-        st.emergency_brakes[where] += emergency_brakes
-        st.traffic_cars_sum[where] += st.active[where, n:].sum(axis=1, keepdims=True)
-        limit = st.agent_decisions[where] >= self.max_decisions
-        if self.max_distance_m is not None:
-            limit |= st.distance_m[where] >= self.max_distance_m
-        return limit
+        if rows is None:
+            rows = self._all_rows(st.x_m.shape[0])
+        truncated = np.empty(reward.shape, dtype=bool)
+        close_episodes(
+            rows, reward, lane_changes, collided, overtakes, emergency_brakes, st.active,
+            st.agent_decisions, st.distance_m, self.max_decisions,
+            np.inf if self.max_distance_m is None else self.max_distance_m, st.episode_return,
+            st.lane_changes, st.collisions, st.overtakes, st.emergency_brakes,
+            st.traffic_cars_sum, truncated,
+        )  # fmt: skip
+        return truncated
+
+    def _all_rows(self, arenas: int) -> np.ndarray:
+        if self._rows.size != arenas:
+            self._rows = np.arange(arenas)
+        return self._rows
 
     def metrics_table(self, st: SimState) -> np.ndarray:
         """(A, N, len(fields)) float64: each agent's episode so far, columns :attr:`fields`

@@ -294,6 +294,50 @@ def track_passes(x, active, ahead, credited, every_pass, undo, stepped, gained, 
 
 
 @njit(cache=True, nogil=True)
+def close_episodes(
+    rows: np.ndarray,
+    reward: np.ndarray,
+    lane_changes: np.ndarray,
+    collided: np.ndarray,
+    overtakes: np.ndarray,
+    emergency_brakes: np.ndarray,
+    active: np.ndarray,
+    agent_decisions: np.ndarray,
+    distance_m: np.ndarray,
+    max_decisions: int,
+    max_distance_m: float,
+    episode_return: np.ndarray,
+    lane_changes_total: np.ndarray,
+    collisions_total: np.ndarray,
+    overtakes_total: np.ndarray,
+    emergency_brakes_total: np.ndarray,
+    traffic_cars_sum: np.ndarray,
+    truncated: np.ndarray,
+) -> None:
+    """Add one decision's events (R, N) of the arenas ``rows`` (R,) to their episodes' totals
+    (A, N), count the traffic on their roads, and mark in ``truncated`` (R, N) the episodes at
+    their decision limit or their distance (``max_distance_m``: inf for none). The arithmetic
+    of :meth:`.episodes.EpisodeBook.close_decision`."""
+    agents = reward.shape[1]
+    vehicles = active.shape[1]
+    for r in range(rows.size):
+        a = rows[r]
+        cars = 0
+        for v in range(agents, vehicles):
+            cars += active[a, v]
+        for i in range(agents):
+            episode_return[a, i] += reward[r, i]
+            lane_changes_total[a, i] += lane_changes[r, i]
+            collisions_total[a, i] += collided[r, i]
+            overtakes_total[a, i] += overtakes[r, i]
+            emergency_brakes_total[a, i] += emergency_brakes[r, i]
+            traffic_cars_sum[a, i] += cars
+            truncated[r, i] = (
+                agent_decisions[a, i] >= max_decisions or distance_m[a, i] >= max_distance_m
+            )
+
+
+@njit(cache=True, nogil=True)
 def fill_metrics(
     decisions, distance_m, lane_changes, overtakes, collisions, brakes, episode_return,
     traffic_cars_sum, aborts, decision_period_s, kmh, watch, table,
