@@ -201,6 +201,33 @@ class StepInfo:
             ended=steps.ended,
         )
 
+    @staticmethod
+    def agent_of(
+        steps: Steps, spec: BehaviourSpec, row: int, *, restarted: bool = False
+    ) -> dict[str, Any]:
+        """``StepInfo.of(steps, spec, restarted=restarted).agent(row)``, read straight from the
+        row (a single environment's every step: the vector's dicts are not built)."""
+        fields = spec.metric_fields
+        metrics = steps.metrics[row]
+        terms = steps.reward_terms[row]
+        info: dict[str, Any] = {
+            "action_mask": steps.action_mask[row],
+            "action_applied": int(steps.action_applied[row]),
+            "reward_terms": {name: float(terms[i]) for i, name in enumerate(spec.reward_terms)},
+            "episode_counts": {
+                name: int(metrics[fields.index(name)])
+                for name in (*EPISODE_COUNTS, *WATCH_METRICS)
+                if name in fields
+            },
+        }
+        if steps.terminated[row] or steps.truncated[row]:
+            info["metrics"] = {name: float(metrics[i]) for i, name in enumerate(fields)}
+        if steps.late[row]:
+            info["late"] = True
+        if restarted:
+            info["server_restarted"] = True
+        return info
+
     def vector(self) -> dict[str, Any]:
         """A vector environment's info: arrays over its environments; ``metrics`` (0 where no
         episode ended, ``_metrics`` marking where one did), ``late`` and ``server_restarted``
@@ -322,7 +349,7 @@ class SingleFace(Faced, ReportsEpisodeLength, gym.Env):
     def _unpack(self, steps: Steps, restarted: bool) -> tuple[dict[str, np.ndarray], dict]:
         self._last = steps
         obs = {name: value[0] for name, value in steps.observations.items()}
-        return obs, StepInfo.of(steps, self.simulator.spec, restarted=restarted).agent(0)
+        return obs, StepInfo.agent_of(steps, self.simulator.spec, 0, restarted=restarted)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)

@@ -126,3 +126,31 @@ def test_no_caller_reaches_through_unwrapped():
                 if isinstance(node, ast.Attribute) and node.attr == "unwrapped":
                     reaching.append(f"{path.relative_to(ROOT)}:{node.lineno}")
     assert reaching == []
+
+
+def test_one_agent_s_info_read_from_its_row_is_the_vector_info_s_row():
+    """A single environment reads its info straight from the Steps' row
+    (``StepInfo.agent_of``): the same dict as the vector's info taken apart, for steps that
+    ended, went on, were late or saw the server restart, with the lane-change watch's counts."""
+    config = make_config("min2018", {**SHORT, "ego.lane_change_watch": True})
+    engine = LocalEngine(config, 3)
+    spec = engine.group.spec
+    steps = engine.reset((0, 1, 2), (5, 6, 7))
+    rng = np.random.default_rng(2)
+    ended = late = 0
+    for step in range(2 * SHORT["episode.max_decisions"]):
+        # Leave arena 1's car out now and then: its agent is late.
+        agents = engine.agents if step % 3 else engine.agents[[0, 2]]
+        engine.send(agents, rng.integers(0, 5, size=agents.size))
+        steps = engine.receive()
+        for row in range(3):
+            for restarted in (False, True):
+                want = StepInfo.of(steps, spec, restarted=restarted).agent(row)
+                got = StepInfo.agent_of(steps, spec, row, restarted=restarted)
+                assert got.keys() == want.keys()
+                for key, value in want.items():
+                    np.testing.assert_equal(got[key], value, err_msg=f"{step} {row} {key}")
+                    assert type(got[key]) is type(value)
+        ended += int(steps.ended.sum())
+        late += int(steps.late.sum())
+    assert ended >= 3 and late >= 3  # the time limit ended episodes; arena 1 was left out
