@@ -4,12 +4,12 @@ Each measurement drives the same random decisions twice, alternately, in one pro
 
 - **face**: through the Gymnasium face, ``gymnasium.make("overtake/Highway-v0", preset=...)``
   at one arena, ``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")`` at many:
-  the action check, the local engine's round (``Group.play_alone``: the actions into the
-  round, the autoreset, the Steps of the round), and the observation and info the face hands
-  out, with Gymnasium's own wrappers;
+  the action check, the local engine's round (:class:`~overtake.server.rounds.Rounds`: the
+  actions into the round, the autoreset, the round's rows), and the observation and info the
+  face hands out, with Gymnasium's own wrappers;
 - **bare**: the simulator alone doing the same round's work: :func:`autoreset_round` with the
-  episodes that ended, then the observations, the action mask and the metrics table a Steps
-  carries (what any face needs, however thin).
+  episodes that ended, then the observations, the action mask and the metrics table a round's
+  rows carry (what any face needs, however thin).
 
 The face's cost is the difference, in CPU µs per step (per round of every arena) and per
 agent-step. Each side is measured ``--rounds`` times, alternately; the better of each is kept.

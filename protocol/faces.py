@@ -1,17 +1,18 @@
 """overtake's Gymnasium environments, written once over an engine.
 
-An :class:`Engine` is a group of arenas that answers actions with :class:`Steps`: the
-simulator in this process (:mod:`overtake.server.local`, the server's own arena group) or
-arenas on a server (:class:`overtake.client.wire.remote.ArenaGroup`). A :class:`Simulator`
-is what an environment is opened on: its engines (one, or one per part of a vector
-environment), the behaviour spec, and what only some simulators have, each a typed property
-that is None where it is absent: the :class:`Road` of an in-process simulator (world frames,
-pictures, the privileged planner) and the :class:`Network` of a remote one (the trainer's
-name, where the arenas are, how often their server was lost).
+An :class:`Engine` is a group of arenas that answers actions with a round's rows
+(:class:`StepRows`): the simulator in this process (:mod:`overtake.server.local`, the rounds a
+server's groups play, read straight from the simulator's arrays) or arenas on a server
+(:class:`overtake.client.wire.remote.ArenaGroup`, whose rows are the :class:`Steps` messages).
+A :class:`Simulator` is what an environment is opened on: its engines (one, or one per part of
+a vector environment), the behaviour spec, and what only some simulators have, each a typed
+property that is None where it is absent: the :class:`Road` of an in-process simulator (world
+frames, pictures, the privileged planner) and the :class:`Network` of a remote one (the
+trainer's name, where the arenas are, how often their server was lost).
 
 The faces, :class:`SingleFace` (Gymnasium's ``Env``), :class:`VectorFace` (``VectorEnv``,
 next-step autoreset, optionally in parts) and, in :mod:`.parallel_face`, PettingZoo's
-``ParallelEnv``, read only Steps; their ``info`` is built here, in :class:`StepInfo`, whose
+``ParallelEnv``, read only those rows; their ``info`` is built here, in :class:`StepInfo`, whose
 fields are :data:`~overtake.protocol.vocabulary.INFO_KEYS`. An in-process environment and a
 remote one are the same face over a different engine, and so the same bit for bit.
 """
@@ -30,7 +31,7 @@ from gymnasium import spaces
 from gymnasium.vector.utils import batch_space
 
 from .envs import ReportsEpisodeLength, arena_seeds, check_actions, check_render_mode
-from .messages import BehaviourSpec, Steps, WorldFrame
+from .messages import BehaviourSpec, WorldFrame
 from .vocabulary import ACTION_COUNT, EPISODE_COUNTS, INFO_KEYS, WATCH_METRICS
 
 try:  # Gymnasium >= 1.1 names the autoreset modes; 1.0 only has next-step autoreset.
@@ -41,10 +42,38 @@ except ImportError:  # pragma: no cover - Gymnasium 1.0
     NEXT_STEP = "NextStep"
 
 
-class Engine(Protocol):
-    """A group of arenas stepped together, answering actions with :class:`Steps`.
+class StepRows(Protocol):
+    """What the faces read of a round, one row per agent: :class:`Steps` from a server, or an
+    in-process engine's own rows (:class:`overtake.server.rounds.RoundRows`, no message)."""
 
-    ``agents`` are this engine's agent ids, the rows of its Steps. ``restarts`` counts the
+    @property
+    def agents(self) -> np.ndarray: ...
+    @property
+    def observations(self) -> dict[str, np.ndarray]: ...
+    @property
+    def reward(self) -> np.ndarray: ...
+    @property
+    def terminated(self) -> np.ndarray: ...
+    @property
+    def truncated(self) -> np.ndarray: ...
+    @property
+    def action_applied(self) -> np.ndarray: ...
+    @property
+    def late(self) -> np.ndarray: ...
+    @property
+    def action_mask(self) -> np.ndarray: ...
+    @property
+    def reward_terms(self) -> np.ndarray: ...
+    @property
+    def metrics(self) -> np.ndarray: ...
+    @property
+    def ended(self) -> np.ndarray: ...
+
+
+class Engine(Protocol):
+    """A group of arenas stepped together, answering actions with a round's :class:`StepRows`.
+
+    ``agents`` are this engine's agent ids, its rows. ``restarts`` counts the
     times its server was lost and its arenas reopened (each loss truncates the episodes under
     way). ``trainer_step``, sent with the following actions, is the trainer's step count that
     the road's world frames repeat (-1: none)."""
@@ -55,12 +84,12 @@ class Engine(Protocol):
     @property
     def agents(self) -> np.ndarray: ...
 
-    def reset(self, arenas: tuple[int, ...], seeds: tuple[int | None, ...]) -> Steps: ...
+    def reset(self, arenas: tuple[int, ...], seeds: tuple[int | None, ...]) -> StepRows: ...
 
     def send(self, agents: np.ndarray, actions: np.ndarray, retire: Sequence[int] = ()) -> None:
         """Actions for this round go out; :meth:`receive` takes the round's Steps."""
 
-    def receive(self) -> Steps: ...
+    def receive(self) -> StepRows: ...
 
     def close(self) -> None: ...
 
@@ -181,7 +210,7 @@ class StepInfo:
     """(k,) bool: whose episode ended here (where :attr:`metrics` hold)"""
 
     @classmethod
-    def of(cls, steps: Steps, spec: BehaviourSpec, *, restarted: bool = False) -> StepInfo:
+    def of(cls, steps: StepRows, spec: BehaviourSpec, *, restarted: bool = False) -> StepInfo:
         fields = spec.metric_fields
         return cls(
             action_mask=steps.action_mask,
@@ -203,7 +232,7 @@ class StepInfo:
 
     @staticmethod
     def agent_of(
-        steps: Steps, spec: BehaviourSpec, row: int, *, restarted: bool = False
+        steps: StepRows, spec: BehaviourSpec, row: int, *, restarted: bool = False
     ) -> dict[str, Any]:
         """``StepInfo.of(steps, spec, restarted=restarted).agent(row)``, read straight from the
         row (a single environment's every step: the vector's dicts are not built)."""
@@ -270,9 +299,9 @@ class StepInfo:
 assert tuple(f.name for f in dataclasses.fields(StepInfo))[: len(INFO_KEYS)] == INFO_KEYS
 
 
-def joined(parts: Sequence[Steps]) -> Steps:
-    """One Steps of several engines' Steps, rows in the order given (server, group and round
-    are the first part's: the rows are what a vector environment reads)."""
+def joined(parts: Sequence[StepRows]) -> StepRows:
+    """One set of rows of several engines' rows, in the order given (a Steps' server, group and
+    round are the first part's: the rows are what a vector environment reads)."""
     if len(parts) == 1:
         return parts[0]
     first = parts[0]
@@ -280,8 +309,9 @@ def joined(parts: Sequence[Steps]) -> Steps:
     def rows(name: str) -> np.ndarray:
         return np.concatenate([getattr(p, name) for p in parts])
 
+    # Both kinds of rows are frozen dataclasses (Steps, RoundRows): the first part's, taller.
     return dataclasses.replace(
-        first,
+        first,  # type: ignore[type-var]
         agents=rows("agents"),
         observations={
             name: np.concatenate([p.observations[name] for p in parts])
@@ -344,9 +374,9 @@ class SingleFace(Faced, ReportsEpisodeLength, gym.Env):
         self.action_space = spaces.Discrete(ACTION_COUNT)
         self.decision_period_s = spec.decision_period_s
         self.max_episode_steps = spec.max_episode_steps
-        self._last: Steps | None = None
+        self._last: StepRows | None = None
 
-    def _unpack(self, steps: Steps, restarted: bool) -> tuple[dict[str, np.ndarray], dict]:
+    def _unpack(self, steps: StepRows, restarted: bool) -> tuple[dict[str, np.ndarray], dict]:
         self._last = steps
         obs = {name: value[0] for name, value in steps.observations.items()}
         return obs, StepInfo.agent_of(steps, self.simulator.spec, 0, restarted=restarted)
@@ -425,7 +455,7 @@ class VectorFace(Faced, gym.vector.VectorEnv):
         self._part_restarts: dict[int, int] = {}
         self._started = False
 
-    def _outcome(self, steps: Steps, restarted: bool) -> tuple[Any, ...]:
+    def _outcome(self, steps: StepRows, restarted: bool) -> tuple[Any, ...]:
         info = StepInfo.of(steps, self.simulator.spec, restarted=restarted).vector()
         return dict(steps.observations), steps.reward, steps.terminated, steps.truncated, info
 

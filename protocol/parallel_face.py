@@ -26,8 +26,7 @@ import numpy as np
 from pettingzoo import ParallelEnv
 
 from .envs import check_render_mode
-from .faces import Faced, Simulator, StepInfo, spaces_from_spec
-from .messages import Steps
+from .faces import Faced, Simulator, StepInfo, StepRows, spaces_from_spec
 from .vocabulary import ACTION_COUNT, ACTION_NAMES
 
 AgentID = str
@@ -136,13 +135,13 @@ class ParallelFace(Faced, ParallelEnv[AgentID, dict[str, np.ndarray], int]):
         # Their last view of the road, the finished cars' included.
         return self._observations(steps, rows, live), rewards, terminations, truncations, infos
 
-    def _rows(self, steps: Steps) -> dict[AgentID, int]:
+    def _rows(self, steps: StepRows) -> dict[AgentID, int]:
         """Each agent's row in the Steps (agent ids are slots of the one arena)."""
         return {self.possible_agents[int(agent)]: row for row, agent in enumerate(steps.agents)}
 
     @staticmethod
     def _observations(
-        steps: Steps, rows: dict[AgentID, int], agents: list[AgentID]
+        steps: StepRows, rows: dict[AgentID, int], agents: list[AgentID]
     ) -> dict[AgentID, dict[str, np.ndarray]]:
         return {
             agent: {name: value[rows[agent]] for name, value in steps.observations.items()}

@@ -1,13 +1,13 @@
 """A group's rounds as they stand, to put back later: the simulator's snapshot and what each
 agent slot carries from one round to the next.
 
-Between rounds a :class:`~.groups.Group` holds, beside its simulator, whose episodes ended last
-round (they restart next round: Gymnasium's next-step autoreset), which cars were retired, and
-what each slot got last round (reward, applied action, reward terms: what world frames show).
-:class:`GroupSnapshot` keeps all of it, so that a group restored from one plays the next rounds
-exactly as the group it was taken from would have. Membership (who owns which slot, their
-tickets) and the protocol's round counter are not in it: they belong to the connections of
-now, not to the road.
+Between rounds a group's :class:`~.rounds.Rounds` holds, beside its simulator, whose episodes
+ended last round (they restart next round: Gymnasium's next-step autoreset), which cars were
+retired, and what each slot got last round (reward, applied action, reward terms: what world
+frames show). :class:`GroupSnapshot` keeps all of it, so that rounds restored from one play on
+exactly as the rounds it was taken from would have (a server's group or an in-process engine).
+Membership (who owns which slot, their tickets) and the round counter are not in it: they
+belong to the connections of now, not to the road.
 """
 
 from __future__ import annotations
@@ -24,13 +24,12 @@ import numpy as np
 from overtake.protocol import errors
 from overtake.protocol.messages import GroupState, Steps
 
+from .rounds import SLOT_ARRAYS
 from .sim.snapshot import SimSnapshot, SnapshotMismatch
 
 if TYPE_CHECKING:
     from .groups import Group
-
-# The per-slot arrays a round leaves for the next (Group's fields of these names).
-SLOT_ARRAYS = ("ended", "retired", "last_reward", "last_applied", "last_terms")
+    from .rounds import Rounds
 
 
 @dataclass(frozen=True)
@@ -41,28 +40,28 @@ class GroupSnapshot:
     slots: Mapping[str, np.ndarray]
 
     @classmethod
-    def of(cls, group: Group) -> GroupSnapshot:
+    def of(cls, rounds: Rounds) -> GroupSnapshot:
         return cls(
-            sim=group.sim.snapshot(),
-            slots={name: getattr(group, name).copy() for name in SLOT_ARRAYS},
+            sim=rounds.sim.snapshot(),
+            slots={name: getattr(rounds, name).copy() for name in SLOT_ARRAYS},
         )
 
-    def restore_into(self, group: Group) -> None:
-        """Put ``group``'s road and rounds back as they were (checked first: a snapshot of
+    def restore_into(self, rounds: Rounds) -> None:
+        """Put the road and its rounds back as they were (checked first: a snapshot of
         another configuration or size changes nothing and raises
         :class:`~.sim.snapshot.SnapshotMismatch`)."""
         for name in SLOT_ARRAYS:
-            want, have = getattr(group, name), self.slots.get(name)
+            want, have = getattr(rounds, name), self.slots.get(name)
             if have is None or have.shape != want.shape or have.dtype != want.dtype:
                 found = "nothing" if have is None else f"{have.dtype}{have.shape}"
                 raise SnapshotMismatch(
                     f"the snapshot's {name} is {found}, the group needs {want.dtype}{want.shape}"
                 )
-        group.sim.restore(self.sim)
+        rounds.sim.restore(self.sim)
         for name in SLOT_ARRAYS:
-            getattr(group, name)[...] = self.slots[name]
+            getattr(rounds, name)[...] = self.slots[name]
         # Spectators are shown the restored road, observed afresh.
-        group.last_observations = None
+        rounds.last_observations = None
 
     def to_bytes(self) -> bytes:
         """The snapshot as one ``.npz`` archive (arrays, and the generators' states and the
@@ -123,7 +122,7 @@ class GroupSnapshot:
 def keep_state(group: Group, trainer: str, ticket: bytes) -> GroupState:
     """``group``'s whole state for ``trainer`` (alone in it, between rounds): SnapshotRequest."""
     _alone_between_rounds(group, trainer, ticket, "keep")
-    return GroupState(group=group.group_id, state=GroupSnapshot.of(group).to_bytes())
+    return GroupState(group=group.group_id, state=GroupSnapshot.of(group.rounds).to_bytes())
 
 
 def restore_state(group: Group, trainer: str, ticket: bytes, state: bytes) -> Steps:
@@ -131,7 +130,7 @@ def restore_state(group: Group, trainer: str, ticket: bytes, state: bytes) -> St
     size): RestoreRequest; returns ``trainer``'s Steps now."""
     _alone_between_rounds(group, trainer, ticket, "restore")
     try:
-        GroupSnapshot.from_bytes(state).restore_into(group)
+        GroupSnapshot.from_bytes(state).restore_into(group.rounds)
     except SnapshotMismatch as error:
         raise errors.BadConfig(f"group {group.group_id} cannot take this state: {error}") from None
     return group.current_steps(trainer)

@@ -5,11 +5,12 @@ numpy pass. Each agent slot of each arena is owned by at most one trainer. A gro
 (a *round*) when every trainer that owns a car in it has sent its actions for the round, or,
 once somebody has, at the deadline, with the default action for whoever is late.
 
-Episodes end per agent and restart on the next round (Gymnasium's next-step autoreset), in
-:func:`~overtake.server.sim.autoreset_round`, the round the in-process vector environment
-steps too: an arena with one agent is reset whole, so a remote arena reproduces an in-process
-one bit for bit; in a shared arena only the agent that ended restarts (it is taken off the road
-for the round and placed back afterwards) while the road goes on for the others.
+A group is two rooms: the ledger of its trainers here (claims, tickets, pending actions, the
+deadline, the late count, rates) and the road's :class:`~.rounds.Rounds`, which the in-process
+engine plays directly. Episodes end per agent and restart on the next round (Gymnasium's
+next-step autoreset): an arena with one agent is reset whole, so a remote arena reproduces an
+in-process one bit for bit; in a shared arena only the agent that ended restarts (it is taken
+off the road for the round and placed back afterwards) while the road goes on for the others.
 """
 
 from __future__ import annotations
@@ -36,7 +37,8 @@ from overtake.protocol.vocabulary import (
     DEFAULT_ACTION,
 )
 
-from .sim import PRESETS, ConfigError, HighwaySim, SimConfig, autoreset_round, make_config
+from .rounds import RoundRows, Rounds
+from .sim import PRESETS, ConfigError, HighwaySim, SimConfig, make_config
 from .spec import behaviour_spec
 
 
@@ -74,33 +76,47 @@ class Group:
     sim: HighwaySim
     spec: BehaviourSpec
     members: dict[str, Member] = field(default_factory=dict)
-    round: int = 0
     deadline: float | None = None  # monotonic time the current round gives up waiting
     late_agents: int = 0
     rounds_done: int = 0
     rate_rounds_per_s: float = 0.0
     _last_round_t: float = field(default_factory=time.monotonic)
-    last_observations: dict[str, np.ndarray] | None = None  # of the last round, for spectators
     # The step count a member last sent with its actions (-1: none has), for world frames.
     trainer_step: int = -1
     # The process's count of group steps at this group's last step (0: not yet stepped); the
     # server steps the ready group with the lowest first (next_to_step).
     last_stepped: int = 0
-    # (A, N) per agent slot: whose episode ended last round, and what it got then.
-    ended: np.ndarray = field(init=False)
-    # (A, N): cars their trainer took off the road (Actions.retire) until it resets the arena.
-    retired: np.ndarray = field(init=False)
-    last_reward: np.ndarray = field(init=False)
-    last_applied: np.ndarray = field(init=False)
-    last_terms: np.ndarray = field(init=False)  # (A, N, reward terms)
+    # The road's rounds and what each agent slot carries between them (whose episode ended,
+    # the cars their trainer retired, what each got last round).
+    rounds: Rounds = field(init=False)
 
     def __post_init__(self) -> None:
-        shape = (self.sim.num_arenas, self.sim.agents)
-        self.ended = np.zeros(shape, dtype=bool)
-        self.retired = np.zeros(shape, dtype=bool)
-        self.last_reward = np.zeros(shape)
-        self.last_applied = np.full(shape, -1, dtype=np.int64)
-        self.last_terms = np.zeros(shape + (len(self.sim.reward_terms),))
+        self.rounds = Rounds(self.sim)
+
+    @property
+    def round(self) -> int:
+        """The protocol's round counter: rounds played."""
+        return self.rounds.round
+
+    @property
+    def ended(self) -> np.ndarray:
+        return self.rounds.ended
+
+    @property
+    def retired(self) -> np.ndarray:
+        return self.rounds.retired
+
+    @property
+    def last_reward(self) -> np.ndarray:
+        return self.rounds.last_reward
+
+    @property
+    def last_applied(self) -> np.ndarray:
+        return self.rounds.last_applied
+
+    @property
+    def last_terms(self) -> np.ndarray:
+        return self.rounds.last_terms
 
     @classmethod
     def open(
@@ -192,11 +208,9 @@ class Group:
             self.sim.restore_agents(arena_index, slots)
         else:
             self.sim.respawn_agents(arena_index, slots)
-        self.ended[arena_index, slots] = False
-        self.retired[arena_index, slots] = False
-        self.last_reward[arena_index, slots] = 0.0
-        self.last_applied[arena_index, slots] = -1
-        self.last_terms[arena_index, slots] = 0.0
+        claimed = np.zeros(self.shape, dtype=bool)
+        claimed[arena_index, slots] = True
+        self.rounds.clear(claimed)
 
     def leave(self, trainer: str) -> None:
         """Take ``trainer``'s cars off the road; its pending actions are dropped."""
@@ -206,11 +220,7 @@ class Group:
         for arena, slot in zip(*np.nonzero(member.slots), strict=True):
             self.sim.remove_agents(int(arena), [int(slot)])
         # A car that ended its episode just before its trainer left must not come back.
-        self.ended &= ~member.slots
-        self.retired &= ~member.slots
-        self.last_reward[member.slots] = 0.0
-        self.last_applied[member.slots] = -1
-        self.last_terms[member.slots] = 0.0
+        self.rounds.clear(member.slots)
         if not any(m.pending is not None for m in self.members.values()):
             self.deadline = None
 
@@ -310,41 +320,12 @@ class Group:
                 late |= left_out
         return self._play(actions, late)
 
-    def play_alone(self, agents: np.ndarray, actions: np.ndarray, retire: np.ndarray) -> Steps:
-        """:meth:`step`'s round for an in-process engine, owner of every car: its face checked
-        ``agents``' actions (the others keep their lane, late); no message, ticket, deadline."""
-        self.last_stepped = next(_GROUP_STEPS)
-        if retire.size:
-            self._retire(retire)
-        full = np.full(self.shape, DEFAULT_ACTION, dtype=np.int64)
-        full.reshape(-1)[agents] = actions
-        late = np.zeros(self.shape, dtype=bool)
-        if agents.size < late.size:
-            late[...] = True
-            late.reshape(-1)[agents] = False
-        (trainer,) = self.members
-        return self._play(full, late)[trainer]
-
     def _play(self, actions: np.ndarray, late: np.ndarray) -> dict[str, Steps]:
         """The round itself: every member's ``actions`` (A, N), whose are missing ``late``."""
-        sim = self.sim
-        arenas, n = self.shape
         if late.any():
             late &= ~self.ended & ~self.retired
             self.late_agents += int(late.sum())
-
-        result = autoreset_round(sim, actions, self.ended & self.owned(), sim.agents_present())
-        # Filled column by column: np.stack costs more than the copy on arrays this small.
-        terms = np.empty((arenas, n, len(sim.reward_terms)))
-        for i, name in enumerate(sim.reward_terms):
-            terms[..., i] = result.reward_terms[name]
-        self.ended = result.ended
-        self.last_reward, self.last_applied, self.last_terms = (
-            result.reward,
-            result.action_applied,
-            terms,
-        )
-        self.round += 1
+        rows = self.rounds.play(actions, late, self.owned())
         self.rounds_done += 1
         self.deadline = None
         now = time.monotonic()
@@ -353,20 +334,10 @@ class Group:
         self.rate_rounds_per_s = (
             1.0 / dt if self.rounds_done == 1 else 0.9 * self.rate_rounds_per_s + 0.1 / dt
         )
-        return self._steps_for_members(
-            result.reward, result.terminated, result.truncated, result.action_applied, late, terms
-        )
+        return {trainer: self._steps(member, rows) for trainer, member in self.members.items()}
 
     def _retire(self, agents: np.ndarray) -> None:
-        """Take cars off the road before a round; they stay off, not restarted, until their
-        arena is reset (a car that just ended is not restarted either)."""
-        slots = np.zeros(self.shape, dtype=bool)
-        slots.reshape(-1)[agents] = True
-        fresh = slots & ~self.retired
-        for arena in np.flatnonzero(fresh.any(axis=1)):
-            self.sim.remove_agents(int(arena), np.flatnonzero(fresh[arena]))
-        self.retired |= slots
-        self.ended &= ~slots
+        self.rounds.retire(agents)
 
     def reset(
         self,
@@ -391,17 +362,8 @@ class Group:
                 raise errors.NotOwner(
                     f"trainer {trainer!r} has no agents in arena {self.arena_ids[arena]}"
                 )
-            if (owned[arena] == mine).all():
-                # Alone on this road: a real reset, seeded as asked.
-                self.sim.reset([arena], seeds=[seed])
-                self.sim.remove_agents(arena, np.flatnonzero(~mine))
-            else:
-                self.sim.respawn_agents(arena, np.flatnonzero(mine))
-            self.ended[arena, mine] = False
-            self.retired[arena, mine] = False
-            self.last_reward[arena, mine] = 0.0
-            self.last_applied[arena, mine] = -1
-            self.last_terms[arena, mine] = 0.0
+            # Alone on this road: a real reset, seeded as asked; else only its cars restart.
+            self.rounds.reset_arena(arena, seed, mine, alone=bool((owned[arena] == mine).all()))
         member.pending = None
         if not any(m.pending is not None for m in self.members.values()):
             self.deadline = None
@@ -409,55 +371,20 @@ class Group:
 
     def current_steps(self, trainer: str) -> Steps:
         """The trainer's agents as they are now (after a claim), reward 0, no flags."""
-        flags = np.zeros(self.shape, dtype=bool)
-        return self._steps(
-            self.members[trainer].slots,
-            self._arena_view(),
-            np.zeros(self.shape),
-            flags,
-            flags,
-            np.full(self.shape, -1, np.int64),
-            flags,
-            np.zeros(self.shape + (len(self.sim.reward_terms),)),
-        )
+        return self._steps(self.members[trainer], self.rounds.now())
 
-    def _steps_for_members(
-        self, reward, terminated, truncated, applied, late, terms
-    ) -> dict[str, Steps]:
-        view = self._arena_view()
-        self.last_observations = view[0]
-        return {
-            trainer: self._steps(
-                member.slots, view, reward, terminated, truncated, applied, late, terms
-            )
-            for trainer, member in self.members.items()
-        }
+    def _steps(self, member: Member, rows: RoundRows) -> Steps:
+        """``member``'s rows of a round, as the Steps sent to its trainer."""
+        if member.count == rows.agents.size:
+            flat = rows.agents
 
-    def _arena_view(self) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
-        """What every member's Steps share, computed once per round: observations, action
-        masks and the metrics table (A, N, fields)."""
-        return self.sim.observe(), self.sim.action_mask(), self.sim.metrics_table()
+            def mine(value: np.ndarray) -> np.ndarray:
+                return value
+        else:
+            flat = np.flatnonzero(member.slots).astype(np.int32)
 
-    def _steps(
-        self,
-        slots: np.ndarray,
-        view: tuple[dict[str, np.ndarray], np.ndarray, np.ndarray],
-        reward,
-        terminated,
-        truncated,
-        applied,
-        late,
-        terms,
-    ) -> Steps:
-        observations, action_mask, table = view
-        arenas, n = self.shape
-        total = arenas * n
-        everyone = bool(slots.all())
-        flat = np.arange(total, dtype=np.int32) if everyone else np.flatnonzero(slots)
-
-        def rows(value: np.ndarray) -> np.ndarray:
-            value = value.reshape((total,) + value.shape[2:])
-            return value if everyone else value[flat]
+            def mine(value: np.ndarray) -> np.ndarray:
+                return value[flat]
 
         # Built from the simulation's own arrays, whose dtypes and shapes the spec fixes: the
         # per-field checks that guard decoding are skipped on this hot path (a test decodes
@@ -466,16 +393,16 @@ class Group:
             server=self.server,
             group=self.group_id,
             round=self.round,
-            agents=flat.astype(np.int32),
-            observations={name: rows(value) for name, value in observations.items()},
-            reward=rows(reward),
-            terminated=rows(terminated),
-            truncated=rows(truncated),
-            action_applied=rows(applied),
-            late=rows(late),
-            action_mask=rows(action_mask),
-            reward_terms=rows(terms),
-            metrics=rows(table),
+            agents=flat.copy(),
+            observations={name: mine(value) for name, value in rows.observations.items()},
+            reward=mine(rows.reward),
+            terminated=mine(rows.terminated),
+            truncated=mine(rows.truncated),
+            action_applied=mine(rows.action_applied),
+            late=mine(rows.late),
+            action_mask=mine(rows.action_mask),
+            reward_terms=mine(rows.reward_terms),
+            metrics=mine(rows.metrics),
         )
 
     # --- views ------------------------------------------------------------------------------
@@ -495,4 +422,4 @@ class Group:
 
     def latest_observations(self) -> dict[str, np.ndarray]:
         """Every agent's observation of the last round (observed now before the first)."""
-        return self.last_observations or self.sim.observe()
+        return self.rounds.latest_observations()

@@ -1,10 +1,12 @@
 """The simulator in this process, as an engine of overtake's environment faces.
 
-An in-process environment steps the very arena group a server steps for its trainers
-(:class:`~overtake.server.groups.Group`, one member that owns every car), so that its Steps,
-and with them everything an environment returns, are the server's bit for bit. What only an
-in-process simulator has, its :class:`~overtake.protocol.faces.Road` (world frames, pictures,
-the privileged planner), is :class:`LocalRoad`.
+An in-process environment plays the very rounds a server's arena groups play
+(:class:`~overtake.server.rounds.Rounds`: the autoreset, what each slot carries between rounds),
+so that what it returns is the server's bit for bit; but it owns every car, so nothing of the
+server's ledger is here (no trainer, ticket, message or deadline): its faces read the round's
+rows (:class:`~overtake.server.rounds.RoundRows`) straight from the simulator's arrays. What
+only an in-process simulator has, its :class:`~overtake.protocol.faces.Road` (world frames,
+pictures, the privileged planner), is :class:`LocalRoad`.
 """
 
 from __future__ import annotations
@@ -16,76 +18,97 @@ from typing import Any
 
 import numpy as np
 
+from overtake.protocol import errors
+from overtake.protocol.envs import arena_seeds
 from overtake.protocol.faces import Simulator
-from overtake.protocol.messages import Steps, WorldFrame
+from overtake.protocol.messages import BehaviourSpec, WorldFrame
+from overtake.protocol.vocabulary import DEFAULT_ACTION
 
 from .group_snapshot import GroupSnapshot
-from .groups import Group
+from .rounds import RoundRows, Rounds
 from .sim import HighwaySim, SimConfig
 from .sim.planner import Planner
 from .sim.render import render_top_down
-from .world import group_world_frame
+from .spec import behaviour_spec
+from .world import rounds_world_frame
 
 IN_PROCESS = "in-process"
-"""The server name in an in-process simulator's Steps and world frames."""
-_TRAINER = "in-process"
+"""The server name in an in-process simulator's world frames."""
 
 
 class LocalEngine:
-    """A group of ``arenas`` arenas of ``config`` in this process, every car ours."""
+    """``arenas`` arenas of ``config`` in this process, every car ours."""
 
     restarts = 0  # nothing to lose: the simulator lives here
 
     def __init__(self, config: SimConfig, arenas: int, agents_per_arena: int = 1) -> None:
-        self.group = Group.of_config(
-            0, IN_PROCESS, list(range(arenas)), config, agents_per_arena, seed=None
-        )
-        for arena in range(arenas):
-            self.group.claim(_TRAINER, arena, agents_per_arena, fresh=True)
-        self._ticket = self.group.members[_TRAINER].ticket
+        try:
+            sim = HighwaySim(config, num_arenas=arenas, agents_per_arena=agents_per_arena)
+        except ValueError as error:
+            raise errors.BadConfig(str(error)) from None
+        sim.reset(seeds=arena_seeds(None, arenas))
+        self.rounds = Rounds(sim)
+        self.spec: BehaviourSpec = behaviour_spec(sim)
         self._agents = np.arange(arenas * agents_per_arena, dtype=np.int32)
+        self._every_car = np.ones((arenas, agents_per_arena), dtype=bool)
         self.trainer_step = -1
-        self._steps: Steps | None = None
+        self.frames_trainer_step = -1  # what world frames repeat: the step of the last round
+        self._rows: RoundRows | None = None
 
     @property
     def sim(self) -> HighwaySim:
-        return self.group.sim
+        return self.rounds.sim
 
     @property
     def agents(self) -> np.ndarray:
         return self._agents
 
-    def reset(self, arenas: tuple[int, ...], seeds: tuple[int | None, ...]) -> Steps:
-        return self.group.reset(_TRAINER, self._ticket, arenas, seeds)
+    def reset(self, arenas: tuple[int, ...], seeds: tuple[int | None, ...]) -> RoundRows:
+        count = self.rounds.shape[0]
+        bad = [a for a in arenas if not 0 <= a < count]
+        if bad:
+            raise errors.UnknownArena(f"this simulator has arenas 0..{count - 1}, got {bad}")
+        mine = np.ones(self.rounds.shape[1], dtype=bool)
+        for arena, seed in zip(arenas, seeds, strict=True):
+            self.rounds.reset_arena(arena, seed, mine, alone=True)
+        self._rows = None
+        return self.rounds.now()
 
     def send(self, agents: np.ndarray, actions: np.ndarray, retire: Sequence[int] = ()) -> None:
-        if self._steps is not None:
-            raise RuntimeError("actions sent twice for one round; receive its Steps first")
-        # The face checked the actions; every car is ours: the round is played directly.
-        if self.trainer_step >= 0:  # what world frames repeat (Actions.trainer_step remotely)
-            self.group.trainer_step = self.trainer_step
-        self._steps = self.group.play_alone(
-            np.asarray(agents, dtype=np.int64),
-            np.asarray(actions, dtype=np.int64),
-            np.asarray(retire, dtype=np.int32),
-        )
+        if self._rows is not None:
+            raise RuntimeError("actions sent twice for one round; receive its rows first")
+        # The face checked the actions; every car is ours: the round is played directly, the
+        # cars left out keep their lane (late), as a server plays a trainer's.
+        if self.trainer_step >= 0:
+            self.frames_trainer_step = self.trainer_step
+        rounds = self.rounds
+        if len(retire):
+            rounds.retire(np.asarray(retire, dtype=np.int64))
+        full = np.full(rounds.shape, DEFAULT_ACTION, dtype=np.int64)
+        full.reshape(-1)[agents] = actions
+        late = np.zeros(rounds.shape, dtype=bool)
+        if agents.size < late.size:
+            late[...] = True
+            late.reshape(-1)[agents] = False
+            late &= ~rounds.ended & ~rounds.retired
+        self._rows = rounds.play(full, late, self._every_car)
 
-    def receive(self) -> Steps:
-        steps, self._steps = self._steps, None
-        if steps is None:
-            raise RuntimeError("no actions sent to receive Steps for")
-        return steps
+    def receive(self) -> RoundRows:
+        rows, self._rows = self._rows, None
+        if rows is None:
+            raise RuntimeError("no actions sent to receive a round for")
+        return rows
 
     restorable = True  # the road lives here
 
     def snapshot(self) -> dict[str, Any]:
         """The arenas' whole state (:class:`~.group_snapshot.GroupSnapshot`) as plain data."""
-        if self._steps is not None:
-            raise RuntimeError("a snapshot between rounds only: receive the Steps sent for")
-        return GroupSnapshot.of(self.group).to_plain()
+        if self._rows is not None:
+            raise RuntimeError("a snapshot between rounds only: receive the round sent for")
+        return GroupSnapshot.of(self.rounds).to_plain()
 
     def restore(self, snapshot: Mapping[str, Any]) -> None:
-        GroupSnapshot.from_plain(snapshot).restore_into(self.group)
+        GroupSnapshot.from_plain(snapshot).restore_into(self.rounds)
 
     def close(self) -> None:
         """Nothing to release (the road lives in this process)."""
@@ -99,8 +122,16 @@ class LocalRoad:
         self._planner: Planner | None = None
 
     def world_frame(self, arena: int) -> WorldFrame:
-        group = self._engine.group
-        return group_world_frame(group, arena, group.latest_observations())
+        rounds = self._engine.rounds
+        return rounds_world_frame(
+            rounds,
+            arena,
+            rounds.latest_observations(),
+            server=IN_PROCESS,
+            group=0,
+            arena_id=arena,
+            trainer_step=self._engine.frames_trainer_step,
+        )
 
     def picture(self, arena: int) -> np.ndarray:
         return render_top_down(self._engine.sim, arena=arena)
@@ -116,7 +147,7 @@ def local_simulator(config: SimConfig, arenas: int, agents_per_arena: int = 1) -
     engine = LocalEngine(config, arenas, agents_per_arena)
     return Simulator(
         parts=(engine,),
-        spec=engine.group.spec,
+        spec=engine.spec,
         sim_config=json.loads(json.dumps(dataclasses.asdict(config))),
         road=LocalRoad(engine),
     )

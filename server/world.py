@@ -15,6 +15,7 @@ from .sim import HighwaySim
 
 if TYPE_CHECKING:
     from .groups import Group
+    from .rounds import Rounds
 
 
 def world_frame(
@@ -66,16 +67,39 @@ def world_frame(
 def group_world_frame(group: Group, arena: int, observations: dict[str, np.ndarray]) -> WorldFrame:
     """Arena ``arena`` (an index in ``group``) as spectators and recordings see it: the
     simulator's snapshot of its road, with the agents' latest observations and rewards."""
-    return world_frame(
-        group.sim,
+    return rounds_world_frame(
+        group.rounds,
         arena,
+        observations,
         server=group.server,
         group=group.group_id,
         arena_id=group.arena_ids[arena],
-        round_=group.round,
-        observations={name: value[arena] for name, value in observations.items()},
-        reward=group.last_reward[arena],
-        action_applied=group.last_applied[arena],
-        reward_terms=group.last_terms[arena],
         trainer_step=group.trainer_step,
+    )
+
+
+def rounds_world_frame(
+    rounds: Rounds,
+    arena: int,
+    observations: dict[str, np.ndarray],
+    *,
+    server: str,
+    group: int,
+    arena_id: int,
+    trainer_step: int,
+) -> WorldFrame:
+    """:func:`group_world_frame` of any :class:`~.rounds.Rounds` (an in-process engine's
+    too), named as given."""
+    return world_frame(
+        rounds.sim,
+        arena,
+        server=server,
+        group=group,
+        arena_id=arena_id,
+        round_=rounds.round,
+        observations={name: value[arena] for name, value in observations.items()},
+        reward=rounds.last_reward[arena],
+        action_applied=rounds.last_applied[arena],
+        reward_terms=rounds.last_terms[arena],
+        trainer_step=trainer_step,
     )

@@ -67,7 +67,7 @@ def test_an_in_process_vector_env_in_parts_is_the_env_in_one_part():
     whole = HighwayVectorEnv(5, config=config)
     engines = (LocalEngine(config, 2), LocalEngine(config, 3))
     parts = VectorFace(
-        Simulator(parts=engines, spec=engines[0].group.spec, sim_config=whole.sim_config), 5
+        Simulator(parts=engines, spec=engines[0].spec, sim_config=whole.sim_config), 5
     )
     assert parts.part_slices == (slice(0, 2), slice(2, 5))
     rng = np.random.default_rng(4)
@@ -134,7 +134,7 @@ def test_one_agent_s_info_read_from_its_row_is_the_vector_info_s_row():
     ended, went on, were late or saw the server restart, with the lane-change watch's counts."""
     config = make_config("min2018", {**SHORT, "ego.lane_change_watch": True})
     engine = LocalEngine(config, 3)
-    spec = engine.group.spec
+    spec = engine.spec
     steps = engine.reset((0, 1, 2), (5, 6, 7))
     rng = np.random.default_rng(2)
     ended = late = 0
