@@ -12,14 +12,14 @@ trainer's name, where the arenas are, how often their server was lost).
 
 The faces, :class:`SingleFace` (Gymnasium's ``Env``), :class:`VectorFace` (``VectorEnv``,
 next-step autoreset, optionally in parts) and, in :mod:`.parallel_face`, PettingZoo's
-``ParallelEnv``, read only those rows; their ``info`` is built here, in :class:`StepInfo`, whose
-fields are :data:`~overtake.protocol.vocabulary.INFO_KEYS`. An in-process environment and a
-remote one are the same face over a different engine, and so the same bit for bit.
+``ParallelEnv``, read only those rows; their ``info`` is built in
+:class:`~.step_rows.StepInfo`, whose fields are :data:`~overtake.protocol.vocabulary.INFO_KEYS`.
+An in-process environment and a remote one are the same face over a different engine, and so
+the same bit for bit.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -32,7 +32,8 @@ from gymnasium.vector.utils import batch_space
 
 from .envs import ReportsEpisodeLength, arena_seeds, check_actions, check_render_mode
 from .messages import BehaviourSpec, WorldFrame
-from .vocabulary import ACTION_COUNT, EPISODE_COUNTS, INFO_KEYS, WATCH_METRICS
+from .step_rows import StepInfo, StepRows, joined
+from .vocabulary import ACTION_COUNT
 
 try:  # Gymnasium >= 1.1 names the autoreset modes; 1.0 only has next-step autoreset.
     from gymnasium.vector import AutoresetMode
@@ -40,34 +41,6 @@ try:  # Gymnasium >= 1.1 names the autoreset modes; 1.0 only has next-step autor
     NEXT_STEP: Any = AutoresetMode.NEXT_STEP
 except ImportError:  # pragma: no cover - Gymnasium 1.0
     NEXT_STEP = "NextStep"
-
-
-class StepRows(Protocol):
-    """What the faces read of a round, one row per agent: :class:`Steps` from a server, or an
-    in-process engine's own rows (:class:`overtake.server.rounds.RoundRows`, no message)."""
-
-    @property
-    def agents(self) -> np.ndarray: ...
-    @property
-    def observations(self) -> dict[str, np.ndarray]: ...
-    @property
-    def reward(self) -> np.ndarray: ...
-    @property
-    def terminated(self) -> np.ndarray: ...
-    @property
-    def truncated(self) -> np.ndarray: ...
-    @property
-    def action_applied(self) -> np.ndarray: ...
-    @property
-    def late(self) -> np.ndarray: ...
-    @property
-    def action_mask(self) -> np.ndarray: ...
-    @property
-    def reward_terms(self) -> np.ndarray: ...
-    @property
-    def metrics(self) -> np.ndarray: ...
-    @property
-    def ended(self) -> np.ndarray: ...
 
 
 class Engine(Protocol):
@@ -181,151 +154,6 @@ def spaces_from_spec(spec: BehaviourSpec) -> spaces.Dict:
 
 
 # --- info: built here and nowhere else --------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class StepInfo:
-    """What a step's ``info`` says, read from its Steps; the faces hand it out as a dict
-    (:meth:`vector`, :meth:`agent`) whose keys are these fields' names
-    (:data:`~overtake.protocol.vocabulary.INFO_KEYS`)."""
-
-    action_mask: np.ndarray
-    """(k, ACTION_COUNT) int8, 1 = the action can be taken now"""
-    action_applied: np.ndarray
-    """(k,) the action actually taken (a masked lateral action becomes keep; -1 at a reset)"""
-    reward_terms: dict[str, np.ndarray]
-    """each term of the reward, (k,) each"""
-    episode_counts: dict[str, np.ndarray]
-    """(k,) int64 each: the episode's collisions and emergency brakes so far (and, where driver
-    assistance watches lane changes through, the changes it turned back); a decision whose
-    count rose had one"""
-    metrics: dict[str, np.ndarray]
-    """the papers' episode metrics, (k,) each: read where the episode ended"""
-    late: np.ndarray
-    """(k,) bool: no action came for the car this round (the trainer missed the server's
-    deadline, or left the car out of its actions); keep was applied instead"""
-    server_restarted: bool
-    """the server was lost in this step: the episodes under way were truncated"""
-    ended: np.ndarray
-    """(k,) bool: whose episode ended here (where :attr:`metrics` hold)"""
-
-    @classmethod
-    def of(cls, steps: StepRows, spec: BehaviourSpec, *, restarted: bool = False) -> StepInfo:
-        fields = spec.metric_fields
-        return cls(
-            action_mask=steps.action_mask,
-            action_applied=steps.action_applied,
-            reward_terms={
-                name: steps.reward_terms[:, i] for i, name in enumerate(spec.reward_terms)
-            },
-            # The Steps' metrics are each episode's so far; the counts of events are integers.
-            episode_counts={
-                name: steps.metrics[:, fields.index(name)].astype(np.int64)
-                for name in (*EPISODE_COUNTS, *WATCH_METRICS)
-                if name in fields
-            },
-            metrics={name: steps.metrics[:, i] for i, name in enumerate(fields)},
-            late=steps.late,
-            server_restarted=restarted,
-            ended=steps.ended,
-        )
-
-    @staticmethod
-    def agent_of(
-        steps: StepRows, spec: BehaviourSpec, row: int, *, restarted: bool = False
-    ) -> dict[str, Any]:
-        """``StepInfo.of(steps, spec, restarted=restarted).agent(row)``, read straight from the
-        row (a single environment's every step: the vector's dicts are not built)."""
-        fields = spec.metric_fields
-        metrics = steps.metrics[row]
-        terms = steps.reward_terms[row]
-        info: dict[str, Any] = {
-            "action_mask": steps.action_mask[row],
-            "action_applied": int(steps.action_applied[row]),
-            "reward_terms": {name: float(terms[i]) for i, name in enumerate(spec.reward_terms)},
-            "episode_counts": {
-                name: int(metrics[fields.index(name)])
-                for name in (*EPISODE_COUNTS, *WATCH_METRICS)
-                if name in fields
-            },
-        }
-        if steps.terminated[row] or steps.truncated[row]:
-            info["metrics"] = {name: float(metrics[i]) for i, name in enumerate(fields)}
-        if steps.late[row]:
-            info["late"] = True
-        if restarted:
-            info["server_restarted"] = True
-        return info
-
-    def vector(self) -> dict[str, Any]:
-        """A vector environment's info: arrays over its environments; ``metrics`` (0 where no
-        episode ended, ``_metrics`` marking where one did), ``late`` and ``server_restarted``
-        only when something happened."""
-        info: dict[str, Any] = {
-            "action_mask": self.action_mask,
-            "action_applied": self.action_applied,
-            "reward_terms": self.reward_terms,
-            "episode_counts": self.episode_counts,
-        }
-        if self.ended.any():
-            info["metrics"] = {
-                name: np.where(self.ended, value, 0.0) for name, value in self.metrics.items()
-            }
-            info["_metrics"] = self.ended
-        if self.late.any():
-            info["late"] = self.late
-        if self.server_restarted:
-            info["server_restarted"] = np.ones(self.ended.shape, dtype=bool)
-        return info
-
-    def agent(self, row: int) -> dict[str, Any]:
-        """One agent's info (row ``row`` of the Steps): scalars; ``metrics`` when its episode
-        ended, ``late`` and ``server_restarted`` only when true."""
-        info: dict[str, Any] = {
-            "action_mask": self.action_mask[row],
-            "action_applied": int(self.action_applied[row]),
-            "reward_terms": {name: float(v[row]) for name, v in self.reward_terms.items()},
-            "episode_counts": {name: int(v[row]) for name, v in self.episode_counts.items()},
-        }
-        if self.ended[row]:
-            info["metrics"] = {name: float(v[row]) for name, v in self.metrics.items()}
-        if self.late[row]:
-            info["late"] = True
-        if self.server_restarted:
-            info["server_restarted"] = True
-        return info
-
-
-assert tuple(f.name for f in dataclasses.fields(StepInfo))[: len(INFO_KEYS)] == INFO_KEYS
-
-
-def joined(parts: Sequence[StepRows]) -> StepRows:
-    """One set of rows of several engines' rows, in the order given (a Steps' server, group and
-    round are the first part's: the rows are what a vector environment reads)."""
-    if len(parts) == 1:
-        return parts[0]
-    first = parts[0]
-
-    def rows(name: str) -> np.ndarray:
-        return np.concatenate([getattr(p, name) for p in parts])
-
-    # Both kinds of rows are frozen dataclasses (Steps, RoundRows): the first part's, taller.
-    return dataclasses.replace(
-        first,  # type: ignore[type-var]
-        agents=rows("agents"),
-        observations={
-            name: np.concatenate([p.observations[name] for p in parts])
-            for name in first.observations
-        },
-        reward=rows("reward"),
-        terminated=rows("terminated"),
-        truncated=rows("truncated"),
-        action_applied=rows("action_applied"),
-        late=rows("late"),
-        action_mask=rows("action_mask"),
-        reward_terms=rows("reward_terms"),
-        metrics=rows("metrics"),
-    )
 
 
 class Faced:
@@ -555,3 +383,19 @@ class VectorFace(Faced, gym.vector.VectorEnv):
         simulator = getattr(self, "simulator", None)
         if simulator is not None:
             simulator.close()
+
+
+__all__ = [
+    "Engine",
+    "Faced",
+    "Network",
+    "Restorable",
+    "Road",
+    "Simulator",
+    "SingleFace",
+    "StepInfo",
+    "StepRows",
+    "VectorFace",
+    "joined",
+    "spaces_from_spec",
+]

@@ -26,7 +26,8 @@ import numpy as np
 from pettingzoo import ParallelEnv
 
 from .envs import check_render_mode
-from .faces import Faced, Simulator, StepInfo, StepRows, spaces_from_spec
+from .faces import Faced, Simulator, spaces_from_spec
+from .step_rows import StepInfo, StepRows
 from .vocabulary import ACTION_COUNT, ACTION_NAMES
 
 AgentID = str
