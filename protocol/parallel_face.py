@@ -23,7 +23,18 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from pettingzoo import ParallelEnv
+
+try:
+    from pettingzoo import ParallelEnv
+except ModuleNotFoundError as error:
+    if error.name != "pettingzoo":
+        raise
+    raise ModuleNotFoundError(
+        "overtake's PettingZoo environments need PettingZoo, an optional dependency: "
+        'pip install -e ".[pettingzoo]" (from the checkout; scripts/setup.sh pettingzoo) '
+        "installs it",
+        name="pettingzoo",
+    ) from None
 
 from .envs import check_render_mode
 from .faces import Faced, Simulator, spaces_from_spec

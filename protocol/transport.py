@@ -180,6 +180,8 @@ class TransportConfig:
     """More Zenoh settings as (key, JSON5 value) pairs."""
 
     def zenoh_config(self) -> zenoh.Config:
+        check_endpoints("--listen", self.listen)
+        check_endpoints("--connect", self.connect)
         self.security.check(self.listen, self.connect)
         if self.mode == "client" and self.security.credentials_file is not None:
             # The commands share one set of security options; on a client this one would be
@@ -239,6 +241,31 @@ PROBE_TIMEOUT_S = 2.0
 
 def _scheme(endpoint: str) -> str:
     return endpoint.partition("/")[0].lower()
+
+
+# Zenoh 1.x's link protocols, the part of an endpoint before its first "/".
+ENDPOINT_SCHEMES = (
+    "tcp", "udp", "tls", "quic", "ws", "unixsock-stream", "unixpipe", "serial", "vsock",
+)  # fmt: skip
+
+
+def check_endpoints(flag: str, endpoints: tuple[str, ...]) -> None:
+    """Refuse, in one line with the corrected form, an endpoint that is not
+    ``PROTOCOL/ADDRESS`` (``127.0.0.1:7447`` for ``tcp/127.0.0.1:7447``, ``tcp://...``):
+    Zenoh would only say that no session opened."""
+    for endpoint in endpoints:
+        scheme, slash, address = endpoint.partition("/")
+        if slash and scheme.lower() in ENDPOINT_SCHEMES and address and not address.startswith("/"):
+            continue
+        # The address as written, with any "scheme://" or "scheme/" in front taken away.
+        given, sep, rest = endpoint.partition("://")
+        if not sep:
+            given, rest = "", address if slash else endpoint
+        proto = given.lower() if given.lower() in ENDPOINT_SCHEMES else "tcp"
+        raise ConnectError(
+            f"{flag} {endpoint}: an endpoint is PROTOCOL/ADDRESS, one of "
+            f"{', '.join(ENDPOINT_SCHEMES[:5])}, ...; did you mean {flag} {proto}/{rest}?"
+        )
 
 
 def _host_port(endpoint: str) -> tuple[str, int] | None:

@@ -39,7 +39,7 @@ done
 echo "training dqn, ddqn and dueling on the server (logs: runs/demo/{dqn,ddqn,dueling}.log)"
 # A spectator records the arenas while they train (read-only: it never slows the simulation).
 .venv/bin/overtake-spectate --connect "$endpoint" --server demo --no-rays --seconds 600 \
-  --rrd runs/demo/world.rrd --recording-id "$recording_id" 2> runs/demo/spectate.log &
+  --rrd runs/demo/world.rrd --overwrite --recording-id "$recording_id" 2> runs/demo/spectate.log &
 spectator_pid=$!
 for pid in "${trainer_pids[@]}"; do wait "$pid"; done
 trainer_pids=()

@@ -725,7 +725,7 @@ def test_resume_without_a_checkpoint_and_a_broken_checkpoint_say_what_is_wrong(t
         train(config)
     broken = tmp_path / "broken.pt"
     broken.write_bytes(b"not a checkpoint at all")
-    with pytest.raises(CheckpointError, match="not a readable overtake checkpoint"):
+    with pytest.raises(CheckpointError, match="not a checkpoint overtake-train wrote"):
         load_checkpoint(broken)
     torch.save({"header": {"format": "something-else/9"}}, tmp_path / "foreign.pt")
     with pytest.raises(CheckpointError, match="overtake-dqn/1.*something-else/9"):
@@ -743,7 +743,7 @@ def test_the_commands_print_what_is_wrong_and_exit_non_zero(tmp_path):
     with pytest.raises(SystemExit) as exited:
         evaluate_cli(["--checkpoint", str(broken)])
     assert str(exited.value.code).startswith(
-        f"overtake-eval: {broken} is not a readable overtake checkpoint ("
+        f"overtake-eval: {broken} is not a checkpoint overtake-train wrote ("
     )
     with pytest.raises(SystemExit) as exited:
         train_cli(["--precision", "fp16", "--run-dir", str(tmp_path / "run"), "--no-progress"])

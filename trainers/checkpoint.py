@@ -141,8 +141,13 @@ def load_checkpoint(path: Path) -> Checkpoint:
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # torch raises many types for a truncated or foreign file
+        # One line: PyTorch's own text can be a page, and for a pickle of other objects it
+        # advises weights_only=False, which would run whatever the file holds.
+        text = str(error).strip().splitlines()[0][:120] if str(error).strip() else ""
+        detail = "" if not text or "weights_only" in str(error) else f": {text}"
         raise CheckpointError(
-            f"{path} is not a readable overtake checkpoint ({type(error).__name__}: {error})"
+            f"{path} is not a checkpoint overtake-train wrote (PyTorch cannot read it as one, "
+            f"{type(error).__name__}{detail})"
         ) from None
     header = payload.get("header") if isinstance(payload, dict) else None
     if not isinstance(header, dict) or header.get("format") != CHECKPOINT_FORMAT:

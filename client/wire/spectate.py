@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from overtake.client.commands import run_command
+from overtake.client.commands import UsageError, run_command
 from overtake.client.wire.connection import RemoteConfig
 from overtake.client.wire.spectator import Spectator
 from overtake.protocol.transport import SecurityConfig
@@ -47,10 +47,19 @@ class SpectateConfig:
     """draw every LIDAR ray, not only the hits"""
     recording: RecordingConfig = field(default_factory=RecordingConfig)
     """where the frames go (default: runs/spectate/world.rrd)"""
+    overwrite: bool = False
+    """replace an existing .rrd (sink=file); without it an existing one is refused"""
 
 
 def main(config: SpectateConfig, stop: threading.Event | None = None) -> int:
     """Log frames until ``stop`` is set, or the time or frame limit; returns frames logged."""
+    rrd = config.recording.rrd or DEFAULT_RRD
+    if config.recording.sink == "file" and rrd.exists() and not config.overwrite:
+        # The last spectator's recording is somebody's evidence: never lost without a word.
+        raise UsageError(
+            f"{rrd} exists (an earlier recording): give --rrd NEW.rrd, or --overwrite to "
+            "replace it"
+        )
     stop = stop or threading.Event()
     remote = RemoteConfig(connect=(config.connect,), security=config.security)
     with Spectator(remote, server=config.server, arena=config.arena) as spectator:

@@ -16,6 +16,7 @@ checks each one against the dataclasses' type annotations.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import types
 import typing
 from collections.abc import Mapping
@@ -156,6 +157,24 @@ def apply_overrides(config: SimConfig, overrides: Mapping[str, PlainValue]) -> S
     return config
 
 
+# How many of a level's field names an unknown field's error lists.
+SHOWN_FIELDS = 8
+
+
+def _nearest(name: str, names: list[str]) -> list[str]:
+    """The names a typo of ``name`` most likely meant: the closest (difflib's ratio at least
+    0.75), and any as close as it within 0.03 (the shared "traffic." of every candidate would
+    otherwise make many look near)."""
+    scored = sorted(
+        ((difflib.SequenceMatcher(None, name, other).ratio(), other) for other in names),
+        reverse=True,
+    )
+    if not scored or scored[0][0] < 0.75:
+        return []
+    best = scored[0][0]
+    return [other for ratio, other in scored[:3] if ratio >= best - 0.03]
+
+
 def _replace_path(node: Any, path: list[str], dotted: str, value: object) -> Any:
     hints = get_type_hints(type(node))
     names = [f.name for f in dataclasses.fields(node)]
@@ -163,9 +182,15 @@ def _replace_path(node: Any, path: list[str], dotted: str, value: object) -> Any
     if head not in names:
         parent = dotted[: len(dotted) - len(".".join(path))]
         allowed = field_names(node, parent)
+        # The nearest names first (a typo), then a few of the others: the whole list of some
+        # levels is a screenful (docs/presets.md has every field).
+        near = _nearest(dotted, allowed)
+        hint = f"did you mean {' or '.join(near)}? " if near else ""
+        shown = ", ".join(allowed[:SHOWN_FIELDS])
+        more = f", ... ({len(allowed) - SHOWN_FIELDS} more)" if len(allowed) > SHOWN_FIELDS else ""
         raise ConfigError(
-            f"unknown configuration field {dotted!r}: at this level the fields are "
-            f"{', '.join(allowed)}"
+            f"unknown configuration field {dotted!r}: {hint}the fields at this level are "
+            f"{shown}{more}"
         )
     current = getattr(node, head)
     if len(path) == 1:
