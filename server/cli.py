@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import logging
 import signal
-import sys
 from typing import Any
 
 import zenoh
 
+from overtake.cli import enter
 from overtake.protocol import errors
 from overtake.protocol.transport import warn_if_unconnected, warn_if_unguarded
 
@@ -60,8 +60,4 @@ def parse_args(argv: list[str] | None = None) -> ServerConfig:
 
 
 def cli(argv: list[str] | None = None) -> None:
-    config = parse_args(argv)
-    try:
-        main(config)
-    except StartError as error:
-        sys.exit(f"overtake-server: {error}")
+    enter("overtake-server", parse_args, main, argv)

@@ -16,7 +16,6 @@ from __future__ import annotations
 import json
 import logging
 import signal
-import sys
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +23,7 @@ from typing import Any
 
 import zenoh
 
+from overtake.cli import enter
 from overtake.protocol import errors
 from overtake.protocol.transport import (
     DEFAULT_ENDPOINT,
@@ -220,7 +220,6 @@ def parse_args(argv: list[str] | None = None) -> RouterConfig:
 
 
 def cli(argv: list[str] | None = None) -> None:
-    config = parse_args(argv)
     stop = threading.Event()
 
     def on_signal(signum: int, _frame: Any) -> None:
@@ -229,10 +228,7 @@ def cli(argv: list[str] | None = None) -> None:
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
-    try:
-        main(config, stop)
-    except (StartError, errors.ProtocolError) as error:
-        sys.exit(f"overtake-router: {error}")
+    enter("overtake-router", parse_args, lambda config: main(config, stop), argv)
 
 
 if __name__ == "__main__":

@@ -5,7 +5,9 @@ from __future__ import annotations
 import os
 import socket
 from dataclasses import dataclass, field
+from pathlib import Path
 
+from overtake.cli import Output
 from overtake.protocol.transport import DEFAULT_ENDPOINT, SecurityConfig, TransportConfig
 from overtake.viz.recording import RecordingConfig
 
@@ -77,3 +79,7 @@ class ServerConfig:
             lease_s=self.lease_s,
             security=self.security,
         )
+
+    def output_paths(self) -> tuple[Output, ...]:
+        """What this command writes (checked before the server starts)."""
+        return (self.recording.output(Path("runs") / "server" / f"{self.name}.rrd"),)

@@ -8,6 +8,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -152,3 +153,47 @@ def test_set_up_replaces_a_venv_another_python_made_and_says_so(tmp_path):
     # Without PYTHON, a recent enough venv is kept even where python3 is old.
     done = _setup(tmp_path, None)
     assert done.returncode == 0 and "replacing" not in done.stderr
+
+
+COMMANDS = tuple(
+    name
+    for name in tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"][
+        "scripts"
+    ]
+)
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_help_into_a_closed_pipe_ends_quietly(command):
+    """``--help | head -1``: the first line, and nothing on stderr (no BrokenPipeError)."""
+    script = Path(sys.executable).parent / command
+    done = subprocess.run(
+        ["bash", "-c", f'"{script}" --help | head -1'],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.stdout.startswith("usage:"), done
+    assert done.stderr == "", done.stderr
+
+
+def test_an_output_that_cannot_be_written_is_refused_before_any_episode(tmp_path, monkeypatch):
+    import overtake.trainers.evaluate as evaluate
+
+    def never(config):
+        raise AssertionError("main ran: the output was not checked first")
+
+    monkeypatch.setattr(evaluate, "main", never)
+    a_file = tmp_path / "notes.txt"
+    a_file.write_text("not a folder")
+    message = _exit_line(
+        ["--policy", "rule", "--episodes", "1", "--json-out", str(a_file / "x.json")]
+    )
+    assert (
+        message
+        == f"overtake-eval: --json-out {a_file / 'x.json'}: {a_file} is a file, not a folder"
+    )
+    message = _exit_line(["--policy", "rule", "--episodes", "1", "--episodes-out", str(a_file)])
+    assert message.endswith("a file is there, expected a folder")
+    message = _exit_line(["--policy", "rule", "--episodes", "1", "--record", str(tmp_path)])
+    assert message.endswith("a folder is there, expected a file")

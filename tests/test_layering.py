@@ -1,6 +1,7 @@
 """The layering of the packages, read from their imports and checked in fresh interpreters.
 
-- protocol imports nothing of the project; viz only protocol;
+- protocol imports nothing of the project; cli (the commands' one door) only protocol; viz
+  only protocol and cli;
 - server never imports client or trainers; client never imports server or trainers; trainers
   never import server (a trainer must work against a simulator on another machine);
 - the simulation core (overtake.server.sim) imports numpy and the standard library only, and of
@@ -25,6 +26,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 FOLDERS = {
     "protocol": "protocol",
+    "cli": "cli",
     "viz": "viz",
     "server": "server",
     "client": "client",
@@ -33,10 +35,11 @@ FOLDERS = {
 # The parts of the project each package may import (besides itself).
 ALLOWED = {
     "protocol": set(),
-    "viz": {"protocol"},
-    "server": {"protocol", "viz"},
-    "client": {"protocol", "viz"},
-    "trainers": {"protocol", "viz", "client"},
+    "cli": {"protocol"},
+    "viz": {"protocol", "cli"},
+    "server": {"protocol", "cli", "viz"},
+    "client": {"protocol", "cli", "viz"},
+    "trainers": {"protocol", "cli", "viz", "client"},
 }
 HEAVY = ("msgpack", "zenoh", "gymnasium", "rerun", "torch")
 

@@ -26,7 +26,7 @@ import numpy as np
 import tyro
 from tyro.conf import Positional
 
-from overtake.client.commands import run_command
+from overtake.cli import enter
 from overtake.client.episodes.records import (
     EpisodeRecord,
     RecordError,
@@ -336,8 +336,7 @@ def parse_args(argv: list[str] | None = None) -> ReplayConfig:
 
 
 def cli(argv: list[str] | None = None) -> None:
-    config = parse_args(argv)
-    run_command("overtake-replay", main, config)
+    enter("overtake-replay", parse_args, main, argv)
 
 
 if __name__ == "__main__":

@@ -17,7 +17,8 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
-from overtake.client.commands import UsageError, run_command
+from overtake.cli import Output, enter
+from overtake.client.commands import UsageError
 from overtake.client.episodes.records import PolicySource
 from overtake.client.episodes.runner import baseline_policy, metric_summary
 from overtake.client.episodes.scenario import Scenario, parse_overrides
@@ -77,6 +78,14 @@ class EvalConfig(Scenario):
     """the row's name in the table (default: the algorithm and inputs, or the baseline)"""
     table: tuple[Path, ...] = ()
     """instead of evaluating: print one table of these --json-out files (rows side by side)"""
+
+    def output_paths(self) -> tuple[Output, ...]:
+        """What this command writes (checked before any episode is driven)."""
+        return (
+            Output("--json-out", self.json_out),
+            Output("--episodes-out", self.episodes_out, folder=True),
+            Output("--record", self.record),
+        )
 
 
 class GreedyPolicy:
@@ -288,8 +297,7 @@ def parse_args(argv: list[str] | None = None) -> EvalConfig:
 
 
 def cli(argv: list[str] | None = None) -> None:
-    config = parse_args(argv)
-    run_command("overtake-eval", main, config)
+    enter("overtake-eval", parse_args, main, argv)
 
 
 if __name__ == "__main__":

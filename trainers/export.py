@@ -31,7 +31,8 @@ import torch
 import tyro
 from torch import nn
 
-from overtake.client.commands import UsageError, run_command
+from overtake.cli import Output, enter
+from overtake.client.commands import UsageError
 from overtake.client.episodes.scenario import Where
 from overtake.client.policies.frames import FrameStacker
 from overtake.client.policies.onnx_policy import METADATA_KEY, POLICY_FORMAT
@@ -61,6 +62,10 @@ class ExportConfig:
     tolerance: float = 1e-4
     """largest allowed difference between ONNX Runtime's and PyTorch's Q-values"""
     opset: int = 18
+
+    def output_paths(self) -> tuple[Output, ...]:
+        """What this command writes (checked before the export)."""
+        return (Output("--out", self.out),)
 
 
 class UsedInputs(nn.Module):
@@ -275,8 +280,7 @@ def parse_args(argv: list[str] | None = None) -> ExportConfig:
 
 
 def cli(argv: list[str] | None = None) -> None:
-    config = parse_args(argv)
-    run_command("overtake-export", main, config)
+    enter("overtake-export", parse_args, main, argv)
 
 
 if __name__ == "__main__":

@@ -32,7 +32,8 @@ from typing import Any
 
 import torch
 
-from overtake.client.commands import UsageError, run_command
+from overtake.cli import enter
+from overtake.client.commands import UsageError
 from overtake.client.wire.stopping import interrupt_waits
 
 from .checkpoint import (
@@ -147,7 +148,6 @@ def parse_args(args: list[str]) -> TrainConfig:
 
 
 def cli(argv: list[str] | None = None) -> None:
-    config = parse_args(sys.argv[1:] if argv is None else argv)
     stop = threading.Event()
 
     def on_signal(signum: int, _frame: Any) -> None:
@@ -167,10 +167,17 @@ def cli(argv: list[str] | None = None) -> None:
         # (or the reconnect timeout): such waits end now, a healthy round still completes.
         interrupt_waits()
 
+    def train(config: TrainConfig) -> None:
+        print(json.dumps(main(config, stop=stop), indent=2))
+
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
-    summary = run_command("overtake-train", lambda c: main(c, stop=stop), config)
-    print(json.dumps(summary, indent=2))
+    enter(
+        "overtake-train",
+        lambda args: parse_args(sys.argv[1:] if args is None else args),
+        train,
+        argv,
+    )
 
 
 if __name__ == "__main__":

@@ -13,6 +13,7 @@ from typing import Any, Literal
 
 import torch
 
+from overtake.cli import Output
 from overtake.client.commands import UsageError
 from overtake.client.episodes.scenario import DEFAULT_PRESET, Scenario
 from overtake.protocol.vocabulary import WATCH_SETTING
@@ -159,3 +160,11 @@ class TrainConfig(Scenario):
             overrides.setdefault("lidar.enabled", False)
             overrides.setdefault("ego_vector.fields", list(CAMERA_ONLY_EGO_FIELDS))
         return overrides
+
+    def output_paths(self) -> tuple[Output, ...]:
+        """What this command writes (checked before anything is trained)."""
+        run_dir = self.resolved_run_dir()
+        return (
+            Output("--run-dir", run_dir, folder=True),
+            self.recording.output(run_dir / "trainer.rrd"),
+        )

@@ -27,6 +27,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from overtake.cli import CommandError, Output, enter
+
 from .recording import APPLICATION_ID, FLUSH_TIMEOUT_S
 from .training_layout import car_layout, curves_layout, key_curves_layout
 from .world_view import ArenaShape, arena_layout, road_view
@@ -34,7 +36,7 @@ from .world_view import ArenaShape, arena_layout, road_view
 log = logging.getLogger("overtake.layout")
 
 
-class LayoutError(RuntimeError):
+class LayoutError(CommandError, RuntimeError):
     """The recordings could not be read or joined; the message says which and why."""
 
 
@@ -166,6 +168,10 @@ class LayoutConfig:
     out: Path = Path("combined.rrd")
     """the joined recording (written beside, then renamed: never half-written)"""
 
+    def output_paths(self) -> tuple[Output, ...]:
+        """What this command writes (checked before the recordings are read)."""
+        return (Output("--out", self.out),)
+
 
 def main(config: LayoutConfig) -> Contents:
     """Write the joined, laid-out recording; returns what it holds."""
@@ -210,15 +216,14 @@ def parse_args(argv: list[str] | None = None) -> LayoutConfig:
 
 
 def cli(argv: list[str] | None = None) -> None:
-    config = parse_args(argv)
-    try:
+    def layout(config: LayoutConfig) -> None:
         contents = main(config)
-    except LayoutError as error:
-        raise SystemExit(f"overtake-layout: {error}") from None
-    print(
-        f"{config.out}: {len(contents.runs)} run(s) ({', '.join(contents.runs) or 'none'}), "
-        f"{len(contents.shapes)} arena(s); open it with: rerun {config.out}"
-    )
+        print(
+            f"{config.out}: {len(contents.runs)} run(s) ({', '.join(contents.runs) or 'none'}), "
+            f"{len(contents.shapes)} arena(s); open it with: rerun {config.out}"
+        )
+
+    enter("overtake-layout", parse_args, layout, argv)
 
 
 if __name__ == "__main__":

@@ -27,6 +27,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+from overtake.cli import CommandError, Output
+
 # Every process of the project records under this application id: processes that share a
 # recording id (``--recording-id``) then open as one recording in the viewer.
 APPLICATION_ID = "overtake"
@@ -54,7 +56,7 @@ FLUSH_TIMEOUT_S = 10.0
 log = logging.getLogger("overtake.recording")
 
 
-class RecordingError(RuntimeError):
+class RecordingError(CommandError, RuntimeError):
     """A recording sink could not be opened (the web viewer's port taken, the viewer not
     starting); the message says what to change."""
 
@@ -91,6 +93,11 @@ class RecordingConfig:
     def __post_init__(self) -> None:
         if self.record_every < 1:
             raise ValueError(f"record_every must be >= 1, got {self.record_every}")
+
+    def output(self, default_rrd: Path | None) -> Output:
+        """The file a file sink writes (``default_rrd`` where --rrd is not given), as an output
+        the commands' door checks before the work starts."""
+        return Output("--rrd", (self.rrd or default_rrd) if self.sink == "file" else None)
 
     def describe(self, default_rrd: Path) -> str:
         """Where the recording goes, in words, for a closing log line."""

@@ -27,6 +27,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from overtake.cli import CommandError, Output, enter
+
 from .recording import viewer_binary
 
 log = logging.getLogger("overtake.render")
@@ -44,7 +46,7 @@ NOTIFICATIONS_S = 12.0
 SETTLE_TIMEOUT_S = 60.0
 
 
-class RenderError(RuntimeError):
+class RenderError(CommandError, RuntimeError):
     """The viewer could not be started or could not draw; the message says why."""
 
 
@@ -75,6 +77,10 @@ class RenderConfig:
     holds still, notifications or not)"""
     extra_args: tuple[str, ...] = field(default_factory=tuple)
     """more arguments for the viewer"""
+
+    def output_paths(self) -> tuple[Output, ...]:
+        """What this command writes (checked before the viewer starts)."""
+        return (Output("--out", self.out),)
 
 
 def _free_port() -> int:
@@ -309,13 +315,13 @@ def parse_args(argv: list[str] | None = None) -> RenderConfig:
 
 
 def cli(argv: list[str] | None = None) -> None:
-    config = parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    try:
+
+    def render(config: RenderConfig) -> None:
         for path in main(config):
             print(path)
-    except RenderError as error:
-        raise SystemExit(f"overtake-render: {error}") from None
+
+    enter("overtake-render", parse_args, render, argv)
 
 
 if __name__ == "__main__":

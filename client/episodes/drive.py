@@ -15,7 +15,8 @@ from typing import Literal
 
 import numpy as np
 
-from overtake.client.commands import UsageError, run_command
+from overtake.cli import Output, enter
+from overtake.client.commands import UsageError
 from overtake.client.episodes.records import PolicySource
 from overtake.client.episodes.runner import baseline_policy, metric_summary, metric_table
 from overtake.client.episodes.scenario import Scenario
@@ -51,6 +52,13 @@ class DriveConfig(Scenario):
     """also write the table as JSON here"""
     episodes_out: Path | None = None
     """keep every episode as a record in this folder (<policy>.jsonl), for overtake-replay"""
+
+    def output_paths(self) -> tuple[Output, ...]:
+        """What this command writes (checked before any episode is driven)."""
+        return (
+            Output("--json-out", self.json_out),
+            Output("--episodes-out", self.episodes_out, folder=True),
+        )
 
 
 def main(config: DriveConfig) -> dict[str, dict[str, float]]:
@@ -203,8 +211,7 @@ def parse_args(argv: list[str] | None = None) -> DriveConfig:
 
 
 def cli(argv: list[str] | None = None) -> None:
-    config = parse_args(argv)
-    run_command("overtake-drive", main, config)
+    enter("overtake-drive", parse_args, main, argv)
 
 
 if __name__ == "__main__":

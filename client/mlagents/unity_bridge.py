@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from overtake.client.commands import run_command
+from overtake.cli import enter
 from overtake.client.episodes.scenario import parse_overrides
 from overtake.client.mlagents.environment import RemoteEnvironment
 from overtake.client.mlagents.wire import (
@@ -402,10 +402,9 @@ def parse_args(argv: list[str] | None = None) -> BridgeConfig:
 
 
 def cli(argv: list[str] | None = None) -> None:
-    config = parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     signal.signal(signal.SIGTERM, _terminated)
-    summary = run_command("overtake-unity-bridge", main, config)
+    summary = enter("overtake-unity-bridge", parse_args, main, argv)
     print(f"overtake-unity-bridge: done after {summary['exchanges']} exchange(s)")
 
 

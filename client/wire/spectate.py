@@ -8,7 +8,6 @@ web viewer this command serves; ``--record-every N`` logs one frame in N.
 
 from __future__ import annotations
 
-import functools
 import signal
 import sys
 import threading
@@ -17,7 +16,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from overtake.client.commands import UsageError, run_command
+from overtake.cli import Output, enter
+from overtake.client.commands import UsageError
 from overtake.client.wire.connection import RemoteConfig
 from overtake.client.wire.spectator import Spectator
 from overtake.protocol.transport import SecurityConfig
@@ -50,6 +50,10 @@ class SpectateConfig:
     overwrite: bool = False
     """replace an existing .rrd (sink=file); without it an existing one is refused"""
 
+    def output_paths(self) -> tuple[Output, ...]:
+        """What this command writes (checked before it connects)."""
+        return (self.recording.output(DEFAULT_RRD),)
+
 
 def main(config: SpectateConfig, stop: threading.Event | None = None) -> int:
     """Log frames until ``stop`` is set, or the time or frame limit; returns frames logged."""
@@ -57,8 +61,7 @@ def main(config: SpectateConfig, stop: threading.Event | None = None) -> int:
     if config.recording.sink == "file" and rrd.exists() and not config.overwrite:
         # The last spectator's recording is somebody's evidence: never lost without a word.
         raise UsageError(
-            f"{rrd} exists (an earlier recording): give --rrd NEW.rrd, or --overwrite to "
-            "replace it"
+            f"{rrd} exists (an earlier recording): give --rrd NEW.rrd, or --overwrite to replace it"
         )
     stop = stop or threading.Event()
     remote = RemoteConfig(connect=(config.connect,), security=config.security)
@@ -113,19 +116,21 @@ def parse_args(argv: list[str] | None = None) -> SpectateConfig:
 
 
 def cli(argv: list[str] | None = None) -> None:
-    config = parse_args(argv)
     stop = threading.Event()
 
     def on_signal(_signum: int, _frame: Any) -> None:
         stop.set()
 
+    def spectate(config: SpectateConfig) -> None:
+        logged = main(config, stop=stop)
+        print(
+            f"logged {logged} world frame(s) to {config.recording.describe(DEFAULT_RRD)}",
+            file=sys.stderr,
+        )
+
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
-    logged = run_command("overtake-spectate", functools.partial(main, stop=stop), config)
-    print(
-        f"logged {logged} world frame(s) to {config.recording.describe(DEFAULT_RRD)}",
-        file=sys.stderr,
-    )
+    enter("overtake-spectate", parse_args, spectate, argv)
 
 
 if __name__ == "__main__":

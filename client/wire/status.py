@@ -6,7 +6,7 @@ import json
 import sys
 from dataclasses import asdict, dataclass, field
 
-from overtake.client.commands import run_command
+from overtake.cli import enter
 from overtake.client.wire.connection import Connection, RemoteConfig
 from overtake.protocol.messages import StatusReply
 from overtake.protocol.transport import DEFAULT_ENDPOINT, SecurityConfig
@@ -88,9 +88,7 @@ def parse_args(argv: list[str] | None = None) -> StatusConfig:
 
 
 def cli(argv: list[str] | None = None) -> None:
-    config = parse_args(argv)
-    statuses = run_command("overtake-status", main, config)
-    if not statuses:
+    if not enter("overtake-status", parse_args, main, argv):
         sys.exit(1)
 
 

@@ -12,7 +12,8 @@ from typing import Any
 
 import tyro
 
-from overtake.client.commands import UsageError, run_command
+from overtake.cli import enter
+from overtake.client.commands import UsageError
 
 from ..train_config import TrainConfig
 from .catalogue import ALGO_NAMES, EXPERIMENTS, INPUT_NAMES, ExperimentError
@@ -147,17 +148,19 @@ def parse_args(argv: list[str] | None = None) -> ExperimentConfig:
 
 
 def cli(argv: list[str] | None = None) -> None:
-    config = parse_args(argv)
+    def experiment(config: ExperimentConfig) -> None:
+        summary = main(config)
+        if not config.list_experiments:
+            print(Path(summary["table_md"]).read_text(encoding="utf-8"))
+
     # SIGTERM (a container stopping, `kill`) stops the children as Ctrl-C does.
     previous = signal.signal(signal.SIGTERM, _terminate)
     try:
-        summary = run_command("overtake-experiment", main, config)
+        enter("overtake-experiment", parse_args, experiment, argv)
     except KeyboardInterrupt:
         sys.exit("overtake-experiment: stopped; run the same command again to continue")
     finally:
         signal.signal(signal.SIGTERM, previous)
-    if not config.list_experiments:
-        print(Path(summary["table_md"]).read_text(encoding="utf-8"))
 
 
 if __name__ == "__main__":

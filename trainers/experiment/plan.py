@@ -13,6 +13,7 @@ from typing import Annotated, Any, Literal
 
 import tyro
 
+from overtake.cli import Output
 from overtake.client.commands import UsageError
 from overtake.client.episodes.scenario import Where
 from overtake.viz.recording import RecordingConfig
@@ -87,6 +88,13 @@ class ExperimentConfig(Where):
     committed: bench/results/<experiment>)"""
     list_experiments: bool = False
     """print the experiments and their rows, and do nothing else"""
+
+    def output_paths(self) -> tuple[Output, ...]:
+        """What this command writes (checked before any run starts)."""
+        return (
+            Output("--out", self.out, folder=True),
+            Output("--keep", self.keep, folder=True),
+        )
 
 
 @dataclass(frozen=True)
