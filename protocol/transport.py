@@ -27,6 +27,7 @@ from typing import Literal
 
 import zenoh
 
+from .endpoints import check_endpoints, host_port, protocol_of
 from .errors import ConnectError
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -107,7 +108,7 @@ class SecurityConfig:
                 raise ConnectError(f"{flag} {path}: no such file")
         if (self.tls_certificate is None) != (self.tls_private_key is None):
             raise ConnectError("--tls-certificate and --tls-private-key go together")
-        tls_listen = [e for e in listen if _scheme(e) == "tls"]
+        tls_listen = [e for e in listen if protocol_of(e) == "tls"]
         if tls_listen and self.tls_certificate is None:
             raise ConnectError(
                 f"listening on {', '.join(tls_listen)} needs this side's "
@@ -120,7 +121,7 @@ class SecurityConfig:
         if (
             self.tls_mtls
             and self.tls_certificate is None
-            and any(_scheme(e) == "tls" for e in connect)
+            and any(protocol_of(e) == "tls" for e in connect)
         ):
             raise ConnectError(
                 "--tls-mtls needs this side's certificate: give "
@@ -239,44 +240,6 @@ def open_session(config: TransportConfig) -> zenoh.Session:
 PROBE_TIMEOUT_S = 2.0
 
 
-def _scheme(endpoint: str) -> str:
-    return endpoint.partition("/")[0].lower()
-
-
-# Zenoh 1.x's link protocols, the part of an endpoint before its first "/".
-ENDPOINT_SCHEMES = (
-    "tcp", "udp", "tls", "quic", "ws", "unixsock-stream", "unixpipe", "serial", "vsock",
-)  # fmt: skip
-
-
-def check_endpoints(flag: str, endpoints: tuple[str, ...]) -> None:
-    """Refuse, in one line with the corrected form, an endpoint that is not
-    ``PROTOCOL/ADDRESS`` (``127.0.0.1:7447`` for ``tcp/127.0.0.1:7447``, ``tcp://...``):
-    Zenoh would only say that no session opened."""
-    for endpoint in endpoints:
-        scheme, slash, address = endpoint.partition("/")
-        if slash and scheme.lower() in ENDPOINT_SCHEMES and address and not address.startswith("/"):
-            continue
-        # The address as written, with any "scheme://" or "scheme/" in front taken away.
-        given, sep, rest = endpoint.partition("://")
-        if not sep:
-            given, rest = "", address if slash else endpoint
-        proto = given.lower() if given.lower() in ENDPOINT_SCHEMES else "tcp"
-        raise ConnectError(
-            f"{flag} {endpoint}: an endpoint is PROTOCOL/ADDRESS, one of "
-            f"{', '.join(ENDPOINT_SCHEMES[:5])}, ...; did you mean {flag} {proto}/{rest}?"
-        )
-
-
-def _host_port(endpoint: str) -> tuple[str, int] | None:
-    """Host and port of ``proto/host:port[?config][#metadata]``; None if it has none."""
-    address = endpoint.partition("/")[2].split("?")[0].split("#")[0]
-    host, sep, port = address.rpartition(":")
-    if not sep or not port.isdigit():
-        return None
-    return host.strip("[]"), int(port)
-
-
 def _tls_context(security: SecurityConfig) -> ssl.SSLContext:
     context = ssl.create_default_context(
         cafile=str(security.tls_root_ca) if security.tls_root_ca is not None else None
@@ -375,7 +338,7 @@ def connect_failure_cause(config: TransportConfig) -> str | None:
     endpoint's link by hand; None when no endpoint could be tried (e.g. udp or quic)."""
     causes = []
     for endpoint in config.connect:
-        scheme, address = _scheme(endpoint), _host_port(endpoint)
+        scheme, address = protocol_of(endpoint), host_port(endpoint)
         if scheme not in ("tcp", "tls") or address is None:
             continue
         host, port = address
@@ -424,7 +387,7 @@ _TLS_SCHEMES = ("tls", "quic")
 
 def is_loopback_endpoint(endpoint: str) -> bool:
     """Whether ``endpoint`` listens on loopback only (127.x, ::1, localhost)."""
-    address = _host_port(endpoint)
+    address = host_port(endpoint)
     if address is None:
         return False
     host = address[0].split("%")[0].lower()
@@ -445,9 +408,9 @@ def unguarded_listeners(listen: tuple[str, ...], *, usrpwd: bool, mtls: bool) ->
     return tuple(
         endpoint
         for endpoint in listen
-        if _scheme(endpoint) in _NETWORK_SCHEMES
+        if protocol_of(endpoint) in _NETWORK_SCHEMES
         and not is_loopback_endpoint(endpoint)
-        and not (mtls and _scheme(endpoint) in _TLS_SCHEMES)
+        and not (mtls and protocol_of(endpoint) in _TLS_SCHEMES)
     )
 
 

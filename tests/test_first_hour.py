@@ -17,8 +17,8 @@ import torch
 from overtake.client.commands import UsageError
 from overtake.client.wire.spectate import SpectateConfig
 from overtake.client.wire.spectate import main as spectate_main
+from overtake.protocol.endpoints import check_endpoints
 from overtake.protocol.errors import ConnectError
-from overtake.protocol.transport import check_endpoints
 from overtake.trainers.evaluate import cli as evaluate_cli
 from overtake.viz.recording import RecordingConfig
 
