@@ -25,7 +25,9 @@ from __future__ import annotations
 
 import logging
 import os
+import socket
 import sys
+import urllib.parse
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -46,11 +48,13 @@ class CommandError(Exception):
 
 @dataclass(frozen=True)
 class Output:
-    """A file (or, with ``folder``, a folder) a command will write, and the flag naming it."""
+    """A file (or, with ``folder``, a folder) a command will write, or the Rerun viewer it
+    streams to (``viewer_url``), and the flag naming it."""
 
     flag: str
     path: Path | None  # None: not asked for
     folder: bool = False
+    viewer_url: str | None = None
 
 
 class WritesFiles(Protocol):
@@ -65,6 +69,8 @@ def check_outputs(outputs: Iterable[Output]) -> None:
     already, nor a folder a file."""
     for output in outputs:
         flag, path = output.flag, output.path
+        if output.viewer_url is not None:
+            check_viewer(output.viewer_url)
         if path is None:
             continue
         if not output.folder and path.is_dir():
@@ -80,6 +86,31 @@ def check_outputs(outputs: Iterable[Output]) -> None:
             raise CommandError(f"{flag} {path}: no permission to write in {ancestor}")
         if path.exists() and not path.is_dir() and not os.access(path, os.W_OK):
             raise CommandError(f"{flag} {path}: the file is there and not writable")
+
+
+VIEWER_PROBE_TIMEOUT_S = 2.0
+
+
+def check_viewer(url: str) -> None:
+    """Refuse at once a Rerun viewer address nothing listens on: Rerun's gRPC sink would drop
+    everything logged without a word and stall the process's exit for seconds retrying."""
+    address = urllib.parse.urlsplit(url.replace("rerun+", "", 1))
+    try:
+        host, port = address.hostname, address.port
+    except ValueError:
+        host = port = None
+    if host is None or port is None:
+        raise CommandError(
+            f"--viewer-url {url}: expected rerun+http://HOST:PORT/proxy, the address a Rerun "
+            "viewer's gRPC server listens on"
+        )
+    try:
+        socket.create_connection((host, port), timeout=VIEWER_PROBE_TIMEOUT_S).close()
+    except OSError as error:
+        raise CommandError(
+            f"no Rerun viewer listens at {url} ({error.strerror or error}): start one with "
+            "`.venv/bin/rerun` first, or record to a file (--sink file)"
+        ) from None
 
 
 def enter(

@@ -6,6 +6,7 @@ from __future__ import annotations
 import importlib
 import os
 import shutil
+import socket
 import subprocess
 import sys
 import tomllib
@@ -14,6 +15,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from overtake.cli import Output, check_outputs
 from overtake.client.commands import UsageError
 from overtake.client.wire.spectate import SpectateConfig
 from overtake.client.wire.spectate import main as spectate_main
@@ -197,3 +199,35 @@ def test_an_output_that_cannot_be_written_is_refused_before_any_episode(tmp_path
     assert message.endswith("a file is there, expected a folder")
     message = _exit_line(["--policy", "rule", "--episodes", "1", "--record", str(tmp_path)])
     assert message.endswith("a folder is there, expected a file")
+
+
+def test_a_grpc_sink_with_no_viewer_is_refused_at_once_naming_what_to_start():
+    """Before connecting to anything: nothing would be recorded, and the exit would stall."""
+    from remote_support import free_port
+
+    url = f"rerun+http://127.0.0.1:{free_port()}/proxy"
+    done = subprocess.run(
+        [
+            str(Path(sys.executable).parent / "overtake-spectate"),
+            "--connect",
+            f"tcp/127.0.0.1:{free_port()}",
+            "--sink",
+            "grpc",
+            "--viewer-url",
+            url,
+            "--seconds",
+            "30",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 1
+    assert done.stderr.startswith(f"overtake-spectate: no Rerun viewer listens at {url}")
+    assert "rerun" in done.stderr and done.stderr.count("\n") == 1, done.stderr
+    # Where one listens, the same check passes.
+    with socket.create_server(("127.0.0.1", 0)) as viewer:
+        port = viewer.getsockname()[1]
+        check_outputs(
+            [Output("--viewer-url", None, viewer_url=f"rerun+http://127.0.0.1:{port}/proxy")]
+        )

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from overtake.cli import CommandError, Output
+from overtake.cli import CommandError, Output, check_viewer
 
 # Every process of the project records under this application id: processes that share a
 # recording id (``--recording-id``) then open as one recording in the viewer.
@@ -95,8 +95,11 @@ class RecordingConfig:
             raise ValueError(f"record_every must be >= 1, got {self.record_every}")
 
     def output(self, default_rrd: Path | None) -> Output:
-        """The file a file sink writes (``default_rrd`` where --rrd is not given), as an output
-        the commands' door checks before the work starts."""
+        """Where the recording goes, as an output the commands' door checks before the work
+        starts: the file a file sink writes (``default_rrd`` where --rrd is not given), the
+        viewer a gRPC sink streams to."""
+        if self.sink == "grpc":
+            return Output("--viewer-url", None, viewer_url=self.viewer_url)
         return Output("--rrd", (self.rrd or default_rrd) if self.sink == "file" else None)
 
     def describe(self, default_rrd: Path) -> str:
@@ -267,6 +270,10 @@ def open_recording(
         path.parent.mkdir(parents=True, exist_ok=True)
         stream.save(str(path), default_blueprint=blueprint, write_footer=footer)
     elif config.sink == "grpc":
+        try:
+            check_viewer(config.viewer_url)
+        except CommandError as error:
+            raise RecordingError(str(error)) from None
         stream.set_sinks(rr.GrpcSink(config.viewer_url), default_blueprint=blueprint)
     else:
         viewer, viewer_log = _start_web_viewer(config)
