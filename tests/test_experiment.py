@@ -46,6 +46,7 @@ from overtake.trainers.experiment import (
     train_command,
     training_episodes,
 )
+from overtake.trainers.experiment.command import hours_estimate
 from overtake.trainers.experiment.files import LOCK_NAME, lock
 from overtake.trainers.learner import DQNConfig
 from overtake.trainers.train import TrainConfig, parse_args
@@ -111,18 +112,33 @@ def test_the_schedule_scales_the_papers_settings_to_the_budget():
     ],
 )  # fmt: skip
 def test_bad_options_are_refused_naming_what_was_expected(changes, expected):
-    config = dataclasses.replace(ExperimentConfig(references=("rule",)), **changes)
+    config = dataclasses.replace(
+        ExperimentConfig(experiment="min2018-table3", references=("rule",)), **changes
+    )
     with pytest.raises(UsageError, match=expected):
         make_plan(config)
 
 
 def test_the_command_exits_with_the_message(capsys):
     with pytest.raises(SystemExit) as exit_info:
-        cli(["--jobs", "0", "--references", "rule"])
+        cli(["min2018-table3", "--jobs", "0", "--references", "rule"])
     assert exit_info.value.code == "overtake-experiment: --jobs must be >= 1, got 0"
     with pytest.raises(SystemExit) as exit_info:
         cli(["nope"])
     assert "unknown experiment 'nope'" in str(exit_info.value.code)
+
+
+def test_without_a_name_nothing_starts_and_each_experiment_says_how_long(capsys, tmp_path):
+    """Hours of both cores start only when asked for by name."""
+    cli(["--out", str(tmp_path / "exp")])
+    said = capsys.readouterr().out
+    for name in EXPERIMENTS:
+        assert name in said
+    assert said.count("hours on a 2-core machine") == len(EXPERIMENTS)
+    assert "name one to run it" in said
+    assert not (tmp_path / "exp").exists()
+    experiment = EXPERIMENTS["min2018-table3"]
+    assert hours_estimate(experiment, experiment.total_steps // 10).startswith("about 42 minutes")
 
 
 def test_reference_policies_are_read_from_overtake_eval():
@@ -138,6 +154,7 @@ def parse(config_type: type, args: list[str]) -> Any:
 
 def test_each_runs_command_line_parses_back_to_its_training_configuration(tmp_path):
     config = ExperimentConfig(
+        experiment="min2018-table3",
         out=tmp_path,
         jobs=3,
         set=("episode.max_decisions=40", "camera.rgb=true"),
@@ -306,7 +323,17 @@ BUDGET = 400
 NUM_ENVS = 2
 ROWS = ("dueling-lidar", "dqn-both")
 TINY = (
-    ["--rows", *ROWS, "--seeds", "1", "--total-steps", str(BUDGET), "--num-envs", str(NUM_ENVS)]
+    [
+        "min2018-table3",
+        "--rows",
+        *ROWS,
+        "--seeds",
+        "1",
+        "--total-steps",
+        str(BUDGET),
+        "--num-envs",
+        str(NUM_ENVS),
+    ]
     + ["--learning-starts", "32", "--replay-size", "400", "--checkpoint-every", "50"]
     + ["--references", "rule", "random", "--densities", "light", "--jobs", "2"]
     + ["--eval-episodes", "2", "--eval-max-decisions", "30", "--curve-bins", "8"]

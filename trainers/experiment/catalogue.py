@@ -117,6 +117,10 @@ class Experiment:
     training line at each)"""
     note: str = ""
     """what a reader of the table and curves must know (Markdown), written under the tables"""
+    hours_on_two_cores: float = 0.0
+    """about how long the whole experiment takes on the project's 2-core VM, training two runs
+    at a time and the evaluations (docs/experiments.md's timings): what the command says
+    before it starts"""
 
 
 @dataclass(frozen=True)
@@ -160,6 +164,7 @@ class Schedule:
 
 EXPERIMENTS: dict[str, Experiment] = {
     "min2018-table3": Experiment(
+        hours_on_two_cores=7.0,
         name="min2018-table3",
         title="Min et al. (2018), Table III: Double + Dueling DQN with camera and LIDAR, the "
         "camera alone and the LIDAR alone, and DQN and Double DQN with both (two seeds each)",
@@ -190,6 +195,7 @@ EXPERIMENTS: dict[str, Experiment] = {
         ),
     ),
     "ho2018-table8": Experiment(
+        hours_on_two_cores=15.0,
         name="ho2018-table8",
         title="Ho (2018), Table 8: the baseline network and the proposed network at four "
         "learning rates (Table 7), DQN with a target network on the occupancy grid",
@@ -232,6 +238,7 @@ EXPERIMENTS: dict[str, Experiment] = {
         ),
     ),
     "min2018-safe": Experiment(
+        hours_on_two_cores=6.0,
         name="min2018-safe",
         title="A learned driver that is fast and never crashes: Double + Dueling DQN on the "
         "LIDAR (min2018) as the paper has it, behind the safety shield, with prioritized "
@@ -279,6 +286,7 @@ EXPERIMENTS: dict[str, Experiment] = {
         ),
     ),
     "min2018-notebook": Experiment(
+        hours_on_two_cores=12.0,
         name="min2018-notebook",
         title="Min et al. (2018) trained as the authors' notebook trains: min2018-table3's "
         "Dueling DQN on camera and LIDAR with Adam's epsilon 0.01, the squared TD error and an "
@@ -297,6 +305,7 @@ EXPERIMENTS: dict[str, Experiment] = {
         ),
     ),
     "fayjie2018-fig6": Experiment(
+        hours_on_two_cores=2.5,
         name="fayjie2018-fig6",
         title="Fayjie et al. (2018), Fig. 6: the reward per 3,000 training steps, DQN with the "
         "two-stream network on the camera and the LIDAR map",

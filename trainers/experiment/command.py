@@ -16,7 +16,7 @@ from overtake.cli import enter
 from overtake.client.commands import UsageError
 
 from ..train_config import TrainConfig
-from .catalogue import ALGO_NAMES, EXPERIMENTS, INPUT_NAMES, ExperimentError
+from .catalogue import ALGO_NAMES, EXPERIMENTS, INPUT_NAMES, Experiment, ExperimentError
 from .evidence import keep_evidence
 from .files import LOCK_NAME, PLAN_NAME, lock, read_json, say, write_atomic
 from .plan import ExperimentConfig, Plan, learned_settings, make_plan, training_identity
@@ -31,13 +31,25 @@ def describe_experiments() -> str:
             f"{experiment.name}: {experiment.title}",
             f"  {experiment.total_steps:,} steps per run, preset {experiment.preset}, "
             f"evaluated at {', '.join(experiment.densities)} traffic beside "
-            f"{', '.join(experiment.references)}",
+            f"{', '.join(experiment.references)}; {hours_estimate(experiment)}",
         ]
         lines += [
             f"  {row.label}: {ALGO_NAMES[row.algo]}, {INPUT_NAMES[row.inputs]}, {row.seeds} seed(s)"
             for row in experiment.rows
         ]
     return "\n".join(lines)
+
+
+def hours_estimate(experiment: Experiment, total_steps: int | None = None) -> str:
+    """What the experiment takes, in words: the hours measured on the project's 2-core VM,
+    scaled to ``total_steps`` where that replaces the experiment's budget."""
+    hours = experiment.hours_on_two_cores
+    scaled = ""
+    if total_steps is not None and total_steps != experiment.total_steps:
+        hours *= total_steps / experiment.total_steps
+        scaled = f", scaled to {total_steps:,} steps"
+    when = f"about {hours:.1f} hours" if hours >= 1 else f"about {hours * 60:.0f} minutes"
+    return f"{when} on a 2-core machine{scaled}, less with more cores or a GPU"
 
 
 def check_directory(plan: Plan) -> None:
@@ -95,11 +107,15 @@ def main(config: ExperimentConfig) -> dict[str, Any]:
     """Run the experiment ``config`` names (or continue it); returns what it did and where the
     outputs are. Raises UsageError for bad options, ExperimentError when a part failed (what
     succeeded is kept: running it again retries only what failed)."""
-    if config.list_experiments:
+    if config.list_experiments or config.experiment is None:
+        # Hours start only when asked for by name: without one, what there is to run.
         text = describe_experiments()
         print(text)
+        if config.experiment is None:
+            print("\nname one to run it, e.g. overtake-experiment fayjie2018-fig6")
         return {"experiments": text}
     plan = make_plan(config)
+    say(f"{plan.experiment.name}: {hours_estimate(plan.experiment, config.total_steps)}")
     plan.out.mkdir(parents=True, exist_ok=True)
     experiment_lock = lock(plan.out / LOCK_NAME)
     if experiment_lock is None:
@@ -150,7 +166,7 @@ def parse_args(argv: list[str] | None = None) -> ExperimentConfig:
 def cli(argv: list[str] | None = None) -> None:
     def experiment(config: ExperimentConfig) -> None:
         summary = main(config)
-        if not config.list_experiments:
+        if "table_md" in summary:
             print(Path(summary["table_md"]).read_text(encoding="utf-8"))
 
     # SIGTERM (a container stopping, `kill`) stops the children as Ctrl-C does.

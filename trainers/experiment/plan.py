@@ -33,8 +33,8 @@ class ExperimentConfig(Where):
     is (--connect: a server for training and evaluation alike; default one in each process)
     is the scenario's option; which simulator is the experiment's."""
 
-    experiment: Annotated[str, tyro.conf.Positional] = "min2018-table3"
-    """the experiment to run (--list-experiments shows them)"""
+    experiment: Annotated[str | None, tyro.conf.Positional] = None
+    """the experiment to run (without one: the experiments, and how long each takes)"""
     out: Path | None = None
     """the experiment directory; default runs/experiments/<experiment>"""
     jobs: int | None = None
@@ -173,7 +173,7 @@ def _at_least_one(name: str, value: int | None) -> None:
 def make_plan(config: ExperimentConfig) -> Plan:
     """The experiment ``config`` asks for, checked: every bad option is refused here, before
     anything is trained."""
-    experiment = EXPERIMENTS.get(config.experiment)
+    experiment = EXPERIMENTS.get(config.experiment or "")
     if experiment is None:
         raise UsageError(
             f"unknown experiment {config.experiment!r}: expected one of {', '.join(EXPERIMENTS)}"
