@@ -53,7 +53,8 @@ class Args:
     learning_starts: int = 5_000
     train_frequency: int = 8
     """environment steps (all arenas) per gradient step"""
-    log_every: int = 5_000
+    log_every: int | None = None
+    """environment steps between progress lines (default: a tenth of the run)"""
 
 
 def flat_observation(obs: dict[str, np.ndarray]) -> np.ndarray:
@@ -153,6 +154,9 @@ def main(args: Args) -> list[float]:
         iterations = args.total_timesteps // steps_per_iteration
         gradient_steps = 0
         start = time.time()
+        # By default a line every tenth of the run: a short run says something too.
+        log_every = max(steps_per_iteration, args.log_every or args.total_timesteps // 10)
+        print(f"training {args.total_timesteps} steps on {args.num_envs} environment(s)")
         for iteration in range(iterations):
             global_step = iteration * steps_per_iteration
             epsilon = linear_schedule(
@@ -197,7 +201,7 @@ def main(args: Args) -> list[float]:
                 if gradient_steps % args.target_network_frequency == 0:
                     target_network.load_state_dict(q_network.state_dict())
 
-            if global_step and global_step % args.log_every < steps_per_iteration:
+            if global_step and global_step % log_every < steps_per_iteration:
                 recent = returns[-20:]
                 mean = float(np.mean(recent)) if recent else float("nan")
                 rate = global_step / max(time.time() - start, 1e-9)

@@ -16,6 +16,7 @@ Needs ``pip install -e ".[examples]"`` (stable-baselines3).
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,6 +25,7 @@ import numpy as np
 import tyro
 from stable_baselines3 import DQN
 from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.logger import HumanOutputFormat, Logger
 from stable_baselines3.common.monitor import Monitor
 
 import overtake.client  # noqa: F401  (registers overtake/Highway-v0 and RemoteHighway-v0)
@@ -97,6 +99,9 @@ def main(args: Args) -> tuple[float, float]:
             seed=args.seed,
             verbose=0,
         )
+        # SB3's default logger makes an SB3-<date> folder in the temporary directory, empty
+        # with verbose=0: one that prints its tables (every 4 episodes) and makes nothing.
+        model.set_logger(Logger(folder=None, output_formats=[HumanOutputFormat(sys.stdout)]))
         model.learn(total_timesteps=args.total_timesteps)
         if args.save is not None:
             args.save.parent.mkdir(parents=True, exist_ok=True)

@@ -4,6 +4,7 @@
 # separate trainer processes on the same server, evaluate them, and stop the server.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+echo "setting up .venv with PyTorch (about a minute the first time, seconds after)" >&2
 scripts/setup.sh train
 mkdir -p runs/demo
 port="${OVERTAKE_DEMO_PORT:-$(.venv/bin/python -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')}"
@@ -19,6 +20,7 @@ cleanup() {
   wait 2>/dev/null || true
 }
 trap cleanup EXIT
+echo "a simulator server on $endpoint; driving the rule-based and random drivers through it" >&2
 # The drivers and trainers wait for the server to come up (RemoteConfig.connect_timeout_s).
 .venv/bin/overtake-drive --connect "$endpoint" --policy rule --episodes 4 --seed 0 \
   --json-out runs/demo/rule.json "$@"
@@ -36,7 +38,7 @@ for algo in dqn ddqn dueling; do
     > "runs/demo/$algo.log" 2>&1 &
   trainer_pids+=("$!")
 done
-echo "training dqn, ddqn and dueling on the server (logs: runs/demo/{dqn,ddqn,dueling}.log)"
+echo "training dqn, ddqn and dueling on the server, about a minute (logs: runs/demo/{dqn,ddqn,dueling}.log)"
 # A spectator records the arenas while they train (read-only: it never slows the simulation).
 .venv/bin/overtake-spectate --connect "$endpoint" --server demo --no-rays --seconds 600 \
   --rrd runs/demo/world.rrd --overwrite --recording-id "$recording_id" 2> runs/demo/spectate.log &

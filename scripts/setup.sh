@@ -41,4 +41,6 @@ fi
 extras="${1:-}"
 target="."
 [[ -n "$extras" ]] && target=".[${extras}]"
-.venv/bin/python -m pip install --quiet -e "$target"
+# The editable install's build warns, in a box, about folders named like the package: this
+# project's folders are the package (pyproject maps them), nothing a user can act on.
+PYTHONWARNINGS=ignore .venv/bin/python -m pip install --quiet -e "$target"

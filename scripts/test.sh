@@ -3,6 +3,7 @@
 # suite (slow tests excluded).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+echo "setting up .venv with the dev tools (a few minutes the first time, seconds after)" >&2
 scripts/setup.sh dev,rllib
 # Xvfb and software Vulkan where they can be installed: one test draws a recording with Rerun's
 # own viewer (it skips, saying why, where they are missing).

@@ -17,14 +17,14 @@ EXAMPLES = ROOT / "examples"
 SHORT_EPISODES = "episode.max_decisions=30"
 
 
-def run_example(script: str, *args: str, log_dir: Path | None = None) -> str:
+def run_example(script: str, *args: str, tmp_dir: Path | None = None) -> str:
     """Run ``examples/<script>``; its output (the test fails, showing it, unless it exits 0).
 
-    ``log_dir``: where Stable-Baselines3 may make its log folder (without SB3_LOGDIR it makes an
-    empty ``SB3-<date>`` folder in the system's temp directory on every run, left behind)."""
+    ``tmp_dir``: the temporary directory it is given (TMPDIR), to see what it leaves there."""
     env = child_env()
-    if log_dir is not None:
-        env["SB3_LOGDIR"] = str(log_dir)
+    if tmp_dir is not None:
+        tmp_dir.mkdir(parents=True, exist_ok=True)
+        env["TMPDIR"] = str(tmp_dir)
     done = subprocess.run(
         [sys.executable, str(EXAMPLES / script), *args],
         capture_output=True,
@@ -59,8 +59,12 @@ def test_stable_baselines3_dqn_trains_and_evaluates(where, start_server, tmp_pat
         SHORT_EPISODES,
         "--save",
         str(model),
-        log_dir=tmp_path / "sb3-log",
+        tmp_dir=tmp_path / "tmp",
     )
+    # It says how learning goes as it goes (SB3's table), and leaves nothing behind (SB3's
+    # default logger left an empty SB3-<date> folder in the temporary directory every run).
+    assert "total_timesteps" in output, output[-2000:]
+    assert not list((tmp_path / "tmp").glob("SB3-*"))
     # Every step of a 30-decision episode pays at least the speed term, so a return came back.
     found = re.search(r"greedy return over 1 episode\(s\): (-?[\d.]+)", output)
     assert found, output[-2000:]
@@ -89,3 +93,22 @@ def test_cleanrl_style_dqn_learns_over_a_vector_env(where, start_server):
     assert [int(step) for step, _ in logs] == [400], output[-2000:]
     # 4 arenas x 100 steps of 30-decision episodes (plus the reset steps): 12 episodes ended.
     assert int(logs[-1][1]) >= 8
+
+
+@pytest.mark.timeout(300)
+def test_cleanrl_style_dqn_says_how_it_goes_on_a_short_run_too():
+    """Without --log-every, a line every tenth of the run (it printed nothing under 5,000)."""
+    output = run_example(
+        "cleanrl_dqn.py",
+        "--num-envs",
+        "2",
+        "--total-timesteps",
+        "200",
+        "--learning-starts",
+        "100",
+        "--set",
+        SHORT_EPISODES,
+    )
+    assert output.startswith("training 200 steps on 2 environment(s)"), output[:500]
+    steps = [int(step) for step in re.findall(r"step (\d+): epsilon", output)]
+    assert steps == list(range(20, 200, 20)), output[-2000:]

@@ -231,3 +231,15 @@ def test_a_grpc_sink_with_no_viewer_is_refused_at_once_naming_what_to_start():
         check_outputs(
             [Output("--viewer-url", None, viewer_url=f"rerun+http://127.0.0.1:{port}/proxy")]
         )
+
+
+def test_a_recording_without_a_footer_opens_without_rerun_s_warning(tmp_path, capfd):
+    """Long-running processes write .rrd files without a footer, a choice explained in
+    docs/rerun.md: Rerun's warning about it, at every such file, is not shown."""
+    from overtake.viz.recording import APPLICATION_ID, close_recording, open_recording
+
+    rrd = tmp_path / "long.rrd"
+    recording = open_recording(APPLICATION_ID, RecordingConfig(rrd=rrd), rrd, footer=False)
+    close_recording(recording)
+    assert rrd.stat().st_size > 0
+    assert "write_footer" not in capfd.readouterr().err

@@ -14,15 +14,18 @@ this module; it depends on nothing of the project.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import datetime
 import logging
+import os
 import signal
 import socket
 import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -120,6 +123,28 @@ class RecordingConfig:
 def _reachable(bind: str) -> str:
     """The address that reaches a server bound to ``bind`` from this host."""
     return "127.0.0.1" if bind in ("0.0.0.0", "") else bind
+
+
+@contextlib.contextmanager
+def _quiet_stderr(quiet: bool) -> Iterator[None]:
+    """Rerun warns, at every file opened without a footer, that random access will be slow: a
+    choice made here for processes that write for days (see the note on footers above), and a
+    warning a user can do nothing about. It is written to stderr while the sink opens, so
+    stderr points at /dev/null for that call only (an environment setting would reach Zenoh's
+    logger too, which reads the same RUST_LOG)."""
+    if not quiet:
+        yield
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(devnull)
+        os.close(saved)
 
 
 def viewer_binary() -> str:
@@ -268,7 +293,8 @@ def open_recording(
     if config.sink == "file":
         path = config.rrd or default_rrd
         path.parent.mkdir(parents=True, exist_ok=True)
-        stream.save(str(path), default_blueprint=blueprint, write_footer=footer)
+        with _quiet_stderr(not footer):
+            stream.save(str(path), default_blueprint=blueprint, write_footer=footer)
     elif config.sink == "grpc":
         try:
             check_viewer(config.viewer_url)

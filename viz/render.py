@@ -263,6 +263,11 @@ def main(config: RenderConfig) -> list[Path]:
     if missing:
         raise RenderError(f"no such recording: {', '.join(missing)}")
     written: list[Path] = []
+    # The viewer takes a while to start and to settle (its greeting fades first): say so.
+    log.info(
+        "drawing with Rerun's viewer, headless (about %.0f s before the first picture)",
+        config.notifications_s + SETTLE_SAME * SETTLE_INTERVAL_S,
+    )
     viewer = headless_viewer(config.width, config.height, config.notifications_s, config.extra_args)
     with viewer as (client, quiet_from):
         client.open([str(p.resolve()) for p in config.recordings])
