@@ -63,6 +63,7 @@ class RouterConfig:
     spectator_users: tuple[str, ...] = ()
     """with --isolate-trainers: the users that may watch every arena (overtake-spectate)"""
     log_level: str = "info"
+    """the lowest level of log lines shown: debug, info, warning or error"""
 
 
 def _endpoints(conf: zenoh.Config, key: str) -> tuple[str, ...]:

@@ -64,6 +64,7 @@ class ServerConfig:
     """usrpwd credentials (when connecting to a router that asks for them, and the users this
     server admits) and TLS certificates (for tls/ endpoints)"""
     log_level: str = "info"
+    """the lowest level of log lines shown: debug, info, warning or error"""
     recording: RecordingConfig = field(
         default_factory=lambda: RecordingConfig(sink="off", record_every=SERVER_RECORD_EVERY)
     )

@@ -56,6 +56,7 @@ class EvalConfig(Scenario):
     """a reference policy instead of a checkpoint: the rule-based driver, random, idle (never
     acts) or the privileged planner (reads the true state; in-process only)"""
     episodes: int = 10
+    """episodes per policy, all at once (one arena each)"""
     seed: int = 1_000
     """episode i uses seed + i (training uses other seeds by default)"""
     shield: bool | None = None

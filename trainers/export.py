@@ -59,9 +59,11 @@ class ExportConfig:
     check_envs: int = 4
     """arenas driven at once for the check"""
     seed: int = 0
+    """seed of the check's episodes"""
     tolerance: float = 1e-4
     """largest allowed difference between ONNX Runtime's and PyTorch's Q-values"""
     opset: int = 18
+    """the ONNX opset the model is written in"""
 
     def output_paths(self) -> tuple[Output, ...]:
         """What this command writes (checked before the export)."""

@@ -73,14 +73,19 @@ class DQNConfig:
     steps, target copy every 10,000 steps)."""
 
     learning_rate: float = 0.00025
+    """the optimiser's step size (Min et al.: 2.5e-4)"""
     batch_size: int = 32
+    """transitions per gradient update"""
     replay_size: int = 100_000
     """transitions kept (each frame stored once)"""
     learning_starts: int = 50_000
     """environment steps of experience before the first update"""
     gamma: float = 0.99
+    """the discount of future rewards"""
     epsilon_start: float = 1.0
+    """the chance of a random action at the start"""
     epsilon_end: float = 0.1
+    """the chance of a random action once it has fallen"""
     epsilon_decay_steps: int = 1_000_000
     """environment steps over which epsilon falls linearly from start to end"""
     target_update_steps: int = 10_000
@@ -88,11 +93,15 @@ class DQNConfig:
     train_every: int = 4
     """environment steps per gradient update (the papers do not say; 4 is Mnih et al.'s)"""
     grad_clip_norm: float = 10.0
+    """gradients are scaled down to this norm at most"""
     huber_delta: float = 1.0
+    """where the Huber loss turns from squared to linear (loss huber)"""
     stack: int = 4
     """frames (camera), scans (LIDAR) or grids stacked per observation"""
     lstm_cells: int = 256
+    """the multimodal network's LSTM cells (Min et al.'s Table II: 256)"""
     hidden_units: int = 512
+    """units of the multimodal network's fused layer, before its head"""
     network: Literal["multimodal", "baseline", "proposed", "two-stream", "mlp"] = "multimodal"
     """multimodal: Min et al.'s (camera / LIDAR inputs); baseline or proposed: Ho's networks
     on the occupancy grid (grid inputs; Figs. 4 and 5); two-stream: Fayjie et al.'s (camera-map

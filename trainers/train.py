@@ -78,11 +78,19 @@ def main(
     if config.torch_threads is not None:
         torch.set_num_threads(config.torch_threads)
     run_dir = config.resolved_run_dir()
+    made_here = not run_dir.exists()
     resumed = prepare_run_dir(config, run_dir)
     overrides = config.overrides()
     own_envs = envs is None
     if own_envs:
-        envs = config.open(config.preset, overrides, config.num_envs, parts=config.parts)
+        try:
+            envs = config.open(config.preset, overrides, config.num_envs, parts=config.parts)
+        except BaseException:
+            # A run that could not start (a bad override, no server) leaves no empty folder
+            # behind that a later run would have to be told to resume or avoid.
+            if made_here and not any(run_dir.iterdir()):
+                run_dir.rmdir()
+            raise
     elif envs.num_envs != config.num_envs:
         raise ValueError(
             f"the environment has {envs.num_envs} sub-environments, the "

@@ -64,6 +64,7 @@ class TrainConfig(Scenario):
     total_steps: int = 1_000_000
     """environment steps (transitions, summed over environments) to train for"""
     seed: int = 0
+    """seeds the network, exploration, replay sampling and the arenas (their seeds follow it)"""
     run_dir: Path | None = None
     """where the run's files go; default runs/<algo>-<inputs>-<seed>"""
     resume: bool = False

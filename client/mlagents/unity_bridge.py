@@ -113,9 +113,11 @@ class BridgeConfig:
     host: str = "localhost"
     """where the ML-Agents process runs"""
     preset: str = "min2018"
+    """the simulator preset of the arenas opened (overtake-server --help lists them)"""
     arenas: int = 1
     """arenas opened (ML-Agents' num_areas above 1 replaces it)"""
     agents_per_arena: int = 1
+    """learning cars per arena (ML-Agents sees each as an agent of the one behaviour)"""
     set: tuple[str, ...] = ()
     """simulator overrides as dotted.name=value"""
     security: SecurityConfig = field(default_factory=SecurityConfig)

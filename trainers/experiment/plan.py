@@ -63,9 +63,13 @@ class ExperimentConfig(Where):
     """None: the experiment's schedule (scaled to the budget, Schedule.for_budget, or the
     preset's own where the experiment keeps it), as are the next four"""
     epsilon_decay_steps: int | None = None
+    """steps over which epsilon falls; None: the experiment's"""
     target_update_steps: int | None = None
+    """steps between target network copies; None: the experiment's"""
     replay_size: int | None = None
+    """transitions the replay keeps; None: the experiment's"""
     checkpoint_every: int | None = None
+    """steps between checkpoints; None: the experiment's"""
     reward_window_steps: int | None = None
     """the training reward's window, for an experiment that plots it (Fayjie et al.'s 3,000);
     None keeps the experiment's"""
