@@ -39,7 +39,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from .learner import Algo, DQNConfig
+from .dqn_config import Algo, DQNConfig
 from .network import Inputs
 
 

@@ -19,7 +19,8 @@ from overtake.client.episodes.scenario import DEFAULT_PRESET, Scenario
 from overtake.protocol.vocabulary import WATCH_SETTING
 from overtake.viz.recording import RecordingConfig
 
-from .learner import Algo, DQNConfig, Precision
+from .dqn_config import Algo, DQNConfig
+from .learner import Precision
 from .network import Inputs
 from .presets import PRESET_TRAINING
 

@@ -8,7 +8,7 @@ from typing import Literal
 
 from overtake.protocol.vocabulary import DENSITIES, METRIC_FIELDS, Density
 
-from ..learner import Algo
+from ..dqn_config import Algo
 from ..network import Inputs
 
 ALGO_NAMES = {"dqn": "DQN", "ddqn": "Double DQN", "dueling": "Dueling DQN", "qr": "QR-DQN"}
