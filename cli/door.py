@@ -8,7 +8,7 @@ edges the same in every command.
   ``ValueError`` (a bad override) ends the command with ``<prog>: <message>`` and status 1.
   Anything else is a bug and keeps its traceback.
 - **Outputs checked before the work**: a configuration that writes files says which
-  (``output_paths()``: the flag and the path of each); one that cannot be written (a folder
+  (a method ``output_paths()`` returning an :class:`Output` for each); one that cannot be written (a folder
   where a file goes, a file where a folder must be made, no permission) is refused in one line
   before anything runs, not after an hour of episodes.
 - **A closed pipe ends it quietly** (``overtake-train --help | head -1``): no traceback, status
@@ -31,7 +31,7 @@ import urllib.parse
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol, TypeVar
+from typing import TypeVar
 
 from overtake.protocol import ProtocolError
 
@@ -55,12 +55,6 @@ class Output:
     path: Path | None  # None: not asked for
     folder: bool = False
     viewer_url: str | None = None
-
-
-class WritesFiles(Protocol):
-    def output_paths(self) -> Iterable[Output]:
-        """Every file or folder the command will write."""
-        ...
 
 
 def check_outputs(outputs: Iterable[Output]) -> None:
