@@ -7,10 +7,11 @@ edges the same in every command.
   one), a :class:`~overtake.protocol.ProtocolError` (the network or a server refused) or a
   ``ValueError`` (a bad override) ends the command with ``<prog>: <message>`` and status 1.
   Anything else is a bug and keeps its traceback.
-- **Outputs checked before the work**: a configuration that writes files says which
-  (a method ``output_paths()`` returning an :class:`Output` for each); one that cannot be written (a folder
-  where a file goes, a file where a folder must be made, no permission) is refused in one line
-  before anything runs, not after an hour of episodes.
+- **Outputs checked before the work**: a configuration that writes files says which (a
+  method ``output_paths()`` returning an :class:`Output` for each); one that cannot be
+  written (a folder where a file goes, a file where a folder must be made, no permission, a
+  Rerun viewer nobody runs) is refused in one line before anything runs, not after an hour of
+  episodes.
 - **A closed pipe ends it quietly** (``overtake-train --help | head -1``): no traceback, status
   141 as a Unix tool killed by SIGPIPE.
 - **The library's INFO lines** go to stderr, unless the caller configured logging itself.
