@@ -51,7 +51,7 @@ def world_frames(arenas: int, rounds: int) -> list[Any]:
     keep = np.zeros((arenas, 1), dtype=np.int64)
     for round_ in range(rounds):
         sim.step(keep)
-        group.round = round_ + 1
+        group.rounds.round = round_ + 1
         group.trainer_step = round_ * arenas
         observations = sim.observe()
         frames += [group_world_frame(group, arena, observations) for arena in range(arenas)]
