@@ -27,12 +27,6 @@ class FrameShapes:
     shapes: Mapping[str, tuple[tuple[int, ...], np.dtype]]
     actions: int
 
-    @property
-    def frame_bytes(self) -> int:
-        return sum(
-            int(np.prod(shape)) * np.dtype(dtype).itemsize for shape, dtype in self.shapes.values()
-        )
-
 
 class FrameStacker:
     """The last ``stack`` frames of each stacked observation, per environment (acting side).
