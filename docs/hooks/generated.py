@@ -25,7 +25,7 @@ from mkdocs.structure.files import File, Files
 
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "bench" / "results"
-PACKAGES = ("client", "protocol", "server", "trainers", "viz")
+PACKAGES = ("cli", "client", "protocol", "server", "trainers", "viz")
 MARKER = re.compile(r"<!-- generated: ([a-z0-9-]+)(?: ([A-Za-z0-9_.-]+))? -->")
 PAGES = {
     "results/benchmarks.md": ROOT / "bench" / "RESULTS.md",
