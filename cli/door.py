@@ -2,13 +2,13 @@
 typed configuration, the configuration checked, its ``main`` run, and what a user sees at the
 edges the same in every command.
 
-- **One line for what cannot be done**: a :class:`CommandError` (and the library's typed
+- **One line for what cannot be done**: a ``CommandError`` (and the library's typed
   errors below it: a usage error, a recording sink that cannot open, a checkpoint that is not
-  one), a :class:`~overtake.protocol.ProtocolError` (the network or a server refused) or a
+  one), a ``ProtocolError`` (the network or a server refused) or a
   ``ValueError`` (a bad override) ends the command with ``<prog>: <message>`` and status 1.
   Anything else is a bug and keeps its traceback.
 - **Outputs checked before the work**: a configuration that writes files says which (a
-  method ``output_paths()`` returning an :class:`Output` for each); one that cannot be
+  method ``output_paths()`` returning an ``Output`` for each); one that cannot be
   written (a folder where a file goes, a file where a folder must be made, no permission, a
   Rerun viewer nobody runs) is refused in one line before anything runs, not after an hour of
   episodes.
