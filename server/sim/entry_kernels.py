@@ -9,6 +9,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .spawning_kernels import behaviour_of, drawn_anchor, put_car
+
 
 @njit(cache=True, nogil=True)
 def enter_free_zones(
@@ -52,17 +54,9 @@ def enter_free_zones(
     entry speed within ``entry_speed_mps[side]`` at ``u_offset``."""
     arenas, vehicles = x.shape
     lanes = lane_centre_y.size
-    behaviours = behaviour_cdf.size
     occupied = np.zeros(lanes, dtype=np.bool_)
     total = 0
     for a in range(arenas):
-        # Agents off the road (a shared arena's free slots) anchor nothing, unless none is on.
-        any_present = False
-        first_anchor = 0
-        for i in range(agents):
-            if active[a, i] and not any_present:
-                first_anchor = i
-            any_present = any_present or active[a, i]
         for attempt in range(tries):
             draws = uniforms[a, 0, attempt * try_draws : (attempt + 1) * try_draws]
             slot = -1
@@ -73,9 +67,7 @@ def enter_free_zones(
             if not (draws[0] < prob and slot >= 0):
                 continue
             side = 1 if draws[1] >= 0.5 else 0
-            anchor = min(int(draws[3] * agents), agents - 1)
-            if not (active[a, anchor] or not any_present):
-                anchor = first_anchor
+            anchor = drawn_anchor(active, a, agents, draws[3])
             point = x[a, anchor] + offset_m[side]
             occupied[:] = False
             for v in range(vehicles):
@@ -98,24 +90,15 @@ def enter_free_zones(
                         break
                     seen += 1
             own = uniforms[a, slot]
-            # The behaviour a uniform picks by the shares (searchsorted, side right).
-            b = 0
-            while b < behaviours and behaviour_cdf[b] <= own[u_behaviour]:
-                b += 1
-            b = min(b, behaviours - 1)
+            b = behaviour_of(behaviour_cdf, own[u_behaviour])
             own_mps = speed_lo[b] + own[u_speed] * (speed_hi[b] - speed_lo[b])
             low, high = entry_speed_mps[side, 0], entry_speed_mps[side, 1]
             entry_mps = low + own[u_offset] * (high - low)
-            x[a, slot] = point
-            lane[a, slot] = target_lane[a, slot] = new_lane
-            y[a, slot] = lane_centre_y[new_lane]
-            change_progress[a, slot] = 0.0
-            speed[a, slot] = entry_mps
-            own_speed[a, slot] = own_mps
-            desired_speed[a, slot] = max(own_mps, entry_mps)
-            accel[a, slot] = 0.0
-            kind[a, slot] = b
-            active[a, slot] = True
+            put_car(
+                x, lane, target_lane, change_progress, y, speed, desired_speed, own_speed,
+                accel, kind, active, a, slot, point, new_lane, lane_centre_y, entry_mps,
+                max(own_mps, entry_mps), own_mps, b,
+            )  # fmt: skip
             entered[a, slot] = True
             total += 1
     return total

@@ -9,13 +9,70 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .traffic.kernels import desired_gap
+
 
 @njit(cache=True, nogil=True, inline="always")
-def _desired_gap(
-    speed: float, closing: float, headway: float, min_gap: float, two_sqrt_ab: float
-) -> float:
-    """The IDM's desired gap, as :func:`.traffic.car_following.idm_desired_gap`."""
-    return min_gap + max(0.0, speed * headway + speed * closing / two_sqrt_ab)
+def drawn_anchor(active: np.ndarray, a: int, agents: int, uniform: float) -> int:
+    """The agent of arena ``a`` a new car is placed by, picked by ``uniform`` in [0, 1): one
+    off the road (a shared arena's free slot) is replaced by the first agent on it, unless
+    none is on."""
+    anchor = min(int(uniform * agents), agents - 1)
+    if active[a, anchor]:
+        return anchor
+    for i in range(agents):
+        if active[a, i]:
+            return i
+    return anchor
+
+
+@njit(cache=True, nogil=True, inline="always")
+def behaviour_of(behaviour_cdf: np.ndarray, uniform: float) -> int:
+    """The traffic behaviour ``uniform`` picks by the behaviours' shares: numpy's
+    ``searchsorted(cdf, uniform, side="right")``, capped at the last (as
+    :meth:`.vehicles.VehicleKinds.behaviour_of`)."""
+    behaviours = behaviour_cdf.size
+    k = 0
+    while k < behaviours and behaviour_cdf[k] <= uniform:
+        k += 1
+    return min(k, behaviours - 1)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def put_car(
+    x: np.ndarray,
+    lane: np.ndarray,
+    target_lane: np.ndarray,
+    change_progress: np.ndarray,
+    y: np.ndarray,
+    speed: np.ndarray,
+    desired_speed: np.ndarray,
+    own_speed: np.ndarray,
+    accel: np.ndarray,
+    kind: np.ndarray,
+    active: np.ndarray,
+    a: int,
+    c: int,
+    at_x: float,
+    at_lane: int,
+    lane_centre_y: np.ndarray,
+    at_speed: float,
+    at_desired: float,
+    at_own: float,
+    at_kind: int,
+) -> None:
+    """A new car in slot ``c`` of arena ``a``: on the centre of its lane, not changing lanes,
+    at ``at_speed``, wanting ``at_desired``, its behaviour's own speed ``at_own``."""
+    x[a, c] = at_x
+    lane[a, c] = target_lane[a, c] = at_lane
+    change_progress[a, c] = 0.0
+    y[a, c] = lane_centre_y[at_lane]
+    speed[a, c] = at_speed
+    desired_speed[a, c] = at_desired
+    own_speed[a, c] = at_own
+    accel[a, c] = 0.0
+    kind[a, c] = at_kind
+    active[a, c] = True
 
 
 @njit(cache=True, nogil=True)
@@ -100,7 +157,6 @@ def respawn(
     traffic = vehicles - agents
     candidates = ahead_windows.shape[1]
     lanes = lane_centre_y.size
-    behaviours = behaviour_cdf.size
     kept = np.empty((arenas, traffic), dtype=np.bool_)
     kept_in_range(x, active, agents, keep_ahead_m, keep_behind_m, kept)
     # Per slot of an arena: the spot found, if any.
@@ -113,12 +169,6 @@ def respawn(
     need = np.zeros(traffic, dtype=np.bool_)
     total = 0
     for a in range(arenas):
-        any_present = False
-        first_anchor = 0
-        for i in range(agents):
-            if active[a, i] and not any_present:
-                first_anchor = i
-            any_present = any_present or active[a, i]
         # Out-of-range cars move at once; empty slots (no free spot found yet) try again
         # every decision, so that the road holds its density. All of them leave the road
         # before any spot is sought.
@@ -141,15 +191,9 @@ def respawn(
             # back behind; but it read that from a view of ``active`` it had just cleared, so
             # every side was drawn. The kept tables were made so; this keeps it.)
             ahead_side = u[u_side] < 0.5
-            anchor = min(int(u[u_anchor] * agents), agents - 1)
-            if not (active[a, anchor] or not any_present):
-                anchor = first_anchor
+            anchor = drawn_anchor(active, a, agents, u[u_anchor])
             windows = ahead_windows if ahead_side else behind_windows
-            # The behaviour a uniform picks by the shares (searchsorted, side right).
-            k = 0
-            while k < behaviours and behaviour_cdf[k] <= u[u_behaviour]:
-                k += 1
-            k = min(k, behaviours - 1)
+            k = behaviour_of(behaviour_cdf, u[u_behaviour])
             desired = speed_lo[k] + u[u_speed] * (speed_hi[k] - speed_lo[k])
             new_kind[t] = k
             new_desired[t] = desired
@@ -181,12 +225,12 @@ def respawn(
                     dx = x[a, o] - c_x
                     bodies = half_length[ok_] + half_length[k]
                     if dx >= 0.0:
-                        need_ahead = _desired_gap(
+                        need_ahead = desired_gap(
                             c_speed, c_speed - speed[a, o], headway[k], min_gap[k], two_sqrt_ab[k]
                         )
                         clear = dx - bodies >= need_ahead
                     else:
-                        need_behind = _desired_gap(
+                        need_behind = desired_gap(
                             speed[a, o],
                             speed[a, o] - c_speed,
                             headway[ok_],
@@ -217,15 +261,11 @@ def respawn(
             if not found[t]:
                 continue
             c = agents + t
-            x[a, c] = pick_x[t]
-            lane[a, c] = target_lane[a, c] = pick_lane[t]
-            change_progress[a, c] = 0.0
-            y[a, c] = lane_centre_y[pick_lane[t]]
-            speed[a, c] = pick_speed[t]
-            desired_speed[a, c] = own_speed[a, c] = new_desired[t]
-            accel[a, c] = 0.0
-            kind[a, c] = new_kind[t]
-            active[a, c] = True
+            put_car(
+                x, lane, target_lane, change_progress, y, speed, desired_speed, own_speed,
+                accel, kind, active, a, c, pick_x[t], pick_lane[t], lane_centre_y,
+                pick_speed[t], new_desired[t], new_desired[t], new_kind[t],
+            )  # fmt: skip
             spawned[a, c] = True
             total += 1
     return total

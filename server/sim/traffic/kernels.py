@@ -10,6 +10,15 @@ import numpy as np
 from numba import njit
 
 
+@njit(cache=True, nogil=True, inline="always")
+def desired_gap(
+    speed: float, closing: float, headway: float, min_gap: float, two_sqrt_ab: float
+) -> float:
+    """The IDM's desired bumper-to-bumper gap s* (m), as
+    :func:`.traffic.car_following.idm_desired_gap` (the spawner's, in numpy)."""
+    return min_gap + max(0.0, speed * headway + speed * closing / two_sqrt_ab)
+
+
 @njit(cache=True, nogil=True)
 def idm(
     speed: float,
@@ -24,10 +33,9 @@ def idm(
     """One car's Intelligent Driver Model acceleration (m/s^2): ``closing`` is its speed minus
     its leader's, ``gap`` bumper to bumper (m), ``two_sqrt_ab`` 2 sqrt(max_accel * comfortable
     deceleration); the desired gap is :func:`.traffic.car_following.idm_desired_gap`'s."""
-    desired_gap = min_gap + max(0.0, speed * headway + speed * closing / two_sqrt_ab)
     ratio = speed / desired_speed
     ratio *= ratio
-    interaction = desired_gap / max(gap, 0.1)
+    interaction = desired_gap(speed, closing, headway, min_gap, two_sqrt_ab) / max(gap, 0.1)
     return max_accel * (1.0 - ratio * ratio - interaction * interaction)
 
 
