@@ -106,18 +106,6 @@ class Group:
     def retired(self) -> np.ndarray:
         return self.rounds.retired
 
-    @property
-    def last_reward(self) -> np.ndarray:
-        return self.rounds.last_reward
-
-    @property
-    def last_applied(self) -> np.ndarray:
-        return self.rounds.last_applied
-
-    @property
-    def last_terms(self) -> np.ndarray:
-        return self.rounds.last_terms
-
     @classmethod
     def open(
         cls,
@@ -322,10 +310,8 @@ class Group:
 
     def _play(self, actions: np.ndarray, late: np.ndarray) -> dict[str, Steps]:
         """The round itself: every member's ``actions`` (A, N), whose are missing ``late``."""
-        if late.any():
-            late &= ~self.ended & ~self.retired
-            self.late_agents += int(late.sum())
         rows = self.rounds.play(actions, late, self.owned())
+        self.late_agents += int(rows.late.sum())
         self.rounds_done += 1
         self.deadline = None
         now = time.monotonic()

@@ -90,7 +90,6 @@ class LocalEngine:
         if agents.size < late.size:
             late[...] = True
             late.reshape(-1)[agents] = False
-            late &= ~rounds.ended & ~rounds.retired
         self._rows = rounds.play(full, late, self._every_car)
 
     def receive(self) -> RoundRows:

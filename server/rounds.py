@@ -69,8 +69,11 @@ class Rounds:
 
     def play(self, actions: np.ndarray, late: np.ndarray, owned: np.ndarray) -> RoundRows:
         """One round of (A, N) ``actions`` (``late``: the slots whose action did not come;
-        ``owned``: the slots somebody drives); every slot's row, in slot order."""
+        ``owned``: the slots somebody drives); every slot's row, in slot order. A slot that
+        restarts this round or whose car is off the road had no decision to miss: not late."""
         sim = self.sim
+        if late.any():
+            late = late & ~self.ended & ~self.retired
         result = autoreset_round(sim, actions, self.ended & owned, sim.agents_present())
         # Filled column by column: np.stack costs more than the copy on arrays this small.
         terms = np.empty(self.shape + (len(sim.reward_terms),))

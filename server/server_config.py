@@ -5,11 +5,12 @@ from __future__ import annotations
 import os
 import socket
 from dataclasses import dataclass, field
-from pathlib import Path
 
 from overtake.cli import Output
 from overtake.protocol.transport import DEFAULT_ENDPOINT, SecurityConfig, TransportConfig
 from overtake.viz.recording import RecordingConfig
+
+from .recorder import default_rrd
 
 # With its sink on, a server logs every arena one round in this many: logging every round
 # costs trainers 20-30% of their steps per second, one in ten a few per cent (bench/RESULTS.md).
@@ -83,4 +84,4 @@ class ServerConfig:
 
     def output_paths(self) -> tuple[Output, ...]:
         """What this command writes (checked before the server starts)."""
-        return (self.recording.output(Path("runs") / "server" / f"{self.name}.rrd"),)
+        return (self.recording.output(default_rrd(self.name)),)
