@@ -25,6 +25,7 @@ import zenoh
 
 from overtake.cli import enter
 from overtake.protocol import errors
+from overtake.protocol.endpoints import check_endpoints
 from overtake.protocol.transport import (
     DEFAULT_ENDPOINT,
     SecurityConfig,
@@ -97,6 +98,8 @@ def zenoh_config(config: RouterConfig) -> tuple[zenoh.Config, TransportConfig]:
     conf.insert_json5("scouting/gossip/enabled", "false")
     listen = config.listen or _endpoints(conf, "listen/endpoints") or (DEFAULT_ENDPOINT,)
     connect = config.connect or _endpoints(conf, "connect/endpoints")
+    check_endpoints("--listen", listen)
+    check_endpoints("--connect", connect)
     conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
     conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
     # A file may carry its own TLS identity; then a tls/ listener needs no --tls-certificate.

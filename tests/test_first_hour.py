@@ -299,3 +299,12 @@ def test_a_run_that_cannot_start_leaves_no_empty_run_directory(tmp_path):
         train_cli(["--run-dir", str(run_dir), "--set", "traffic.densty=heavy", "--no-progress"])
     assert "did you mean traffic.density?" in str(exited.value.code)
     assert not run_dir.exists()
+
+
+def test_the_router_refuses_such_an_endpoint_too():
+    """overtake-router builds its Zenoh configuration itself: the same check, not Zenoh's
+    Json5Err traceback."""
+    from overtake.server.router import RouterConfig, zenoh_config
+
+    with pytest.raises(ConnectError, match=r"did you mean --connect tcp/127\.0\.0\.1:7447\?"):
+        zenoh_config(RouterConfig(connect=("127.0.0.1:7447",)))
