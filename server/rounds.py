@@ -61,7 +61,9 @@ class Rounds:
         self.last_terms = np.zeros(shape + (len(sim.reward_terms),))
         self.round = 0  # rounds played
         self.last_observations: dict[str, np.ndarray] | None = None  # for spectators
+        # Every round's rows share it: read-only, so that no reader can change another's.
         self._every_slot = np.arange(shape[0] * shape[1], dtype=np.int32)
+        self._every_slot.setflags(write=False)
 
     @property
     def shape(self) -> tuple[int, int]:

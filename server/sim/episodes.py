@@ -90,7 +90,6 @@ class EpisodeBook:
         self.brake_speed_diff_kmh = ego.emergency_speed_diff_kmh
         self.counts_forced_brakes = ego.emergency_brake_count == "forced"
         self.agents = agents
-        self._rows = np.arange(0)  # every arena's row, kept between decisions
         # The columns of the metrics table: the papers' metrics, and the watch's where it runs.
         self.fields = METRIC_FIELDS + (WATCH_METRICS if ego.lane_change_watch else ())
 
@@ -136,7 +135,7 @@ class EpisodeBook:
         decision limit (truncated). With ``rows``, the events are those arenas' (rows of the
         state), the others untouched."""
         if rows is None:
-            rows = self._all_rows(st.x_m.shape[0])
+            rows = np.arange(st.x_m.shape[0])
         truncated = np.empty(reward.shape, dtype=bool)
         close_episodes(
             rows, reward, lane_changes, collided, overtakes, emergency_brakes, st.active,
@@ -146,11 +145,6 @@ class EpisodeBook:
             st.traffic_cars_sum, truncated,
         )  # fmt: skip
         return truncated
-
-    def _all_rows(self, arenas: int) -> np.ndarray:
-        if self._rows.size != arenas:
-            self._rows = np.arange(arenas)
-        return self._rows
 
     def metrics_table(self, st: SimState) -> np.ndarray:
         """(A, N, len(fields)) float64: each agent's episode so far, columns :attr:`fields`
