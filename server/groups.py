@@ -310,8 +310,10 @@ class Group:
 
     def _play(self, actions: np.ndarray, late: np.ndarray) -> dict[str, Steps]:
         """The round itself: every member's ``actions`` (A, N), whose are missing ``late``."""
+        some_late = bool(late.any())
         rows = self.rounds.play(actions, late, self.owned())
-        self.late_agents += int(rows.late.sum())
+        if some_late:  # (those the round found not late are not counted)
+            self.late_agents += int(rows.late.sum())
         self.rounds_done += 1
         self.deadline = None
         now = time.monotonic()
