@@ -119,8 +119,9 @@ class Experiment:
     """what a reader of the table and curves must know (Markdown), written under the tables"""
     hours_on_two_cores: float = 0.0
     """about how long the whole experiment takes on the project's 2-core VM, training two runs
-    at a time and the evaluations (docs/experiments.md's timings): what the command says
-    before it starts"""
+    at a time and the evaluations: what the command says before it starts (measured where
+    docs/experiments.md gives its time, else estimated from the per-step timings there, as
+    each entry says)"""
 
 
 @dataclass(frozen=True)
@@ -164,7 +165,7 @@ class Schedule:
 
 EXPERIMENTS: dict[str, Experiment] = {
     "min2018-table3": Experiment(
-        hours_on_two_cores=7.0,
+        hours_on_two_cores=7.0,  # measured: about 7 hours of training, 6 minutes of evaluation
         name="min2018-table3",
         title="Min et al. (2018), Table III: Double + Dueling DQN with camera and LIDAR, the "
         "camera alone and the LIDAR alone, and DQN and Double DQN with both (two seeds each)",
@@ -195,7 +196,7 @@ EXPERIMENTS: dict[str, Experiment] = {
         ),
     ),
     "ho2018-table8": Experiment(
-        hours_on_two_cores=15.0,
+        hours_on_two_cores=15.0,  # measured: about 13 hours of training, then the evaluations
         name="ho2018-table8",
         title="Ho (2018), Table 8: the baseline network and the proposed network at four "
         "learning rates (Table 7), DQN with a target network on the occupancy grid",
@@ -238,6 +239,7 @@ EXPERIMENTS: dict[str, Experiment] = {
         ),
     ),
     "min2018-safe": Experiment(
+        # Estimated: 12 LIDAR runs at 11 s per 1,000 steps, two at a time, and the planner.
         hours_on_two_cores=6.0,
         name="min2018-safe",
         title="A learned driver that is fast and never crashes: Double + Dueling DQN on the "
@@ -286,7 +288,7 @@ EXPERIMENTS: dict[str, Experiment] = {
         ),
     ),
     "min2018-notebook": Experiment(
-        hours_on_two_cores=12.0,
+        hours_on_two_cores=12.0,  # estimated: an update every step, about 4x the kept row
         name="min2018-notebook",
         title="Min et al. (2018) trained as the authors' notebook trains: min2018-table3's "
         "Dueling DQN on camera and LIDAR with Adam's epsilon 0.01, the squared TD error and an "
@@ -305,7 +307,7 @@ EXPERIMENTS: dict[str, Experiment] = {
         ),
     ),
     "fayjie2018-fig6": Experiment(
-        hours_on_two_cores=2.5,
+        hours_on_two_cores=2.5,  # measured: its one run took 2.5 hours
         name="fayjie2018-fig6",
         title="Fayjie et al. (2018), Fig. 6: the reward per 3,000 training steps, DQN with the "
         "two-stream network on the camera and the LIDAR map",
