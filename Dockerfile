@@ -54,6 +54,9 @@ FROM base AS server
 ARG PIP_INDEX_URL
 COPY pyproject.toml README.md LICENSE ./
 COPY protocol protocol
+COPY envs envs
+COPY ipc ipc
+COPY cli cli
 COPY viz viz
 COPY server server
 COPY client client
@@ -94,6 +97,9 @@ RUN --mount=type=secret,id=pip_ca \
     && slim torch
 COPY pyproject.toml README.md LICENSE ./
 COPY protocol protocol
+COPY envs envs
+COPY ipc ipc
+COPY cli cli
 COPY viz viz
 COPY server server
 COPY client client

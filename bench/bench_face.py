@@ -74,7 +74,7 @@ def _face_stepper(preset: str, arenas: int, seed: int) -> Any:
 def _bare_stepper(preset: str, arenas: int, seed: int) -> Any:
     import numpy as np
 
-    from overtake.protocol.envs import arena_seeds
+    from overtake.envs.registry import arena_seeds
     from overtake.protocol.vocabulary import ACTION_COUNT
     from overtake.server.sim import HighwaySim, autoreset_round, make_config
 

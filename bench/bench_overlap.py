@@ -138,7 +138,7 @@ def main(config: OverlapBenchConfig) -> dict[str, Any]:
     import torch
 
     from overtake.client.wire.remote import RemoteConfig
-    from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
+    from overtake.envs import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
     from overtake.trainers.train import TrainConfig
 
     torch.set_num_threads(config.torch_threads)

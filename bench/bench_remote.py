@@ -232,7 +232,7 @@ def echo_main(endpoint: str) -> None:
     """
     import zenoh
 
-    from overtake.protocol.transport import TransportConfig, open_session
+    from overtake.ipc.transport import TransportConfig, open_session
 
     zenoh.init_log_from_env_or("error")
     session = open_session(TransportConfig(mode="peer", listen=(endpoint,)))
@@ -304,7 +304,7 @@ class PingPong:
     def __init__(self, endpoint: str, timeout_s: float) -> None:
         import zenoh
 
-        from overtake.protocol.transport import TransportConfig, open_session
+        from overtake.ipc.transport import TransportConfig, open_session
 
         self._zenoh = zenoh
         self.session = open_session(

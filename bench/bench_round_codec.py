@@ -79,8 +79,8 @@ def _steps(arenas: int) -> Any:
 
 def measure(arenas: int, repeats: int) -> dict[str, float]:
     from overtake.client.wire.shm_channel import ShmChannel
+    from overtake.ipc.shared_memory import Segment, channel_plan
     from overtake.protocol import codec
-    from overtake.protocol.shared_memory import Segment, channel_plan
     from overtake.server.channels.shm_channel import steps_arrays
 
     steps = _steps(arenas)

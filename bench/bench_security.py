@@ -47,7 +47,7 @@ class SecurityBenchConfig:
 
 def mode_options(mode: str, where: Path) -> tuple[list[str], list[str], Any, str]:
     """(router options, server options, the trainer's SecurityConfig, scheme) for ``mode``."""
-    from overtake.protocol.transport import SecurityConfig
+    from overtake.ipc.transport import SecurityConfig
 
     certs = where / "certs"
     ca, router_cert = (

@@ -44,7 +44,7 @@ from zenoh.shm import GarbageCollect, ShmProvider
 
 from bench.bench_remote import free_port, stop_process, wait_matching
 from bench.bench_sim import machine_description, write_report
-from overtake.protocol.transport import TransportConfig, open_session
+from overtake.ipc.transport import TransportConfig, open_session
 
 ROOT = Path(__file__).resolve().parent.parent
 MODES = ("no-shm", "bytes", "shm")

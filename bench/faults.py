@@ -435,7 +435,7 @@ def run_case(config: FaultConfig, target: str, fault: str, index: int, rng: rand
         for i in range(2)
     ]  # fmt: skip
     victim = {"router": router, "server": server, "trainer": trainers[0]}[target]
-    from overtake.protocol.shared_memory import shm_dir
+    from overtake.ipc.shared_memory import shm_dir
 
     def segments() -> set[str]:
         # Every file, whoever named it (overtake's segments, Zenoh's segments and pools, a

@@ -14,8 +14,8 @@ from overtake.client.mlagents.environment import (
 )
 from overtake.client.policies.drivers import RandomDriver, RuleDriver, RuleDriverConfig
 from overtake.client.wire.connection import RemoteConfig
-from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
-from overtake.protocol.transport import SecurityConfig
+from overtake.envs import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
+from overtake.ipc.transport import SecurityConfig
 
 register_environments()
 

@@ -1,9 +1,11 @@
-"""The contract between overtake's parts: vocabulary, wire messages, the codec, key expressions,
-errors, environment ids and the Zenoh session settings. Imports nothing else of the project.
+"""The contract between overtake's parts, and nothing else: the vocabulary, the version, the
+wire messages and their records, the codec, the key expressions, the specs, the errors. Imports
+nothing else of the project, and no Gymnasium, PettingZoo, Zenoh or ctypes: the environments
+over this contract are overtake.envs, the mechanisms that carry it overtake.ipc.
 
-Importing the package loads only the standard library and numpy: the codec (msgpack), the
-Gymnasium helpers (:mod:`.envs`) and the Zenoh transport (:mod:`.transport`) load when they are
-first used, so the simulation core can read the vocabulary without pulling in the wire.
+Importing the package loads only the standard library and numpy: the codec (msgpack) loads
+when it is first used, so the simulation core can read the vocabulary without pulling in the
+wire.
 """
 
 from __future__ import annotations
@@ -32,16 +34,12 @@ from .vocabulary import ACTION_COUNT, ACTION_NAMES, METRIC_FIELDS
 
 if TYPE_CHECKING:
     from .codec import decode, encode, version_text
-    from .envs import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
 
 # Names served on first use, and the module each comes from.
 _LAZY = {
     "decode": "codec",
     "encode": "codec",
     "version_text": "codec",
-    "HIGHWAY_ENV_ID": "envs",
-    "REMOTE_HIGHWAY_ENV_ID": "envs",
-    "register_environments": "envs",
 }
 
 
@@ -55,11 +53,9 @@ def __getattr__(name: str) -> Any:
 __all__ = [
     "ACTION_COUNT",
     "ACTION_NAMES",
-    "HIGHWAY_ENV_ID",
     "METRIC_FIELDS",
     "PROTOCOL_HISTORY",
     "PROTOCOL_VERSION",
-    "REMOTE_HIGHWAY_ENV_ID",
     "BadAction",
     "BadConfig",
     "ConnectError",
@@ -76,6 +72,5 @@ __all__ = [
     "decode",
     "encode",
     "error_from_code",
-    "register_environments",
     "version_text",
 ]

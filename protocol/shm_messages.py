@@ -1,5 +1,5 @@
 """The message part of the shared-memory channel (protocol 1.7; the mechanism is described in
-:mod:`overtake.protocol.shared_memory`): the server's offer of a segment, with the layout of
+:mod:`overtake.ipc.shared_memory`): the server's offer of a segment, with the layout of
 every array a round writes there. Once the trainer reads the segment, a round sends nothing
 over Zenoh: the layout is sent once, here, and each round is a ring of a doorbell.
 
@@ -20,7 +20,17 @@ from .records import (
     check_name,
     check_range,
 )
-from .shared_memory import ACTION_ARRAYS, HEADER_BYTES, NONCE_BYTES
+
+# The segment's sizes the offer is checked against (the segment itself, its header's fields and
+# its mapping: overtake.ipc.shared_memory, which reads these from here).
+NONCE_BYTES = 16
+HEADER_BYTES = 128
+# The Actions' arrays in a layout, each as long as the trainer's cars.
+ACTION_ARRAYS = (
+    ("actions/agents", "int32"),
+    ("actions/actions", "int64"),
+    ("actions/retire", "int32"),
+)
 
 # The Steps fields a layout names, besides ``obs/<observation name>``.
 STEPS_ARRAYS = (

@@ -57,7 +57,7 @@ EPISODE_COUNTS: tuple[str, ...] = ("collisions", "emergency_brakes")
 assert set(EPISODE_COUNTS) <= set(METRIC_FIELDS)
 
 # The keys of every overtake environment's ``info`` (the single, vector and PettingZoo faces
-# alike, in process or remote; overtake.protocol.faces.StepInfo builds it): the action mask,
+# alike, in process or remote; overtake.envs.faces.StepInfo builds it): the action mask,
 # the action applied, the reward's terms, the episode's event counts so far, the episode's
 # metrics (where it ended), whether the action was late, and whether the server was lost.
 INFO_KEYS: tuple[str, ...] = (

@@ -9,7 +9,7 @@ cd "$(dirname "$0")/.."
 # tree of links under build/ gives it the installed layout without installing anything.
 links=build/typecheck/overtake
 mkdir -p "$links"
-for folder in protocol cli viz server client trainers; do
+for folder in protocol envs ipc cli viz server client trainers; do
   ln -sfn "../../../$folder" "$links/$folder"
 done
 (cd build/typecheck && ../../.venv/bin/mypy --config-file ../../pyproject.toml \

@@ -9,8 +9,8 @@ from typing import Any
 import zenoh
 
 from overtake.cli import enter
+from overtake.ipc.transport import warn_if_unconnected, warn_if_unguarded
 from overtake.protocol import errors
-from overtake.protocol.transport import warn_if_unconnected, warn_if_unguarded
 
 from .errors import StartError
 from .server_config import ServerConfig

@@ -3,7 +3,7 @@
 ``HighwayEnv`` is one agent on one arena; ``HighwayVectorEnv`` steps N arenas in one numpy pass
 with Gymnasium 1.x's default next-step autoreset: the step after an episode ends resets that
 arena (ignoring its action) and returns the first observation of the new episode with reward 0
-and terminated = truncated = False. Both are :mod:`overtake.protocol.faces` over a
+and terminated = truncated = False. Both are :mod:`overtake.envs.faces` over a
 :class:`~overtake.server.local.LocalEngine`, the server's own arena group, and so equal the
 remote environments bit for bit.
 
@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from overtake.protocol.faces import SingleFace, VectorFace
+from overtake.envs.faces import SingleFace, VectorFace
 
 from .local import LocalEngine, LocalRoad, local_simulator
 from .sim import HighwaySim, SimConfig, make_config

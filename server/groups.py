@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from overtake.envs.registry import arena_seeds
 from overtake.protocol import errors
-from overtake.protocol.envs import arena_seeds
 from overtake.protocol.messages import (
     MAX_FRAME_BYTES,
     Actions,

@@ -5,7 +5,7 @@ An in-process environment plays the very rounds a server's arena groups play
 so that what it returns is the server's bit for bit; but it owns every car, so nothing of the
 server's ledger is here (no trainer, ticket, message or deadline): its faces read the round's
 rows (:class:`~overtake.server.rounds.RoundRows`) straight from the simulator's arrays. What
-only an in-process simulator has, its :class:`~overtake.protocol.faces.Road` (world frames,
+only an in-process simulator has, its :class:`~overtake.envs.faces.Road` (world frames,
 pictures, the privileged planner), is :class:`LocalRoad`.
 """
 
@@ -18,9 +18,9 @@ from typing import Any
 
 import numpy as np
 
+from overtake.envs.faces import Simulator
+from overtake.envs.registry import arena_seeds
 from overtake.protocol import errors
-from overtake.protocol.envs import arena_seeds
-from overtake.protocol.faces import Simulator
 from overtake.protocol.messages import BehaviourSpec, WorldFrame
 from overtake.protocol.vocabulary import DEFAULT_ACTION
 

@@ -14,8 +14,8 @@ from collections.abc import Callable
 
 import zenoh
 
+from overtake.ipc.doorbell import AVAILABLE as DOORBELL_AVAILABLE
 from overtake.protocol import codec, keys
-from overtake.protocol.doorbell import AVAILABLE as DOORBELL_AVAILABLE
 from overtake.protocol.messages import ErrorReply, Message, ShmOffer, Steps
 
 from .channels import StepsChannel

@@ -1,6 +1,6 @@
 """``HighwayParallelEnv``: several learning cars on one road, in PettingZoo's Parallel API.
 
-The PettingZoo face (:mod:`overtake.protocol.parallel_face`) over the simulator in this
+The PettingZoo face (:mod:`overtake.envs.parallel_face`) over the simulator in this
 process: one arena holds ``agents`` controlled cars (``car_0``, ``car_1``, ...) among the
 preset's traffic, every live car acting in every step, each with the single-agent spaces of
 ``overtake/Highway-v0`` and its own reward, flags and info. A car whose episode ended leaves the
@@ -17,7 +17,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from overtake.protocol.parallel_face import ParallelFace
+from overtake.envs.parallel_face import ParallelFace
 
 from .env import _InProcess, in_process_config
 from .local import local_simulator

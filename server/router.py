@@ -24,15 +24,15 @@ from typing import Any
 import zenoh
 
 from overtake.cli import enter
-from overtake.protocol import errors
-from overtake.protocol.endpoints import check_endpoints
-from overtake.protocol.transport import (
+from overtake.ipc.endpoints import check_endpoints
+from overtake.ipc.transport import (
     DEFAULT_ENDPOINT,
     SecurityConfig,
     TransportConfig,
     warn_if_unconnected,
     warn_if_unguarded,
 )
+from overtake.protocol import errors
 
 from .access import isolation_rules, users_in
 from .errors import StartError

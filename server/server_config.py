@@ -7,7 +7,7 @@ import socket
 from dataclasses import dataclass, field
 
 from overtake.cli import Output
-from overtake.protocol.transport import DEFAULT_ENDPOINT, SecurityConfig, TransportConfig
+from overtake.ipc.transport import DEFAULT_ENDPOINT, SecurityConfig, TransportConfig
 from overtake.viz.recording import RecordingConfig
 
 from .recorder import default_rrd
@@ -57,7 +57,7 @@ class ServerConfig:
     """With trainers on the shared-memory channel, how long the loop waits for their next
     Actions spinning (yielding the core at every look) before it sleeps: a process that sleeps
     between rounds computes the next one slower on a virtual machine
-    (overtake.protocol.doorbell). 0: always sleep."""
+    (overtake.ipc.doorbell). 0: always sleep."""
     lease_s: float = 3.0
     """Trainers notice within this that this server's host vanished (a trainer's own lease,
     RemoteConfig.lease_s, bounds how soon its arenas are freed when its host vanishes)."""

@@ -21,6 +21,10 @@ from typing import Any
 
 import zenoh
 
+from overtake.ipc.shared_memory import sweep_orphans
+from overtake.ipc.transport import (
+    open_session,
+)
 from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import (
     PROTOCOL_VERSION,
@@ -37,10 +41,6 @@ from overtake.protocol.messages import (
     SnapshotRequest,
     StatusReply,
     StatusRequest,
-)
-from overtake.protocol.shared_memory import sweep_orphans
-from overtake.protocol.transport import (
-    open_session,
 )
 
 from .arenas import ArenaRegistry, ready_to_step
@@ -194,7 +194,7 @@ class SimulatorServer:
     def _spin(self) -> bool:
         """With trainers on the shared-memory channel answering within ``spin_s`` on average,
         wait up to ``spin_s`` for an event or a ring, yielding the core at every look
-        (``overtake.protocol.doorbell`` says why); whether something came. A ring is handled
+        (``overtake.ipc.doorbell`` says why); whether something came. A ring is handled
         here, not through the bell's thread. Trainers that take longer (a learner updating
         between rounds) are not spun for: the spin would take a core their update uses
         (bench/RESULTS.md, issue 47)."""

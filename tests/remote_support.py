@@ -25,9 +25,9 @@ import pytest
 import zenoh
 
 from overtake.client.wire.remote import Connection, RemoteConfig
+from overtake.ipc.transport import TransportConfig
 from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import Message, StatusReply, StatusRequest
-from overtake.protocol.transport import TransportConfig
 
 HERE = Path(__file__).resolve().parent
 TRAINER_SCRIPT = HERE / "trainer_script.py"

@@ -25,8 +25,7 @@ import pytest
 import zenoh
 
 from overtake.client.wire.remote import Connection, RemoteConfig
-from overtake.protocol import errors
-from overtake.protocol.transport import (
+from overtake.ipc.transport import (
     PASSWORD_ENV,
     USER_ENV,
     SecurityConfig,
@@ -34,6 +33,7 @@ from overtake.protocol.transport import (
     unguarded_listeners,
     warn_if_unguarded,
 )
+from overtake.protocol import errors
 from overtake.server.router import RouterConfig, log_start, zenoh_config
 
 from remote_support import child_env, free_port, stop_process, wait_until
@@ -383,7 +383,7 @@ def test_a_router_leaves_nothing_in_dev_shm_however_it_ends(background, ending):
     and SIGKILL left it in /dev/shm for good (found by the fault matrix, issue 47)."""
     import signal as signals
 
-    from overtake.protocol.shared_memory import shm_dir
+    from overtake.ipc.shared_memory import shm_dir
 
     def zenoh_segments() -> set[str]:
         return {p.name for p in shm_dir().glob("*.zenoh")}
@@ -768,9 +768,9 @@ def test_isolated_trainers_reach_only_their_own_arenas(tmp_path: Path, backgroun
 
     import overtake.client  # noqa: F401  (registers the environments)
     from overtake.client.wire.spectator import Spectator
-    from overtake.protocol import REMOTE_HIGHWAY_ENV_ID as REMOTE_ENV
+    from overtake.envs import REMOTE_HIGHWAY_ENV_ID as REMOTE_ENV
+    from overtake.ipc.transport import open_session
     from overtake.protocol import keys
-    from overtake.protocol.transport import open_session
 
     credentials = tmp_path / "credentials.txt"
     credentials.write_text("simserver:s3rver\nwatcher:w4tch\nalice:al1ce\nbob:b0b\n")
@@ -1262,6 +1262,25 @@ def test_dockerfile_server_stage_installs_no_torch():
     torch_at = trainer.index("torch==2.13.0")
     assert "ARG TORCH_INDEX_URL=https://download.pytorch.org/whl/cpu" in trainer
     assert torch_at < trainer.index(".[train]")
+
+
+def test_each_image_copies_every_package_folder_it_installs():
+    """pip installs the folders pyproject maps to overtake.*: an image stage that copies fewer
+    fails to build (a folder added to the namespace and not to the Dockerfile did, once)."""
+    import tomllib
+
+    folders = set(
+        tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"][
+            "package-dir"
+        ].values()
+    )
+    for stage in ("server", "trainer"):
+        copied = {
+            parts[1]
+            for line in dockerfile_stages()[stage]
+            if (parts := line.split())[0] == "COPY" and len(parts) == 3 and parts[1] == parts[2]
+        }
+        assert folders <= copied, f"the {stage} image does not copy {sorted(folders - copied)}"
 
 
 def test_dockerfile_build_arguments_are_the_ones_compose_passes():

@@ -13,7 +13,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import overtake.client  # noqa: F401  (registers overtake/Highway-v0)
-from overtake.protocol import HIGHWAY_ENV_ID
+from overtake.envs import HIGHWAY_ENV_ID
 from overtake.server.env import HighwayEnv
 from overtake.server.sim import ConfigError, make_config
 

@@ -21,7 +21,7 @@ import pytest
 import tyro
 
 from overtake.client.commands import UsageError
-from overtake.protocol.transport import SecurityConfig
+from overtake.ipc.transport import SecurityConfig
 from overtake.protocol.vocabulary import WATCH_SETTING
 from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.evaluate import EvalConfig

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from overtake.protocol.faces import Simulator, StepInfo, VectorFace
+from overtake.envs.faces import Simulator, StepInfo, VectorFace
 from overtake.protocol.vocabulary import EPISODE_COUNTS, INFO_KEYS
 from overtake.server.env import HighwayEnv, HighwayVectorEnv
 from overtake.server.local import IN_PROCESS, LocalEngine, LocalRoad

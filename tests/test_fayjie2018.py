@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import overtake.client  # noqa: F401  (registers the environments)
-from overtake.protocol import HIGHWAY_ENV_ID
+from overtake.envs import HIGHWAY_ENV_ID
 from overtake.protocol.vocabulary import CRUISE_DOWN, CRUISE_UP, KEEP, LANE_LEFT, LANE_RIGHT
 from overtake.server.sim import HighwaySim, make_config
 from overtake.server.sim.units import KMH

@@ -19,7 +19,7 @@ from overtake.cli import Output, check_outputs
 from overtake.client.commands import UsageError
 from overtake.client.wire.spectate import SpectateConfig
 from overtake.client.wire.spectate import main as spectate_main
-from overtake.protocol.endpoints import check_endpoints
+from overtake.ipc.endpoints import check_endpoints
 from overtake.protocol.errors import ConnectError
 from overtake.trainers.evaluate import cli as evaluate_cli
 from overtake.viz.recording import RecordingConfig
@@ -77,7 +77,7 @@ def test_a_file_that_is_not_a_checkpoint_gets_one_line_and_no_unsafe_advice(tmp_
 
 def test_the_pettingzoo_faces_without_pettingzoo_name_the_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "pettingzoo", None)  # as if not installed
-    for name in ("overtake.protocol.parallel_face", "overtake.server.parallel_env"):
+    for name in ("overtake.envs.parallel_face", "overtake.server.parallel_env"):
         monkeypatch.delitem(sys.modules, name, raising=False)
     with pytest.raises(ModuleNotFoundError, match=r'pip install -e "\.\[pettingzoo\]"') as error:
         importlib.import_module("overtake.server.parallel_env")

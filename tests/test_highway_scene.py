@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 import overtake.client  # noqa: F401  (registers the ids)
+from overtake.envs.highway_env_like import TO_OVERTAKE, overrides_from_config
 from overtake.protocol.errors import BadConfig
-from overtake.protocol.highway_env_like import TO_OVERTAKE, overrides_from_config
 from overtake.server.sim import HighwaySim, make_config
 
 highway_env = pytest.importorskip("highway_env", reason="highway-env is in the dev extra")

@@ -13,7 +13,7 @@ from overtake.client.commands import UsageError
 from overtake.client.episodes.runner import baseline_policy, run_episodes
 from overtake.client.episodes.scenario import Where
 from overtake.client.policies.drivers import GridRuleDriver
-from overtake.protocol import HIGHWAY_ENV_ID
+from overtake.envs import HIGHWAY_ENV_ID
 from overtake.protocol.vocabulary import CRUISE_DOWN, CRUISE_UP, KEEP, LANE_LEFT, LANE_RIGHT
 from overtake.server.sim import HighwaySim, make_config
 from overtake.server.sim.units import KMH

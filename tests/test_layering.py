@@ -1,7 +1,8 @@
 """The layering of the packages, read from their imports and checked in fresh interpreters.
 
-- protocol imports nothing of the project; cli (the commands' one door) only protocol; viz
-  only protocol and cli;
+- protocol (the contract) imports nothing of the project, and none of its modules imports
+  Gymnasium, PettingZoo, Zenoh or ctypes; envs (the faces) and ipc (Zenoh, shared memory) import
+  only protocol; cli (the commands' one door) only protocol; viz only protocol and cli;
 - server never imports client or trainers; client never imports server or trainers; trainers
   never import server (a trainer must work against a simulator on another machine);
 - the simulation core (overtake.server.sim) imports numpy and the standard library only, and of
@@ -26,6 +27,8 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 FOLDERS = {
     "protocol": "protocol",
+    "envs": "envs",
+    "ipc": "ipc",
     "cli": "cli",
     "viz": "viz",
     "server": "server",
@@ -35,11 +38,15 @@ FOLDERS = {
 # The parts of the project each package may import (besides itself).
 ALLOWED = {
     "protocol": set(),
+    "envs": {"protocol"},
+    "ipc": {"protocol"},
     "cli": {"protocol"},
     "viz": {"protocol", "cli"},
-    "server": {"protocol", "cli", "viz"},
-    "client": {"protocol", "cli", "viz"},
-    "trainers": {"protocol", "cli", "viz", "client"},
+    "server": {"protocol", "envs", "ipc", "cli", "viz"},
+    "client": {"protocol", "envs", "ipc", "cli", "viz"},
+    # The faces (envs) are Gymnasium's, whichever engine is under them; a trainer never
+    # reaches the simulator (server) or the wire's mechanism (ipc) itself.
+    "trainers": {"protocol", "envs", "cli", "viz", "client"},
 }
 HEAVY = ("msgpack", "zenoh", "gymnasium", "rerun", "torch")
 
@@ -180,12 +187,27 @@ def test_importing_the_simulation_core_loads_numpy_and_the_standard_library_only
     assert not loaded & set(HEAVY)
 
 
+def test_no_module_of_the_contract_imports_an_environment_or_a_mechanism():
+    """The contract is data: the faces over it (Gymnasium, PettingZoo) live in envs, what
+    carries it (Zenoh, the shared memory's futex through ctypes) in ipc."""
+    banned = {"gymnasium", "pettingzoo", "zenoh", "ctypes"}
+    wrong = [
+        f"{path.relative_to(ROOT)}:{line} imports {name}"
+        for path in _sources("protocol")
+        for name, line in _imports(path)
+        if name.split(".")[0] in banned
+    ]
+    assert not wrong, "\n".join(wrong)
+
+
 def test_importing_the_protocol_loads_neither_zenoh_nor_rerun():
     loaded = set(_loaded_after("import overtake.protocol")["modules"])
     assert not loaded & set(HEAVY), sorted(loaded & set(HEAVY))
-    # The lazily served names still work, and load what they need when used.
-    after = _loaded_after("import overtake.protocol as p; p.encode; p.HIGHWAY_ENV_ID")
-    assert {"msgpack", "gymnasium"} <= set(after["modules"])
+    # The lazily served codec still works, loads msgpack when used, and nothing else heavy.
+    after = set(_loaded_after("import overtake.protocol as p; p.encode")["modules"])
+    assert "msgpack" in after
+    # (ctypes is not in this set: numpy loads it itself.)
+    assert not after & {"zenoh", "gymnasium", "pettingzoo", "rerun", "torch"}
 
 
 def test_importing_viz_loads_no_rerun():

@@ -14,8 +14,8 @@ import overtake.client  # noqa: F401  (registers the environments)
 from overtake.client.commands import UsageError
 from overtake.client.episodes.runner import baseline_policy, run_episodes
 from overtake.client.episodes.scenario import Where
-from overtake.protocol import HIGHWAY_ENV_ID
-from overtake.protocol.faces import VectorFace
+from overtake.envs import HIGHWAY_ENV_ID
+from overtake.envs.faces import VectorFace
 from overtake.protocol.vocabulary import CRUISE_DOWN, CRUISE_UP, KEEP, LANE_LEFT, LANE_RIGHT
 from overtake.server.sim import HighwaySim, make_config
 from overtake.server.sim.physics import traffic_overlaps

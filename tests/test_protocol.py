@@ -1265,7 +1265,7 @@ def test_bad_retire_lists_are_refused_saying_what_came(retire, expected):
 
 
 def test_an_unsupported_render_mode_is_refused_naming_what_there_is():
-    from overtake.protocol.envs import check_render_mode
+    from overtake.envs.registry import check_render_mode
 
     check_render_mode(None, [])
     check_render_mode("rgb_array", ["rgb_array"])

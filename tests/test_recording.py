@@ -13,7 +13,7 @@ import pytest
 import rerun as rr
 
 import overtake.client  # noqa: F401  (registers the environments)
-from overtake.protocol import REMOTE_HIGHWAY_ENV_ID
+from overtake.envs import REMOTE_HIGHWAY_ENV_ID
 from overtake.protocol.messages import WorldFrame
 from overtake.viz.recording import (
     Recording,

@@ -29,7 +29,8 @@ from overtake.client.mlagents.environment import (
     mlagents_observations,
 )
 from overtake.client.wire.remote import ArenaGroup
-from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, codec, errors, keys
+from overtake.envs import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID
+from overtake.protocol import codec, errors, keys
 from overtake.protocol.errors import ConnectError, ServerLost
 from overtake.protocol.messages import WorldFrame
 from overtake.server.env import HighwayVectorEnv

@@ -24,7 +24,8 @@ import pytest
 import overtake.client  # noqa: F401  (registers the environments)
 from overtake.client import RemoteEnvironment
 from overtake.client.wire.remote import Connection
-from overtake.protocol import REMOTE_HIGHWAY_ENV_ID, codec, errors, keys
+from overtake.envs import REMOTE_HIGHWAY_ENV_ID
+from overtake.protocol import codec, errors, keys
 from overtake.protocol.codec import version_text
 from overtake.protocol.errors import ServerLost
 from overtake.protocol.messages import (

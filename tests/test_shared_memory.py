@@ -18,11 +18,9 @@ import numpy as np
 import pytest
 
 import overtake.client  # noqa: F401  (registers the environments)
-from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, codec, errors
-from overtake.protocol.doorbell import AVAILABLE as DOORBELL_AVAILABLE
-from overtake.protocol.errors import DecodeError
-from overtake.protocol.messages import ShmArray, ShmOffer, Steps
-from overtake.protocol.shared_memory import (
+from overtake.envs import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID
+from overtake.ipc.doorbell import AVAILABLE as DOORBELL_AVAILABLE
+from overtake.ipc.shared_memory import (
     ACTION_ARRAYS,
     ACTIONS_BELL_OFFSET,
     ACTIONS_COUNT_OFFSET,
@@ -36,6 +34,9 @@ from overtake.protocol.shared_memory import (
     shm_dir,
     sweep_orphans,
 )
+from overtake.protocol import codec, errors
+from overtake.protocol.errors import DecodeError
+from overtake.protocol.messages import ShmArray, ShmOffer, Steps
 from overtake.protocol.shm_messages import ACTION_ARRAY_NAMES, STEPS_ARRAYS
 
 from remote_support import remote_config, trainer_args, wait_until

@@ -15,7 +15,7 @@ import rerun as rr
 import overtake.client  # noqa: F401  (registers the environments)
 from overtake.client.wire.spectate import SpectateConfig
 from overtake.client.wire.spectate import main as spectate
-from overtake.protocol import REMOTE_HIGHWAY_ENV_ID
+from overtake.envs import REMOTE_HIGHWAY_ENV_ID
 from overtake.viz.recording import RecordingConfig
 from overtake.viz.world_view import to_drawing
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import overtake.client  # noqa: F401
-from overtake.protocol import HIGHWAY_ENV_ID
+from overtake.envs import HIGHWAY_ENV_ID
 from overtake.protocol.vocabulary import EGO_FIELDS, METRIC_FIELDS
 from overtake.server.env import HighwayEnv, HighwayVectorEnv
 

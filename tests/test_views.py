@@ -240,7 +240,7 @@ def test_a_live_viewer_shows_one_layout_for_a_spectator_and_a_trainer(start_serv
     import overtake.client  # noqa: F401  (registers the environments)
     from overtake.client.wire.spectate import SpectateConfig
     from overtake.client.wire.spectate import main as spectate
-    from overtake.protocol import REMOTE_HIGHWAY_ENV_ID
+    from overtake.envs import REMOTE_HIGHWAY_ENV_ID
     from overtake.viz.recording import close_recording
     from overtake.viz.render import headless_viewer
     from overtake.viz.training_layout import training_blueprint

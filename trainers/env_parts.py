@@ -1,6 +1,6 @@
 """The vector environment as a training run steps it.
 
-overtake's vector environment (:class:`~overtake.protocol.faces.VectorFace`, in process or
+overtake's vector environment (:class:`~overtake.envs.faces.VectorFace`, in process or
 remote) offers EnvPool's ``send(part, actions)`` / ``recv(part)`` over its parts, and its
 simulator says what else there is: the behaviour spec, the road in process, the network of a
 remote one. Any other Gymnasium vector environment is one part stepped by ``step``, with none of
@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from overtake.protocol.faces import Network, Road, VectorFace
+from overtake.envs.faces import Network, Road, VectorFace
 from overtake.protocol.messages import BehaviourSpec
 
 

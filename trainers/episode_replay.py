@@ -40,7 +40,7 @@ from overtake.client.episodes.scenario import Where
 from overtake.client.episodes.session import Driver, Episodes, Keeping, drive_episodes
 from overtake.client.policies.shield import Shield
 from overtake.client.provenance import git_commit
-from overtake.protocol.faces import VectorFace
+from overtake.envs.faces import VectorFace
 from overtake.protocol.vocabulary import ACTION_NAMES
 from overtake.viz.recording import RecordingConfig
 

@@ -24,7 +24,7 @@ from overtake.client.episodes.runner import baseline_policy, metric_summary
 from overtake.client.episodes.scenario import Scenario, parse_overrides
 from overtake.client.episodes.session import Driver, Episodes, Keeping, drive_episodes
 from overtake.client.policies.shield import Shield, ShieldedActing
-from overtake.protocol.faces import VectorFace
+from overtake.envs.faces import VectorFace
 from overtake.protocol.vocabulary import DENSITY_SETTING, WATCH_SETTING
 from overtake.viz.recording import RecordingConfig
 

@@ -9,7 +9,7 @@ adds the rest, in three parts that a resume restores separately where it can:
   its frames are the memory-mapped files in the run directory (``replay/``), which a
   checkpoint does not rewrite;
 - ``episodes``: the episodes under way, on both sides: the environments' own state (the
-  in-process simulator's snapshot, :meth:`~overtake.protocol.faces.VectorFace.snapshot`) and
+  in-process simulator's snapshot, :meth:`~overtake.envs.faces.VectorFace.snapshot`) and
   the trainer's of them (the latest observations and action masks, the frame stacks, which
   environments restart next step, the safety layer's per-environment marks);
 - ``schedule``: when the next update, target copy, log line and checkpoint are due.

@@ -1,7 +1,7 @@
 """``RemoteHighwayParallelEnv``: several learning cars on one road of a remote simulator, in
 PettingZoo's Parallel API.
 
-The PettingZoo face (:mod:`overtake.protocol.parallel_face`) over an arena group on a server,
+The PettingZoo face (:mod:`overtake.envs.parallel_face`) over an arena group on a server,
 and so :class:`overtake.server.parallel_env.HighwayParallelEnv` bit for bit for the same preset,
 seed and actions: one arena of ``agents`` cars (``car_0``, ``car_1``, ...), every live car
 acting in every step (one message each way). A car whose episode ended leaves the road until
@@ -20,8 +20,8 @@ from typing import Any
 
 from overtake.client.envs.remote_gym import _OnNetwork, remote_simulator
 from overtake.client.wire.connection import RemoteConfig
+from overtake.envs.parallel_face import RETIRE_SINCE_MINOR, ParallelFace
 from overtake.protocol.messages import Scalar
-from overtake.protocol.parallel_face import RETIRE_SINCE_MINOR, ParallelFace
 
 
 class RemoteHighwayParallelEnv(_OnNetwork, ParallelFace):

@@ -1,6 +1,6 @@
 """Gymnasium environments over a remote simulator: ``overtake/RemoteHighway-v0``.
 
-overtake's faces (:mod:`overtake.protocol.faces`) over arena groups on a server
+overtake's faces (:mod:`overtake.envs.faces`) over arena groups on a server
 (:class:`~overtake.client.wire.remote.ArenaGroup`, each an engine): the spaces are rebuilt
 from the server's behaviour spec, and observations, rewards, flags and info are the in-process
 environment's bit for bit for the same preset, seed and actions. The vector environment opens
@@ -23,10 +23,10 @@ import numpy as np
 
 from overtake.client.wire.connection import Connection, RemoteConfig
 from overtake.client.wire.remote import ArenaGroup
+from overtake.envs.faces import Simulator, SingleFace, VectorFace
+from overtake.envs.registry import check_render_mode
 from overtake.protocol import errors
 from overtake.protocol.codec import version_text
-from overtake.protocol.envs import check_render_mode
-from overtake.protocol.faces import Simulator, SingleFace, VectorFace
 from overtake.protocol.messages import TYPED_SPEC_SINCE_MINOR, OpenRequest, Scalar
 
 __all__ = [

@@ -22,7 +22,7 @@ from overtake.client.episodes.runner import baseline_policy, metric_summary, met
 from overtake.client.episodes.scenario import Scenario
 from overtake.client.episodes.session import Driver, Episodes, Keeping, drive_episodes
 from overtake.client.policies.shield import SHIELD_OVERRIDES
-from overtake.protocol.faces import VectorFace
+from overtake.envs.faces import VectorFace
 from overtake.protocol.vocabulary import METRIC_FIELDS, WATCH_SETTING
 
 

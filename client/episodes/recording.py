@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from overtake.client.episodes.records import EventCounts
-from overtake.protocol.faces import VectorFace
+from overtake.envs.faces import VectorFace
 from overtake.protocol.vocabulary import ACTION_NAMES
 from overtake.viz.car_view import CarView
 from overtake.viz.episode_view import CAR, EVENTS, ROAD_SERVER, episode_blueprint, timeline

@@ -27,7 +27,7 @@ from overtake.client.policies.drivers import (
     RuleDriverConfig,
 )
 from overtake.client.policies.shield import SHIELD_OVERRIDES
-from overtake.protocol.faces import VectorFace
+from overtake.envs.faces import VectorFace
 from overtake.protocol.messages import BehaviourSpec
 from overtake.protocol.vocabulary import METRIC_FIELDS, WATCH_METRICS
 

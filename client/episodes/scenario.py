@@ -23,9 +23,9 @@ import gymnasium as gym
 from overtake.client.commands import UsageError
 from overtake.client.wire.connection import RemoteConfig
 from overtake.client.wire.shm_channel import Transport
-from overtake.protocol import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
-from overtake.protocol.faces import VectorFace
-from overtake.protocol.transport import SecurityConfig
+from overtake.envs import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
+from overtake.envs.faces import VectorFace
+from overtake.ipc.transport import SecurityConfig
 from overtake.protocol.vocabulary import DENSITY_SETTING, EPISODE_LENGTH_SETTING, Density
 
 DEFAULT_PRESET = "min2018"

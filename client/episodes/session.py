@@ -29,7 +29,7 @@ from overtake.client.episodes.records import (
 from overtake.client.episodes.runner import EpisodeWatcher, Policy, RealTime, run_episodes
 from overtake.client.episodes.scenario import Where
 from overtake.client.provenance import git_commit
-from overtake.protocol.faces import VectorFace
+from overtake.envs.faces import VectorFace
 from overtake.viz.recording import RecordingConfig
 
 

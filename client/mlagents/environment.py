@@ -49,7 +49,7 @@ from overtake.client.mlagents.types import (
 )
 from overtake.client.wire.connection import Connection, RemoteConfig
 from overtake.client.wire.remote import ArenaGroup
-from overtake.protocol.envs import arena_seeds
+from overtake.envs.registry import arena_seeds
 from overtake.protocol.messages import (
     JoinRequest,
     OpenRequest,

@@ -75,9 +75,9 @@ from overtake.client.mlagents.wire import (
 )
 from overtake.client.mlagents.wrappers import SUPPORTED_MLAGENTS_ENVS
 from overtake.client.wire.connection import RemoteConfig
+from overtake.ipc.transport import SecurityConfig
 from overtake.protocol import ProtocolError
 from overtake.protocol.messages import Scalar
-from overtake.protocol.transport import SecurityConfig
 
 __all__ = [
     "COMPRESSION_NONE",

@@ -22,6 +22,13 @@ import zenoh
 
 from overtake.client.wire.shm_channel import ShmChannel, Transport, attach
 from overtake.client.wire.stopping import INTERRUPT_AFTER_S, stop_event
+from overtake.ipc.transport import (
+    DEFAULT_ENDPOINT,
+    SecurityConfig,
+    TransportConfig,
+    connect_failure_cause,
+    open_session,
+)
 from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import (
     Actions,
@@ -31,13 +38,6 @@ from overtake.protocol.messages import (
     StatusReply,
     StatusRequest,
     Steps,
-)
-from overtake.protocol.transport import (
-    DEFAULT_ENDPOINT,
-    SecurityConfig,
-    TransportConfig,
-    connect_failure_cause,
-    open_session,
 )
 
 log = logging.getLogger("overtake.client")
@@ -82,7 +82,7 @@ class RemoteConfig:
     spin_s: float = 0.002
     """Through shared memory, how long to wait for a round spinning (yielding the core at
     every look) before sleeping on the doorbell: a process that sleeps between rounds computes
-    the next one slower on a virtual machine (overtake.protocol.doorbell). 0: always sleep."""
+    the next one slower on a virtual machine (overtake.ipc.doorbell). 0: always sleep."""
 
     @classmethod
     def from_connect(cls, connect: str | tuple[str, ...] | list[str] | None) -> RemoteConfig:

@@ -1,5 +1,5 @@
 """The trainer's side of the shared-memory channel (protocol 1.7,
-:mod:`overtake.protocol.shared_memory`): attach to the segment a server offers, write each
+:mod:`overtake.ipc.shared_memory`): attach to the segment a server offers, write each
 round's Actions into it and ring, sleep on the Steps bell, and read the round's Steps out.
 What the server sends over Zenoh instead (an error) is counted in the segment's header, so
 that a trainer asleep on the bell knows to look at its Zenoh inbox."""
@@ -11,15 +11,15 @@ from typing import Literal
 
 import numpy as np
 
-from overtake.protocol import errors
-from overtake.protocol.doorbell import AVAILABLE as DOORBELL_AVAILABLE
-from overtake.protocol.messages import Actions, ShmOffer, Steps
-from overtake.protocol.shared_memory import (
+from overtake.ipc.doorbell import AVAILABLE as DOORBELL_AVAILABLE
+from overtake.ipc.shared_memory import (
     ACTIONS_BELL_OFFSET,
     STEPS_BELL_OFFSET,
     Place,
     Segment,
 )
+from overtake.protocol import errors
+from overtake.protocol.messages import Actions, ShmOffer, Steps
 from overtake.protocol.shm_messages import OBSERVATION_PREFIX, STEPS_ARRAYS
 
 log = logging.getLogger("overtake.client")
@@ -99,7 +99,7 @@ class ShmChannel:
     def wait(self, timeout_s: float, spin_s: float = 0.0) -> None:
         """Wait until the server rings (a round written or a message sent over Zenoh), a
         :meth:`wake`, or ``timeout_s``, spinning for the first ``spin_s`` of it
-        (:meth:`overtake.protocol.doorbell.Bell.wait`)."""
+        (:meth:`overtake.ipc.doorbell.Bell.wait`)."""
         self._bell_seen = self._steps_bell.wait(self._bell_seen, timeout_s, spin_s)
 
     def wake(self) -> None:

@@ -20,7 +20,7 @@ from overtake.cli import Output, enter
 from overtake.client.commands import UsageError
 from overtake.client.wire.connection import RemoteConfig
 from overtake.client.wire.spectator import Spectator
-from overtake.protocol.transport import SecurityConfig
+from overtake.ipc.transport import SecurityConfig
 from overtake.viz.recording import APPLICATION_ID, RecordingConfig, close_recording, open_recording
 from overtake.viz.world_view import WorldRecording
 

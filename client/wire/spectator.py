@@ -15,9 +15,9 @@ from collections import deque
 import zenoh
 
 from overtake.client.wire.connection import RemoteConfig, unreachable_message
+from overtake.ipc.transport import open_session
 from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import WorldFrame
-from overtake.protocol.transport import open_session
 
 log = logging.getLogger("overtake.client.wire.spectator")
 

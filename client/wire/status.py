@@ -8,8 +8,8 @@ from dataclasses import asdict, dataclass, field
 
 from overtake.cli import enter
 from overtake.client.wire.connection import Connection, RemoteConfig
+from overtake.ipc.transport import DEFAULT_ENDPOINT, SecurityConfig
 from overtake.protocol.messages import StatusReply
-from overtake.protocol.transport import DEFAULT_ENDPOINT, SecurityConfig
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""Rounds through shared memory (protocol 1.7, :mod:`overtake.protocol.shared_memory`): for a
+"""Rounds through shared memory (protocol 1.7, :mod:`overtake.ipc.shared_memory`): for a
 trainer on this host that holds its group alone, the server writes each round's Steps into a
 segment and rings the Steps bell; the trainer writes its Actions there and rings the Actions
 bell, which a thread of this channel sleeps on and turns into an inbox event for the loop.
@@ -16,14 +16,14 @@ from collections.abc import Callable
 
 import numpy as np
 
-from overtake.protocol.messages import Actions, Message, ShmArray, ShmOffer, Steps
-from overtake.protocol.shared_memory import (
+from overtake.ipc.shared_memory import (
     ACTIONS_BELL_OFFSET,
     STEPS_BELL_OFFSET,
     Place,
     Segment,
     channel_plan,
 )
+from overtake.protocol.messages import Actions, Message, ShmArray, ShmOffer, Steps
 from overtake.protocol.shm_messages import OBSERVATION_PREFIX, STEPS_ARRAYS
 
 from .zenoh_channel import ZenohChannel

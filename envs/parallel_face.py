@@ -3,7 +3,7 @@
 One arena holds ``agents`` controlled cars (``car_0``, ``car_1``, ...) among the preset's
 traffic; every live car acts in every step (one round of the engine). Each car has the
 single-agent spaces (a Dict of the preset's sensors, five actions) and its own reward, flags
-and info (:class:`~overtake.protocol.faces.StepInfo`, as the single environment's).
+and info (:class:`~overtake.envs.faces.StepInfo`, as the single environment's).
 
 PettingZoo's rule for an agent whose episode ended (a crash terminates it, the time limit
 truncates it) is that it leaves until the next ``reset``: with the next step the face asks the
@@ -36,10 +36,11 @@ except ModuleNotFoundError as error:
         name="pettingzoo",
     ) from None
 
-from .envs import check_render_mode
+from overtake.protocol.vocabulary import ACTION_COUNT, ACTION_NAMES
+
 from .faces import Faced, Simulator, spaces_from_spec
+from .registry import check_render_mode
 from .step_rows import StepInfo, StepRows
-from .vocabulary import ACTION_COUNT, ACTION_NAMES
 
 AgentID = str
 RETIRE_SINCE_MINOR = 3  # the protocol minor version that lets a trainer retire its cars

@@ -16,11 +16,11 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from .vocabulary import ACTION_COUNT, ACTION_NAMES
+from overtake.protocol.vocabulary import ACTION_COUNT, ACTION_NAMES
 
 HIGHWAY_ENV_ID = "overtake/Highway-v0"
 REMOTE_HIGHWAY_ENV_ID = "overtake/RemoteHighway-v0"
-# highway-env's own scenes with highway-env's interface (overtake.protocol.highway_env_like).
+# highway-env's own scenes with highway-env's interface (overtake.envs.highway_env_like).
 HIGHWAY_ENV_LIKE_IDS = {
     "overtake/highway-fast-v0": "highway-fast",
     "overtake/highway-v0": "highway",
@@ -42,8 +42,8 @@ def register_environments() -> None:
         if env_id not in gym.registry:
             gym.register(
                 id=env_id,
-                entry_point="overtake.protocol.highway_env_like:HighwayEnvLike",
-                vector_entry_point="overtake.protocol.highway_env_like:HighwayEnvLikeVector",
+                entry_point="overtake.envs.highway_env_like:HighwayEnvLike",
+                vector_entry_point="overtake.envs.highway_env_like:HighwayEnvLikeVector",
                 kwargs={"preset": preset},
                 max_episode_steps=None,
             )

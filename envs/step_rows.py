@@ -16,8 +16,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from .messages import BehaviourSpec
-from .vocabulary import EPISODE_COUNTS, INFO_KEYS, WATCH_METRICS
+from overtake.protocol.messages import BehaviourSpec
+from overtake.protocol.vocabulary import EPISODE_COUNTS, INFO_KEYS, WATCH_METRICS
 
 
 class StepRows(Protocol):

@@ -6,7 +6,7 @@ The trainer maps the segment and checks that it holds the nonce: if it does, the
 host *and* a ``/dev/shm`` (two containers on one host do not unless told to), and from then on
 no round crosses Zenoh: the trainer writes its Actions into the segment and rings the Actions
 bell, the server steps, writes the Steps into the segment and rings the Steps bell
-(:mod:`overtake.protocol.doorbell`). What is not a round (an error, a round too large for the
+(:mod:`overtake.ipc.doorbell`). What is not a round (an error, a round too large for the
 segment) still goes over Zenoh, counted in the header and rung, so a waiting trainer knows to
 look there. The lease and liveliness stay Zenoh's. Nothing is assumed: a trainer that cannot
 map the segment, or finds another nonce or another protocol version's magic there, reads its Steps
@@ -46,13 +46,13 @@ from pathlib import Path
 
 import numpy as np
 
+from overtake.protocol.errors import DecodeError
+from overtake.protocol.records import WIRE_DTYPES
+from overtake.protocol.shm_messages import ACTION_ARRAYS, HEADER_BYTES, NONCE_BYTES
+
 from .doorbell import Bell
-from .errors import DecodeError
-from .records import WIRE_DTYPES
 
 MAGIC = b"OVTKSHM2"
-NONCE_BYTES = 16
-HEADER_BYTES = 128
 ALIGN = 64
 # The header's fields after the magic and the nonce, by byte offset (see the module docstring).
 GENERATION_OFFSET = 24  # int64: the Steps' write generation (odd while written)
@@ -65,12 +65,6 @@ ACTIONS_COUNT_OFFSET = 60  # int32: how many of actions/agents and actions/actio
 ACTIONS_ROUND_OFFSET = 64  # int64: the round the Actions answer
 TRAINER_STEP_OFFSET = 72  # int64: the trainer's step count (Actions.trainer_step)
 RETIRE_COUNT_OFFSET = 80  # int32: how many of actions/retire hold cars to retire
-# The Actions' arrays in a layout, each as long as the trainer's cars.
-ACTION_ARRAYS = (
-    ("actions/agents", "int32"),
-    ("actions/actions", "int64"),
-    ("actions/retire", "int32"),
-)
 # Segment names: this prefix, the creating process's id (so a server can sweep what a dead
 # predecessor left), and 128 random bits.
 NAME_PREFIX = "overtake-"

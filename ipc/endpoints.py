@@ -3,7 +3,7 @@ and port, and the check that refuses a malformed one with its corrected form."""
 
 from __future__ import annotations
 
-from .errors import ConnectError
+from overtake.protocol.errors import ConnectError
 
 
 def protocol_of(endpoint: str) -> str:

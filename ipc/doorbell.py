@@ -1,6 +1,6 @@
 """A doorbell between two processes that share a mapping: a 32-bit word that one side
 increments and the other sleeps on, through Linux's futex (protocol 1.7's shared-memory
-channel, :mod:`overtake.protocol.shared_memory`).
+channel, :mod:`overtake.ipc.shared_memory`).
 
 Why a futex: the fastest samplers block rather than spin (EnvPool sleeps on a futex-backed
 semaphore, TorchRL's inference server on a process-shared one): on 2 cores a spinning waiter

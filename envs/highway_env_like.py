@@ -26,9 +26,10 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from .envs import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID
-from .errors import BadConfig
+from overtake.protocol.errors import BadConfig
+
 from .faces import NEXT_STEP
+from .registry import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID
 
 # highway-env's DiscreteMetaAction numbers -> overtake's (keep 0, cruise up 1, cruise down 2,
 # lane left 3, lane right 4), and back.

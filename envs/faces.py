@@ -30,10 +30,11 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector.utils import batch_space
 
-from .envs import ReportsEpisodeLength, arena_seeds, check_actions, check_render_mode
-from .messages import BehaviourSpec, WorldFrame
+from overtake.protocol.messages import BehaviourSpec, WorldFrame
+from overtake.protocol.vocabulary import ACTION_COUNT
+
+from .registry import ReportsEpisodeLength, arena_seeds, check_actions, check_render_mode
 from .step_rows import StepInfo, StepRows, joined
-from .vocabulary import ACTION_COUNT
 
 try:  # Gymnasium >= 1.1 names the autoreset modes; 1.0 only has next-step autoreset.
     from gymnasium.vector import AutoresetMode

@@ -27,8 +27,9 @@ from typing import Literal
 
 import zenoh
 
+from overtake.protocol.errors import ConnectError
+
 from .endpoints import check_endpoints, host_port, protocol_of
-from .errors import ConnectError
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 USER_ENV = "OVERTAKE_ZENOH_USER"
