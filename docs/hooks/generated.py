@@ -17,6 +17,7 @@
 from __future__ import annotations
 
 import re
+import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +26,14 @@ from mkdocs.structure.files import File, Files
 
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "bench" / "results"
-PACKAGES = ("cli", "client", "protocol", "server", "trainers", "viz")
+# The package folders pyproject.toml maps into overtake.* (one list, read from there).
+PACKAGES = tuple(
+    sorted(
+        tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["tool"]["setuptools"][
+            "package-dir"
+        ].values()
+    )
+)
 MARKER = re.compile(r"<!-- generated: ([a-z0-9-]+)(?: ([A-Za-z0-9_.-]+))? -->")
 PAGES = {
     "results/benchmarks.md": ROOT / "bench" / "RESULTS.md",
