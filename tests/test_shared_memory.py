@@ -364,7 +364,7 @@ def test_remote_equals_in_process_on_each_transport(start_server, transport):
             assert not segments_of(pid)
             held = 1 if transport == "shm" else 0
             assert len(held_segments(pid, pid)) == len(held_segments(os.getpid(), pid)) == held
-        rounds = group.connection.rounds_through_shm
+        rounds = group.connection.rounds_through("shm")
         assert rounds == (90 if transport == "shm" else 0)
     finally:
         remote.close()
@@ -392,7 +392,7 @@ def test_auto_takes_the_shared_memory_channel_at_every_size(start_server):
             env.reset(seed=1)
             env.step(np.zeros(arenas, dtype=np.int64))
             assert not segments_of(server.proc.pid)  # read: its name went at the first Actions
-            assert group.connection.rounds_through_shm == 1
+            assert group.connection.rounds_through("shm") == 1
         finally:
             env.close()
         wait_until(lambda: not segments_of(server.proc.pid), 5.0, "the group's segment to go")
@@ -434,10 +434,18 @@ def test_no_round_crosses_zenoh_and_forged_frames_on_the_trainers_key_change_not
             for name in want[0]:
                 assert np.array_equal(got[0][name], want[0][name]), (step, name)
             assert got[1] == want[1]
-        assert group.connection.rounds_through_shm == 20
+        assert group.connection.rounds_through("shm") == 20
         # Nothing of a round went over Zenoh either way: only the four forged frames.
         assert heard.qsize() == 4 and actions_heard.qsize() == 0
-        assert group.connection.dropped == 4
+        # The last forged frame may reach the trainer's inbox after its round came through the
+        # segment: the connection files (and drops) it when it next looks there.
+        conn = group.connection
+        wait_until(
+            lambda: conn.arrived(server.name, group.group_id, group.round + 1) is None
+            and conn.dropped == 4,
+            10.0,
+            "the four forged frames dropped",
+        )
     finally:
         raw.close()
         remote.close()

@@ -22,7 +22,7 @@ import gymnasium as gym
 
 from overtake.client.commands import UsageError
 from overtake.client.wire.connection import RemoteConfig
-from overtake.client.wire.shm_channel import Transport
+from overtake.client.wire.steps_channel import Transport
 from overtake.envs import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
 from overtake.envs.faces import VectorFace
 from overtake.ipc.transport import SecurityConfig

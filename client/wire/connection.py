@@ -20,8 +20,9 @@ from typing import Any, TypeVar
 
 import zenoh
 
-from overtake.client.wire.shm_channel import ShmChannel, Transport, attach
+from overtake.client.wire.steps_channel import StepsChannel, Transport, open_channel
 from overtake.client.wire.stopping import INTERRUPT_AFTER_S, stop_event
+from overtake.client.wire.zenoh_channel import ZenohChannel
 from overtake.ipc.transport import (
     DEFAULT_ENDPOINT,
     SecurityConfig,
@@ -78,7 +79,7 @@ class RemoteConfig:
     steps_transport: Transport = "auto"
     """How rounds travel: ``auto`` through shared memory where the server is on this host (it
     offers a segment and this trainer can map it), over Zenoh otherwise; ``shm`` shared memory
-    or a clear error; ``zenoh`` always over Zenoh (overtake.client.wire.shm_channel)."""
+    or a clear error; ``zenoh`` always over Zenoh (overtake.client.wire.steps_channel)."""
     spin_s: float = 0.002
     """Through shared memory, how long to wait for a round spinning (yielding the core at
     every look) before sleeping on the doorbell: a process that sleeps between rounds computes
@@ -148,9 +149,10 @@ class Connection:
         # The (server, group) pairs this connection steps: anything else that arrives is
         # stale or foreign and is dropped.
         self._stepping: set[tuple[str, int]] = set()
-        # The shared-memory channels of the groups whose rounds go through one.
-        self._channels: dict[tuple[str, int], ShmChannel] = {}
-        self._rounds_through_closed = 0
+        # Each group's channel (steps_channel): how its Actions go and its rounds come.
+        self._channels: dict[tuple[str, int], StepsChannel] = {}
+        # Rounds delivered by channels since closed, by transport name.
+        self._rounds_closed: dict[str, int] = {}
         self._servers_lost: set[str] = set()
         # Times each server's token disappeared: a group opened at one count is gone at the
         # next, even if a restarted server of the same name is back by the time we look.
@@ -185,7 +187,7 @@ class Connection:
                 self._server_epoch[server] = self._server_epoch.get(server, 0) + 1
         self._inbox.put(("", b""))  # wake a waiter
         for channel in tuple(self._channels.values()):
-            channel.wake()  # a waiter asleep on a segment's bell looks at the server too
+            channel.wake()  # a waiter asleep on its channel looks at the server too
 
     def server_lost(self, server: str) -> bool:
         with self._lock:
@@ -307,18 +309,25 @@ class Connection:
 
     # --- steps ----------------------------------------------------------------------------
 
-    @property
-    def rounds_through_shm(self) -> int:
-        """Rounds whose Steps came through a shared-memory segment (the rest over Zenoh)."""
-        return self._rounds_through_closed + sum(c.rounds for c in self._channels.values())
+    def rounds_through(self, transport: str) -> int:
+        """Rounds whose Steps a ``transport`` channel delivered itself (the rest came through
+        the Zenoh inbox)."""
+        open_ = sum(c.rounds for c in self._channels.values() if c.name == transport)
+        return self._rounds_closed.get(transport, 0) + open_
 
     def send_actions(self, server: str, actions: Actions) -> None:
-        """A round's Actions: into the group's segment where its rounds go through one (and
-        the bell rung), else over Zenoh."""
-        channel = self._channels.get((server, actions.group))
-        if channel is not None:
-            channel.send_actions(actions)
-            return
+        """A round's Actions, through the group's channel."""
+        self._channel(server, actions.group).send_actions(actions)
+
+    def _channel(self, server: str, group: int) -> StepsChannel:
+        channel = self._channels.get((server, group))
+        if channel is None:
+            # A group stepped without a channel opened for it (joined, or an Actions for a
+            # group being forgotten): over Zenoh, which reaches any server.
+            channel = self._channels[(server, group)] = self._over_zenoh(server)
+        return channel
+
+    def _over_zenoh(self, server: str) -> ZenohChannel:
         pub = self._publishers.get(server)
         if pub is None:
             pub = self._publishers[server] = self.session.declare_publisher(
@@ -326,7 +335,7 @@ class Connection:
                 congestion_control=zenoh.CongestionControl.BLOCK,
                 priority=zenoh.Priority.DATA_HIGH,
             )
-        pub.put(codec.encode(actions))
+        return ZenohChannel(pub)
 
     def _take(self, server: str, group: int, round_: int) -> Steps | None:
         """Round ``round_`` of ``group`` if it has arrived; older rounds are dropped."""
@@ -354,20 +363,19 @@ class Connection:
             if key:
                 self._file(key, payload)
         steps = self._take(server, group, round_)
-        channel = self._channels.get((server, group))
-        if steps is None and channel is not None:
-            steps = channel.take(round_)
+        if steps is None:
+            steps = self._channel(server, group).take(round_)
         return steps
 
     def next_steps(self, server: str, group: int, round_: int, epoch: int) -> Steps:
         """Block until the :class:`Steps` of ``group``'s ``round_`` arrive: over Zenoh, or
-        through the group's segment (asleep on its bell)."""
-        channel = self._channels.get((server, group))
+        through the group's channel (asleep on what it waits on, a segment's bell)."""
+        channel = self._channel(server, group)
         started = time.monotonic()
         deadline = started + self.config.step_timeout_s
         while True:
             steps = self._take(server, group, round_)
-            if steps is None and channel is not None:
+            if steps is None:
                 steps = channel.take(round_)
             if steps is not None:
                 return steps
@@ -394,18 +402,15 @@ class Connection:
                     f"within {self.config.step_timeout_s:g} s (the server's step deadline may "
                     "be longer; see RemoteConfig.step_timeout_s)"
                 )
-            if channel is not None and not channel.zenoh_pending() and self._inbox.empty():
-                # Nothing on Zenoh for us: sleep on the segment's bell.
-                channel.wait(min(remaining, 0.5), self.config.spin_s)
-                continue
+            if self._inbox.empty() and channel.wait(min(remaining, 0.5), self.config.spin_s):
+                continue  # the channel waited on its own (nothing for us on Zenoh)
             try:
                 key, payload = self._inbox.get(timeout=min(remaining, 0.5))
             except queue.Empty:
                 continue
             if key:
                 self._file(key, payload)
-                if channel is not None and channel.zenoh_pending():
-                    channel.took_from_zenoh()
+                channel.heard_over_zenoh()
 
     def _file(self, key: str, payload: bytes) -> None:
         sender = key.rsplit("/", 1)[-1]
@@ -451,28 +456,37 @@ class Connection:
 
     def track(self, server: str, group: int) -> None:
         """Start accepting Steps and errors for ``group`` (after opening or joining it, or
-        again after a reset: what arrived before is stale). Its segment, if any, stays."""
+        again after a reset: what arrived before is stale). Its channel, if any, stays."""
         self._buffered.pop((server, group), None)
         self._errors.pop((server, group), None)
         self._stepping.add((server, group))
 
-    def attach_segment(self, server: str, group: int, offer: ShmOffer | None) -> bool:
-        """Map the segment ``server`` offered for ``group``; whether its rounds will go
-        through it (see :attr:`RemoteConfig.steps_transport`)."""
-        self._release_segment(server, group)
-        channel = attach(server, group, offer, self.config.steps_transport)
-        if channel is not None:
-            self._channels[(server, group)] = channel
-        return channel is not None
+    def open_channel(self, server: str, group: int, offer: ShmOffer | None) -> str:
+        """Open ``group``'s channel from what ``server`` offered in its reply
+        (:func:`~overtake.client.wire.steps_channel.open_channel`, by
+        :attr:`RemoteConfig.steps_transport`); the transport's name."""
+        channel = open_channel(
+            server, group, offer, self.config.steps_transport, lambda: self._over_zenoh(server)
+        )
+        self.attach(server, group, channel)
+        return channel.name
 
-    def _release_segment(self, server: str, group: int) -> None:
+    def attach(self, server: str, group: int, channel: StepsChannel) -> None:
+        """Step ``group`` through ``channel`` from now on (a transport's channel, opened by
+        :meth:`open_channel` or by a transport of the caller's own); the one it had is closed."""
+        self._close_channel(server, group)
+        self._channels[(server, group)] = channel
+
+    def _close_channel(self, server: str, group: int) -> None:
         channel = self._channels.pop((server, group), None)
         if channel is not None:
-            self._rounds_through_closed += channel.rounds
+            self._rounds_closed[channel.name] = (
+                self._rounds_closed.get(channel.name, 0) + channel.rounds
+            )
             channel.close(unlink=self.server_lost(server))  # its server cannot any more
 
     def forget(self, server: str, group: int) -> None:
-        self._release_segment(server, group)
+        self._close_channel(server, group)
         self._stepping.discard((server, group))
         self._buffered.pop((server, group), None)
         self._errors.pop((server, group), None)
@@ -482,7 +496,7 @@ class Connection:
             return
         self.closed = True
         for server, group in list(self._channels):
-            self._release_segment(server, group)
+            self._close_channel(server, group)
         # What went with the session already needs no undeclaring.
         declared: tuple[Any, ...] = (
             *self._publishers.values(),

@@ -118,7 +118,7 @@ class ArenaGroup:
         conn.track(self.server, self.group_id)
         self.ticket, self.spec = opened.ticket, opened.spec
         try:
-            self.shm = conn.attach_segment(self.server, self.group_id, opened.shm)
+            self.shm = conn.open_channel(self.server, self.group_id, opened.shm) == "shm"
         except errors.ConnectError:
             self.close()  # transport shm and no segment: the arenas are not kept
             raise

@@ -7,7 +7,6 @@ that a trainer asleep on the bell knows to look at its Zenoh inbox."""
 from __future__ import annotations
 
 import logging
-from typing import Literal
 
 import numpy as np
 
@@ -24,18 +23,14 @@ from overtake.protocol.shm_messages import OBSERVATION_PREFIX, STEPS_ARRAYS
 
 log = logging.getLogger("overtake.client")
 
-Transport = Literal["auto", "shm", "zenoh"]
-"""How a trainer's rounds travel: ``shm`` through shared memory (the server must be on this
-host, sharing its ``/dev/shm``), ``zenoh`` always over Zenoh, ``auto`` through shared memory
-wherever the server's segment can be attached, over Zenoh otherwise. With the doorbell a round
-through the segment sends no Zenoh message at all, and it gains at every size measured
-(bench/RESULTS.md, issue 47: 1, 8 and 64 arenas of min2018), so ``auto`` no longer looks at the
-size as protocol 1.6's notice path had to (256 KiB)."""
 _EMPTY = np.zeros(0, dtype=np.int32)
 
 
 class ShmChannel:
-    """An attached segment with its layout: Actions in, Steps out, a doorbell each way."""
+    """An attached segment with its layout: Actions in, Steps out, a doorbell each way (a
+    :class:`~overtake.client.wire.steps_channel.StepsChannel`)."""
+
+    name = "shm"
 
     def __init__(self, segment: Segment, places: list[Place], server: str, group: int) -> None:
         self.segment, self.server, self.group = segment, server, group
@@ -93,14 +88,19 @@ class ShmChannel:
         """Whether the server sent this group something over Zenoh that is not taken yet."""
         return self.segment.zenoh_sent != self.zenoh_seen
 
-    def took_from_zenoh(self) -> None:
-        self.zenoh_seen = (self.zenoh_seen + 1) & 0xFFFFFFFF
+    def heard_over_zenoh(self) -> None:
+        if self.zenoh_pending():
+            self.zenoh_seen = (self.zenoh_seen + 1) & 0xFFFFFFFF
 
-    def wait(self, timeout_s: float, spin_s: float = 0.0) -> None:
+    def wait(self, timeout_s: float, spin_s: float = 0.0) -> bool:
         """Wait until the server rings (a round written or a message sent over Zenoh), a
         :meth:`wake`, or ``timeout_s``, spinning for the first ``spin_s`` of it
-        (:meth:`overtake.ipc.doorbell.Bell.wait`)."""
+        (:meth:`overtake.ipc.doorbell.Bell.wait`); False at once where the server sent
+        something over Zenoh that is not taken yet (it is in the connection's inbox)."""
+        if self.zenoh_pending():
+            return False
         self._bell_seen = self._steps_bell.wait(self._bell_seen, timeout_s, spin_s)
+        return True
 
     def wake(self) -> None:
         """End a :meth:`wait` (the server's token went: the waiter looks at it)."""
@@ -117,14 +117,11 @@ class ShmChannel:
         self.segment.close()
 
 
-def attach(
-    server: str, group: int, offer: ShmOffer | None, transport: Transport
-) -> ShmChannel | None:
-    """The offered segment, mapped and checked against its layout; None where rounds go over
-    Zenoh. With ``transport="shm"`` a missing or unreachable segment is an error
-    (:class:`~overtake.protocol.errors.ConnectError`) that says why."""
-    if transport == "zenoh":
-        return None
+def attach(server: str, group: int, offer: ShmOffer | None, required: bool) -> ShmChannel | None:
+    """The offered segment, mapped and checked against its layout; None where it cannot be
+    (the rounds then go over Zenoh). ``required`` (the trainer asked for ``shm``): a missing
+    or unreachable segment is an error (:class:`~overtake.protocol.errors.ConnectError`) that
+    says why."""
     why = None
     if offer is None:
         why = (
@@ -136,7 +133,7 @@ def attach(
     elif not DOORBELL_AVAILABLE:
         why = "cannot be reached here: this machine has no futex doorbell"
     if why is not None:
-        if transport == "shm":
+        if required:
             raise errors.ConnectError(f"transport shm: server {server} {why}")
         log.info("server %s %s: rounds over Zenoh", server, why)
         return None
@@ -150,7 +147,7 @@ def attach(
             segment.close()
             raise
     except (OSError, errors.DecodeError) as error:
-        if transport == "shm":
+        if required:
             raise errors.ConnectError(
                 f"transport shm: cannot attach server {server}'s segment {offer.name} ({error}); "
                 "is the server on this host, sharing its /dev/shm (not another container)?"
