@@ -441,8 +441,10 @@ def test_no_round_crosses_zenoh_and_forged_frames_on_the_trainers_key_change_not
         # segment: the connection files (and drops) it when it next looks there.
         conn = group.connection
         wait_until(
-            lambda: conn.arrived(server.name, group.group_id, group.round + 1) is None
-            and conn.dropped == 4,
+            lambda: (
+                conn.arrived(server.name, group.group_id, group.round + 1) is None
+                and conn.dropped == 4
+            ),
             10.0,
             "the four forged frames dropped",
         )
