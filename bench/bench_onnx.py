@@ -32,7 +32,7 @@ from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.evaluate import GreedyPolicy
 from overtake.trainers.export import ExportConfig
 from overtake.trainers.export import main as export
-from overtake.trainers.train import cli as train_cli
+from overtake.trainers.train import COMMAND as train_command
 
 NETWORKS = {
     "min2018": "both",  # camera convolutions + LIDAR LSTM (Table II)
@@ -51,7 +51,7 @@ class OnnxBenchConfig:
 
 def checkpoint_for(preset: str, work: Path) -> Path:
     run_dir = work / preset
-    train_cli(
+    train_command.run(
         [
             "--preset", preset, "--inputs", NETWORKS[preset], "--run-dir", str(run_dir),
             "--total-steps", "64", "--num-envs", "2", "--learning-starts", "48",

@@ -1,5 +1,5 @@
 """The one door every ``overtake-*`` command goes through (:mod:`.door`)."""
 
-from .door import CommandError, Output, check_outputs, check_viewer, enter
+from .door import Command, CommandError, Output, check_outputs, check_viewer
 
-__all__ = ["CommandError", "Output", "check_outputs", "check_viewer", "enter"]
+__all__ = ["Command", "CommandError", "Output", "check_outputs", "check_viewer"]

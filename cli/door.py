@@ -26,13 +26,15 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
 import socket
 import sys
+import threading
 import urllib.parse
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, Generic, Literal, TypeVar, cast
 
 from overtake.protocol import ProtocolError
 
@@ -108,32 +110,129 @@ def check_viewer(url: str) -> None:
         ) from None
 
 
-def enter(
-    prog: str,
-    parse: Callable[[list[str] | None], ConfigT],
-    main: Callable[[ConfigT], ResultT],
-    argv: list[str] | None = None,
-) -> ResultT:
-    """``main(parse(argv))`` through the door (see the module's docstring)."""
+Stopping = Literal["default", "interrupt", "event"]
+"""How SIGINT and SIGTERM stop a command: ``default`` as Python does (Ctrl-C raises
+KeyboardInterrupt; SIGTERM ends the process); ``interrupt``: both raise the command's
+``stop_error`` where ``main`` is (KeyboardInterrupt unless it names another), which ends the
+command in one line (``<prog>: stopped; <hint>``); ``event``: the first sets the
+``stop`` event ``main(config, stop)`` was given (it finishes what is under way), the second
+ends the command at once in one line."""
+
+
+@dataclass(frozen=True)
+class Command(Generic[ConfigT, ResultT]):
+    """One ``overtake-*`` command, built from its typed configuration and its ``main``: the
+    parser (tyro, from the configuration's fields and their docstrings), the entry point
+    (:meth:`run`, what ``[project.scripts]`` names: ``module:COMMAND.run``) and the door around
+    ``main`` (see the module's docstring)."""
+
+    prog: str
+    config: type[ConfigT]
+    main: Callable[..., ResultT]
+    """``main(config)``, or ``main(config, stop)`` where :attr:`stopping` is ``event``"""
+    description: str
+    report: Callable[[ConfigT, ResultT], int | None] | None = None
+    """what the command prints of ``main``'s result; the status to exit with (None: 0)"""
+    default: Callable[[list[str]], ConfigT] | None = None
+    """the defaults a command line starts from, read from it (a preset's training); None:
+    the configuration's own"""
+    prefixed: bool = False
+    """whether a nested configuration's options keep its name (``--recording.sink``); the
+    commands' options are flat (``--sink``) unless two sections share a name"""
+    stopping: Stopping = "default"
+    stopped_hint: str = ""
+    """what the one line says after ``stopped`` (how to go on)"""
+    on_stop: Callable[[str], None] | None = None
+    """with ``event``: called with the signal's name when the stop is asked (say what happens,
+    end waits that would hold it)"""
+    stop_error: Callable[[str], BaseException] = lambda _signal: KeyboardInterrupt()
+    """with ``interrupt``: what a signal (named) raises where ``main`` is, so that ``main``
+    can say so to its peer on the way out"""
+    log_format: str = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+
+    def parse(self, argv: list[str] | None = None) -> ConfigT:
+        """The configuration a command line asks for (``sys.argv`` when ``argv`` is None);
+        what :meth:`run` runs, and what the documentation's checks parse commands with."""
+        import tyro
+
+        args = sys.argv[1:] if argv is None else list(argv)
+        config = tyro.cli(
+            self.config,
+            args=args,
+            default=self.default(args) if self.default is not None else None,
+            config=() if self.prefixed else (tyro.conf.OmitArgPrefixes,),
+            prog=self.prog,
+            description=f"{self.prog}: {self.description}",
+        )
+        return cast(ConfigT, config)  # tyro types a result with no default as optional
+
+    def run(self, argv: list[str] | None = None) -> None:
+        """The command: ``main(parse(argv))`` through the door, ending the process with the
+        report's status."""
+        stop = threading.Event()
+        previous = self._handle_signals(stop)
+        try:
+            status = _through_door(self, argv, stop)
+        finally:
+            for signum, handler in previous.items():
+                signal.signal(signum, handler)
+        if status:
+            sys.exit(status)
+
+    def _handle_signals(self, stop: threading.Event) -> dict[int, Any]:
+        if self.stopping == "default" or threading.current_thread() is not threading.main_thread():
+            return {}
+
+        def interrupt(signum: int, _frame: Any) -> None:
+            raise self.stop_error(signal.Signals(signum).name)
+
+        def ask_to_stop(signum: int, _frame: Any) -> None:
+            name = signal.Signals(signum).name
+            if stop.is_set():  # asked twice: stop now
+                raise SystemExit(self._stopped_line(f"at once by a second {name}"))
+            stop.set()
+            if self.on_stop is not None:
+                self.on_stop(name)
+
+        handler = interrupt if self.stopping == "interrupt" else ask_to_stop
+        return {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+
+    def _stopped_line(self, how: str = "") -> str:
+        line = f"{self.prog}: stopped" + (f" {how}" if how else "")
+        return f"{line}; {self.stopped_hint}" if self.stopped_hint else line
+
+
+def _through_door(command: Command[Any, Any], argv: list[str] | None, stop: threading.Event) -> int:
     if not logging.getLogger().handlers:
-        logging.basicConfig(format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+        logging.basicConfig(format=command.log_format)
         logging.getLogger("overtake").setLevel(logging.INFO)
     try:
         try:
-            config = parse(argv)
+            config = command.parse(argv)
             outputs = getattr(config, "output_paths", None)
             if outputs is not None:
                 check_outputs(outputs())
-            return main(config)
+            result = (
+                command.main(config, stop=stop)
+                if command.stopping == "event"
+                else command.main(config)
+            )
+            if command.report is None:
+                return 0
+            return command.report(config, result) or 0
         finally:
             # What was printed reaches the pipe now, inside the door, not at the interpreter's
             # exit where a closed pipe would print a traceback nobody can catch.
             sys.stdout.flush()
     except BrokenPipeError:
         _quiet_stdout()
-        sys.exit(CLOSED_PIPE_STATUS)
+        return CLOSED_PIPE_STATUS
     except (CommandError, ProtocolError, ValueError) as error:
-        sys.exit(f"{prog}: {error}")
+        sys.exit(f"{command.prog}: {error}")
+    except KeyboardInterrupt:
+        if command.stopping != "interrupt":
+            raise
+        sys.exit(command._stopped_line())
 
 
 def _quiet_stdout() -> None:

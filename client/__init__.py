@@ -13,7 +13,7 @@ from overtake.client.mlagents.environment import (
     UnsupportedRequest,
 )
 from overtake.client.policies.drivers import RandomDriver, RuleDriver, RuleDriverConfig
-from overtake.client.wire.connection import RemoteConfig
+from overtake.client.wire.remote_config import RemoteConfig
 from overtake.envs import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
 from overtake.ipc.transport import SecurityConfig
 

@@ -2,8 +2,8 @@
 
 Library functions and the commands' ``main(config)`` raise typed exceptions, because they are
 called from Python too (tests, benchmarks, notebooks) and exiting there would end the caller.
-Only a command's ``cli()`` exits, through the one door every command goes through
-(:func:`overtake.cli.enter`), which prints ``<prog>: <message>``.
+Only a command exits, through the one door every command goes through
+(:class:`overtake.cli.Command`), which prints ``<prog>: <message>``.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """``python -m overtake.server``: the same as ``overtake-server``."""
 
-from .cli import cli
+from .cli import COMMAND
 
 if __name__ == "__main__":
-    cli()
+    COMMAND.run()

@@ -1,4 +1,4 @@
-"""``overtake-server``: the command line (``parse_args``) and the run it starts (``main``)."""
+"""``overtake-server``: the run it starts (``main``) and the command around it (``COMMAND``)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from typing import Any
 
 import zenoh
 
-from overtake.cli import enter
+from overtake.cli import Command
 from overtake.ipc.transport import warn_if_unconnected, warn_if_unguarded
 from overtake.protocol import errors
 
@@ -46,18 +46,13 @@ def main(config: ServerConfig) -> None:
     server.serve()
 
 
-def parse_args(argv: list[str] | None = None) -> ServerConfig:
-    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
-    ``cli`` runs, and what the documentation's checks parse its commands with."""
-    import tyro
-
-    return tyro.cli(
-        ServerConfig,
-        args=argv,
-        config=(tyro.conf.OmitArgPrefixes,),
-        description="overtake-server: the highway simulator, served to trainers over Zenoh",
-    )
+COMMAND = Command(
+    prog="overtake-server",
+    config=ServerConfig,
+    main=main,
+    description="the highway simulator, served to trainers over Zenoh",
+)
 
 
-def cli(argv: list[str] | None = None) -> None:
-    enter("overtake-server", parse_args, main, argv)
+if __name__ == "__main__":
+    COMMAND.run()

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import logging
-import signal
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,7 +22,7 @@ from typing import Any
 
 import zenoh
 
-from overtake.cli import enter
+from overtake.cli import Command
 from overtake.ipc.endpoints import check_endpoints
 from overtake.ipc.transport import (
     DEFAULT_ENDPOINT,
@@ -210,30 +209,19 @@ def main(config: RouterConfig, stop: threading.Event | None = None) -> None:
         log.info("router stopped")
 
 
-def parse_args(argv: list[str] | None = None) -> RouterConfig:
-    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
-    ``cli`` runs, and what the documentation's checks parse its commands with."""
-    import tyro
-
-    return tyro.cli(
-        RouterConfig,
-        args=argv,
-        config=(tyro.conf.OmitArgPrefixes,),
-        description="overtake-router: a Zenoh router (for hosts without zenohd)",
-    )
+def _say_stopping(name: str) -> None:
+    log.info("received %s, shutting down", name)
 
 
-def cli(argv: list[str] | None = None) -> None:
-    stop = threading.Event()
-
-    def on_signal(signum: int, _frame: Any) -> None:
-        log.info("received %s, shutting down", signal.Signals(signum).name)
-        stop.set()
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
-    enter("overtake-router", parse_args, lambda config: main(config, stop), argv)
+COMMAND = Command(
+    prog="overtake-router",
+    config=RouterConfig,
+    main=main,
+    description="a Zenoh router (for hosts without zenohd)",
+    stopping="event",
+    on_stop=_say_stopping,
+)
 
 
 if __name__ == "__main__":
-    cli()
+    COMMAND.run()

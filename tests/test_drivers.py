@@ -13,8 +13,8 @@ import pytest
 
 from overtake.client import HIGHWAY_ENV_ID, RandomDriver, RuleDriver, RuleDriverConfig
 from overtake.client.commands import UsageError
+from overtake.client.episodes.drive import COMMAND as drive_command
 from overtake.client.episodes.drive import DriveConfig, main
-from overtake.client.episodes.drive import cli as drive_cli
 from overtake.client.episodes.scenario import parse_overrides
 from overtake.protocol.vocabulary import (
     ACTION_COUNT,
@@ -341,7 +341,7 @@ def test_drive_cli_refuses_bad_input():
 
 def test_drive_command_prints_what_is_wrong_and_exits_non_zero():
     with pytest.raises(SystemExit) as exited:
-        drive_cli(["--episodes", "0"])
+        drive_command.run(["--episodes", "0"])
     assert exited.value.code == "overtake-drive: --episodes must be >= 1, got 0"
     # As a process: the in-process simulator refuses the override (its ConfigError, a
     # ValueError); the command says so in one line and exits with status 1, no traceback.

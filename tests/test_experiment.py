@@ -26,13 +26,13 @@ from overtake.protocol.vocabulary import WATCH_SETTING
 from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.evaluate import EvalConfig
 from overtake.trainers.experiment import (
+    COMMAND,
     EXPERIMENTS,
     LIVES_NAME,
     ExperimentConfig,
     ExperimentError,
     ExperimentRun,
     Schedule,
-    cli,
     command_args,
     episode_statistics,
     keep_evidence,
@@ -49,7 +49,8 @@ from overtake.trainers.experiment import (
 from overtake.trainers.experiment.command import hours_estimate
 from overtake.trainers.experiment.files import LOCK_NAME, lock
 from overtake.trainers.learner import DQNConfig
-from overtake.trainers.train import TrainConfig, parse_args
+from overtake.trainers.train import COMMAND as TRAIN
+from overtake.trainers.train import TrainConfig
 from overtake.viz.recording import RecordingConfig
 
 from remote_support import wait_until
@@ -121,16 +122,16 @@ def test_bad_options_are_refused_naming_what_was_expected(changes, expected):
 
 def test_the_command_exits_with_the_message(capsys):
     with pytest.raises(SystemExit) as exit_info:
-        cli(["min2018-table3", "--jobs", "0", "--references", "rule"])
+        COMMAND.run(["min2018-table3", "--jobs", "0", "--references", "rule"])
     assert exit_info.value.code == "overtake-experiment: --jobs must be >= 1, got 0"
     with pytest.raises(SystemExit) as exit_info:
-        cli(["nope"])
+        COMMAND.run(["nope"])
     assert "unknown experiment 'nope'" in str(exit_info.value.code)
 
 
 def test_without_a_name_nothing_starts_and_each_experiment_says_how_long(capsys, tmp_path):
     """Hours of both cores start only when asked for by name."""
-    cli(["--out", str(tmp_path / "exp")])
+    COMMAND.run(["--out", str(tmp_path / "exp")])
     said = capsys.readouterr().out
     for name in EXPERIMENTS:
         assert name in said
@@ -178,7 +179,7 @@ def test_each_runs_command_line_parses_back_to_its_training_configuration(tmp_pa
     ]
     for run in plan.runs:
         assert parse(TrainConfig, command_args(run.train, TrainConfig())) == run.train
-        assert parse_args(train_command(run.train)[3:]) == run.train
+        assert TRAIN.parse(train_command(run.train)[3:]) == run.train
     train = plan.runs[5].train
     assert (train.algo, train.inputs, train.seed, train.run_dir) == (
         "dueling",
@@ -204,7 +205,7 @@ def test_ho2018_table8_runs_train_ho_s_networks_with_the_presets_settings(tmp_pa
         # The command names the preset, whose training is overtake-train's default then.
         command = train_command(run.train)[3:]
         assert command[:2] == ["--preset", "ho2018"]
-        assert parse_args(command) == run.train
+        assert TRAIN.parse(command) == run.train
         assert (run.train.algo, run.train.inputs) == ("dqn", "grid")
         dqn = run.train.dqn
         assert dqn.optimizer == "tf-rmsprop" and dqn.loss == "mse" and dqn.train_every == 1
@@ -747,7 +748,7 @@ def test_min2018_safe_trains_the_paper_row_and_the_options_each_alone_and_togeth
     assert plan.densities == ("medium", "heavy") and plan.references == ("rule", "planner")
     # Each command line parses back to its run's configuration, options included.
     for run in plan.runs:
-        assert parse_args(train_command(run.train)[3:]) == run.train
+        assert TRAIN.parse(train_command(run.train)[3:]) == run.train
     labels = {row.label: row.options for row in EXPERIMENTS["min2018-safe"].rows}
     assert labels["all"] == "shield, prioritized replay, 3-step returns"
     assert labels["watch"] == "shield, lane changes watched through, applied actions stored"
@@ -771,7 +772,7 @@ def test_min2018_notebook_trains_the_kept_dueling_row_as_the_authors_notebook_do
     assert dataclasses.replace(run.dqn, adam_eps=1e-8, loss="huber", train_every=4) == kept.dqn
     assert dataclasses.replace(run, recipe=None, dqn=kept.dqn, run_dir=kept.run_dir) == kept
     command = train_command(run)[3:]
-    assert command[:2] == ["--recipe", "notebook"] and parse_args(command) == run
+    assert command[:2] == ["--recipe", "notebook"] and TRAIN.parse(command) == run
     with pytest.raises(UsageError, match="preset ho2018 has no recipes"):
         TrainConfig.for_preset("ho2018", "notebook")
 
@@ -799,7 +800,7 @@ def test_device_reaches_every_training_run_and_does_not_split_an_experiment_dire
     check_directory(dataclasses.replace(plan, runs=on_gpu))
     command = train_command(on_gpu[0].train)
     assert command[command.index("--device") + 1] == "cuda"
-    assert parse_args(command[3:]) == on_gpu[0].train
+    assert TRAIN.parse(command[3:]) == on_gpu[0].train
     # Where what it learns changes, the directory is still refused.
     bf16 = tuple(
         dataclasses.replace(run, train=dataclasses.replace(run.train, precision="bf16"))

@@ -24,7 +24,7 @@ from overtake.trainers.evaluate import EvalConfig
 from overtake.trainers.evaluate import main as evaluate
 from overtake.trainers.export import ExportConfig
 from overtake.trainers.export import main as export
-from overtake.trainers.train import cli as train_cli
+from overtake.trainers.train import COMMAND as train_command
 
 from remote_support import child_env
 
@@ -53,7 +53,7 @@ def trained(tmp_path_factory):
     runs = {}
     for name, (preset, options) in RUNS.items():
         run_dir = tmp_path_factory.mktemp(name) / "run"
-        train_cli(["--preset", preset, *options, "--run-dir", str(run_dir), *SMALL])
+        train_command.run(["--preset", preset, *options, "--run-dir", str(run_dir), *SMALL])
         runs[name] = run_dir
     return runs
 
@@ -93,8 +93,8 @@ def test_onnx_drives_with_pytorch_absent(trained, tmp_path):
         "        if name.split('.')[0] == 'torch':\n"
         "            raise ImportError('PyTorch is not installed here')\n"
         "sys.meta_path.insert(0, NoTorch())\n"
-        "from overtake.client.episodes.drive import cli\n"
-        f"cli(['--onnx', {str(out)!r}, '--episodes', '2', '--max-decisions', '15', "
+        "from overtake.client.episodes.drive import COMMAND\n"
+        f"COMMAND.run(['--onnx', {str(out)!r}, '--episodes', '2', '--max-decisions', '15', "
         f"'--json-out', {str(table)!r}])\n"
         "assert not any(m.split('.')[0] == 'torch' for m in sys.modules)\n"
     )

@@ -122,10 +122,10 @@ def test_training_on_the_preset_uses_table_i_and_its_checkpoint_evaluates(tmp_pa
     from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
     from overtake.trainers.evaluate import EvalConfig
     from overtake.trainers.evaluate import main as evaluate
-    from overtake.trainers.train import cli as train_cli
+    from overtake.trainers.train import COMMAND as train_command
 
     run_dir = tmp_path / "run"
-    train_cli(
+    train_command.run(
         ["--preset", "fayjie2018", "--run-dir", str(run_dir), "--total-steps", "80"]
         + ["--num-envs", "2", "--learning-starts", "40", "--torch-threads", "1", "--no-progress"]
         + ["--sink", "off", "--set", "episode.max_decisions=30"]

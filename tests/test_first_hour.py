@@ -21,13 +21,13 @@ from overtake.client.wire.spectate import SpectateConfig
 from overtake.client.wire.spectate import main as spectate_main
 from overtake.ipc.endpoints import check_endpoints
 from overtake.protocol.errors import ConnectError
-from overtake.trainers.evaluate import cli as evaluate_cli
+from overtake.trainers.evaluate import COMMAND as evaluate_command
 from overtake.viz.recording import RecordingConfig
 
 
 def _exit_line(argv: list[str]) -> str:
     with pytest.raises(SystemExit) as exited:
-        evaluate_cli(argv)
+        evaluate_command.run(argv)
     message = str(exited.value.code)
     assert "\n" not in message and "Traceback" not in message, message
     return message
@@ -292,11 +292,13 @@ def test_every_option_of_every_command_says_what_it_is():
 
 
 def test_a_run_that_cannot_start_leaves_no_empty_run_directory(tmp_path):
-    from overtake.trainers.train import cli as train_cli
+    from overtake.trainers.train import COMMAND as train_command
 
     run_dir = tmp_path / "runs" / "first"
     with pytest.raises(SystemExit) as exited:
-        train_cli(["--run-dir", str(run_dir), "--set", "traffic.densty=heavy", "--no-progress"])
+        train_command.run(
+            ["--run-dir", str(run_dir), "--set", "traffic.densty=heavy", "--no-progress"]
+        )
     assert "did you mean traffic.density?" in str(exited.value.code)
     assert not run_dir.exists()
 

@@ -22,8 +22,8 @@ from overtake.trainers.experiment import (
 from overtake.trainers.grid_network import GridQNetwork
 from overtake.trainers.learner import DQNConfig
 from overtake.trainers.tf_rmsprop import TFRMSprop
+from overtake.trainers.train import COMMAND as train_command
 from overtake.trainers.train import TrainConfig, preset_in
-from overtake.trainers.train import cli as train_cli
 from overtake.trainers.train import main as train
 
 SMALL = [
@@ -36,7 +36,7 @@ SMALL = [
 @pytest.fixture(scope="module")
 def ho_run(tmp_path_factory):
     run_dir = tmp_path_factory.mktemp("ho") / "run"
-    train_cli(["--preset", "ho2018", "--run-dir", str(run_dir), *SMALL])
+    train_command.run(["--preset", "ho2018", "--run-dir", str(run_dir), *SMALL])
     return run_dir
 
 

@@ -19,16 +19,16 @@ from gymnasium import spaces
 
 from overtake.client.commands import UsageError
 from overtake.trainers.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
+from overtake.trainers.evaluate import COMMAND as evaluate_command
 from overtake.trainers.evaluate import EvalConfig
-from overtake.trainers.evaluate import cli as evaluate_cli
 from overtake.trainers.evaluate import main as evaluate
 from overtake.trainers.heads import HeadSpec, dueling_q
 from overtake.trainers.learner import ALGOS, DQNConfig, DQNLearner, execution_device
 from overtake.trainers.network import NetworkShape, QNetwork
 from overtake.trainers.objectives import masked, td_target
 from overtake.trainers.replay import FrameShapes, FrameStacker, ReplayBatch, ReplayMemory
+from overtake.trainers.train import COMMAND as train_command
 from overtake.trainers.train import TrainConfig
-from overtake.trainers.train import cli as train_cli
 from overtake.trainers.train import main as train
 from overtake.viz.recording import RecordingConfig
 
@@ -735,25 +735,29 @@ def test_resume_without_a_checkpoint_and_a_broken_checkpoint_say_what_is_wrong(t
 def test_the_commands_print_what_is_wrong_and_exit_non_zero(tmp_path):
     """main() raises the typed error; the command prints ``<prog>: <message>`` and exits."""
     with pytest.raises(SystemExit) as exited:
-        train_cli(["--total-steps", "0", "--run-dir", str(tmp_path / "run"), "--no-progress"])
+        train_command.run(
+            ["--total-steps", "0", "--run-dir", str(tmp_path / "run"), "--no-progress"]
+        )
     assert exited.value.code == "overtake-train: --total-steps and --num-envs must be >= 1"
     assert not (tmp_path / "run").exists()
     broken = tmp_path / "broken.pt"
     broken.write_bytes(b"not a checkpoint at all")
     with pytest.raises(SystemExit) as exited:
-        evaluate_cli(["--checkpoint", str(broken)])
+        evaluate_command.run(["--checkpoint", str(broken)])
     assert str(exited.value.code).startswith(
         f"overtake-eval: {broken} is not a checkpoint overtake-train wrote ("
     )
     with pytest.raises(SystemExit) as exited:
-        train_cli(["--precision", "fp16", "--run-dir", str(tmp_path / "run"), "--no-progress"])
+        train_command.run(
+            ["--precision", "fp16", "--run-dir", str(tmp_path / "run"), "--no-progress"]
+        )
     assert exited.value.code == (
         "overtake-train: precision fp16 needs a CUDA device (its loss scaling is CUDA's), got "
         "device 'cpu': use bf16 there"
     )
     assert not (tmp_path / "run").exists()
     with pytest.raises(SystemExit) as exited:
-        evaluate_cli(["--policy", "rule", "--episodes", "0"])
+        evaluate_command.run(["--policy", "rule", "--episodes", "0"])
     assert exited.value.code == "overtake-eval: --episodes must be >= 1, got 0"
 
 

@@ -23,10 +23,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import tyro
 from tyro.conf import Positional
 
-from overtake.cli import enter
+from overtake.cli import Command
 from overtake.client.episodes.records import (
     EpisodeRecord,
     RecordError,
@@ -323,21 +322,13 @@ def main(config: ReplayConfig) -> dict[str, Any]:
     }
 
 
-def parse_args(argv: list[str] | None = None) -> ReplayConfig:
-    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
-    ``cli`` runs, and what the documentation's checks parse its commands with."""
-
-    return tyro.cli(
-        ReplayConfig,
-        args=argv,
-        config=(tyro.conf.OmitArgPrefixes,),
-        description="overtake-replay: recorded episodes played again, into Rerun",
-    )
-
-
-def cli(argv: list[str] | None = None) -> None:
-    enter("overtake-replay", parse_args, main, argv)
+COMMAND = Command(
+    prog="overtake-replay",
+    config=ReplayConfig,
+    main=main,
+    description="recorded episodes played again, into Rerun",
+)
 
 
 if __name__ == "__main__":
-    cli()
+    COMMAND.run()

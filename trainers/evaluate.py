@@ -17,7 +17,7 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
-from overtake.cli import Output, enter
+from overtake.cli import Command, Output
 from overtake.client.commands import UsageError
 from overtake.client.episodes.records import PolicySource
 from overtake.client.episodes.runner import baseline_policy, metric_summary
@@ -283,23 +283,13 @@ def main(config: EvalConfig) -> dict[str, Any]:
     return result
 
 
-def parse_args(argv: list[str] | None = None) -> EvalConfig:
-    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
-    ``cli`` runs, and what the documentation's checks parse its commands with."""
-    import tyro
-
-    return tyro.cli(
-        EvalConfig,
-        args=argv,
-        config=(tyro.conf.OmitArgPrefixes,),
-        description="overtake-eval: the papers' metrics for a checkpoint or a "
-        "baseline on fixed seeds",
-    )
-
-
-def cli(argv: list[str] | None = None) -> None:
-    enter("overtake-eval", parse_args, main, argv)
+COMMAND = Command(
+    prog="overtake-eval",
+    config=EvalConfig,
+    main=main,
+    description="the papers' metrics for a checkpoint or a baseline on fixed seeds",
+)
 
 
 if __name__ == "__main__":
-    cli()
+    COMMAND.run()

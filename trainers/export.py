@@ -31,7 +31,7 @@ import torch
 import tyro
 from torch import nn
 
-from overtake.cli import Output, enter
+from overtake.cli import Command, Output
 from overtake.client.commands import UsageError
 from overtake.client.episodes.scenario import Where
 from overtake.client.policies.frames import FrameStacker
@@ -270,20 +270,13 @@ def main(config: ExportConfig) -> dict[str, Any]:
     return report
 
 
-def parse_args(argv: list[str] | None = None) -> ExportConfig:
-    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
-    ``cli`` runs, and what the documentation's checks parse its commands with."""
-    return tyro.cli(
-        ExportConfig,
-        args=argv,
-        config=(tyro.conf.OmitArgPrefixes,),
-        description="overtake-export: a checkpoint's Q-network as ONNX, checked against PyTorch",
-    )
-
-
-def cli(argv: list[str] | None = None) -> None:
-    enter("overtake-export", parse_args, main, argv)
+COMMAND = Command(
+    prog="overtake-export",
+    config=ExportConfig,
+    main=main,
+    description="a checkpoint's Q-network as ONNX, checked against PyTorch",
+)
 
 
 if __name__ == "__main__":
-    cli()
+    COMMAND.run()

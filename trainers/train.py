@@ -24,15 +24,13 @@ from __future__ import annotations
 
 import json
 import logging
-import signal
-import sys
 import threading
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from overtake.cli import enter
+from overtake.cli import Command
 from overtake.client.commands import UsageError
 from overtake.client.wire.stopping import interrupt_waits
 
@@ -47,10 +45,9 @@ from .train_config import TrainConfig
 from .training_run import TrainingRun
 
 __all__ = [
+    "COMMAND",
     "TrainConfig",
-    "cli",
     "main",
-    "parse_args",
     "preset_in",
 ]
 
@@ -67,7 +64,7 @@ def main(
     configuration describes; the caller keeps it and closes it.
     ``stop``: once set, the run ends after the step under way as it would at
     ``total_steps`` (a last log line, a checkpoint, the recording closed), and the summary
-    says ``stopped``; ``cli`` sets it on SIGTERM and SIGINT.
+    says ``stopped``; the command (:data:`COMMAND`) sets it on SIGTERM and SIGINT.
     """
     if config.total_steps < 1 or config.num_envs < 1:
         raise UsageError("--total-steps and --num-envs must be >= 1")
@@ -139,54 +136,39 @@ def option_in(argv: list[str], flag: str) -> str | None:
     return value
 
 
-def parse_args(args: list[str]) -> TrainConfig:
-    """The configuration an ``overtake-train`` command line asks for: the named preset's
-    training, or its --recipe's (their defaults, which --help shows), with the options
-    given."""
-    import tyro
+def _say_stopping(name: str) -> None:
+    log.warning(
+        "%s: finishing the step under way, writing a checkpoint and stopping "
+        "(send it again to stop at once); continue the run with --resume",
+        name,
+    )
+    # A step waiting on a server that is gone would hold the stop for the step timeout (or
+    # the reconnect timeout): such waits end now, a healthy round still completes.
+    interrupt_waits()
 
+
+def _report(_config: TrainConfig, summary: dict[str, Any]) -> None:
+    print(json.dumps(summary, indent=2))
+
+
+def _defaults(args: list[str]) -> TrainConfig:
+    """The named preset's training, or its --recipe's (their defaults, which --help shows)."""
     recipe = option_in(args, "--recipe")
-    return tyro.cli(
-        TrainConfig,
-        args=args,
-        default=TrainConfig.for_preset(preset_in(args), None if recipe == "None" else recipe),
-        config=(tyro.conf.OmitArgPrefixes,),
-        description="overtake-train: DQN / Double DQN / Dueling DQN / QR-DQN on overtake",
-    )
+    return TrainConfig.for_preset(preset_in(args), None if recipe == "None" else recipe)
 
 
-def cli(argv: list[str] | None = None) -> None:
-    stop = threading.Event()
-
-    def on_signal(signum: int, _frame: Any) -> None:
-        name = signal.Signals(signum).name
-        if stop.is_set():  # asked twice: stop now (the recording and logs still close)
-            raise SystemExit(
-                f"overtake-train: stopped at once by a second {name}; the run continues "
-                "with --resume from its last checkpoint"
-            )
-        log.warning(
-            "%s: finishing the step under way, writing a checkpoint and stopping "
-            "(send it again to stop at once); continue the run with --resume",
-            name,
-        )
-        stop.set()
-        # A step waiting on a server that is gone would hold the stop for the step timeout
-        # (or the reconnect timeout): such waits end now, a healthy round still completes.
-        interrupt_waits()
-
-    def train(config: TrainConfig) -> None:
-        print(json.dumps(main(config, stop=stop), indent=2))
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
-    enter(
-        "overtake-train",
-        lambda args: parse_args(sys.argv[1:] if args is None else args),
-        train,
-        argv,
-    )
+COMMAND = Command(
+    prog="overtake-train",
+    config=TrainConfig,
+    main=main,
+    description="DQN / Double DQN / Dueling DQN / QR-DQN on overtake",
+    report=_report,
+    default=_defaults,
+    stopping="event",
+    stopped_hint="the run continues with --resume from its last checkpoint",
+    on_stop=_say_stopping,
+)
 
 
 if __name__ == "__main__":
-    cli()
+    COMMAND.run()

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from overtake.cli import CommandError, Output, enter
+from overtake.cli import Command, CommandError, Output
 
 from .recording import APPLICATION_ID, FLUSH_TIMEOUT_S
 from .training_layout import car_layout, curves_layout, key_curves_layout
@@ -203,28 +203,22 @@ def main(config: LayoutConfig) -> Contents:
     return contents
 
 
-def parse_args(argv: list[str] | None = None) -> LayoutConfig:
-    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
-    ``cli`` runs, and what the documentation's checks parse its commands with."""
-    import tyro
-
-    return tyro.cli(
-        LayoutConfig,
-        args=argv,
-        description="overtake-layout: recordings of one run joined into one laid-out .rrd",
+def _report(config: LayoutConfig, contents: Any) -> None:
+    print(
+        f"{config.out}: {len(contents.runs)} run(s) ({', '.join(contents.runs) or 'none'}), "
+        f"{len(contents.shapes)} arena(s); open it with: rerun {config.out}"
     )
 
 
-def cli(argv: list[str] | None = None) -> None:
-    def layout(config: LayoutConfig) -> None:
-        contents = main(config)
-        print(
-            f"{config.out}: {len(contents.runs)} run(s) ({', '.join(contents.runs) or 'none'}), "
-            f"{len(contents.shapes)} arena(s); open it with: rerun {config.out}"
-        )
-
-    enter("overtake-layout", parse_args, layout, argv)
+COMMAND = Command(
+    prog="overtake-layout",
+    config=LayoutConfig,
+    main=main,
+    description="recordings of one run joined into one laid-out .rrd",
+    report=_report,
+    prefixed=True,
+)
 
 
 if __name__ == "__main__":
-    cli()
+    COMMAND.run()

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from overtake.cli import CommandError, Output, enter
+from overtake.cli import Command, CommandError, Output
 
 from .recording import viewer_binary
 
@@ -307,27 +307,21 @@ def _beside(out: Path, title: str) -> Path:
     return out.with_name(f"{out.stem}-{slug}{out.suffix}")
 
 
-def parse_args(argv: list[str] | None = None) -> RenderConfig:
-    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
-    ``cli`` runs, and what the documentation's checks parse its commands with."""
-    import tyro
-
-    return tyro.cli(
-        RenderConfig,
-        args=argv,
-        description="overtake-render: a recording's layout drawn to PNG by Rerun's viewer",
-    )
+def _report(_config: RenderConfig, paths: list[Path]) -> None:
+    for path in paths:
+        print(path)
 
 
-def cli(argv: list[str] | None = None) -> None:
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
-
-    def render(config: RenderConfig) -> None:
-        for path in main(config):
-            print(path)
-
-    enter("overtake-render", parse_args, render, argv)
+COMMAND = Command(
+    prog="overtake-render",
+    config=RenderConfig,
+    main=main,
+    description="a recording's layout drawn to PNG by Rerun's viewer",
+    report=_report,
+    prefixed=True,
+    log_format="%(message)s",
+)
 
 
 if __name__ == "__main__":
-    cli()
+    COMMAND.run()

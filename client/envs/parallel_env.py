@@ -19,7 +19,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from overtake.client.envs.remote_gym import _OnNetwork, remote_simulator
-from overtake.client.wire.connection import RemoteConfig
+from overtake.client.wire.remote_config import RemoteConfig
 from overtake.envs.parallel_face import RETIRE_SINCE_MINOR, ParallelFace
 from overtake.protocol.messages import Scalar
 

@@ -21,8 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from overtake.client.wire.connection import Connection, RemoteConfig
+from overtake.client.wire.connection import Connection
 from overtake.client.wire.remote import ArenaGroup
+from overtake.client.wire.remote_config import RemoteConfig
 from overtake.envs.faces import Simulator, SingleFace, VectorFace
 from overtake.envs.registry import check_render_mode
 from overtake.protocol import errors

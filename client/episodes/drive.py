@@ -15,7 +15,7 @@ from typing import Literal
 
 import numpy as np
 
-from overtake.cli import Output, enter
+from overtake.cli import Command, Output
 from overtake.client.commands import UsageError
 from overtake.client.episodes.records import PolicySource
 from overtake.client.episodes.runner import baseline_policy, metric_summary, metric_table
@@ -202,17 +202,13 @@ def _print_table(
     )
 
 
-def parse_args(argv: list[str] | None = None) -> DriveConfig:
-    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
-    ``cli`` runs, and what the documentation's checks parse its commands with."""
-    import tyro
-
-    return tyro.cli(DriveConfig, args=argv, config=(tyro.conf.OmitArgPrefixes,))
-
-
-def cli(argv: list[str] | None = None) -> None:
-    enter("overtake-drive", parse_args, main, argv)
+COMMAND = Command(
+    prog="overtake-drive",
+    config=DriveConfig,
+    main=main,
+    description="baseline drivers or an exported policy on a preset, with the papers' metrics",
+)
 
 
 if __name__ == "__main__":
-    cli()
+    COMMAND.run()

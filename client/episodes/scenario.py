@@ -21,7 +21,7 @@ from typing import Any
 import gymnasium as gym
 
 from overtake.client.commands import UsageError
-from overtake.client.wire.connection import RemoteConfig
+from overtake.client.wire.remote_config import RemoteConfig
 from overtake.client.wire.steps_channel import Transport
 from overtake.envs import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
 from overtake.envs.faces import VectorFace

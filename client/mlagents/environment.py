@@ -47,8 +47,9 @@ from overtake.client.mlagents.types import (
     mlagents_observation_spec,
     mlagents_observations,
 )
-from overtake.client.wire.connection import Connection, RemoteConfig
+from overtake.client.wire.connection import Connection
 from overtake.client.wire.remote import ArenaGroup
+from overtake.client.wire.remote_config import RemoteConfig
 from overtake.envs.registry import arena_seeds
 from overtake.protocol.messages import (
     JoinRequest,

@@ -41,14 +41,13 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import signal
 import uuid
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from overtake.cli import enter
+from overtake.cli import Command
 from overtake.client.episodes.scenario import parse_overrides
 from overtake.client.mlagents.environment import RemoteEnvironment
 from overtake.client.mlagents.wire import (
@@ -74,7 +73,7 @@ from overtake.client.mlagents.wire import (
     side_channel_messages,
 )
 from overtake.client.mlagents.wrappers import SUPPORTED_MLAGENTS_ENVS
-from overtake.client.wire.connection import RemoteConfig
+from overtake.client.wire.remote_config import RemoteConfig
 from overtake.ipc.transport import SecurityConfig
 from overtake.protocol import ProtocolError
 from overtake.protocol.messages import Scalar
@@ -385,30 +384,22 @@ def main(config: BridgeConfig) -> dict[str, Any]:
     return {"exchanges": exchanges, "resets": bridge.resets}
 
 
-def _terminated(_signum: int, _frame: Any) -> None:
-    raise BridgeError("terminated (SIGTERM)")
-
-
-def parse_args(argv: list[str] | None = None) -> BridgeConfig:
-    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
-    ``cli`` runs, and what the documentation's checks parse its commands with."""
-    import tyro
-
-    return tyro.cli(
-        BridgeConfig,
-        args=argv,
-        config=(tyro.conf.OmitArgPrefixes,),
-        description="overtake-unity-bridge: ML-Agents' UnityEnvironment and mlagents-learn on "
-        "an overtake server",
-    )
-
-
-def cli(argv: list[str] | None = None) -> None:
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    signal.signal(signal.SIGTERM, _terminated)
-    summary = enter("overtake-unity-bridge", parse_args, main, argv)
+def _report(_config: BridgeConfig, summary: dict[str, Any]) -> None:
     print(f"overtake-unity-bridge: done after {summary['exchanges']} exchange(s)")
 
 
+COMMAND = Command(
+    prog="overtake-unity-bridge",
+    config=BridgeConfig,
+    main=main,
+    description="ML-Agents' UnityEnvironment and mlagents-learn on an overtake server",
+    report=_report,
+    stopping="interrupt",
+    # Told to the ML-Agents process on the way out (main's BridgeError path), not a traceback.
+    stop_error=lambda name: BridgeError(f"terminated ({name})"),
+    log_format="%(asctime)s %(name)s: %(message)s",
+)
+
+
 if __name__ == "__main__":
-    cli()
+    COMMAND.run()

@@ -24,7 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from overtake.client.wire.connection import Connection, RemoteConfig
+from overtake.client.wire.connection import Connection
+from overtake.client.wire.remote_config import RemoteConfig
 from overtake.protocol import errors
 from overtake.protocol.messages import (
     Ack,

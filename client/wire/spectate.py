@@ -8,17 +8,15 @@ web viewer this command serves; ``--record-every N`` logs one frame in N.
 
 from __future__ import annotations
 
-import signal
 import sys
 import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
-from overtake.cli import Output, enter
+from overtake.cli import Command, Output
 from overtake.client.commands import UsageError
-from overtake.client.wire.connection import RemoteConfig
+from overtake.client.wire.remote_config import RemoteConfig
 from overtake.client.wire.spectator import Spectator
 from overtake.ipc.transport import SecurityConfig
 from overtake.viz.recording import APPLICATION_ID, RecordingConfig, close_recording, open_recording
@@ -102,36 +100,22 @@ def main(config: SpectateConfig, stop: threading.Event | None = None) -> int:
     return logged
 
 
-def parse_args(argv: list[str] | None = None) -> SpectateConfig:
-    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
-    ``cli`` runs, and what the documentation's checks parse its commands with."""
-    import tyro
-
-    return tyro.cli(
-        SpectateConfig,
-        args=argv,
-        config=(tyro.conf.OmitArgPrefixes,),
-        description="overtake-spectate: a running server's arenas in Rerun",
+def _report(config: SpectateConfig, logged: int) -> None:
+    print(
+        f"logged {logged} world frame(s) to {config.recording.describe(DEFAULT_RRD)}",
+        file=sys.stderr,
     )
 
 
-def cli(argv: list[str] | None = None) -> None:
-    stop = threading.Event()
-
-    def on_signal(_signum: int, _frame: Any) -> None:
-        stop.set()
-
-    def spectate(config: SpectateConfig) -> None:
-        logged = main(config, stop=stop)
-        print(
-            f"logged {logged} world frame(s) to {config.recording.describe(DEFAULT_RRD)}",
-            file=sys.stderr,
-        )
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
-    enter("overtake-spectate", parse_args, spectate, argv)
+COMMAND = Command(
+    prog="overtake-spectate",
+    config=SpectateConfig,
+    main=main,
+    description="a running server's arenas in Rerun",
+    report=_report,
+    stopping="event",
+)
 
 
 if __name__ == "__main__":
-    cli()
+    COMMAND.run()

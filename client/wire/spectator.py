@@ -14,7 +14,7 @@ from collections import deque
 
 import zenoh
 
-from overtake.client.wire.connection import RemoteConfig, unreachable_message
+from overtake.client.wire.remote_config import RemoteConfig, unreachable_message
 from overtake.ipc.transport import open_session
 from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import WorldFrame

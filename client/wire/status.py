@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import json
-import sys
 from dataclasses import asdict, dataclass, field
 
-from overtake.cli import enter
-from overtake.client.wire.connection import Connection, RemoteConfig
+from overtake.cli import Command
+from overtake.client.wire.connection import Connection
+from overtake.client.wire.remote_config import RemoteConfig
 from overtake.ipc.transport import DEFAULT_ENDPOINT, SecurityConfig
 from overtake.protocol.messages import StatusReply
 
@@ -74,23 +74,18 @@ def main(config: StatusConfig) -> list[StatusReply]:
     return statuses
 
 
-def parse_args(argv: list[str] | None = None) -> StatusConfig:
-    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
-    ``cli`` runs, and what the documentation's checks parse its commands with."""
-    import tyro
-
-    return tyro.cli(
-        StatusConfig,
-        args=argv,
-        config=(tyro.conf.OmitArgPrefixes,),
-        description="overtake-status: the simulator servers on the network and their arenas",
-    )
+def _report(_config: StatusConfig, replies: list[StatusReply]) -> int:
+    return 0 if replies else 1  # no server answered
 
 
-def cli(argv: list[str] | None = None) -> None:
-    if not enter("overtake-status", parse_args, main, argv):
-        sys.exit(1)
+COMMAND = Command(
+    prog="overtake-status",
+    config=StatusConfig,
+    main=main,
+    description="the simulator servers on the network and their arenas",
+    report=_report,
+)
 
 
 if __name__ == "__main__":
-    cli()
+    COMMAND.run()

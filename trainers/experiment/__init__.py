@@ -48,7 +48,7 @@ from .catalogue import (
     Row,
     Schedule,
 )
-from .command import check_directory, cli, describe_experiments, main, parse_args
+from .command import COMMAND, check_directory, describe_experiments, main
 from .evidence import keep_evidence, run_lives
 from .files import LIVES_NAME, note_life, training_episodes, training_records, window_rewards
 from .plan import (
@@ -68,6 +68,7 @@ from .statistics import episode_statistics, learning_curves, seed_order, seed_st
 
 __all__ = [
     "ALGO_NAMES",
+    "COMMAND",
     "EXPERIMENTS",
     "INPUT_NAMES",
     "LIVES_NAME",
@@ -82,7 +83,6 @@ __all__ = [
     "RunPlan",
     "Schedule",
     "check_directory",
-    "cli",
     "command_args",
     "describe_experiments",
     "episode_statistics",
@@ -93,7 +93,6 @@ __all__ = [
     "make_plan",
     "markdown_table",
     "note_life",
-    "parse_args",
     "reference_policies",
     "run_lives",
     "seed_order",

@@ -1,6 +1,6 @@
 """``python -m overtake.trainers.experiment``: the ``overtake-experiment`` command."""
 
-from .command import cli
+from .command import COMMAND
 
 if __name__ == "__main__":
-    cli()
+    COMMAND.run()

@@ -4,15 +4,11 @@ from __future__ import annotations
 
 import json
 import os
-import signal
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import tyro
-
-from overtake.cli import enter
+from overtake.cli import Command
 from overtake.client.commands import UsageError
 
 from ..train_config import TrainConfig
@@ -147,37 +143,23 @@ def main(config: ExperimentConfig) -> dict[str, Any]:
     }
 
 
-def _terminate(_signum: int, _frame: Any) -> None:
-    raise KeyboardInterrupt
+def _report(_config: ExperimentConfig, summary: dict[str, Any]) -> None:
+    if "table_md" in summary:
+        print(Path(summary["table_md"]).read_text(encoding="utf-8"))
 
 
-def parse_args(argv: list[str] | None = None) -> ExperimentConfig:
-    """The configuration a command line asks for (``sys.argv`` when ``argv`` is None); what
-    ``cli`` runs, and what the documentation's checks parse its commands with."""
-    return tyro.cli(
-        ExperimentConfig,
-        args=argv,
-        config=(tyro.conf.OmitArgPrefixes,),
-        description="overtake-experiment: train, evaluate and tabulate a paper's table "
-        "(resumable: run the same command again to continue)",
-    )
-
-
-def cli(argv: list[str] | None = None) -> None:
-    def experiment(config: ExperimentConfig) -> None:
-        summary = main(config)
-        if "table_md" in summary:
-            print(Path(summary["table_md"]).read_text(encoding="utf-8"))
-
-    # SIGTERM (a container stopping, `kill`) stops the children as Ctrl-C does.
-    previous = signal.signal(signal.SIGTERM, _terminate)
-    try:
-        enter("overtake-experiment", parse_args, experiment, argv)
-    except KeyboardInterrupt:
-        sys.exit("overtake-experiment: stopped; run the same command again to continue")
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+# SIGTERM (a container stopping, `kill`) stops the children as Ctrl-C does.
+COMMAND = Command(
+    prog="overtake-experiment",
+    config=ExperimentConfig,
+    main=main,
+    description="train, evaluate and tabulate a paper's table "
+    "(resumable: run the same command again to continue)",
+    report=_report,
+    stopping="interrupt",
+    stopped_hint="run the same command again to continue",
+)
 
 
 if __name__ == "__main__":
-    cli()
+    COMMAND.run()
