@@ -6,7 +6,7 @@ runs, and every shell block's commands are checked.
   port, when a block needs one. ``<!-- skip: next if(...) -->`` skips one whose condition holds
   (Sybil's skip directive; used for what needs an optional install).
 - A shell block's commands are checked without running them: an ``overtake-*`` command is
-  parsed by its own command line parser (``parse_args``), a Python example's by its
+  parsed by its own command line parser (its ``COMMAND.parse``), a Python example's by its
   ``Args``; a ``scripts/*.sh`` must exist, be executable and parse (``bash -n``); ``python -m
   MODULE`` must find the module. A command of another program (docker, zenohd, ray, iptables)
   needs the block marked ``<!-- docs: needs WHAT -->`` (what CI does not have), and its
@@ -153,7 +153,7 @@ def check_command(words: list[str], marked: bool) -> None:
     if program.startswith("overtake-"):
         module = _entry_points().get(program)
         assert module is not None, f"{shown}: there is no command {program}"
-        _parse_quietly(importlib.import_module(module).parse_args, args, shown)
+        _parse_quietly(importlib.import_module(module).COMMAND.parse, args, shown)
     elif program == "python" and args[:1] == ["-m"]:
         name = args[1]
         if name == "pytest":

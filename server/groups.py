@@ -37,7 +37,8 @@ from overtake.protocol.vocabulary import (
     DEFAULT_ACTION,
 )
 
-from .rounds import RoundRows, Rounds
+from .members import Member
+from .rounds import Rounds
 from .sim import PRESETS, ConfigError, HighwaySim, SimConfig, make_config
 from .spec import behaviour_spec
 
@@ -51,16 +52,6 @@ def resolve_config(preset: str, overrides: Mapping[str, Scalar]) -> SimConfig:
         return make_config(preset, overrides)
     except ConfigError as error:
         raise errors.BadConfig(str(error)) from None
-
-
-@dataclass
-class Member:
-    """A trainer's stake in a group."""
-
-    ticket: bytes
-    slots: np.ndarray  # (A, N) bool: the agent slots it owns
-    pending: Actions | None = None  # its actions for the current round
-    count: int = 0  # how many slots it owns (slots.sum())
 
 
 # Group steps taken in this process, in order: what next_to_step compares.
@@ -232,46 +223,7 @@ class Group:
     def accept(self, actions: Actions, deadline_s: float) -> None:
         """Hold a trainer's actions for the current round (checked against what it owns)."""
         member = self.member(actions.trainer, actions.ticket)
-        if actions.round < self.round:
-            raise errors.StaleActions(
-                f"actions answer round {actions.round}, but group "
-                f"{self.group_id} played it at the deadline and is at "
-                f"round {self.round}"
-            )
-        if actions.round > self.round:
-            raise errors.BadAction(
-                f"actions answer round {actions.round}, but group "
-                f"{self.group_id} is only at round {self.round}"
-            )
-        agents = actions.agents
-        total = self.sim.num_arenas * self.sim.agents
-        if agents.size and (agents.min() < 0 or agents.max() >= total):
-            raise errors.BadAction(
-                f"agent ids in group {self.group_id} are 0..{total - 1}, got "
-                f"{agents[(agents < 0) | (agents >= total)].tolist()}"
-            )
-        mine = member.slots.reshape(-1)[agents]
-        if not mine.all():
-            raise errors.NotOwner(
-                f"agents {agents[~mine].tolist()} of group {self.group_id} "
-                f"belong to another trainer or to nobody; "
-                f"{actions.trainer!r} owns "
-                f"{np.flatnonzero(member.slots).tolist()}"
-            )
-        if actions.retire is not None and actions.retire.size:
-            retire = actions.retire
-            if retire.min() < 0 or retire.max() >= total:
-                raise errors.BadAction(
-                    f"agent ids in group {self.group_id} are 0..{total - 1}, asked to retire "
-                    f"{retire[(retire < 0) | (retire >= total)].tolist()}"
-                )
-            theirs = ~member.slots.reshape(-1)[retire]
-            if theirs.any():
-                raise errors.NotOwner(
-                    f"agents {retire[theirs].tolist()} of group {self.group_id} belong to "
-                    f"another trainer or to nobody; {actions.trainer!r} may retire only its "
-                    f"own, {np.flatnonzero(member.slots).tolist()}"
-                )
+        member.check(actions, self.group_id, self.round)
         member.pending = actions
         if actions.trainer_step >= 0:
             self.trainer_step = actions.trainer_step
@@ -322,7 +274,10 @@ class Group:
         self.rate_rounds_per_s = (
             1.0 / dt if self.rounds_done == 1 else 0.9 * self.rate_rounds_per_s + 0.1 / dt
         )
-        return {trainer: self._steps(member, rows) for trainer, member in self.members.items()}
+        return {
+            trainer: member.steps(rows, self.server, self.group_id, self.round)
+            for trainer, member in self.members.items()
+        }
 
     def _retire(self, agents: np.ndarray) -> None:
         self.rounds.retire(agents)
@@ -359,38 +314,8 @@ class Group:
 
     def current_steps(self, trainer: str) -> Steps:
         """The trainer's agents as they are now (after a claim), reward 0, no flags."""
-        return self._steps(self.members[trainer], self.rounds.now())
-
-    def _steps(self, member: Member, rows: RoundRows) -> Steps:
-        """``member``'s rows of a round, as the Steps sent to its trainer."""
-        if member.count == rows.agents.size:
-            flat = rows.agents
-
-            def mine(value: np.ndarray) -> np.ndarray:
-                return value
-        else:
-            flat = np.flatnonzero(member.slots).astype(np.int32)
-
-            def mine(value: np.ndarray) -> np.ndarray:
-                return value[flat]
-
-        # Built from the simulation's own arrays, whose dtypes and shapes the spec fixes: the
-        # per-field checks that guard decoding are skipped on this hot path (a test decodes
-        # these messages and so checks them).
-        return Steps.trusted(
-            server=self.server,
-            group=self.group_id,
-            round=self.round,
-            agents=flat.copy(),
-            observations={name: mine(value) for name, value in rows.observations.items()},
-            reward=mine(rows.reward),
-            terminated=mine(rows.terminated),
-            truncated=mine(rows.truncated),
-            action_applied=mine(rows.action_applied),
-            late=mine(rows.late),
-            action_mask=mine(rows.action_mask),
-            reward_terms=mine(rows.reward_terms),
-            metrics=mine(rows.metrics),
+        return self.members[trainer].steps(
+            self.rounds.now(), self.server, self.group_id, self.round
         )
 
     # --- views ------------------------------------------------------------------------------
