@@ -45,12 +45,18 @@ from .records import (
 from .shm_messages import ShmArray, ShmOffer
 from .specs import BehaviourSpec, CarSpec, ObservationSpec, Reach, RoadSpec
 from .state_messages import GroupState, RestoreRequest, SnapshotRequest
-from .version import PROTOCOL_HISTORY, PROTOCOL_VERSION, TYPED_SPEC_SINCE_MINOR
+from .version import (
+    AS_RECORDED_SINCE_MINOR,
+    PROTOCOL_HISTORY,
+    PROTOCOL_VERSION,
+    TYPED_SPEC_SINCE_MINOR,
+)
 from .vocabulary import ACTION_COUNT, ACTION_NAMES
 
 __all__ = [
     "ACTION_COUNT",
     "ACTION_NAMES",
+    "AS_RECORDED_SINCE_MINOR",
     "MAX_AGENTS_PER_ARENA",
     "MAX_ARENAS_PER_REQUEST",
     "MAX_ARRAY_DIMS",
@@ -158,6 +164,9 @@ class OpenRequest(Message):
     seed: int | None  # arena i is reset with seed + i; None: fresh entropy
     # The trainer can read Steps from a shared-memory segment (it may share the server's host).
     shm: bool = field(default=False, metadata={"since": 6})
+    # The configuration an episode record was made on (its header's, as JSON; empty: none):
+    # the server builds that simulator again from its settings' history, or refuses.
+    as_recorded: str = field(default="", metadata={"since": 9})
 
     def check(self) -> None:
         check_name("trainer", self.trainer)

@@ -4,7 +4,7 @@ ignores, and an older peer's messages decode with those fields at their defaults
 
 from __future__ import annotations
 
-PROTOCOL_VERSION: tuple[int, int] = (1, 8)
+PROTOCOL_VERSION: tuple[int, int] = (1, 9)
 PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
     (
         "1.0",
@@ -73,7 +73,17 @@ PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
         "run resumes exactly. A 1.7 server answers both with an error; a trainer reads "
         "Opened.server_minor before asking.",
     ),
+    (
+        "1.9",
+        "An OpenRequest may carry the configuration an episode record was made on "
+        "(as_recorded, its header's JSON): the server builds the simulator as it was then, "
+        "from its own settings' history, or refuses, naming what differs; so a replay needs "
+        "no knowledge of the server's settings on the trainer's side. A 1.8 server ignores "
+        "the field; a trainer replaying a record refuses a server older than 1.9.",
+    ),
 )
+# The minor version that builds a record's simulator again (OpenRequest.as_recorded).
+AS_RECORDED_SINCE_MINOR = 9
 # The minor version that keeps and restores a group's state (SnapshotRequest, RestoreRequest).
 GROUP_STATE_SINCE_MINOR = 8
 # The minor version whose spec carries the road, the car and the observations' facts.

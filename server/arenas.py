@@ -69,6 +69,7 @@ class ArenaRegistry:
             dict(request.overrides),
             request.agents_per_arena,
             request.seed,
+            request.as_recorded,
         )
         for index in range(request.arenas):
             group.claim(request.trainer, index, request.claim, fresh=True)

@@ -24,17 +24,24 @@ import numpy as np
 from overtake.envs.faces import SingleFace, VectorFace
 
 from .local import LocalEngine, LocalRoad, local_simulator
-from .sim import HighwaySim, SimConfig, make_config
+from .sim import HighwaySim, SimConfig, make_config, settings_history
 
 
 def in_process_config(
-    preset: str, overrides: Mapping[str, Any] | None, config: SimConfig | None
+    preset: str,
+    overrides: Mapping[str, Any] | None,
+    config: SimConfig | None,
+    as_recorded: Mapping[str, Any] | None = None,
 ) -> SimConfig:
-    """``config``, or the preset with its overrides (not both)."""
+    """``config``, or the preset with its overrides (not both); with ``as_recorded`` (a
+    record's configuration), the simulator that record was made on
+    (:func:`~.sim.settings_history.as_recorded`)."""
     if config is not None:
-        if overrides:
+        if overrides or as_recorded:
             raise ValueError("pass either a config or a preset with overrides, not both")
         return config
+    if as_recorded is not None:
+        return settings_history.as_recorded(preset, overrides or {}, as_recorded)
     return make_config(preset, overrides)
 
 
@@ -66,8 +73,9 @@ class HighwayEnv(_InProcess, SingleFace):
         overrides: Mapping[str, Any] | None = None,
         config: SimConfig | None = None,
         render_mode: str | None = None,
+        as_recorded: Mapping[str, Any] | None = None,
     ) -> None:
-        self.config = in_process_config(preset, overrides, config)
+        self.config = in_process_config(preset, overrides, config, as_recorded)
         super().__init__(local_simulator(self.config, arenas=1), render_mode)
 
     def planner_action(self) -> int:
@@ -86,8 +94,9 @@ class HighwayVectorEnv(_InProcess, VectorFace):
         overrides: Mapping[str, Any] | None = None,
         config: SimConfig | None = None,
         render_mode: str | None = None,
+        as_recorded: Mapping[str, Any] | None = None,
     ) -> None:
-        self.config = in_process_config(preset, overrides, config)
+        self.config = in_process_config(preset, overrides, config, as_recorded)
         super().__init__(local_simulator(self.config, arenas=num_envs), num_envs, render_mode)
 
     def planner_actions(self) -> np.ndarray:

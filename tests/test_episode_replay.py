@@ -19,16 +19,20 @@ from overtake.client.episodes.records import (
     RecordError,
     read_header,
     read_records,
-    replay_overrides,
-    unexplained_differences,
     write_records,
 )
+from overtake.protocol import errors
+from overtake.server.groups import resolve_config
 from overtake.server.sim import SimConfig, make_config
 from overtake.server.sim.presets import PRESETS
+from overtake.server.sim.settings_history import (
+    as_recorded,
+    undo_overrides,
+    unexplained_differences,
+)
 from overtake.trainers.episode_replay import (
     ReplayConfig,
     ReplayDiverged,
-    refuse_other_simulators,
     replay_envs,
 )
 from overtake.trainers.episode_replay import main as replay
@@ -471,15 +475,11 @@ def _kept_record_per_commit_and_preset() -> list[Path]:
     "record", _kept_record_per_commit_and_preset(), ids=lambda p: str(p.relative_to(KEPT))
 )
 def test_every_kept_record_replays_on_the_simulator_it_was_made_on(record):
-    # The kept tables' replay commands work from today's code: a setting added since the
-    # record was made is named in ADDED_SETTINGS (with, where it decides anything, its value
-    # from before in EARLIER_SETTINGS), else the replay refuses the record.
+    # The kept tables' replay commands work from today's code: a setting added or changed
+    # since the record was made is in the simulator's settings' history
+    # (overtake.server.sim.settings_history), else the replay refuses the record.
     header = read_header(record)
-    envs = replay_envs(header, 1)
-    try:
-        refuse_other_simulators(header, envs)
-    finally:
-        envs.close()
+    replay_envs(header, 1).close()
 
 
 def _as_recorded(config: SimConfig) -> dict:
@@ -492,10 +492,38 @@ def test_a_setting_added_since_a_record_is_set_to_what_it_was_before_it_existed(
     now = _as_recorded(make_config("min2018", {"ego.lane_change_watch": True}))
     for name in ("lane_change_watch", "watch_brake_mps2", "watch_response_s"):
         del recorded["ego"][name]
-    assert replay_overrides(recorded, now) == {"ego.lane_change_watch": False}
+    assert undo_overrides(recorded, now) == {"ego.lane_change_watch": False}
     assert unexplained_differences(recorded, now) == []
-    # A setting the vocabulary does not name as added is a difference the replay reports.
+    # A setting the history does not name as added is a difference the replay reports.
     del recorded["ego"]["length_m"]
     assert unexplained_differences(recorded, now) == [
         f"ego.length_m: absent from the record, {now['ego']['length_m']!r} now"
     ]
+
+
+def test_the_server_builds_a_records_simulator_or_refuses_naming_the_difference():
+    """What a trainer sends (OpenRequest.as_recorded, the record's configuration as JSON) is
+    built by the server from its own history: no client knows the simulator's settings."""
+    recorded = _as_recorded(make_config("min2018"))
+    for name in ("lane_change_watch", "watch_brake_mps2", "watch_response_s"):
+        del recorded["ego"][name]
+    built = resolve_config("min2018", {}, json.dumps(recorded))
+    assert built == as_recorded("min2018", {}, recorded)
+    assert built.ego.lane_change_watch is False  # what it was before the setting existed
+    recorded["ego"]["length_m"] = 9.0
+    with pytest.raises(errors.BadConfig, match=r"ego\.length_m: 9\.0 in the record, 4\.\d+ now"):
+        resolve_config("min2018", {}, json.dumps(recorded))
+    with pytest.raises(errors.BadConfig, match="as_recorded is not JSON"):
+        resolve_config("min2018", {}, "{not json")
+    with pytest.raises(errors.BadConfig, match=r"a JSON object\), got list"):
+        resolve_config("min2018", {}, "[1, 2]")
+
+
+def test_a_what_if_change_is_put_in_the_record_and_the_rest_still_checked(tmp_path):
+    record = _drive(tmp_path / "records", "min2018", policy="rule")
+    header = read_header(record)
+    envs = replay_envs(header, 1, changes={"ego.lane_change_watch": True})
+    try:
+        assert envs.sim_config["ego"]["lane_change_watch"] is True
+    finally:
+        envs.close()

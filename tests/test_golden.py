@@ -29,8 +29,8 @@ from overtake.protocol.messages import Actions
 from overtake.server.env import HighwayEnv, HighwayVectorEnv
 from overtake.server.groups import Group
 from overtake.server.sim import PRESETS
-from overtake.server.sim.presets import BEFORE_AUTHORS_TRAFFIC
 from overtake.server.sim.sensors.kinematics import FEATURES as KINEMATICS_FEATURES
+from overtake.server.sim.settings_history import BEFORE_AUTHORS_TRAFFIC
 
 DENSITIES = ("light", "medium", "heavy")
 ACTION_COUNT = 5

@@ -17,6 +17,7 @@ episode's metrics and events against the record's.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,8 +32,6 @@ from overtake.client.episodes.records import (
     RecordError,
     RecordHeader,
     read_records,
-    replay_overrides,
-    unexplained_differences,
 )
 from overtake.client.episodes.runner import baseline_policy
 from overtake.client.episodes.scenario import Where
@@ -40,6 +39,7 @@ from overtake.client.episodes.session import Driver, Episodes, Keeping, drive_ep
 from overtake.client.policies.shield import Shield
 from overtake.client.provenance import git_commit
 from overtake.envs.faces import VectorFace
+from overtake.protocol import errors
 from overtake.protocol.vocabulary import ACTION_NAMES
 from overtake.viz.recording import RecordingConfig
 
@@ -49,8 +49,6 @@ from .evaluate import GreedyPolicy
 # Reference policies whose choices depend on nothing but what their arena shows: a replay
 # checks each of their decisions against the record (random draws for the whole batch).
 DETERMINISTIC_REFERENCES = ("rule", "idle", "planner")
-# Differences named in a refusal; more are counted.
-SHOWN_DIFFERENCES = 8
 
 
 class ReplayDiverged(RecordError):
@@ -242,40 +240,31 @@ def replay_envs(
     changes: Mapping[str, Any] | None = None,
 ) -> VectorFace:
     """``count`` environments of the simulator a record was made on (``where`` says where:
-    default in this process): its preset and overrides, and where the preset has changed
-    since, the overrides that undo the change
-    (:func:`~overtake.client.episodes.records.replay_overrides`); ``changes``: overrides put on
-    top, for a replay that asks "what if" (bench/collision_causes.py)."""
+    default in this process), built again by that simulator from its own settings' history
+    (overtake.server.sim.settings_history: the record's preset and overrides, and what undoes
+    the changes since); :class:`RecordError` where it cannot be, naming what differs.
+    ``changes``: overrides put on top, for a replay that asks "what if"
+    (``overtake-collision-causes``)."""
     where = where or Where()
     overrides = {**header.overrides, **(changes or {})}
-    envs = where.open(header.preset, overrides, count)
-    undo = {
-        name: value
-        for name, value in replay_overrides(header.config, envs.sim_config).items()
-        if name not in (changes or {})
-    }
-    if not undo:
-        return envs
-    envs.close()
-    return where.open(header.preset, {**header.overrides, **undo, **(changes or {})}, count)
+    recorded = _with_changes(header.config, changes or {})
+    try:
+        return where.open(header.preset, overrides, count, as_recorded=recorded)
+    except (errors.BadConfig, ValueError) as error:
+        raise RecordError(f"{error}{_commits(header)}") from None
 
 
-def refuse_other_simulators(header: RecordHeader, envs: VectorFace) -> None:
-    """Refuse to replay where the record's preset and overrides resolve to another simulator
-    than the record's (beyond what :func:`replay_envs` undid)."""
-    differences = sorted(
-        unexplained_differences(header.config, envs.sim_config),
-        key=lambda text: not text.startswith("preset:"),  # the preset's name first
-    )
-    if differences:
-        shown = "; ".join(differences[:SHOWN_DIFFERENCES])
-        more = len(differences) - SHOWN_DIFFERENCES
-        raise RecordError(
-            f"preset {header.preset} with the record's overrides resolves to another "
-            f"simulator than the record's: {shown}"
-            + (f" (and {more} more)" if more > 0 else "")
-            + _commits(header)
-        )
+def _with_changes(config: dict[str, Any], changes: Mapping[str, Any]) -> dict[str, Any]:
+    """A record's configuration with "what if" changes (dotted names) put in, as the
+    simulator built with them must hold them."""
+    changed = copy.deepcopy(config)
+    for name, value in changes.items():
+        *sections, last = name.split(".")
+        place = changed
+        for section in sections:
+            place = place.setdefault(section, {})
+        place[last] = list(value) if isinstance(value, tuple) else value
+    return changed
 
 
 def main(config: ReplayConfig) -> dict[str, Any]:
@@ -303,7 +292,6 @@ def main(config: ReplayConfig) -> dict[str, Any]:
             every=config.recording.record_every,
         ),
         open_envs=lambda: replay_envs(header, len(chosen), where),
-        check=lambda envs: refuse_other_simulators(header, envs),
     )
     assert driven.records is not None
     compare(chosen, driven.records, header)

@@ -28,7 +28,12 @@ from overtake.envs.faces import Simulator, SingleFace, VectorFace
 from overtake.envs.registry import check_render_mode
 from overtake.protocol import errors
 from overtake.protocol.codec import version_text
-from overtake.protocol.messages import TYPED_SPEC_SINCE_MINOR, OpenRequest, Scalar
+from overtake.protocol.messages import (
+    AS_RECORDED_SINCE_MINOR,
+    TYPED_SPEC_SINCE_MINOR,
+    OpenRequest,
+    Scalar,
+)
 
 __all__ = [
     "TYPED_SPEC_NEED",
@@ -76,11 +81,14 @@ def remote_simulator(
     agents_per_arena: int = 1,
     parts: int = 1,
     needs: tuple[tuple[int, str], ...] = (),
+    as_recorded: Mapping[str, Any] | None = None,
 ) -> Simulator:
     """``arenas`` arenas of ``preset`` opened on a server reached through ``connect`` (or
     ``remote``, a RemoteConfig), as ``parts`` groups of consecutive arenas (the first ones one
     larger where they do not divide). ``needs``: (minor version, what for) the server must
-    speak beyond :data:`TYPED_SPEC_NEED`; the oldest unmet one refuses it."""
+    speak beyond :data:`TYPED_SPEC_NEED`; the oldest unmet one refuses it. ``as_recorded``:
+    the configuration an episode record was made on, which the server builds again (or
+    refuses, naming what differs)."""
     if not 1 <= parts <= arenas:
         raise ValueError(f"parts must be between 1 and the {arenas} arena(s), got {parts}")
     if remote is None:
@@ -106,10 +114,14 @@ def remote_simulator(
                         agents_per_arena=agents_per_arena,
                         claim=agents_per_arena,
                         seed=None,
+                        as_recorded=json.dumps(as_recorded) if as_recorded is not None else "",
                     ),
                 )
             )
         first = groups[0]
+        if as_recorded is not None:
+            # A 1.8 server ignores as_recorded: it would replay on today's simulator.
+            needs = (*needs, (AS_RECORDED_SINCE_MINOR, "an episode record's simulator built again"))
         for need, why in sorted((TYPED_SPEC_NEED, *needs)):
             if first.server_minor < need:
                 raise errors.VersionMismatch(
@@ -188,9 +200,13 @@ class RemoteHighwayEnv(_OnNetwork, SingleFace):
         overrides: Mapping[str, Scalar] | None = None,
         remote: RemoteConfig | None = None,
         render_mode: str | None = None,
+        as_recorded: Mapping[str, Any] | None = None,
     ) -> None:
         self._open_on_network(
-            render_mode, lambda: remote_simulator(connect, remote, preset, overrides, arenas=1)
+            render_mode,
+            lambda: remote_simulator(
+                connect, remote, preset, overrides, arenas=1, as_recorded=as_recorded
+            ),
         )
 
 
@@ -211,11 +227,18 @@ class RemoteHighwayVectorEnv(_OnNetwork, VectorFace):
         remote: RemoteConfig | None = None,
         render_mode: str | None = None,
         parts: int = 1,
+        as_recorded: Mapping[str, Any] | None = None,
     ) -> None:
         self._open_on_network(
             render_mode,
             lambda: remote_simulator(
-                connect, remote, preset, overrides, arenas=num_envs, parts=parts
+                connect,
+                remote,
+                preset,
+                overrides,
+                arenas=num_envs,
+                parts=parts,
+                as_recorded=as_recorded,
             ),
             num_envs,
         )

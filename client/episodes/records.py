@@ -31,9 +31,6 @@ from overtake.client.commands import UsageError
 from overtake.client.policies.shield import SHIELD_OVERRIDES
 from overtake.protocol.vocabulary import (
     ACTION_COUNT,
-    ADDED_SETTINGS,
-    CHANGED_PRESET_SETTINGS,
-    EARLIER_SETTINGS,
     EPISODE_COUNTS,
     METRIC_FIELDS,
 )
@@ -223,68 +220,6 @@ def _row(line: str, path: Path, number: int) -> Any:
         return json.loads(line)
     except json.JSONDecodeError as error:
         raise RecordError(f"{path}, line {number}: not JSON ({error})") from None
-
-
-def _flat(config: Any, prefix: str = "") -> dict[str, Any]:
-    """A nested configuration as dotted names to values (lists for tuples, as JSON has it)."""
-    if not isinstance(config, dict):
-        return {prefix: list(config) if isinstance(config, tuple) else config}
-    flat: dict[str, Any] = {}
-    for key, value in config.items():
-        flat.update(_flat(value, f"{prefix}.{key}" if prefix else str(key)))
-    return flat
-
-
-def replay_overrides(recorded: dict[str, Any], now: dict[str, Any]) -> dict[str, Any]:
-    """The overrides that turn the simulator a record's preset and overrides give today
-    (``now``) into the one the record was made on (``recorded``), where only the preset has
-    changed since: the settings added since, which the record does not name, at the values
-    they had before they existed (:data:`~overtake.protocol.vocabulary.EARLIER_SETTINGS`),
-    then the preset's settings whose value changed since
-    (:data:`~overtake.protocol.vocabulary.CHANGED_PRESET_SETTINGS`) at the record's. Any
-    other difference stays, for :func:`unexplained_differences` to report."""
-    flat_recorded, flat_now = _flat(recorded), _flat(now)
-    added = {
-        name: value
-        for name, value in EARLIER_SETTINGS.items()
-        if name in flat_now and name not in flat_recorded and flat_now[name] != value
-    }
-    preset = recorded.get("preset")
-    changed = {
-        name: flat_recorded[name]
-        for name in CHANGED_PRESET_SETTINGS.get(str(preset), ())
-        if preset == now.get("preset")
-        and name in flat_recorded
-        and name in flat_now
-        and flat_recorded[name] != flat_now[name]
-    }
-    return {**added, **changed}
-
-
-def unexplained_differences(recorded: dict[str, Any], now: dict[str, Any]) -> list[str]:
-    """:func:`config_differences`, less the settings added since the record (which a replay
-    with :func:`replay_overrides` has set to what they were, or which do nothing then)."""
-    return [
-        text
-        for text in config_differences(recorded, now)
-        if not (text.split(":", 1)[0] in ADDED_SETTINGS and "absent from the record" in text)
-    ]
-
-
-def config_differences(recorded: Any, now: Any, prefix: str = "") -> list[str]:
-    """The dotted names where two configurations (nested dicts) differ, with both values."""
-    if isinstance(recorded, dict) and isinstance(now, dict):
-        found = []
-        for key in sorted(set(recorded) | set(now), key=str):
-            name = f"{prefix}.{key}" if prefix else str(key)
-            if key not in now:
-                found.append(f"{name}: {recorded[key]!r} in the record, absent now")
-            elif key not in recorded:
-                found.append(f"{name}: absent from the record, {now[key]!r} now")
-            else:
-                found += config_differences(recorded[key], now[key], name)
-        return found
-    return [] if recorded == now else [f"{prefix}: {recorded!r} in the record, {now!r} now"]
 
 
 class EventCounts:

@@ -76,11 +76,19 @@ class Where:
         return "in-process" if self.connect is None else f"on {self.connect}"
 
     def open(
-        self, preset: str, overrides: Mapping[str, Any], num_envs: int, parts: int = 1
+        self,
+        preset: str,
+        overrides: Mapping[str, Any],
+        num_envs: int,
+        parts: int = 1,
+        as_recorded: Mapping[str, Any] | None = None,
     ) -> VectorFace:
         """``num_envs`` arenas of ``preset`` with ``overrides`` as one vector environment:
         in this process, or on the server, there in ``parts`` groups (see
-        ``RemoteHighwayVectorEnv``)."""
+        ``RemoteHighwayVectorEnv``). ``as_recorded``: the configuration an episode record was
+        made on; the simulator (here or the server's) builds that one again from its own
+        settings' history, or refuses with BadConfig, naming what differs."""
+        recorded = None if as_recorded is None else dict(as_recorded)
         register_environments()
         if self.connect is None:
             envs = gym.make_vec(
@@ -89,6 +97,7 @@ class Where:
                 vectorization_mode="vector_entry_point",
                 preset=preset,
                 overrides=dict(overrides),
+                as_recorded=recorded,
             )
         else:
             remote = RemoteConfig(
@@ -105,6 +114,7 @@ class Where:
                 overrides=dict(overrides),
                 remote=remote,
                 parts=parts,
+                as_recorded=recorded,
             )
         # Gymnasium builds the registered entry point itself, no wrapper around it.
         assert isinstance(envs, VectorFace)

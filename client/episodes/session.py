@@ -122,18 +122,15 @@ def drive_episodes(
     keeping: Keeping = Keeping(),
     realtime: bool = False,
     open_envs: Callable[[], VectorFace] | None = None,
-    check: Callable[[VectorFace], None] | None = None,
 ) -> Driven:
     """Drive ``episodes`` of ``preset`` with ``overrides``, ``where`` says (or in what
     ``open_envs`` opens instead: a replay's simulator), by the driver ``driver_for`` chooses
-    for the environment; ``check`` may refuse the environment before anything is driven.
+    for the environment.
     ``realtime``: on the wall clock, one decision period per decision (:class:`RealTime`)."""
     envs = open_envs() if open_envs is not None else where.open(preset, overrides, episodes.count)
     recording = None
     rrd = keeping.rrd or Path("episodes.rrd")
     try:
-        if check is not None:
-            check(envs)
         driver = driver_for(envs)
         clock = RealTime(period_s=envs.decision_period_s) if realtime else None
         recorder = EpisodeRecorder(list(episodes.seeds), driver.act) if keeping.records else None

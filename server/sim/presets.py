@@ -192,8 +192,8 @@ def ho2018() -> SimConfig:
       agent, tried literally, brought the rule driver no closer to his code's speeds);
     - traffic's IDM (time headway 0.1 s, standstill gap 1 m) and MOBIL remain only as what
       ``traffic.following = "idm"`` and ``traffic.entry = "comfortable"`` (the preset before
-      issue 44, ``BEFORE_AUTHORS_TRAFFIC``) use; ``comfortable`` spawns 70-87 m ahead and
-      23-37 m behind.
+      issue 44, ``settings_history.BEFORE_AUTHORS_TRAFFIC``) use; ``comfortable`` spawns
+      70-87 m ahead and 23-37 m behind.
     """
     car_length_m, car_width_m = 7.0, 3.4
     frames_per_s = 1 / 0.08  # his frame, in the time of this preset
@@ -355,53 +355,6 @@ def fayjie2018() -> SimConfig:
         episode=EpisodeConfig(max_decisions=1000, frames_per_decision=4, physics_dt_s=0.1),
     )
 
-
-# The presets as issue 32 left them, before the authors' traffic (issue 44), as overrides of
-# today's: Min et al.'s with blind lane changes, desired speeds redrawn in 40-65 km/h, random
-# lane changes every 20 s, 150 m kept ahead and episodes of 1,000 decisions; Ho's with IDM and
-# MOBIL traffic entering where IDM finds a comfortable gap, "road_max" and "lane_changer" at a
-# constant 100 km/h, the lane changer switching by MOBIL, a safety gap of 8 m and the side
-# check of Min et al.'s preset. With them the tables kept in bench/results before issue 44 can
-# be made again: tests/test_golden.py holds them to the digests of then.
-BEFORE_AUTHORS_TRAFFIC: dict[str, dict[str, PlainValue]] = {
-    "min2018": {
-        "ego.lane_change_check": False,
-        "traffic.random.speed_steps_per_s": 0.0,
-        "traffic.random.speed_walk_kmh": None,
-        "traffic.random.desired_speed_kmh": (40.0, 65.0),
-        "traffic.random.speed_change_rate_per_s": 0.1,
-        "traffic.random.random_lane_change_rate_per_s": 0.05,
-        "traffic.keep_ahead_m": 150.0,
-        "episode.max_distance_m": None,
-    },
-    "ho2018": {
-        # Counted as any preset counted them then (issue 56 counts the brakes his rule forces).
-        "ego.emergency_brake_count": "deliberate",
-        "traffic.density_vehicle_counts": (20, 40, 60),
-        "traffic.entry": "comfortable",
-        "traffic.following": "idm",
-        "traffic.steady.keeps_current_speed": False,
-        "traffic.steady.lane_change_threshold_mps2": 10.0,
-        "traffic.road_max.lane_change_threshold_mps2": 10.0,
-        "traffic.road_max.keeps_current_speed": False,
-        "traffic.road_max.speed_steps_per_s": 0.0,
-        "traffic.road_max.desired_speed_kmh": (100.0, 100.0),
-        "traffic.lane_changer.keeps_current_speed": False,
-        "traffic.lane_changer.speed_steps_per_s": 0.0,
-        "traffic.lane_changer.desired_speed_kmh": (100.0, 100.0),
-        "traffic.lane_changer.lane_change_threshold_mps2": 0.1,
-        "ego.safety_gap_m": 8.0,
-        "ego.lane_change_clear_ahead_m": 2.0,
-        "ego.lane_change_clear_behind_m": 4.0,
-        "ego.lane_change_closing_time_s": 1.0,
-        "ego.lane_change_duration_s": 0.24,
-        "traffic.lane_change_duration_s": 0.24,
-        "traffic.safety_gap_m": 3.5,
-        "traffic.lane_changer.random_lane_change_rate_per_s": 0.0,
-        "traffic.lane_changer.random_lane_changes_when_slow": False,
-        "grid.covered_by": "any_part",
-    },
-}
 
 PRESETS: dict[str, Callable[[], SimConfig]] = {
     "min2018": min2018,
