@@ -32,7 +32,7 @@ import sys
 import threading
 import urllib.parse
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass
 from pathlib import Path
 from typing import Any, Generic, Literal, TypeVar, cast
 
@@ -130,7 +130,9 @@ class Command(Generic[ConfigT, ResultT]):
     config: type[ConfigT]
     main: Callable[..., ResultT]
     """``main(config)``, or ``main(config, stop)`` where :attr:`stopping` is ``event``"""
-    description: str
+    _: KW_ONLY
+    description: str | None = None
+    """what ``--help`` says first; None: the configuration's docstring"""
     report: Callable[[ConfigT, ResultT], int | None] | None = None
     """what the command prints of ``main``'s result; the status to exit with (None: 0)"""
     default: Callable[[list[str]], ConfigT] | None = None
@@ -162,7 +164,7 @@ class Command(Generic[ConfigT, ResultT]):
             default=self.default(args) if self.default is not None else None,
             config=() if self.prefixed else (tyro.conf.OmitArgPrefixes,),
             prog=self.prog,
-            description=f"{self.prog}: {self.description}",
+            description=self.description,
         )
         return cast(ConfigT, config)  # tyro types a result with no default as optional
 

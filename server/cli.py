@@ -46,12 +46,7 @@ def main(config: ServerConfig) -> None:
     server.serve()
 
 
-COMMAND = Command(
-    prog="overtake-server",
-    config=ServerConfig,
-    main=main,
-    description="the highway simulator, served to trainers over Zenoh",
-)
+COMMAND = Command("overtake-server", ServerConfig, main)
 
 
 if __name__ == "__main__":

@@ -41,7 +41,7 @@ log = logging.getLogger("overtake.router")
 
 @dataclass(frozen=True)
 class RouterConfig:
-    """An ``overtake-router`` process."""
+    """A Zenoh router, for hosts without zenohd (the overtake-router command)."""
 
     config: Path | None = None
     """a Zenoh JSON5 configuration file, e.g. docker/zenoh-router.json5 (zenohd reads the same
@@ -213,14 +213,7 @@ def _say_stopping(name: str) -> None:
     log.info("received %s, shutting down", name)
 
 
-COMMAND = Command(
-    prog="overtake-router",
-    config=RouterConfig,
-    main=main,
-    description="a Zenoh router (for hosts without zenohd)",
-    stopping="event",
-    on_stop=_say_stopping,
-)
+COMMAND = Command("overtake-router", RouterConfig, main, stopping="event", on_stop=_say_stopping)
 
 
 if __name__ == "__main__":

@@ -24,7 +24,7 @@ def default_server_name() -> str:
 
 @dataclass(frozen=True)
 class ServerConfig:
-    """An ``overtake-server`` process."""
+    """The highway simulator, served to trainers over Zenoh (the overtake-server command)."""
 
     name: str = field(default_factory=default_server_name)
     """Unique on the Zenoh network; it is part of every key this server serves."""

@@ -310,12 +310,7 @@ def main(config: ReplayConfig) -> dict[str, Any]:
     }
 
 
-COMMAND = Command(
-    prog="overtake-replay",
-    config=ReplayConfig,
-    main=main,
-    description="recorded episodes played again, into Rerun",
-)
+COMMAND = Command("overtake-replay", ReplayConfig, main)
 
 
 if __name__ == "__main__":

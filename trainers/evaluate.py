@@ -283,12 +283,7 @@ def main(config: EvalConfig) -> dict[str, Any]:
     return result
 
 
-COMMAND = Command(
-    prog="overtake-eval",
-    config=EvalConfig,
-    main=main,
-    description="the papers' metrics for a checkpoint or a baseline on fixed seeds",
-)
+COMMAND = Command("overtake-eval", EvalConfig, main)
 
 
 if __name__ == "__main__":

@@ -270,12 +270,7 @@ def main(config: ExportConfig) -> dict[str, Any]:
     return report
 
 
-COMMAND = Command(
-    prog="overtake-export",
-    config=ExportConfig,
-    main=main,
-    description="a checkpoint's Q-network as ONNX, checked against PyTorch",
-)
+COMMAND = Command("overtake-export", ExportConfig, main)
 
 
 if __name__ == "__main__":

@@ -158,10 +158,9 @@ def _defaults(args: list[str]) -> TrainConfig:
 
 
 COMMAND = Command(
-    prog="overtake-train",
-    config=TrainConfig,
-    main=main,
-    description="DQN / Double DQN / Dueling DQN / QR-DQN on overtake",
+    "overtake-train",
+    TrainConfig,
+    main,
     report=_report,
     default=_defaults,
     stopping="event",

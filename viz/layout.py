@@ -210,14 +210,7 @@ def _report(config: LayoutConfig, contents: Any) -> None:
     )
 
 
-COMMAND = Command(
-    prog="overtake-layout",
-    config=LayoutConfig,
-    main=main,
-    description="recordings of one run joined into one laid-out .rrd",
-    report=_report,
-    prefixed=True,
-)
+COMMAND = Command("overtake-layout", LayoutConfig, main, report=_report, prefixed=True)
 
 
 if __name__ == "__main__":

@@ -313,13 +313,7 @@ def _report(_config: RenderConfig, paths: list[Path]) -> None:
 
 
 COMMAND = Command(
-    prog="overtake-render",
-    config=RenderConfig,
-    main=main,
-    description="a recording's layout drawn to PNG by Rerun's viewer",
-    report=_report,
-    prefixed=True,
-    log_format="%(message)s",
+    "overtake-render", RenderConfig, main, report=_report, prefixed=True, log_format="%(message)s"
 )
 
 

@@ -202,12 +202,7 @@ def _print_table(
     )
 
 
-COMMAND = Command(
-    prog="overtake-drive",
-    config=DriveConfig,
-    main=main,
-    description="baseline drivers or an exported policy on a preset, with the papers' metrics",
-)
+COMMAND = Command("overtake-drive", DriveConfig, main)
 
 
 if __name__ == "__main__":

@@ -388,14 +388,13 @@ def _report(_config: BridgeConfig, summary: dict[str, Any]) -> None:
     print(f"overtake-unity-bridge: done after {summary['exchanges']} exchange(s)")
 
 
+# A signal is told to the ML-Agents process on the way out (main's BridgeError path).
 COMMAND = Command(
-    prog="overtake-unity-bridge",
-    config=BridgeConfig,
-    main=main,
-    description="ML-Agents' UnityEnvironment and mlagents-learn on an overtake server",
+    "overtake-unity-bridge",
+    BridgeConfig,
+    main,
     report=_report,
     stopping="interrupt",
-    # Told to the ML-Agents process on the way out (main's BridgeError path), not a traceback.
     stop_error=lambda name: BridgeError(f"terminated ({name})"),
     log_format="%(asctime)s %(name)s: %(message)s",
 )

@@ -107,14 +107,7 @@ def _report(config: SpectateConfig, logged: int) -> None:
     )
 
 
-COMMAND = Command(
-    prog="overtake-spectate",
-    config=SpectateConfig,
-    main=main,
-    description="a running server's arenas in Rerun",
-    report=_report,
-    stopping="event",
-)
+COMMAND = Command("overtake-spectate", SpectateConfig, main, report=_report, stopping="event")
 
 
 if __name__ == "__main__":

@@ -14,6 +14,8 @@ from overtake.protocol.messages import StatusReply
 
 @dataclass(frozen=True)
 class StatusConfig:
+    """The simulator servers on the network, their arenas and their rates."""
+
     connect: tuple[str, ...] = (DEFAULT_ENDPOINT,)
     """Zenoh endpoints: a server's --listen address or a router's."""
     timeout_s: float = 3.0
@@ -78,13 +80,7 @@ def _report(_config: StatusConfig, replies: list[StatusReply]) -> int:
     return 0 if replies else 1  # no server answered
 
 
-COMMAND = Command(
-    prog="overtake-status",
-    config=StatusConfig,
-    main=main,
-    description="the simulator servers on the network and their arenas",
-    report=_report,
-)
+COMMAND = Command("overtake-status", StatusConfig, main, report=_report)
 
 
 if __name__ == "__main__":

@@ -150,11 +150,9 @@ def _report(_config: ExperimentConfig, summary: dict[str, Any]) -> None:
 
 # SIGTERM (a container stopping, `kill`) stops the children as Ctrl-C does.
 COMMAND = Command(
-    prog="overtake-experiment",
-    config=ExperimentConfig,
-    main=main,
-    description="train, evaluate and tabulate a paper's table "
-    "(resumable: run the same command again to continue)",
+    "overtake-experiment",
+    ExperimentConfig,
+    main,
     report=_report,
     stopping="interrupt",
     stopped_hint="run the same command again to continue",
