@@ -1,6 +1,7 @@
-"""The one door every ``overtake-*`` command goes through: its command line parsed into its
-typed configuration, the configuration checked, its ``main`` run, and what a user sees at the
-edges the same in every command.
+"""The one door every ``overtake-*`` command goes through: a :class:`Command` built from the
+command's typed configuration and its ``main`` (the parser, from the configuration's fields and
+docstrings; the entry point ``[project.scripts]`` names, ``module:COMMAND.run``; its signals),
+and what a user sees at the edges the same in every command.
 
 - **One line for what cannot be done**: a ``CommandError`` (and the library's typed
   errors below it: a usage error, a recording sink that cannot open, a checkpoint that is not
@@ -15,6 +16,8 @@ edges the same in every command.
 - **A closed pipe ends it quietly** (``overtake-train --help | head -1``): no traceback, status
   141 as a Unix tool killed by SIGPIPE.
 - **The library's INFO lines** go to stderr, unless the caller configured logging itself.
+- **SIGINT and SIGTERM** stop it as the command chose (:data:`Stopping`): as Python does, as
+  an interrupt ended in one line, or as a stop ``main`` finishes (a second signal ends it).
 
 Library functions and the commands' ``main(config)`` raise typed exceptions, because they are
 called from Python too (tests, notebooks) and exiting there would end the caller; only the door
