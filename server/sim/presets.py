@@ -98,7 +98,8 @@ def ho2018() -> SimConfig:
     would make it 14 m/s^2), and a decision every 4th frame is 0.32 s, the "human response
     rate" §6.1 gives as its reason (4 frames of 1/50 s would be 0.08 s). Where the two sources
     differ, that is said below. His traffic as his code makes it: with it the rule-based driver
-    makes the speeds it makes in his own code's loop (tests/test_ho2018.py, bench/RESULTS.md).
+    makes the speeds it makes in his own code's loop (tests/papers/test_ho2018.py,
+    bench/RESULTS.md).
 
     From the thesis:
     - a 7-lane expressway (§1, §6.1); 20 / 40 / 60 cars for light / medium / heavy traffic
@@ -362,7 +363,7 @@ def fayjie2018() -> SimConfig:
 # MOBIL traffic entering where IDM finds a comfortable gap, "road_max" and "lane_changer" at a
 # constant 100 km/h, the lane changer switching by MOBIL, a safety gap of 8 m and the side
 # check of Min et al.'s preset. With them the tables kept in bench/results before issue 44 can
-# be made again: tests/test_golden.py holds them to the digests of then.
+# be made again: tests/server/sim/test_golden.py holds them to the digests of then.
 BEFORE_AUTHORS_TRAFFIC: dict[str, dict[str, PlainValue]] = {
     "min2018": {
         "ego.lane_change_check": False,
