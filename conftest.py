@@ -60,8 +60,9 @@ class DocsServer:
     @property
     def endpoint(self) -> str:
         if self.server is None:
-            sys.path.insert(0, str(ROOT / "tests"))
-            from remote_support import ServerProcess
+            # Imported here, not at the top: Zenoh and the client load only for a page that
+            # needs a server (the repository is on sys.path, this file's folder).
+            from tests.support.remote import ServerProcess
 
             self.server = ServerProcess(self.log_dir, "docs").start()
         return str(self.server.endpoint)

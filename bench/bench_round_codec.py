@@ -7,7 +7,7 @@ operation a round needs on either path:
 - through the shared-memory channel (protocol 1.7): the server writes the arrays into the
   segment at the layout's places (``Segment.write_steps``), the trainer copies them back out
   into a Steps (``ShmChannel.take``); the doorbell's rings are not in it
-  (``tests/test_shared_memory.py`` exercises them, ``bench.bench_remote`` times whole rounds).
+  (``tests/ipc/test_shared_memory.py`` exercises them, ``bench.bench_remote`` times whole rounds).
 
 Zenoh's own cost of moving the bytes is not in it (``bench.bench_shm``, ``bench.bench_remote``).
 

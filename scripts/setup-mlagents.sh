@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Install ML-Agents' Python API (mlagents-envs 1.1.0) into .venv beside overtake, for ML-Agents'
-# own wrappers over RemoteEnvironment (overtake.client.mlagents.wrappers) and tests/test_mlagents.py.
+# own wrappers over RemoteEnvironment (overtake.client.mlagents.wrappers) and tests/client/test_mlagents.py.
 # mlagents-envs declares Python <= 3.10 and numpy < 1.24, yet runs on Python 3.11 and today's
 # numpy: it is installed without its dependencies, and what it imports comes from overtake's
 # `mlagents` extra (grpcio, gym 0.26.2, pettingzoo, ...; the protobuf there is the newer one ONNX
@@ -11,7 +11,7 @@ cd "$(dirname "$0")/.."
 [[ -x .venv/bin/python ]] || scripts/setup.sh
 .venv/bin/python -m pip install --quiet -e ".[mlagents]"
 .venv/bin/python -m pip install --quiet --no-deps --ignore-requires-python "mlagents-envs==1.1.0"
-# ML-Agents' own side for overtake-unity-bridge (tests/test_unity_bridge.py): mlagents-envs'
+# ML-Agents' own side for overtake-unity-bridge (tests/client/test_unity_bridge.py): mlagents-envs'
 # UnityEnvironment imports its generated protobuf modules, which need protobuf 3.20 (newer ones
 # refuse them, and ONNX in .venv needs a newer one), so it gets an environment of its own, as an
 # ML-Agents user's would be: .venv-mlagents, with nothing of overtake in it. The bridge itself

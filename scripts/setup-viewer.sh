@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The system packages Rerun's viewer needs to draw without a display or GPU (overtake-render,
-# scripts/readme-pictures.sh, tests/test_views.py): Xvfb and Mesa's software Vulkan (lavapipe).
+# scripts/readme-pictures.sh, tests/viz/test_views.py): Xvfb and Mesa's software Vulkan (lavapipe).
 # Installs them with apt-get where they are missing and this runs as root or with sudo;
 # otherwise says what to install and exits 0 (the test that needs them then skips, saying why).
 set -euo pipefail

@@ -8,7 +8,7 @@ scripts/setup.sh dev,rllib
 # Xvfb and software Vulkan where they can be installed: one test draws a recording with Rerun's
 # own viewer (it skips, saying why, where they are missing).
 scripts/setup-viewer.sh
-# ML-Agents' Python API: tests/test_mlagents.py runs ML-Agents' own wrappers on overtake (it
+# ML-Agents' Python API: tests/client/test_mlagents.py runs ML-Agents' own wrappers on overtake (it
 # skips, saying why, where the API cannot be installed).
-scripts/setup-mlagents.sh || echo "mlagents-envs could not be installed: tests/test_mlagents.py will skip" >&2
+scripts/setup-mlagents.sh || echo "mlagents-envs could not be installed: tests/client/test_mlagents.py will skip" >&2
 exec .venv/bin/python -m pytest "$@"

@@ -2,7 +2,7 @@
 
 It follows ``mlagents_envs.base_env`` (mlagents-envs 1.1.0) closely enough that ML-Agents' own
 wrappers drive it unchanged (``UnityToGymWrapper``, ``UnityParallelEnv``, ``UnityAECEnv``; see
-:mod:`overtake.client.mlagents.wrappers` and tests/test_mlagents.py, which run them), without
+:mod:`overtake.client.mlagents.wrappers` and tests/client/test_mlagents.py, which run them), without
 depending on mlagents-envs: ``behavior_specs``, ``get_steps``, ``set_actions``,
 ``set_action_for_agent``, ``step``, ``reset``, ``close``; ``DecisionSteps`` /
 ``TerminalSteps`` (indexing by agent id, ``agent_id_to_index``, ``group_id``,

@@ -6,7 +6,7 @@ car-following's in :mod:`.traffic.kernels`.
 Compiled on first use and cached on disk (``cache=True``: next to this file, or under
 ``NUMBA_CACHE_DIR`` where that is not writable); ``python -m overtake.server.sim.warm``
 compiles them ahead. They do the same float operations in the same order as the numpy code
-they replaced (``tests/test_golden.py`` was not re-recorded for them); with
+they replaced (``tests/server/sim/test_golden.py`` was not re-recorded for them); with
 ``NUMBA_DISABLE_JIT=1`` they run as plain Python (slow, for debugging).
 """
 

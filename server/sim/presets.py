@@ -98,7 +98,8 @@ def ho2018() -> SimConfig:
     would make it 14 m/s^2), and a decision every 4th frame is 0.32 s, the "human response
     rate" §6.1 gives as its reason (4 frames of 1/50 s would be 0.08 s). Where the two sources
     differ, that is said below. His traffic as his code makes it: with it the rule-based driver
-    makes the speeds it makes in his own code's loop (tests/test_ho2018.py, bench/RESULTS.md).
+    makes the speeds it makes in his own code's loop (tests/papers/test_ho2018.py,
+    bench/RESULTS.md).
 
     From the thesis:
     - a 7-lane expressway (§1, §6.1); 20 / 40 / 60 cars for light / medium / heavy traffic

@@ -132,7 +132,7 @@ _ADDED = {c.name: c for c in HISTORY if c.before is not FROM_RECORD}
 # MOBIL traffic entering where IDM finds a comfortable gap, "road_max" and "lane_changer" at a
 # constant 100 km/h, the lane changer switching by MOBIL, a safety gap of 8 m and the side
 # check of Min et al.'s preset. With them the tables kept in bench/results before issue 44 can
-# be made again: tests/test_golden.py holds them to the digests of then.
+# be made again: tests/server/sim/test_golden.py holds them to the digests of then.
 BEFORE_AUTHORS_TRAFFIC: dict[str, dict[str, PlainValue]] = {
     "min2018": {
         "ego.lane_change_check": False,

@@ -5,7 +5,7 @@ generator and which arenas wait for a reset, together with the configuration the
 Restored into a simulator of the same configuration and size, the arenas go on bit for bit as
 if they had never been interrupted: the same seed and actions give the same episode whether or
 not a snapshot and a restore came between (a training run's checkpoint holds one, so that a
-stopped run resumes exactly; ``tests/test_snapshot.py`` checks it for every preset).
+stopped run resumes exactly; ``tests/server/sim/test_snapshot.py`` checks it for every preset).
 
 It converts to plain data (:meth:`SimSnapshot.to_plain`: arrays, strings and numbers) and back,
 so whoever stores it picks the format.

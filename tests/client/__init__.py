@@ -1,0 +1,1 @@
+"""overtake.client: policies, episodes, the scenario, the spectator and the ML-Agents bridge."""

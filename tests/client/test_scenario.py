@@ -1,0 +1,156 @@
+"""One scenario for every command (issue 45): which simulator and where are typed once
+(client/episodes/scenario.py), every command's configuration is one, and the densities are
+spelled once (the contract's vocabulary)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from overtake.client.commands import UsageError
+from overtake.client.episodes.drive import DriveConfig
+from overtake.client.episodes.drive import main as drive
+from overtake.client.episodes.records import read_records
+from overtake.client.episodes.scenario import Scenario, Where
+from overtake.client.episodes.session import Driver, Episodes, Keeping, drive_episodes
+from overtake.protocol.vocabulary import DENSITIES
+from overtake.trainers.episode_replay import ReplayConfig
+from overtake.trainers.evaluate import EvalConfig
+from overtake.trainers.experiment.plan import ExperimentConfig
+from overtake.trainers.train_config import TrainConfig
+
+ROOT = Path(__file__).resolve().parents[2]
+SCENARIO_FIELDS = {f.name for f in dataclasses.fields(Scenario)}
+WHERE_FIELDS = {f.name for f in dataclasses.fields(Where)}
+
+
+@pytest.mark.parametrize(
+    "command, kind",
+    [
+        (DriveConfig, Scenario),
+        (EvalConfig, Scenario),
+        (TrainConfig, Scenario),
+        (ReplayConfig, Where),
+        (ExperimentConfig, Where),
+    ],
+)
+def test_every_command_takes_the_one_scenario(command, kind):
+    """Each command's configuration is a Scenario (or, where the record or the paper says
+    which simulator, a Where), and declares none of its fields again (training's preset
+    alone: a str there, its paper's training the default of every option)."""
+    assert issubclass(command, kind)
+    own = set(vars(command).get("__annotations__", {}))
+    again = own & (SCENARIO_FIELDS if kind is Scenario else WHERE_FIELDS)
+    assert again == ({"preset"} if command is TrainConfig else set())
+
+
+def test_a_scenario_names_its_overrides_after_the_base_and_set():
+    scenario = Scenario(
+        traffic="heavy", max_decisions=30, set=("traffic.density=light", "road.lane_count=4")
+    )
+    assert scenario.overrides({"camera.enabled": False, "road.lane_count": 7}) == {
+        "camera.enabled": False,
+        "road.lane_count": 4,  # --set over the base
+        "traffic.density": "heavy",  # --traffic over --set
+        "episode.max_decisions": 30,
+    }
+    assert Scenario().overrides() == {}
+    assert Scenario(preset="ho2018").preset_or("fayjie2018") == "ho2018"
+    assert Scenario().preset_or("fayjie2018") == "fayjie2018"
+    assert Scenario().preset_or(None) == "min2018"
+    with pytest.raises(UsageError, match="dotted.name=value"):
+        Scenario(set=("no-equals",)).overrides()
+
+
+def test_a_command_s_scenario_and_where_are_its_own_fields():
+    config = EvalConfig(policy="idle", preset="ho2018", traffic="light", connect="tcp/h:1")
+    assert config.scenario() == Scenario(preset="ho2018", traffic="light", connect="tcp/h:1")
+    assert config.where() == Where(connect="tcp/h:1")
+    moved = dataclasses.replace(TrainConfig(), **config.where_fields())
+    assert moved.connect == "tcp/h:1" and moved.preset == "min2018"
+
+
+def test_the_densities_are_spelled_once():
+    """The density words are written in the vocabulary alone; everything else reads them."""
+    spelled = re.compile(r"""["']light["'],\s*["']medium["'],\s*["']heavy["']""")
+    found = [
+        str(path.relative_to(ROOT))
+        for folder in ("protocol", "server", "client", "trainers", "viz")
+        for path in sorted((ROOT / folder).rglob("*.py"))
+        if spelled.search(path.read_text(encoding="utf-8"))
+    ]
+    assert found == ["protocol/vocabulary.py"]
+    assert DENSITIES == ("light", "medium", "heavy")
+
+
+def test_the_one_runner_drives_records_and_closes(tmp_path):
+    """drive_episodes opens the simulator, asks for the driver with it, keeps the records
+    numbered as the episodes, and closes the simulator even when the driver refuses."""
+    opened, closed = [], []
+
+    def open_envs():
+        envs = Where().open("min2018", {"episode.max_decisions": 6, "camera.enabled": False}, 2)
+        opened.append(envs)
+        close = envs.close
+        envs.close = lambda **kwargs: (closed.append(envs), close(**kwargs))
+        return envs
+
+    def keep(envs):
+        assert envs.behaviour_spec.preset == "min2018"
+        return Driver(lambda obs, info, starting: np.ones(2, dtype=np.int64), _source(), "up")
+
+    driven = drive_episodes(
+        Where(),
+        "min2018",
+        {"episode.max_decisions": 6},
+        Episodes(seeds=(4, 9), labels=(7, 3)),
+        keep,
+        Keeping(records=True),
+        open_envs=open_envs,
+    )
+    assert closed == opened
+    assert [r.episode for r in driven.records] == [7, 3]
+    assert [r.seed for r in driven.records] == [4, 9]
+    assert all(r.actions == "1" * 6 for r in driven.records)
+    assert [row["decisions"] for row in driven.rows] == [6.0, 6.0]
+    path = driven.write_records(tmp_path)
+    header, records = read_records(path)
+    assert header.policy == _source() and header.name == "up" and len(records) == 2
+
+    def refuse(envs):
+        raise UsageError("not this one")
+
+    with pytest.raises(UsageError, match="not this one"):
+        drive_episodes(
+            Where(), "min2018", {}, Episodes.from_seed(1, 0), refuse, open_envs=open_envs
+        )
+    assert len(opened) == 2 and closed == opened
+
+
+def _source():
+    from overtake.client.episodes.records import PolicySource
+
+    return PolicySource("reference", "up")
+
+
+def test_drive_takes_its_scenario_from_the_command_line_flags(tmp_path):
+    out = tmp_path / "drive.json"
+    drive(
+        DriveConfig(
+            policy="idle",
+            episodes=2,
+            preset="ho2018",
+            traffic="light",
+            max_decisions=5,
+            json_out=out,
+        )
+    )
+    result = json.loads(out.read_text())
+    assert result["preset"] == "ho2018"
+    assert result["overrides"] == {"traffic.density": "light", "episode.max_decisions": 5}
+    assert [row["decisions"] for row in result["episodes"]] == [5.0, 5.0]

@@ -1,0 +1,1 @@
+"""The environment faces: Gymnasium's single and vector envs, PettingZoo's parallel env."""

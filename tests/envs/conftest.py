@@ -1,0 +1,3 @@
+"""The end-to-end fixture that starts (and stops, by PID) simulator servers."""
+
+from tests.support.remote import start_server  # noqa: F401

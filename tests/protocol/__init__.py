@@ -1,0 +1,1 @@
+"""overtake.protocol: the wire contract (messages, codec, keys, errors, its description)."""

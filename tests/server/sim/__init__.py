@@ -1,0 +1,1 @@
+"""overtake.server.sim: the simulation core (traffic, sensors, rewards, presets, kernels)."""

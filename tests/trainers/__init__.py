@@ -1,0 +1,1 @@
+"""overtake.trainers: learners, networks, replay, checkpoints, training runs, experiments."""

@@ -1,0 +1,1 @@
+"""overtake.viz: Rerun recordings, their layouts and what the viewer draws."""
