@@ -26,7 +26,7 @@ negative). Ho's and Fayjie et al.'s presets do not observe a LIDAR scan and the 
 
 What the rule does not see: a car two lanes over that changes into the target lane at the same
 time. Every collision left behind it in min2018-safe and the retired min2018-safe-both, before
-issue 44, was of that kind (``bench/collision_causes.py`` classifies a record's collisions;
+issue 44, was of that kind (``overtake-collision-causes`` classifies a record's collisions;
 bench/RESULTS.md). The shield's second half, ``--shield-watch`` (issue 46), is the simulator's
 driver assistance watching each lane change through against every car in the target lane or
 moving into it (:mod:`overtake.server.sim.lane_watch`): it sees the simulator's state, as the

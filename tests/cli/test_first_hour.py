@@ -167,7 +167,7 @@ COMMANDS = tuple(
 
 def test_help_into_a_closed_pipe_ends_quietly():
     """``--help | head -1`` for every command: the first line, and nothing on stderr (no
-    BrokenPipeError). The 13 pipelines run at once (each starts an interpreter)."""
+    BrokenPipeError). The pipelines, one a command, run at once (each starts an interpreter)."""
     running = {
         command: subprocess.Popen(
             ["bash", "-c", f'"{Path(sys.executable).parent / command}" --help | head -1'],
@@ -262,6 +262,7 @@ def test_every_option_of_every_command_says_what_it_is():
     from overtake.client.wire.status import StatusConfig
     from overtake.server.router import RouterConfig
     from overtake.server.server_config import ServerConfig
+    from overtake.trainers.collision_causes import CausesConfig
     from overtake.trainers.episode_replay import ReplayConfig
     from overtake.trainers.evaluate import EvalConfig
     from overtake.trainers.experiment.plan import ExperimentConfig
@@ -286,7 +287,7 @@ def test_every_option_of_every_command_says_what_it_is():
     configs = (
         DriveConfig, BridgeConfig, StatusConfig, RouterConfig, ServerConfig, ReplayConfig,
         EvalConfig, ExperimentConfig, ExportConfig, TrainConfig, LayoutConfig, RenderConfig,
-        SpectateConfig,
+        SpectateConfig, CausesConfig,
     )  # fmt: skip
     assert [name for config in configs for name in undocumented(config)] == []
 

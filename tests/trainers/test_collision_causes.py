@@ -1,15 +1,21 @@
-"""bench/collision_causes.py: where the other car of each recorded collision was when the car
-decided its last lane change, from a replay that must meet the record's collision."""
+"""overtake-collision-causes (overtake.trainers.collision_causes): where the other car of each
+recorded collision was when the car decided its last lane change, from a replay that must meet
+the record's collision."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from bench.collision_causes import (
+from overtake.client.episodes.drive import DriveConfig
+from overtake.client.episodes.drive import main as drive
+from overtake.client.episodes.records import read_records
+from overtake.trainers.collision_causes import (
+    COMMAND,
     NO_RULE,
     RULES,
     CausesConfig,
@@ -20,9 +26,7 @@ from bench.collision_causes import (
     rules_available,
     where_was,
 )
-from overtake.client.episodes.drive import DriveConfig
-from overtake.client.episodes.drive import main as drive
-from overtake.client.episodes.records import read_records
+from overtake.trainers.episode_replay import ReplayDiverged
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -148,5 +152,21 @@ def test_each_collision_is_replayed_to_its_recorded_decision(tmp_path, capsys):
     first = next(line for line in lines[1:] if line["events"].get("collisions"))
     first["events"]["collisions"] = [first["events"]["collisions"][0] - 1]
     record.write_text("\n".join(json.dumps(line) for line in lines) + "\n")
-    with pytest.raises(RuntimeError, match=f"episode {first['episode']} replays with no collision"):
+    diverged = f"episode {first['episode']} replays with no collision"
+    with pytest.raises(ReplayDiverged, match=diverged):
         main(CausesConfig(records=(record,)))
+    # The command says so in one line, as every command does with what cannot be done.
+    with pytest.raises(SystemExit) as exited:
+        COMMAND.run([str(record), "--no-rules"])
+    assert str(exited.value.code).startswith(f"overtake-collision-causes: {diverged}")
+
+
+def test_an_out_that_cannot_be_written_is_refused_before_any_replay(tmp_path):
+    def never(config):
+        raise AssertionError("main ran: --out was not checked first")
+
+    with pytest.raises(SystemExit) as exited:
+        dataclasses.replace(COMMAND, main=never).run([str(KEPT_RECORD), "--out", str(tmp_path)])
+    assert exited.value.code == (
+        f"overtake-collision-causes: --out {tmp_path}: a folder is there, expected a file"
+    )

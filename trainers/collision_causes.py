@@ -1,4 +1,5 @@
-"""Where the other car was when the car decided its last lane change before each collision.
+"""``overtake-collision-causes``: where the other car was when the car decided its last lane
+change before each collision, and which rule would have caught it.
 
 Reads episode records (``overtake-eval --episodes-out``, the experiments' evaluations, their
 copies kept in ``bench/results/``), replays each collision episode in process from its seed and
@@ -32,7 +33,11 @@ A rule the record's preset cannot have (the shield needs a LIDAR scan and the ca
 watch, acceleration control) is left out, saying so. Figures, not times: it may run beside
 anything.
 
-    .venv/bin/python -m bench.collision_causes RECORD.jsonl [RECORD.jsonl ...] [--out F.md]
+    overtake-collision-causes RECORD.jsonl [RECORD.jsonl ...] [--out F.md]
+
+The replay runs in this process, as ``overtake-replay``'s does by default: it reads the lane
+state of the simulation core the in-process face offers (its ``sim``), which no world frame
+carries (a car's target lane, its progress through a change).
 """
 
 from __future__ import annotations
@@ -44,13 +49,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import tyro
 from tyro.conf import Positional
 
+from overtake.cli import Command, Output
+from overtake.client.commands import UsageError
 from overtake.client.episodes.recording import touching
 from overtake.client.episodes.records import (
     EpisodeRecord,
     EventCounts,
+    RecordError,
     RecordHeader,
     read_records,
 )
@@ -62,9 +69,12 @@ from overtake.protocol.vocabulary import (
     KEEP,
     WATCH_SETTING,
 )
-from overtake.server.sim.units import KMH
-from overtake.trainers.episode_replay import RecordedActions, replay_envs
 
+from .episode_replay import RecordedActions, ReplayDiverged, replay_envs
+
+# m/s in a km/h: the simulator's state holds speeds in m/s (its units module, which a trainer
+# may not import, defines the same factor), the report says km/h.
+MPS_PER_KMH = 1.0 / 3.6
 # Lane index change of each lane-change action (lanes count leftwards, y grows with them).
 LANE_CHANGE_DIRECTION = {"lane_left": +1, "lane_right": -1}
 # The rules a collision is replayed under, in the order the report tries them: (the decision
@@ -79,6 +89,9 @@ NO_RULE = "none of them"
 
 @dataclass(frozen=True)
 class CausesConfig:
+    """Replay the collisions of episode records in this process: where the other car was at the
+    car's last lane change before each, and which rule would have caught it."""
+
     records: Positional[tuple[Path, ...]]
     """episode records (.jsonl); only their episodes with a collision are replayed"""
     within_decisions: int = 7
@@ -87,8 +100,12 @@ class CausesConfig:
     out: Path | None = None
     """also write the lines and the table here (Markdown)"""
     rules: bool = True
-    """replay each collision under each of RULES and name the first that avoids it
-    (--no-rules: only where the other car was)"""
+    """replay each collision under the decision shield, the lane-change watch and both, and
+    name the first that avoids it (--no-rules: only where the other car was)"""
+
+    def output_paths(self) -> tuple[Output, ...]:
+        """What this command writes (checked before any episode is replayed)."""
+        return (Output("--out", self.out),)
 
 
 @dataclass(frozen=True)
@@ -143,7 +160,7 @@ class _UntilCollision:
     up to its record's first collision, and raises where the replay's collision is elsewhere."""
 
     def __init__(self, envs: Any, episodes: list[EpisodeRecord]) -> None:
-        self.sim = envs.unwrapped.sim
+        self.sim = envs.sim  # the in-process face's simulation core: the lanes' state
         self.episodes = episodes
         self.until = [episode.events["collisions"][0] for episode in episodes]
         self.replayed = [Replayed([], []) for _ in episodes]
@@ -181,13 +198,13 @@ class _UntilCollision:
             replayed.roads.append(self._road(arena))
             replayed.applied.append(int(info["action_applied"][arena]))
             if bool(collided[arena]) != (decision == until):
-                raise RuntimeError(
+                raise ReplayDiverged(
                     f"episode {self.episodes[arena].episode} replays with "
                     f"{'a' if collided[arena] else 'no'} collision at decision {decision}, "
                     "unlike its record (another simulator than the record's?)"
                 )
             if (terminated[arena] or truncated[arena]) and decision < until:
-                raise RuntimeError(
+                raise ReplayDiverged(
                     f"episode {self.episodes[arena].episode} ends at decision {decision}, "
                     f"before its record's collision at {until}"
                 )
@@ -203,12 +220,12 @@ def replay(record: str, header: RecordHeader, episodes: list[EpisodeRecord]) -> 
     for episode in episodes:
         collisions = episode.events.get("collisions", ())
         if not collisions:
-            raise RuntimeError(
+            raise RecordError(
                 f"{record} episode {episode.episode} counts {episode.collisions} collisions but "
                 "its record names no decision for them (a record older than the events?)"
             )
         if collisions[0] >= len(episode.actions):
-            raise RuntimeError(
+            raise RecordError(
                 f"{record} episode {episode.episode} has {len(episode.actions)} recorded "
                 f"actions, its record's collision is at decision {collisions[0]}"
             )
@@ -245,8 +262,8 @@ def classify(
 ) -> Cause:
     """Where ``episode``'s partner car was, from its replay up to its first collision."""
     collision_decision = len(replayed.applied) - 1
-    touching_agent = replayed.touching_agent if replayed.touching_agent is not None else []
-    partners = [int(v) for v in touching_agent if v != 0]
+    touching_agent = replayed.touching_agent
+    partners = [] if touching_agent is None else [int(v) for v in touching_agent if v != 0]
     names = [ACTION_NAMES[a] if a >= 0 else "" for a in replayed.applied]
     changes = [d for d, name in enumerate(names) if name in LANE_CHANGE_DIRECTION]
     if not partners:
@@ -265,7 +282,7 @@ def classify(
             lane_change_decision,
             where_was(before, partner, direction),
             float(before.x_m[partner] - before.x_m[0]),
-            float(before.speed_mps[partner] - before.speed_mps[0]) / KMH,
+            float(before.speed_mps[partner] - before.speed_mps[0]) / MPS_PER_KMH,
             float(before.change_progress[partner]),
         )
     return Cause(record, episode.episode, collision_decision, None, where, None, None, None)
@@ -390,6 +407,10 @@ def caught_by(
 
 
 def main(config: CausesConfig) -> list[Cause]:
+    """Classify each collision of the records: prints a line for each and the tables (also to
+    ``config.out``), and returns the causes."""
+    if not config.records:
+        raise UsageError("no episode records given: name one or more RECORD.jsonl")
     causes: list[Cause] = []
     lines: list[str] = []
     for path in config.records:
@@ -436,5 +457,8 @@ def main(config: CausesConfig) -> list[Cause]:
     return causes
 
 
+COMMAND = Command("overtake-collision-causes", CausesConfig, main)
+
+
 if __name__ == "__main__":
-    main(tyro.cli(CausesConfig))
+    COMMAND.run()
