@@ -66,7 +66,7 @@ Event = QueryArrived | ActionsArrived | ActionsRung | TrainerPresence | Wake
 WAKE = Wake()
 # Events handled before the ready groups step: bounds what a flood of messages can delay.
 MAX_EVENTS_PER_PASS = 256
-# What a flood may queue before the loop reads it (bench/fuzz_wire.py: a million unreadable
+# What a flood may queue before the loop reads it (bench/fuzz/fuzz_wire.py: a million unreadable
 # actions on one key queued 150 MiB). Actions waiting per key (per trainer name): a trainer in
 # lock step has one at a time, so only a flood on its key reaches the bound. Requests waiting
 # in all (their sender is not known before decoding): beyond it a request is answered busy.

@@ -411,7 +411,7 @@ class SimulatorServer:
         log.info("refused actions from %s: %s", trainer, error)
         if trainer not in self._alive_trainers:
             # Nobody of that name is connected: no reply to a key nobody reads. Each new
-            # key a reply goes to costs Zenoh memory for good (bench/fuzz_wire.py), so a
+            # key a reply goes to costs Zenoh memory for good (bench/fuzz/fuzz_wire.py), so a
             # stranger inventing names must not make the server write to them.
             return
         self.outbox.send(trainer, ErrorReply(code=error.code, message=str(error), group=group))

@@ -19,7 +19,7 @@ side; one plot per quantity (never distance beside collisions, nor steps/s besid
 
 Summaries are logged at most once per episode or log line; the car's view is decimated, and
 with the default decimation the training loop loses nothing measurable (``bench/RESULTS.md``,
-``python -m bench.bench_recording``).
+``python -m bench.speed.bench_recording``).
 """
 
 from __future__ import annotations
@@ -129,10 +129,10 @@ def open_training_recording(
     algorithm (DQN, Double DQN and Dueling keep their colours in every recording that holds
     several runs), with the server's ``arenas`` environment 0 lies among (None in-process).
     No footer: a run may write for days, and the SDK would hold the footer's index in memory
-    until the end (overtake.viz.recording, on footers; bench/recording_memory.py). ``road``:
-    an in-process run's road (its entity path and width, m), drawn above its car's view;
-    ``pictures``: which of the camera and the LIDAR its car observes (the view shows those,
-    and the speed where the ego vector has it)."""
+    until the end (overtake.viz.recording, on footers; bench/reliability/recording_memory.py).
+    ``road``: an in-process run's road (its entity path and width, m), drawn above its car's
+    view; ``pictures``: which of the camera and the LIDAR its car observes (the view shows
+    those, and the speed where the ego vector has it)."""
     layout = training_blueprint(
         run_name, road=road, pictures=pictures, show_speed="speed_mps" in ego_fields
     )

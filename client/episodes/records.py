@@ -11,7 +11,7 @@ its overrides, the simulator configuration they resolved to, the policy, the cod
 then one line per episode (:class:`EpisodeRecord`). Actions are a string of digits (one per
 decision, :data:`~overtake.protocol.vocabulary.ACTION_NAMES` order): 1.3 KB per 1,000
 decisions of episodes that run their length, metrics and events included, and 3.3 KB of header
-per file (``python -m bench.bench_episode_records``, bench/RESULTS.md). Decisions are numbered
+per file (``python -m bench.speed.bench_episode_records``, bench/RESULTS.md). Decisions are numbered
 from 0 in the order taken: decision ``d`` is the ``d``-th action and the step it made.
 """
 

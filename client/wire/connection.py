@@ -43,7 +43,7 @@ M = TypeVar("M", bound=Message)
 # Messages dropped (unreadable, or not for us) are logged at most once per this many seconds.
 DROPPED_LOG_INTERVAL_S = 5.0
 # A request a busy server did not queue is asked again after this pause, doubled each time
-# up to the maximum (a flood of requests usually drains within a second: bench/fuzz_wire.py).
+# up to the maximum (a flood of requests usually drains within a second: bench/fuzz/fuzz_wire.py).
 BUSY_FIRST_PAUSE_S = 0.05
 BUSY_MAX_PAUSE_S = 1.0
 
@@ -364,7 +364,7 @@ class Connection:
 
     def _drop(self, message: str, *args: Any) -> None:
         """Log a message this connection dropped, at most once per DROPPED_LOG_INTERVAL_S,
-        with how many went unlogged meanwhile: a flood of garbage in our name (bench/fuzz_wire)
+        with how many went unlogged meanwhile: a flood of garbage in our name (bench/fuzz/fuzz_wire)
         would otherwise write a line per frame."""
         self.dropped += 1
         now = time.monotonic()

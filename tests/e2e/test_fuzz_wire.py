@@ -1,4 +1,4 @@
-"""Hostile frames on every key a server and a trainer listen on (bench/fuzz_wire.py, briefly):
+"""Hostile frames on every key a server and a trainer listen on (bench/fuzz/fuzz_wire.py, briefly):
 the server keeps answering and an honest trainer keeps stepping. The bench command sends
 100,000 frames; its figures are in bench/RELIABILITY.md."""
 
@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from bench.fuzz_wire import TARGETS, FuzzConfig, main
+from bench.fuzz.fuzz_wire import TARGETS, FuzzConfig, main
 
 
 @pytest.mark.timeout(120)

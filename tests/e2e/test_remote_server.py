@@ -289,7 +289,8 @@ def test_frozen_trainer_host_is_dropped_within_its_lease_and_comes_back(
     finally:
         frozen.proc.send_signal(signal.SIGCONT)
     # Woken, it finds its arenas gone: the episode under way ends truncated, it opens new
-    # arenas and steps on (bench/faults.py: back within 0.1 s); nothing of the old is left.
+    # arenas and steps on (bench/reliability/faults.py: back within 0.1 s); nothing of the old
+    # is left.
     step = frozen.expect("STEP", timeout_s=20)
     while not step["restarted"]:
         step = frozen.expect("STEP", timeout_s=20)
@@ -825,7 +826,7 @@ def test_a_flood_queues_at_most_its_bound():
 
 def test_a_flood_of_garbage_in_a_trainers_name_is_logged_once_per_interval(caplog):
     # One line per dropped frame would fill a trainer's log under a flood (48,000 lines in
-    # bench/fuzz_wire's run): the first is logged, the rest counted into the next line.
+    # bench/fuzz/fuzz_wire's run): the first is logged, the rest counted into the next line.
     import logging
 
     from overtake.client.wire import connection as wire
