@@ -44,7 +44,7 @@ import msgpack
 import numpy as np
 import tyro
 
-from bench.speed.bench_remote import REMOTE_ENV_ID, free_port, make_env, start_server, stop_process
+from bench.harness import REMOTE_ENV_ID, free_port, make_env, start_server, stop_process
 
 ROOT = Path(__file__).resolve().parents[2]
 

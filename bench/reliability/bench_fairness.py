@@ -32,8 +32,14 @@ from typing import Any
 import numpy as np
 import tyro
 
-from bench.speed.bench_remote import REMOTE_ENV_ID, free_port, make_env, start_server, stop_process
-from bench.speed.bench_server_ab import baseline_checkout
+from bench.harness import (
+    REMOTE_ENV_ID,
+    baseline_checkout,
+    free_port,
+    make_env,
+    start_server,
+    stop_process,
+)
 
 
 @dataclass(frozen=True)

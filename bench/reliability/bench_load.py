@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 import tyro
 
-from bench.speed.bench_remote import (
+from bench.harness import (
     REMOTE_ENV_ID,
     free_port,
     latency_summary,

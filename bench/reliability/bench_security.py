@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import tyro
 
-from bench.speed.bench_remote import REMOTE_ENV_ID, free_port, make_env, random_action, stop_process
+from bench.harness import REMOTE_ENV_ID, free_port, make_env, random_action, stop_process
 
 ROOT = Path(__file__).resolve().parents[2]
 MODES = ("plain", "usrpwd", "usrpwd+isolation", "tls", "mutual tls")

@@ -52,7 +52,7 @@ from typing import Any, TypeVar
 
 import tyro
 
-from bench.speed.bench_remote import free_port
+from bench.harness import free_port
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_BASE_IMAGE = "python:3.11-slim"

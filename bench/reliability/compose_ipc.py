@@ -149,15 +149,8 @@ def stepper_main(config: StepperConfig) -> dict[str, Any]:
     """For each arena count: in-process, remote through the segment (where shared) and over
     Zenoh, stepped in rotating rounds; the way auto takes. Returns the figures and what the
     client logged."""
-    from bench.speed.bench_remote import (
-        ENV_ID,
-        PRESET,
-        REMOTE_ENV_ID,
-        Driver,
-        latency_summary,
-        make_env,
-        transport_auto_picks,
-    )
+    from bench.harness import REMOTE_ENV_ID, latency_summary, make_env
+    from bench.speed.bench_remote import ENV_ID, PRESET, Driver, transport_auto_picks
     from overtake.client.wire.remote import RemoteConfig
 
     collect = _Collect()

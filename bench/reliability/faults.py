@@ -76,8 +76,8 @@ from typing import Any, Literal
 
 import tyro
 
+from bench.harness import free_port
 from bench.reliability.soak import checkpoint_step, rerun_rrd, stop_all, verify_rrd
-from bench.speed.bench_remote import free_port
 
 TARGETS = ("trainer", "server", "router")
 FAULTS = ("none", "kill", "kill-checkpoint", "stop", "cut", "loss", "delay")

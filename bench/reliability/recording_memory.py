@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import tyro
 
-from bench.speed.bench_sim import write_report
+from bench.harness import write_report
 
 
 @dataclass(frozen=True)

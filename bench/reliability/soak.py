@@ -39,7 +39,7 @@ from typing import Any, Literal
 import numpy as np
 import tyro
 
-from bench.speed.bench_remote import free_port
+from bench.harness import free_port
 
 ALGOS = ("dqn", "ddqn", "dueling")
 SERVER_NAME = "soak"
@@ -79,7 +79,7 @@ class SoakConfig:
 
 def random_trainer(endpoint: str, preset: str, arenas: int, seed: int) -> None:
     """--no-learners: step ``arenas`` remote arenas with random actions until SIGTERM."""
-    from bench.speed.bench_remote import REMOTE_ENV_ID, make_env, random_action
+    from bench.harness import REMOTE_ENV_ID, make_env, random_action
     from overtake.client.wire.remote import RemoteConfig
 
     stop = []

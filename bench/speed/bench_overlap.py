@@ -32,8 +32,8 @@ from typing import Any, Literal
 import numpy as np
 import tyro
 
-from bench.speed.bench_remote import free_port, start_server, stop_process
-from bench.speed.bench_sim import machine_description, write_report
+from bench.harness import free_port, start_server, stop_process, write_report
+from bench.speed.bench_sim import machine_description
 
 
 @dataclass(frozen=True)

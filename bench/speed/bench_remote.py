@@ -63,7 +63,6 @@ import os
 import queue
 import resource
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -75,13 +74,21 @@ from typing import Any
 
 import tyro
 
-from bench.speed.bench_sim import machine_description, pin_threads, write_report
+from bench.harness import (
+    REMOTE_ENV_ID,
+    free_port,
+    latency_summary,
+    make_env,
+    process_usage,
+    start_server,
+    stop_process,
+    write_report,
+)
+from bench.speed.bench_sim import machine_description, pin_threads
 
 ENV_ID = "overtake/Highway-v0"
-REMOTE_ENV_ID = "overtake/RemoteHighway-v0"
 PRESET = "min2018"
 ARENAS = (1, 8, 64)
-SERVER_NAME = "bench"
 QUICK_DIVISOR = 10
 # arenas -> the least remote/in-process throughput ratio; arenas -> the most overhead/ping-pong.
 THROUGHPUT_BARS: dict[int, float] = {64: 0.70}
@@ -146,39 +153,6 @@ class BenchConfig:
 # --- small helpers ----------------------------------------------------------------------------
 
 
-def free_port() -> int:
-    """A TCP port free on 127.0.0.1 now (the OS picks it)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
-def latency_summary(seconds: Sequence[float]) -> dict[str, float]:
-    """Percentiles of step or round-trip times, in milliseconds."""
-    import numpy as np
-
-    ms = np.asarray(seconds, dtype=np.float64) * 1e3
-    p50, p90, p99 = np.percentile(ms, [50, 90, 99])
-    return {
-        "count": int(ms.size),
-        "p50_ms": float(p50),
-        "p90_ms": float(p90),
-        "p99_ms": float(p99),
-        "mean_ms": float(ms.mean()),
-        "min_ms": float(ms.min()),
-        "max_ms": float(ms.max()),
-    }
-
-
-def process_usage(pid: int) -> tuple[float, int]:
-    """User + system CPU seconds (ticks of 1/CLK_TCK s) and minor page faults of process
-    ``pid``, from Linux's /proc."""
-    with open(f"/proc/{pid}/stat", encoding="ascii") as stat:
-        fields_after_name = stat.read().rsplit(")", 1)[1].split()
-    cpu = (int(fields_after_name[11]) + int(fields_after_name[12])) / os.sysconf("SC_CLK_TCK")
-    return cpu, int(fields_after_name[7])
-
-
 def own_minor_faults() -> int:
     """Minor page faults of this process so far (all its threads)."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_minflt
@@ -189,20 +163,6 @@ def machine_busy_cpu_seconds() -> float:
     with open("/proc/stat", encoding="ascii") as stat:
         ticks = [int(v) for v in stat.readline().split()[1:]]
     return (sum(ticks[:8]) - ticks[3] - ticks[4]) / os.sysconf("SC_CLK_TCK")
-
-
-def stop_process(proc: subprocess.Popen[Any], timeout_s: float = 10.0) -> int | None:
-    """SIGTERM ``proc`` (by its PID), SIGKILL it if it outlives ``timeout_s``; its exit status."""
-    if proc.poll() is None:
-        try:
-            os.kill(proc.pid, signal.SIGTERM)
-            return proc.wait(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            os.kill(proc.pid, signal.SIGKILL)
-            return proc.wait(timeout=timeout_s)
-        except ProcessLookupError:
-            pass
-    return proc.poll()
 
 
 def wait_matching(publisher: Any, timeout_s: float, what: str) -> None:
@@ -481,91 +441,6 @@ class Driver:
             "reward_sum": self.reward_sum,
             "step": latency_summary(self.step_times),
         }
-
-
-def make_env(env_id: str, arenas: int, **kwargs: Any) -> Any:
-    import gymnasium
-
-    import overtake.client  # noqa: F401  (registers both environments)
-
-    if arenas == 1:
-        return gymnasium.make(env_id, **kwargs)
-    return gymnasium.make_vec(
-        env_id, num_envs=arenas, vectorization_mode="vector_entry_point", **kwargs
-    )
-
-
-def random_action(rng: Any, arenas: int) -> Any:
-    """A random action for what :func:`make_env` made: an int for one arena, an array for a
-    vector of them (``rng``: a numpy Generator)."""
-    from overtake.protocol import ACTION_COUNT
-
-    actions = rng.integers(0, ACTION_COUNT, size=arenas)
-    return int(actions[0]) if arenas == 1 else actions
-
-
-def start_server(
-    endpoint: str, timeout_s: float, extra: tuple[str, ...] = (), env: dict[str, str] | None = None
-) -> subprocess.Popen[bytes]:
-    """An ``overtake.server`` subprocess (``extra``: more flags; ``env``: its environment,
-    by default this process's), returned once it answers a status request."""
-    from overtake.client.wire.remote import Connection, RemoteConfig
-    from overtake.protocol import errors
-
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "overtake.server",
-            "--listen",
-            endpoint,
-            "--name",
-            SERVER_NAME,
-            "--log-level",
-            "warning",
-            "--max-arenas",
-            "256",
-            *extra,
-        ],
-        stdout=subprocess.DEVNULL,
-        env=env,
-    )
-    connection = None
-    try:
-        deadline = time.monotonic() + timeout_s
-        while True:
-            if proc.poll() is not None:
-                raise RuntimeError(
-                    f"the server exited with status {proc.returncode} before "
-                    "answering (its messages are above)"
-                )
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                raise TimeoutError(
-                    f"the server did not answer on {endpoint} within {timeout_s:g} s"
-                )
-            try:
-                if connection is None:  # opening keeps retrying the endpoint for a while
-                    connection = Connection(
-                        RemoteConfig(
-                            connect=(endpoint,),
-                            connect_timeout_s=min(10.0, remaining),
-                            request_timeout_s=min(2.0, remaining),
-                        )
-                    )
-                if any(status.server == SERVER_NAME for status in connection.discover()):
-                    break
-            except errors.ConnectError:
-                connection = None
-            # Polling: the session is up but the server's queryable may not be declared yet.
-            time.sleep(0.02)
-    except BaseException:
-        stop_process(proc)
-        raise
-    finally:
-        if connection is not None:
-            connection.close()
-    return proc
 
 
 def start_echo(endpoint: str) -> subprocess.Popen[bytes]:

@@ -27,7 +27,8 @@ from typing import Any
 
 import tyro
 
-from bench.speed.bench_sim import machine_description, pin_threads, write_report
+from bench.harness import write_report
+from bench.speed.bench_sim import machine_description, pin_threads
 
 
 @dataclass(frozen=True)

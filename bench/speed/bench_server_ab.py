@@ -15,31 +15,24 @@ Each repeat starts both servers afresh and prints both medians and their differe
 
 from __future__ import annotations
 
-import contextlib
 import os
-import shutil
-import subprocess
-import tempfile
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import tyro
 
-from bench.speed.bench_remote import (
+from bench.harness import (
     REMOTE_ENV_ID,
-    ROOT,
-    Driver,
+    baseline_checkout,
     free_port,
     make_env,
     start_server,
     stop_process,
+    write_report,
 )
-from bench.speed.bench_sim import write_report
+from bench.speed.bench_remote import Driver
 
-# The folders the project maps into overtake.* (pyproject.toml's package-dir).
-PACKAGE_FOLDERS = ("protocol", "viz", "server", "client", "trainers")
 SIDES = ("baseline", "working tree")
 
 
@@ -56,30 +49,6 @@ class ServerABConfig:
     preset: str = "min2018"
     seed: int = 0
     json: Path | None = None
-
-
-@contextlib.contextmanager
-def baseline_checkout(revision: str) -> Iterator[Path]:
-    """A directory to put first on PYTHONPATH for ``revision``'s overtake: a temporary git
-    worktree of that revision, its package folders linked under ``overtake/``. The worktree
-    and the directory are removed afterwards."""
-    where = Path(tempfile.mkdtemp(prefix="overtake-ab-"))
-    tree = where / "tree"
-    try:
-        subprocess.run(
-            ["git", "worktree", "add", "--detach", "--quiet", str(tree), revision],
-            cwd=ROOT,
-            check=True,
-        )
-        package = where / "path" / "overtake"
-        package.mkdir(parents=True)
-        for folder in PACKAGE_FOLDERS:
-            (package / folder).symlink_to(tree / folder, target_is_directory=True)
-        print(f"baseline {revision} from {tree}; working tree {ROOT}", flush=True)
-        yield where / "path"
-    finally:
-        subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=ROOT, check=False)
-        shutil.rmtree(where, ignore_errors=True)
 
 
 def measure(config: ServerABConfig, baseline_path: Path) -> dict[str, Any]:

@@ -42,8 +42,9 @@ import tyro
 import zenoh
 from zenoh.shm import GarbageCollect, ShmProvider
 
-from bench.speed.bench_remote import free_port, stop_process, wait_matching
-from bench.speed.bench_sim import machine_description, write_report
+from bench.harness import free_port, stop_process, write_report
+from bench.speed.bench_remote import wait_matching
+from bench.speed.bench_sim import machine_description
 from overtake.ipc.transport import TransportConfig, open_session
 
 ROOT = Path(__file__).resolve().parents[2]

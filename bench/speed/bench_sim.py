@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
-import json
 import os
 import platform
 import subprocess
@@ -55,6 +54,7 @@ from typing import TYPE_CHECKING, Any
 
 import tyro
 
+from bench.harness import write_report
 from bench.rates import Rates
 
 if TYPE_CHECKING:
@@ -325,16 +325,6 @@ def machine_description() -> dict[str, Any]:
         "overtake": metadata.version("overtake"),
         "overtake_source": _source_revision(),
     }
-
-
-def write_report(path: Path | None, report: dict[str, Any]) -> None:
-    """Write a benchmark's report as JSON to ``path`` (``--json``; nothing for None), values
-    JSON has no type for as text, and say where."""
-    if path is None:
-        return
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(report, indent=2, default=str) + "\n", encoding="utf-8")
-    print(f"wrote {path}")
 
 
 def _preset_config(preset: Any) -> SimConfig:

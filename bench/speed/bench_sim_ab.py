@@ -41,7 +41,8 @@ from typing import Any, Literal
 
 import tyro
 
-from bench.speed.bench_sim import PRESET, write_report
+from bench.harness import write_report
+from bench.speed.bench_sim import PRESET
 
 ROOT = Path(__file__).resolve().parents[2]
 SIDES = ("baseline", "working tree")
@@ -305,7 +306,7 @@ def count_instructions(config: SimABConfig, baseline_path: str) -> dict[str, Any
 
 
 def main(config: SimABConfig) -> dict[str, Any]:
-    from bench.speed.bench_server_ab import baseline_checkout
+    from bench.harness import baseline_checkout
 
     with baseline_checkout(config.baseline) as path:
         if config.mode == "instructions":

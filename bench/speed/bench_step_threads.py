@@ -29,8 +29,8 @@ from typing import Any, Literal
 
 import tyro
 
-from bench.speed.bench_remote import free_port, process_usage, start_server, stop_process
-from bench.speed.bench_sim import machine_description, pin_threads, write_report
+from bench.harness import free_port, process_usage, start_server, stop_process, write_report
+from bench.speed.bench_sim import machine_description, pin_threads
 
 PRESET = "min2018"
 

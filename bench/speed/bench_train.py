@@ -27,8 +27,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, get_args
 
-from bench.speed.bench_remote import free_port, start_server, stop_process
-from bench.speed.bench_sim import machine_description, write_report
+from bench.harness import free_port, start_server, stop_process, write_report
+from bench.speed.bench_sim import machine_description
 
 # overtake.trainers.learner.Precision, written here: importing it loads PyTorch before main()
 # has set its threads (main checks that the two agree).

@@ -33,8 +33,8 @@ from typing import Any
 import numpy as np
 import tyro
 
-from bench.speed.bench_remote import free_port, start_server, stop_process
-from bench.speed.bench_sim import machine_description, write_report
+from bench.harness import free_port, start_server, stop_process, write_report
+from bench.speed.bench_sim import machine_description
 
 ROOT = Path(__file__).resolve().parents[2]
 ML_PYTHON = Path(os.environ.get("OVERTAKE_ML_PYTHON", ROOT / ".venv-mlagents" / "bin" / "python"))
