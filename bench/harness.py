@@ -16,6 +16,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import tomllib
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -23,8 +24,13 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 REMOTE_ENV_ID = "overtake/RemoteHighway-v0"
 SERVER_NAME = "bench"
-# The folders the project maps into overtake.* (pyproject.toml's package-dir).
-PACKAGE_FOLDERS = ("protocol", "viz", "server", "client", "trainers")
+
+
+def package_folders(tree: Path) -> tuple[str, ...]:
+    """The folders ``tree``'s pyproject.toml maps into overtake.* (its package-dir): a
+    revision's own, since packages are added over time (cli, envs, ipc)."""
+    project = tomllib.loads((tree / "pyproject.toml").read_text(encoding="utf-8"))
+    return tuple(sorted(project["tool"]["setuptools"]["package-dir"].values()))
 
 
 def free_port() -> int:
@@ -174,7 +180,7 @@ def baseline_checkout(revision: str) -> Iterator[Path]:
         )
         package = where / "path" / "overtake"
         package.mkdir(parents=True)
-        for folder in PACKAGE_FOLDERS:
+        for folder in package_folders(tree):
             (package / folder).symlink_to(tree / folder, target_is_directory=True)
         print(f"baseline {revision} from {tree}; working tree {ROOT}", flush=True)
         yield where / "path"

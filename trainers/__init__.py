@@ -1,8 +1,9 @@
-"""DQN, Double DQN and Dueling DQN trainers for overtake (Min et al. Section III).
+"""DQN, Double DQN, Dueling DQN and QR-DQN trainers for overtake (Min et al. Section III).
 
 They see the simulator only through Gymnasium (the in-process vector env or remote arenas via
 overtake.client), never through overtake.server. Commands: ``overtake-train``,
-``overtake-eval``.
+``overtake-eval``, ``overtake-export``, ``overtake-experiment``, ``overtake-replay`` and
+``overtake-collision-causes``.
 """
 
 from .learner import ALGOS, DQNConfig, DQNLearner
