@@ -16,12 +16,10 @@ off the road for the round and placed back afterwards) while the road goes on fo
 from __future__ import annotations
 
 import itertools
-import json
 import secrets
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -40,40 +38,10 @@ from overtake.protocol.vocabulary import (
 )
 
 from .members import Member
+from .requested import resolve_config
 from .rounds import Rounds
-from .sim import PRESETS, ConfigError, HighwaySim, SimConfig, make_config, settings_history
+from .sim import HighwaySim, SimConfig
 from .spec import behaviour_spec
-
-
-def resolve_config(
-    preset: str, overrides: Mapping[str, Scalar], as_recorded: str = ""
-) -> SimConfig:
-    """The simulator a request asks for: ``preset`` with ``overrides``, or, with
-    ``as_recorded`` (a record's configuration as JSON), the one that record was made on
-    (:func:`~.sim.settings_history.as_recorded`)."""
-    if preset not in PRESETS:
-        raise errors.UnknownPreset(
-            f"unknown preset {preset!r}: this server has {', '.join(sorted(PRESETS))}"
-        )
-    try:
-        if as_recorded:
-            return settings_history.as_recorded(preset, overrides, _record_config(as_recorded))
-        return make_config(preset, overrides)
-    except ConfigError as error:
-        raise errors.BadConfig(str(error)) from None
-
-
-def _record_config(text: str) -> dict[str, Any]:
-    try:
-        config = json.loads(text)
-    except ValueError as error:
-        raise errors.BadConfig(f"as_recorded is not JSON ({error})") from None
-    if not isinstance(config, dict):
-        raise errors.BadConfig(
-            f"as_recorded is a record's configuration (a JSON object), got {type(config).__name__}"
-        )
-    return config
-
 
 # Group steps taken in this process, in order: what next_to_step compares.
 _GROUP_STEPS = itertools.count(1)

@@ -22,7 +22,7 @@ from overtake.client.episodes.records import (
     write_records,
 )
 from overtake.protocol import errors
-from overtake.server.groups import resolve_config
+from overtake.server.requested import resolve_config
 from overtake.server.sim import SimConfig, make_config
 from overtake.server.sim.presets import PRESETS
 from overtake.server.sim.settings_history import (

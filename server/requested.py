@@ -1,0 +1,45 @@
+"""The simulator an open request asks for: a preset with overrides, or, with a record's
+configuration (OpenRequest.as_recorded), the simulator that record was made on, built again
+from the server's settings' history (:mod:`.sim.settings_history`). What cannot be built is
+refused with the protocol's errors (an unknown preset, a bad configuration), naming why."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from typing import Any
+
+from overtake.protocol import errors
+from overtake.protocol.messages import Scalar
+
+from .sim import PRESETS, ConfigError, SimConfig, make_config, settings_history
+
+
+def resolve_config(
+    preset: str, overrides: Mapping[str, Scalar], as_recorded: str = ""
+) -> SimConfig:
+    """The simulator a request asks for: ``preset`` with ``overrides``, or, with
+    ``as_recorded`` (a record's configuration as JSON), the one that record was made on
+    (:func:`~.sim.settings_history.as_recorded`)."""
+    if preset not in PRESETS:
+        raise errors.UnknownPreset(
+            f"unknown preset {preset!r}: this server has {', '.join(sorted(PRESETS))}"
+        )
+    try:
+        if as_recorded:
+            return settings_history.as_recorded(preset, overrides, _record_config(as_recorded))
+        return make_config(preset, overrides)
+    except ConfigError as error:
+        raise errors.BadConfig(str(error)) from None
+
+
+def _record_config(text: str) -> dict[str, Any]:
+    try:
+        config = json.loads(text)
+    except ValueError as error:
+        raise errors.BadConfig(f"as_recorded is not JSON ({error})") from None
+    if not isinstance(config, dict):
+        raise errors.BadConfig(
+            f"as_recorded is a record's configuration (a JSON object), got {type(config).__name__}"
+        )
+    return config
