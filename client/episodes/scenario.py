@@ -46,6 +46,10 @@ def parse_overrides(items: tuple[str, ...]) -> dict[str, object]:
     return overrides
 
 
+# RemoteConfig's defaults, which Where's remote settings keep (one source).
+_REMOTE = RemoteConfig()
+
+
 @dataclass(frozen=True, kw_only=True)
 class Where:
     """Where the simulator is: in this process, or on a server reached over Zenoh."""
@@ -62,6 +66,42 @@ class Where:
     """through shared memory, how long to wait for a round spinning (yielding the core) before
     sleeping: a process that sleeps between rounds computes the next one slower on a virtual
     machine (RemoteConfig.spin_s); 0 always sleeps"""
+    server: str | None = None
+    """with --connect: open the arenas on this server (its --name); None: the least loaded"""
+    connect_timeout_s: float = _REMOTE.connect_timeout_s
+    """with --connect: how long to keep trying to reach the endpoint"""
+    request_timeout_s: float = _REMOTE.request_timeout_s
+    """with --connect: how long an open, reset, close or status request may take"""
+    step_timeout_s: float = _REMOTE.step_timeout_s
+    """with --connect: how long to wait for a step's observations (longer than the server's
+    step deadline)"""
+    reconnect_timeout_s: float = _REMOTE.reconnect_timeout_s
+    """with --connect: after losing the server, how long to wait for one to reopen the arenas
+    on (0: never)"""
+    lease_s: float = _REMOTE.lease_s
+    """with --connect: if this process's host vanishes, servers free its arenas within this"""
+    trainer_name: str | None = None
+    """with --connect: a readable prefix for this process's id in server logs and status
+    (default: the usrpwd user, else "trainer")"""
+
+    def remote(self) -> RemoteConfig:
+        """How this process reaches the server --connect names: every setting of
+        :class:`RemoteConfig`, from this configuration's fields."""
+        if self.connect is None:
+            raise UsageError("no --connect: the simulator runs in this process")
+        return RemoteConfig(
+            connect=(self.connect,),
+            server=self.server,
+            connect_timeout_s=self.connect_timeout_s,
+            request_timeout_s=self.request_timeout_s,
+            step_timeout_s=self.step_timeout_s,
+            reconnect_timeout_s=self.reconnect_timeout_s,
+            lease_s=self.lease_s,
+            security=self.security,
+            trainer_name=self.trainer_name,
+            steps_transport=self.transport,
+            spin_s=self.spin_s,
+        )
 
     def where(self) -> Where:
         """Only where the simulator is (a command's configuration is also one)."""
@@ -100,12 +140,7 @@ class Where:
                 as_recorded=recorded,
             )
         else:
-            remote = RemoteConfig(
-                connect=(self.connect,),
-                security=self.security,
-                steps_transport=self.transport,
-                spin_s=self.spin_s,
-            )
+            remote = self.remote()
             envs = gym.make_vec(
                 REMOTE_HIGHWAY_ENV_ID,
                 num_envs=num_envs,

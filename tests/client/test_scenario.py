@@ -154,3 +154,36 @@ def test_drive_takes_its_scenario_from_the_command_line_flags(tmp_path):
     assert result["preset"] == "ho2018"
     assert result["overrides"] == {"traffic.density": "light", "episode.max_decisions": 5}
     assert [row["decisions"] for row in result["episodes"]] == [5.0, 5.0]
+
+
+def test_where_carries_every_remote_setting_into_the_connection():
+    """Every setting of RemoteConfig is a flag of every command that takes --connect (its
+    Where), and reaches the connection unchanged: nothing is dropped on the way."""
+    from overtake.client.episodes.scenario import Where
+    from overtake.client.wire.remote_config import RemoteConfig
+
+    where_fields = {f.name for f in dataclasses.fields(Where)}
+    # Where names the transport of a round "transport" (RemoteConfig: steps_transport).
+    renamed = {"steps_transport": "transport"}
+    remote_fields = {f.name for f in dataclasses.fields(RemoteConfig)}
+    missing = {renamed.get(name, name) for name in remote_fields} - where_fields
+    assert not missing, f"RemoteConfig settings no command can set: {sorted(missing)}"
+    asked = Where(
+        connect="tcp/10.0.0.7:7447",
+        server="sim-2",
+        connect_timeout_s=1.5,
+        request_timeout_s=2.5,
+        step_timeout_s=3.5,
+        reconnect_timeout_s=4.5,
+        lease_s=5.5,
+        trainer_name="alice",
+        transport="zenoh",
+        spin_s=0.0,
+    )
+    remote = asked.remote()
+    assert remote.connect == ("tcp/10.0.0.7:7447",)
+    for name in remote_fields - {"connect"}:
+        assert getattr(remote, name) == getattr(asked, renamed.get(name, name)), name
+    # The defaults are RemoteConfig's own.
+    default = Where(connect="tcp/10.0.0.7:7447").remote()
+    assert dataclasses.replace(default, connect=RemoteConfig().connect) == RemoteConfig()
