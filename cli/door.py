@@ -177,7 +177,7 @@ class Command(Generic[ConfigT, ResultT]):
         stop = threading.Event()
         previous = self._handle_signals(stop)
         try:
-            status = _through_door(self, argv, stop)
+            status = self._through_door(argv, stop)
         finally:
             for signum, handler in previous.items():
                 signal.signal(signum, handler)
@@ -202,42 +202,40 @@ class Command(Generic[ConfigT, ResultT]):
         handler = interrupt if self.stopping == "interrupt" else ask_to_stop
         return {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
 
+    def _through_door(self, argv: list[str] | None, stop: threading.Event) -> int:
+        """``main(parse(argv))`` and its report; the status to exit with."""
+        if not logging.getLogger().handlers:
+            logging.basicConfig(format=self.log_format)
+            logging.getLogger("overtake").setLevel(logging.INFO)
+        try:
+            try:
+                config = self.parse(argv)
+                outputs = getattr(config, "output_paths", None)
+                if outputs is not None:
+                    check_outputs(outputs())
+                result = (
+                    self.main(config, stop=stop) if self.stopping == "event" else self.main(config)
+                )
+                if self.report is None:
+                    return 0
+                return self.report(config, result) or 0
+            finally:
+                # What was printed reaches the pipe now, inside the door, not at the interpreter's
+                # exit where a closed pipe would print a traceback nobody can catch.
+                sys.stdout.flush()
+        except BrokenPipeError:
+            _quiet_stdout()
+            return CLOSED_PIPE_STATUS
+        except (CommandError, ProtocolError, ValueError) as error:
+            sys.exit(f"{self.prog}: {error}")
+        except KeyboardInterrupt:
+            if self.stopping != "interrupt":
+                raise
+            sys.exit(self._stopped_line())
+
     def _stopped_line(self, how: str = "") -> str:
         line = f"{self.prog}: stopped" + (f" {how}" if how else "")
         return f"{line}; {self.stopped_hint}" if self.stopped_hint else line
-
-
-def _through_door(command: Command[Any, Any], argv: list[str] | None, stop: threading.Event) -> int:
-    if not logging.getLogger().handlers:
-        logging.basicConfig(format=command.log_format)
-        logging.getLogger("overtake").setLevel(logging.INFO)
-    try:
-        try:
-            config = command.parse(argv)
-            outputs = getattr(config, "output_paths", None)
-            if outputs is not None:
-                check_outputs(outputs())
-            result = (
-                command.main(config, stop=stop)
-                if command.stopping == "event"
-                else command.main(config)
-            )
-            if command.report is None:
-                return 0
-            return command.report(config, result) or 0
-        finally:
-            # What was printed reaches the pipe now, inside the door, not at the interpreter's
-            # exit where a closed pipe would print a traceback nobody can catch.
-            sys.stdout.flush()
-    except BrokenPipeError:
-        _quiet_stdout()
-        return CLOSED_PIPE_STATUS
-    except (CommandError, ProtocolError, ValueError) as error:
-        sys.exit(f"{command.prog}: {error}")
-    except KeyboardInterrupt:
-        if command.stopping != "interrupt":
-            raise
-        sys.exit(command._stopped_line())
 
 
 def _quiet_stdout() -> None:

@@ -41,7 +41,7 @@ CURVE_METRICS: tuple[tuple[str, str], ...] = (
 class ExperimentError(ValueError):
     """A part of the experiment failed (a training run or an evaluation exited with an error,
     or another experiment holds the directory); the message names the part and its log. A
-    ``ValueError``, so that the commands' door (:func:`overtake.cli.enter`) reports it as the
+    ``ValueError``, so that the commands' door (:class:`overtake.cli.Command`) reports it as the
     command's message: the experiment itself did what it should, and running it again retries
     what failed."""
 
