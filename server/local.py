@@ -11,8 +11,6 @@ pictures, the privileged planner), is :class:`LocalRoad`.
 
 from __future__ import annotations
 
-import dataclasses
-import json
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -27,6 +25,7 @@ from overtake.protocol.vocabulary import DEFAULT_ACTION
 from .group_snapshot import GroupSnapshot
 from .rounds import RoundRows, Rounds
 from .sim import HighwaySim, SimConfig
+from .sim.config import as_json
 from .sim.planner import Planner
 from .sim.render import render_top_down
 from .spec import behaviour_spec
@@ -147,7 +146,7 @@ def local_simulator(config: SimConfig, arenas: int, agents_per_arena: int = 1) -
     return Simulator(
         parts=(engine,),
         spec=engine.spec,
-        sim_config=json.loads(json.dumps(dataclasses.asdict(config))),
+        sim_config=as_json(config),
         road=LocalRoad(engine),
     )
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import json
 import types
 import typing
 from collections.abc import Mapping
@@ -39,7 +40,7 @@ from .sensors.lidar_map import LidarMapConfig
 from .traffic.config import TrafficConfig
 from .validation import ConfigError, check
 
-__all__ = ["ConfigError", "PlainValue", "SimConfig", "apply_overrides", "field_names"]
+__all__ = ["ConfigError", "PlainValue", "SimConfig", "apply_overrides", "as_json", "field_names"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -88,6 +89,13 @@ class SimConfig:
 PlainValue = bool | int | float | str | None | list | tuple
 # The preset's name says where the overrides started from; it is not itself a setting.
 NOT_OVERRIDABLE = frozenset({"preset"})
+
+
+def as_json(config: SimConfig) -> dict[str, Any]:
+    """A configuration as JSON holds it (lists for tuples): an environment's ``sim_config``,
+    and so what an episode record keeps."""
+    result: dict[str, Any] = json.loads(json.dumps(dataclasses.asdict(config)))
+    return result
 
 
 def field_names(config: object, prefix: str = "") -> list[str]:

@@ -14,27 +14,29 @@ holds the simulator's schema or its history.
 
 from __future__ import annotations
 
-import dataclasses
-import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 from overtake.protocol.vocabulary import BEHAVIOUR_NAMES
 
-from .config import ConfigError, PlainValue, SimConfig
+from .config import ConfigError, PlainValue, SimConfig, as_json
 from .presets import make_config
 
 
-class _Inert:
-    """A setting that decided nothing before it existed (whatever it holds now)."""
+class _Marker:
+    """A ``before`` that is not a value (named, for the history's repr)."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
 
     def __repr__(self) -> str:
-        return "INERT"
+        return self.name
 
 
-INERT: Any = _Inert()
-FROM_RECORD: Any = type("FromRecord", (), {"__repr__": lambda self: "FROM_RECORD"})()
+INERT: Any = _Marker("INERT")
+"""An added setting that decided nothing before it existed (whatever it holds now)."""
+FROM_RECORD: Any = _Marker("FROM_RECORD")
 """A preset's changed value: a replay takes the record's."""
 
 
@@ -182,12 +184,6 @@ def flat(config: Any, prefix: str = "") -> dict[str, Any]:
     for key, value in config.items():
         found.update(flat(value, f"{prefix}.{key}" if prefix else str(key)))
     return found
-
-
-def as_json(config: SimConfig) -> dict[str, Any]:
-    """A configuration as a record's header holds it (JSON: lists for tuples)."""
-    result: dict[str, Any] = json.loads(json.dumps(dataclasses.asdict(config)))
-    return result
 
 
 def undo_overrides(recorded: Mapping[str, Any], now: Mapping[str, Any]) -> dict[str, Any]:

@@ -5,7 +5,6 @@ collision is in the recording at the decision the record names, its cars coloure
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from pathlib import Path
 
@@ -24,6 +23,7 @@ from overtake.client.episodes.records import (
 from overtake.protocol import errors
 from overtake.server.requested import resolve_config
 from overtake.server.sim import SimConfig, make_config
+from overtake.server.sim.config import as_json
 from overtake.server.sim.presets import PRESETS
 from overtake.server.sim.settings_history import (
     as_recorded,
@@ -484,7 +484,7 @@ def test_every_kept_record_replays_on_the_simulator_it_was_made_on(record):
 
 def _as_recorded(config: SimConfig) -> dict:
     """A configuration as a record's header holds it (JSON)."""
-    return json.loads(json.dumps(dataclasses.asdict(config)))
+    return as_json(config)
 
 
 def test_a_setting_added_since_a_record_is_set_to_what_it_was_before_it_existed():
