@@ -37,21 +37,24 @@ class Member:
                 f"actions answer round {actions.round}, but group {group_id} is only at round "
                 f"{round_}"
             )
-        self._check_own(actions.agents, group_id, actions.trainer, "")
+        self._check_own(actions.agents, group_id, actions.trainer, retiring=False)
         if actions.retire is not None and actions.retire.size:
-            self._check_own(actions.retire, group_id, actions.trainer, "retire")
+            self._check_own(actions.retire, group_id, actions.trainer, retiring=True)
 
-    def _check_own(self, agents: np.ndarray, group_id: int, trainer: str, verb: str) -> None:
+    def _check_own(
+        self, agents: np.ndarray, group_id: int, trainer: str, *, retiring: bool
+    ) -> None:
+        """Refuse agent ids out of the group's range, or not this member's."""
         total = self.slots.size
         if agents.size and (agents.min() < 0 or agents.max() >= total):
-            asked = "asked to retire " if verb else "got "
+            asked = "asked to retire " if retiring else "got "
             raise errors.BadAction(
                 f"agent ids in group {group_id} are 0..{total - 1}, {asked}"
                 f"{agents[(agents < 0) | (agents >= total)].tolist()}"
             )
         theirs = ~self.slots.reshape(-1)[agents]
         if theirs.any():
-            may = "may retire only its own, " if verb else "owns "
+            may = "may retire only its own, " if retiring else "owns "
             raise errors.NotOwner(
                 f"agents {agents[theirs].tolist()} of group {group_id} belong to another "
                 f"trainer or to nobody; {trainer!r} {may}{np.flatnonzero(self.slots).tolist()}"
