@@ -33,9 +33,7 @@ from overtake.protocol.messages import (
     Scalar,
     Steps,
 )
-from overtake.protocol.vocabulary import (
-    DEFAULT_ACTION,
-)
+from overtake.protocol.vocabulary import DEFAULT_ACTION
 
 from .members import Member
 from .requested import resolve_config

@@ -22,9 +22,7 @@ from typing import Any
 import zenoh
 
 from overtake.ipc.shared_memory import sweep_orphans
-from overtake.ipc.transport import (
-    open_session,
-)
+from overtake.ipc.transport import open_session
 from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import (
     PROTOCOL_VERSION,

@@ -23,9 +23,7 @@ from overtake.client.wire.remote_config import RemoteConfig, likely_causes, unre
 from overtake.client.wire.steps_channel import StepsChannel, open_channel
 from overtake.client.wire.stopping import INTERRUPT_AFTER_S, stop_event
 from overtake.client.wire.zenoh_channel import ZenohChannel
-from overtake.ipc.transport import (
-    open_session,
-)
+from overtake.ipc.transport import open_session
 from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import (
     Actions,
