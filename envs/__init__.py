@@ -1,6 +1,6 @@
-"""The environments over an engine: the Gymnasium single and vector faces (:mod:`.faces`), the
-PettingZoo face (:mod:`.parallel_face`), highway-env's interface (:mod:`.highway_env_like`), the
-rows a face reads (:mod:`.step_rows`) and the Gymnasium ids (:mod:`.registry`).
+"""The environments over an engine: the Gymnasium single and vector faces (faces), the
+PettingZoo face (parallel_face), highway-env's interface (highway_env_like), the rows a face
+reads (step_rows) and the Gymnasium ids (registry).
 
 Written once over an engine that is the simulator in this process (overtake.server.local) or a
 remote group (overtake.client.wire.remote); imports of the project only the contract
