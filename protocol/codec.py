@@ -6,7 +6,9 @@ with the raw little-endian bytes (never lists of numbers: ``tolist`` is a hundre
 slower). Decoding checks the version, the tag, every field's type, every array's dtype, shape
 and byte size, and then the message's own rules; anything wrong raises
 :class:`~overtake.protocol.errors.DecodeError` (or :class:`VersionMismatch`) saying what was
-expected and what came. Random bytes never escape as another exception.
+expected and what came. A field typed as the family of channel offers
+(:class:`~overtake.protocol.channel_offers.ChannelOffer`) travels as ``[transport, fields]``.
+Random bytes never escape as another exception.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from typing import Any, TypeVar, overload
 import msgpack
 import numpy as np
 
+from .channel_offers import ChannelOffer, offer_type
 from .errors import DecodeError, ProtocolError, VersionMismatch
 from .messages import (
     MAX_ARRAY_DIMS,
@@ -96,9 +99,18 @@ def _encoder(hint: Any) -> Encoder:
     if origin is dict:
         item = _encoder(typing.get_args(hint)[1])
         return lambda value: {k: item(v) for k, v in value.items()}
+    if hint is ChannelOffer:
+        return _tagged_out
     if isinstance(hint, type) and is_dataclass(hint):
         return _record_encoder(hint)
     raise TypeError(f"unsupported annotation {hint}")  # pragma: no cover - schema bug
+
+
+def _tagged_out(value: Any) -> list[Any]:
+    """A channel offer of any transport: ``[its transport, its fields]``."""
+    if not isinstance(value, ChannelOffer) or type(value) is ChannelOffer:
+        raise TypeError(f"expected a transport's ChannelOffer, got {type(value).__name__}")
+    return [value.TRANSPORT, _record_encoder(type(value))(value)]  # type: ignore[arg-type]
 
 
 @functools.cache
@@ -287,9 +299,22 @@ def _converter(hint: Any) -> Converter:
             return out
 
         return mapping
+    if hint is ChannelOffer:
+        return _tagged
     if isinstance(hint, type) and is_dataclass(hint):
         return functools.partial(_build, hint)
     raise TypeError(f"unsupported annotation {hint}")  # pragma: no cover - schema bug
+
+
+def _tagged(value: Any, minor: int) -> ChannelOffer:
+    """A channel offer from ``[transport, fields]``, built as that transport's offer type."""
+    if type(value) is not list or len(value) != 2:
+        raise DecodeError(f"expected a [transport, offer] pair, got {_kind(value)}")
+    tag, body = value
+    if type(tag) is not str:
+        raise DecodeError(f"expected a transport's name, got {_kind(tag)}")
+    offer: ChannelOffer = _build(offer_type(tag), body, minor)
+    return offer
 
 
 @functools.cache

@@ -26,6 +26,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from .channel_offers import ChannelOffer, check_transports
 from .errors import DecodeError
 from .records import (
     MAX_AGENTS_PER_ARENA,
@@ -47,6 +48,7 @@ from .specs import BehaviourSpec, CarSpec, ObservationSpec, Reach, RoadSpec
 from .state_messages import GroupState, RestoreRequest, SnapshotRequest
 from .version import (
     AS_RECORDED_SINCE_MINOR,
+    CHANNEL_OFFER_SINCE_MINOR,
     PROTOCOL_HISTORY,
     PROTOCOL_VERSION,
     TYPED_SPEC_SINCE_MINOR,
@@ -57,6 +59,7 @@ __all__ = [
     "ACTION_COUNT",
     "ACTION_NAMES",
     "AS_RECORDED_SINCE_MINOR",
+    "CHANNEL_OFFER_SINCE_MINOR",
     "MAX_AGENTS_PER_ARENA",
     "MAX_ARENAS_PER_REQUEST",
     "MAX_ARRAY_DIMS",
@@ -72,6 +75,7 @@ __all__ = [
     "Actions",
     "BehaviourSpec",
     "CarSpec",
+    "ChannelOffer",
     "CloseRequest",
     "ErrorReply",
     "GroupState",
@@ -163,19 +167,30 @@ class OpenRequest(Message):
     claim: int  # the slots this trainer drives; the rest wait for JoinRequest
     seed: int | None  # arena i is reset with seed + i; None: fresh entropy
     # The trainer can read Steps from a shared-memory segment (it may share the server's host).
+    # A 1.10 trainer lists "shm" in transports and says so here too, for older servers.
     shm: bool = field(default=False, metadata={"since": 6})
     # The configuration an episode record was made on (its header's, as JSON; empty: none):
     # the server builds that simulator again from its settings' history, or refuses.
     as_recorded: str = field(default="", metadata={"since": 9})
+    # The channels besides Zenoh the trainer can take its rounds through, the one it prefers
+    # first (channel_offers: "shm"); the server offers at most one of them (Opened.offer).
+    transports: tuple[str, ...] = field(default=(), metadata={"since": 10})
 
     def check(self) -> None:
         check_name("trainer", self.trainer)
         check_name("preset", self.preset)
+        check_transports(self.transports)
         check_range("arenas", self.arenas, 1, MAX_ARENAS_PER_REQUEST)
         check_range("agents per arena", self.agents_per_arena, 1, MAX_AGENTS_PER_ARENA)
         check_range("claimed agents per arena", self.claim, 1, self.agents_per_arena)
         if self.seed is not None:
             check_range("seed", self.seed, 0, 2**63 - 1)
+
+    @property
+    def wanted_transports(self) -> tuple[str, ...]:
+        """The channels besides Zenoh the trainer can take, preferred first; a trainer of 1.9
+        or older lists none and says only whether it reads shared memory (``shm``)."""
+        return self.transports or (("shm",) if self.shm else ())
 
 
 @dataclass(frozen=True, eq=False)
@@ -260,7 +275,11 @@ class Opened(Message):
     server_minor: int = field(default=2, metadata={"since": 3})
     # A segment this trainer may read its Steps from, when it asked (OpenRequest.shm) and the
     # group is its alone; None: Steps come over Zenoh.
+    # (Filled beside ``offer`` for trainers of 1.9 and older.)
     shm: ShmOffer | None = field(default=None, metadata={"since": 6})
+    # The channel this trainer's rounds may take instead of Zenoh frames, one of those its
+    # OpenRequest.transports listed, tagged with its transport; None: Steps come over Zenoh.
+    offer: ChannelOffer | None = field(default=None, metadata={"since": 10})
 
     def check(self) -> None:
         check_name("server", self.server)

@@ -10,7 +10,9 @@ both fall back to Steps over Zenoh."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
+from .channel_offers import ChannelOffer
 from .errors import DecodeError
 from .records import (
     MAX_ARRAY_DIMS,
@@ -76,8 +78,10 @@ class ShmArray(Part):
 
 
 @dataclass(frozen=True, eq=False)
-class ShmOffer(Part):
+class ShmOffer(ChannelOffer):
     """A segment the server writes a group's Steps into, for a trainer on its host."""
+
+    TRANSPORT: ClassVar[str] = "shm"
 
     name: str  # the segment's file name in /dev/shm (overtake-<pid>-<128 random bits>)
     nonce: bytes  # 16 random bytes the segment begins with (after its magic)

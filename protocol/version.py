@@ -4,7 +4,7 @@ ignores, and an older peer's messages decode with those fields at their defaults
 
 from __future__ import annotations
 
-PROTOCOL_VERSION: tuple[int, int] = (1, 9)
+PROTOCOL_VERSION: tuple[int, int] = (1, 10)
 PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
     (
         "1.0",
@@ -81,7 +81,17 @@ PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
         "no knowledge of the server's settings on the trainer's side. A 1.8 server ignores "
         "the field; a trainer replaying a record refuses a server older than 1.9.",
     ),
+    (
+        "1.10",
+        "The negotiation names a transport: an OpenRequest lists the channels besides Zenoh "
+        "the trainer can take its rounds through (transports, preferred first) and the Opened "
+        "offers at most one (offer: a ChannelOffer tagged with its transport's name, today "
+        "shm's ShmOffer). Both sides still fill the 1.6 fields (OpenRequest.shm, Opened.shm), "
+        "so a 1.9 peer negotiates shared memory as before.",
+    ),
 )
+# The minor version whose Opened names the offered channel's transport (Opened.offer).
+CHANNEL_OFFER_SINCE_MINOR = 10
 # The minor version that builds a record's simulator again (OpenRequest.as_recorded).
 AS_RECORDED_SINCE_MINOR = 9
 # The minor version that keeps and restores a group's state (SnapshotRequest, RestoreRequest).

@@ -1,27 +1,28 @@
 """What the server sends: each member's rounds through its channel
-(:mod:`overtake.server.channels`: Zenoh frames, or a shared-memory segment with a doorbell for
-a trainer on this host that holds its group alone), and each watched arena's world frames for
-spectators, dropped under congestion so that watching never holds the simulation back.
+(:mod:`overtake.server.channels`: Zenoh frames, or a channel the trainer asked for and was
+offered, such as a shared-memory segment with a doorbell for a trainer on this host that holds
+its group alone), and each watched arena's world frames for spectators, dropped under
+congestion so that watching never holds the simulation back.
 
-The outbox owns the channels: a Zenoh one per trainer holding arenas here, a shared-memory one
-per group a trainer holds alone and asked for, closed when the trainer leaves the group, goes
-away or the server closes."""
+The outbox owns the channels: a Zenoh one per trainer holding arenas here, an offered one per
+group a trainer holds alone and asked for, closed when the trainer leaves the group, goes away
+or the server closes."""
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import zenoh
 
-from overtake.ipc.doorbell import AVAILABLE as DOORBELL_AVAILABLE
 from overtake.protocol import codec, keys
-from overtake.protocol.messages import ErrorReply, Message, ShmOffer, Steps
+from overtake.protocol.channel_offers import ChannelOffer
+from overtake.protocol.messages import ErrorReply, Message, Steps
 
-from .channels import StepsChannel
-from .channels.shm_channel import ShmChannel
+from .channels import ChannelTerms, OfferedChannel, StepsChannel
 from .channels.zenoh_channel import ZenohChannel, send_once
 from .groups import Group
+from .server_config import ServerConfig
 from .world import group_world_frame
 
 log = logging.getLogger(__name__)
@@ -29,21 +30,23 @@ log = logging.getLogger(__name__)
 
 class Outbox:
     """The server's channels to its trainers, and its world publishers, on its Zenoh
-    ``session``. ``on_ring(trainer, group)``: a trainer rang its segment's Actions bell (called
-    on the channel's thread; it should only enqueue)."""
+    ``session``, as ``config`` says (its name, world rate and the channels it offers:
+    :meth:`~overtake.server.server_config.ServerConfig.offered_channels`).
+    ``on_ring(trainer, group)``: a trainer put its Actions in its offered channel (called on
+    the channel's thread; it should only enqueue)."""
 
     def __init__(
         self,
         session: zenoh.Session,
-        server: str,
-        world_rate_hz: float,
+        config: ServerConfig,
         on_ring: Callable[[str, int], None] = lambda trainer, group: None,
     ) -> None:
-        self.session, self.server = session, server
-        self.world_rate_hz = world_rate_hz
+        self.session, self.server = session, config.name
+        self.world_rate_hz = config.world_rate_hz
         self._on_ring = on_ring
+        self._makers = config.offered_channels()
         self._zenoh: dict[str, ZenohChannel] = {}
-        self._shm: dict[tuple[str, int], ShmChannel] = {}
+        self._offered: dict[tuple[str, int], OfferedChannel] = {}
         self._world_pubs: dict[int, zenoh.Publisher] = {}
         self._last_world: dict[int, float] = {}
 
@@ -54,56 +57,65 @@ class Outbox:
         if trainer not in self._zenoh:
             self._zenoh[trainer] = ZenohChannel(self.session, self.server, trainer)
 
-    def offer_segment(self, group: Group, trainer: str) -> ShmOffer | None:
-        """A shared-memory channel for ``trainer``'s rounds of ``group`` (which it holds
-        alone), sized for its current Steps; None where one cannot be made (said in the log)."""
-        if not DOORBELL_AVAILABLE:
-            log.info("no futex doorbell on this machine: %s's Steps go over Zenoh", trainer)
-            return None
+    def offer_channel(
+        self, group: Group, trainer: str, transports: Sequence[str]
+    ) -> ChannelOffer | None:
+        """A channel for ``trainer``'s rounds of ``group`` (which it holds alone): the first of
+        ``transports`` (the trainer's, preferred first) this server offers and can make, sized
+        for its current Steps; None: its rounds go over Zenoh (why is said in the log)."""
         self.open_for(trainer)
         self.forget_member(group.group_id, trainer)
-        try:
-            channel = ShmChannel.create(
-                group.current_steps(trainer),
-                trainer,
-                group.members[trainer].ticket,
-                self._zenoh[trainer],
-                self._on_ring,
-            )
-        except OSError as error:
-            log.warning("no shared memory for %s (Steps go over Zenoh): %s", trainer, error)
-            return None
-        self._shm[(trainer, group.group_id)] = channel
-        return channel.offer()
+        terms = ChannelTerms(
+            trainer=trainer,
+            ticket=group.members[trainer].ticket,
+            current=group.current_steps(trainer),
+            fallback=self._zenoh[trainer],
+            on_ring=self._on_ring,
+        )
+        for transport in transports:
+            make = self._makers.get(transport)
+            if make is None:
+                continue
+            try:
+                channel = make(terms)
+            except OSError as error:
+                log.warning("no %s channel for %s (trying the next): %s", transport, trainer, error)
+                continue
+            if channel is not None:
+                self._offered[(trainer, group.group_id)] = channel
+                return channel.offer()
+        return None
 
-    def segment_channel(self, trainer: str, group: int) -> ShmChannel | None:
-        """``trainer``'s shared-memory channel of ``group``, if it has one."""
-        return self._shm.get((trainer, group))
+    def offered_channel(self, trainer: str, group: int) -> OfferedChannel | None:
+        """``trainer``'s offered channel of ``group``, if it has one."""
+        return self._offered.get((trainer, group))
 
-    def rung(self) -> list[ShmChannel]:
-        """The shared-memory channels whose trainer rang since the loop took its Actions."""
-        return [channel for channel in self._shm.values() if channel.rung()]
+    def rung(self) -> list[OfferedChannel]:
+        """The offered channels whose trainer put Actions since the loop took them."""
+        return [channel for channel in self._offered.values() if channel.rung()]
 
     @property
-    def has_segments(self) -> bool:
-        return bool(self._shm)
+    def has_offered(self) -> bool:
+        return bool(self._offered)
 
     def actions_over_zenoh(self, trainer: str, group: int) -> None:
-        """``trainer``'s Actions for ``group`` came over Zenoh: it does not read the segment
-        (it chose Zenoh, could not map it, or speaks 1.6), so the segment goes."""
+        """``trainer``'s Actions for ``group`` came over Zenoh: it does not take the channel it
+        was offered (it chose Zenoh, could not reach it, or speaks an older protocol), so
+        that channel goes."""
         self.forget_member(group, trainer)
 
     def send_steps(self, group: Group, trainer: str, steps: Message) -> None:
         """``trainer``'s Steps of a round of ``group`` (or what replaced them): through its
-        segment where it has one and holds the group alone; a shared group steps on a
+        offered channel where it has one and holds the group alone; a shared group steps on a
         deadline, which could overwrite a round a member is still reading, so there the round
-        goes over Zenoh, rung in the segment all the same (its trainer sleeps on the bell)."""
-        shm = self._shm.get((trainer, group.group_id))
-        if shm is not None:
+        goes as what is not a round does (over Zenoh, rung in a segment all the same: its
+        trainer sleeps on the bell)."""
+        offered = self._offered.get((trainer, group.group_id))
+        if offered is not None:
             if isinstance(steps, Steps) and len(group.members) == 1:
-                shm.send_steps(steps)
+                offered.send_steps(steps)
             else:
-                shm.send(steps)
+                offered.send(steps)
             return
         channel = self._zenoh.get(trainer)
         if channel is None:
@@ -113,11 +125,11 @@ class Outbox:
 
     def send(self, trainer: str, message: Message) -> None:
         """What is not a round (an error reply): over Zenoh, and where it is about a group
-        whose rounds go through a segment, counted and rung there too."""
+        whose rounds go through an offered channel, through that channel's way for it."""
         group = message.group if isinstance(message, ErrorReply) else None
         channel: StepsChannel | None = None
         if group is not None:
-            channel = self._shm.get((trainer, group))
+            channel = self._offered.get((trainer, group))
         if channel is None:
             channel = self._zenoh.get(trainer)
         if channel is not None:
@@ -126,26 +138,28 @@ class Outbox:
             send_once(self.session, self.server, trainer, message)
 
     def forget_member(self, group: int, trainer: str) -> None:
-        """Close ``trainer``'s segment of ``group`` (it left the group)."""
-        channel = self._shm.pop((trainer, group), None)
+        """Close ``trainer``'s offered channel of ``group`` (it left the group)."""
+        channel = self._offered.pop((trainer, group), None)
         if channel is not None:
             channel.close()
 
     def close(self) -> None:
         """Close every channel (the server stops)."""
-        for trainer, group in list(self._shm):
-            self.forget_member(group, trainer)
+        self._forget_offered(lambda trainer, group: True)
         for channel in self._zenoh.values():
             channel.close()
         self._zenoh.clear()
 
     def forget_trainer(self, trainer: str) -> None:
-        for held_by, group in list(self._shm):
-            if held_by == trainer:
-                self.forget_member(group, trainer)
+        self._forget_offered(lambda held_by, group: held_by == trainer)
         channel = self._zenoh.pop(trainer, None)
         if channel is not None:
             channel.close()
+
+    def _forget_offered(self, which: Callable[[str, int], bool]) -> None:
+        for trainer, group in list(self._offered):
+            if which(trainer, group):
+                self.forget_member(group, trainer)
 
     # --- spectators -----------------------------------------------------------------------------
 
@@ -174,9 +188,7 @@ class Outbox:
 
     def forget_group(self, group: Group) -> None:
         """The group's arenas are freed: their world publishers and segments go."""
-        for trainer, group_id in list(self._shm):
-            if group_id == group.group_id:
-                self.forget_member(group_id, trainer)
+        self._forget_offered(lambda trainer, group_id: group_id == group.group_id)
         for arena in group.arena_ids:
             pub = self._world_pubs.pop(arena, None)
             if pub is not None:

@@ -10,6 +10,7 @@ from overtake.cli import Output
 from overtake.ipc.transport import DEFAULT_ENDPOINT, SecurityConfig, TransportConfig
 from overtake.viz.recording import RecordingConfig
 
+from .channels import OFFERED, ChannelMaker
 from .recorder import default_rrd
 
 # With its sink on, a server logs every arena one round in this many: logging every round
@@ -72,6 +73,10 @@ class ServerConfig:
     """Rerun: this server logs every arena it steps itself (default off; spectators watch
     without it), one round in --record-every. With --sink file the .rrd defaults to
     runs/server/<name>.rrd."""
+
+    def offered_channels(self) -> dict[str, ChannelMaker]:
+        """The channels besides Zenoh this server offers trainers that ask, by transport."""
+        return {t: make for t, make in OFFERED.items() if t != "shm" or self.shared_memory}
 
     def transport(self) -> TransportConfig:
         return TransportConfig(

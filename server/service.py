@@ -36,6 +36,7 @@ from overtake.protocol.messages import (
     OpenRequest,
     ResetRequest,
     RestoreRequest,
+    ShmOffer,
     SnapshotRequest,
     StatusReply,
     StatusRequest,
@@ -96,7 +97,7 @@ class SimulatorServer:
         self.session = session if session is not None else open_session(config.transport())
         self.arenas = ArenaRegistry(self.name, config.max_arenas, config.max_arenas_per_trainer)
         self._alive_trainers: set[str] = set()
-        self.outbox = Outbox(self.session, self.name, config.world_rate_hz, self.inbox.on_ring)
+        self.outbox = Outbox(self.session, config, self.inbox.on_ring)
         self._pool: ThreadPoolExecutor | None = None
         self.parallel_passes = 0
         # How long trainers on the shared-memory channel have been taking to answer a round
@@ -197,7 +198,7 @@ class SimulatorServer:
         between rounds) are not spun for: the spin would take a core their update uses
         (bench/RESULTS.md, issue 47)."""
         spin_s = self.config.spin_s
-        if spin_s <= 0 or not self.outbox.has_segments or self._answer_s > spin_s:
+        if spin_s <= 0 or not self.outbox.has_offered or self._answer_s > spin_s:
             return False
         started = time.perf_counter()
         while time.perf_counter() - started < spin_s and not self._stopping.is_set():
@@ -283,8 +284,8 @@ class SimulatorServer:
             return self.status()
         if isinstance(request, OpenRequest):
             self._require_alive(request.trainer)
-            shm = request.shm and self.config.shared_memory
-            return self.arenas.open(request, lambda g, t: self._opened(g, t, shm=shm))
+            wanted = request.wanted_transports
+            return self.arenas.open(request, lambda g, t: self._opened(g, t, wanted))
         if isinstance(request, JoinRequest):
             self._require_alive(request.trainer)
             return self.arenas.join(request, self._opened)
@@ -333,10 +334,10 @@ class SimulatorServer:
             )
         self._alive_trainers.add(trainer)
 
-    def _opened(self, group: Group, trainer: str, shm: bool = False) -> Opened:
+    def _opened(self, group: Group, trainer: str, transports: tuple[str, ...] = ()) -> Opened:
         self.outbox.open_for(trainer)
         member = group.members[trainer]
-        offer = self.outbox.offer_segment(group, trainer) if shm else None
+        offer = self.outbox.offer_channel(group, trainer, transports) if transports else None
         return Opened(
             server=self.name,
             group=group.group_id,
@@ -345,7 +346,8 @@ class SimulatorServer:
             spec=group.spec,
             steps=group.current_steps(trainer),
             server_minor=PROTOCOL_VERSION[1],
-            shm=offer,
+            offer=offer,
+            shm=offer if isinstance(offer, ShmOffer) else None,  # what a 1.9 trainer reads
         )
 
     # --- actions and rounds -----------------------------------------------------------------
@@ -373,12 +375,12 @@ class SimulatorServer:
             self._refused(trainer, None, error)
             return
         if self._accept(trainer, actions):
-            # Over Zenoh: whatever segment the trainer was offered, it does not read it.
+            # Over Zenoh: whatever channel the trainer was offered, it does not take it.
             self.outbox.actions_over_zenoh(trainer, actions.group)
 
     def _on_ring(self, trainer: str, group: int) -> None:
-        """``trainer`` wrote its Actions for ``group`` into its segment and rang."""
-        channel = self.outbox.segment_channel(trainer, group)
+        """``trainer`` put its Actions for ``group`` in its offered channel (a segment: rang)."""
+        channel = self.outbox.offered_channel(trainer, group)
         if channel is None or not channel.rung():
             return  # the segment closed since (the trainer left), or the loop took them
         answer_s = time.perf_counter() - self._round_sent

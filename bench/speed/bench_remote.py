@@ -520,7 +520,7 @@ def transport_auto_picks(arenas: int, endpoint: str) -> str:
 
     env = make_env(REMOTE_ENV_ID, arenas, preset=PRESET, remote=RemoteConfig(connect=(endpoint,)))
     try:
-        return "shm" if env.unwrapped.group.shm else "zenoh"
+        return env.unwrapped.group.transport
     finally:
         env.close()
 

@@ -25,11 +25,11 @@ from overtake.client.wire.stopping import INTERRUPT_AFTER_S, stop_event
 from overtake.client.wire.zenoh_channel import ZenohChannel
 from overtake.ipc.transport import open_session
 from overtake.protocol import codec, errors, keys
+from overtake.protocol.channel_offers import ChannelOffer
 from overtake.protocol.messages import (
     Actions,
     ErrorReply,
     Message,
-    ShmOffer,
     StatusReply,
     StatusRequest,
     Steps,
@@ -382,7 +382,7 @@ class Connection:
         self._errors.pop((server, group), None)
         self._stepping.add((server, group))
 
-    def open_channel(self, server: str, group: int, offer: ShmOffer | None) -> str:
+    def open_channel(self, server: str, group: int, offer: ChannelOffer | None) -> str:
         """Open ``group``'s channel from what ``server`` offered in its reply
         (:func:`~overtake.client.wire.steps_channel.open_channel`, by
         :attr:`RemoteConfig.steps_transport`); the transport's name."""

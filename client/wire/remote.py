@@ -26,6 +26,7 @@ import numpy as np
 
 from overtake.client.wire.connection import Connection
 from overtake.client.wire.remote_config import RemoteConfig
+from overtake.client.wire.steps_channel import offered, requested_transports
 from overtake.protocol import errors
 from overtake.protocol.messages import (
     Ack,
@@ -67,9 +68,9 @@ class ArenaGroup:
     epoch: int = 0  # the server's epoch (Connection.epoch) when the group was opened
     server_minor: int = 2
     """The server's minor protocol version (Opened.server_minor; a 1.2 server says none)."""
-    shm: bool = False
-    """Rounds go through the server's shared-memory segment with its doorbell (protocol
-    1.7), not over Zenoh."""
+    transport: str = "zenoh"
+    """The transport this group's rounds take: ``zenoh``, or the channel the server offered
+    (``shm``: its shared-memory segment with a doorbell, protocol 1.7)."""
     trainer_step: int = -1
     """Sent with every Actions (-1: not given): the trainer's step count, which the server
     repeats in its world frames so that recordings of the road share the trainer's timeline."""
@@ -101,7 +102,9 @@ class ArenaGroup:
             if not reseed:
                 # After a restart the first episodes must not replay: fresh seeds.
                 request = dataclasses.replace(request, seed=None)
-            request = dataclasses.replace(request, shm=conn.config.steps_transport != "zenoh")
+            transports = requested_transports(conn.config.steps_transport)
+            # The 1.6 field too: a 1.9 server reads only that.
+            request = dataclasses.replace(request, transports=transports, shm="shm" in transports)
             last_error: errors.ProtocolError | None = None
             for server in conn.candidates(request.arenas):
                 try:
@@ -119,9 +122,9 @@ class ArenaGroup:
         conn.track(self.server, self.group_id)
         self.ticket, self.spec = opened.ticket, opened.spec
         try:
-            self.shm = conn.open_channel(self.server, self.group_id, opened.shm) == "shm"
+            self.transport = conn.open_channel(self.server, self.group_id, offered(opened))
         except errors.ConnectError:
-            self.close()  # transport shm and no segment: the arenas are not kept
+            self.close()  # a transport required and not offered: the arenas are not kept
             raise
         self.server_minor = opened.server_minor
         self.round = opened.steps.round

@@ -7,8 +7,12 @@ transport is one module on this side (and one on the server's, :mod:`overtake.se
 
 The connection (:mod:`.connection`) holds one channel per group it steps and waits in one loop:
 it takes a round from the channel, or from its Zenoh inbox, where whatever is not a round
-(an error) arrives for every transport; :func:`open_channel` picks the channel from the
-server's reply and the trainer's setting.
+(an error) arrives for every transport.
+
+The negotiation names transports (protocol 1.10): the open request lists those this side can
+take (:func:`requested_transports`: :data:`ATTACH`'s, by the trainer's setting), the server
+offers at most one (a :class:`~overtake.protocol.channel_offers.ChannelOffer` tagged with its
+name) and :func:`open_channel` takes it with that transport's :data:`ATTACH` entry.
 """
 
 from __future__ import annotations
@@ -16,8 +20,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Literal, Protocol, runtime_checkable
 
-from overtake.client.wire.shm_channel import attach
-from overtake.protocol.messages import Actions, ShmOffer, Steps
+from overtake.protocol.channel_offers import ZENOH, ChannelOffer
+from overtake.protocol.messages import Actions, Opened, ShmOffer, Steps
 
 Transport = Literal["auto", "shm", "zenoh"]
 """How a trainer's rounds travel: ``shm`` through shared memory (the server must be on this
@@ -58,18 +62,53 @@ class StepsChannel(Protocol):
         """Stop (idempotent); ``unlink``: the server is gone, remove what it would have."""
 
 
+Attach = Callable[[str, int, ChannelOffer | None, bool], "StepsChannel | None"]
+"""Takes a transport's channel: ``(server, group, offer, required)``, the offer None where the
+server made none; returns the channel, or None where this side cannot take it (the rounds
+then go over Zenoh; said in the log), and with ``required`` raises
+:class:`~overtake.protocol.errors.ConnectError` saying why instead."""
+
+
+def _attach_shm(
+    server: str, group: int, offer: ChannelOffer | None, required: bool
+) -> StepsChannel | None:
+    from overtake.client.wire.shm_channel import attach  # the segment's ctypes load here
+
+    return attach(server, group, offer if isinstance(offer, ShmOffer) else None, required)
+
+
+ATTACH: dict[str, Attach] = {"shm": _attach_shm}
+"""The channels this side can take besides Zenoh, by transport name, preferred first."""
+
+
+def requested_transports(transport: Transport) -> tuple[str, ...]:
+    """What an open request lists for ``transport``: nothing for ``zenoh``, every channel
+    this side can take for ``auto`` (in :data:`ATTACH`'s order), else that one."""
+    if transport == ZENOH:
+        return ()
+    return tuple(ATTACH) if transport == "auto" else (transport,)
+
+
+def offered(opened: Opened) -> ChannelOffer | None:
+    """The channel a server's reply offers (a 1.9 server fills only the segment's field)."""
+    return opened.offer if opened.offer is not None else opened.shm
+
+
 def open_channel(
     server: str,
     group: int,
-    offer: ShmOffer | None,
+    offer: ChannelOffer | None,
     transport: Transport,
     over_zenoh: Callable[[], StepsChannel],
 ) -> StepsChannel:
-    """The channel ``group``'s rounds take: the server's offered segment where ``transport``
-    allows it and this trainer can attach it, else ``over_zenoh()``. With ``transport="shm"``
-    a missing or unreachable segment is an error (:class:`~overtake.protocol.errors.ConnectError`)
-    that says why."""
+    """The channel ``group``'s rounds take: the server's offer where ``transport`` allows it
+    and this side can take it, else ``over_zenoh()``. With a named ``transport`` (not
+    ``auto``) an offer missing or out of reach is an error
+    (:class:`~overtake.protocol.errors.ConnectError`) that says why."""
     channel = None
-    if transport != "zenoh":
-        channel = attach(server, group, offer, required=transport == "shm")
+    wanted = requested_transports(transport)
+    if offer is not None and offer.TRANSPORT in wanted and offer.TRANSPORT in ATTACH:
+        channel = ATTACH[offer.TRANSPORT](server, group, offer, transport == offer.TRANSPORT)
+    elif transport not in ("auto", ZENOH):
+        channel = ATTACH[transport](server, group, None, True)  # says why none came
     return channel if channel is not None else over_zenoh()

@@ -11,11 +11,13 @@ so only a group's sole member is offered a channel.
 
 from __future__ import annotations
 
+import logging
 import threading
 from collections.abc import Callable
 
 import numpy as np
 
+from overtake.ipc.doorbell import AVAILABLE as DOORBELL_AVAILABLE
 from overtake.ipc.shared_memory import (
     ACTIONS_BELL_OFFSET,
     STEPS_BELL_OFFSET,
@@ -26,7 +28,9 @@ from overtake.ipc.shared_memory import (
 from overtake.protocol.messages import Actions, Message, ShmArray, ShmOffer, Steps
 from overtake.protocol.shm_messages import OBSERVATION_PREFIX, STEPS_ARRAYS
 
-from .zenoh_channel import ZenohChannel
+from . import ChannelTerms, StepsChannel
+
+log = logging.getLogger(__name__)
 
 # The bell thread looks at its stop flag at least this often (a close also wakes it at once).
 BELL_SLICE_S = 0.5
@@ -52,7 +56,7 @@ class ShmChannel:
         trainer: str,
         group: int,
         ticket: bytes,
-        fallback: ZenohChannel,
+        fallback: StepsChannel,
         on_ring: Callable[[str, int], None],
     ) -> None:
         self.segment, self.trainer, self.group, self.ticket = segment, trainer, group, ticket
@@ -79,7 +83,7 @@ class ShmChannel:
         current: Steps,
         trainer: str,
         ticket: bytes,
-        fallback: ZenohChannel,
+        fallback: StepsChannel,
         on_ring: Callable[[str, int], None],
     ) -> ShmChannel:
         """A channel sized for ``current`` (the member's Steps as they are); OSError where
@@ -159,3 +163,14 @@ class ShmChannel:
         self._thread.join()
         self.segment.unlink()
         self.segment.close()
+
+
+def make(terms: ChannelTerms) -> ShmChannel | None:
+    """A segment for ``terms``' member, sized for its current Steps; None where this machine
+    has no futex doorbell (said in the log)."""
+    if not DOORBELL_AVAILABLE:
+        log.info("no futex doorbell on this machine: %s's Steps go over Zenoh", terms.trainer)
+        return None
+    return ShmChannel.create(
+        terms.current, terms.trainer, terms.ticket, terms.fallback, terms.on_ring
+    )

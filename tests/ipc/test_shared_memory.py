@@ -347,7 +347,7 @@ def test_remote_equals_in_process_on_each_transport(start_server, transport):
     )
     try:
         group = remote.unwrapped.group
-        assert group.shm == (transport == "shm")
+        assert group.transport == ("shm" if transport == "shm" else "zenoh")
         assert len(segments_of(server.proc.pid)) == (1 if transport == "shm" else 0)
         rng = np.random.default_rng(5)
         pid = server.proc.pid
@@ -388,7 +388,7 @@ def test_auto_takes_the_shared_memory_channel_at_every_size(start_server):
         )
         try:
             group = env.unwrapped.group
-            assert group.shm is True
+            assert group.transport == "shm"
             env.reset(seed=1)
             env.step(np.zeros(arenas, dtype=np.int64))
             assert not segments_of(server.proc.pid)  # read: its name went at the first Actions
@@ -487,7 +487,7 @@ def test_a_trainer_that_cannot_reach_the_segment_falls_back_or_says_why(
         REMOTE_HIGHWAY_ENV_ID, remote=remote_config(server.endpoint, server.name), overrides=SHORT
     )
     try:
-        assert env.unwrapped.group.shm is False  # auto: over Zenoh
+        assert env.unwrapped.group.transport == "zenoh"  # auto: over Zenoh
         env.reset(seed=1)
         env.step(1)
     finally:
@@ -506,7 +506,7 @@ def test_a_server_without_shared_memory_offers_none(start_server):
     server = start_server("shm-off", extra=("--no-shared-memory",))
     env = gym.make(REMOTE_HIGHWAY_ENV_ID, remote=remote_config(server.endpoint, server.name))
     try:
-        assert env.unwrapped.group.shm is False
+        assert env.unwrapped.group.transport == "zenoh"
         assert not segments_of(server.proc.pid)
     finally:
         env.close()
