@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
-from overtake.trainers.replay import FrameShapes, ReplayMemory
+from overtake.trainers.replay_memory import FrameShapes, ReplayMemory
 from overtake.trainers.sum_tree import SumTree
 from overtake.trainers.train import TrainConfig
 from overtake.trainers.train import main as train

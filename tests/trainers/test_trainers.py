@@ -26,7 +26,7 @@ from overtake.trainers.heads import HeadSpec, dueling_q
 from overtake.trainers.learner import ALGOS, DQNConfig, DQNLearner, execution_device
 from overtake.trainers.network import NetworkShape, QNetwork
 from overtake.trainers.objectives import masked, td_target
-from overtake.trainers.replay import FrameShapes, FrameStacker, ReplayBatch, ReplayMemory
+from overtake.trainers.replay_memory import FrameShapes, FrameStacker, ReplayBatch, ReplayMemory
 from overtake.trainers.train import COMMAND as train_command
 from overtake.trainers.train import TrainConfig
 from overtake.trainers.train import main as train
