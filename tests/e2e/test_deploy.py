@@ -767,7 +767,7 @@ def test_isolated_trainers_reach_only_their_own_arenas(tmp_path: Path, backgroun
     import gymnasium as gym
 
     import overtake.client  # noqa: F401  (registers the environments)
-    from overtake.client.wire.spectator import Spectator
+    from overtake.client.wire.world_feed import Spectator
     from overtake.envs import REMOTE_HIGHWAY_ENV_ID as REMOTE_ENV
     from overtake.ipc.transport import open_session
     from overtake.protocol import keys
