@@ -15,7 +15,7 @@ from overtake.trainers.sum_tree import SumTree
 from overtake.trainers.train import TrainConfig
 from overtake.trainers.train import main as train
 
-from tests.trainers.test_training_runs import PickTheFreeLane, greedy_score, tiny_dqn
+from tests.support.tiny_learning import PickTheFreeLane, greedy_score, tiny_dqn
 
 torch.set_num_threads(1)
 
@@ -175,7 +175,7 @@ def test_a_checkpoint_carries_the_options_and_a_resume_restores_the_priorities(t
 def test_the_update_discounts_by_the_windows_steps_and_weighs_by_importance():
     from overtake.trainers.learner import ALGOS, DQNConfig, DQNLearner
 
-    from tests.trainers.test_training_runs import random_obs, reward_three_for_action_two, small_shape
+    from tests.support.tiny_learning import random_obs, reward_three_for_action_two, small_shape
 
     shape = small_shape()
     config = DQNConfig(lstm_cells=8, hidden_units=16, learning_rate=0.01, gamma=0.9)
