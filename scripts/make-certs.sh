@@ -9,7 +9,7 @@
 #                                 clients connect to; default: localhost 127.0.0.1)
 # DIR/client.pem, client.key      a client certificate, for mutual TLS (--tls-mtls)
 #
-# Elliptic-curve keys (P-256), valid for 365 days (OVERTAKE_CERT_DAYS). tests/e2e/test_deploy.py
+# Elliptic-curve keys (P-256), valid for 365 days (OVERTAKE_CERT_DAYS). tests/e2e/test_deploy_tls.py
 # runs this script; docs/remote-hosts.md shows how the files are used.
 set -euo pipefail
 

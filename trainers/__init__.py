@@ -8,7 +8,7 @@ overtake.client), never through overtake.server. Commands: ``overtake-train``,
 
 from .learner import ALGOS, DQNConfig, DQNLearner
 from .network import NetworkShape, QNetwork
-from .replay import FrameStacker, ReplayMemory
+from .replay_memory import FrameStacker, ReplayMemory
 
 __all__ = [
     "ALGOS",

@@ -32,7 +32,7 @@ from .checkpoint import load_checkpoint
 from .network import INPUT_SENSORS
 from .observations import describe_space, frame_shapes
 from .presets import PRESET_TRAINING
-from .replay import FrameStacker
+from .replay_memory import FrameStacker
 
 TABLE_METRICS = (
     "avg_speed_kmh",

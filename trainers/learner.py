@@ -1,6 +1,6 @@
 """One DQN learner made of parts (Min et al. Section III): a network that ends in a Q-head
 (:mod:`.heads`), an objective that owns its TD target and loss (:mod:`.objectives`), and a
-typed replay batch (:class:`.replay.ReplayBatch`). The algorithms are settings of the parts:
+typed replay batch (:class:`.replay_memory.ReplayBatch`). The algorithms are settings of the parts:
 
 - DQN: a plain head, the target r + gamma * max_a' Q_target(s', a').
 - Double DQN (Eq. 8): the online network chooses a' = argmax Q_online(s', a'), the target
@@ -33,7 +33,7 @@ from .heads import HeadSpec, legacy_state
 from .mlp_network import MlpNetworkShape, MlpQNetwork
 from .network import Inputs, NetworkShape, QNetwork
 from .objectives import Objective, QuantileObjective, TDObjective, Transitions
-from .replay import ReplayBatch
+from .replay_memory import ReplayBatch
 from .tf_rmsprop import TFRMSprop
 from .two_stream_network import TwoStreamQNetwork, TwoStreamShape
 
@@ -237,7 +237,7 @@ class DQNLearner:
     @torch.no_grad()
     def q_values(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         """(N, actions) float32 Q-values of stacked observations (see
-        :class:`.replay.FrameStacker`)."""
+        :class:`.replay_memory.FrameStacker`)."""
         self.online.eval()
         with self._autocast():
             q = self.head.q(self.online(*self._tensors(obs)))

@@ -11,8 +11,8 @@
   reduction).
 
 Both take the max or the argmax over the actions ``next_mask`` allows only, and with n-step
-returns (:mod:`.replay`) ``reward`` is the window's discounted sum and ``gamma`` each sample's
-discount to the state after it. Both return, per sample, the loss (the learner averages it,
+returns (:mod:`.replay_memory`) ``reward`` is the window's discounted sum and ``gamma`` each
+sample's discount to the state after it. Both return, per sample, the loss (the learner averages it,
 weighted by importance under prioritized replay), the TD error's magnitude (prioritized
 replay's new priority) and the Q-value of the taken action.
 """

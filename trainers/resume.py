@@ -5,7 +5,7 @@ resumed from its last checkpoint goes on bit for bit as the run never stopped wo
 the same device: the learner and every generator are in the checkpoint already; this module
 adds the rest, in three parts that a resume restores separately where it can:
 
-- ``replay``: the replay memory's account of its rings (:meth:`.replay.ReplayMemory.state`);
+- ``replay``: the replay memory's account of its rings (:meth:`.replay_memory.ReplayMemory.state`);
   its frames are the memory-mapped files in the run directory (``replay/``), which a
   checkpoint does not rewrite;
 - ``episodes``: the episodes under way, on both sides: the environments' own state (the
@@ -36,7 +36,7 @@ import torch
 from overtake.protocol import errors
 
 from .checkpoint import save_checkpoint
-from .replay import FrameShapes, ReplayMemory, ReplayMismatch
+from .replay_memory import FrameShapes, ReplayMemory, ReplayMismatch
 
 if TYPE_CHECKING:
     from .train_config import TrainConfig
@@ -110,9 +110,9 @@ def open_replay(
 
 
 def spare_slots(config: TrainConfig) -> int:
-    """Spare slots per replay ring (:class:`.replay.ReplayMemory`): a checkpoint interval's
+    """Spare slots per replay ring (:class:`.replay_memory.ReplayMemory`): a checkpoint interval's
     writes, capped at a tenth of the ring (a checkpoint comes early where the spare slots
-    run out first, :attr:`~.replay.ReplayMemory.needs_checkpoint`)."""
+    run out first, :attr:`~.replay_memory.ReplayMemory.needs_checkpoint`)."""
     per_env = config.dqn.replay_size // config.num_envs
     interval = math.ceil(config.checkpoint_every / config.num_envs) + 2
     return max(1, min(interval, max(per_env // 10, 2 * config.dqn.stack + 2)))
@@ -120,7 +120,7 @@ def spare_slots(config: TrainConfig) -> int:
 
 def take(run: TrainingRun, replay_state: dict[str, Any] | None) -> dict[str, Any]:
     """The run's resume state now, between two iterations (``replay_state``: what the replay's
-    :meth:`~.replay.ReplayMemory.mark` returned, None for a replay in memory only)."""
+    :meth:`~.replay_memory.ReplayMemory.mark` returned, None for a replay in memory only)."""
     face, arenas = run.env.face, None
     # Between rounds only: where the loop learns while a round is in flight (--overlap), the
     # arenas are not kept, and a resume starts new episodes.

@@ -15,7 +15,7 @@ from overtake.client.policies.shield import Shield, overridden
 from overtake.protocol.messages import BehaviourSpec
 from overtake.protocol.vocabulary import WATCH_METRICS
 
-from .replay import FrameStacker
+from .replay_memory import FrameStacker
 
 if TYPE_CHECKING:
     from .learner import DQNConfig

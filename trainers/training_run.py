@@ -24,7 +24,7 @@ from .env_parts import EnvParts
 from .learner import ALGOS, DQNLearner, network_shape
 from .network import INPUT_SENSORS
 from .observations import describe_space, frame_shapes
-from .replay import FrameStacker
+from .replay_memory import FrameStacker
 from .run_files import MetricsLog, life_record, run_record
 from .run_log import LogWindow, progress_bar
 from .run_recording import RunRecording

@@ -17,7 +17,7 @@ from pathlib import Path
 from overtake.cli import Command, Output
 from overtake.client.commands import UsageError
 from overtake.client.wire.remote_config import RemoteConfig
-from overtake.client.wire.spectator import Spectator
+from overtake.client.wire.world_feed import Spectator
 from overtake.ipc.transport import SecurityConfig
 from overtake.viz.recording import APPLICATION_ID, RecordingConfig, close_recording, open_recording
 from overtake.viz.world_view import WorldRecording

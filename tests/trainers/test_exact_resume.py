@@ -159,7 +159,7 @@ def episodes(run_dir: Path) -> list[dict]:
 def test_the_replay_files_keep_a_checkpoints_window_through_the_writes_after_it(tmp_path):
     """The replay alone: written past a checkpoint (fewer writes than its spare slots), then
     put back to the checkpoint's account, it samples exactly what it sampled then."""
-    from overtake.trainers.replay import FrameShapes, ReplayMemory
+    from overtake.trainers.replay_memory import FrameShapes, ReplayMemory
 
     shapes = FrameShapes({"lidar": ((3,), np.dtype(np.float32))}, actions=5)
 

@@ -12,7 +12,7 @@ from overtake.trainers.heads import HeadSpec, QuantileHead, legacy_state
 from overtake.trainers.learner import ALGOS, DQNConfig, DQNLearner
 from overtake.trainers.network import NetworkShape, QNetwork
 from overtake.trainers.objectives import QuantileObjective, TDObjective, Transitions
-from overtake.trainers.replay import ReplayBatch
+from overtake.trainers.replay_memory import ReplayBatch
 from overtake.trainers.two_stream_network import TwoStreamQNetwork, TwoStreamShape
 
 

@@ -10,12 +10,12 @@ import pytest
 import torch
 
 from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
-from overtake.trainers.replay import FrameShapes, ReplayMemory
+from overtake.trainers.replay_memory import FrameShapes, ReplayMemory
 from overtake.trainers.sum_tree import SumTree
 from overtake.trainers.train import TrainConfig
 from overtake.trainers.train import main as train
 
-from tests.trainers.test_trainers import PickTheFreeLane, greedy_score, tiny_dqn
+from tests.support.tiny_learning import PickTheFreeLane, greedy_score, tiny_dqn
 
 torch.set_num_threads(1)
 
@@ -175,7 +175,7 @@ def test_a_checkpoint_carries_the_options_and_a_resume_restores_the_priorities(t
 def test_the_update_discounts_by_the_windows_steps_and_weighs_by_importance():
     from overtake.trainers.learner import ALGOS, DQNConfig, DQNLearner
 
-    from tests.trainers.test_trainers import random_obs, reward_three_for_action_two, small_shape
+    from tests.support.tiny_learning import random_obs, reward_three_for_action_two, small_shape
 
     shape = small_shape()
     config = DQNConfig(lstm_cells=8, hidden_units=16, learning_rate=0.01, gamma=0.9)

@@ -19,7 +19,7 @@ from overtake.ipc.transport import open_session
 from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import WorldFrame
 
-log = logging.getLogger("overtake.client.wire.spectator")
+log = logging.getLogger("overtake.client.wire.world_feed")
 
 
 class Spectator:
