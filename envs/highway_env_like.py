@@ -181,8 +181,13 @@ def _highway_env_info(info: dict[str, Any], obs: np.ndarray, features, ranges) -
     return info
 
 
+# ``connect``: one endpoint or several (overtake.ipc.transport.Endpoints, spelled out here:
+# envs imports the contract only).
 def _inner(
-    preset: str, config: Mapping[str, Any] | None, connect: str | None, **kwargs: Any
+    preset: str,
+    config: Mapping[str, Any] | None,
+    connect: str | Sequence[str] | None,
+    **kwargs: Any,
 ) -> tuple[str, dict[str, Any], Sequence[str], dict[str, Any]]:
     """overtake's own environment for this configuration (its id, in process or remote, and
     keyword arguments), and the observation's features and normalisation (for the speed in
@@ -211,7 +216,7 @@ class HighwayEnvLike(gym.Env):
         preset: str = "highway-fast",
         config: Mapping[str, Any] | None = None,
         render_mode: str | None = None,
-        connect: str | None = None,
+        connect: str | Sequence[str] | None = None,
     ) -> None:
         env_id, made, self._features, self._ranges = _inner(
             preset, config, connect, render_mode=render_mode
@@ -256,7 +261,7 @@ class HighwayEnvLikeVector(gym.vector.VectorEnv):
         preset: str = "highway-fast",
         config: Mapping[str, Any] | None = None,
         render_mode: str | None = None,
-        connect: str | None = None,
+        connect: str | Sequence[str] | None = None,
     ) -> None:
         env_id, made, self._features, self._ranges = _inner(
             preset, config, connect, render_mode=render_mode

@@ -21,6 +21,7 @@ import os
 import socket
 import ssl
 import threading
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -32,6 +33,17 @@ from overtake.protocol.errors import ConnectError
 from .endpoints import check_endpoints, host_port, protocol_of
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+Endpoints = str | Sequence[str]
+"""Where to reach Zenoh, as every face and configuration takes it: one endpoint, or several
+(the first reachable is used); :func:`endpoint_tuple` makes it the tuple configurations hold."""
+
+
+def endpoint_tuple(connect: Endpoints) -> tuple[str, ...]:
+    """``connect`` as a tuple of endpoints (one endpoint's string is not its characters)."""
+    return (connect,) if isinstance(connect, str) else tuple(connect)
+
+
 USER_ENV = "OVERTAKE_ZENOH_USER"
 """The usrpwd user name when ``--user`` is not given."""
 PASSWORD_ENV = "OVERTAKE_ZENOH_PASSWORD"

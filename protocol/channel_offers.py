@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from .errors import DecodeError
-from .records import Part, check_name
+from .records import Part, check_name, check_names
 
 ZENOH = "zenoh"
 """The transport every peer has: Steps frames on the trainer's key, Actions on the server's."""
@@ -68,9 +68,4 @@ def offered_transports() -> tuple[str, ...]:
 def check_transports(names: tuple[str, ...]) -> None:
     """An open request's list: valid, distinct names, at most :data:`MAX_TRANSPORTS`. Names
     this side does not know are allowed: a newer trainer may list more than a server offers."""
-    if len(names) > MAX_TRANSPORTS:
-        raise DecodeError(f"at most {MAX_TRANSPORTS} transports, got {len(names)}")
-    for name in names:
-        check_name("transport", name)
-    if len(set(names)) != len(names):
-        raise DecodeError(f"transports must be distinct, got {list(names)}")
+    check_names("transport", names, MAX_TRANSPORTS)

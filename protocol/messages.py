@@ -41,6 +41,7 @@ from .records import (
     Scalar,
     check_array,
     check_name,
+    check_names,
     check_range,
 )
 from .shm_messages import ShmArray, ShmOffer
@@ -102,6 +103,10 @@ __all__ = [
     "check_name",
     "check_range",
 ]
+
+
+# Observations an open request may name (a simulation has a handful of sensors).
+MAX_OBSERVATIONS = 16
 
 
 @dataclass(frozen=True, eq=False)
@@ -175,11 +180,14 @@ class OpenRequest(Message):
     # The channels besides Zenoh the trainer can take its rounds through, the one it prefers
     # first (channel_offers: "shm"); the server offers at most one of them (Opened.offer).
     transports: tuple[str, ...] = field(default=(), metadata={"since": 10})
+    # What the trainer reads (none: all); the others' sensors go off; one not on: bad_config.
+    observations: tuple[str, ...] = field(default=(), metadata={"since": 10})
 
     def check(self) -> None:
         check_name("trainer", self.trainer)
         check_name("preset", self.preset)
         check_transports(self.transports)
+        check_names("observation", self.observations, MAX_OBSERVATIONS)
         check_range("arenas", self.arenas, 1, MAX_ARENAS_PER_REQUEST)
         check_range("agents per arena", self.agents_per_arena, 1, MAX_AGENTS_PER_ARENA)
         check_range("claimed agents per arena", self.claim, 1, self.agents_per_arena)
@@ -274,8 +282,7 @@ class Opened(Message):
     # The minor protocol version the server speaks; a server of 1.2 or older sends none (2).
     server_minor: int = field(default=2, metadata={"since": 3})
     # A segment this trainer may read its Steps from, when it asked (OpenRequest.shm) and the
-    # group is its alone; None: Steps come over Zenoh.
-    # (Filled beside ``offer`` for trainers of 1.9 and older.)
+    # group is its alone (filled beside ``offer`` for 1.9 trainers); None: Steps over Zenoh.
     shm: ShmOffer | None = field(default=None, metadata={"since": 6})
     # The channel this trainer's rounds may take instead of Zenoh frames, one of those its
     # OpenRequest.transports listed, tagged with its transport; None: Steps come over Zenoh.

@@ -37,6 +37,16 @@ def check_name(what: str, value: str) -> None:
         )
 
 
+def check_names(what: str, names: tuple[str, ...], most: int) -> None:
+    """A list of names: each a valid name, distinct, at most ``most`` of them."""
+    if len(names) > most:
+        raise DecodeError(f"at most {most} {what}s, got {len(names)}")
+    for name in names:
+        check_name(what, name)
+    if len(set(names)) != len(names):
+        raise DecodeError(f"{what}s must be distinct, got {list(names)}")
+
+
 def check_array(what: str, value: np.ndarray, dtype: str, shape: tuple[int | None, ...]) -> None:
     """``value`` has ``dtype`` and ``shape`` (None matches any length on that axis)."""
     if value.dtype != WIRE_DTYPES[dtype]:

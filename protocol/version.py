@@ -87,7 +87,10 @@ PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
         "the trainer can take its rounds through (transports, preferred first) and the Opened "
         "offers at most one (offer: a ChannelOffer tagged with its transport's name, today "
         "shm's ShmOffer). Both sides still fill the 1.6 fields (OpenRequest.shm, Opened.shm), "
-        "so a 1.9 peer negotiates shared memory as before.",
+        "so a 1.9 peer negotiates shared memory as before. An OpenRequest may name the "
+        "observations the trainer reads (observations): the server turns the other sensors "
+        "off, or refuses one that is not on; a 1.9 server ignores the field and sends every "
+        "observation.",
     ),
 )
 # The minor version whose Opened names the offered channel's transport (Opened.offer).

@@ -70,6 +70,7 @@ class ArenaRegistry:
             request.agents_per_arena,
             request.seed,
             request.as_recorded,
+            request.observations,
         )
         for index in range(request.arenas):
             group.claim(request.trainer, index, request.claim, fresh=True)

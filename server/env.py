@@ -16,7 +16,7 @@ metrics (:data:`overtake.protocol.vocabulary.METRIC_FIELDS`).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -32,17 +32,20 @@ def in_process_config(
     overrides: Mapping[str, Any] | None,
     config: SimConfig | None,
     as_recorded: Mapping[str, Any] | None = None,
+    observations: Sequence[str] = (),
 ) -> SimConfig:
     """``config``, or the preset with its overrides (not both); with ``as_recorded`` (a
     record's configuration), the simulator that record was made on
-    (:func:`~.sim.settings_history.as_recorded`)."""
+    (:func:`~.sim.settings_history.as_recorded`); with only the sensors of ``observations``
+    on where it names some (:meth:`~.sim.SimConfig.observing`)."""
     if config is not None:
         if overrides or as_recorded:
             raise ValueError("pass either a config or a preset with overrides, not both")
-        return config
-    if as_recorded is not None:
-        return settings_history.as_recorded(preset, overrides or {}, as_recorded)
-    return make_config(preset, overrides)
+    elif as_recorded is not None:
+        config = settings_history.as_recorded(preset, overrides or {}, as_recorded)
+    else:
+        config = make_config(preset, overrides)
+    return config.observing(tuple(observations))
 
 
 class _InProcess:
@@ -74,8 +77,9 @@ class HighwayEnv(_InProcess, SingleFace):
         config: SimConfig | None = None,
         render_mode: str | None = None,
         as_recorded: Mapping[str, Any] | None = None,
+        observations: Sequence[str] = (),
     ) -> None:
-        self.config = in_process_config(preset, overrides, config, as_recorded)
+        self.config = in_process_config(preset, overrides, config, as_recorded, observations)
         super().__init__(local_simulator(self.config, arenas=1), render_mode)
 
     def planner_action(self) -> int:
@@ -95,8 +99,9 @@ class HighwayVectorEnv(_InProcess, VectorFace):
         config: SimConfig | None = None,
         render_mode: str | None = None,
         as_recorded: Mapping[str, Any] | None = None,
+        observations: Sequence[str] = (),
     ) -> None:
-        self.config = in_process_config(preset, overrides, config, as_recorded)
+        self.config = in_process_config(preset, overrides, config, as_recorded, observations)
         super().__init__(local_simulator(self.config, arenas=num_envs), num_envs, render_mode)
 
     def planner_actions(self) -> np.ndarray:

@@ -95,8 +95,9 @@ class Group:
         agents_per_arena: int,
         seed: int | None,
         as_recorded: str = "",
+        observations: tuple[str, ...] = (),
     ) -> Group:
-        config = resolve_config(preset, overrides, as_recorded)
+        config = resolve_config(preset, overrides, as_recorded, observations)
         return cls.of_config(group_id, server, arena_ids, config, agents_per_arena, seed)
 
     @classmethod

@@ -16,19 +16,25 @@ from .sim import PRESETS, ConfigError, SimConfig, make_config, settings_history
 
 
 def resolve_config(
-    preset: str, overrides: Mapping[str, Scalar], as_recorded: str = ""
+    preset: str,
+    overrides: Mapping[str, Scalar],
+    as_recorded: str = "",
+    observations: tuple[str, ...] = (),
 ) -> SimConfig:
     """The simulator a request asks for: ``preset`` with ``overrides``, or, with
     ``as_recorded`` (a record's configuration as JSON), the one that record was made on
-    (:func:`~.sim.settings_history.as_recorded`)."""
+    (:func:`~.sim.settings_history.as_recorded`); with only the sensors of ``observations``
+    on where it names some (:meth:`~.sim.SimConfig.observing`)."""
     if preset not in PRESETS:
         raise errors.UnknownPreset(
             f"unknown preset {preset!r}: this server has {', '.join(sorted(PRESETS))}"
         )
     try:
         if as_recorded:
-            return settings_history.as_recorded(preset, overrides, _record_config(as_recorded))
-        return make_config(preset, overrides)
+            config = settings_history.as_recorded(preset, overrides, _record_config(as_recorded))
+        else:
+            config = make_config(preset, overrides)
+        return config.observing(observations)
     except ConfigError as error:
         raise errors.BadConfig(str(error)) from None
 

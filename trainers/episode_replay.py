@@ -56,12 +56,15 @@ class ReplayDiverged(RecordError):
 
 
 @dataclass(frozen=True)
-class ReplayConfig(Where):
+class ReplayConfig:
     """Play recorded episodes again, into Rerun (on the simulator --connect names, or in this
     process, which also draws the road)."""
 
     record: Positional[Path]
     """an episode record (<name>.jsonl of overtake-eval --episodes-out)"""
+    where: Where = field(default_factory=Where)
+    """where the simulator runs: in this process (which also draws the road), or on a server
+    (--connect)"""
     episode: tuple[int, ...] = ()
     """the episodes to replay, by their number in the record (default: all)"""
     collisions: bool = False
@@ -272,7 +275,7 @@ def main(config: ReplayConfig) -> dict[str, Any]:
     header, episodes = read_records(config.record)
     chosen = select(episodes, config)
     rrd = config.recording.rrd or Path(f"{config.record.stem}-replay.rrd")
-    where = config.where()
+    where = config.where
 
     def driver_for(envs: VectorFace) -> Driver:
         policy, check = _policy(header, config, envs)

@@ -10,7 +10,7 @@ collisions per 1,000 decisions (the issue's bar compares that one).
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
@@ -21,7 +21,7 @@ from overtake.cli import Command, Output
 from overtake.client.commands import UsageError
 from overtake.client.episodes.records import PolicySource
 from overtake.client.episodes.runner import baseline_policy, metric_summary
-from overtake.client.episodes.scenario import Scenario, parse_overrides
+from overtake.client.episodes.scenario import Scenario, Where, parse_overrides
 from overtake.client.episodes.session import Driver, Episodes, Keeping, drive_episodes
 from overtake.client.policies.shield import Shield, ShieldedActing
 from overtake.envs.faces import VectorFace
@@ -29,7 +29,7 @@ from overtake.protocol.vocabulary import DENSITY_SETTING, WATCH_SETTING
 from overtake.viz.recording import RecordingConfig
 
 from .checkpoint import load_checkpoint
-from .network import INPUT_SENSORS
+from .network import INPUT_SENSORS, observations_read
 from .observations import describe_space, frame_shapes
 from .presets import PRESET_TRAINING
 from .replay_memory import FrameStacker
@@ -45,10 +45,16 @@ TABLE_METRICS = (
 
 
 @dataclass(frozen=True)
-class EvalConfig(Scenario):
+class EvalConfig:
     """Evaluate a trained checkpoint or a baseline driver on fixed seeds. The simulator and
-    where it runs are the scenario's options (--preset: None takes the checkpoint's, else
-    min2018; --max-decisions: None keeps the preset's, or its paper's evaluation's)."""
+    where it runs are the scenario's and where's options (--preset: None takes the
+    checkpoint's, else min2018; --max-decisions: None keeps the preset's, or its paper's
+    evaluation's)."""
+
+    scenario: Scenario = field(default_factory=Scenario)
+    """the simulator: a preset, its traffic, episode length and overrides"""
+    where: Where = field(default_factory=Where)
+    """where the simulator runs: in this process, or on a server (--connect)"""
 
     checkpoint: Path | None = None
     """a checkpoint.pt written by overtake-train (evaluated greedily)"""
@@ -208,7 +214,7 @@ def main(config: EvalConfig) -> dict[str, Any]:
     if config.episodes < 1:
         raise UsageError(f"--episodes must be >= 1, got {config.episodes}")
     checkpoint = load_checkpoint(config.checkpoint) if config.checkpoint is not None else None
-    preset = config.preset_or(checkpoint.preset if checkpoint else None)
+    preset = config.scenario.preset_or(checkpoint.preset if checkpoint else None)
     base: dict[str, Any] = dict(checkpoint.overrides) if checkpoint else {}
     base.pop(DENSITY_SETTING, None)  # evaluation sets its own traffic
     if config.shield is False:
@@ -217,7 +223,7 @@ def main(config: EvalConfig) -> dict[str, Any]:
         base.pop(WATCH_SETTING, None)
     if config.paper_evaluation:
         base.update(parse_overrides(paper_evaluation(preset)))
-    overrides = config.overrides(base)
+    overrides = config.scenario.overrides(base)
     if config.policy == "rule":
         overrides.pop("lidar.enabled", None)  # the rule-based driver reads the LIDAR
 
@@ -246,7 +252,7 @@ def main(config: EvalConfig) -> dict[str, Any]:
         )
 
     driven = drive_episodes(
-        config.where(),
+        config.where,
         preset,
         overrides,
         Episodes.from_seed(config.episodes, config.seed),
@@ -257,6 +263,13 @@ def main(config: EvalConfig) -> dict[str, Any]:
             if config.record is not None
             else None,
             rrd=config.record,
+        ),
+        # Only the sensors the network reads; on another preset than its own, every sensor,
+        # so that the network's check can say what differs (GreedyPolicy).
+        observations=(
+            observations_read(checkpoint.inputs)
+            if checkpoint is not None and checkpoint.preset == preset
+            else ()
         ),
     )
     record_path = (

@@ -39,7 +39,7 @@ from overtake.client.policies.onnx_policy import METADATA_KEY, POLICY_FORMAT
 from overtake.protocol.vocabulary import ACTION_NAMES
 
 from .checkpoint import Checkpoint, load_checkpoint
-from .network import INPUT_SENSORS
+from .network import INPUT_SENSORS, observations_read
 from .observations import frame_shapes
 
 OUTPUT_NAME = "q_values"
@@ -171,7 +171,12 @@ def check_against_torch(
     import onnxruntime as ort
 
     session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
-    envs = Where().open(checkpoint.preset, dict(checkpoint.overrides), config.check_envs)
+    envs = Where().open(
+        checkpoint.preset,
+        dict(checkpoint.overrides),
+        config.check_envs,
+        observations=observations_read(checkpoint.inputs),
+    )
     try:
         space = envs.single_observation_space
         shapes = frame_shapes(space, checkpoint.inputs, f"preset {checkpoint.preset}")

@@ -53,6 +53,12 @@ LATEST_SENSORS: dict[str, tuple[str, ...]] = {
 INPUTS: tuple[str, ...] = tuple(INPUT_SENSORS)
 
 
+def observations_read(inputs: str) -> tuple[str, ...]:
+    """Every observation a network of ``inputs`` reads: what a trainer asks the simulator
+    for (OpenRequest.observations), so that no sensor it ignores is rendered."""
+    return (*LATEST_SENSORS[inputs], *INPUT_SENSORS[inputs])
+
+
 @dataclass(frozen=True)
 class NetworkShape:
     """What the network is built for: the single observation's shapes and the action count."""

@@ -17,7 +17,7 @@ from overtake.client.policies.frames import FrameShapes, describe_space
 __all__ = ["describe_space", "frame_shapes"]
 from overtake.protocol import ACTION_COUNT
 
-from .network import INPUT_SENSORS, LATEST_SENSORS, Inputs
+from .network import Inputs, observations_read
 
 
 def frame_shapes(
@@ -25,13 +25,13 @@ def frame_shapes(
 ) -> FrameShapes:
     """The per-frame observations the learner uses, as the replay stores them; ``where`` names
     the environment in the error for one it does not send."""
-    wanted = {*LATEST_SENSORS[inputs], *INPUT_SENSORS[inputs]}
+    wanted = set(observations_read(inputs))
     missing = wanted - set(space.spaces)
     if missing:
         raise UsageError(
             f"--inputs {inputs} needs the observation(s) {sorted(missing)}, which "
             f"{where} does not send (it sends {sorted(space.spaces)}; check the preset and "
-            "its sensors' *.enabled)"
+            "its sensors' <sensor>.enabled)"
         )
     boxes = {name: _box(space, name) for name in sorted(wanted)}
     return FrameShapes(

@@ -81,7 +81,13 @@ def main(
     own_envs = envs is None
     if own_envs:
         try:
-            envs = config.open(config.preset, overrides, config.num_envs, parts=config.parts)
+            envs = config.where.open(
+                config.preset,
+                overrides,
+                config.num_envs,
+                parts=config.parts,
+                observations=config.observations,
+            )
         except BaseException:
             # A run that could not start (a bad override, no server) leaves no empty folder
             # behind that a later run would have to be told to resume or avoid.

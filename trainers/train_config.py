@@ -15,13 +15,13 @@ import torch
 
 from overtake.cli import Output
 from overtake.client.commands import UsageError
-from overtake.client.episodes.scenario import DEFAULT_PRESET, Scenario
+from overtake.client.episodes.scenario import DEFAULT_PRESET, Scenario, Where
 from overtake.protocol.vocabulary import WATCH_SETTING
 from overtake.viz.recording import RecordingConfig
 
 from .dqn_config import Algo, DQNConfig
 from .learner import Precision
-from .network import Inputs
+from .network import Inputs, observations_read
 from .presets import PRESET_TRAINING
 
 # The ego vector of a camera-only network: the car's own speed, nothing of the other cars.
@@ -34,10 +34,15 @@ TRAINER_RECORD_EVERY = 10
 
 
 @dataclass(frozen=True)
-class TrainConfig(Scenario):
+class TrainConfig:
     """Train a DQN-family learner on an overtake preset (the simulator and where it runs are
-    the scenario's options)."""
+    the scenario's and where's options)."""
 
+    scenario: Scenario = field(default_factory=lambda: Scenario(preset=DEFAULT_PRESET))
+    """the simulator preset (its paper's training is every option's default: --help with
+    --preset shows them), its traffic, episode length and overrides"""
+    where: Where = field(default_factory=Where)
+    """where the simulator runs: in this process, or on a server (--connect)"""
     algo: Algo = "dueling"
     """dqn, ddqn (Double DQN), dueling (Dueling network with the Double DQN target: Min et
     al.'s combination, the default of min2018) or qr (QR-DQN: a quantile head and the quantile
@@ -46,9 +51,6 @@ class TrainConfig(Scenario):
     inputs: Inputs = "both"
     """camera, lidar or both (Min et al.'s multi-modal network), grid (Ho's occupancy grid and
     action stack) or camera-map (Fayjie et al.'s camera and LIDAR map); default the preset's"""
-    preset: str = DEFAULT_PRESET
-    """the simulator preset: its paper's training is every option's default (--help with
-    --preset shows them)"""
     num_envs: int = 1
     """environments (arenas) stepped together"""
     overlap: Literal["auto", "on", "off"] = "auto"
@@ -114,6 +116,11 @@ class TrainConfig(Scenario):
     run directory)"""
 
     @property
+    def preset(self) -> str:
+        """The simulator preset (the scenario's; min2018 where it names none)."""
+        return self.scenario.preset_or(None)
+
+    @property
     def parts(self) -> int:
         """Groups the remote arenas are opened in (1 without overlap or in-process)."""
         return min(self.overlap_parts, self.num_envs) if self.overlapped else 1
@@ -122,7 +129,7 @@ class TrainConfig(Scenario):
     def overlapped(self) -> bool:
         """Whether the loop learns while the server simulates (remote, with overlap; "auto"
         reads PyTorch's threads, so ask after they are set)."""
-        if self.connect is None or self.overlap == "off":
+        if self.where.in_process or self.overlap == "off":
             return False
         return self.overlap == "on" or torch.get_num_threads() < (os.cpu_count() or 1)
 
@@ -131,7 +138,10 @@ class TrainConfig(Scenario):
         """The preset's training defaults (:mod:`.presets`: its paper's algorithm, inputs,
         network and hyper-parameters; Min et al.'s for a preset without its own), or those of
         one of its ``recipe``s, with ``changes`` (fields of TrainConfig) applied."""
-        base = cls(preset=preset, recipe=recipe)
+        scenario = changes.pop("scenario", None) or Scenario()
+        if scenario.preset not in (None, preset):
+            raise ValueError(f"for_preset({preset!r}) was given a scenario of {scenario.preset!r}")
+        base = cls(scenario=dataclasses.replace(scenario, preset=preset), recipe=recipe)
         defaults = PRESET_TRAINING.get(preset)
         recipes = defaults.recipes if defaults is not None else {}
         if recipe is not None and recipe not in recipes:
@@ -147,19 +157,22 @@ class TrainConfig(Scenario):
     def resolved_run_dir(self) -> Path:
         return self.run_dir or Path("runs") / f"{self.algo}-{self.inputs}-{self.seed}"
 
+    @property
+    def observations(self) -> tuple[str, ...]:
+        """The observations the network reads, the only sensors the simulator is asked to
+        render (rendering a camera nobody looks at costs a third of a step); a run before
+        issue 60 switched the others off with ``<sensor>.enabled`` overrides instead."""
+        return observations_read(self.inputs)
+
     def overrides(self, base: Mapping[str, Any] | None = None) -> dict[str, Any]:
-        """Simulator overrides: the user's, the traffic, no sensor the network ignores
-        (rendering a camera nobody looks at costs a third of a step), and for the camera alone
-        an ego vector of the car's own speed only: the warnings and the car ahead's distance and
+        """Simulator overrides: the user's, the traffic, and for the camera alone an ego
+        vector of the car's own speed only: the warnings and the car ahead's distance and
         speed ride with the LIDAR in the authors' code (its vector's elements 360-365), so a
         camera-only network sees other cars only through its camera (Min et al.'s ablation)."""
-        overrides = super().overrides(base)
+        overrides = self.scenario.overrides(base)
         if self.shield_watch:
             overrides.setdefault(WATCH_SETTING, True)
-        if self.inputs == "lidar":
-            overrides.setdefault("camera.enabled", False)
         if self.inputs == "camera":
-            overrides.setdefault("lidar.enabled", False)
             overrides.setdefault("ego_vector.fields", list(CAMERA_ONLY_EGO_FIELDS))
         return overrides
 

@@ -20,6 +20,7 @@ from pathlib import Path
 
 from overtake.client.episodes.drive import DriveConfig
 from overtake.client.episodes.drive import main as drive
+from overtake.client.episodes.scenario import Scenario
 from overtake.server.sim.presets import PRESETS
 
 
@@ -43,10 +44,12 @@ def measure(config: RecordSizeConfig) -> list[dict[str, float | str]]:
                     drive(
                         DriveConfig(
                             policy=policy,  # type: ignore[arg-type]
-                            preset=preset,
+                            scenario=Scenario(
+                                preset=preset,
+                                max_decisions=config.max_decisions,
+                                traffic="heavy",
+                            ),
                             episodes=config.episodes,
-                            max_decisions=config.max_decisions,
-                            traffic="heavy",
                             episodes_out=out,
                         )
                     )

@@ -76,6 +76,7 @@ def run_once(
     ``overlap_parts``: remote arenas overlapped in that many parts (1, overtake-train's
     default: learning during the round trip), or 0 for lock-step; ``precision``:
     overtake-train's --precision."""
+    from overtake.client.episodes.scenario import Where
     from overtake.trainers.learner import DQNConfig
     from overtake.trainers.train import TrainConfig, main
 
@@ -90,8 +91,7 @@ def run_once(
             total_steps=total,
             seed=0,
             run_dir=run_dir,
-            connect=connect,
-            spin_s=config.spin_s,
+            where=Where(connect=() if connect is None else (connect,), spin_s=config.spin_s),
             overlap="on" if overlap_parts > 0 else "off",
             overlap_parts=max(overlap_parts, 1),
             progress=False,

@@ -15,12 +15,13 @@ and ``reset`` starts the next one on whichever server reopened the arena.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from typing import Any
 
 from overtake.client.envs.remote_gym import _OnNetwork, remote_simulator
 from overtake.client.wire.remote_config import RemoteConfig
 from overtake.envs.parallel_face import RETIRE_SINCE_MINOR, ParallelFace
+from overtake.ipc.transport import Endpoints
 from overtake.protocol.messages import Scalar
 
 
@@ -35,7 +36,7 @@ class RemoteHighwayParallelEnv(_OnNetwork, ParallelFace):
     def __init__(
         self,
         agents: int = 2,
-        connect: str | Sequence[str] | None = None,
+        connect: Endpoints | None = None,
         preset: str = "min2018",
         overrides: Mapping[str, Scalar] | None = None,
         remote: RemoteConfig | None = None,

@@ -26,6 +26,7 @@ from overtake.client.wire.remote import ArenaGroup
 from overtake.client.wire.remote_config import RemoteConfig
 from overtake.envs.faces import Simulator, SingleFace, VectorFace
 from overtake.envs.registry import check_render_mode
+from overtake.ipc.transport import Endpoints
 from overtake.protocol import errors
 from overtake.protocol.codec import version_text
 from overtake.protocol.messages import (
@@ -73,7 +74,7 @@ class RemoteNetwork:
 
 
 def remote_simulator(
-    connect: str | Sequence[str] | None,
+    connect: Endpoints | None,
     remote: RemoteConfig | None,
     preset: str,
     overrides: Mapping[str, Scalar] | None,
@@ -82,19 +83,19 @@ def remote_simulator(
     parts: int = 1,
     needs: tuple[tuple[int, str], ...] = (),
     as_recorded: Mapping[str, Any] | None = None,
+    observations: Sequence[str] = (),
 ) -> Simulator:
     """``arenas`` arenas of ``preset`` opened on a server reached through ``connect`` (or
     ``remote``, a RemoteConfig), as ``parts`` groups of consecutive arenas (the first ones one
     larger where they do not divide). ``needs``: (minor version, what for) the server must
     speak beyond :data:`TYPED_SPEC_NEED`; the oldest unmet one refuses it. ``as_recorded``:
     the configuration an episode record was made on, which the server builds again (or
-    refuses, naming what differs)."""
+    refuses, naming what differs). ``observations``: only these sensors on (none named: the
+    configuration's; a 1.9 server ignores the request and sends every one)."""
     if not 1 <= parts <= arenas:
         raise ValueError(f"parts must be between 1 and the {arenas} arena(s), got {parts}")
     if remote is None:
-        remote = RemoteConfig.from_connect(
-            connect if connect is None or isinstance(connect, str) else tuple(connect)
-        )
+        remote = RemoteConfig.from_connect(connect)
     elif connect is not None:
         raise ValueError("pass either connect or remote (a RemoteConfig), not both")
     connection = Connection(remote)
@@ -115,6 +116,7 @@ def remote_simulator(
                         claim=agents_per_arena,
                         seed=None,
                         as_recorded=json.dumps(as_recorded) if as_recorded is not None else "",
+                        observations=tuple(observations),
                     ),
                 )
             )
@@ -195,17 +197,24 @@ class RemoteHighwayEnv(_OnNetwork, SingleFace):
 
     def __init__(
         self,
-        connect: str | Sequence[str] | None = None,
+        connect: Endpoints | None = None,
         preset: str = "min2018",
         overrides: Mapping[str, Scalar] | None = None,
         remote: RemoteConfig | None = None,
         render_mode: str | None = None,
         as_recorded: Mapping[str, Any] | None = None,
+        observations: Sequence[str] = (),
     ) -> None:
         self._open_on_network(
             render_mode,
             lambda: remote_simulator(
-                connect, remote, preset, overrides, arenas=1, as_recorded=as_recorded
+                connect,
+                remote,
+                preset,
+                overrides,
+                arenas=1,
+                as_recorded=as_recorded,
+                observations=observations,
             ),
         )
 
@@ -221,13 +230,14 @@ class RemoteHighwayVectorEnv(_OnNetwork, VectorFace):
     def __init__(
         self,
         num_envs: int = 1,
-        connect: str | Sequence[str] | None = None,
+        connect: Endpoints | None = None,
         preset: str = "min2018",
         overrides: Mapping[str, Scalar] | None = None,
         remote: RemoteConfig | None = None,
         render_mode: str | None = None,
         parts: int = 1,
         as_recorded: Mapping[str, Any] | None = None,
+        observations: Sequence[str] = (),
     ) -> None:
         self._open_on_network(
             render_mode,
@@ -239,6 +249,7 @@ class RemoteHighwayVectorEnv(_OnNetwork, VectorFace):
                 arenas=num_envs,
                 parts=parts,
                 as_recorded=as_recorded,
+                observations=observations,
             ),
             num_envs,
         )

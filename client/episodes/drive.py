@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
@@ -19,7 +19,7 @@ from overtake.cli import Command, Output
 from overtake.client.commands import UsageError
 from overtake.client.episodes.records import PolicySource
 from overtake.client.episodes.runner import baseline_policy, metric_summary, metric_table
-from overtake.client.episodes.scenario import Scenario
+from overtake.client.episodes.scenario import Scenario, Where
 from overtake.client.episodes.session import Driver, Episodes, Keeping, drive_episodes
 from overtake.client.policies.shield import SHIELD_OVERRIDES
 from overtake.envs.faces import VectorFace
@@ -27,10 +27,15 @@ from overtake.protocol.vocabulary import METRIC_FIELDS, WATCH_SETTING
 
 
 @dataclass(frozen=True)
-class DriveConfig(Scenario):
+class DriveConfig:
     """Drive a baseline policy through episodes of a preset and report the metrics. The
-    simulator and where it runs are the scenario's options (--preset: None takes the ONNX
-    model's own with --onnx, else min2018)."""
+    simulator and where it runs are the scenario's and where's options (--preset: None takes
+    the ONNX model's own with --onnx, else min2018)."""
+
+    scenario: Scenario = field(default_factory=Scenario)
+    """the simulator: a preset, its traffic, episode length and overrides"""
+    where: Where = field(default_factory=Where)
+    """where the simulator runs: in this process, or on a server (--connect)"""
 
     policy: Literal["rule", "random", "idle", "planner"] = "rule"
     """which driver acts (unless --onnx is given)"""
@@ -65,18 +70,19 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
     """Drive the episodes; returns {metric: {"mean": .., "std": ..}} and prints the table."""
     if config.episodes < 1:
         raise UsageError(f"--episodes must be >= 1, got {config.episodes}")
-    model_preset, base = None, {}
+    model_preset, base, reads = None, {}, ()
     if config.onnx is not None:
         from overtake.client.policies.onnx_policy import read_metadata
 
         meta = read_metadata(config.onnx)
         model_preset = meta["preset"]
+        reads = tuple(meta.get("input_names", ()))  # the only sensors the model looks at
         shielded = meta.get("shield", False) if config.shield is None else config.shield
         if shielded and meta.get("overrides", {}).get(WATCH_SETTING):
             # Trained with driver assistance watching lane changes through: the shield's
             # second half is the simulator's, and drives with the model.
             base[WATCH_SETTING] = True
-    preset = config.preset_or(model_preset)
+    preset = config.scenario.preset_or(model_preset)
     name = _policy_name(config)
 
     def driver_for(envs: VectorFace) -> Driver:
@@ -99,13 +105,14 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
         return Driver(model, source, name)
 
     driven = drive_episodes(
-        config.where(),
+        config.where,
         preset,
-        config.overrides(base),
+        config.scenario.overrides(base),
         Episodes.from_seed(config.episodes, config.seed),
         driver_for,
         Keeping(records=config.episodes_out is not None),
         realtime=config.realtime,
+        observations=reads if preset == model_preset else (),  # else the model says what differs
     )
     if config.episodes_out is not None:
         driven.write_records(config.episodes_out)
@@ -178,7 +185,7 @@ def _print_table(
     )
     widths = [max(9, len(h)) for h in headers]
     line = "  ".join(h.rjust(w) for h, w in zip(headers, widths))
-    where = config.describe()
+    where = config.where.describe()
     print(
         f"policy={_policy_name(config)} preset={preset} episodes={config.episodes} "
         f"seed={config.seed} ({where})"

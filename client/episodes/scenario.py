@@ -1,20 +1,20 @@
 """Which simulator a command runs, and where: typed once, for every command.
 
 :class:`Where` is where the simulator is (this process, or a server reached over Zenoh with
-its credentials and a transport for its Steps); :class:`Scenario` adds which simulator: a
+its credentials and a transport for its Steps); :class:`Scenario` is which simulator: a
 preset, its traffic (a :data:`~overtake.protocol.vocabulary.Density` word), its episode length
-and any other overrides. ``overtake-drive``, ``-eval`` and ``-train`` take a Scenario (their
-configurations are one, with the options of their own); ``overtake-replay`` (whose scenario is
-the record's) and ``overtake-experiment`` (whose scenario is its paper's) take a Where. The
-fields are keyword-only, so that a command's own fields may come in any order; on the command
-line (tyro, ``OmitArgPrefixes``) they are the same flags in every command.
+and any other overrides. A command's configuration holds them as fields (``where``,
+``scenario``) beside its own options: ``overtake-drive``, ``-eval`` and ``-train`` hold both;
+``overtake-replay`` (whose scenario is the record's), ``overtake-experiment`` (whose scenario
+is its paper's), ``overtake-spectate``, ``overtake-status`` and ``overtake-unity-bridge`` hold
+a Where. On the command line (tyro, ``OmitArgPrefixes``) their fields are the same flags in
+every command (``--connect``, ``--preset``, ...).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import json
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -54,9 +54,9 @@ _REMOTE = RemoteConfig()
 class Where:
     """Where the simulator is: in this process, or on a server reached over Zenoh."""
 
-    connect: str | None = None
-    """a simulator server's (or router's) Zenoh endpoint, e.g. tcp/127.0.0.1:7447; None runs
-    the simulator in this process"""
+    connect: tuple[str, ...] = ()
+    """simulator servers' (or a router's) Zenoh endpoints, e.g. tcp/127.0.0.1:7447 (one or
+    more: the first reachable is used); none runs the simulator in this process"""
     security: SecurityConfig = field(default_factory=SecurityConfig)
     """usrpwd credentials and TLS certificates for --connect"""
     transport: Transport = "auto"
@@ -84,13 +84,18 @@ class Where:
     """with --connect: a readable prefix for this process's id in server logs and status
     (default: the usrpwd user, else "trainer")"""
 
+    @property
+    def in_process(self) -> bool:
+        """Whether the simulator runs in this process (no --connect)."""
+        return not self.connect
+
     def remote(self) -> RemoteConfig:
         """How this process reaches the server --connect names: every setting of
         :class:`RemoteConfig`, from this configuration's fields."""
-        if self.connect is None:
+        if self.in_process:
             raise UsageError("no --connect: the simulator runs in this process")
         return RemoteConfig(
-            connect=(self.connect,),
+            connect=self.connect,
             server=self.server,
             connect_timeout_s=self.connect_timeout_s,
             request_timeout_s=self.request_timeout_s,
@@ -103,17 +108,8 @@ class Where:
             spin_s=self.spin_s,
         )
 
-    def where(self) -> Where:
-        """Only where the simulator is (a command's configuration is also one)."""
-        return Where(**self.where_fields())
-
-    def where_fields(self) -> dict[str, Any]:
-        """Where the simulator is, as the fields of a configuration that is also a Where (to
-        carry it into another command's: ``dataclasses.replace(other, **where_fields())``)."""
-        return {f.name: getattr(self, f.name) for f in dataclasses.fields(Where)}
-
     def describe(self) -> str:
-        return "in-process" if self.connect is None else f"on {self.connect}"
+        return "in-process" if self.in_process else f"on {', '.join(self.connect)}"
 
     def open(
         self,
@@ -122,15 +118,18 @@ class Where:
         num_envs: int,
         parts: int = 1,
         as_recorded: Mapping[str, Any] | None = None,
+        observations: Sequence[str] = (),
     ) -> VectorFace:
         """``num_envs`` arenas of ``preset`` with ``overrides`` as one vector environment:
         in this process, or on the server, there in ``parts`` groups (see
         ``RemoteHighwayVectorEnv``). ``as_recorded``: the configuration an episode record was
         made on; the simulator (here or the server's) builds that one again from its own
-        settings' history, or refuses with BadConfig, naming what differs."""
+        settings' history, or refuses with BadConfig, naming what differs. ``observations``:
+        only these sensors on (a trainer's network reads no others; none named: the
+        configuration's)."""
         recorded = None if as_recorded is None else dict(as_recorded)
         register_environments()
-        if self.connect is None:
+        if self.in_process:
             envs = gym.make_vec(
                 HIGHWAY_ENV_ID,
                 num_envs=num_envs,
@@ -138,6 +137,7 @@ class Where:
                 preset=preset,
                 overrides=dict(overrides),
                 as_recorded=recorded,
+                observations=tuple(observations),
             )
         else:
             remote = self.remote()
@@ -150,6 +150,7 @@ class Where:
                 remote=remote,
                 parts=parts,
                 as_recorded=recorded,
+                observations=tuple(observations),
             )
         # Gymnasium builds the registered entry point itself, no wrapper around it.
         assert isinstance(envs, VectorFace)
@@ -157,9 +158,8 @@ class Where:
 
 
 @dataclass(frozen=True, kw_only=True)
-class Scenario(Where):
-    """Which simulator, and where: a preset, its traffic, its episode length and other
-    overrides."""
+class Scenario:
+    """Which simulator: a preset, its traffic, its episode length and other overrides."""
 
     preset: str | None = None
     """the simulator preset; None: the command's own default (a checkpoint's or model's
@@ -172,10 +172,6 @@ class Scenario(Where):
     set: tuple[str, ...] = ()
     """more simulator overrides as dotted.name=value (the value read as JSON, else as a
     string)"""
-
-    def scenario(self) -> Scenario:
-        """Only the scenario (a command's configuration is also one)."""
-        return Scenario(**{f.name: getattr(self, f.name) for f in dataclasses.fields(Scenario)})
 
     def preset_or(self, default: str | None) -> str:
         """The preset: this scenario's, else ``default``, else min2018."""

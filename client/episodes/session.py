@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import threading
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -122,12 +122,17 @@ def drive_episodes(
     keeping: Keeping = Keeping(),
     realtime: bool = False,
     open_envs: Callable[[], VectorFace] | None = None,
+    observations: Sequence[str] = (),
 ) -> Driven:
     """Drive ``episodes`` of ``preset`` with ``overrides``, ``where`` says (or in what
     ``open_envs`` opens instead: a replay's simulator), by the driver ``driver_for`` chooses
     for the environment.
-    ``realtime``: on the wall clock, one decision period per decision (:class:`RealTime`)."""
-    envs = open_envs() if open_envs is not None else where.open(preset, overrides, episodes.count)
+    ``realtime``: on the wall clock, one decision period per decision (:class:`RealTime`).
+    ``observations``: only the sensors the driver reads (none named: the configuration's)."""
+    if open_envs is None:
+        envs = where.open(preset, overrides, episodes.count, observations=observations)
+    else:
+        envs = open_envs()
     recording = None
     rrd = keeping.rrd or Path("episodes.rrd")
     try:

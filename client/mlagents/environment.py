@@ -51,6 +51,7 @@ from overtake.client.wire.connection import Connection
 from overtake.client.wire.remote import ArenaGroup
 from overtake.client.wire.remote_config import RemoteConfig
 from overtake.envs.registry import arena_seeds
+from overtake.ipc.transport import Endpoints
 from overtake.protocol.messages import (
     JoinRequest,
     OpenRequest,
@@ -97,7 +98,7 @@ class RemoteEnvironment:
 
     def __init__(
         self,
-        connect: str | tuple[str, ...] | None = None,
+        connect: Endpoints | None = None,
         *,
         preset: str = "min2018",
         overrides: Mapping[str, Scalar] | None = None,

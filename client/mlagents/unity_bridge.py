@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 
 from overtake.cli import Command
-from overtake.client.episodes.scenario import parse_overrides
+from overtake.client.episodes.scenario import DEFAULT_PRESET, Scenario, Where
 from overtake.client.mlagents.environment import RemoteEnvironment
 from overtake.client.mlagents.wire import (
     COMMAND_QUIT,
@@ -73,8 +73,6 @@ from overtake.client.mlagents.wire import (
     side_channel_messages,
 )
 from overtake.client.mlagents.wrappers import SUPPORTED_MLAGENTS_ENVS
-from overtake.client.wire.remote_config import RemoteConfig
-from overtake.ipc.transport import SecurityConfig
 from overtake.protocol import ProtocolError
 from overtake.protocol.messages import Scalar
 
@@ -104,28 +102,30 @@ log = logging.getLogger("overtake.unity_bridge")
 class BridgeConfig:
     """Play the Unity side for ML-Agents' Python tools, with arenas on an overtake server."""
 
-    connect: str
-    """the overtake server's (or router's) Zenoh endpoint, e.g. tcp/SIM:7447"""
+    where: Where = field(default_factory=Where)
+    """the overtake server (--connect: its or a router's Zenoh endpoint, e.g. tcp/SIM:7447;
+    required) and every remote setting"""
+    scenario: Scenario = field(default_factory=lambda: Scenario(preset=DEFAULT_PRESET))
+    """the simulator of the arenas opened: a preset (overtake-server --help lists them), its
+    traffic, episode length and overrides"""
     port: int = 5004
     """the ML-Agents process's gRPC port (5004: UnityEnvironment(file_name=None) and
     mlagents-learn without --env; base_port + worker_id otherwise)"""
     host: str = "localhost"
     """where the ML-Agents process runs"""
-    preset: str = "min2018"
-    """the simulator preset of the arenas opened (overtake-server --help lists them)"""
     arenas: int = 1
     """arenas opened (ML-Agents' num_areas above 1 replaces it)"""
     agents_per_arena: int = 1
     """learning cars per arena (ML-Agents sees each as an agent of the one behaviour)"""
-    set: tuple[str, ...] = ()
-    """simulator overrides as dotted.name=value"""
-    security: SecurityConfig = field(default_factory=SecurityConfig)
-    """usrpwd credentials and TLS certificates for --connect"""
     behavior_name: str | None = None
     """the behaviour's name on the ML-Agents side (sent as NAME?team=0, as Unity names
     behaviours; mlagents-learn's configuration keys on NAME); default the preset's name"""
     dial_timeout_s: float = 60.0
     """how long to wait for the ML-Agents process to listen"""
+
+    @property
+    def preset(self) -> str:
+        return self.scenario.preset_or(None)
 
     def brain_name(self) -> str:
         return f"{self.behavior_name or self.preset}?team=0"
@@ -160,9 +160,9 @@ class Bridge:
     def open(self, arenas: int) -> RemoteEnvironment:
         if self.env is not None:
             self.env.close()
-        remote = RemoteConfig(connect=(self.config.connect,), security=self.config.security)
+        remote = self.config.where.remote()
         overrides: dict[str, Scalar] = {
-            **parse_overrides(self.config.set),  # type: ignore[dict-item]
+            **self.config.scenario.overrides(),
             **self.parameters,
         }
         self.env = RemoteEnvironment(
@@ -362,6 +362,11 @@ def main(config: BridgeConfig) -> dict[str, Any]:
     """Serve one ML-Agents process until it closes; returns what happened. What stops the
     bridge (a version it does not speak, an action it cannot apply, an override the server
     refuses, SIGTERM) is told to the ML-Agents process too, which then raises on its side."""
+    if config.where.in_process:
+        raise BridgeError(
+            "--connect is required: the overtake server's (or a router's) Zenoh endpoint, "
+            "e.g. tcp/SIM:7447"
+        )
     try:
         bridge = Bridge(config)
     except ImportError as error:  # MLAgentsMissing (says how to install), or grpc missing

@@ -8,9 +8,11 @@ from dataclasses import dataclass, field
 from overtake.client.wire.steps_channel import Transport
 from overtake.ipc.transport import (
     DEFAULT_ENDPOINT,
+    Endpoints,
     SecurityConfig,
     TransportConfig,
     connect_failure_cause,
+    endpoint_tuple,
 )
 
 
@@ -48,11 +50,9 @@ class RemoteConfig:
     the next one slower on a virtual machine (overtake.ipc.doorbell). 0: always sleep."""
 
     @classmethod
-    def from_connect(cls, connect: str | tuple[str, ...] | list[str] | None) -> RemoteConfig:
+    def from_connect(cls, connect: Endpoints | None) -> RemoteConfig:
         """Defaults, with ``connect`` (one endpoint or several; None: the default)."""
-        if connect is None:
-            return cls()
-        return cls(connect=(connect,) if isinstance(connect, str) else tuple(connect))
+        return cls() if connect is None else cls(connect=endpoint_tuple(connect))
 
     def transport(self) -> TransportConfig:
         return TransportConfig(

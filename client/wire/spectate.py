@@ -18,7 +18,7 @@ from overtake.cli import Command, Output
 from overtake.client.commands import UsageError
 from overtake.client.wire.remote_config import RemoteConfig
 from overtake.client.wire.world_feed import Spectator
-from overtake.ipc.transport import SecurityConfig
+from overtake.ipc.transport import DEFAULT_ENDPOINT, SecurityConfig
 from overtake.viz.recording import APPLICATION_ID, RecordingConfig, close_recording, open_recording
 from overtake.viz.world_view import WorldRecording
 
@@ -29,8 +29,8 @@ DEFAULT_RRD = Path("runs/spectate/world.rrd")
 class SpectateConfig:
     """Log what a simulator server's arenas look like to Rerun."""
 
-    connect: str = "tcp/127.0.0.1:7447"
-    """the server's (or a router's) Zenoh endpoint"""
+    connect: tuple[str, ...] = (DEFAULT_ENDPOINT,)
+    """the server's (or a router's) Zenoh endpoints"""
     security: SecurityConfig = field(default_factory=SecurityConfig)
     """usrpwd credentials and TLS certificates for --connect"""
     server: str | None = None
@@ -62,7 +62,7 @@ def main(config: SpectateConfig, stop: threading.Event | None = None) -> int:
             f"{rrd} exists (an earlier recording): give --rrd NEW.rrd, or --overwrite to replace it"
         )
     stop = stop or threading.Event()
-    remote = RemoteConfig(connect=(config.connect,), security=config.security)
+    remote = RemoteConfig(connect=config.connect, security=config.security)
     with Spectator(remote, server=config.server, arena=config.arena) as spectator:
         # The layout follows the arenas as they appear (WorldRecording sends it).
         # No footer: a spectator may record for days (see overtake.viz.recording on footers).

@@ -83,6 +83,29 @@ class SimConfig:
             if isinstance(value := getattr(self, f.name), SensorConfig)
         }
 
+    def observing(self, observations: tuple[str, ...]) -> SimConfig:
+        """This configuration with only the sensors of ``observations`` on, the others off (a
+        trainer's request, protocol 1.10: a sensor nobody reads costs its rendering; the
+        camera is a third of a step); none named: as it is. A name whose sensor is not on is a
+        :class:`ConfigError` naming those that are."""
+        if not observations:
+            return self
+        sections = self.sensor_sections()
+        on = {s.OBSERVATION: name for name, s in sections.items() if s.enabled}
+        missing = [o for o in observations if o not in on]
+        if missing:
+            raise ConfigError(
+                f"observations {missing} are not observed by preset {self.preset} with these "
+                f"settings (it observes {', '.join(on)}; a sensor is switched on with "
+                "<sensor>.enabled=true)"
+            )
+        off = {
+            name: dataclasses.replace(sections[name], enabled=False)  # type: ignore[type-var]
+            for observation, name in on.items()
+            if observation not in observations
+        }
+        return dataclasses.replace(self, **off)  # type: ignore[arg-type]
+
 
 # --- overrides -------------------------------------------------------------------------------
 

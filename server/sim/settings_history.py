@@ -245,6 +245,24 @@ def config_differences(recorded: Any, now: Any, prefix: str = "") -> list[str]:
 SHOWN_DIFFERENCES = 8
 
 
+def _sensors_as_recorded(config: SimConfig, recorded: Mapping[str, Any]) -> SimConfig:
+    """``config`` with the sensors off that are off in ``recorded``: a trainer asks for the
+    observations it reads (protocol 1.10, :meth:`SimConfig.observing`), so a record's sensors
+    may be off that no override names. A sensor on in the record and off here stays a
+    difference."""
+    on = [
+        section.OBSERVATION
+        for name, section in config.sensor_sections().items()
+        if section.enabled and _recorded_on(recorded.get(name))
+    ]
+    return config.observing(tuple(on)) if on else config
+
+
+def _recorded_on(section: Any) -> bool:
+    # A section the record lacks (a sensor added since) is as the preset has it.
+    return not isinstance(section, dict) or section.get("enabled", True) is not False
+
+
 def as_recorded(
     preset: str, overrides: Mapping[str, PlainValue], recorded: Mapping[str, Any]
 ) -> SimConfig:
@@ -255,7 +273,9 @@ def as_recorded(
     record, naming the differences."""
     now = make_config(preset, overrides)
     undo = undo_overrides(recorded, as_json(now))
-    config = make_config(preset, {**overrides, **undo}) if undo else now
+    config = _sensors_as_recorded(
+        make_config(preset, {**overrides, **undo}) if undo else now, recorded
+    )
     differences = sorted(
         unexplained_differences(recorded, as_json(config)),
         key=lambda text: not text.startswith("preset:"),  # the preset's name first

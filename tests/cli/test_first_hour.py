@@ -89,7 +89,7 @@ def test_spectate_refuses_to_overwrite_the_last_recording(tmp_path: Path):
     earlier = tmp_path / "world.rrd"
     earlier.write_bytes(b"an earlier recording")
     config = SpectateConfig(
-        connect="tcp/127.0.0.1:9", recording=RecordingConfig(rrd=earlier), seconds=0.1
+        connect=("tcp/127.0.0.1:9",), recording=RecordingConfig(rrd=earlier), seconds=0.1
     )
     with pytest.raises(UsageError, match=r"world\.rrd exists .*--overwrite to replace it"):
         spectate_main(config)

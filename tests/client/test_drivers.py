@@ -15,7 +15,7 @@ from overtake.client import HIGHWAY_ENV_ID, RandomDriver, RuleDriver, RuleDriver
 from overtake.client.commands import UsageError
 from overtake.client.episodes.drive import COMMAND as drive_command
 from overtake.client.episodes.drive import DriveConfig, main
-from overtake.client.episodes.scenario import parse_overrides
+from overtake.client.episodes.scenario import Scenario, parse_overrides
 from overtake.protocol.vocabulary import (
     ACTION_COUNT,
     CRUISE_UP,
@@ -283,11 +283,11 @@ def test_drive_cli_writes_the_summary(policy, tmp_path, capsys):
         DriveConfig(
             policy=policy,
             episodes=2,
-            max_decisions=12,
-            traffic="light",
             seed=3,
-            set=("camera.width_px=16", "camera.height_px=16"),
             json_out=out,
+            scenario=Scenario(
+                max_decisions=12, traffic="light", set=("camera.width_px=16", "camera.height_px=16")
+            ),
         )
     )
     data = json.loads(out.read_text())

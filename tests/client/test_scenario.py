@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import re
+import typing
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,7 @@ from overtake.client.episodes.drive import main as drive
 from overtake.client.episodes.records import read_records
 from overtake.client.episodes.scenario import Scenario, Where
 from overtake.client.episodes.session import Driver, Episodes, Keeping, drive_episodes
+from overtake.client.mlagents.unity_bridge import BridgeConfig
 from overtake.protocol.vocabulary import DENSITIES
 from overtake.trainers.episode_replay import ReplayConfig
 from overtake.trainers.evaluate import EvalConfig
@@ -35,18 +37,22 @@ WHERE_FIELDS = {f.name for f in dataclasses.fields(Where)}
         (DriveConfig, Scenario),
         (EvalConfig, Scenario),
         (TrainConfig, Scenario),
+        (BridgeConfig, Scenario),
         (ReplayConfig, Where),
         (ExperimentConfig, Where),
     ],
 )
 def test_every_command_takes_the_one_scenario(command, kind):
-    """Each command's configuration is a Scenario (or, where the record or the paper says
-    which simulator, a Where), and declares none of its fields again (training's preset
-    alone: a str there, its paper's training the default of every option)."""
-    assert issubclass(command, kind)
-    own = set(vars(command).get("__annotations__", {}))
-    again = own & (SCENARIO_FIELDS if kind is Scenario else WHERE_FIELDS)
-    assert again == ({"preset"} if command is TrainConfig else set())
+    """Each command's configuration holds a Scenario and a Where (or, where the record or the
+    paper says which simulator, a Where only) as fields, and declares none of their fields
+    again: the same flags in every command, typed once."""
+    hints = typing.get_type_hints(command)
+    assert hints["where"] is Where
+    assert ("scenario" in hints) == (kind is Scenario)
+    own = set(hints) - {"scenario", "where"}
+    # (An experiment's --set is its own: overrides of its paper's scenario, for every run.)
+    again = own & (SCENARIO_FIELDS | WHERE_FIELDS if kind is Scenario else WHERE_FIELDS)
+    assert not again, again
 
 
 def test_a_scenario_names_its_overrides_after_the_base_and_set():
@@ -68,11 +74,25 @@ def test_a_scenario_names_its_overrides_after_the_base_and_set():
 
 
 def test_a_command_s_scenario_and_where_are_its_own_fields():
-    config = EvalConfig(policy="idle", preset="ho2018", traffic="light", connect="tcp/h:1")
-    assert config.scenario() == Scenario(preset="ho2018", traffic="light", connect="tcp/h:1")
-    assert config.where() == Where(connect="tcp/h:1")
-    moved = dataclasses.replace(TrainConfig(), **config.where_fields())
-    assert moved.connect == "tcp/h:1" and moved.preset == "min2018"
+    config = EvalConfig(
+        policy="idle",
+        scenario=Scenario(preset="ho2018", traffic="light"),
+        where=Where(connect=("tcp/h:1",)),
+    )
+    assert config.scenario.preset_or(None) == "ho2018" and not config.where.in_process
+    # Where is carried into another command's configuration whole, the scenario stays its own.
+    moved = dataclasses.replace(TrainConfig(), where=config.where)
+    assert moved.where.connect == ("tcp/h:1",) and moved.preset == "min2018"
+    # Every command spells these options the same: the same flags, from the same two types.
+    for command in (TrainConfig, EvalConfig, DriveConfig):
+        hints = typing.get_type_hints(command)
+        assert hints["scenario"] is Scenario and hints["where"] is Where, command
+    for command in (ReplayConfig, ExperimentConfig, BridgeConfig):
+        assert typing.get_type_hints(command)["where"] is Where, command
+    assert not any(
+        issubclass(command, (Scenario, Where))
+        for command in (TrainConfig, EvalConfig, DriveConfig, ReplayConfig, ExperimentConfig)
+    )
 
 
 def test_the_densities_are_spelled_once():
@@ -144,10 +164,8 @@ def test_drive_takes_its_scenario_from_the_command_line_flags(tmp_path):
         DriveConfig(
             policy="idle",
             episodes=2,
-            preset="ho2018",
-            traffic="light",
-            max_decisions=5,
             json_out=out,
+            scenario=Scenario(preset="ho2018", traffic="light", max_decisions=5),
         )
     )
     result = json.loads(out.read_text())
@@ -169,7 +187,7 @@ def test_where_carries_every_remote_setting_into_the_connection():
     missing = {renamed.get(name, name) for name in remote_fields} - where_fields
     assert not missing, f"RemoteConfig settings no command can set: {sorted(missing)}"
     asked = Where(
-        connect="tcp/10.0.0.7:7447",
+        connect=("tcp/10.0.0.7:7447",),
         server="sim-2",
         connect_timeout_s=1.5,
         request_timeout_s=2.5,
@@ -185,5 +203,5 @@ def test_where_carries_every_remote_setting_into_the_connection():
     for name in remote_fields - {"connect"}:
         assert getattr(remote, name) == getattr(asked, renamed.get(name, name)), name
     # The defaults are RemoteConfig's own.
-    default = Where(connect="tcp/10.0.0.7:7447").remote()
+    default = Where(connect=("tcp/10.0.0.7:7447",)).remote()
     assert dataclasses.replace(default, connect=RemoteConfig().connect) == RemoteConfig()

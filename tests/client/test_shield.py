@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from overtake.client.commands import UsageError
+from overtake.client.episodes.scenario import Scenario, Where
 from overtake.client.policies.shield import Shield, overridden
 from overtake.protocol.vocabulary import CRUISE_DOWN, CRUISE_UP, KEEP, LANE_LEFT, LANE_RIGHT
 from overtake.server.env import HighwayEnv
@@ -114,10 +115,10 @@ def test_training_behind_the_shield_counts_its_overrides_and_evaluation_keeps_it
             run_dir=run_dir,
             progress=False,
             log_every=100,
-            set=("episode.max_decisions=60",),
             dqn=DQNConfig(
                 learning_starts=60, replay_size=2000, target_update_steps=100, lstm_cells=16
             ),
+            scenario=Scenario(set=("episode.max_decisions=60",)),
         )
     )
     assert summary["shield_overrides"] > 0
@@ -125,17 +126,22 @@ def test_training_behind_the_shield_counts_its_overrides_and_evaluation_keeps_it
     logged = [line["shield_overrides"] for line in lines if line["kind"] == "train"]
     assert sum(logged) == summary["shield_overrides"]
     checkpoint = run_dir / CHECKPOINT_NAME
-    shielded = evaluate(EvalConfig(checkpoint=checkpoint, episodes=2, max_decisions=40))
+    shielded = evaluate(
+        EvalConfig(checkpoint=checkpoint, episodes=2, scenario=Scenario(max_decisions=40))
+    )
     assert all("shield_overrides" in row for row in shielded["episodes"])
     assert "shield_overrides" in shielded["summary"]
-    bare = evaluate(EvalConfig(checkpoint=checkpoint, episodes=2, max_decisions=40, shield=False))
+    bare = evaluate(
+        EvalConfig(
+            checkpoint=checkpoint, episodes=2, shield=False, scenario=Scenario(max_decisions=40)
+        )
+    )
     assert "shield_overrides" not in bare["summary"]
     # Exported, the model says it was trained behind the shield, and the ONNX driver puts it
     # in front of the model as evaluation does: the same decisions, the same overrides.
     from overtake.client.episodes.drive import DriveConfig
     from overtake.client.episodes.drive import main as drive
     from overtake.client.episodes.runner import run_episodes
-    from overtake.client.episodes.scenario import Where
     from overtake.client.policies.onnx_policy import OnnxPolicy, read_metadata
     from overtake.trainers.export import ExportConfig
     from overtake.trainers.export import main as export
@@ -150,7 +156,9 @@ def test_training_behind_the_shield_counts_its_overrides_and_evaluation_keeps_it
     envs.close()
     by_eval = {row["shield_overrides"] for row in shielded["episodes"]}
     assert {row["shield_overrides"] for row in rows} == by_eval
-    driven = drive(DriveConfig(onnx=onnx, episodes=2, max_decisions=40, seed=1000))
+    driven = drive(
+        DriveConfig(onnx=onnx, episodes=2, seed=1000, scenario=Scenario(max_decisions=40))
+    )
     assert "shield_overrides" in driven
 
 

@@ -38,7 +38,7 @@ def test_spectate_logs_the_arena_and_the_lidar_the_trainer_received(start_server
         target=lambda: logged.append(
             spectate(
                 SpectateConfig(
-                    connect=server.endpoint,
+                    connect=(server.endpoint,),
                     server=server.name,
                     frames=8,
                     seconds=60,

@@ -97,6 +97,15 @@ def float_parameter(key: str, value: float) -> bytes:
     return struct.pack("<i", len(encoded)) + encoded + struct.pack("<if", 0, value)
 
 
+def test_the_bridge_refuses_to_start_without_a_server_to_open_arenas_on():
+    """Its Where may name no endpoint (it is every command's); the bridge needs one, and says
+    so before it dials ML-Agents."""
+    from overtake.client.mlagents.unity_bridge import BridgeConfig, main
+
+    with pytest.raises(BridgeError, match="--connect is required"):
+        main(BridgeConfig())
+
+
 def test_side_channel_frames_and_environment_parameters_are_read():
     other = uuid.UUID("e951342c-4f7e-11ea-b238-784f4387d1f7")
     data = frame(other, b"\x01\x02") + frame(

@@ -210,4 +210,4 @@ def test_trainer_in_another_network_namespace_reaches_the_router(
     summary = check_trained(done, run_dir)
     assert summary["steps"] >= 200
     record = json.loads((run_dir / "run.json").read_text())
-    assert record["config"]["connect"] == veth_ep
+    assert record["config"]["where"]["connect"] == [veth_ep]

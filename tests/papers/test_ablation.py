@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from overtake.client.episodes.scenario import Scenario
 from overtake.trainers.network import INPUT_SENSORS, LATEST_SENSORS
 from overtake.trainers.train import TrainConfig
 
@@ -20,7 +21,7 @@ AWAY = (Car(dx=-90.0, lane=2, speed_kmh=40.0), Car(dx=-95.0, lane=3, speed_kmh=6
 
 def observed(inputs: str, cars: tuple[Car, ...]) -> dict[str, np.ndarray]:
     """What a network of ``inputs`` reads, with the traffic ``cars``."""
-    overrides = TrainConfig(preset="min2018", inputs=inputs).overrides()
+    overrides = TrainConfig(inputs=inputs, scenario=Scenario(preset="min2018")).overrides()
     obs = scripted_sim(cars, ego_lane=2, overrides=overrides).observe()
     return {k: obs[k][0, 0] for k in (*INPUT_SENSORS[inputs], *LATEST_SENSORS[inputs])}
 
@@ -40,7 +41,7 @@ OTHER_CARS = (
 def test_other_cars_reach_a_row_only_through_its_own_sensors(inputs):
     crowded, away = observed(inputs, CROWDED), observed(inputs, AWAY)
     sensors = INPUT_SENSORS[inputs]
-    overrides = TrainConfig(preset="min2018", inputs=inputs).overrides()
+    overrides = TrainConfig(inputs=inputs, scenario=Scenario(preset="min2018")).overrides()
     fields = scripted_sim((), overrides=overrides).config.ego_vector.fields
     # The row's own sensors see the cars move ...
     assert all(not np.array_equal(crowded[k], away[k]) for k in sensors)
@@ -71,7 +72,10 @@ def test_the_warnings_ride_with_the_lidar():
 
 
 def scene(inputs: str, cars: tuple[Car, ...], **extra):
-    overrides = {**TrainConfig(preset="min2018", inputs=inputs).overrides(), **extra}
+    overrides = {
+        **TrainConfig(inputs=inputs, scenario=Scenario(preset="min2018")).overrides(),
+        **extra,
+    }
     return scripted_sim(cars, ego_lane=2, overrides=overrides)
 
 

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import overtake.client  # noqa: F401  (registers the environments)
+from overtake.client.episodes.scenario import Scenario, Where
 from overtake.envs import HIGHWAY_ENV_ID
 from overtake.protocol.vocabulary import CRUISE_DOWN, CRUISE_UP, KEEP, LANE_LEFT, LANE_RIGHT
 from overtake.server.sim import HighwaySim, make_config
@@ -136,7 +137,9 @@ def test_training_on_the_preset_uses_table_i_and_its_checkpoint_evaluates(tmp_pa
     assert (dqn.network, dqn.learning_rate, dqn.gamma) == ("two-stream", 0.001, 0.99)
     assert (dqn.replay_size, dqn.batch_size, dqn.target_update_steps) == (15_000, 32, 6_000)
     result = evaluate(
-        EvalConfig(checkpoint=run_dir / CHECKPOINT_NAME, episodes=2, max_decisions=10)
+        EvalConfig(
+            checkpoint=run_dir / CHECKPOINT_NAME, episodes=2, scenario=Scenario(max_decisions=10)
+        )
     )
     assert result["preset"] == "fayjie2018" and result["summary"]["episodes"] == 2
 
@@ -237,7 +240,6 @@ def test_the_map_rule_driver_keeps_its_distance_and_changes_to_a_freer_lane(cars
 
 def test_the_rule_driver_drives_fayjie2018_from_its_map():
     from overtake.client.episodes.runner import baseline_policy, run_episodes
-    from overtake.client.episodes.scenario import Where
 
     envs = Where().open("fayjie2018", {"traffic.density": "light"}, 2)
     act = baseline_policy("rule", envs.behaviour_spec, 0, 2, envs)

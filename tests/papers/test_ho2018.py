@@ -11,7 +11,7 @@ import pytest
 import overtake.client  # noqa: F401  (registers the environments)
 from overtake.client.commands import UsageError
 from overtake.client.episodes.runner import baseline_policy, run_episodes
-from overtake.client.episodes.scenario import Where
+from overtake.client.episodes.scenario import Scenario, Where
 from overtake.client.policies.drivers import GridRuleDriver
 from overtake.envs import HIGHWAY_ENV_ID
 from overtake.protocol.vocabulary import CRUISE_DOWN, CRUISE_UP, KEEP, LANE_LEFT, LANE_RIGHT
@@ -553,9 +553,16 @@ def test_evaluation_decides_every_frame_as_his_code_does():
 
     # An empty road: idle driving covers the same distance in the same time either way.
     empty = ("traffic.vehicle_count=0",)
-    every_frame = evaluate(EvalConfig(preset="ho2018", policy="idle", episodes=1, set=empty))
+    every_frame = evaluate(
+        EvalConfig(policy="idle", episodes=1, scenario=Scenario(preset="ho2018", set=empty))
+    )
     as_trained = evaluate(
-        EvalConfig(preset="ho2018", policy="idle", episodes=1, set=empty, paper_evaluation=False)
+        EvalConfig(
+            policy="idle",
+            episodes=1,
+            paper_evaluation=False,
+            scenario=Scenario(preset="ho2018", set=empty),
+        )
     )
     assert every_frame["overrides"]["episode.frames_per_decision"] == 1
     assert [row["decisions"] for row in every_frame["episodes"]] == [4000]

@@ -10,6 +10,7 @@ from dataclasses import replace
 import pytest
 
 from overtake.client.commands import UsageError
+from overtake.client.episodes.scenario import Scenario
 from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.evaluate import EvalConfig
 from overtake.trainers.evaluate import main as evaluate
@@ -59,14 +60,22 @@ def test_the_preset_names_its_training(ho_run):
 
 
 def test_its_checkpoint_evaluates_on_ho2018(ho_run, tmp_path):
-    result = evaluate(EvalConfig(checkpoint=ho_run / CHECKPOINT_NAME, episodes=2, max_decisions=20))
+    result = evaluate(
+        EvalConfig(
+            checkpoint=ho_run / CHECKPOINT_NAME, episodes=2, scenario=Scenario(max_decisions=20)
+        )
+    )
     assert result["preset"] == "ho2018" and result["summary"]["episodes"] == 2
     assert result["summary"]["decisions"]["mean"] == 20
 
 
 def test_a_checkpoint_on_another_preset_is_refused_naming_both(ho_run, tmp_path):
     with pytest.raises(UsageError, match=r"preset min2018 .*trained on preset ho2018"):
-        evaluate(EvalConfig(checkpoint=ho_run / CHECKPOINT_NAME, preset="min2018", episodes=1))
+        evaluate(
+            EvalConfig(
+                checkpoint=ho_run / CHECKPOINT_NAME, episodes=1, scenario=Scenario(preset="min2018")
+            )
+        )
     min_dir = tmp_path / "min"
     train(
         TrainConfig(
@@ -75,18 +84,26 @@ def test_a_checkpoint_on_another_preset_is_refused_naming_both(ho_run, tmp_path)
             total_steps=40,
             run_dir=min_dir,
             progress=False,
-            set=("episode.max_decisions=20",),
             dqn=DQNConfig(learning_starts=16, replay_size=200),
+            scenario=Scenario(set=("episode.max_decisions=20",)),
         )
     )
     with pytest.raises(UsageError, match=r"preset ho2018 .*trained on preset min2018"):
-        evaluate(EvalConfig(checkpoint=min_dir / CHECKPOINT_NAME, preset="ho2018", episodes=1))
+        evaluate(
+            EvalConfig(
+                checkpoint=min_dir / CHECKPOINT_NAME, episodes=1, scenario=Scenario(preset="ho2018")
+            )
+        )
 
 
 def test_a_grid_of_another_size_is_refused_naming_both(ho_run):
     with pytest.raises(UsageError, match=r"'grid' of preset ho2018 .*built for"):
         evaluate(
-            EvalConfig(checkpoint=ho_run / CHECKPOINT_NAME, set=("grid.cells=30",), episodes=1)
+            EvalConfig(
+                checkpoint=ho_run / CHECKPOINT_NAME,
+                episodes=1,
+                scenario=Scenario(set=("grid.cells=30",)),
+            )
         )
 
 

@@ -14,6 +14,7 @@ import pytest
 from overtake.client.episodes.drive import DriveConfig
 from overtake.client.episodes.drive import main as drive
 from overtake.client.episodes.records import read_records
+from overtake.client.episodes.scenario import Scenario
 from overtake.trainers.collision_causes import (
     COMMAND,
     NO_RULE,
@@ -102,11 +103,10 @@ def test_a_rule_the_preset_cannot_have_is_left_out_saying_why(tmp_path):
     drive(
         DriveConfig(
             policy="rule",  # type: ignore[arg-type]
-            preset="ho2018",
             episodes=1,
             seed=0,
-            max_decisions=5,
             episodes_out=tmp_path,
+            scenario=Scenario(preset="ho2018", max_decisions=5),
         )
     )
     [path] = list(tmp_path.glob("*.jsonl"))
@@ -122,12 +122,14 @@ def _record(out: Path) -> Path:
     drive(
         DriveConfig(
             policy="random",  # type: ignore[arg-type]
-            preset="min2018",
             episodes=8,
             seed=3,
-            max_decisions=400,
-            set=("traffic.density=heavy", "ego.lane_change_check=false"),
             episodes_out=out,
+            scenario=Scenario(
+                preset="min2018",
+                max_decisions=400,
+                set=("traffic.density=heavy", "ego.lane_change_check=false"),
+            ),
         )
     )
     [path] = list(out.glob("*.jsonl"))

@@ -20,6 +20,7 @@ from overtake.client.episodes.records import (
     read_records,
     write_records,
 )
+from overtake.client.episodes.scenario import Scenario, Where
 from overtake.protocol import errors
 from overtake.server.requested import resolve_config
 from overtake.server.sim import SimConfig, make_config
@@ -50,13 +51,11 @@ def _drive(
     drive(
         DriveConfig(
             policy=policy,  # type: ignore[arg-type]
-            preset=preset,
             episodes=4,
             seed=3,
-            max_decisions=80,
-            set=scene,
             episodes_out=out,
             **options,
+            scenario=Scenario(preset=preset, max_decisions=80, set=scene),
         )
     )
     [path] = list(out.glob("*.jsonl"))
@@ -78,7 +77,9 @@ def test_records_made_on_a_server_replay_in_process_and_on_the_server(tmp_path, 
     # is this one), and each replays in process to its record.
     server = start_server("episodes")
     for preset in sorted(PRESETS):
-        remote = _drive(tmp_path / "remote" / preset, preset, connect=server.endpoint)
+        remote = _drive(
+            tmp_path / "remote" / preset, preset, where=Where(connect=(server.endpoint,))
+        )
         local = _drive(tmp_path / "local" / preset, preset)
         header, episodes = read_records(remote)
         assert header.preset == preset and header.policy.kind == "reference"
@@ -95,10 +96,12 @@ def test_records_made_on_a_server_replay_in_process_and_on_the_server(tmp_path, 
             2,
             3,
         ]
-    replay(ReplayConfig(record=local, recording=NO_RECORDING, connect=server.endpoint))
+    replay(
+        ReplayConfig(record=local, recording=NO_RECORDING, where=Where(connect=(server.endpoint,)))
+    )
     # overtake-eval --record on a server: the car and its events (the road is the server's).
     rrd = tmp_path / "remote-eval.rrd"
-    result = _evaluate_random(rrd, tmp_path / "remote-eval", connect=server.endpoint)
+    result = _evaluate_random(rrd, tmp_path / "remote-eval", connect=(server.endpoint,))
     _, episodes = read_records(Path(result["episodes_record"]))
     _assert_collisions_recorded(rrd, episodes)
     assert not _entities(rrd) & {"/world/episode/arena0/road/cars"}
@@ -376,7 +379,7 @@ def _assert_collisions_recorded(rrd: Path, episodes: list[EpisodeRecord]) -> Non
     assert expected and logged == expected
 
 
-def _evaluate_random(rrd: Path, records: Path, connect: str | None = None) -> dict:
+def _evaluate_random(rrd: Path, records: Path, connect: tuple[str, ...] = ()) -> dict:
     """``overtake-eval --policy random`` over the crowded episodes, recorded and kept."""
     from overtake.trainers.evaluate import EvalConfig
     from overtake.trainers.evaluate import main as evaluate
@@ -384,15 +387,17 @@ def _evaluate_random(rrd: Path, records: Path, connect: str | None = None) -> di
     return evaluate(
         EvalConfig(
             policy="random",
-            preset="min2018",
             episodes=4,
             seed=3,
-            traffic="heavy",
-            set=("ego.lane_change_check=false",),
-            max_decisions=80,
-            connect=connect,
             record=rrd,
             episodes_out=records,
+            scenario=Scenario(
+                preset="min2018",
+                traffic="heavy",
+                set=("ego.lane_change_check=false",),
+                max_decisions=80,
+            ),
+            where=Where(connect=connect),
         )
     )
 

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import torch
 
+from overtake.client.episodes.scenario import Scenario, Where
 from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.learner import DQNConfig
 from overtake.trainers.train import TrainConfig
@@ -43,8 +44,6 @@ def ddqn_run(run_dir: Path, **changes) -> TrainConfig:
     config = TrainConfig(
         algo="ddqn",
         inputs="lidar",
-        preset="min2018",
-        set=("episode.max_decisions=70",),
         num_envs=1,
         total_steps=600,
         seed=3,
@@ -61,6 +60,7 @@ def ddqn_run(run_dir: Path, **changes) -> TrainConfig:
             lstm_cells=16,
             hidden_units=32,
         ),
+        scenario=Scenario(preset="min2018", set=("episode.max_decisions=70",)),
     )
     return replace(config, **changes)
 
@@ -201,7 +201,11 @@ def test_a_remote_run_stopped_and_resumed_ends_as_the_remote_run_never_stopped(
     server = start_server("resume-remote")
     # A third of the in-process run's length (the wire makes each step dearer): stopped while
     # learning (from step 100), resumed, learning on through episode ends (70 decisions).
-    short = {"connect": server.endpoint, "total_steps": 200, "checkpoint_every": 100}
+    short = {
+        "where": Where(connect=(server.endpoint,)),
+        "total_steps": 200,
+        "checkpoint_every": 100,
+    }
     never = tmp_path / "never"
     train(ddqn_run(never, **short))
     run_dir = tmp_path / "run"

@@ -21,6 +21,7 @@ import pytest
 import tyro
 
 from overtake.client.commands import UsageError
+from overtake.client.episodes.scenario import Scenario, Where
 from overtake.ipc.transport import SecurityConfig
 from overtake.protocol.vocabulary import WATCH_SETTING
 from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
@@ -159,10 +160,12 @@ def test_each_runs_command_line_parses_back_to_its_training_configuration(tmp_pa
         out=tmp_path,
         jobs=3,
         set=("episode.max_decisions=40", "camera.rgb=true"),
-        connect="tcp/127.0.0.1:7447",
-        security=SecurityConfig(user="trainer", tls_root_ca=tmp_path / "ca.pem"),
         references=("rule",),
         record_training=True,
+        where=Where(
+            connect=("tcp/127.0.0.1:7447",),
+            security=SecurityConfig(user="trainer", tls_root_ca=tmp_path / "ca.pem"),
+        ),
     )
     plan = make_plan(config)
     assert [run.name for run in plan.runs] == [
@@ -187,7 +190,7 @@ def test_each_runs_command_line_parses_back_to_its_training_configuration(tmp_pa
         1,
         tmp_path / "dueling-both-seed1",
     )
-    assert train.resume_if_found and not train.progress and train.connect == config.connect
+    assert train.resume_if_found and not train.progress and train.where == config.where
     assert train.dqn.learning_starts == Schedule.for_budget(200_000).learning_starts
     assert train.recording == RecordingConfig(sink="file", record_every=10)
 
@@ -231,11 +234,9 @@ def test_an_evaluations_command_line_parses_back_to_its_configuration(tmp_path):
         checkpoint=tmp_path / "run" / CHECKPOINT_NAME,
         episodes=50,
         seed=1_000,
-        traffic="heavy",
-        set=("episode.max_decisions=30",),
-        max_decisions=30,
         json_out=tmp_path / "out.json",
         name="ddqn-both",
+        scenario=Scenario(traffic="heavy", set=("episode.max_decisions=30",), max_decisions=30),
     )
     assert parse(EvalConfig, command_args(evaluation, EvalConfig())) == evaluation
 
@@ -831,7 +832,7 @@ def test_where_the_simulator_is_does_not_change_what_a_run_learns():
 
     base = TrainConfig()
     elsewhere = dataclasses.replace(
-        base, connect="tcp/127.0.0.1:7447", transport="zenoh", spin_s=0.0
+        base, where=Where(connect=("tcp/127.0.0.1:7447",), transport="zenoh", spin_s=0.0)
     )
     assert {f.name for f in dataclasses.fields(Where)} >= {"connect", "transport", "spin_s"}
     assert training_identity(elsewhere) == training_identity(base)

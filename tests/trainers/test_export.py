@@ -17,7 +17,7 @@ from overtake.client.commands import UsageError
 from overtake.client.episodes.drive import DriveConfig
 from overtake.client.episodes.drive import main as drive
 from overtake.client.episodes.runner import RealTime, run_episodes
-from overtake.client.episodes.scenario import Where
+from overtake.client.episodes.scenario import Scenario, Where
 from overtake.client.policies.onnx_policy import read_metadata
 from overtake.trainers.checkpoint import CHECKPOINT_NAME
 from overtake.trainers.evaluate import EvalConfig
@@ -72,7 +72,7 @@ def test_the_exported_model_matches_pytorch_and_drives_as_it_does(trained, run, 
     # The same fixed-seed episodes, driven by PyTorch (overtake-eval) and by ONNX Runtime
     # (overtake-drive --onnx): the same decisions, so the same metrics to the last digit
     # (both deciding as in training: overtake-eval would evaluate ho2018 every frame).
-    episodes = {"episodes": 2, "max_decisions": 25, "seed": 3}
+    episodes = {"episodes": 2, "scenario": Scenario(max_decisions=25), "seed": 3}
     by_torch = evaluate(EvalConfig(checkpoint=checkpoint, paper_evaluation=False, **episodes))
     by_torch = by_torch["episodes"]
     by_onnx = drive(DriveConfig(onnx=out, **episodes))
@@ -116,9 +116,15 @@ def test_a_model_for_another_preset_is_refused_naming_both(trained, tmp_path):
     out = tmp_path / "ho.onnx"
     export(ExportConfig(checkpoint=trained["ho2018"] / CHECKPOINT_NAME, out=out, check_decisions=0))
     with pytest.raises(UsageError, match=r"reads observation 'grid'.*min2018.*preset ho2018"):
-        drive(DriveConfig(onnx=out, preset="min2018", episodes=1, max_decisions=2))
+        drive(
+            DriveConfig(onnx=out, episodes=1, scenario=Scenario(preset="min2018", max_decisions=2))
+        )
     with pytest.raises(UsageError, match=r"'grid' of preset ho2018 is .*built for"):
-        drive(DriveConfig(onnx=out, episodes=1, max_decisions=2, set=("grid.cells=30",)))
+        drive(
+            DriveConfig(
+                onnx=out, episodes=1, scenario=Scenario(max_decisions=2, set=("grid.cells=30",))
+            )
+        )
 
 
 def test_a_file_that_is_not_an_exported_policy_is_refused(tmp_path):

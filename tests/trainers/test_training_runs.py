@@ -18,6 +18,7 @@ import pytest
 import torch
 
 from overtake.client.commands import UsageError
+from overtake.client.episodes.scenario import Scenario, Where
 from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.evaluate import EvalConfig
 from overtake.trainers.evaluate import main as evaluate
@@ -50,8 +51,10 @@ def test_each_algorithm_trains_in_process_and_its_checkpoint_evaluates(tmp_path,
             log_every=80,
             # A small camera, so that an update costs little (about half this test's time at
             # 80 px); the preset's own network trains in test_export.
-            set=("episode.max_decisions=60", "camera.width_px=36", "camera.height_px=36"),
             dqn=DQNConfig(**SMOKE_DQN),
+            scenario=Scenario(
+                set=("episode.max_decisions=60", "camera.width_px=36", "camera.height_px=36")
+            ),
         )
     )
     assert summary["steps"] >= 240 and summary["updates"] >= 40 and summary["episodes"] >= 2
@@ -66,9 +69,8 @@ def test_each_algorithm_trains_in_process_and_its_checkpoint_evaluates(tmp_path,
         EvalConfig(
             checkpoint=run_dir / CHECKPOINT_NAME,
             episodes=2,
-            max_decisions=30,
-            traffic="light",
             json_out=tmp_path / "eval.json",
+            scenario=Scenario(max_decisions=30, traffic="light"),
         )
     )
     assert result["summary"]["episodes"] == 2
@@ -86,17 +88,18 @@ def test_each_algorithm_trains_against_a_real_server(tmp_path, start_server, alg
             inputs="lidar",
             num_envs=2,
             total_steps=200,
-            connect=server.endpoint,
             run_dir=tmp_path / algo,
             progress=False,
-            set=("episode.max_decisions=50",),
             dqn=DQNConfig(**SMOKE_DQN),
+            scenario=Scenario(set=("episode.max_decisions=50",)),
+            where=Where(connect=(server.endpoint,)),
         )
     )
     assert summary["steps"] >= 200 and summary["updates"] >= 30 and summary["episodes"] >= 2
     run = json.loads((tmp_path / algo / "run.json").read_text())
-    assert run["overrides"]["camera.enabled"] is False  # lidar-only: no camera rendered
-    assert run["config"]["connect"] == server.endpoint
+    # lidar-only: the server was asked for the LIDAR and the ego vector, and rendered no camera
+    assert not run["sim_config"]["camera"]["enabled"] and "camera.enabled" not in run["overrides"]
+    assert run["config"]["where"]["connect"] == [server.endpoint]
 
 
 def test_overlapped_remote_training_is_deterministic_and_lock_step_stays(tmp_path, start_server):
@@ -114,14 +117,14 @@ def test_overlapped_remote_training_is_deterministic_and_lock_step_stays(tmp_pat
                 num_envs=4,
                 total_steps=240,
                 seed=9,
-                connect=server.endpoint,
                 run_dir=tmp_path / name,
                 progress=False,
                 overlap=overlap,
                 overlap_parts=parts,
                 log_every=40,
-                set=("episode.max_decisions=25",),
                 dqn=DQNConfig(**SMOKE_DQN),
+                scenario=Scenario(set=("episode.max_decisions=25",)),
+                where=Where(connect=(server.endpoint,)),
             )
         )
         lines = [
@@ -156,10 +159,16 @@ def test_overlapped_remote_training_is_deterministic_and_lock_step_stays(tmp_pat
 
 
 def test_baselines_evaluate_on_the_same_seeds(tmp_path):
-    rule = evaluate(EvalConfig(policy="rule", episodes=2, max_decisions=40, seed=5))
-    again = evaluate(EvalConfig(policy="rule", episodes=2, max_decisions=40, seed=5))
+    rule = evaluate(
+        EvalConfig(policy="rule", episodes=2, seed=5, scenario=Scenario(max_decisions=40))
+    )
+    again = evaluate(
+        EvalConfig(policy="rule", episodes=2, seed=5, scenario=Scenario(max_decisions=40))
+    )
     assert rule["episodes"] == again["episodes"]
-    random = evaluate(EvalConfig(policy="random", episodes=2, max_decisions=40, seed=5))
+    random = evaluate(
+        EvalConfig(policy="random", episodes=2, seed=5, scenario=Scenario(max_decisions=40))
+    )
     assert random["summary"]["lane_changes"]["mean"] > rule["summary"]["lane_changes"]["mean"]
     with pytest.raises(UsageError, match="exactly one"):
         evaluate(EvalConfig(policy="rule", checkpoint=tmp_path / "x.pt"))
@@ -290,14 +299,14 @@ def test_a_remote_run_stores_exactly_its_budget(tmp_path, start_server, overlap,
             num_envs=3,
             total_steps=100,
             seed=2,
-            connect=server.endpoint,
             overlap=overlap,
             overlap_parts=parts,
             run_dir=run_dir,
             progress=False,
             log_every=30,
-            set=("episode.max_decisions=500",),
             dqn=DQNConfig(**SMOKE_DQN),
+            scenario=Scenario(set=("episode.max_decisions=500",)),
+            where=Where(connect=(server.endpoint,)),
         )
     )
     assert summary["steps"] == 100 and summary["parts"] == parts
@@ -314,10 +323,10 @@ def test_eval_table_joins_earlier_results_and_refuses_other_files(tmp_path, caps
             EvalConfig(
                 policy="random",
                 episodes=1,
-                max_decisions=20,
                 seed=seed,
                 name=f"random-{seed}",
                 json_out=tmp_path / f"r{seed}.json",
+                scenario=Scenario(max_decisions=20),
             )
         )
     capsys.readouterr()
@@ -534,7 +543,7 @@ def test_sigterm_ends_a_training_run_with_a_checkpoint_and_a_whole_recording(tmp
 def test_overlap_auto_leaves_a_core_for_the_server(monkeypatch):
     """--overlap auto learns while the server simulates only where this machine has a core
     beyond PyTorch's threads; on and off decide by themselves; in-process never overlaps."""
-    remote = TrainConfig(connect="tcp/127.0.0.1:7447", num_envs=4, overlap_parts=2)
+    remote = TrainConfig(num_envs=4, overlap_parts=2, where=Where(connect=("tcp/127.0.0.1:7447",)))
     monkeypatch.setattr("os.cpu_count", lambda: 4)
     monkeypatch.setattr(torch, "get_num_threads", lambda: 4)
     assert not remote.overlapped and remote.parts == 1
@@ -543,7 +552,7 @@ def test_overlap_auto_leaves_a_core_for_the_server(monkeypatch):
     assert not replace(remote, overlap="off").overlapped
     monkeypatch.setattr(torch, "get_num_threads", lambda: 4)
     assert replace(remote, overlap="on").parts == 2
-    assert not replace(remote, connect=None, overlap="on").overlapped
+    assert not replace(remote, where=Where(), overlap="on").overlapped
     # Never more parts than environments.
     assert replace(remote, overlap="on", num_envs=1).parts == 1
 
@@ -563,9 +572,9 @@ def test_an_in_process_run_draws_its_first_cars_road_in_its_recording(tmp_path):
         total_steps=60,
         run_dir=tmp_path / "run",
         progress=False,
-        set=("episode.max_decisions=40",),
         dqn=tiny_dqn(learning_starts=50),
         recording=RecordingConfig(record_every=5),
+        scenario=Scenario(set=("episode.max_decisions=40",)),
     )
     train(config)
     reader = rr.chunk.RrdReader(str(tmp_path / "run" / "trainer.rrd"))

@@ -258,7 +258,7 @@ def test_a_live_viewer_shows_one_layout_for_a_spectator_and_a_trainer(start_serv
             target=spectate,
             args=(
                 SpectateConfig(
-                    connect=server.endpoint,
+                    connect=(server.endpoint,),
                     server=server.name,
                     frames=10,
                     seconds=60,

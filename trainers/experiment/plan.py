@@ -7,7 +7,7 @@ import dataclasses
 import os
 import sys
 import typing
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -15,7 +15,7 @@ import tyro
 
 from overtake.cli import Output
 from overtake.client.commands import UsageError
-from overtake.client.episodes.scenario import Where
+from overtake.client.episodes.scenario import Scenario, Where
 from overtake.viz.recording import RecordingConfig
 
 from ..checkpoint import plain_data
@@ -26,15 +26,18 @@ from .catalogue import EXPERIMENTS, Density, Experiment, Row, Schedule
 
 
 @dataclass(frozen=True)
-class ExperimentConfig(Where):
+class ExperimentConfig:
     """Reproduce a paper's table: train its rows (resumable, in parallel), evaluate them and
     the reference policies on fixed seeds at each traffic density, write the table and the
     learning curves. Run the same command again to continue after a kill. Where the simulator
     is (--connect: a server for training and evaluation alike; default one in each process)
-    is the scenario's option; which simulator is the experiment's."""
+    is where's option; which simulator is the experiment's."""
 
     experiment: Annotated[str | None, tyro.conf.Positional] = None
     """the experiment to run (without one: the experiments, and how long each takes)"""
+    where: Where = field(default_factory=Where)
+    """where the simulator runs, for training and evaluation alike: a server (--connect), or
+    one in each process"""
     out: Path | None = None
     """the experiment directory; default runs/experiments/<experiment>"""
     jobs: int | None = None
@@ -294,10 +297,10 @@ def _run_plan(
         inputs=row.inputs,
         shield=row.shield,
         shield_watch=row.shield_watch,
-        preset=experiment.preset,
-        traffic=experiment.train_traffic,
-        set=config.set,
-        **config.where_fields(),
+        scenario=Scenario(
+            preset=experiment.preset, traffic=experiment.train_traffic, set=config.set
+        ),
+        where=config.where,
         num_envs=config.num_envs or experiment.num_envs,
         total_steps=total_steps,
         seed=seed,
@@ -322,6 +325,7 @@ def _run_plan(
 # differently). Where the simulator is (every field of Where) is one of them.
 _UNLEARNED = (
     *(f.name for f in dataclasses.fields(Where)),
+    "where",
     "device",
     "torch_threads",
     "progress",
@@ -343,8 +347,14 @@ def training_identity(train: TrainConfig) -> dict[str, Any]:
 
 def learned_settings(data: dict[str, Any]) -> dict[str, Any]:
     """``data`` (a run's recorded training configuration) without the settings that do not
-    change what it learns; records written before a setting counted as such still hold it."""
-    return {name: value for name, value in data.items() if name not in _UNLEARNED}
+    change what it learns; records written before a setting counted as such still hold it.
+    The scenario's settings count as the configuration's own, as they were recorded before
+    the configuration held a Scenario (issue 60)."""
+    flat = {name: value for name, value in data.items() if name != "scenario"}
+    scenario = data.get("scenario")
+    if isinstance(scenario, dict):
+        flat.update(scenario)
+    return {name: value for name, value in flat.items() if name not in _UNLEARNED}
 
 
 def command_args(config: Any, default: Any) -> list[str]:

@@ -12,6 +12,8 @@ import typing
 from pathlib import Path
 from typing import Any
 
+from overtake.client.episodes.scenario import Scenario, Where
+
 from ..checkpoint import CHECKPOINT_NAME
 from ..evaluate import EvalConfig
 from .catalogue import Density
@@ -50,7 +52,10 @@ class ExperimentRun:
             self._eval_task(
                 f"{policy} {density}",
                 # A name reference_policies() found among EvalConfig's, checked in make_plan.
-                EvalConfig(policy=typing.cast(Any, policy), preset=self.plan.experiment.preset),
+                EvalConfig(
+                    policy=typing.cast(Any, policy),
+                    scenario=Scenario(preset=self.plan.experiment.preset),
+                ),
                 density,
                 self.plan.out / "evaluations" / f"reference-{policy}" / f"{density}.json",
                 {"policy": policy, "preset": self.plan.experiment.preset},
@@ -67,10 +72,13 @@ class ExperimentRun:
             base,
             episodes=self.plan.eval_episodes,
             seed=config.eval_seed,
-            traffic=density,
-            set=config.set,
-            max_decisions=config.eval_max_decisions,
-            **config.where_fields(),
+            scenario=dataclasses.replace(
+                base.scenario,
+                traffic=density,
+                set=config.set,
+                max_decisions=config.eval_max_decisions,
+            ),
+            where=config.where,
             json_out=cache.with_name(cache.name + ".out"),
             # Every episode kept, for overtake-replay (the table names those with collisions).
             episodes_out=cache.with_name(cache.stem + ".episodes"),
@@ -78,7 +86,7 @@ class ExperimentRun:
         if base.policy == "planner":
             # The planner reads the simulator's true state: it drives an in-process copy of
             # the same preset and overrides even when the rows train on a server.
-            evaluation = dataclasses.replace(evaluation, connect=None)
+            evaluation = dataclasses.replace(evaluation, where=Where())
         full_key = {
             **key,
             "density": density,

@@ -10,7 +10,7 @@ starts it with his "maintain").
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
@@ -27,6 +27,8 @@ if TYPE_CHECKING:
 @dataclass(frozen=True, slots=True)
 class ActionHistoryConfig(SensorConfig):
     """The ``actions`` observation: (ACTION_HISTORY,) float32 action indices per agent."""
+
+    OBSERVATION: ClassVar[str] = "actions"
 
     enabled: bool = False
 

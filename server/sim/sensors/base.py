@@ -12,7 +12,7 @@ from __future__ import annotations
 import abc
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 import numpy as np
 
@@ -186,6 +186,8 @@ class SensorConfig(abc.ABC):
     """
 
     enabled: bool
+    OBSERVATION: ClassVar[str]
+    """the observation's name (its key in the observation dict: ``Sensor.key``)"""
 
     @abc.abstractmethod
     def build(self, config: SimConfig) -> Sensor:

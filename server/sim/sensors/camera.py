@@ -14,7 +14,7 @@ Image rows run top to bottom, columns left to right; (H, W) uint8 for grey, (H, 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
@@ -52,6 +52,8 @@ _GREY[CAR] = 20  # darker than the road in grey, so cars stand out against aspha
 @dataclass(frozen=True, slots=True)
 class CameraConfig(SensorConfig):
     """A front camera at the driver's seat, rendered in software (a pinhole perspective view)."""
+
+    OBSERVATION: ClassVar[str] = "camera"
 
     enabled: bool = True
     # 80x80 grey, as the authors' code feeds its network (the paper gives no size).

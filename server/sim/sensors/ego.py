@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
@@ -30,6 +30,8 @@ MAX_LANES = 12
 @dataclass(frozen=True, slots=True)
 class EgoVectorConfig(SensorConfig):
     """The ``ego`` observation: the agent's own state, field by field."""
+
+    OBSERVATION: ClassVar[str] = "ego"
 
     enabled: bool = True
     # The authors' code's six scalars, in their order (its observation 360-365).

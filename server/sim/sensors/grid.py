@@ -18,7 +18,7 @@ makes the grid purely Boolean, as the thesis words it).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, ClassVar, Literal
 
 import numpy as np
 
@@ -32,6 +32,8 @@ if TYPE_CHECKING:
 @dataclass(frozen=True, slots=True)
 class OccupancyGridConfig(SensorConfig):
     """The ``grid`` observation: (cells, lanes) int8 per agent."""
+
+    OBSERVATION: ClassVar[str] = "grid"
 
     enabled: bool = False
     ahead_m: float = 20.0

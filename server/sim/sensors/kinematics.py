@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
@@ -53,6 +53,8 @@ _UNBOUNDED = float(np.finfo(np.float32).max)
 class KinematicsConfig(SensorConfig):
     """The ``kinematics`` observation (highway-env's defaults: 5 cars, presence, x, y, vx,
     vy, relative, normalised, clipped, nobody behind)."""
+
+    OBSERVATION: ClassVar[str] = "kinematics"
 
     enabled: bool = False
     vehicles_count: int = 5

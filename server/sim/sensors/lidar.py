@@ -13,7 +13,7 @@ come from numpy's arctan2).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
@@ -36,6 +36,8 @@ class LidarConfig(SensorConfig):
     from straight ahead: with 360 rays, index 0 is straight ahead, 90 is left, 180 is behind and
     270 is right. Values are metres, clipped at ``max_range_m``.
     """
+
+    OBSERVATION: ClassVar[str] = "lidar"
 
     enabled: bool = True
     ray_count: int = 360

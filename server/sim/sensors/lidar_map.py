@@ -13,7 +13,7 @@ range of a car's reaction at highway speed and the whole width of a 5-lane road.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
@@ -29,6 +29,8 @@ if TYPE_CHECKING:
 @dataclass(frozen=True, slots=True)
 class LidarMapConfig(SensorConfig):
     """The ``lidar_map`` observation: (cells, cells) uint8 per agent."""
+
+    OBSERVATION: ClassVar[str] = "lidar_map"
 
     enabled: bool = False
     cells: int = 80

@@ -8,6 +8,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
+from overtake.client.episodes.scenario import Scenario
 from overtake.protocol.vocabulary import KEEP, LANE_LEFT, WATCH_METRICS
 from overtake.server.sim import HighwaySim, make_config
 from overtake.server.sim.units import KMH
@@ -270,7 +271,6 @@ def test_the_logged_reward_is_what_the_driving_earned_not_the_penalised_reward(t
                 seed=4,
                 run_dir=run_dir,
                 progress=False,
-                set=("traffic.density=heavy",),
                 dqn=DQNConfig(
                     learning_starts=1000,
                     replay_size=500,
@@ -278,6 +278,7 @@ def test_the_logged_reward_is_what_the_driving_earned_not_the_penalised_reward(t
                     store_applied=True,
                     intervention_penalty=penalty,
                 ),
+                scenario=Scenario(set=("traffic.density=heavy",)),
             )
         )
         lines = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
@@ -317,7 +318,6 @@ def test_a_run_with_the_watch_trains_and_its_evaluation_keeps_the_watch(tmp_path
             seed=2,
             run_dir=run_dir,
             progress=False,
-            set=("episode.max_decisions=50", "traffic.density=heavy"),
             dqn=DQNConfig(
                 learning_starts=40,
                 replay_size=1000,
@@ -326,19 +326,27 @@ def test_a_run_with_the_watch_trains_and_its_evaluation_keeps_the_watch(tmp_path
                 store_applied=True,
                 intervention_penalty=0.1,
             ),
+            scenario=Scenario(set=("episode.max_decisions=50", "traffic.density=heavy")),
         )
     )
     checkpoint = load_checkpoint(run_dir / CHECKPOINT_NAME)
     assert checkpoint.overrides["ego.lane_change_watch"] is True
     assert checkpoint.dqn.store_applied and checkpoint.dqn.intervention_penalty == 0.1
     result = evaluate(
-        EvalConfig(checkpoint=run_dir / CHECKPOINT_NAME, episodes=2, max_decisions=30)
+        EvalConfig(
+            checkpoint=run_dir / CHECKPOINT_NAME, episodes=2, scenario=Scenario(max_decisions=30)
+        )
     )
     assert all("lane_change_aborts" in row for row in result["episodes"])
     assert "lane_change_aborts" in result["summary"]
     # Without the shield its second half goes too, as in overtake-drive: no watch, no aborts.
     bare = evaluate(
-        EvalConfig(checkpoint=run_dir / CHECKPOINT_NAME, episodes=2, max_decisions=30, shield=False)
+        EvalConfig(
+            checkpoint=run_dir / CHECKPOINT_NAME,
+            episodes=2,
+            shield=False,
+            scenario=Scenario(max_decisions=30),
+        )
     )
     assert "lane_change_aborts" not in bare["summary"]
     assert "shield_overrides" not in bare["summary"]
