@@ -9,6 +9,7 @@ collisions per 1,000 decisions (the issue's bar compares that one).
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,7 +29,7 @@ from overtake.envs.faces import VectorFace
 from overtake.protocol.vocabulary import DENSITY_SETTING, WATCH_SETTING
 from overtake.viz.recording import RecordingConfig
 
-from .checkpoint import load_checkpoint
+from .checkpoint import Checkpoint, load_checkpoint
 from .network import INPUT_SENSORS, observations_read
 from .observations import describe_space, frame_shapes
 from .presets import PRESET_TRAINING
@@ -203,10 +204,27 @@ def print_table(paths: tuple[Path, ...]) -> str:
     return text
 
 
-def main(config: EvalConfig) -> dict[str, Any]:
-    """Run the episodes; prints the table row and returns the summary."""
-    if config.table:
-        return {"table": print_table(config.table)}
+@dataclass(frozen=True)
+class Evaluated:
+    """What an evaluation drives, and on which simulator."""
+
+    checkpoint: Checkpoint | None  # None: a reference policy (--policy)
+    preset: str
+    overrides: dict[str, Any]
+
+    @property
+    def observations(self) -> tuple[str, ...]:
+        """The sensors to render: the network's, on its own preset; on another, every sensor,
+        so that the network's check can say what differs (:class:`GreedyPolicy`)."""
+        checkpoint = self.checkpoint
+        if checkpoint is None or checkpoint.preset != self.preset:
+            return ()
+        return observations_read(checkpoint.inputs)
+
+
+def evaluated(config: EvalConfig) -> Evaluated:
+    """The checkpoint (or none) and the simulator ``config`` asks to evaluate on: the
+    checkpoint's overrides less its traffic, the paper's evaluation, then the scenario's."""
     if (config.checkpoint is None) == (config.policy is None):
         raise UsageError(
             "give exactly one of --checkpoint PATH or --policy rule|random|idle|planner"
@@ -226,61 +244,57 @@ def main(config: EvalConfig) -> dict[str, Any]:
     overrides = config.scenario.overrides(base)
     if config.policy == "rule":
         overrides.pop("lidar.enabled", None)  # the rule-based driver reads the LIDAR
+    return Evaluated(checkpoint, preset, overrides)
 
-    def driver_for(envs: VectorFace) -> Driver:
-        if checkpoint is not None:
-            shielded = (
-                checkpoint.config.get("shield", False) if config.shield is None else config.shield
-            )
-            policy = GreedyPolicy(
-                checkpoint,
-                config.episodes,
-                envs.single_observation_space,
-                preset,
-                Shield(envs.behaviour_spec) if shielded else None,
-            )
-            name = config.name or f"{checkpoint.algo}/{checkpoint.inputs}@{checkpoint.step}"
-            source = PolicySource(
-                "checkpoint", str(config.checkpoint), checkpoint.step, policy.guard is not None
-            )
-            return Driver(policy, source, name)
+
+def evaluation_driver(config: EvalConfig, what: Evaluated, envs: VectorFace) -> Driver:
+    """The checkpoint acting greedily (behind the shield where it was trained with one, or
+    as --shield says), or the reference policy, on ``envs``."""
+    checkpoint = what.checkpoint
+    if checkpoint is None:
         act = baseline_policy(
             str(config.policy), envs.behaviour_spec, config.seed, config.episodes, envs
         )
-        return Driver(
-            act, PolicySource("reference", str(config.policy)), config.name or str(config.policy)
-        )
+        source = PolicySource("reference", str(config.policy))
+        return Driver(act, source, config.name or str(config.policy))
+    shielded = checkpoint.config.get("shield", False) if config.shield is None else config.shield
+    policy = GreedyPolicy(
+        checkpoint,
+        config.episodes,
+        envs.single_observation_space,
+        what.preset,
+        Shield(envs.behaviour_spec) if shielded else None,
+    )
+    name = config.name or f"{checkpoint.algo}/{checkpoint.inputs}@{checkpoint.step}"
+    source = PolicySource(
+        "checkpoint", str(config.checkpoint), checkpoint.step, policy.guard is not None
+    )
+    return Driver(policy, source, name)
 
+
+def main(config: EvalConfig) -> dict[str, Any]:
+    """Run the episodes; prints the table row and returns the summary."""
+    if config.table:
+        return {"table": print_table(config.table)}
+    what = evaluated(config)
+    recording = None if config.record is None else RecordingConfig(sink="file", rrd=config.record)
     driven = drive_episodes(
         config.where,
-        preset,
-        overrides,
+        what.preset,
+        what.overrides,
         Episodes.from_seed(config.episodes, config.seed),
-        driver_for,
-        Keeping(
-            records=config.episodes_out is not None,
-            recording=RecordingConfig(sink="file", rrd=config.record)
-            if config.record is not None
-            else None,
-            rrd=config.record,
-        ),
-        # Only the sensors the network reads; on another preset than its own, every sensor,
-        # so that the network's check can say what differs (GreedyPolicy).
-        observations=(
-            observations_read(checkpoint.inputs)
-            if checkpoint is not None and checkpoint.preset == preset
-            else ()
-        ),
+        functools.partial(evaluation_driver, config, what),
+        Keeping(config.episodes_out is not None, recording=recording, rrd=config.record),
+        observations=what.observations,
     )
     record_path = (
         driven.write_records(config.episodes_out) if config.episodes_out is not None else None
     )
-    name = driven.driver.name
-    summary = summarise(driven.rows)
+    name, summary = driven.driver.name, summarise(driven.rows)
     result = {
         "name": name,
-        "preset": preset,
-        "overrides": overrides,
+        "preset": what.preset,
+        "overrides": what.overrides,
         "seed": config.seed,
         "checkpoint": str(config.checkpoint) if config.checkpoint else None,
         "policy": config.policy,

@@ -7,11 +7,12 @@ prints one row per episode and the mean and spread of each metric.
 
 from __future__ import annotations
 
+import functools
 import json
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -20,7 +21,7 @@ from overtake.client.commands import UsageError
 from overtake.client.episodes.records import PolicySource
 from overtake.client.episodes.runner import baseline_policy, metric_summary, metric_table
 from overtake.client.episodes.scenario import Scenario, Where
-from overtake.client.episodes.session import Driver, Episodes, Keeping, drive_episodes
+from overtake.client.episodes.session import Driver, Episodes, Keeping, RealTime, drive_episodes
 from overtake.client.policies.shield import SHIELD_OVERRIDES
 from overtake.envs.faces import VectorFace
 from overtake.protocol.vocabulary import METRIC_FIELDS, WATCH_SETTING
@@ -66,98 +67,118 @@ class DriveConfig:
         )
 
 
-def main(config: DriveConfig) -> dict[str, dict[str, float]]:
-    """Drive the episodes; returns {metric: {"mean": .., "std": ..}} and prints the table."""
+@dataclass(frozen=True)
+class DriveSetup:
+    """What a drive runs: the preset, the overrides a model brings, the sensors it reads."""
+
+    preset: str
+    base: dict[str, Any]  # overrides beneath the scenario's
+    observations: tuple[str, ...]  # the sensors to render (none named: every one)
+
+
+def what_to_drive(config: DriveConfig) -> DriveSetup:
+    """The preset and overrides of ``config``'s drive: an ONNX model's own preset, the lane
+    -change watch it was trained with behind the shield, and only the sensors it reads (on
+    its own preset; on another every sensor, so that the model can say what differs)."""
     if config.episodes < 1:
         raise UsageError(f"--episodes must be >= 1, got {config.episodes}")
-    model_preset, base, reads = None, {}, ()
-    if config.onnx is not None:
-        from overtake.client.policies.onnx_policy import read_metadata
+    if config.onnx is None:
+        return DriveSetup(config.scenario.preset_or(None), {}, ())
+    from overtake.client.policies.onnx_policy import read_metadata
 
-        meta = read_metadata(config.onnx)
-        model_preset = meta["preset"]
-        reads = tuple(meta.get("input_names", ()))  # the only sensors the model looks at
-        shielded = meta.get("shield", False) if config.shield is None else config.shield
-        if shielded and meta.get("overrides", {}).get(WATCH_SETTING):
-            # Trained with driver assistance watching lane changes through: the shield's
-            # second half is the simulator's, and drives with the model.
-            base[WATCH_SETTING] = True
-    preset = config.scenario.preset_or(model_preset)
+    meta = read_metadata(config.onnx)
+    base: dict[str, Any] = {}
+    shielded = meta.get("shield", False) if config.shield is None else config.shield
+    if shielded and meta.get("overrides", {}).get(WATCH_SETTING):
+        # Trained with driver assistance watching lane changes through: the shield's
+        # second half is the simulator's, and drives with the model.
+        base[WATCH_SETTING] = True
+    preset = config.scenario.preset_or(meta["preset"])
+    reads = tuple(meta.get("input_names", ())) if preset == meta["preset"] else ()
+    return DriveSetup(preset, base, reads)
+
+
+def driver(config: DriveConfig, preset: str, envs: VectorFace) -> Driver:
+    """The reference policy, or the ONNX model (behind the shield where asked), on ``envs``."""
     name = _policy_name(config)
-
-    def driver_for(envs: VectorFace) -> Driver:
-        if config.onnx is None:
-            act = baseline_policy(
-                config.policy, envs.behaviour_spec, config.seed, config.episodes, envs
-            )
-            return Driver(act, PolicySource("reference", config.policy), name)
-        from overtake.client.policies.onnx_policy import OnnxPolicy
-
-        model = OnnxPolicy(
-            config.onnx,
-            config.episodes,
-            envs.single_observation_space,
-            preset,
-            spec=envs.behaviour_spec,
-            shield=config.shield,
+    if config.onnx is None:
+        act = baseline_policy(
+            config.policy, envs.behaviour_spec, config.seed, config.episodes, envs
         )
-        source = PolicySource("onnx", str(config.onnx), shield=model.guard is not None)
-        return Driver(model, source, name)
+        return Driver(act, PolicySource("reference", config.policy), name)
+    from overtake.client.policies.onnx_policy import OnnxPolicy
 
+    model = OnnxPolicy(
+        config.onnx,
+        config.episodes,
+        envs.single_observation_space,
+        preset,
+        spec=envs.behaviour_spec,
+        shield=config.shield,
+    )
+    source = PolicySource("onnx", str(config.onnx), shield=model.guard is not None)
+    return Driver(model, source, name)
+
+
+def main(config: DriveConfig) -> dict[str, dict[str, float]]:
+    """Drive the episodes; returns {metric: {"mean": .., "std": ..}} and prints the table."""
+    what = what_to_drive(config)
     driven = drive_episodes(
         config.where,
-        preset,
-        config.scenario.overrides(base),
+        what.preset,
+        config.scenario.overrides(what.base),
         Episodes.from_seed(config.episodes, config.seed),
-        driver_for,
+        functools.partial(driver, config, what.preset),
         Keeping(records=config.episodes_out is not None),
         realtime=config.realtime,
-        observations=reads if preset == model_preset else (),  # else the model says what differs
+        observations=what.observations,
     )
     if config.episodes_out is not None:
         driven.write_records(config.episodes_out)
     rows = driven.rows
-    table = metric_table(rows)
     summary = metric_summary(rows)
-    _print_table(config, preset, table, summary, driven.decisions, driven.elapsed_s)
+    _print_table(
+        config, what.preset, metric_table(rows), summary, driven.decisions, driven.elapsed_s
+    )
     if SHIELD_OVERRIDES in summary:
         overrides = sum(row[SHIELD_OVERRIDES] for row in rows)
         print(
             f"the safety shield overrode the model {int(overrides)} times "
             f"in {driven.decisions} decisions"
         )
-    timing: dict[str, float] = {}
-    clock = driven.clock
-    if clock is not None:
-        timing = {
-            "period_s": clock.period_s,
-            "decisions": clock.decisions,
-            "late": clock.late,
-            "latency_p50_ms": clock.percentile_ms(50),
-            "latency_p99_ms": clock.percentile_ms(99),
-        }
-        print(
-            f"real time, one decision every {clock.period_s:g} s: {clock.late} of "
-            f"{clock.decisions} decisions late; decision latency p50 "
-            f"{timing['latency_p50_ms']:.2f} ms, p99 {timing['latency_p99_ms']:.2f} ms"
-        )
+    timing = _realtime_report(driven.clock)
     if config.json_out is not None:
         config.json_out.parent.mkdir(parents=True, exist_ok=True)
-        config.json_out.write_text(
-            json.dumps(
-                {
-                    "policy": name,
-                    "preset": preset,
-                    "seed": config.seed,
-                    "overrides": driven.overrides,
-                    "episodes": rows,
-                    "summary": summary,
-                    "realtime": timing or None,
-                },
-                indent=2,
-            )
-        )
+        result = {
+            "policy": _policy_name(config),
+            "preset": what.preset,
+            "seed": config.seed,
+            "overrides": driven.overrides,
+            "episodes": rows,
+            "summary": summary,
+            "realtime": timing or None,
+        }
+        config.json_out.write_text(json.dumps(result, indent=2))
     return summary
+
+
+def _realtime_report(clock: RealTime | None) -> dict[str, float]:
+    """A real-time drive's late decisions and latency, printed and returned (none: {})."""
+    if clock is None:
+        return {}
+    timing = {
+        "period_s": clock.period_s,
+        "decisions": clock.decisions,
+        "late": clock.late,
+        "latency_p50_ms": clock.percentile_ms(50),
+        "latency_p99_ms": clock.percentile_ms(99),
+    }
+    print(
+        f"real time, one decision every {clock.period_s:g} s: {clock.late} of "
+        f"{clock.decisions} decisions late; decision latency p50 "
+        f"{timing['latency_p50_ms']:.2f} ms, p99 {timing['latency_p99_ms']:.2f} ms"
+    )
+    return timing
 
 
 def _policy_name(config: DriveConfig) -> str:
