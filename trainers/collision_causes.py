@@ -61,7 +61,7 @@ from overtake.client.episodes.records import (
     RecordHeader,
     read_records,
 )
-from overtake.client.episodes.runner import run_episodes
+from overtake.client.episodes.runner import VectorStep, run_episodes
 from overtake.client.policies.shield import Shield
 from overtake.protocol.vocabulary import (
     ACTION_NAMES,
@@ -181,15 +181,8 @@ class _UntilCollision:
         for arena, replayed in enumerate(self.replayed):
             replayed.roads.append(self._road(arena))
 
-    def stepped(
-        self,
-        actions: np.ndarray,
-        obs: dict[str, np.ndarray],
-        reward: np.ndarray,
-        terminated: np.ndarray,
-        truncated: np.ndarray,
-        info: dict[str, Any],
-    ) -> None:
+    def stepped(self, step: VectorStep) -> None:
+        info = step.info
         collided = self.counts.rose(info).get("collisions", np.zeros(len(self.episodes), bool))
         for arena, replayed in enumerate(self.replayed):
             decision, until = len(replayed.applied), self.until[arena]
@@ -203,7 +196,7 @@ class _UntilCollision:
                     f"{'a' if collided[arena] else 'no'} collision at decision {decision}, "
                     "unlike its record (another simulator than the record's?)"
                 )
-            if (terminated[arena] or truncated[arena]) and decision < until:
+            if step.ended[arena] and decision < until:
                 raise ReplayDiverged(
                     f"episode {self.episodes[arena].episode} ends at decision {decision}, "
                     f"before its record's collision at {until}"
@@ -332,19 +325,11 @@ class _CollidesBy:
     def started(self, obs: dict[str, np.ndarray], info: dict[str, Any]) -> None:
         self.counts.rose(info)
 
-    def stepped(
-        self,
-        actions: np.ndarray,
-        obs: dict[str, np.ndarray],
-        reward: np.ndarray,
-        terminated: np.ndarray,
-        truncated: np.ndarray,
-        info: dict[str, Any],
-    ) -> None:
-        rose = self.counts.rose(info).get("collisions", np.zeros(len(self.until), bool))
+    def stepped(self, step: VectorStep) -> None:
+        rose = self.counts.rose(step.info).get("collisions", np.zeros(len(self.until), bool))
         watched = ~self.ended & (self.decision <= self.until)
         self.collided |= rose & watched
-        self.ended |= np.asarray(terminated, bool) | np.asarray(truncated, bool)
+        self.ended |= np.asarray(step.ended, bool)
         self.decision += 1
 
 

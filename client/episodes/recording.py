@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from overtake.client.episodes.records import EventCounts
+from overtake.client.episodes.runner import VectorStep
 from overtake.envs.faces import VectorFace
 from overtake.protocol.vocabulary import ACTION_NAMES
 from overtake.viz.car_view import CarView
@@ -116,15 +117,8 @@ class EpisodeRecording:
     def _event(self, level: str, text: str) -> None:
         self.stream.log(EVENTS, self.rr.TextLog(text, level=level))
 
-    def stepped(
-        self,
-        actions: np.ndarray,
-        obs: dict[str, np.ndarray],
-        reward: np.ndarray,
-        terminated: np.ndarray,
-        truncated: np.ndarray,
-        info: dict[str, Any],
-    ) -> None:
+    def stepped(self, step: VectorStep) -> None:
+        actions, info, reward = step.actions, step.info, step.reward
         q = getattr(self.policy, "last_q", None)
         overridden = getattr(self.policy, "last_overridden", None)
         rose = self.counts.rose(info)
@@ -135,7 +129,7 @@ class EpisodeRecording:
             self.stream.set_time(timeline(self.labels[i]), sequence=decision)
             action = int(actions[i])
             happened = [name for name, now in rose.items() if now[i]]
-            ends = bool(terminated[i] or truncated[i])
+            ends = bool(step.ended[i])
             drawn = decision % self.every == 0 or bool(happened) or ends
             if drawn:
                 self.car.log(
@@ -174,8 +168,8 @@ class EpisodeRecording:
             if ends:
                 self._event("DEBUG", f"episode ends after {decision + 1} decisions")
         self.decisions += self.running
-        self.running &= ~(terminated | truncated)
-        self._saw(obs, info)
+        self.running &= ~step.ended
+        self._saw(step.obs, info)
 
     def _saw(self, obs: dict[str, np.ndarray], info: dict[str, Any]) -> None:
         """What the next decision is taken on (copies: the environment's arrays move on)."""

@@ -28,6 +28,7 @@ from typing import Any, Literal
 import numpy as np
 
 from overtake.client.commands import UsageError
+from overtake.client.episodes.runner import VectorStep
 from overtake.client.policies.shield import SHIELD_OVERRIDES
 from overtake.protocol.vocabulary import (
     ACTION_COUNT,
@@ -271,15 +272,8 @@ class EpisodeRecorder:
     def started(self, obs: dict[str, np.ndarray], info: dict[str, Any]) -> None:
         self.counts.reset()
 
-    def stepped(
-        self,
-        actions: np.ndarray,
-        obs: dict[str, np.ndarray],
-        reward: np.ndarray,
-        terminated: np.ndarray,
-        truncated: np.ndarray,
-        info: dict[str, Any],
-    ) -> None:
+    def stepped(self, step: VectorStep) -> None:
+        actions, info = step.actions, step.info
         running = np.flatnonzero(self.running)
         overridden = getattr(self.policy, "last_overridden", None)
         rose = self.counts.rose(info)
@@ -291,7 +285,7 @@ class EpisodeRecorder:
                     self.events[i][name].append(decision)
             if overridden is not None and overridden[i]:
                 self.events[i][SHIELD_OVERRIDES].append(decision)
-        ended = (terminated | truncated) & self.running
+        ended = step.ended & self.running
         for i in np.flatnonzero(ended & info.get("_metrics", False)):
             self.metrics[i] = {name: float(v[i]) for name, v in info["metrics"].items()}
         self.running &= ~ended

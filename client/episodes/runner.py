@@ -74,22 +74,30 @@ class RealTime:
         return float(np.percentile(self.latencies_s, q) * 1e3) if self.latencies_s else 0.0
 
 
+@dataclass(frozen=True)
+class VectorStep:
+    """One step of a vector environment: the ``actions`` sent and what the step answered."""
+
+    actions: np.ndarray
+    obs: dict[str, np.ndarray]
+    reward: np.ndarray
+    terminated: np.ndarray
+    truncated: np.ndarray
+    info: dict[str, Any]
+
+    @property
+    def ended(self) -> np.ndarray:
+        return self.terminated | self.truncated
+
+
 class EpisodeWatcher(Protocol):
     """Sees every step :func:`run_episodes` takes (an episode record, a Rerun recording)."""
 
     def started(self, obs: dict[str, np.ndarray], info: dict[str, Any]) -> None:
         """The environments were reset: ``obs`` and ``info`` are the episodes' first."""
 
-    def stepped(
-        self,
-        actions: np.ndarray,
-        obs: dict[str, np.ndarray],
-        reward: np.ndarray,
-        terminated: np.ndarray,
-        truncated: np.ndarray,
-        info: dict[str, Any],
-    ) -> None:
-        """``actions`` were sent, and the step answered with the rest."""
+    def stepped(self, step: VectorStep) -> None:
+        """A step was taken (``step``: its actions and what it answered)."""
 
 
 def run_episodes(
@@ -126,8 +134,9 @@ def run_episodes(
     def step(actions: np.ndarray) -> None:
         nonlocal obs, info, starting, resetting, decisions
         obs, reward, terminated, truncated, info = envs.step(actions)
+        taken = VectorStep(actions, obs, reward, terminated, truncated, info)
         for watcher in watchers:
-            watcher.stepped(actions, obs, reward, terminated, truncated, info)
+            watcher.stepped(taken)
         decisions += episodes
         ended = terminated | truncated
         for i in np.flatnonzero(ended & info.get("_metrics", False)):

@@ -299,7 +299,7 @@ class RoadCensus:
     def started(self, obs, info) -> None:
         pass
 
-    def stepped(self, actions, obs, reward, terminated, truncated, info) -> None:
+    def stepped(self, step) -> None:
         self.steps += 1
         if self.steps % 10 == 0:
             st = self.sim.state
