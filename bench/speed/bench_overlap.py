@@ -146,8 +146,9 @@ def main(config: OverlapBenchConfig) -> dict[str, Any]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     server = start_server(endpoint, 60.0)
     envs: dict[str, Any] = {}
-    # overtake-train's: no camera rendered for a LIDAR-only network
-    overrides = TrainConfig(inputs=config.inputs).overrides()
+    # overtake-train's: only the sensors the network reads (no camera for a LIDAR-only one)
+    train = TrainConfig(inputs=config.inputs)
+    overrides, observations = train.overrides(), train.observations
     try:
         if config.in_process:
             envs["in-process"] = gym.make_vec(
@@ -155,6 +156,7 @@ def main(config: OverlapBenchConfig) -> dict[str, Any]:
                 num_envs=config.num_envs,
                 vectorization_mode="vector_entry_point",
                 overrides=overrides,
+                observations=observations,
             )
         for mode, parts in (("lock-step", 1), ("overlap", 2)):
             envs[mode] = gym.make_vec(
@@ -163,6 +165,7 @@ def main(config: OverlapBenchConfig) -> dict[str, Any]:
                 vectorization_mode="vector_entry_point",
                 remote=RemoteConfig(connect=(endpoint,)),
                 overrides=overrides,
+                observations=observations,
                 parts=parts,
             )
         rng = np.random.default_rng(0)
