@@ -28,9 +28,7 @@ NAME = "twolane2026"
 def two_lanes():
     """The preset's simulator: min2018's, on two lanes, with a few cars and short episodes."""
     base = make_config("min2018", {"traffic.vehicle_count": 3, "episode.max_decisions": 30})
-    return dataclasses.replace(
-        base, preset=NAME, road=dataclasses.replace(base.road, lane_count=2)
-    )
+    return dataclasses.replace(base, preset=NAME, road=dataclasses.replace(base.road, lane_count=2))
 
 
 @pytest.fixture
