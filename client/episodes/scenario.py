@@ -4,11 +4,12 @@
 its credentials and a transport for its Steps); :class:`Scenario` is which simulator: a
 preset, its traffic (a :data:`~overtake.protocol.vocabulary.Density` word), its episode length
 and any other overrides. A command's configuration holds them as fields (``where``,
-``scenario``) beside its own options: ``overtake-drive``, ``-eval`` and ``-train`` hold both;
-``overtake-replay`` (whose scenario is the record's), ``overtake-experiment`` (whose scenario
-is its paper's), ``overtake-spectate``, ``overtake-status`` and ``overtake-unity-bridge`` hold
-a Where. On the command line (tyro, ``OmitArgPrefixes``) their fields are the same flags in
-every command (``--connect``, ``--preset``, ...).
+``scenario``) beside its own options: ``overtake-drive``, ``-eval``, ``-train`` and
+``-unity-bridge`` hold both; ``overtake-replay`` (whose scenario is the record's) and
+``overtake-experiment`` (whose scenario is its paper's) hold a Where. On the command line
+(tyro, ``OmitArgPrefixes``) their fields are the same flags in every command (``--connect``,
+``--preset``, ...). ``overtake-status`` and ``overtake-spectate`` only watch servers (no
+arenas, rounds or transport): they take ``--connect`` and the security options alone.
 """
 
 from __future__ import annotations

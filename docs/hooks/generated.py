@@ -113,3 +113,24 @@ def on_page_markdown(markdown: str, page: Any, config: Any, files: Files) -> str
         in_repository = f"]({prefix}../{source.relative_to(ROOT)}"
         markdown = markdown.replace(in_repository, f"]({prefix}{uri}")
     return markdown
+
+
+# Docstrings cross-reference in Sphinx's roles (:class:`~overtake.protocol.messages.Steps`),
+# which mkdocstrings renders as they are written: the role's name, then the target as code.
+_SPHINX_ROLE = re.compile(
+    r":(?:py:)?(?:class|func|meth|mod|data|attr|exc|obj|const):<code>(~?)([^<]+)</code>"
+)
+
+
+def _role_as_code(match: re.Match[str]) -> str:
+    shortened, target = match.groups()
+    target = target.lstrip(".")
+    if shortened:  # Sphinx's "~": the last part only
+        target = target.rsplit(".", 1)[-1]
+    return f"<code>{target}</code>"
+
+
+def on_page_content(html: str, page: Any, config: Any, files: Files) -> str:
+    """The API reference's Sphinx roles as the code they name (``Steps``, not
+    ``:class:`~overtake.protocol.messages.Steps```)."""
+    return _SPHINX_ROLE.sub(_role_as_code, html)
