@@ -80,6 +80,35 @@ def stop_process(proc: subprocess.Popen[Any], timeout_s: float = 10.0) -> int | 
     return proc.poll()
 
 
+@contextlib.contextmanager
+def zenoh_pools_removed(shm_dir: Path = Path("/dev/shm")) -> Iterator[None]:
+    """Remove the shared-memory pools (``<id>.zenoh``) Zenoh made under ``shm_dir`` while the
+    block ran and that no process maps any more: a Zenoh process that ends without running
+    its exit handlers (``os._exit``, a signal) leaves its pools behind, tens of MiB of memory
+    each time. A pool some live process still maps is left alone."""
+    before = set(shm_dir.glob("*.zenoh"))
+    try:
+        yield
+    finally:
+        made = set(shm_dir.glob("*.zenoh")) - before
+        mapped = _mapped_paths() if made else set()
+        for path in made - mapped:
+            with contextlib.suppress(FileNotFoundError):
+                path.unlink()
+
+
+def _mapped_paths() -> set[Path]:
+    """The files every process this user can read maps (``/proc/<pid>/maps``)."""
+    mapped: set[Path] = set()
+    for maps in Path("/proc").glob("[0-9]*/maps"):
+        with contextlib.suppress(OSError):
+            for line in maps.read_text().splitlines():
+                path = line.split(maxsplit=5)[5:]
+                if path and path[0].startswith("/"):
+                    mapped.add(Path(path[0]))
+    return mapped
+
+
 def make_env(env_id: str, arenas: int, **kwargs: Any) -> Any:
     import gymnasium
 

@@ -42,7 +42,7 @@ import tyro
 import zenoh
 from zenoh.shm import GarbageCollect, ShmProvider
 
-from bench.harness import free_port, stop_process, write_report
+from bench.harness import free_port, stop_process, write_report, zenoh_pools_removed
 from bench.speed.bench_remote import wait_matching
 from bench.speed.bench_sim import machine_description
 from overtake.ipc.transport import TransportConfig, open_session
@@ -224,17 +224,19 @@ def child(role: str, *args: str, stdout: int | None = None) -> subprocess.Popen[
 
 def main(config: ShmBenchConfig) -> dict[str, Any]:
     endpoints = json.dumps([f"tcp/127.0.0.1:{free_port()}" for _ in range(2)])
-    procs = [child("echo", endpoints)]
-    try:
-        arguments = json.dumps({k: v for k, v in asdict(config).items() if k != "json"})
-        procs.append(child("ping", endpoints, arguments, stdout=subprocess.PIPE))
-        out, _ = procs[1].communicate(timeout=config.run_timeout_s)
-        if procs[1].returncode != 0:
-            raise RuntimeError(f"the pinger failed (exit status {procs[1].returncode})")
-        raw = json.loads(out)
-    finally:
-        for proc in procs:
-            stop_process(proc)
+    # The echo leaves with os._exit (Zenoh's threads may be in a callback): its pools stay.
+    with zenoh_pools_removed():
+        procs = [child("echo", endpoints)]
+        try:
+            arguments = json.dumps({k: v for k, v in asdict(config).items() if k != "json"})
+            procs.append(child("ping", endpoints, arguments, stdout=subprocess.PIPE))
+            out, _ = procs[1].communicate(timeout=config.run_timeout_s)
+            if procs[1].returncode != 0:
+                raise RuntimeError(f"the pinger failed (exit status {procs[1].returncode})")
+            raw = json.loads(out)
+        finally:
+            for proc in procs:
+                stop_process(proc)
     sizes = {size: {m: summarise(r) for m, r in modes.items()} for size, modes in raw.items()}
     for modes in sizes.values():
         modes["ratios"] = {
