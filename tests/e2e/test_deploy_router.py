@@ -164,7 +164,6 @@ def test_security_options_are_refused_with_the_option_named(tmp_path: Path, monk
     assert "password" not in {f for f in SecurityConfig.__dataclass_fields__}
 
 
-@pytest.mark.timeout(240)
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize("ending", ["SIGTERM", "SIGKILL"])
 def test_a_router_leaves_nothing_in_dev_shm_however_it_ends(background, ending):

@@ -154,3 +154,14 @@ def test_one_agent_s_info_read_from_its_row_is_the_vector_info_s_row():
         ended += int(steps.ended.sum())
         late += int(steps.late.sum())
     assert ended >= 3 and late >= 3  # the time limit ended episodes; arena 1 was left out
+
+
+def test_an_unsupported_render_mode_is_refused_naming_what_there_is():
+    from overtake.envs.registry import check_render_mode
+
+    check_render_mode(None, [])
+    check_render_mode("rgb_array", ["rgb_array"])
+    with pytest.raises(ValueError, match=r"one of \['rgb_array'\] or None, got 'human'"):
+        check_render_mode("human", ["rgb_array"])
+    with pytest.raises(ValueError, match="does not render; watch it with a spectator"):
+        check_render_mode("rgb_array", [])

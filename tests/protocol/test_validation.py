@@ -245,14 +245,3 @@ def test_real_size_limit_is_the_documented_one():
 def test_encode_refuses_what_is_not_a_message():
     with pytest.raises(TypeError, match="dict"):
         encode({"message": "m"})  # type: ignore[arg-type]
-
-
-def test_an_unsupported_render_mode_is_refused_naming_what_there_is():
-    from overtake.envs.registry import check_render_mode
-
-    check_render_mode(None, [])
-    check_render_mode("rgb_array", ["rgb_array"])
-    with pytest.raises(ValueError, match=r"one of \['rgb_array'\] or None, got 'human'"):
-        check_render_mode("human", ["rgb_array"])
-    with pytest.raises(ValueError, match="does not render; watch it with a spectator"):
-        check_render_mode("rgb_array", [])
