@@ -49,7 +49,6 @@ from .specs import BehaviourSpec, CarSpec, ObservationSpec, Reach, RoadSpec
 from .state_messages import GroupState, RestoreRequest, SnapshotRequest
 from .version import (
     AS_RECORDED_SINCE_MINOR,
-    CHANNEL_OFFER_SINCE_MINOR,
     PROTOCOL_HISTORY,
     PROTOCOL_VERSION,
     TYPED_SPEC_SINCE_MINOR,
@@ -60,7 +59,6 @@ __all__ = [
     "ACTION_COUNT",
     "ACTION_NAMES",
     "AS_RECORDED_SINCE_MINOR",
-    "CHANNEL_OFFER_SINCE_MINOR",
     "MAX_AGENTS_PER_ARENA",
     "MAX_ARENAS_PER_REQUEST",
     "MAX_ARRAY_DIMS",

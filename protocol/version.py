@@ -93,8 +93,6 @@ PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
         "observation.",
     ),
 )
-# The minor version whose Opened names the offered channel's transport (Opened.offer).
-CHANNEL_OFFER_SINCE_MINOR = 10
 # The minor version that builds a record's simulator again (OpenRequest.as_recorded).
 AS_RECORDED_SINCE_MINOR = 9
 # The minor version that keeps and restores a group's state (SnapshotRequest, RestoreRequest).

@@ -24,7 +24,7 @@ import numpy as np
 from overtake.envs.faces import SingleFace, VectorFace
 
 from .local import LocalEngine, LocalRoad, local_simulator
-from .sim import HighwaySim, SimConfig, make_config, settings_history
+from .sim import HighwaySim, SimConfig, settings_history
 
 
 def in_process_config(
@@ -34,17 +34,14 @@ def in_process_config(
     as_recorded: Mapping[str, Any] | None = None,
     observations: Sequence[str] = (),
 ) -> SimConfig:
-    """``config``, or the preset with its overrides (not both); with ``as_recorded`` (a
-    record's configuration), the simulator that record was made on
-    (:func:`~.sim.settings_history.as_recorded`); with only the sensors of ``observations``
-    on where it names some (:meth:`~.sim.SimConfig.observing`)."""
-    if config is not None:
-        if overrides or as_recorded:
-            raise ValueError("pass either a config or a preset with overrides, not both")
-    elif as_recorded is not None:
-        config = settings_history.as_recorded(preset, overrides or {}, as_recorded)
-    else:
-        config = make_config(preset, overrides)
+    """``config``, or the preset with its overrides (not both), or with ``as_recorded`` (a
+    record's configuration) the simulator that record was made on; with only the sensors of
+    ``observations`` on where it names some
+    (:func:`~.sim.settings_history.requested_config`)."""
+    if config is None:
+        return settings_history.requested_config(preset, overrides or {}, as_recorded, observations)
+    if overrides or as_recorded:
+        raise ValueError("pass either a config or a preset with overrides, not both")
     return config.observing(tuple(observations))
 
 

@@ -12,7 +12,7 @@ from typing import Any
 from overtake.protocol import errors
 from overtake.protocol.messages import Scalar
 
-from .sim import PRESETS, ConfigError, SimConfig, make_config, settings_history
+from .sim import PRESETS, ConfigError, SimConfig, settings_history
 
 
 def resolve_config(
@@ -23,18 +23,14 @@ def resolve_config(
 ) -> SimConfig:
     """The simulator a request asks for: ``preset`` with ``overrides``, or, with
     ``as_recorded`` (a record's configuration as JSON), the one that record was made on
-    (:func:`~.sim.settings_history.as_recorded`); with only the sensors of ``observations``
-    on where it names some (:meth:`~.sim.SimConfig.observing`)."""
+    (:func:`~.sim.settings_history.requested_config`), refused with the protocol's errors."""
     if preset not in PRESETS:
         raise errors.UnknownPreset(
             f"unknown preset {preset!r}: this server has {', '.join(sorted(PRESETS))}"
         )
     try:
-        if as_recorded:
-            config = settings_history.as_recorded(preset, overrides, _record_config(as_recorded))
-        else:
-            config = make_config(preset, overrides)
-        return config.observing(observations)
+        recorded = _record_config(as_recorded) if as_recorded else None
+        return settings_history.requested_config(preset, overrides, recorded, observations)
     except ConfigError as error:
         raise errors.BadConfig(str(error)) from None
 

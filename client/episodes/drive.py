@@ -77,8 +77,8 @@ class DriveSetup:
 
 
 def what_to_drive(config: DriveConfig) -> DriveSetup:
-    """The preset and overrides of ``config``'s drive: an ONNX model's own preset, the lane
-    -change watch it was trained with behind the shield, and only the sensors it reads (on
+    """The preset and overrides of ``config``'s drive: an ONNX model's own preset, the
+    lane-change watch it was trained with behind the shield, and only the sensors it reads (on
     its own preset; on another every sensor, so that the model can say what differs)."""
     if config.episodes < 1:
         raise UsageError(f"--episodes must be >= 1, got {config.episodes}")

@@ -134,9 +134,10 @@ def run_episodes(
     def step(actions: np.ndarray) -> None:
         nonlocal obs, info, starting, resetting, decisions
         obs, reward, terminated, truncated, info = envs.step(actions)
-        taken = VectorStep(actions, obs, reward, terminated, truncated, info)
-        for watcher in watchers:
-            watcher.stepped(taken)
+        if watchers:
+            taken = VectorStep(actions, obs, reward, terminated, truncated, info)
+            for watcher in watchers:
+                watcher.stepped(taken)
         decisions += episodes
         ended = terminated | truncated
         for i in np.flatnonzero(ended & info.get("_metrics", False)):

@@ -107,7 +107,7 @@ def open_channel(
     (:class:`~overtake.protocol.errors.ConnectError`) that says why."""
     channel = None
     wanted = requested_transports(transport)
-    if offer is not None and offer.TRANSPORT in wanted and offer.TRANSPORT in ATTACH:
+    if offer is not None and offer.TRANSPORT in wanted:
         channel = ATTACH[offer.TRANSPORT](server, group, offer, transport == offer.TRANSPORT)
     elif transport not in ("auto", ZENOH):
         channel = ATTACH[transport](server, group, None, True)  # says why none came

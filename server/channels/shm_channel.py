@@ -78,20 +78,22 @@ class ShmChannel:
         self._thread.start()
 
     @classmethod
-    def create(
-        cls,
-        current: Steps,
-        trainer: str,
-        ticket: bytes,
-        fallback: StepsChannel,
-        on_ring: Callable[[str, int], None],
-    ) -> ShmChannel:
-        """A channel sized for ``current`` (the member's Steps as they are); OSError where
+    def create(cls, terms: ChannelTerms) -> ShmChannel:
+        """A channel for ``terms``' member, sized for its Steps as they are; OSError where
         no segment can be made."""
+        current = terms.current
         places, size = channel_plan(current.agents.size, steps_arrays(current))
         segment = Segment.create(size)
         try:
-            return cls(segment, places, trainer, current.group, ticket, fallback, on_ring)
+            return cls(
+                segment,
+                places,
+                terms.trainer,
+                current.group,
+                terms.ticket,
+                terms.fallback,
+                terms.on_ring,
+            )
         except BaseException:
             segment.unlink()
             segment.close()
@@ -171,6 +173,4 @@ def make(terms: ChannelTerms) -> ShmChannel | None:
     if not DOORBELL_AVAILABLE:
         log.info("no futex doorbell on this machine: %s's Steps go over Zenoh", terms.trainer)
         return None
-    return ShmChannel.create(
-        terms.current, terms.trainer, terms.ticket, terms.fallback, terms.on_ring
-    )
+    return ShmChannel.create(terms)

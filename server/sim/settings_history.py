@@ -14,7 +14,7 @@ holds the simulator's schema or its history.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -255,7 +255,7 @@ def _sensors_as_recorded(config: SimConfig, recorded: Mapping[str, Any]) -> SimC
         for name, section in config.sensor_sections().items()
         if section.enabled and _recorded_on(recorded.get(name))
     ]
-    return config.observing(tuple(on)) if on else config
+    return config.observing(tuple(on))
 
 
 def _recorded_on(section: Any) -> bool:
@@ -288,3 +288,21 @@ def as_recorded(
             f"the record's: {shown}" + (f" (and {more} more)" if more > 0 else "")
         )
     return config
+
+
+def requested_config(
+    preset: str,
+    overrides: Mapping[str, PlainValue],
+    recorded: Mapping[str, Any] | None = None,
+    observations: Sequence[str] = (),
+) -> SimConfig:
+    """The simulator a trainer asks for, in process or of a server: ``preset`` with
+    ``overrides``, or with ``recorded`` (an episode record's configuration) the one that
+    record was made on (:func:`as_recorded`); with only the sensors of ``observations`` on
+    where it names some (:meth:`SimConfig.observing`). :class:`ConfigError` where it cannot
+    be built."""
+    if recorded is None:
+        config = make_config(preset, overrides)
+    else:
+        config = as_recorded(preset, overrides, recorded)
+    return config.observing(tuple(observations))
