@@ -24,7 +24,7 @@ import torch
 from overtake.client.commands import UsageError
 
 from .grid_network import GridNetworkShape
-from .learner import AnyShape, DQNConfig, DQNLearner, Precision
+from .learner import AnyShape, DQNConfig, DQNLearner, LearnerState, Precision
 from .mlp_network import MlpNetworkShape
 from .network import Inputs, NetworkShape
 from .two_stream_network import TwoStreamShape
@@ -83,7 +83,7 @@ def partial_path(path: Path) -> Path:
 def save_checkpoint(
     path: Path,
     *,
-    learner: DQNLearner,
+    learner: LearnerState,
     config: Any,
     overrides: dict[str, Any],
     space: dict[str, Any],

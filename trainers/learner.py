@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 import numpy as np
 import torch
@@ -161,6 +161,37 @@ def execution_device(device: str, precision: Precision = "fp32") -> torch.device
     return resolved
 
 
+class LearnerState(Protocol):
+    """What a training run's books ask of its learner, whether a lone
+    :class:`DQNLearner` or a member's place in a :class:`.member_learner.MembersLearner`
+    (:class:`.members_run.MemberPlace`): its device and precision, its update count, and its
+    state as a lone learner's (what a checkpoint holds)."""
+
+    device: torch.device
+    precision: Precision
+
+    @property
+    def updates(self) -> int: ...
+
+    def state_dict(self) -> dict[str, Any]: ...
+
+    def load_state_dict(self, state: dict[str, Any]) -> dict[str, bool]: ...
+
+
+def epsilon_greedy(
+    q: np.ndarray, mask: np.ndarray, epsilon: float, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Epsilon-greedy actions (N,) among the allowed ones (an all-zero mask row allows every
+    action) from Q-values (N, actions), and those Q-values; ``rng`` draws the random actions
+    and the explore coin, in that order (a lone run's and a member's draws are the same)."""
+    allowed = mask.astype(bool)
+    allowed |= ~allowed.any(axis=1, keepdims=True)
+    greedy = np.where(allowed, q, -np.inf).argmax(axis=1)
+    random = np.where(allowed, rng.random(allowed.shape), -1.0).argmax(axis=1)
+    explore = rng.random(len(greedy)) < epsilon
+    return np.where(explore, random, greedy).astype(np.int64), q
+
+
 class DQNLearner:
     """The online and target networks, the objective, the optimiser, acting and updating.
 
@@ -247,13 +278,7 @@ class DQNLearner:
         self, obs: dict[str, np.ndarray], mask: np.ndarray, epsilon: float, rng: np.random.Generator
     ) -> tuple[np.ndarray, np.ndarray]:
         """Epsilon-greedy actions (N,) among the allowed ones, and the Q-values (N, actions)."""
-        q = self.q_values(obs)
-        allowed = mask.astype(bool)
-        allowed |= ~allowed.any(axis=1, keepdims=True)
-        greedy = np.where(allowed, q, -np.inf).argmax(axis=1)
-        random = np.where(allowed, rng.random(allowed.shape), -1.0).argmax(axis=1)
-        explore = rng.random(len(greedy)) < epsilon
-        return np.where(explore, random, greedy).astype(np.int64), q
+        return epsilon_greedy(self.q_values(obs), mask, epsilon, rng)
 
     # --- learning -------------------------------------------------------------------------
 

@@ -41,6 +41,7 @@ from .checkpoint import (
     load_checkpoint,
 )
 from .learner import execution_device
+from .members_run import MembersRun, check_members, member_configs
 from .train_config import TrainConfig
 from .training_run import TrainingRun
 
@@ -74,6 +75,10 @@ def main(
         raise UsageError(str(error)) from None
     if config.torch_threads is not None:
         torch.set_num_threads(config.torch_threads)
+    if config.seeds:
+        if envs is not None:
+            raise ValueError("members (--seeds) open their own environments, one per seed")
+        return {"members": train_members(member_configs(config), stop, config.resolved_run_dir())}
     run_dir = config.resolved_run_dir()
     made_here = not run_dir.exists()
     resumed = prepare_run_dir(config, run_dir)
@@ -104,6 +109,71 @@ def main(
     finally:
         if own_envs:
             envs.close()
+
+
+def train_members(
+    configs: list[TrainConfig], stop: threading.Event | None = None, folder: Path | None = None
+) -> list[dict[str, Any]]:
+    """Train ``configs`` (lone runs' configurations, each with its own run directory) as
+    members of one learner (:mod:`.members_run`); returns each member's summary. ``folder``:
+    where ``--seeds`` put the members' directories, which must not hold other seeds' runs when
+    resuming."""
+    check_members(configs)
+    if folder is not None and any(c.resume or c.resume_if_found for c in configs):
+        wanted = {c.resolved_run_dir().name for c in configs}
+        others = sorted(
+            p.name
+            for p in folder.glob("seed-*")
+            if p.name not in wanted and (p / CHECKPOINT_NAME).exists()
+        )
+        if others and configs[0].resume:
+            raise UsageError(
+                f"--resume --seeds {' '.join(str(c.seed) for c in configs)}: {folder} holds "
+                f"the runs of other seeds too ({', '.join(others)}); name them all, or another "
+                "--run-dir"
+            )
+    made = [not c.resolved_run_dir().exists() for c in configs]
+    resumed = [prepare_run_dir(c, c.resolved_run_dir()) for c in configs]
+    # A member already at its budget has nothing to train (members step in lock-step).
+    done = [
+        r is not None and r.step >= c.total_steps for c, r in zip(configs, resumed, strict=True)
+    ]
+    for config in (c for c, finished in zip(configs, done, strict=True) if finished):
+        log.info("%s is at its %d steps already", config.resolved_run_dir(), config.total_steps)
+    configs = [c for c, finished in zip(configs, done, strict=True) if not finished]
+    resumed = [r for r, finished in zip(resumed, done, strict=True) if not finished]
+    made = [m for m, finished in zip(made, done, strict=True) if not finished]
+    if not configs:
+        return []
+    envs: list[Any] = []
+    try:
+        for config in configs:
+            envs.append(
+                config.where.open(
+                    config.preset,
+                    config.overrides(),
+                    config.num_envs,
+                    observations=config.observations,
+                )
+            )
+        members = MembersRun(
+            configs,
+            envs,
+            [c.resolved_run_dir() for c in configs],
+            [c.overrides() for c in configs],
+            resumed,
+            stop,
+        )
+        return members.run()
+    except BaseException:
+        for config, new in zip(configs, made, strict=True):
+            run_dir = config.resolved_run_dir()
+            if new and run_dir.exists() and not any(run_dir.iterdir()):
+                run_dir.rmdir()
+        raise
+    finally:
+        for env in envs:
+            env.close()
 
 
 def prepare_run_dir(config: TrainConfig, run_dir: Path) -> Checkpoint | None:

@@ -68,6 +68,10 @@ class TrainConfig:
     """environment steps (transitions, summed over environments) to train for"""
     seed: int = 0
     """seeds the network, exploration, replay sampling and the arenas (their seeds follow it)"""
+    seeds: tuple[int, ...] = ()
+    """train these seeds together in this process, as members of one learner (one forward and
+    one backward pass for all; each seed a whole run in <run_dir>/seed-<k>, as a lone run of
+    that seed would be, docs/training.md "Members"); empty: the one run of --seed"""
     run_dir: Path | None = None
     """where the run's files go; default runs/<algo>-<inputs>-<seed>"""
     resume: bool = False
@@ -155,7 +159,11 @@ class TrainConfig:
         return dataclasses.replace(base, **changes)
 
     def resolved_run_dir(self) -> Path:
-        return self.run_dir or Path("runs") / f"{self.algo}-{self.inputs}-{self.seed}"
+        """The run directory (with --seeds: the folder of the members' seed-<k> directories)."""
+        if self.run_dir is not None:
+            return self.run_dir
+        seed = "seeds-" + "-".join(map(str, self.seeds)) if self.seeds else str(self.seed)
+        return Path("runs") / f"{self.algo}-{self.inputs}-{seed}"
 
     @property
     def observations(self) -> tuple[str, ...]:

@@ -21,7 +21,7 @@ from overtake.protocol import ACTION_COUNT, errors
 from . import resume as resuming
 from .checkpoint import CHECKPOINT_NAME, REPLAY_DIR_NAME, Checkpoint, plain_data
 from .env_parts import EnvParts
-from .learner import ALGOS, DQNLearner, network_shape
+from .learner import ALGOS, DQNLearner, LearnerState, network_shape
 from .network import INPUT_SENSORS
 from .observations import describe_space, frame_shapes
 from .replay_memory import FrameStacker
@@ -65,18 +65,24 @@ class TrainingRun:
         overrides: dict[str, Any],
         resumed: Checkpoint | None,
         stop: threading.Event | None = None,
+        learner: LearnerState | None = None,
     ) -> None:
+        """``learner``: the run's place in a members' learner (:mod:`.members_run`, which
+        then acts and learns for it); None: a lone :class:`.learner.DQNLearner` of its own."""
         self.config, self.dqn, self.envs = config, config.dqn, envs
         self.stop = stop if stop is not None else threading.Event()
         # Overlap steps the parts in turn: p's actions go out, the oldest part sent comes back.
         self.env = EnvParts(envs, config.num_envs)
+        # Lock-step on overtake's face of one part: send, then receive (other work between
+        # the two, for a loop of several runs); any other environment: step.
+        self.sends = self.env.face is not None and self.env.count == 1
         self.run_dir, self.overrides = run_dir, overrides
         self.checkpoint_path = run_dir / CHECKPOINT_NAME
         self.space = envs.single_observation_space
         self.space_description = describe_space(self.space)
         # What an exact resume restores beyond the learner (resume.py), where it can.
         self.resume_state = resumed.resume if resumed is not None else None
-        self._build_learner()
+        self._build_learner(learner)
         self.step, self.episodes, self.resumes = 0, 0, 0
         self.resumed_at_step: int | None = None
         # What a resume restored of its checkpoint (run_files.life_record).
@@ -109,22 +115,29 @@ class TrainingRun:
             min(self.dqn.learning_starts, (self.replay.per_env - 1) * config.num_envs),
         )
 
-    def _build_learner(self) -> None:
-        """The learner (seeded), its replay memory and frame stacker, and the random generator
-        of its exploration."""
+    def _build_learner(self, learner: LearnerState | None) -> None:
+        """The learner (seeded; or the members' place given), its replay memory and frame
+        stacker, and the random generator of its exploration."""
         config, dqn = self.config, self.dqn
         shapes = frame_shapes(self.space, config.inputs, f"preset {config.preset}'s environment")
         stacked = INPUT_SENSORS[config.inputs]
         self.net_shape = network_shape(self.space, config.inputs, ACTION_COUNT, dqn.stack)
-        torch.manual_seed(config.seed)
-        self.learner = DQNLearner.for_algo(
-            config.algo, self.net_shape, config.inputs, dqn, config.device, config.precision
-        )
+        if learner is None:
+            torch.manual_seed(config.seed)
+            learner = DQNLearner.for_algo(
+                config.algo, self.net_shape, config.inputs, dqn, config.device, config.precision
+            )
+        self.learner: LearnerState = learner
         self.replay, self.resume_state = resuming.open_replay(
             config, self.run_dir / REPLAY_DIR_NAME, shapes, stacked, self.resume_state
         )
         self.stacker = FrameStacker(config.num_envs, shapes, dqn.stack, stacked)
         self.rng = np.random.default_rng(config.seed)
+
+    def _lone(self) -> DQNLearner:
+        """The learner of a run that acts and learns for itself (not a member's place)."""
+        assert isinstance(self.learner, DQNLearner), "a member is stepped by its members' loop"
+        return self.learner
 
     def _restore(self, resumed: Checkpoint) -> None:
         """Carry on from ``resumed``: the learner, the counts, the random generators, and the
@@ -152,38 +165,60 @@ class TrainingRun:
     def run(self) -> dict[str, Any]:
         """Train to ``total_steps``, checkpointing on the way and at the end; returns the
         summary :func:`main` returns."""
-        self._write_run_record()
-        self.log = MetricsLog(self.run_dir / "metrics.jsonl")
-        self.recording, self.bar = None, None
+        self.open()
         try:
-            self.recording = RunRecording.open(
-                self.config.recording,
-                self._life_file("trainer", ".rrd"),
-                self.run_dir.name or "run",
-                self.config.algo,
-                self.env,
-            )
-            self._start_episodes()
             iteration = self._part_iteration if self.config.overlapped else self._iteration
             try:
-                while self.step < self.config.total_steps and not self.stop.is_set():
+                while not self.finished:
                     iteration()
                 self._finish_parts()
             except errors.Interrupted as error:  # stopped while its server was gone
                 logger.warning("%s: the run ends at its last whole step, %d", error, self.step)
-            if self.step > self.window.start_step:
-                # A partial window: a learning curve (Fayjie's per 3,000 steps) keeps its end;
-                # the next line stays due where it was (for a resume).
-                next_log = self.next_log
-                self._log_training(self.dqn.epsilon(self.step))
-                self.next_log = next_log
-            self._checkpoint()
+            self.wind_up()
         finally:
-            if self.bar is not None:
-                self.bar.close()
+            self.close()
+        return self.summary()
+
+    @property
+    def finished(self) -> bool:
+        """Whether the run has its ``total_steps`` or was asked to stop."""
+        return self.step >= self.config.total_steps or self.stop.is_set()
+
+    def open(self) -> None:
+        """The life's run record, metrics log and recording; the episodes started (or put
+        back). :meth:`close` closes what this opened, whatever happened between."""
+        self._write_run_record()
+        self.log = MetricsLog(self.run_dir / "metrics.jsonl")
+        self.recording, self.bar = None, None
+        self.recording = RunRecording.open(
+            self.config.recording,
+            self._life_file("trainer", ".rrd"),
+            self.run_dir.name or "run",
+            self.config.algo,
+            self.env,
+        )
+        self._start_episodes()
+
+    def wind_up(self) -> None:
+        """The run's last log line (of a partial window) and its checkpoint."""
+        if self.step > self.window.start_step:
+            # A partial window: a learning curve (Fayjie's per 3,000 steps) keeps its end;
+            # the next line stays due where it was (for a resume).
+            next_log = self.next_log
+            self._log_training(self.dqn.epsilon(self.step))
+            self.next_log = next_log
+        self._checkpoint()
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+        if hasattr(self, "log"):
             self.log.close()
-            if self.recording is not None:
-                self.recording.close()
+        if getattr(self, "recording", None) is not None:
+            self.recording.close()  # type: ignore[union-attr]
+
+    def summary(self) -> dict[str, Any]:
+        """What :func:`.train.main` returns of this life."""
         return {
             "run_dir": str(self.run_dir),
             "steps": self.step,
@@ -253,23 +288,47 @@ class TrainingRun:
         checkpoint when due."""
         t0 = time.perf_counter()
         epsilon = self.dqn.epsilon(self.step)
-        actions, q = self.learner.act(self.stacker.observation(), self.mask, epsilon, self.rng)
-        self.window.shield_overrides += self.safety.count(
-            self.everyone, q, self.env_mask, self.mask
-        )
+        actions, q = self._lone().act(self.stacker.observation(), self.mask, epsilon, self.rng)
+        self.acted(q)
         t1 = time.perf_counter()
-        seen = self.obs
-        self.env.label_step(self.step)
-        self.obs, reward, terminated, truncated, info = self.env.step(actions)
-        self.env_calls += 1
+        seen = self.send(actions)
+        outcome = self.env.recv(0) if self.sends else self.env.step(actions)
         t2 = time.perf_counter()
-        self._record_car_view(seen, actions, q, reward, info)
-        stored, taken = self._store(self.everyone, actions, reward, terminated, info)
-        self._end_episodes(self.everyone, terminated, truncated, info, taken)
+        stored = self.absorb(seen, actions, q, outcome)
         t3 = time.perf_counter()
         self._learn()
         t4 = time.perf_counter()
         self._account(epsilon, stored, (t0, t1, t2, t3, t4))
+
+    # One lock-step iteration in parts, for a loop that acts and learns for several runs at
+    # once (members_run): acted, send, (the environment's step), absorb, then the learning.
+
+    def acted(self, q: np.ndarray) -> None:
+        """Count the shield's overrides of the network's greedy choices ``q`` (N, actions)."""
+        self.window.shield_overrides += self.safety.count(
+            self.everyone, q, self.env_mask, self.mask
+        )
+
+    def send(self, actions: np.ndarray) -> dict[str, np.ndarray]:
+        """Send every environment's actions (overtake's face; another environment is stepped
+        in :meth:`absorb`'s caller); returns the observations they were chosen on."""
+        seen = self.obs
+        self.env.label_step(self.step)
+        if self.sends:
+            self.env.send(0, actions)
+        self.env_calls += 1
+        return seen
+
+    def absorb(
+        self, seen: dict[str, np.ndarray], actions: np.ndarray, q: np.ndarray, outcome: Any
+    ) -> int:
+        """Store what the step of every environment returned (``outcome``: the five-tuple of
+        a Gymnasium vector step); returns the transitions stored."""
+        self.obs, reward, terminated, truncated, info = outcome
+        self._record_car_view(seen, actions, q, reward, info)
+        stored, taken = self._store(self.everyone, actions, reward, terminated, info)
+        self._end_episodes(self.everyone, terminated, truncated, info, taken)
+        return stored
 
     def _part_iteration(self) -> None:
         """Overlap: act for one part and send its actions; learn while the server simulates;
@@ -284,7 +343,7 @@ class TrainingRun:
         stacked = self.stacker.observation()
         if self.env.count > 1:
             stacked = {k: v[rows] for k, v in stacked.items()}
-        actions, q = self.learner.act(stacked, self.mask[rows], epsilon, self.rng)
+        actions, q = self._lone().act(stacked, self.mask[rows], epsilon, self.rng)
         self.window.shield_overrides += self.safety.count(
             self.env.indices[part], q, self.env_mask[rows], self.mask[rows]
         )
@@ -457,13 +516,13 @@ class TrainingRun:
             if len(self.replay) >= self.warm:
                 beta = self.dqn.priority_beta(self.step, self.config.total_steps)
                 batch = self.replay.sample(self.dqn.batch_size, beta=beta)
-                stats = self.learner.update(batch)
+                stats = self._lone().update(batch)
                 if batch.leaves is not None:
                     self.replay.update_priorities(batch.leaves, stats["td_error"])
                 self.window.losses.append(stats["loss"])
                 self.window.q_taken.append(stats["q_taken"])
         if self.step >= self.next_sync:
-            self.learner.sync_target()
+            self._lone().sync_target()
             self.next_sync = self.step + self.dqn.target_update_steps
 
     def _log_training(self, epsilon: float) -> None:

@@ -4,6 +4,7 @@ before anything is trained, and the command lines of its processes."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import sys
 import typing
@@ -41,8 +42,12 @@ class ExperimentConfig:
     out: Path | None = None
     """the experiment directory; default runs/experiments/<experiment>"""
     jobs: int | None = None
-    """processes (training runs or evaluations) at once; default the cores this process may
-    use"""
+    """processes (training batches or evaluations) at once; default the cores this process
+    may use"""
+    members: int | None = None
+    """training runs trained together in one process, as members of one learner (runs of one
+    network only; docs/training.md "Members"); default: each network's runs spread evenly over
+    --jobs processes; 1: a process per run"""
     total_steps: int | None = None
     """environment steps per training run; None keeps the experiment's"""
     seeds: int | None = None
@@ -126,6 +131,8 @@ class Plan:
     out: Path
     jobs: int
     torch_threads: int
+    members: int | None
+    """training runs per process at most; None: spread over the jobs"""
     rows: tuple[Row, ...]
     runs: tuple[RunPlan, ...]
     densities: tuple[Density, ...]
@@ -157,6 +164,7 @@ def reference_policies() -> tuple[str, ...]:
 # The options that must be at least 1 where given.
 _POSITIVE = (
     "jobs",
+    "members",
     "total_steps",
     "seeds",
     "eval_episodes",
@@ -253,6 +261,7 @@ def make_plan(config: ExperimentConfig) -> Plan:
         out=out,
         jobs=jobs,
         torch_threads=threads,
+        members=config.members,
         rows=rows,
         runs=runs,
         densities=config.densities or experiment.densities,
@@ -389,6 +398,57 @@ def train_command(train: TrainConfig) -> list[str]:
     recipe = [] if train.recipe is None else ["--recipe", train.recipe]
     args = [*preset, *recipe, *command_args(train, base)]
     return [sys.executable, "-m", "overtake.trainers.train", *args]
+
+
+def network_identity(train: TrainConfig) -> tuple[Any, ...]:
+    """What runs must share to be members of one learner (:mod:`..members_run`): the network's
+    architecture and what steps them in lock-step."""
+    dqn = train.dqn
+    return (
+        train.algo,
+        train.inputs,
+        train.num_envs,
+        train.total_steps,
+        train.device,
+        train.precision,
+        json.dumps(train.overrides(), sort_keys=True, default=str),
+        dqn.network,
+        dqn.stack,
+        dqn.lstm_cells,
+        dqn.hidden_units,
+        dqn.quantiles,
+        dqn.loss,
+        dqn.optimizer,
+        dqn.rmsprop_centered,
+        dqn.batch_size,
+        dqn.train_every,
+    )
+
+
+def member_batches(
+    runs: list[RunPlan], jobs: int, members: int | None
+) -> list[tuple[RunPlan, ...]]:
+    """``runs`` grouped into the processes that train them: the runs of one network (and
+    lock-step settings, :func:`network_identity`) as members of one learner, at most
+    ``members`` to a process (default: all the runs over ``jobs`` processes, rounded up, so
+    that ``jobs`` processes finish together); the largest batches first."""
+    per_batch = members or max(1, -(-len(runs) // max(jobs, 1)))
+    groups: dict[tuple[Any, ...], list[RunPlan]] = {}
+    for run in runs:
+        groups.setdefault(network_identity(run.train), []).append(run)
+    batches: list[tuple[RunPlan, ...]] = []
+    for group in groups.values():
+        count = -(-len(group) // per_batch)
+        size = -(-len(group) // count)  # as even as the group allows
+        batches += [tuple(group[i : i + size]) for i in range(0, len(group), size)]
+    return sorted(batches, key=len, reverse=True)
+
+
+def member_batch_command(trains: list[TrainConfig]) -> list[str]:
+    """One process training ``trains`` as members (:mod:`..member_batch`): each member given as
+    the arguments its own ``overtake-train`` would take."""
+    members = [json.dumps(train_command(train)[3:]) for train in trains]
+    return [sys.executable, "-m", "overtake.trainers.member_batch", "--members", *members]
 
 
 def eval_command(evaluation: EvalConfig) -> list[str]:

@@ -37,7 +37,7 @@ class Child:
 
     task: Task
     process: subprocess.Popen
-    lock_fd: int
+    lock_fds: tuple[int, ...]
     pid_file: Path
     log: Any
     pidfd: int | None
@@ -45,18 +45,19 @@ class Child:
 
 @dataclass(frozen=True)
 class Task:
-    """A process to run: a training run, or an evaluation whose result goes to ``cache``."""
+    """A process to run: training runs (one, or several as members of one learner), or an
+    evaluation whose result goes to ``cache``."""
 
     kind: Literal["train", "eval"]
     name: str
-    """in the experiment's messages: the run, or the policy and density"""
+    """in the experiment's messages: the run(s), or the policy and density"""
     command: tuple[str, ...]
-    lock_path: Path
-    """held while it runs (a training run's directory, an evaluation's cache file)"""
+    lock_paths: tuple[Path, ...]
+    """held while it runs (each training run's directory, an evaluation's cache file)"""
     log_path: Path
     pid_file: Path
     """holds the process's id while it runs"""
-    run: RunPlan | None = None
+    runs: tuple[RunPlan, ...] = ()
     cache: Path | None = None
     key: dict[str, Any] = field(default_factory=dict)
     """an evaluation's settings, stored with its result: a cache entry counts only for these"""
@@ -67,7 +68,7 @@ class Task:
         return self.cache.with_name(self.cache.name + ".out")
 
 
-def start_process(task: Task, fd: int, threads: int) -> Child:
+def start_process(task: Task, fds: tuple[int, ...], threads: int) -> Child:
     task.log_path.parent.mkdir(parents=True, exist_ok=True)
     log = open(task.log_path, "a", encoding="utf-8")  # noqa: SIM115 (open while it runs)
     log.write(f"--- {utc_now()} overtake-experiment starts: {' '.join(task.command)}\n")
@@ -80,15 +81,15 @@ def start_process(task: Task, fd: int, threads: int) -> Child:
         # PyTorch sizes its thread pool from these at start (overtake-eval has no option for
         # it): --jobs processes of as many threads each as there are cores would contend.
         env={**os.environ, "OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)},
-        # The lock's descriptor goes with it: the lock lives as long as the child.
-        pass_fds=(fd,),
+        # The locks' descriptors go with it: the locks live as long as the child.
+        pass_fds=fds,
         preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None,
     )
     task.pid_file.write_text(f"{process.pid}\n")
     pidfd = None
     with contextlib.suppress(AttributeError, OSError):
         pidfd = os.pidfd_open(process.pid)
-    return Child(task, process, fd, task.pid_file, log, pidfd)
+    return Child(task, process, fds, task.pid_file, log, pidfd)
 
 
 def release(child: Child) -> None:
@@ -97,7 +98,8 @@ def release(child: Child) -> None:
         os.close(child.pidfd)
     with contextlib.suppress(FileNotFoundError):
         child.pid_file.unlink()
-    os.close(child.lock_fd)
+    for fd in child.lock_fds:
+        os.close(fd)
 
 
 def stop_all(children: list[Child]) -> None:

@@ -18,7 +18,15 @@ from ..checkpoint import CHECKPOINT_NAME
 from ..evaluate import EvalConfig
 from .catalogue import Density
 from .files import LOCK_NAME, checkpoint_step, lock, note_life, read_json, say, write_atomic
-from .plan import ExperimentConfig, Plan, RunPlan, eval_command, train_command
+from .plan import (
+    ExperimentConfig,
+    Plan,
+    RunPlan,
+    eval_command,
+    member_batch_command,
+    member_batches,
+    train_command,
+)
 from .processes import POLL_S, Child, Task, release, start_process, stop_all, wait_any
 
 
@@ -99,22 +107,31 @@ class ExperimentRun:
             kind="eval",
             name=name,
             command=tuple(eval_command(evaluation)),
-            lock_path=cache.with_name(cache.name + ".lock"),
+            lock_paths=(cache.with_name(cache.name + ".lock"),),
             log_path=cache.with_suffix(".log"),
             pid_file=cache.with_suffix(".pid"),
             cache=cache,
             key=full_key,
         )
 
-    def train_task(self, run: RunPlan) -> Task:
+    def train_task(self, runs: tuple[RunPlan, ...]) -> Task:
+        """Training ``runs``: one run's ``overtake-train``, or several as members of one
+        learner in one process (:mod:`..member_batch`), whose log and pid file are the first
+        run's."""
+        first = runs[0]
+        command = (
+            train_command(first.train)
+            if len(runs) == 1
+            else member_batch_command([run.train for run in runs])
+        )
         return Task(
             kind="train",
-            name=run.name,
-            command=tuple(train_command(run.train)),
-            lock_path=run.run_dir / LOCK_NAME,
-            log_path=run.run_dir / "train.log",
-            pid_file=run.run_dir / "train.pid",
-            run=run,
+            name=" + ".join(run.name for run in runs),
+            command=tuple(command),
+            lock_paths=tuple(run.run_dir / LOCK_NAME for run in runs),
+            log_path=first.run_dir / "train.log",
+            pid_file=first.run_dir / "train.pid",
+            runs=runs,
         )
 
     def cached(self, task: Task) -> dict[str, Any] | None:
@@ -131,7 +148,9 @@ class ExperimentRun:
         plan = self.plan
         steps = {run.name: checkpoint_step(run.run_dir) for run in plan.runs}
         training = [run for run in plan.runs if (steps[run.name] or 0) < plan.total_steps]
-        pending: list[Task] = [self.train_task(run) for run in training]
+        pending: list[Task] = [
+            self.train_task(batch) for batch in member_batches(training, plan.jobs, plan.members)
+        ]
         evaluations = self.reference_tasks()
         for run in plan.runs:
             step = steps[run.name]
@@ -144,6 +163,11 @@ class ExperimentRun:
             f"({done_before} already at {plan.total_steps:,} steps), {len(pending)} "
             f"processes to run, {plan.jobs} at a time, {plan.torch_threads} PyTorch "
             "thread(s) each"
+            + (
+                f", training runs {plan.members or 'spread over --jobs'} to a process"
+                if training
+                else ""
+            )
         )
         running: list[Child] = []
         next_progress = time.monotonic() + self.config.progress_every_s
@@ -170,21 +194,22 @@ class ExperimentRun:
         for task in sorted(pending, key=lambda t: t.kind != "train"):
             if len(running) >= self.plan.jobs:
                 return
-            fd = lock(task.lock_path)
-            if fd is None:
-                continue  # a process of an earlier invocation still holds it
+            fds = lock_all(task.lock_paths)
+            if fds is None:
+                continue  # a process of an earlier invocation still holds one
             if self._done_meanwhile(task, pending):
-                os.close(fd)
+                for fd in fds:
+                    os.close(fd)
                 continue
-            if task.run is not None:
-                step = checkpoint_step(task.run.run_dir)
-                note_life(task.run.run_dir, step or 0)
+            for run in task.runs:
+                step = checkpoint_step(run.run_dir)
+                note_life(run.run_dir, step or 0)
                 where = f"from step {step:,}" if step else "from scratch"
-                say(f"train {task.name}: starts {where} (log {task.log_path})")
-            else:
+                say(f"train {run.name}: starts {where} (log {task.log_path})")
+            if not task.runs:
                 say(f"evaluate {task.name}")
             pending.remove(task)
-            running.append(start_process(task, fd, self.plan.torch_threads))
+            running.append(start_process(task, fds, self.plan.torch_threads))
 
     def _done_meanwhile(self, task: Task, pending: list[Task]) -> bool:
         """Whether a process of an earlier invocation in the same directory (one that held
@@ -193,13 +218,14 @@ class ExperimentRun:
         it from ``pending`` and add what it makes ready, instead of repeating it. Two
         invocations do not run side by side: the command holds the directory's lock while it
         runs."""
-        if task.run is not None:
-            step = checkpoint_step(task.run.run_dir) or 0
-            if step < self.plan.total_steps:
+        if task.runs:
+            steps = [checkpoint_step(run.run_dir) or 0 for run in task.runs]
+            if min(steps) < self.plan.total_steps:
                 return False
-            say(f"train {task.name}: done at step {step:,} by another invocation")
+            say(f"train {task.name}: done at step {min(steps):,} by another invocation")
             pending.remove(task)
-            pending += [t for t in self.eval_tasks_of_run(task.run, step) if self.cached(t) is None]
+            for run, step in zip(task.runs, steps, strict=True):
+                pending += [t for t in self.eval_tasks_of_run(run, step) if self.cached(t) is None]
             return True
         if self.cached(task) is None:
             return False
@@ -215,17 +241,20 @@ class ExperimentRun:
             self.failed.append(f"{task.kind} {task.name} (exit status {code}, log {task.log_path})")
             say(f"{task.kind} {task.name}: FAILED with exit status {code}, see {task.log_path}")
             return []
-        if task.run is not None:
-            step = checkpoint_step(task.run.run_dir) or 0
-            if step < self.plan.total_steps:
-                self.failed.append(
-                    f"train {task.name} ended at step {step:,} of {self.plan.total_steps:,} "
-                    f"(log {task.log_path})"
-                )
-                return []
-            self.trained.append(task.name)
-            say(f"train {task.name}: done at step {step:,}")
-            return [t for t in self.eval_tasks_of_run(task.run, step) if self.cached(t) is None]
+        if task.runs:
+            ready: list[Task] = []
+            for run in task.runs:
+                step = checkpoint_step(run.run_dir) or 0
+                if step < self.plan.total_steps:
+                    self.failed.append(
+                        f"train {run.name} ended at step {step:,} of {self.plan.total_steps:,} "
+                        f"(log {task.log_path})"
+                    )
+                    continue
+                self.trained.append(run.name)
+                say(f"train {run.name}: done at step {step:,}")
+                ready += [t for t in self.eval_tasks_of_run(run, step) if self.cached(t) is None]
+            return ready
         assert task.cache is not None
         result = read_json(task.json_out)
         if not isinstance(result, dict):
@@ -240,15 +269,27 @@ class ExperimentRun:
 
     def _report_progress(self, running: list[Child]) -> None:
         for child in running:
-            run = child.task.run
-            if run is None:
-                continue
-            last = _last_train_record(run.run_dir / "metrics.jsonl")
-            if last is not None:
-                say(
-                    f"train {run.name}: step {last['step']:,} of {self.plan.total_steps:,}, "
-                    f"{last['steps_per_s']:.0f} steps/s"
-                )
+            for run in child.task.runs:
+                last = _last_train_record(run.run_dir / "metrics.jsonl")
+                if last is not None:
+                    say(
+                        f"train {run.name}: step {last['step']:,} of {self.plan.total_steps:,}, "
+                        f"{last['steps_per_s']:.0f} steps/s"
+                    )
+
+
+def lock_all(paths: tuple[Path, ...]) -> tuple[int, ...] | None:
+    """Descriptors holding the locks of every path, or None (and none held) where another
+    process holds one of them."""
+    fds: list[int] = []
+    for path in paths:
+        fd = lock(path)
+        if fd is None:
+            for held in fds:
+                os.close(held)
+            return None
+        fds.append(fd)
+    return tuple(fds)
 
 
 def _last_train_record(path: Path) -> dict[str, Any] | None:
