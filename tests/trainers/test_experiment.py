@@ -549,7 +549,7 @@ def test_work_another_invocation_did_meanwhile_is_not_done_again(tiny, capsys):
     # are those of a fresh start, and the other invocation has since finished all of them.
     config = tiny["config"]
     experiment = ExperimentRun(config, make_plan(config))
-    pending = [experiment.train_task(run) for run in experiment.plan.runs]
+    pending = [experiment.train_task((run,)) for run in experiment.plan.runs]
     pending += experiment.reference_tasks()
     running: list[Any] = []
     experiment._start_ready(pending, running)
