@@ -100,7 +100,8 @@ class Decision:
         alternated = self._alternated(st, applied)
         if self.as_driven:
             applied = applied.copy()
-        commands = (None, None) if self.speed_steps is None else self.speed_steps.commands(actions)
+        steps = self.speed_steps
+        first_command, later_command = (None, None) if steps is None else steps.commands(actions)
         random_movers = self.manoeuvres.decide(st, uniforms)
         params = self.kinds.params(st.kind)
         collided = np.zeros((st.x_m.shape[0], n), dtype=bool)
@@ -125,11 +126,11 @@ class Decision:
                 brakes,
                 mobil_index=index if frame == 0 else None,
                 random_movers=random_movers,
-                speed_command=commands[0] if frame == 0 else commands[1],
+                speed_command=first_command if frame == 0 else later_command,
                 as_driven=applied if self.as_driven and frame == 0 else None,
             )
-            if frame == 0 and self.as_driven and self.speed_steps is not None:
-                commands = (commands[0], self.speed_steps.skipped[applied])
+            if frame == 0 and self.as_driven and steps is not None:
+                later_command = steps.skipped[applied]  # his action_cache: the action as driven
             if frame == 0 and lanes_before is not None and (st.lane != lanes_before).any():
                 x_rel = st.x_m - st.x_m[:, :1]
                 index = self._lanes.build(x_rel, st.lane, st.target_lane, st.active)
