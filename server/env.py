@@ -8,9 +8,10 @@ and terminated = truncated = False. Both are :mod:`overtake.envs.faces` over a
 remote environments bit for bit.
 
 Info carries, every step: ``action_mask`` (int8, 1 = the action can be taken now),
-``action_applied`` (the action actually taken: a masked lateral action becomes keep),
-``reward_terms`` (each term of the reward) and ``episode_counts`` (the episode's collisions
-and emergency brakes so far); at the end of an episode also ``metrics``, the papers' episode
+``action_applied`` (the action actually taken: a masked lateral action becomes keep; under
+``ego.applied_as_driven``, ho2018's, what his safety rule made of it), ``reward_terms``
+(each term of the reward) and ``episode_counts`` (the episode's collisions and emergency
+brakes so far); at the end of an episode also ``metrics``, the papers' episode
 metrics (:data:`overtake.protocol.vocabulary.METRIC_FIELDS`).
 """
 

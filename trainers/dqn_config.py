@@ -6,6 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
+import numpy as np
+
 from .heads import HeadKind
 
 Algo = Literal["dqn", "ddqn", "dueling", "qr"]
@@ -105,12 +107,27 @@ class DQNConfig:
     """QR-DQN's quantile Huber loss threshold (Dabney et al. and Min et al.'s code: 1)"""
     store_applied: bool = False
     """store the action the car applied (``info["action_applied"]``: a lane change driver
-    assistance refused is keep) instead of the one chosen, so that the learner learns what the
-    action did (Krasowski et al. 2023: replacing unsafe actions works best)"""
+    assistance refused is keep; under ho2018's ``ego.applied_as_driven`` what his safety rule
+    made of it, as his code stores) instead of the one chosen, so that the learner learns what
+    the action did (Krasowski et al. 2023: replacing unsafe actions works best)"""
+    bootstrap_time_limit: bool = True
+    """bootstrap the target of an episode's last transition where its time limit cut it
+    (truncated, not terminated: Gymnasium's reading); False stores it as terminal, no
+    bootstrap, as Ho's code does (``gui.py`` passes ``end_episode`` at the frame limit to
+    ``remember``, and ``cnn.py`` bootstraps only where it is not set)"""
+    init: Literal["torch", "truncated-normal"] = "torch"
+    """the weights' start: PyTorch's own (Kaiming-uniform) or, for Ho's grid networks
+    (baseline, proposed), every convolution's and dense layer's weights from a normal of
+    ``init_std`` cut at two standard deviations and redrawn there, biases zero (Ho's
+    ``cnn.py``: ``tf.truncated_normal_initializer(stddev=2e-2)`` as every layer's
+    ``kernel_initializer``, TensorFlow's zero biases)"""
+    init_std: float = 0.02
+    """the truncated normal's standard deviation before its cut (Ho's ``cnn.py``: 0.02)"""
     intervention_penalty: float = 0.0
     """subtracted from a transition's reward where the safety layer stepped in: the shield
-    overrode the network's greedy choice, driver assistance refused the chosen action, or it
-    turned a lane change back (Krasowski et al. 2023: a penalty helps learning); 0: none"""
+    overrode the network's greedy choice, driver assistance refused the chosen action (or,
+    under ``ego.applied_as_driven``, Ho's safety rule changed it), or it turned a lane change
+    back (Krasowski et al. 2023: a penalty helps learning); 0: none"""
 
     def __post_init__(self) -> None:
         for name in (
@@ -140,10 +157,13 @@ class DQNConfig:
             "network": ("multimodal", "baseline", "proposed", "two-stream", "mlp"),
             "optimizer": ("adam", "rmsprop", "tf-rmsprop"),
             "loss": ("huber", "mse"),
+            "init": ("torch", "truncated-normal"),
         }
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
+        if not 0.0 < self.init_std <= 1.0:
+            raise ValueError(f"init_std must be in (0, 1], got {self.init_std}")
         if self.n_step < 1:
             raise ValueError(f"n_step must be >= 1, got {self.n_step}")
         if not 0.0 <= self.intervention_penalty <= 100.0:
@@ -174,6 +194,11 @@ class DQNConfig:
         """Prioritized replay's importance exponent after ``step`` of ``total_steps``."""
         fraction = min(max(step, 0) / max(total_steps, 1), 1.0)
         return self.priority_beta_start + fraction * (1.0 - self.priority_beta_start)
+
+    def stored_terminal(self, terminated: np.ndarray, truncated: np.ndarray) -> np.ndarray:
+        """Whether each transition is stored as terminal (no bootstrap): ``terminated``, and
+        without ``bootstrap_time_limit`` also ``truncated``."""
+        return terminated if self.bootstrap_time_limit else terminated | truncated
 
     def epsilon(self, step: int) -> float:
         """The exploration rate after ``step`` environment steps."""

@@ -12,6 +12,11 @@
 The last layer is the head a :class:`~.heads.HeadSpec` names (Ho used plain Q-values; dueling
 streams or QR-DQN's quantiles are options, :mod:`.heads`). Grids arrive as the simulator sends
 them (int8: -1 off the road, 0 free, 1 occupied) and are read as numbers unchanged.
+
+The weights start as PyTorch's layers start them, or (``init_std``, :func:`truncated_normal_`)
+as Ho's ``cnn.py`` starts them: every convolution's and dense layer's kernel, the head's
+included, from ``tf.truncated_normal_initializer(stddev=0.02)`` (a normal redrawn outside two
+standard deviations), the biases zero (``tf.layers``' default).
 """
 
 from __future__ import annotations
@@ -50,6 +55,18 @@ class GridNetworkShape:
         )
 
 
+def truncated_normal_(module: nn.Module, std: float) -> None:
+    """Start every convolution's and linear layer's weights in ``module`` from a normal of
+    standard deviation ``std`` cut at two standard deviations (TensorFlow 1.x's
+    ``truncated_normal``: values beyond are drawn again, so the weights' own standard
+    deviation is about 0.88 ``std``), and their biases at zero."""
+    for layer in module.modules():
+        if isinstance(layer, (nn.Conv2d, nn.Linear)):
+            nn.init.trunc_normal_(layer.weight, mean=0.0, std=std, a=-2 * std, b=2 * std)
+            if layer.bias is not None:
+                nn.init.zeros_(layer.bias)
+
+
 def _pooled(size: int) -> int:
     """A length after a 2x2 max pooling of stride 2 that rounds up (TensorFlow's "same")."""
     return (size + 1) // 2
@@ -66,7 +83,10 @@ class GridQNetwork(nn.Module):
         shape: GridNetworkShape,
         kind: GridNetworkKind = "proposed",
         head: HeadSpec = PLAIN,
+        init_std: float | None = None,
     ) -> None:
+        """``init_std``: Ho's truncated normal of that deviation for the weights
+        (:func:`truncated_normal_`); None: PyTorch's initialisation."""
         super().__init__()
         if kind not in GRID_NETWORKS:
             raise ValueError(f"kind must be one of {GRID_NETWORKS}, got {kind!r}")
@@ -101,6 +121,8 @@ class GridQNetwork(nn.Module):
             self.fuse = nn.Sequential(nn.Linear(features + 4, 100), nn.ReLU())
             last = 100
         self.head = head.build(last, shape.actions)
+        if init_std is not None:
+            truncated_normal_(self, init_std)
 
     def forward(self, grid: torch.Tensor, actions: torch.Tensor | None = None) -> torch.Tensor:
         hidden = self.conv(grid.float())

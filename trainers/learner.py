@@ -64,6 +64,8 @@ def build_network(shape: AnyShape, inputs: Inputs, config: DQNConfig, head: Head
     """The Q-network ``config.network`` names, for ``inputs``: Min et al.'s multi-modal network
     on camera and / or LIDAR, one of Ho's on the occupancy grid, or Fayjie et al.'s two-stream
     network on the camera and the LIDAR map."""
+    if config.init != "torch" and inputs != "grid":
+        raise ValueError(f"init {config.init} is Ho's, for his grid networks (inputs grid)")
     if inputs == "kinematics":
         if config.network != "mlp" or not isinstance(shape, MlpNetworkShape):
             raise ValueError(
@@ -87,7 +89,8 @@ def build_network(shape: AnyShape, inputs: Inputs, config: DQNConfig, head: Head
                 f"network={config.network!r}"
             )
         kind: GridNetworkKind = "baseline" if config.network == "baseline" else "proposed"
-        return GridQNetwork(shape, kind, head=head)
+        init = config.init_std if config.init == "truncated-normal" else None
+        return GridQNetwork(shape, kind, head=head, init_std=init)
     if config.network != "multimodal" or not isinstance(shape, NetworkShape):
         raise ValueError(
             f"inputs {inputs} (Min et al.'s camera / LIDAR) need network multimodal, got "

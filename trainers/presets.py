@@ -22,7 +22,17 @@ network, optimiser and hyper-parameters. ``overtake-train --preset NAME`` starts
   ``tf.train.RMSPropOptimizer(learning_rate)``: decay 0.9, epsilon 1e-10 inside the square
   root, no momentum, not centred, the mean square starting at one; :mod:`.tf_rmsprop`; the
   thesis's "gradient momentum 0.95" is Mnih et al.'s table's, which his code does not
-  apply); the squared TD error (``cnn.py``), no gradient clipping.
+  apply); the squared TD error (``cnn.py``), no gradient clipping; the action stored is the
+  one his car drove (``store_applied``: ``players/deep_traffic_player.py`` writes what
+  ``car.move`` did over the agent's action, which ``deep_traffic_agent.py``'s ``remember``
+  stores; the simulator's ``ego.applied_as_driven`` reports it, and puts it on the action
+  stack); an episode's end at its time limit stored as terminal, without a bootstrap
+  (``bootstrap_time_limit`` off: ``gui.py`` stores the frame limit's transition with
+  ``end_episode``, and ``cnn.py`` bootstraps only where that is not set); the weights from a
+  normal of standard deviation 0.02 cut at two, biases zero (``init truncated-normal``,
+  ``init_std``: ``cnn.py``'s ``tf.truncated_normal_initializer(stddev=2e-2)`` for every
+  layer). Each can be turned back: ``--no-store-applied``, ``--bootstrap-time-limit``,
+  ``--init torch``, and ``--set ego.applied_as_driven=false`` for the simulator.
   Evaluation as his code's (``gui.py`` skips frames only while training): a decision every
   frame, 4,000 of them an episode, the frames and actions stacked per decision as in training.
 - ``fayjie2018`` (Fayjie et al. 2018, §III.A and Table I): DQN with a target network copied
@@ -108,6 +118,10 @@ PRESET_TRAINING: dict[str, PresetTraining] = {
             loss="mse",
             grad_clip_norm=0.0,
             stack=4,
+            store_applied=True,
+            bootstrap_time_limit=False,
+            init="truncated-normal",
+            init_std=0.02,
         ),
         # His code skips frames only while training (gui.py: `... and is_training`): an
         # evaluated driver decides every frame, over the episode's 4,000 frames.

@@ -326,7 +326,8 @@ class TrainingRun:
         a Gymnasium vector step); returns the transitions stored."""
         self.obs, reward, terminated, truncated, info = outcome
         self._record_car_view(seen, actions, q, reward, info)
-        stored, taken = self._store(self.everyone, actions, reward, terminated, info)
+        ends = self.dqn.stored_terminal(terminated, truncated)
+        stored, taken = self._store(self.everyone, actions, reward, ends, info)
         self._end_episodes(self.everyone, terminated, truncated, info, taken)
         return stored
 
@@ -395,7 +396,8 @@ class TrainingRun:
             self.obs[name][rows] = value
         if part == 0:
             self._record_car_view(seen, actions, q, reward, info)
-        stored, taken = self._store(envs, actions, reward, terminated, info)
+        ends = self.dqn.stored_terminal(terminated, truncated)
+        stored, taken = self._store(envs, actions, reward, ends, info)
         self._end_episodes(envs, terminated, truncated, info, taken)
         return stored, waited
 

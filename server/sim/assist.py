@@ -17,6 +17,8 @@ from typing import TYPE_CHECKING, ClassVar, Literal
 
 import numpy as np
 
+from overtake.protocol.vocabulary import CRUISE_DOWN, CRUISE_UP, KEEP
+
 from . import kernels
 from .ahead import CarsAhead, cars_ahead
 from .lane_watch import LaneChangeWatch
@@ -114,6 +116,15 @@ class EgoConfig:
     # keep; "repeat" as his code: the decision's speed action again (a lane change: keep).
     skipped_frames: Literal["table3", "repeat"] = "table3"
     safety_gap_m: float = 8.0
+    # The action applied as the car drove it (speed_steps only; Ho's code,
+    # players/deep_traffic_player.py, where car.move returns what the car did and the player
+    # writes it over the agent's action): in the decision's first frame, with a vehicle ahead
+    # within safety_gap_m, accelerate is applied as keep, and accelerate, keep or a lane
+    # change (the car still changes lanes) as decelerate where that vehicle is slower (the
+    # safety rule takes its speed); the skipped frames then repeat that speed action, not
+    # the one chosen (his action_cache). False: the action applied is the one chosen, a
+    # refused lane change keep.
+    applied_as_driven: bool = False
 
     def __post_init__(self) -> None:
         check_range("ego.cruise_min_kmh", self.cruise_min_kmh, 0.0, 300.0)
@@ -183,6 +194,13 @@ class EgoConfig:
             "deliberate, or forced with ego.speed_control = speed_steps (the brake its safety "
             "rule forces)",
         )
+        check_flag("ego.applied_as_driven", self.applied_as_driven)
+        check(
+            not self.applied_as_driven or self.speed_control == "speed_steps",
+            "ego.applied_as_driven",
+            self.applied_as_driven,
+            "off unless ego.speed_control = speed_steps (it reads that control's safety rule)",
+        )
 
 
 class CruiseControl:
@@ -241,6 +259,19 @@ class SpeedSteps:
     def commands(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(A, N) speed commands (-1, 0, +1) of the decision's first frame and of the others."""
         return self.FIRST[actions], self.skipped[actions]
+
+    def as_driven(self, st: SimState, following: Following, applied: np.ndarray) -> None:
+        """Rewrite the (A, N) actions ``applied`` as the car drove them in this frame
+        (``ego.applied_as_driven``, Ho's ``players/deep_traffic_player.py``): with a vehicle
+        ahead within the safety gap, accelerate is keep; with that vehicle slower, accelerate,
+        keep and a lane change are decelerate (his ``car.move``: an action the safety rule
+        does not allow becomes the first it allows, keep before decelerate). Before the
+        frame's speeds are integrated (the rule's own test, :func:`.kernels.speed_steps`)."""
+        n = self.agents
+        near = following.has_leader[:, :n] & (following.gap_m[:, :n] < self.safety_gap_m)
+        slower = near & (following.leader_speed_mps[:, :n] < st.speed_mps[:, :n])
+        applied[near & (applied == CRUISE_UP)] = KEEP
+        applied[slower] = CRUISE_DOWN
 
     def speeds(
         self,

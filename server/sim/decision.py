@@ -31,7 +31,8 @@ class StepResult:
     reward_terms: dict[str, np.ndarray]  # name -> float64, in the preset's order
     terminated: np.ndarray  # bool: collided
     truncated: np.ndarray  # bool: the episode reached its decision limit
-    action_applied: np.ndarray  # int64: the action actually taken (refused -> keep)
+    action_applied: np.ndarray  # int64: the action actually taken (refused -> keep; with
+    # ego.applied_as_driven, as the car drove it in the decision's first frame)
 
     @property
     def ended(self) -> np.ndarray:
@@ -63,6 +64,9 @@ class Decision:
         )
         # Ho's speed steps: each frame's speed commands come from the decision's actions.
         self.speed_steps = sim.physics.speed_steps
+        # Ho's code: the action applied is what the car did in the decision's first frame, and
+        # the skipped frames repeat it (ego.applied_as_driven).
+        self.as_driven = sim.config.ego.applied_as_driven
         self._lanes = LaneSorter(sim.road.lane_count)
         # Whether some lane change ends within its first frame (see advance).
         self.instant_changes = bool((sim.kinds.change_duration <= sim.dt).any())
@@ -92,8 +96,12 @@ class Decision:
         # What the agents were warned of when they chose (the observation they acted on).
         warned = st.warnings.copy() if self.keeps_warnings else None
         started, applied = self.actions.apply(st, actions)
-        alternated = self._remember_actions(st, applied)
-        commands = (None, None) if self.speed_steps is None else self.speed_steps.commands(actions)
+        # Ho's alternation reads the lane change chosen (car.py's ``result``), not as driven.
+        alternated = self._alternated(st, applied)
+        if self.as_driven:
+            applied = applied.copy()
+        steps = self.speed_steps
+        first_command, later_command = (None, None) if steps is None else steps.commands(actions)
         random_movers = self.manoeuvres.decide(st, uniforms)
         params = self.kinds.params(st.kind)
         collided = np.zeros((st.x_m.shape[0], n), dtype=bool)
@@ -118,12 +126,16 @@ class Decision:
                 brakes,
                 mobil_index=index if frame == 0 else None,
                 random_movers=random_movers,
-                speed_command=commands[0] if frame == 0 else commands[1],
+                speed_command=first_command if frame == 0 else later_command,
+                as_driven=applied if self.as_driven and frame == 0 else None,
             )
+            if frame == 0 and self.as_driven and steps is not None:
+                later_command = steps.skipped[applied]  # his action_cache: the action as driven
             if frame == 0 and lanes_before is not None and (st.lane != lanes_before).any():
                 x_rel = st.x_m - st.x_m[:, :1]
                 index = self._lanes.build(x_rel, st.lane, st.target_lane, st.active)
                 lead, valid = leaders(index)
+        self._remember_actions(st, applied)
         gained, undone, passed = self.tracker.track(st)
         self.spawner.recycle(st, uniforms)
         self.note_warnings(st)
@@ -157,16 +169,21 @@ class Decision:
             action_applied=applied,
         )
 
-    def _remember_actions(self, st: SimState, applied: np.ndarray) -> np.ndarray | None:
-        """Push the decision's applied actions onto the agents' recent actions, where they are
-        kept; returns which agents changed lanes opposite to a change among the recent ones
-        (Ho's alternation), or None where they are not kept."""
+    def _alternated(self, st: SimState, applied: np.ndarray) -> np.ndarray | None:
+        """Which agents changed lanes opposite to a change among their recent actions (Ho's
+        alternation), or None where those are not kept."""
         if not self.keeps_recent_actions:
             return None
         recent = st.recent_actions
-        alternated = ((applied == LANE_LEFT) & (recent == LANE_RIGHT).any(axis=-1)) | (
+        return ((applied == LANE_LEFT) & (recent == LANE_RIGHT).any(axis=-1)) | (
             (applied == LANE_RIGHT) & (recent == LANE_LEFT).any(axis=-1)
         )
+
+    def _remember_actions(self, st: SimState, applied: np.ndarray) -> None:
+        """Push the decision's applied actions onto the agents' recent actions, where they are
+        kept."""
+        if not self.keeps_recent_actions:
+            return
+        recent = st.recent_actions
         recent[..., :-1] = recent[..., 1:]
         recent[..., -1] = applied
-        return alternated

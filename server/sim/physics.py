@@ -116,13 +116,16 @@ class Physics:
         mobil_index: LaneIndex | None,
         random_movers: np.ndarray,
         speed_command: np.ndarray | None = None,
+        as_driven: np.ndarray | None = None,
     ) -> None:
         """One frame for every arena of ``st``; collisions (A, N) bool are marked in
         ``collided``, emergency brakes counted in ``brakes`` (A, N) int.
 
         ``lead``/``valid`` (A, 2V): each lane entry's leader; with ``mobil_index`` traffic also
         considers lane changes this frame, ``random_movers`` (A, V) whatever their incentive.
-        ``speed_command`` (A, N): the agents' speed steps this frame (speed_steps control only).
+        ``speed_command`` (A, N): the agents' speed steps this frame (speed_steps control only);
+        ``as_driven`` (A, N): actions to rewrite in place as the agents drove them this frame
+        (:meth:`.assist.SpeedSteps.as_driven`, ``ego.applied_as_driven``).
         """
         n, dt = self.agents, self.dt
         shape = st.x_m.shape
@@ -199,6 +202,8 @@ class Physics:
                 new_speed,
                 forced,
             )
+            if as_driven is not None:
+                self.speed_steps.as_driven(st, following, as_driven)
             if not self.episodes.counts_forced_brakes:
                 forced = None
         # Along the road, and laterally minimum-jerk moves between lane centres.

@@ -108,9 +108,13 @@ class Planner:
         self._copy_state()
         start = shadow.state.x_m[:, :n].copy()
         crashed = np.zeros((self.options * arenas, n), dtype=bool)
+        changes = shadow.state.lane_changes[:, :n].copy()
         result = shadow.step(first)
-        # A lane change that cannot start (no lane, one under way) is no option at all.
-        possible = result.action_applied == first
+        # A lane change that cannot start (no lane, one under way) is no option at all. (Told
+        # by the changes started: with ego.applied_as_driven a started change braked by the
+        # safety rule is applied as decelerate.)
+        lateral = (first == LANE_LEFT) | (first == LANE_RIGHT)
+        possible = ~lateral | (shadow.state.lane_changes[:, :n] > changes)
         crashed |= result.terminated
         for _ in range(self.horizon_decisions - 1):
             crashed |= shadow.step(self._greedy(shadow)).terminated

@@ -175,6 +175,15 @@ def ho2018() -> SimConfig:
       alongside (``ego.lane_change_check``; his check reads the rows of the agent's body in the
       next lane, against the rows a car marks there: a car from 2.5 m ahead of its front to
       1.5 m behind its rear, whatever its speed);
+    - the action applied as his car drove it (``ego.applied_as_driven``;
+      ``players/deep_traffic_player.py`` writes what ``car.move`` did over the agent's action,
+      which ``deep_traffic_agent.py``'s ``remember`` stores and ``act`` pushes onto the action
+      stack): in the decision's first frame, accelerate behind a car within the safety gap is
+      keep, and accelerate, keep or a lane change (which still happens) with a slower car
+      there is decelerate; the skipped frames repeat that action (his ``action_cache``), so a
+      braked decision goes on braking 1 km/h a frame. ``info["action_applied"]`` and the
+      ``actions`` observation hold it; a lane change the side check refuses is keep here (his
+      player keeps the left or right it chose; the mask leaves no such choice);
     - an emergency brake counted as his ``hard_brake_count`` (``car.py``): in every frame that
       his safety rule makes the agent take the speed of a car ahead more than 20 km/h slower
       (``ego.emergency_brake_count = "forced"``; the thesis, §6.2: "20 km/h or more");
@@ -264,6 +273,7 @@ def ho2018() -> SimConfig:
             skipped_frames="repeat",
             safety_gap_m=4.0,
             emergency_brake_count="forced",
+            applied_as_driven=True,
             lane_change_check=True,
             mask_refusals=True,
             lane_change_clear_ahead_m=2.5,

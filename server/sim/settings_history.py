@@ -123,6 +123,9 @@ HISTORY: tuple[SettingChange, ...] = (
     # every preset of before.
     SettingChange("highway_scene", since=57),
     SettingChange("kinematics", since=57),
+    # Issue 66: the action applied was the one chosen (a refused lane change keep); ho2018's
+    # is now as his car drove it, and its skipped frames repeat that.
+    SettingChange("ego.applied_as_driven", since=66, before=False),
 )
 SETTINGS_EPOCH = max(change.since for change in HISTORY)
 """The last issue that changed the simulator's settings."""
@@ -149,6 +152,8 @@ BEFORE_AUTHORS_TRAFFIC: dict[str, dict[str, PlainValue]] = {
     "ho2018": {
         # Counted as any preset counted them then (issue 56 counts the brakes his rule forces).
         "ego.emergency_brake_count": "deliberate",
+        # The action chosen applied, as then (issue 66 applies it as his car drove it).
+        "ego.applied_as_driven": False,
         "traffic.density_vehicle_counts": (20, 40, 60),
         "traffic.entry": "comfortable",
         "traffic.following": "idm",

@@ -149,15 +149,20 @@ def test_the_speed_stays_within_0_and_110_kmh():
     assert speed_kmh(slow) == 0.0
 
 
+# The action chosen repeated over the skipped frames, where a test is of the safety rule alone
+# (with the preset's ego.applied_as_driven a braked decision goes on braking: tests below).
+AS_CHOSEN = {"ego.applied_as_driven": False}
+
+
 def test_a_slower_car_within_the_safety_gap_is_matched_at_once_and_counted_as_an_emergency_brake():
     # 2.5 m bumper to bumper (7 m cars, centres 9.5 m apart), 30 km/h slower: an emergency
     # brake.
-    sim = ho_sim([Car(dx=9.5, lane=OWN_LANE, speed_kmh=60.0)], ego_speed_kmh=90.0)
+    sim = ho_sim([Car(dx=9.5, lane=OWN_LANE, speed_kmh=60.0)], ego_speed_kmh=90.0, **AS_CHOSEN)
     sim.step(np.array([[CRUISE_UP]]))
     assert speed_kmh(sim) == pytest.approx(60.0, abs=0.01)
     assert sim.metrics()["emergency_brakes"][0, 0] == 1
     # 10 km/h slower: matched too, but no emergency brake (§6.2: at least 20 km/h).
-    mild = ho_sim([Car(dx=9.5, lane=OWN_LANE, speed_kmh=60.0)], ego_speed_kmh=70.0)
+    mild = ho_sim([Car(dx=9.5, lane=OWN_LANE, speed_kmh=60.0)], ego_speed_kmh=70.0, **AS_CHOSEN)
     keep(mild)
     assert speed_kmh(mild) == pytest.approx(60.0, abs=0.01)
     assert mild.metrics()["emergency_brakes"][0, 0] == 0
@@ -167,7 +172,9 @@ def test_emergency_brakes_are_counted_as_his_code_counts_them_the_brakes_his_rul
     """car.py's hard_brake_count: the safety rule takes the speed of a car in the front window
     more than 20 km/h slower (strictly); a deliberate brake towards a slow car farther ahead
     is not one (the count before issue 56 counted it: ``ego.emergency_brake_count``)."""
-    exactly_20 = ho_sim([Car(dx=9.5, lane=OWN_LANE, speed_kmh=60.0)], ego_speed_kmh=80.0)
+    exactly_20 = ho_sim(
+        [Car(dx=9.5, lane=OWN_LANE, speed_kmh=60.0)], ego_speed_kmh=80.0, **AS_CHOSEN
+    )
     keep(exactly_20)
     assert speed_kmh(exactly_20) == pytest.approx(60.0, abs=0.01)
     assert exactly_20.metrics()["emergency_brakes"][0, 0] == 0
@@ -189,7 +196,7 @@ def test_emergency_brakes_are_counted_as_his_code_counts_them_the_brakes_his_rul
     assert deliberate.metrics()["emergency_brakes"][0, 0] == 1
     # Counted per frame the rule forces, as his code checks every frame: the car ahead
     # slowing again past the margin is a second one.
-    twice = ho_sim([Car(dx=9.5, lane=OWN_LANE, speed_kmh=60.0)], ego_speed_kmh=90.0)
+    twice = ho_sim([Car(dx=9.5, lane=OWN_LANE, speed_kmh=60.0)], ego_speed_kmh=90.0, **AS_CHOSEN)
     keep(twice)
     twice.state.speed_mps[0, 1] = 35.0 * KMH
     keep(twice)
@@ -208,6 +215,112 @@ def test_no_accelerating_with_a_car_within_the_safety_gap_even_a_faster_one():
     far = ho_sim([Car(dx=17.0, lane=OWN_LANE, speed_kmh=80.0)], ego_speed_kmh=60.0)
     far.step(np.array([[CRUISE_UP]]))
     assert speed_kmh(far) == pytest.approx(64.0)
+
+
+# --- the action applied as his car drove it (players/deep_traffic_player.py) ----------------------
+
+
+def step_applied(sim: HighwaySim, action: int) -> int:
+    return int(sim.step(np.array([[action]])).action_applied[0, 0])
+
+
+@pytest.mark.parametrize("action", [KEEP, CRUISE_UP, CRUISE_DOWN, LANE_LEFT, LANE_RIGHT])
+def test_on_a_free_road_the_action_applied_is_the_one_chosen(action):
+    sim = ho_sim()
+    assert step_applied(sim, action) == action
+    assert sim.observe()["actions"][0, 0].tolist() == [KEEP, KEEP, KEEP, action]
+
+
+@pytest.mark.parametrize("as_driven", [True, False])
+def test_accelerate_behind_a_car_within_the_gap_is_keep_and_its_skipped_frames_keep(as_driven):
+    # 3.5 m bumper to bumper, the car ahead 50 km/h faster: out of the 4 m gap after the
+    # decision's first frame. His car.move makes the accelerate keep (a car in front: no "A"
+    # among the moves), and the skipped frames repeat keep (action_cache); as chosen, they
+    # accelerate once the gap has opened.
+    sim = ho_sim(
+        [Car(dx=10.5, lane=OWN_LANE, speed_kmh=110.0)],
+        ego_speed_kmh=60.0,
+        **{"ego.applied_as_driven": as_driven},
+    )
+    assert step_applied(sim, CRUISE_UP) == (KEEP if as_driven else CRUISE_UP)
+    assert speed_kmh(sim) == pytest.approx(60.0 if as_driven else 63.0)
+    assert sim.observe()["actions"][0, 0, -1] == (KEEP if as_driven else CRUISE_UP)
+
+
+@pytest.mark.parametrize("action", [CRUISE_UP, KEEP, CRUISE_DOWN])
+@pytest.mark.parametrize("as_driven", [True, False])
+def test_behind_a_slower_car_within_the_gap_the_action_is_decelerate_and_goes_on_braking(
+    action, as_driven
+):
+    # 2.5 m bumper to bumper, 30 km/h slower: the rule takes its 60 km/h at once (his "M" and
+    # "A" are not among the moves, so car.move makes them "D"); the skipped frames repeat
+    # decelerate, 1 km/h a frame (the car ahead no longer slower: his decelerate steps down).
+    sim = ho_sim(
+        [Car(dx=9.5, lane=OWN_LANE, speed_kmh=60.0)],
+        ego_speed_kmh=90.0,
+        **{"ego.applied_as_driven": as_driven},
+    )
+    applied = step_applied(sim, action)
+    braking = as_driven or action == CRUISE_DOWN
+    assert applied == (CRUISE_DOWN if as_driven else action)
+    assert speed_kmh(sim) == pytest.approx(57.0 if braking else 60.0, abs=0.01)
+    assert sim.observe()["actions"][0, 0].tolist() == [KEEP, KEEP, KEEP, applied]
+
+
+def test_a_lane_change_in_a_frame_the_rule_brakes_is_decelerate_and_still_changes_lanes():
+    # His player: the change starts (switch_lane), then car.move("M") finds no "M" behind the
+    # slower car and the recorded action is "D"; the car is in the new lane within the frame
+    # and brakes on over the skipped frames.
+    sim = ho_sim([Car(dx=9.5, lane=OWN_LANE, speed_kmh=60.0)], ego_speed_kmh=90.0)
+    result = sim.step(np.array([[LANE_LEFT]]))
+    assert int(result.action_applied[0, 0]) == CRUISE_DOWN
+    assert sim.state.lane[0, 0] == OWN_LANE + 1 and sim.metrics()["lane_changes"][0, 0] == 1
+    assert speed_kmh(sim) == pytest.approx(57.0, abs=0.01)
+    assert sim.observe()["actions"][0, 0, -1] == CRUISE_DOWN
+    # As chosen (the setting off): the lane change is what was applied.
+    chosen = ho_sim([Car(dx=9.5, lane=OWN_LANE, speed_kmh=60.0)], ego_speed_kmh=90.0, **AS_CHOSEN)
+    assert step_applied(chosen, LANE_LEFT) == LANE_LEFT
+    assert speed_kmh(chosen) == pytest.approx(60.0, abs=0.01)
+
+
+def test_a_braked_lane_change_opposite_to_a_recent_one_still_costs_the_alternation():
+    # His car.py reads the change chosen (the player's ``result``) against the stack of
+    # actions as driven: a change right, then, braked by the rule, a change left.
+    # 5.5 m bumper to bumper in the lane on the right: beyond the gap in the change's frame,
+    # matched at the decision's last.
+    sim = ho_sim([Car(dx=12.5, lane=OWN_LANE - 1, speed_kmh=60.0)], ego_speed_kmh=90.0)
+    assert step_applied(sim, LANE_RIGHT) == LANE_RIGHT
+    assert speed_kmh(sim) == pytest.approx(60.0, abs=0.01)
+    sim.state.speed_mps[0, 1] = 30.0 * KMH  # the car it is now behind brakes hard
+    result = sim.step(np.array([[LANE_LEFT]]))
+    assert int(result.action_applied[0, 0]) == CRUISE_DOWN
+    assert float(result.reward_terms["alternation"][0, 0]) == pytest.approx(-0.00001)
+    assert sim.observe()["actions"][0, 0].tolist() == [KEEP, KEEP, LANE_RIGHT, CRUISE_DOWN]
+
+
+def test_the_action_stack_holds_the_actions_as_driven():
+    sim = ho_sim([Car(dx=9.5, lane=OWN_LANE, speed_kmh=60.0)], ego_speed_kmh=90.0)
+    chosen = (CRUISE_UP, KEEP, CRUISE_UP, LANE_RIGHT)
+    applied = [step_applied(sim, action) for action in chosen]
+    # Braked to 60 (and on to 57) behind it; then kept behind it, an accelerate within the
+    # gap kept too; the change right onto a free lane as chosen.
+    assert applied == [CRUISE_DOWN, KEEP, KEEP, LANE_RIGHT]
+    assert sim.observe()["actions"][0, 0].tolist() == applied
+
+
+def test_applied_as_driven_is_his_speed_steps_and_a_record_from_before_replays_without_it():
+    from overtake.server.sim.config import as_json
+    from overtake.server.sim.settings_history import as_recorded
+
+    assert make_config("ho2018").ego.applied_as_driven
+    assert not make_config("ho2018", AS_CHOSEN).ego.applied_as_driven
+    with pytest.raises(ValueError, match="ego.applied_as_driven"):
+        make_config("min2018", {"ego.applied_as_driven": True})
+    # A record made before the setting existed (issue 66) lacks it: its simulator applied the
+    # action chosen.
+    recorded = as_json(make_config("ho2018"))
+    del recorded["ego"]["applied_as_driven"]
+    assert not as_recorded("ho2018", {}, recorded).ego.applied_as_driven
 
 
 def test_traffic_yields_to_the_agent_in_ho2018_and_not_in_min_et_al_s_rule():

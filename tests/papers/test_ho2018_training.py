@@ -10,7 +10,8 @@ from dataclasses import replace
 import pytest
 
 from overtake.client.commands import UsageError
-from overtake.client.episodes.scenario import Scenario
+from overtake.client.episodes.scenario import Scenario, parse_overrides
+from overtake.server.sim import make_config
 from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.evaluate import EvalConfig
 from overtake.trainers.evaluate import main as evaluate
@@ -49,6 +50,9 @@ def test_the_preset_names_its_training(ho_run):
     assert dqn.learning_rate == 0.0005 and dqn.rmsprop_alpha == 0.9 and dqn.gamma == 0.99
     assert dqn.rmsprop_eps == 1e-10 and not dqn.rmsprop_centered and dqn.train_every == 1
     assert dqn.epsilon_decay_steps == 2_000_000 and dqn.target_update_steps == 10_000
+    # His loop: the action his car drove stored, the time limit's end terminal, his start.
+    assert dqn.store_applied and not dqn.bootstrap_time_limit
+    assert (dqn.init, dqn.init_std) == ("truncated-normal", 0.02)
     # What the command line said still wins over the preset's.
     assert dqn.learning_starts == 48 and dqn.replay_size == 600
     learner = checkpoint.make_learner()
@@ -56,6 +60,7 @@ def test_the_preset_names_its_training(ho_run):
     assert isinstance(learner.optimizer, TFRMSprop)
     run = json.loads((ho_run / "run.json").read_text())
     assert run["sim_config"]["grid"]["enabled"] and not run["sim_config"]["lidar"]["enabled"]
+    assert run["sim_config"]["ego"]["applied_as_driven"]
     assert checkpoint.step >= 160
 
 
@@ -115,6 +120,21 @@ def test_the_baseline_network_and_min_s_network_on_grid_are_choices():
         train(
             replace(config, total_steps=8, dqn=replace(config.dqn, network="multimodal")),
         )
+
+
+def test_each_departure_of_his_loop_is_turned_back_by_its_flag():
+    preset = ["--preset", "ho2018"]
+    dqn = train_command.parse(preset).dqn
+    assert dqn.store_applied and not dqn.bootstrap_time_limit and dqn.init == "truncated-normal"
+    back = train_command.parse(
+        [*preset, "--no-store-applied", "--bootstrap-time-limit", "--init", "torch"]
+    )
+    assert not back.dqn.store_applied and back.dqn.bootstrap_time_limit
+    assert back.dqn.init == "torch"
+    # The simulator's: the action applied as chosen.
+    chosen = train_command.parse([*preset, "--set", "ego.applied_as_driven=false"])
+    overrides = parse_overrides(chosen.scenario.set)
+    assert not make_config("ho2018", overrides).ego.applied_as_driven
 
 
 def test_the_preset_is_read_from_the_command_line():

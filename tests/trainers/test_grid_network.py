@@ -76,3 +76,56 @@ def test_a_grid_network_fits_q_values_that_depend_on_the_grid():
         loss.backward()
         optimiser.step()
     assert loss.item() < 0.1 * first
+
+
+# --- Ho's initialisation (cnn.py: tf.truncated_normal_initializer(stddev=2e-2)) ------------------
+
+
+def _layers(network: torch.nn.Module) -> list[torch.nn.Module]:
+    return [m for m in network.modules() if isinstance(m, (torch.nn.Conv2d, torch.nn.Linear))]
+
+
+@pytest.mark.parametrize("kind", ["baseline", "proposed"])
+@pytest.mark.parametrize("head", ["plain", "dueling"])
+def test_his_initialisation_cuts_every_kernel_at_two_deviations_and_zeroes_the_biases(kind, head):
+    torch.manual_seed(0)
+    network = GridQNetwork(SHAPE, kind, head=HeadSpec(head), init_std=0.02)
+    layers = _layers(network)
+    assert len(layers) == {"baseline": 2, "proposed": 6}[kind] + (head == "dueling")
+    for layer in layers:  # every convolution and dense layer, the head's included
+        assert layer.weight.abs().max() <= 0.04
+        assert layer.bias is not None and (layer.bias == 0).all()
+
+
+def test_his_initialisation_has_the_deviation_of_a_normal_cut_at_two():
+    # A normal of deviation 0.02 redrawn beyond +-0.04 keeps 0.8796 of its deviation; the fused
+    # layer's 292 x 100 weights measure it to within 1%.
+    torch.manual_seed(1)
+    fused = GridQNetwork(SHAPE, "proposed", init_std=0.02).fuse[0].weight
+    assert fused.numel() == 29_200
+    assert fused.std().item() == pytest.approx(0.02 * 0.8796, rel=0.01)
+    assert fused.mean().abs().item() < 0.0005
+    # PyTorch's own start (Kaiming-uniform: bound 1 / sqrt(292)) is another distribution.
+    torch.manual_seed(1)
+    default = GridQNetwork(SHAPE, "proposed").fuse[0]
+    assert default.weight.abs().max().item() > 0.05 and (default.bias != 0).any()
+
+
+def test_the_learner_builds_his_initialisation_from_its_settings_and_refuses_it_elsewhere():
+    from dataclasses import replace
+
+    from overtake.trainers.heads import PLAIN
+    from overtake.trainers.learner import build_network
+    from overtake.trainers.presets import PRESET_TRAINING
+
+    dqn = PRESET_TRAINING["ho2018"].dqn
+    assert (dqn.init, dqn.init_std) == ("truncated-normal", 0.02)
+    built = build_network(SHAPE, "grid", dqn, PLAIN)
+    assert all(layer.weight.abs().max() <= 0.04 for layer in _layers(built))
+    assert all((layer.bias == 0).all() for layer in _layers(built))
+    torch_init = build_network(SHAPE, "grid", replace(dqn, init="torch"), PLAIN)
+    assert any((layer.bias != 0).any() for layer in _layers(torch_init))
+    with pytest.raises(ValueError, match="init truncated-normal is Ho's"):
+        build_network(SHAPE, "lidar", replace(dqn, network="multimodal"), PLAIN)
+    with pytest.raises(ValueError, match="init must be one of"):
+        replace(dqn, init="xavier")

@@ -289,6 +289,31 @@ def test_an_episode_ending_past_the_budget_is_not_counted(tmp_path):
     assert [line["env"] for line in lines if line["kind"] == "episode"] == [0]
 
 
+@pytest.mark.parametrize("bootstrap", [True, False])
+def test_an_episode_cut_by_its_time_limit_is_stored_as_terminal_only_without_bootstrap(
+    tmp_path, bootstrap
+):
+    """Episodes of 4 decisions, each ended by its time limit (truncated): with
+    ``bootstrap_time_limit`` the replay stores no terminal; without it (Ho's code) each
+    episode's last transition is terminal, and only that one."""
+    config = TrainConfig(
+        inputs="lidar",
+        num_envs=2,
+        total_steps=24,
+        run_dir=tmp_path,
+        progress=False,
+        dqn=tiny_dqn(learning_starts=50, bootstrap_time_limit=bootstrap),
+    )
+    summary = train(config, envs=PickTheFreeLane(2, length=4))
+    assert summary["steps"] == 24 and summary["episodes"] == 6
+    saved = saved_replay(tmp_path)
+    stored = saved["has_next"].astype(bool)
+    terminal = saved["terminated"].astype(bool) & stored
+    last = stored & (saved["ep_step"] == 3)  # the transition into the episode's 4th step
+    assert last.sum() == 6
+    assert terminal.tolist() == (np.zeros_like(last) if bootstrap else last).tolist()
+
+
 @pytest.mark.parametrize("overlap, parts", [("off", 1), ("on", 1), ("on", 2)])
 def test_a_remote_run_stores_exactly_its_budget(tmp_path, start_server, overlap, parts):
     server = start_server(f"budget-{overlap}-{parts}")

@@ -1,7 +1,8 @@
 """Ho's action stack (2018, §5): the agent's last actions, a second input beside the grid.
 
 The last :data:`~overtake.server.sim.state.ACTION_HISTORY` actions the agent's car took (the
-action applied: a refused lane change reads keep), oldest first, as action indices of
+action applied: a refused lane change reads keep, and under ``ego.applied_as_driven`` an
+action his safety rule changed reads what it became), oldest first, as action indices of
 :data:`~overtake.protocol.vocabulary.ACTION_NAMES` in float32, the way Ho's network reads its
 stack of action indices. Before an episode's first decisions the stack holds keep (Ho's code
 starts it with his "maintain").
