@@ -295,5 +295,6 @@ def _rule_driver(spec: BehaviourSpec) -> Policy:
     raise UsageError(
         "the rule-based driver reads the LIDAR and the ego vector (lidar.enabled, "
         "ego_vector.enabled), the occupancy grid (grid.enabled) or the LIDAR map "
-        "(lidar_map.enabled): this configuration has none of them"
+        "(lidar_map.enabled): this configuration has none of them; drive it with --policy "
+        "idle, random or planner (in process) instead"
     )
