@@ -80,6 +80,18 @@ class Restorable(Protocol):
     def restore(self, snapshot: Mapping[str, Any]) -> None: ...
 
 
+@dataclass(frozen=True)
+class PictureView:
+    """How a top-down picture is framed, as highway-env's viewer frames its road
+    (``screen_width``, ``screen_height``, ``scaling``, ``centering_position``): its size in
+    pixels, its scale, and where the watched car sits (fractions of the width and height)."""
+
+    width_px: int = 600
+    height_px: int = 150
+    pixels_per_m: float = 5.5
+    centering: tuple[float, float] = (0.3, 0.5)
+
+
 class Road(Protocol):
     """What an in-process simulator shows of its road, which a remote one keeps to itself (its
     roads reach a recording through a spectator)."""
@@ -88,8 +100,8 @@ class Road(Protocol):
         """Arena ``arena`` now, as a spectator of a server would see it (the observations,
         reward, action and terms of its last round)."""
 
-    def picture(self, arena: int) -> np.ndarray:
-        """Arena ``arena`` drawn from above, an RGB array."""
+    def picture(self, arena: int, view: PictureView | None = None) -> np.ndarray:
+        """Arena ``arena`` drawn from above, an RGB array (framed by ``view`` where given)."""
 
     def planner_actions(self) -> np.ndarray:
         """What the privileged planner, reading the true state of every car, would do now: one

@@ -44,7 +44,7 @@ def register_environments() -> None:
                 id=env_id,
                 entry_point="overtake.envs.highway_env_like:HighwayEnvLike",
                 vector_entry_point="overtake.envs.highway_env_like:HighwayEnvLikeVector",
-                kwargs={"preset": preset},
+                kwargs={"scene": preset},
                 max_episode_steps=None,
             )
     if REMOTE_HIGHWAY_ENV_ID not in gym.registry:

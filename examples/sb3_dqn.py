@@ -35,7 +35,8 @@ from overtake.client.episodes.scenario import parse_overrides
 @dataclass(frozen=True)
 class Args:
     preset: str = "min2018"
-    """the simulator preset (min2018, ho2018, fayjie2018)"""
+    """the simulator preset (min2018, ho2018, fayjie2018; highway-env's scenes, highway-fast and
+    highway, have their own recipe: docs/highway-env.md)"""
     connect: str | None = None
     """a simulator server's Zenoh endpoint; None runs the simulator in this process"""
     set: tuple[str, ...] = ()

@@ -31,8 +31,10 @@ class UnknownPreset(ProtocolError):
     code = "unknown_preset"
 
 
-class BadConfig(ProtocolError):
-    """An override names no field, or gives a value of the wrong type or range."""
+class BadConfig(ProtocolError, ValueError):
+    """An override names no field, or gives a value of the wrong type or range: the one error
+    of a configuration mistake, wherever it is found (the simulator's configuration raises it
+    as ``overtake.server.sim.ConfigError``, the same class), so a ``ValueError`` too."""
 
     code = "bad_config"
 

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from overtake.envs.faces import SingleFace, VectorFace
+from overtake.protocol.errors import BadConfig
 
 from .local import LocalEngine, LocalRoad, local_simulator
 from .sim import HighwaySim, SimConfig, settings_history
@@ -39,6 +40,17 @@ def in_process_config(
     record's configuration) the simulator that record was made on; with only the sensors of
     ``observations`` on where it names some
     (:func:`~.sim.settings_history.requested_config`)."""
+    if config is not None and not isinstance(config, SimConfig):
+        hint = (
+            ": highway-env's keys go to gym.make('overtake/highway-fast-v0', config={...}), "
+            "overtake's settings to overrides={'road.lane_count': 4, ...}"
+            if isinstance(config, Mapping)
+            else ""
+        )
+        raise BadConfig(
+            f"config= takes a SimConfig (overtake.server.sim.make_config), got a "
+            f"{type(config).__name__}{hint}"
+        )
     if config is None:
         return settings_history.requested_config(preset, overrides or {}, as_recorded, observations)
     if overrides or as_recorded:

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from overtake.envs.faces import Simulator
+from overtake.envs.faces import PictureView, Simulator
 from overtake.envs.registry import arena_seeds
 from overtake.protocol import errors
 from overtake.protocol.messages import BehaviourSpec, WorldFrame
@@ -131,8 +131,16 @@ class LocalRoad:
             trainer_step=self._engine.frames_trainer_step,
         )
 
-    def picture(self, arena: int) -> np.ndarray:
-        return render_top_down(self._engine.sim, arena=arena)
+    def picture(self, arena: int, view: PictureView | None = None) -> np.ndarray:
+        if view is None:
+            return render_top_down(self._engine.sim, arena=arena)
+        return render_top_down(
+            self._engine.sim,
+            arena=arena,
+            size_px=(view.width_px, view.height_px),
+            pixels_per_m=view.pixels_per_m,
+            centering=view.centering,
+        )
 
     def planner_actions(self) -> np.ndarray:
         if self._planner is None:  # built on first use: most runs never ask

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import functools
 import json
+import logging
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -18,7 +20,7 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
-from overtake.cli import Command, Output
+from overtake.cli import Command, CommandError, Output
 from overtake.client.commands import UsageError
 from overtake.client.episodes.records import PolicySource
 from overtake.client.episodes.runner import baseline_policy, metric_summary
@@ -34,6 +36,8 @@ from .network import INPUT_SENSORS, observations_read
 from .observations import describe_space, frame_shapes
 from .presets import PRESET_TRAINING
 from .replay_memory import FrameStacker
+
+log = logging.getLogger(__name__)
 
 TABLE_METRICS = (
     "avg_speed_kmh",
@@ -272,8 +276,10 @@ def evaluation_driver(config: EvalConfig, what: Evaluated, envs: VectorFace) -> 
     return Driver(policy, source, name)
 
 
-def main(config: EvalConfig) -> dict[str, Any]:
-    """Run the episodes; prints the table row and returns the summary."""
+def main(config: EvalConfig, stop: threading.Event | None = None) -> dict[str, Any]:
+    """Run the episodes; prints the table row and returns the summary. ``stop`` (Ctrl-C or
+    SIGTERM on the command line): the episodes that ended by then make the table and the
+    JSON, said as partial."""
     if config.table:
         return {"table": print_table(config.table)}
     what = evaluated(config)
@@ -286,7 +292,12 @@ def main(config: EvalConfig) -> dict[str, Any]:
         functools.partial(evaluation_driver, config, what),
         Keeping(config.episodes_out is not None, recording=recording, rrd=config.record),
         observations=what.observations,
+        stop=stop,
     )
+    if not driven.rows:
+        raise CommandError(
+            f"stopped before any of the {driven.planned} episodes ended: no table, nothing written"
+        )
     record_path = (
         driven.write_records(config.episodes_out) if config.episodes_out is not None else None
     )
@@ -302,15 +313,29 @@ def main(config: EvalConfig) -> dict[str, Any]:
         "episodes": driven.rows,
         "decisions_per_s": driven.decisions / max(driven.elapsed_s, 1e-9),
         "episodes_record": str(record_path) if record_path is not None else None,
+        "partial": driven.partial,
+        "episodes_planned": driven.planned,
     }
     print(format_rows([(name, summary)]))
+    if driven.partial:
+        print(driven.partial_line())
     if config.json_out is not None:
         config.json_out.parent.mkdir(parents=True, exist_ok=True)
         config.json_out.write_text(json.dumps(result, indent=2))
     return result
 
 
-COMMAND = Command("overtake-eval", EvalConfig, main)
+def _say_stopping(name: str) -> None:
+    log.warning(
+        "%s: stopping after the decision under way; the table and --json-out hold the "
+        "episodes that ended (send it again to stop at once)",
+        name,
+    )
+
+
+# Ctrl-C and SIGTERM end the drive before the next decision: the episodes that ended are
+# reported and written, said as partial (a second signal ends it at once, in one line).
+COMMAND = Command("overtake-eval", EvalConfig, main, stopping="event", on_stop=_say_stopping)
 
 
 if __name__ == "__main__":

@@ -9,14 +9,16 @@ from __future__ import annotations
 
 import functools
 import json
+import logging
 import sys
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 
-from overtake.cli import Command, Output
+from overtake.cli import Command, CommandError, Output
 from overtake.client.commands import UsageError
 from overtake.client.episodes.records import PolicySource
 from overtake.client.episodes.runner import baseline_policy, metric_summary, metric_table
@@ -25,6 +27,8 @@ from overtake.client.episodes.session import Driver, Episodes, Keeping, RealTime
 from overtake.client.policies.shield import SHIELD_OVERRIDES
 from overtake.envs.faces import VectorFace
 from overtake.protocol.vocabulary import METRIC_FIELDS, WATCH_SETTING
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -120,8 +124,10 @@ def driver(config: DriveConfig, preset: str, envs: VectorFace) -> Driver:
     return Driver(model, source, name)
 
 
-def main(config: DriveConfig) -> dict[str, dict[str, float]]:
-    """Drive the episodes; returns {metric: {"mean": .., "std": ..}} and prints the table."""
+def main(config: DriveConfig, stop: threading.Event | None = None) -> dict[str, dict[str, float]]:
+    """Drive the episodes; returns {metric: {"mean": .., "std": ..}} and prints the table.
+    ``stop`` (Ctrl-C or SIGTERM on the command line): the episodes that ended by then make the
+    table and the JSON, said as partial."""
     what = what_to_drive(config)
     driven = drive_episodes(
         config.where,
@@ -132,14 +138,22 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
         Keeping(records=config.episodes_out is not None),
         realtime=config.realtime,
         observations=what.observations,
+        stop=stop,
     )
+    if not driven.rows:
+        raise CommandError(
+            f"stopped before any of the {driven.planned} episodes ended: no table, nothing written"
+        )
     if config.episodes_out is not None:
         driven.write_records(config.episodes_out)
     rows = driven.rows
     summary = metric_summary(rows)
+    seeds = [config.seed + i for i in driven.finished]
     _print_table(
-        config, what.preset, metric_table(rows), summary, driven.decisions, driven.elapsed_s
+        config, what.preset, seeds, metric_table(rows), summary, driven.decisions, driven.elapsed_s
     )
+    if driven.partial:
+        print(driven.partial_line())
     if SHIELD_OVERRIDES in summary:
         overrides = sum(row[SHIELD_OVERRIDES] for row in rows)
         print(
@@ -157,6 +171,8 @@ def main(config: DriveConfig) -> dict[str, dict[str, float]]:
             "episodes": rows,
             "summary": summary,
             "realtime": timing or None,
+            "partial": driven.partial,
+            "episodes_planned": driven.planned,
         }
         config.json_out.write_text(json.dumps(result, indent=2))
     return summary
@@ -188,6 +204,7 @@ def _policy_name(config: DriveConfig) -> str:
 def _print_table(
     config: DriveConfig,
     preset: str,
+    seeds: list[int],
     table: np.ndarray,
     summary: dict[str, dict[str, float]],
     decisions: int,
@@ -213,8 +230,8 @@ def _print_table(
     )
     print(line)
     print("-" * len(line))
-    for i, row in enumerate(table):
-        cells = [str(config.seed + i)] + [
+    for seed, row in zip(seeds, table, strict=True):
+        cells = [str(seed)] + [
             f"{v:.1f}" if j in (0, 5, 6) else f"{v:.0f}" for j, v in enumerate(row)
         ]
         print("  ".join(c.rjust(w) for c, w in zip(cells, widths)))
@@ -230,7 +247,17 @@ def _print_table(
     )
 
 
-COMMAND = Command("overtake-drive", DriveConfig, main)
+def _say_stopping(name: str) -> None:
+    log.warning(
+        "%s: stopping after the decision under way; the table and --json-out hold the "
+        "episodes that ended (send it again to stop at once)",
+        name,
+    )
+
+
+# Ctrl-C and SIGTERM end the drive before the next decision: the episodes that ended are
+# reported and written, said as partial (a second signal ends it at once, in one line).
+COMMAND = Command("overtake-drive", DriveConfig, main, stopping="event", on_stop=_say_stopping)
 
 
 if __name__ == "__main__":

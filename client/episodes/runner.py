@@ -9,6 +9,7 @@ record, close) is :mod:`.session`.
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -100,6 +101,26 @@ class EpisodeWatcher(Protocol):
         """A step was taken (``step``: its actions and what it answered)."""
 
 
+@dataclass(frozen=True)
+class EpisodesRun:
+    """What :func:`drive_until` did: each episode's metrics (None where it had not ended when
+    asked to stop), the decisions taken and the seconds it took."""
+
+    rows: list[dict[str, float] | None]
+    decisions: int
+    elapsed_s: float
+
+    @property
+    def finished(self) -> tuple[int, ...]:
+        """The episodes that ended, in order."""
+        return tuple(i for i, row in enumerate(self.rows) if row is not None)
+
+    @property
+    def partial(self) -> bool:
+        """Whether it was stopped before every episode ended."""
+        return len(self.finished) < len(self.rows)
+
+
 def run_episodes(
     envs: VectorFace,
     act: Policy,
@@ -110,7 +131,22 @@ def run_episodes(
 ) -> tuple[list[dict[str, float]], int, float]:
     """One episode per environment of ``envs`` (seeds seed, seed + 1, ..., or each its own
     of a sequence), all stepped together; returns each episode's metrics, the decisions taken
-    and the seconds it took.
+    and the seconds it took (:func:`drive_until`, never stopped)."""
+    run = drive_until(envs, act, episodes, seed, realtime, watchers)
+    return [row for row in run.rows if row is not None], run.decisions, run.elapsed_s
+
+
+def drive_until(
+    envs: VectorFace,
+    act: Policy,
+    episodes: int,
+    seed: int | Sequence[int],
+    realtime: RealTime | None = None,
+    watchers: Sequence[EpisodeWatcher] = (),
+    stop: threading.Event | None = None,
+) -> EpisodesRun:
+    """:func:`run_episodes`, until every episode ended or ``stop`` is set (checked before each
+    decision: the episodes that ended by then are the run's, the others are left out).
 
     ``act(obs, info, starting)`` returns the actions; ``starting`` marks the environments whose
     observation is the first of an episode (a policy that stacks frames restarts there).
@@ -149,7 +185,7 @@ def run_episodes(
         # whose observation is then the first of the new episode.
         starting, resetting = resetting, ended
 
-    while any(row is None for row in rows):
+    while any(row is None for row in rows) and not (stop is not None and stop.is_set()):
         asked = time.perf_counter()
         actions = act(obs, info, starting)
         if realtime is None:
@@ -172,7 +208,7 @@ def run_episodes(
                 realtime.late += episodes
             next_tick += (missed - 1) * realtime.period_s
         next_tick += realtime.period_s
-    return [row for row in rows if row is not None], decisions, time.perf_counter() - started
+    return EpisodesRun(rows, decisions, time.perf_counter() - started)
 
 
 # The reference policies ``baseline_policy`` builds.
@@ -259,5 +295,6 @@ def _rule_driver(spec: BehaviourSpec) -> Policy:
     raise UsageError(
         "the rule-based driver reads the LIDAR and the ego vector (lidar.enabled, "
         "ego_vector.enabled), the occupancy grid (grid.enabled) or the LIDAR map "
-        "(lidar_map.enabled): this configuration has none of them"
+        "(lidar_map.enabled): this configuration has none of them; drive it with --policy "
+        "idle, random or planner (in process) instead"
     )

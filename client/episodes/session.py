@@ -26,7 +26,7 @@ from overtake.client.episodes.records import (
     record_name,
     write_records,
 )
-from overtake.client.episodes.runner import EpisodeWatcher, Policy, RealTime, run_episodes
+from overtake.client.episodes.runner import EpisodeWatcher, Policy, RealTime, drive_until
 from overtake.client.episodes.scenario import Where
 from overtake.client.provenance import git_commit
 from overtake.envs.faces import VectorFace
@@ -84,7 +84,12 @@ class Driven:
     sim_config: dict[str, Any]
     """the simulator configuration the preset and overrides resolved to"""
     rows: list[dict[str, float]]
-    """each episode's metrics, in the order of the episodes"""
+    """each finished episode's metrics, in the order of the episodes"""
+    finished: tuple[int, ...]
+    """the episodes (their positions in :class:`Episodes`) that ended: all of them unless the
+    drive was stopped (:attr:`partial`)"""
+    planned: int
+    """the episodes asked for"""
     decisions: int
     elapsed_s: float
     records: list[EpisodeRecord] | None
@@ -92,6 +97,20 @@ class Driven:
     clock: RealTime | None
     recorded: bool
     """a Rerun recording was written"""
+
+    @property
+    def partial(self) -> bool:
+        """Whether the drive was stopped before every episode ended."""
+        return len(self.finished) < self.planned
+
+    def partial_line(self) -> str:
+        """What a command says of a stopped drive (empty where it was not stopped)."""
+        if not self.partial:
+            return ""
+        return (
+            f"partial: stopped after {len(self.finished)} of {self.planned} episodes ended "
+            "(the table has those only)"
+        )
 
     def header(self) -> RecordHeader:
         return RecordHeader(
@@ -123,12 +142,15 @@ def drive_episodes(
     realtime: bool = False,
     open_envs: Callable[[], VectorFace] | None = None,
     observations: Sequence[str] = (),
+    stop: threading.Event | None = None,
 ) -> Driven:
     """Drive ``episodes`` of ``preset`` with ``overrides``, ``where`` says (or in what
     ``open_envs`` opens instead: a replay's simulator), by the driver ``driver_for`` chooses
     for the environment.
     ``realtime``: on the wall clock, one decision period per decision (:class:`RealTime`).
-    ``observations``: only the sensors the driver reads (none named: the configuration's)."""
+    ``observations``: only the sensors the driver reads (none named: the configuration's).
+    ``stop``: once set, the drive ends before the next decision, with the episodes that ended
+    (:attr:`Driven.partial`)."""
     if open_envs is None:
         envs = where.open(preset, overrides, episodes.count, observations=observations)
     else:
@@ -153,13 +175,14 @@ def drive_episodes(
             )
             if view is not None:
                 watchers.append(view)
-        rows, decisions, elapsed_s = run_episodes(
+        run = drive_until(
             envs,
             driver.act,
             episodes.count,
             list(episodes.seeds),
             realtime=clock,
             watchers=watchers,
+            stop=stop,
         )
         if (
             recording is not None
@@ -169,7 +192,7 @@ def drive_episodes(
             # The web viewer lives in this process: it serves until the user is done.
             print(f"episodes driven: {keeping.recording.describe(rrd)}; Ctrl-C ends it")
             with contextlib.suppress(KeyboardInterrupt):
-                threading.Event().wait()
+                (stop or threading.Event()).wait()
         sim_config = envs.sim_config
     finally:
         close_recording(recording)
@@ -187,9 +210,11 @@ def drive_episodes(
         preset=preset,
         overrides=dict(overrides),
         sim_config=sim_config,
-        rows=rows,
-        decisions=decisions,
-        elapsed_s=elapsed_s,
+        rows=[row for row in run.rows if row is not None],
+        finished=run.finished,
+        planned=episodes.count,
+        decisions=run.decisions,
+        elapsed_s=run.elapsed_s,
         records=records,
         clock=clock,
         recorded=recording is not None,

@@ -97,10 +97,17 @@ def main(config: SpectateConfig, stop: threading.Event | None = None) -> int:
                 logged += 1
         finally:
             close_recording(recording)
+            if logged == 0 and config.recording.sink == "file" and rrd.exists():
+                # No frame came (no arena open): an empty recording would only block the next
+                # run's --rrd; nothing is kept.
+                rrd.unlink()
     return logged
 
 
 def _report(config: SpectateConfig, logged: int) -> None:
+    if logged == 0 and config.recording.sink == "file":
+        print("logged no world frame (no arena was open): no recording kept", file=sys.stderr)
+        return
     print(
         f"logged {logged} world frame(s) to {config.recording.describe(DEFAULT_RRD)}",
         file=sys.stderr,

@@ -24,18 +24,37 @@ _OTHER_AGENT = AGENT_KIND
 _WATCHED_AGENT = AGENT_KIND + 1
 
 
-def render_top_down(sim: HighwaySim, arena: int = 0, agent: int = 0) -> np.ndarray:
+def render_top_down(
+    sim: HighwaySim,
+    arena: int = 0,
+    agent: int = 0,
+    *,
+    size_px: tuple[int, int] | None = None,
+    pixels_per_m: float = PIXELS_PER_M,
+    centering: tuple[float, float] = (0.25, 0.5),
+) -> np.ndarray:
     """(H, W, 3) uint8: the road from above, the road running left to right, centred on
-    ``agent``; traffic coloured by behaviour, the watched agent red, other agents yellow."""
+    ``agent``; traffic coloured by behaviour, the watched agent red, other agents yellow.
+
+    By default the whole width of the road, 40 m behind the car to 120 m ahead. ``size_px``
+    (width, height) frames it as highway-env's viewer does instead: that many pixels at
+    ``pixels_per_m``, the watched car at ``centering`` (fractions of the width and height)."""
     st = sim.state
     road_width = sim.road.lane_count * sim.road.lane_width_m
     rail = sim.config.road.barrier_offset_m
-    width = int((VIEW_BEHIND_M + VIEW_AHEAD_M) * PIXELS_PER_M)
-    height = int((road_width + 2 * (rail + MARGIN_M)) * PIXELS_PER_M)
     centre_x = st.x_m[arena, agent]
     # World coordinates of pixel centres: x to the right, y (left of the road) upwards.
-    wx = centre_x - VIEW_BEHIND_M + (np.arange(width) + 0.5) / PIXELS_PER_M
-    wy = road_width + rail + MARGIN_M - (np.arange(height) + 0.5) / PIXELS_PER_M
+    if size_px is None:
+        width = int((VIEW_BEHIND_M + VIEW_AHEAD_M) * PIXELS_PER_M)
+        height = int((road_width + 2 * (rail + MARGIN_M)) * PIXELS_PER_M)
+        wx = centre_x - VIEW_BEHIND_M + (np.arange(width) + 0.5) / PIXELS_PER_M
+        wy = road_width + rail + MARGIN_M - (np.arange(height) + 0.5) / PIXELS_PER_M
+    else:
+        (width, height), scale = size_px, pixels_per_m
+        left_m = centre_x - centering[0] * width / scale
+        top_m = st.y_m[arena, agent] + centering[1] * height / scale
+        wx = left_m + (np.arange(width) + 0.5) / scale
+        wy = top_m - (np.arange(height) + 0.5) / scale
     img = np.empty((height, width, 3), dtype=np.uint8)
     img[:] = _GRASS
     on_road = (wy >= 0) & (wy <= road_width)

@@ -1,16 +1,20 @@
 """How every configuration section checks its values: one error type, three checks.
 
-A refused value raises :class:`ConfigError` naming the field, the value that came and what is
-allowed; the server turns it into a ``bad_config`` reply, the commands into a message.
+A refused value raises :class:`ConfigError` (the protocol's ``BadConfig``, a ``ValueError``)
+naming the field, the value that came and what is allowed; the server sends it as a
+``bad_config`` reply, the commands print it as one line.
 """
 
 from __future__ import annotations
 
 import math
 
+from overtake.protocol.errors import BadConfig
 
-class ConfigError(ValueError):
-    """A configuration value or name was refused; the message says what was expected."""
+# A configuration value or name was refused; the message says what was expected. The
+# protocol's BadConfig itself (a ValueError), so that the in-process and the remote paths
+# raise one error type for one mistake.
+ConfigError = BadConfig
 
 
 def check(condition: bool, name: str, value: object, expected: str) -> None:

@@ -364,3 +364,12 @@ def test_drive_command_prints_what_is_wrong_and_exits_non_zero():
         done.stderr
     )
     assert "Traceback" not in done.stderr and not done.stdout
+
+
+def test_the_rule_driver_s_refusal_names_the_references_that_drive_any_preset():
+    from overtake.client.episodes.runner import baseline_policy
+
+    env = HighwayEnv(preset="highway-fast")  # the Kinematics table alone: no LIDAR, no grid
+    with pytest.raises(UsageError, match="--policy idle, random or planner"):
+        baseline_policy("rule", env.behaviour_spec, 0, 1)
+    env.close()

@@ -112,3 +112,14 @@ def test_spectate_command_prints_what_is_wrong_and_exits_non_zero():
     )
     assert done.returncode == 1, done
     assert done.stderr == "overtake-spectate: watching one arena needs its server's name\n"
+
+
+def test_a_spectator_that_saw_no_arena_keeps_no_recording(start_server, tmp_path):
+    server = start_server("spectate-empty", world_rate_hz=50)
+    rrd = tmp_path / "world.rrd"
+    config = SpectateConfig(
+        connect=(server.endpoint,), server=server.name, seconds=1.0,
+        recording=RecordingConfig(rrd=rrd),
+    )  # fmt: skip
+    assert spectate(config) == 0
+    assert not rrd.exists()  # the next run's --rrd is free
