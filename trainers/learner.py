@@ -120,7 +120,9 @@ def build_optimizer(parameters: Any, config: DQNConfig) -> torch.optim.Optimizer
             eps=config.rmsprop_eps,
             centered=config.rmsprop_centered,
         )
-    return torch.optim.Adam(parameters, lr=config.learning_rate, eps=config.adam_eps)
+    # The fused kernel (one pass over every parameter, on the CPU too) where torch has it for
+    # the device: the single-tensor loop was a third of an update of an MLP (issue 66).
+    return torch.optim.Adam(parameters, lr=config.learning_rate, eps=config.adam_eps, fused=True)
 
 
 def execution_device(device: str, precision: Precision = "fp32") -> torch.device:

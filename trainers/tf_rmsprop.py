@@ -53,23 +53,36 @@ class TFRMSprop(torch.optim.Optimizer):
         for group in self.param_groups:
             lr, decay, momentum = group["lr"], group["decay"], group["momentum"]
             epsilon, centered = group["epsilon"], group["centered"]
-            for param in group["params"]:
-                if param.grad is None:
-                    continue
-                grad = param.grad
+            params = [p for p in group["params"] if p.grad is not None]
+            if not params:
+                continue
+            grads = [p.grad for p in params]
+            for param in params:
                 state = self.state[param]
                 if not state:
                     state["ms"] = torch.ones_like(param)  # TensorFlow's "rms" slot: ones
                     state["mom"] = torch.zeros_like(param)
                     if centered:
                         state["mg"] = torch.zeros_like(param)
-                ms, mom = state["ms"], state["mom"]
-                ms.add_((grad * grad - ms) * (1.0 - decay))
-                denominator = ms + epsilon
-                if centered:
-                    mg = state["mg"]
-                    mg.add_((grad - mg) * (1.0 - decay))
-                    denominator = denominator - mg * mg
-                mom.mul_(momentum).add_(grad * lr / denominator.sqrt())
-                param.sub_(mom)
+            ms = [self.state[p]["ms"] for p in params]
+            mom = [self.state[p]["mom"] for p in params]
+            # Every parameter at once (foreach), in the order of TensorFlow's kernel:
+            # ms += (g^2 - ms) * (1 - decay); mom = momentum * mom + g * lr / sqrt(ms + eps).
+            change = torch._foreach_mul(grads, grads)
+            torch._foreach_sub_(change, ms)
+            torch._foreach_mul_(change, 1.0 - decay)
+            torch._foreach_add_(ms, change)
+            denominator = torch._foreach_add(ms, epsilon)
+            if centered:
+                mg = [self.state[p]["mg"] for p in params]
+                drift = torch._foreach_sub(grads, mg)
+                torch._foreach_mul_(drift, 1.0 - decay)
+                torch._foreach_add_(mg, drift)
+                torch._foreach_sub_(denominator, torch._foreach_mul(mg, mg))
+            torch._foreach_sqrt_(denominator)
+            step = torch._foreach_mul(grads, lr)
+            torch._foreach_div_(step, denominator)
+            torch._foreach_mul_(mom, momentum)
+            torch._foreach_add_(mom, step)
+            torch._foreach_sub_(params, mom)
         return loss

@@ -95,8 +95,10 @@ class TrainConfig:
     """fp32, or mixed precision: bf16 (CPU or GPU) or fp16 (CUDA, with loss scaling); the
     forward passes run in that type, weights, optimiser, TD targets and loss in float32
     (bench/RESULTS.md: bf16 updates on this project's CPU)"""
-    torch_threads: int | None = None
-    """CPU threads for PyTorch; None keeps PyTorch's default"""
+    torch_threads: int | None = 1
+    """CPU threads for PyTorch; None keeps PyTorch's default (one a core). One by default:
+    measured the faster choice per CPU-second, and beside other work (docs/training.md,
+    "Threads"); several seeds train faster as members (--seeds) than as threads"""
     progress: bool = True
     """show a progress bar"""
     shield: bool = False
