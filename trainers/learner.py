@@ -166,6 +166,14 @@ def execution_device(device: str, precision: Precision = "fp32") -> torch.device
     return resolved
 
 
+def autocast(device: torch.device, precision: Precision) -> contextlib.AbstractContextManager[Any]:
+    """Mixed precision for a forward pass on ``device`` (nothing for fp32)."""
+    dtype = _AUTOCAST_DTYPES.get(precision)
+    if dtype is None:
+        return contextlib.nullcontext()
+    return torch.autocast(device_type=device.type, dtype=dtype)
+
+
 class LearnerState(Protocol):
     """What a training run's books ask of its learner, whether a lone
     :class:`DQNLearner` or a member's place in a :class:`.member_learner.MembersLearner`
@@ -262,11 +270,7 @@ class DQNLearner:
         ]
 
     def _autocast(self) -> contextlib.AbstractContextManager[Any]:
-        """Mixed precision for a forward pass (nothing for fp32)."""
-        dtype = _AUTOCAST_DTYPES.get(self.precision)
-        if dtype is None:
-            return contextlib.nullcontext()
-        return torch.autocast(device_type=self.device.type, dtype=dtype)
+        return autocast(self.device, self.precision)
 
     # --- acting ---------------------------------------------------------------------------
 

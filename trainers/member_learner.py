@@ -28,9 +28,9 @@ import torch
 from .dqn_config import AlgoSpec, DQNConfig
 from .heads import HeadSpec, legacy_state
 from .learner import (
-    _AUTOCAST_DTYPES,
     AnyShape,
     Precision,
+    autocast,
     build_network,
     build_optimizer,
     epsilon_greedy,
@@ -112,10 +112,7 @@ class MembersLearner:
         ]
 
     def _autocast(self) -> contextlib.AbstractContextManager[Any]:
-        dtype = _AUTOCAST_DTYPES.get(self.precision)
-        if dtype is None:
-            return contextlib.nullcontext()
-        return torch.autocast(device_type=self.device.type, dtype=dtype)
+        return autocast(self.device, self.precision)
 
     # --- acting ---------------------------------------------------------------------------
 

@@ -157,9 +157,7 @@ def run_processes(
     return {"cpu_s": cpu, "wall_s": time.perf_counter() - start}
 
 
-def train_commands(
-    arm: str, runs: list[list[str]], jobs: int, out: Path
-) -> list[list[str]]:
+def train_commands(arm: str, runs: list[list[str]], jobs: int, out: Path) -> list[list[str]]:
     with_dirs = [[*run, "--run-dir", str(out / f"run-{i}")] for i, run in enumerate(runs)]
     if arm == "members":
         return member_commands(with_dirs, jobs)
@@ -179,9 +177,14 @@ def measure_arm(
         commands = train_commands(arm, runs, config.jobs, out)
         timing = run_processes(commands, config.jobs, env, out)
     steps = sum(int(run[run.index("--total-steps") + 1]) for run in runs)
+    return figures(len(runs), len(commands), steps, timing)
+
+
+def figures(runs: int, processes: int, steps: int, timing: dict[str, float]) -> dict[str, Any]:
+    """An arm's figures: agent-steps per CPU-second and per wall-second."""
     return {
-        "runs": len(runs),
-        "processes": len(commands),
+        "runs": runs,
+        "processes": processes,
         "steps": steps,
         **timing,
         "steps_per_cpu_s": steps / timing["cpu_s"],
@@ -214,15 +217,7 @@ def measure_sb3(env_id: str, config: LearnBenchConfig) -> dict[str, Any]:
     ]
     with tempfile.TemporaryDirectory(prefix="bench-learn-sb3-") as tmp:
         timing = run_processes(commands, config.jobs, env, Path(tmp))
-    steps = config.sb3_steps * len(commands)
-    return {
-        "runs": len(commands),
-        "processes": len(commands),
-        "steps": steps,
-        **timing,
-        "steps_per_cpu_s": steps / timing["cpu_s"],
-        "steps_per_wall_s": steps / timing["wall_s"],
-    }
+    return figures(len(commands), len(commands), config.sb3_steps * len(commands), timing)
 
 
 def main(config: LearnBenchConfig) -> dict[str, Any]:
