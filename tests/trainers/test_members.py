@@ -173,7 +173,9 @@ def test_the_members_network_acts_as_the_lone_networks_do() -> None:
 
 def test_a_member_that_sits_an_update_out_is_left_as_it_was() -> None:
     inputs, shape, algo, settings = KINDS["mlp"]
-    members = MembersLearner(shape, inputs, [DQNConfig(**settings, batch_size=BATCH)] * 2, ALGOS[algo], [0, 1])  # type: ignore[arg-type]
+    members = MembersLearner(
+        shape, inputs, [DQNConfig(**settings, batch_size=BATCH)] * 2, ALGOS[algo], [0, 1]
+    )  # type: ignore[arg-type]
     before = members.member_state_dict(1)
     rng = np.random.default_rng(0)
     stats = members.update([_batch(rng, inputs, shape), None])
@@ -187,7 +189,9 @@ def test_members_whose_networks_differ_are_refused_in_one_line() -> None:
     inputs, shape, algo, settings = KINDS["grid-proposed"]
     other = {**settings, "network": "baseline"}
     with pytest.raises(ValueError, match="members must share network"):
-        MembersLearner(shape, inputs, [DQNConfig(**settings), DQNConfig(**other)], ALGOS[algo], [0, 1])  # type: ignore[arg-type]
+        MembersLearner(
+            shape, inputs, [DQNConfig(**settings), DQNConfig(**other)], ALGOS[algo], [0, 1]
+        )  # type: ignore[arg-type]
 
 
 def _highway_run(run_dir: Path, **changes) -> TrainConfig:
@@ -222,7 +226,9 @@ def test_a_member_run_directory_is_a_lone_runs_and_its_run_matches_the_lone_run(
     assert load_checkpoint(tmp_path / "both" / "seed-1" / CHECKPOINT_NAME).config["seed"] == 1
 
     def lines(run_dir: Path, kind: str) -> list[dict]:
-        records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+        records = [
+            json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()
+        ]
         return [r for r in records if r["kind"] == kind]
 
     member_losses = [r["loss"] for r in lines(member, "train")]

@@ -196,7 +196,10 @@ EXPERIMENTS: dict[str, Experiment] = {
         ),
     ),
     "ho2018-table8": Experiment(
-        hours_on_two_cores=15.0,  # measured: about 13 hours of training, then the evaluations
+        # Estimated from bench_learn (issue 66): 20,000,000 agent-steps at 2.5 ms each as
+        # members (5.1 as lone runs, 13-15 hours before members), about 7 hours on 2 cores,
+        # then the evaluations (28 minutes in issue 56's run). The runs under way measure it.
+        hours_on_two_cores=7.5,
         name="ho2018-table8",
         title="Ho (2018), Table 8: the baseline network and the proposed network at four "
         "learning rates (Table 7), DQN with a target network on the occupancy grid",
