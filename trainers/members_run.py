@@ -86,10 +86,12 @@ def check_members(configs: Sequence[TrainConfig]) -> None:
             shared_setting(dqns, name)
     except ValueError as error:
         raise UsageError(f"members train in lock-step on one network: {error}") from None
-    if any(c.overlapped for c in configs):
+    if any(c.overlap == "on" for c in configs):
+        # ("auto" means lock-step for members: their rounds are played while the others'
+        # are sent.)
         raise UsageError(
-            "members step in lock-step: --overlap on is a lone run's (members already overlap "
-            "each other's rounds)"
+            "members step in lock-step: --overlap on is a lone run's (with --connect, every "
+            "member's actions go out before any member's round is taken)"
         )
 
 
@@ -186,7 +188,7 @@ class MembersRun:
         self._learn()
         t4 = time.perf_counter()
         for book, epsilon, count in zip(books, epsilons, stored, strict=True):
-            book._account(epsilon, count, (t0, t1, t2, t3, t4))
+            book.account(epsilon, count, (t0, t1, t2, t3, t4))
 
     def _learn(self) -> None:
         """Every update due (``train_every`` steps stored, the replay warm), members together:
@@ -230,9 +232,17 @@ def member_configs(config: TrainConfig) -> list[TrainConfig]:
     if repeated:
         raise UsageError(f"--seeds names seed {repeated[0]} more than once: {list(config.seeds)}")
     base = config.resolved_run_dir()
+    # One progress bar: the members step together, and several bars would write over each
+    # other.
     return [
-        dataclasses.replace(config, seed=seed, seeds=(), run_dir=base / f"seed-{seed}")
-        for seed in config.seeds
+        dataclasses.replace(
+            config,
+            seed=seed,
+            seeds=(),
+            run_dir=base / f"seed-{seed}",
+            progress=config.progress and index == 0,
+        )
+        for index, seed in enumerate(config.seeds)
     ]
 
 

@@ -41,6 +41,7 @@ from .checkpoint import (
     load_checkpoint,
 )
 from .learner import execution_device
+from .lone_loop import LoneLoop
 from .members_run import MembersRun, check_members, member_configs
 from .train_config import TrainConfig
 from .training_run import TrainingRun
@@ -105,7 +106,7 @@ def main(
             f"configuration says num_envs={config.num_envs}"
         )
     try:
-        return TrainingRun(config, envs, run_dir, overrides, resumed, stop).run()
+        return LoneLoop(TrainingRun(config, envs, run_dir, overrides, resumed, stop)).run()
     finally:
         if own_envs:
             envs.close()

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from overtake.protocol import ACTION_COUNT, errors
+from overtake.protocol import ACTION_COUNT
 
 from . import resume as resuming
 from .checkpoint import CHECKPOINT_NAME, REPLAY_DIR_NAME, Checkpoint, plain_data
@@ -134,11 +134,6 @@ class TrainingRun:
         self.stacker = FrameStacker(config.num_envs, shapes, dqn.stack, stacked)
         self.rng = np.random.default_rng(config.seed)
 
-    def _lone(self) -> DQNLearner:
-        """The learner of a run that acts and learns for itself (not a member's place)."""
-        assert isinstance(self.learner, DQNLearner), "a member is stepped by its members' loop"
-        return self.learner
-
     def _restore(self, resumed: Checkpoint) -> None:
         """Carry on from ``resumed``: the learner, the counts, the random generators, and the
         replay where it was saved."""
@@ -161,23 +156,6 @@ class TrainingRun:
         """``stem.suffix`` for a run's start, ``stem-resume-N.suffix`` for its N-th resume."""
         name = stem if self.resumed_at_step is None else f"{stem}-resume-{self.resumes}"
         return self.run_dir / f"{name}{suffix}"
-
-    def run(self) -> dict[str, Any]:
-        """Train to ``total_steps``, checkpointing on the way and at the end; returns the
-        summary :func:`main` returns."""
-        self.open()
-        try:
-            iteration = self._part_iteration if self.config.overlapped else self._iteration
-            try:
-                while not self.finished:
-                    iteration()
-                self._finish_parts()
-            except errors.Interrupted as error:  # stopped while its server was gone
-                logger.warning("%s: the run ends at its last whole step, %d", error, self.step)
-            self.wind_up()
-        finally:
-            self.close()
-        return self.summary()
 
     @property
     def finished(self) -> bool:
@@ -283,25 +261,8 @@ class TrainingRun:
         self.window = LogWindow(self.step, self.started)
         self.bar = progress_bar(self.config, self.step)
 
-    def _iteration(self) -> None:
-        """One step of every environment: act, step, store what came back, learn; log and
-        checkpoint when due."""
-        t0 = time.perf_counter()
-        epsilon = self.dqn.epsilon(self.step)
-        actions, q = self._lone().act(self.stacker.observation(), self.mask, epsilon, self.rng)
-        self.acted(q)
-        t1 = time.perf_counter()
-        seen = self.send(actions)
-        outcome = self.env.recv(0) if self.sends else self.env.step(actions)
-        t2 = time.perf_counter()
-        stored = self.absorb(seen, actions, q, outcome)
-        t3 = time.perf_counter()
-        self._learn()
-        t4 = time.perf_counter()
-        self._account(epsilon, stored, (t0, t1, t2, t3, t4))
-
-    # One lock-step iteration in parts, for a loop that acts and learns for several runs at
-    # once (members_run): acted, send, (the environment's step), absorb, then the learning.
+    # One lock-step iteration in parts, for the loops (lone_loop, members_run): acted, send,
+    # (the environment's step), absorb, then the learning, and the accounting.
 
     def acted(self, q: np.ndarray) -> None:
         """Count the shield's overrides of the network's greedy choices ``q`` (N, actions)."""
@@ -331,43 +292,7 @@ class TrainingRun:
         self._end_episodes(self.everyone, terminated, truncated, info, taken)
         return stored
 
-    def _part_iteration(self) -> None:
-        """Overlap: act for one part and send its actions; learn while the server simulates;
-        then take the Steps of the part sent longest ago and store them; log and checkpoint
-        when due. With one part the update runs during the round trip (it sees the
-        transitions up to the previous iteration); with two the server also plays one part
-        while the learner acts on the other."""
-        t0 = time.perf_counter()
-        part = self.env_calls % self.env.count
-        rows = self.env.rows[part]
-        epsilon = self.dqn.epsilon(self.step)
-        stacked = self.stacker.observation()
-        if self.env.count > 1:
-            stacked = {k: v[rows] for k, v in stacked.items()}
-        actions, q = self._lone().act(stacked, self.mask[rows], epsilon, self.rng)
-        self.window.shield_overrides += self.safety.count(
-            self.env.indices[part], q, self.env_mask[rows], self.mask[rows]
-        )
-        t1 = time.perf_counter()
-        self.env.label_step(self.step)
-        seen = {k: v[rows].copy() for k, v in self.obs.items()} if part == 0 else {}
-        self.env.send(part, actions)
-        self.in_flight[part] = (actions, q, seen)
-        self.env_calls += 1
-        t2 = time.perf_counter()
-        self._learn()
-        t3 = time.perf_counter()
-        stored, waited = 0, 0.0
-        oldest = self.env_calls % self.env.count  # the next to send is the one sent longest ago
-        if oldest in self.in_flight and len(self.in_flight) == self.env.count:
-            stored, waited = self._receive_part(oldest)
-        t4 = time.perf_counter()
-        # In _account's order (act, env, replay, update): the wait is env's, the rest replay's.
-        env_end = t2 + waited
-        replay_end = env_end + (t4 - t3 - waited)
-        self._account(epsilon, stored, (t0, t1, env_end, replay_end, t4))
-
-    def _account(
+    def account(
         self, epsilon: float, stored: int, times: tuple[float, float, float, float, float]
     ) -> None:
         """An iteration's time split (act, env, replay, update, from its five clock readings)
@@ -383,30 +308,6 @@ class TrainingRun:
         elif self.replay.needs_checkpoint:
             # The replay's spare slots are taken: a checkpoint now, off the schedule.
             self._checkpoint()
-
-    def _receive_part(self, part: int) -> tuple[int, float]:
-        """Take part ``part``'s Steps and store them; returns the transitions stored and the
-        seconds spent waiting for them."""
-        envs, rows = self.env.indices[part], self.env.rows[part]
-        actions, q, seen = self.in_flight.pop(part)
-        start = time.perf_counter()
-        obs, reward, terminated, truncated, info = self.env.recv(part)
-        waited = time.perf_counter() - start
-        for name, value in obs.items():
-            self.obs[name][rows] = value
-        if part == 0:
-            self._record_car_view(seen, actions, q, reward, info)
-        ends = self.dqn.stored_terminal(terminated, truncated)
-        stored, taken = self._store(envs, actions, reward, ends, info)
-        self._end_episodes(envs, terminated, truncated, info, taken)
-        return stored, waited
-
-    def _finish_parts(self) -> None:
-        """Take the Steps of the parts still in flight at the end of the run, without storing
-        them (the run has its steps): the server's rounds and the trainer's sends agree."""
-        for part in sorted(self.in_flight):
-            self.env.recv(part)
-        self.in_flight.clear()
 
     def _record_car_view(
         self,
@@ -509,23 +410,6 @@ class TrainingRun:
             if self.recording is not None:
                 self.recording.episode(self.step, self.last_episode)
         self.starting[envs] = ended
-
-    def _learn(self) -> None:
-        """One update per ``train_every`` steps stored (once the replay holds ``warm``
-        transitions), and the target network's sync every ``target_update_steps``."""
-        while self.step >= self.next_update:
-            self.next_update += self.dqn.train_every
-            if len(self.replay) >= self.warm:
-                beta = self.dqn.priority_beta(self.step, self.config.total_steps)
-                batch = self.replay.sample(self.dqn.batch_size, beta=beta)
-                stats = self._lone().update(batch)
-                if batch.leaves is not None:
-                    self.replay.update_priorities(batch.leaves, stats["td_error"])
-                self.window.losses.append(stats["loss"])
-                self.window.q_taken.append(stats["q_taken"])
-        if self.step >= self.next_sync:
-            self._lone().sync_target()
-            self.next_sync = self.step + self.dqn.target_update_steps
 
     def _log_training(self, epsilon: float) -> None:
         """A ``{"kind": "train", ...}`` line (to metrics.jsonl, Rerun and the progress bar)

@@ -111,19 +111,19 @@ def test_a_kill_between_checkpoints_loses_only_the_steps_since_the_last(
     transitions has 100): resumed, it trains from that checkpoint and ends where the run never
     stopped ends."""
     run_dir = tmp_path / "run"
-    from overtake.trainers import training_run
+    from overtake.trainers import lone_loop
 
-    learn = training_run.TrainingRun._learn
+    learn = lone_loop.LoneLoop.learn
 
     def learn_then_die(self):
         learn(self)
-        if self.step >= 350:
+        if self.run_books.step >= 350:
             raise Killed
 
-    monkeypatch.setattr(training_run.TrainingRun, "_learn", learn_then_die)
+    monkeypatch.setattr(lone_loop.LoneLoop, "learn", learn_then_die)
     with pytest.raises(Killed):
         train(ddqn_run(run_dir))
-    monkeypatch.setattr(training_run.TrainingRun, "_learn", learn)
+    monkeypatch.setattr(lone_loop.LoneLoop, "learn", learn)
     last = load_checkpoint(run_dir / CHECKPOINT_NAME).step
     assert 200 <= last < 350
     resumed = train(ddqn_run(run_dir, resume=True))

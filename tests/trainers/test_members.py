@@ -17,7 +17,7 @@ import pytest
 import torch
 
 from overtake.client.commands import UsageError
-from overtake.client.episodes.scenario import Scenario
+from overtake.client.episodes.scenario import Scenario, Where
 from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.dqn_config import ALGOS, DQNConfig
 from overtake.trainers.grid_network import GridNetworkShape
@@ -269,3 +269,19 @@ def test_bad_members_are_refused_before_any_work(tmp_path) -> None:
     train(_highway_run(tmp_path / "c", seeds=(0, 1), total_steps=60))
     with pytest.raises(UsageError, match="other seeds too.*seed-1"):
         train(_highway_run(tmp_path / "c", seeds=(0,), resume=True))
+
+
+def test_members_train_on_a_server_as_in_process(tmp_path, start_server) -> None:
+    """With --connect each member's arenas are on the server (every member's actions go out
+    before any member's round comes back); the server's rounds are the in-process ones, so
+    each member ends with the in-process member's weights, bit for bit."""
+    server = start_server("members")
+    remote = tmp_path / "remote"
+    summary = train(_highway_run(remote, seeds=(0, 1), where=Where(connect=(server.endpoint,))))
+    assert [m["steps"] for m in summary["members"]] == [240, 240]
+    here = tmp_path / "here"
+    train(_highway_run(here, seeds=(0, 1)))
+    for seed in (0, 1):
+        assert_same_weights(
+            online_weights(remote / f"seed-{seed}"), online_weights(here / f"seed-{seed}")
+        )
