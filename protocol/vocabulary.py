@@ -82,6 +82,13 @@ WATCH_SETTING = "ego.lane_change_watch"
 WATCH_METRICS: tuple[str, ...] = ("lane_change_aborts",)
 # The simulator settings a scenario names by its own options (--traffic, --max-decisions).
 DENSITY_SETTING = "traffic.density"
+# Who drives the agents' cars in highway-env's scenes (overtake.server.sim.highway_scene): their
+# meta-actions, or (EGO_DRIVER_IDM) the scene's own IDM + MOBIL car, --policy idm's driver; and
+# the presets that are those scenes.
+EGO_DRIVER_SETTING = "highway_scene.ego_driver"
+EGO_DRIVER_IDM = "idm"
+HIGHWAY_SCENE_PRESETS: tuple[str, ...] = ("highway-fast", "highway")
+HIGHWAY_SCENE_SETTING = "highway_scene.enabled"
 EPISODE_LENGTH_SETTING = "episode.max_decisions"
 
 # Traffic driver types: Ho's three (2018, Table 5), and Min et al.'s cars that act at random

@@ -1,4 +1,4 @@
-"""``overtake-eval``: a checkpoint or a reference policy (rule, random, idle, planner) over
+"""``overtake-eval``: a checkpoint or a reference policy (rule, random, idle, planner, idm) over
 fixed-seed episodes.
 
 Every policy drives the same episodes: episode i uses seed ``seed + i``, at the chosen traffic,
@@ -23,7 +23,7 @@ import torch
 from overtake.cli import Command, CommandError, Output
 from overtake.client.commands import UsageError
 from overtake.client.episodes.records import PolicySource
-from overtake.client.episodes.runner import baseline_policy, metric_summary
+from overtake.client.episodes.runner import baseline_policy, metric_summary, policy_settings
 from overtake.client.episodes.scenario import Scenario, Where, parse_overrides
 from overtake.client.episodes.session import Driver, Episodes, Keeping, drive_episodes
 from overtake.client.policies.shield import Shield, ShieldedActing
@@ -63,9 +63,10 @@ class EvalConfig:
 
     checkpoint: Path | None = None
     """a checkpoint.pt written by overtake-train (evaluated greedily)"""
-    policy: Literal["rule", "random", "idle", "planner"] | None = None
+    policy: Literal["rule", "random", "idle", "planner", "idm"] | None = None
     """a reference policy instead of a checkpoint: the rule-based driver, random, idle (never
-    acts) or the privileged planner (reads the true state; in-process only)"""
+    acts), the privileged planner (reads the true state; in-process only) or idm
+    (highway-env's IDM + MOBIL car at the wheel; presets highway-fast and highway)"""
     episodes: int = 10
     """episodes per policy, all at once (one arena each)"""
     seed: int = 1_000
@@ -231,7 +232,7 @@ def evaluated(config: EvalConfig) -> Evaluated:
     checkpoint's overrides less its traffic, the paper's evaluation, then the scenario's."""
     if (config.checkpoint is None) == (config.policy is None):
         raise UsageError(
-            "give exactly one of --checkpoint PATH or --policy rule|random|idle|planner"
+            "give exactly one of --checkpoint PATH or --policy rule|random|idle|planner|idm"
         )
     if config.episodes < 1:
         raise UsageError(f"--episodes must be >= 1, got {config.episodes}")
@@ -248,6 +249,7 @@ def evaluated(config: EvalConfig) -> Evaluated:
     overrides = config.scenario.overrides(base)
     if config.policy == "rule":
         overrides.pop("lidar.enabled", None)  # the rule-based driver reads the LIDAR
+    overrides.update(policy_settings(config.policy, preset, overrides))
     return Evaluated(checkpoint, preset, overrides)
 
 

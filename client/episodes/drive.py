@@ -21,7 +21,12 @@ import numpy as np
 from overtake.cli import Command, CommandError, Output
 from overtake.client.commands import UsageError
 from overtake.client.episodes.records import PolicySource
-from overtake.client.episodes.runner import baseline_policy, metric_summary, metric_table
+from overtake.client.episodes.runner import (
+    baseline_policy,
+    metric_summary,
+    metric_table,
+    policy_settings,
+)
 from overtake.client.episodes.scenario import Scenario, Where
 from overtake.client.episodes.session import Driver, Episodes, Keeping, RealTime, drive_episodes
 from overtake.client.policies.shield import SHIELD_OVERRIDES
@@ -42,8 +47,10 @@ class DriveConfig:
     where: Where = field(default_factory=Where)
     """where the simulator runs: in this process, or on a server (--connect)"""
 
-    policy: Literal["rule", "random", "idle", "planner"] = "rule"
-    """which driver acts (unless --onnx is given)"""
+    policy: Literal["rule", "random", "idle", "planner", "idm"] = "rule"
+    """which driver acts (unless --onnx is given): the rule-based driver, random, idle (never
+    acts), the privileged planner (in process) or idm (highway-env's IDM + MOBIL car at the
+    wheel; presets highway-fast and highway)"""
     onnx: Path | None = None
     """drive a policy exported by overtake-export (ONNX Runtime, no PyTorch) instead of
     --policy"""
@@ -87,7 +94,9 @@ def what_to_drive(config: DriveConfig) -> DriveSetup:
     if config.episodes < 1:
         raise UsageError(f"--episodes must be >= 1, got {config.episodes}")
     if config.onnx is None:
-        return DriveSetup(config.scenario.preset_or(None), {}, ())
+        preset = config.scenario.preset_or(None)
+        settings = policy_settings(config.policy, preset, config.scenario.overrides({}))
+        return DriveSetup(preset, settings, ())
     from overtake.client.policies.onnx_policy import read_metadata
 
     meta = read_metadata(config.onnx)
