@@ -15,7 +15,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from overtake.protocol.vocabulary import (
+    ACTION_COUNT,
     AGENT_KIND,
+    HIGHWAY_ENV_ACTION_NAMES,
     LANE_RIGHT,
 )
 
@@ -172,6 +174,9 @@ class MetaActions:
     FASTER, cruise down SLOWER): which can be taken now (``get_available_actions``: IDLE
     always, a lane change where there is a lane beyond the target lane, FASTER and SLOWER
     where the car's speed index can move)."""
+
+    names = HIGHWAY_ENV_ACTION_NAMES  # the actions as highway-env names them
+    count = ACTION_COUNT
 
     def __init__(self, config: SimConfig, agents: int) -> None:
         self.lanes = config.road.lane_count
