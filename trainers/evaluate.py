@@ -15,12 +15,13 @@ import logging
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 import torch
 
 from overtake.cli import Command, CommandError, Output
+from overtake.cli.options import unset
 from overtake.client.commands import UsageError
 from overtake.client.episodes.records import PolicySource
 from overtake.client.episodes.runner import baseline_policy, metric_summary, policy_settings
@@ -52,18 +53,20 @@ TABLE_METRICS = (
 @dataclass(frozen=True)
 class EvalConfig:
     """Evaluate a trained checkpoint or a baseline driver on fixed seeds. The simulator and
-    where it runs are the scenario's and where's options (--preset: None takes the
-    checkpoint's, else min2018; --max-decisions: None keeps the preset's, or its paper's
-    evaluation's)."""
+    where it runs are the scenario's and where's options (--preset unset: the checkpoint's,
+    else min2018; --max-decisions unset: the preset's, or its paper's evaluation's)."""
 
     scenario: Scenario = field(default_factory=Scenario)
     """the simulator: a preset, its traffic, episode length and overrides"""
     where: Where = field(default_factory=Where)
     """where the simulator runs: in this process, or on a server (--connect)"""
 
-    checkpoint: Path | None = None
+    checkpoint: Annotated[Path | None, unset("PATH")] = None
     """a checkpoint.pt written by overtake-train (evaluated greedily)"""
-    policy: Literal["rule", "random", "idle", "planner", "idm"] | None = None
+    policy: Annotated[
+        Literal["rule", "random", "idle", "planner", "idm"] | None,
+        unset("{rule,random,idle,planner,idm}"),
+    ] = None
     """a reference policy instead of a checkpoint: the rule-based driver, random, idle (never
     acts), the privileged planner (reads the true state; in-process only) or idm
     (highway-env's IDM + MOBIL car at the wheel; presets highway-fast and highway)"""
@@ -71,23 +74,23 @@ class EvalConfig:
     """episodes per policy, all at once (one arena each)"""
     seed: int = 1_000
     """episode i uses seed + i (training uses other seeds by default)"""
-    shield: bool | None = None
-    """the safety shield in front of the checkpoint's greedy choices; None: where the run was
+    shield: Annotated[bool | None, unset("{True,False}")] = None
+    """the safety shield in front of the checkpoint's greedy choices; unset: where the run was
     trained with it (overtake.client.policies.shield). False also drops the lane-change watch a
     run trained with --shield-watch (the shield's second half), as overtake-drive does"""
     paper_evaluation: bool = True
     """evaluate as the preset's paper does where it evaluates otherwise than it trains
     (ho2018: a decision every frame, 4,000 frames, as Ho's code evaluates); --no-paper-
     evaluation decides as training does"""
-    json_out: Path | None = None
+    json_out: Annotated[Path | None, unset("PATH")] = None
     """also write the table (and every episode) as JSON here"""
-    episodes_out: Path | None = None
+    episodes_out: Annotated[Path | None, unset("PATH")] = None
     """keep every episode as a record in this folder (<name>.jsonl: seeds, actions, metrics,
     the decisions of collisions, emergency brakes and shield overrides), for overtake-replay"""
-    record: Path | None = None
+    record: Annotated[Path | None, unset("PATH")] = None
     """record the episodes to this .rrd while evaluating, each on its own timeline (the road
     too, in process), as overtake-replay does"""
-    name: str | None = None
+    name: Annotated[str | None, unset("NAME")] = None
     """the row's name in the table (default: the algorithm and inputs, or the baseline)"""
     table: tuple[Path, ...] = ()
     """instead of evaluating: print one table of these --json-out files (rows side by side)"""

@@ -60,8 +60,8 @@ _NEIGHBOUR_MARGIN_M = 1.0
     P_AGENTS_IDM,
     P_COUNT,
 ) = range(22)
-# Flags ride in the parameters too (1.0 on): a call with more than 30 arguments is compiled by
-# CPython as a call with *args, which numba cannot inline.
+# Flags ride in the parameters (1.0 on): CPython compiles a call of over 30 arguments with *args,
+# which numba cannot inline.
 
 # The simulator's actions (protocol vocabulary: keep, cruise up, cruise down, left, right) as
 # highway-env's meta-actions: IDLE, FASTER, SLOWER, LANE_LEFT, LANE_RIGHT.
@@ -367,8 +367,7 @@ def play_arena(
                 lane, target_lane, timer, active, members, counts, p,
             )  # fmt: skip
             if i < agents and target_lane[a, i] != goal and target_lane[a, i] != lane[a, i]:
-                # An agent's car under its own IDM and MOBIL started a change: the
-                # meta-action it stands for (the last one started in the decision).
+                # An agent's car started a change: its meta-action (the decision's last one).
                 changes_started[a, i] = True
                 driven[a, i] = A_LEFT if target_lane[a, i] > lane[a, i] else A_RIGHT
             steer[a, i] = steering(a, i, target_lane[a, i], y, speed, heading, p)
