@@ -9,7 +9,9 @@ right, and the ids translate; ``config["action"]`` may narrow them to highway-en
 longitudinal or lateral three), and ``config={...}`` takes highway-env's keys
 (:mod:`overtake.envs.highway_env_config`: overtake's settings, the action set, the picture's
 framing, or said once as having no effect here); any other key is refused by name with the
-nearest known one suggested, and ``preset=`` is refused (the id names its scene). ``info``
+nearest known one suggested, and ``preset=`` is refused (the id names its scene);
+``overrides=`` takes overtake's own settings beyond them (dotted names, over ``config``'s: e.g.
+``{"highway_scene.ego_driver": "idm"}``, highway-env's IDM car as the controlled car). ``info``
 holds overtake's entries (its action mask in highway-env's order) and highway-env's
 ``speed`` (read from the observation's first row, where it has vx and vy), ``crashed`` and
 ``rewards``.
@@ -94,11 +96,14 @@ def _inner(
     config: Mapping[str, Any] | None,
     connect: str | Sequence[str] | None,
     preset: str | None,
+    settings: Mapping[str, Any] | None,
     **kwargs: Any,
 ) -> tuple[str, dict[str, Any], HighwayEnvConfig, Sequence[str], dict[str, Any]]:
     """overtake's own environment for this configuration (its id, in process or remote, and
     keyword arguments), the configuration read, and the observation's features and
-    normalisation (for the speed in info)."""
+    normalisation (for the speed in info). ``settings``: overtake's own (dotted names, as
+    ``overrides=`` of overtake/Highway-v0) over what ``config`` maps to, for what highway-env
+    has no key for (``highway_scene.ego_driver``: its IDM car as the controlled car)."""
     if scene not in PRESET_TIMES:
         raise BadConfig(
             f"scene = {scene!r} is not one of highway-env's scenes here: expected one of "
@@ -111,7 +116,7 @@ def _inner(
             f"presets with gym.make('overtake/Highway-v0', preset={preset!r})"
         )
     read = read_config(scene, config)
-    overrides = read.overrides
+    overrides = {**read.overrides, **(settings or {})}
     features = overrides.get("kinematics.features", ["presence", "x", "y", "vx", "vy"])
     ranges = {
         "vx": overrides.get("kinematics.vx_range_mps", (-80.0, 80.0)),
@@ -150,9 +155,10 @@ class HighwayEnvLike(gym.Env):
         render_mode: str | None = None,
         connect: str | Sequence[str] | None = None,
         preset: str | None = None,
+        overrides: Mapping[str, Any] | None = None,
     ) -> None:
         env_id, made, self.highway_env_config, self._features, self._ranges = _inner(
-            scene, config, connect, preset, render_mode=render_mode
+            scene, config, connect, preset, overrides, render_mode=render_mode
         )
         self.env: Any = _made(self.highway_env_config, gym.make, env_id, **made).unwrapped
         self.render_mode = render_mode
@@ -210,9 +216,10 @@ class HighwayEnvLikeVector(gym.vector.VectorEnv):
         render_mode: str | None = None,
         connect: str | Sequence[str] | None = None,
         preset: str | None = None,
+        overrides: Mapping[str, Any] | None = None,
     ) -> None:
         env_id, made, self.highway_env_config, self._features, self._ranges = _inner(
-            scene, config, connect, preset, render_mode=render_mode
+            scene, config, connect, preset, overrides, render_mode=render_mode
         )
         self.env: Any = _made(
             self.highway_env_config,

@@ -17,6 +17,11 @@ from typing import Literal, get_args
 ACTION_NAMES: tuple[str, ...] = ("keep", "cruise_up", "cruise_down", "lane_left", "lane_right")
 ACTION_COUNT = len(ACTION_NAMES)
 KEEP, CRUISE_UP, CRUISE_DOWN, LANE_LEFT, LANE_RIGHT = range(ACTION_COUNT)
+# The same five actions as highway-env's DiscreteMetaAction names them, in overtake's order
+# (highway-env numbers them 0 LANE_LEFT, 1 IDLE, 2 LANE_RIGHT, 3 FASTER, 4 SLOWER): what
+# highway-env's scenes (presets highway-fast, highway) call them in their behaviour spec's
+# action_names, and so in recordings and tables.
+HIGHWAY_ENV_ACTION_NAMES: tuple[str, ...] = ("IDLE", "FASTER", "SLOWER", "LANE_LEFT", "LANE_RIGHT")
 # What a car does when its trainer sent no action in time: adaptive cruise and lane keeping.
 DEFAULT_ACTION = KEEP
 
@@ -82,6 +87,13 @@ WATCH_SETTING = "ego.lane_change_watch"
 WATCH_METRICS: tuple[str, ...] = ("lane_change_aborts",)
 # The simulator settings a scenario names by its own options (--traffic, --max-decisions).
 DENSITY_SETTING = "traffic.density"
+# Who drives the agents' cars in highway-env's scenes (overtake.server.sim.highway_scene): their
+# meta-actions, or (EGO_DRIVER_IDM) the scene's own IDM + MOBIL car, --policy idm's driver; and
+# the presets that are those scenes.
+EGO_DRIVER_SETTING = "highway_scene.ego_driver"
+EGO_DRIVER_IDM = "idm"
+HIGHWAY_SCENE_PRESETS: tuple[str, ...] = ("highway-fast", "highway")
+HIGHWAY_SCENE_SETTING = "highway_scene.enabled"
 EPISODE_LENGTH_SETTING = "episode.max_decisions"
 
 # Traffic driver types: Ho's three (2018, Table 5), and Min et al.'s cars that act at random

@@ -12,7 +12,7 @@ import dataclasses
 import json
 
 from overtake.protocol.messages import BehaviourSpec, CarSpec, ObservationSpec, Reach, RoadSpec
-from overtake.protocol.vocabulary import ACTION_COUNT, ACTION_NAMES
+from overtake.protocol.vocabulary import ACTION_COUNT
 
 from .sim import HighwaySim
 from .sim.sensors import SensorFacts
@@ -48,7 +48,7 @@ def behaviour_spec(sim: HighwaySim) -> BehaviourSpec:
         preset=config.preset,
         observations=observations,
         action_branches=(ACTION_COUNT,),
-        action_names=ACTION_NAMES,
+        action_names=tuple(sim.actions.names),  # highway-env's names in its scenes
         reward_terms=sim.reward_terms,
         metric_fields=sim.metric_fields,
         decision_period_s=config.episode.decision_period_s,

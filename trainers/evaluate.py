@@ -1,4 +1,4 @@
-"""``overtake-eval``: a checkpoint or a reference policy (rule, random, idle, planner) over
+"""``overtake-eval``: a checkpoint or a reference policy (rule, random, idle, planner, idm) over
 fixed-seed episodes.
 
 Every policy drives the same episodes: episode i uses seed ``seed + i``, at the chosen traffic,
@@ -15,15 +15,16 @@ import logging
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 import torch
 
 from overtake.cli import Command, CommandError, Output
+from overtake.cli.options import unset
 from overtake.client.commands import UsageError
 from overtake.client.episodes.records import PolicySource
-from overtake.client.episodes.runner import baseline_policy, metric_summary
+from overtake.client.episodes.runner import baseline_policy, metric_summary, policy_settings
 from overtake.client.episodes.scenario import Scenario, Where, parse_overrides
 from overtake.client.episodes.session import Driver, Episodes, Keeping, drive_episodes
 from overtake.client.policies.shield import Shield, ShieldedActing
@@ -52,41 +53,44 @@ TABLE_METRICS = (
 @dataclass(frozen=True)
 class EvalConfig:
     """Evaluate a trained checkpoint or a baseline driver on fixed seeds. The simulator and
-    where it runs are the scenario's and where's options (--preset: None takes the
-    checkpoint's, else min2018; --max-decisions: None keeps the preset's, or its paper's
-    evaluation's)."""
+    where it runs are the scenario's and where's options (--preset unset: the checkpoint's,
+    else min2018; --max-decisions unset: the preset's, or its paper's evaluation's)."""
 
     scenario: Scenario = field(default_factory=Scenario)
     """the simulator: a preset, its traffic, episode length and overrides"""
     where: Where = field(default_factory=Where)
     """where the simulator runs: in this process, or on a server (--connect)"""
 
-    checkpoint: Path | None = None
+    checkpoint: Annotated[Path | None, unset("PATH")] = None
     """a checkpoint.pt written by overtake-train (evaluated greedily)"""
-    policy: Literal["rule", "random", "idle", "planner"] | None = None
+    policy: Annotated[
+        Literal["rule", "random", "idle", "planner", "idm"] | None,
+        unset("{rule,random,idle,planner,idm}"),
+    ] = None
     """a reference policy instead of a checkpoint: the rule-based driver, random, idle (never
-    acts) or the privileged planner (reads the true state; in-process only)"""
+    acts), the privileged planner (reads the true state; in-process only) or idm
+    (highway-env's IDM + MOBIL car at the wheel; presets highway-fast and highway)"""
     episodes: int = 10
     """episodes per policy, all at once (one arena each)"""
     seed: int = 1_000
     """episode i uses seed + i (training uses other seeds by default)"""
-    shield: bool | None = None
-    """the safety shield in front of the checkpoint's greedy choices; None: where the run was
+    shield: Annotated[bool | None, unset("{True,False}")] = None
+    """the safety shield in front of the checkpoint's greedy choices; unset: where the run was
     trained with it (overtake.client.policies.shield). False also drops the lane-change watch a
     run trained with --shield-watch (the shield's second half), as overtake-drive does"""
     paper_evaluation: bool = True
     """evaluate as the preset's paper does where it evaluates otherwise than it trains
     (ho2018: a decision every frame, 4,000 frames, as Ho's code evaluates); --no-paper-
     evaluation decides as training does"""
-    json_out: Path | None = None
+    json_out: Annotated[Path | None, unset("PATH")] = None
     """also write the table (and every episode) as JSON here"""
-    episodes_out: Path | None = None
+    episodes_out: Annotated[Path | None, unset("PATH")] = None
     """keep every episode as a record in this folder (<name>.jsonl: seeds, actions, metrics,
     the decisions of collisions, emergency brakes and shield overrides), for overtake-replay"""
-    record: Path | None = None
+    record: Annotated[Path | None, unset("PATH")] = None
     """record the episodes to this .rrd while evaluating, each on its own timeline (the road
     too, in process), as overtake-replay does"""
-    name: str | None = None
+    name: Annotated[str | None, unset("NAME")] = None
     """the row's name in the table (default: the algorithm and inputs, or the baseline)"""
     table: tuple[Path, ...] = ()
     """instead of evaluating: print one table of these --json-out files (rows side by side)"""
@@ -231,7 +235,7 @@ def evaluated(config: EvalConfig) -> Evaluated:
     checkpoint's overrides less its traffic, the paper's evaluation, then the scenario's."""
     if (config.checkpoint is None) == (config.policy is None):
         raise UsageError(
-            "give exactly one of --checkpoint PATH or --policy rule|random|idle|planner"
+            "give exactly one of --checkpoint PATH or --policy rule|random|idle|planner|idm"
         )
     if config.episodes < 1:
         raise UsageError(f"--episodes must be >= 1, got {config.episodes}")
@@ -248,6 +252,7 @@ def evaluated(config: EvalConfig) -> Evaluated:
     overrides = config.scenario.overrides(base)
     if config.policy == "rule":
         overrides.pop("lidar.enabled", None)  # the rule-based driver reads the LIDAR
+    overrides.update(policy_settings(config.policy, preset, overrides))
     return Evaluated(checkpoint, preset, overrides)
 
 

@@ -36,7 +36,11 @@ from overtake.client.commands import UsageError
 from overtake.client.episodes.scenario import Where
 from overtake.client.policies.frames import FrameStacker
 from overtake.client.policies.onnx_policy import METADATA_KEY, POLICY_FORMAT
-from overtake.protocol.vocabulary import ACTION_NAMES
+from overtake.protocol.vocabulary import (
+    ACTION_NAMES,
+    HIGHWAY_ENV_ACTION_NAMES,
+    HIGHWAY_SCENE_PRESETS,
+)
 
 from .checkpoint import Checkpoint, load_checkpoint
 from .network import INPUT_SENSORS, observations_read
@@ -104,7 +108,10 @@ def policy_metadata(checkpoint: Checkpoint, names: tuple[str, ...]) -> dict[str,
         "input_names": list(names),
         "stacked": [n for n in names if n in stacked],
         "space": {name: checkpoint.space[name] for name in names},
-        "actions": list(ACTION_NAMES),
+        # The actions in index order as the preset names them (its behaviour spec's).
+        "actions": list(
+            HIGHWAY_ENV_ACTION_NAMES if checkpoint.preset in HIGHWAY_SCENE_PRESETS else ACTION_NAMES
+        ),
         "output": OUTPUT_NAME,
     }
 

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from overtake.protocol.messages import BehaviourSpec
+from overtake.protocol.vocabulary import ACTION_NAMES
 from overtake.viz.recording import Recording, RecordingConfig, close_recording
 from overtake.viz.training_layout import CAR_PICTURES
 from overtake.viz.world_view import WorldRecording
@@ -53,13 +54,23 @@ class RunRecording:
         )
         # The pictures the car has (an environment of the caller's: both panels, as ever).
         pictures = CAR_PICTURES if spec is None else [p for p in CAR_PICTURES if spec.has(p)]
+        # The actions as the preset names them (highway-env's names in its scenes).
+        names = spec.action_names if spec is not None else ACTION_NAMES
         recording, view = open_training_recording(
-            config, path, run_name, algo, _ego_fields(spec), env.recorded_arenas(), road, pictures
+            config,
+            path,
+            run_name,
+            algo,
+            _ego_fields(spec),
+            env.recorded_arenas(),
+            road,
+            pictures,
+            names,
         )
         if recording is None or view is None:
             return None
         world = (
-            WorldRecording(recording.stream, rays=False, lay_out=False)
+            WorldRecording(recording.stream, rays=False, lay_out=False, action_names=names)
             if road is not None
             else None
         )

@@ -9,11 +9,12 @@ import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import torch
 
 from overtake.cli import Output
+from overtake.cli.options import unset
 from overtake.client.commands import UsageError
 from overtake.client.episodes.scenario import DEFAULT_PRESET, Scenario, Where
 from overtake.protocol.vocabulary import WATCH_SETTING
@@ -72,8 +73,8 @@ class TrainConfig:
     """train these seeds together in this process, as members of one learner (one forward and
     one backward pass for all; each seed a whole run in <run_dir>/seed-<k>, as a lone run of
     that seed would be, docs/training.md "Members"); empty: the one run of --seed"""
-    run_dir: Path | None = None
-    """where the run's files go; default runs/<algo>-<inputs>-<seed>"""
+    run_dir: Annotated[Path | None, unset("PATH")] = None
+    """where the run's files go; unset: runs/<algo>-<inputs>-<seed>"""
     resume: bool = False
     """continue the run in run_dir from its checkpoint"""
     resume_if_found: bool = False
@@ -95,7 +96,7 @@ class TrainConfig:
     """fp32, or mixed precision: bf16 (CPU or GPU) or fp16 (CUDA, with loss scaling); the
     forward passes run in that type, weights, optimiser, TD targets and loss in float32
     (bench/RESULTS.md: bf16 updates on this project's CPU)"""
-    torch_threads: int | None = 1
+    torch_threads: Annotated[int | None, unset("N|None")] = 1
     """CPU threads for PyTorch; None keeps PyTorch's default (one a core). One by default:
     measured the faster choice per CPU-second, and beside other work (docs/training.md,
     "Threads"); several seeds train faster as members (--seeds) than as threads"""
@@ -110,10 +111,10 @@ class TrainConfig:
     (ego.lane_change_watch, overtake.server.sim.lane_watch: an unsafe change turns back before
     the lane marking, past it the car brakes as hard as needed); a simulator setting, so
     evaluation and replays of the run's checkpoints have it too"""
-    recipe: str | None = None
+    recipe: Annotated[str | None, unset("NAME")] = None
     """a named way of training the preset other than its paper's, whose settings become the
     defaults (min2018: notebook, Min et al.'s notebook: Adam's epsilon 0.01, the squared TD
-    error, an update every step); None: the paper's"""
+    error, an update every step); unset: the paper's"""
     dqn: DQNConfig = field(default_factory=DQNConfig)
     recording: RecordingConfig = field(
         default_factory=lambda: RecordingConfig(record_every=TRAINER_RECORD_EVERY)

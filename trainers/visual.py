@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from overtake.protocol.vocabulary import ACTION_NAMES
 from overtake.viz.car_view import CarView
 from overtake.viz.recording import APPLICATION_ID, Recording, RecordingConfig, open_recording
 from overtake.viz.training_layout import CAR_PICTURES, training_blueprint
@@ -51,16 +52,22 @@ class TrainingRecording:
     """Logs one training run's episodes, learning statistics and first car to a stream."""
 
     def __init__(
-        self, stream: Any, run: str, colour_index: int = 0, ego_fields: Sequence[str] = ()
+        self,
+        stream: Any,
+        run: str,
+        colour_index: int = 0,
+        ego_fields: Sequence[str] = (),
+        action_names: Sequence[str] = ACTION_NAMES,
     ) -> None:
         """``ego_fields`` names the ego vector's fields in order (the preset's
         ``ego_vector.fields``): the car's speed is read from its ``speed_mps``, when it has
-        one (:class:`~overtake.viz.car_view.CarView`)."""
+        one (:class:`~overtake.viz.car_view.CarView`); ``action_names``: the behaviour spec's
+        (highway-env's names in its scenes)."""
         import rerun as rr
 
         self.rr, self.stream, self.run = rr, stream, run
         self.root = f"trainer/{run}"
-        self.car = CarView(stream, f"{self.root}/env0", ego_fields)
+        self.car = CarView(stream, f"{self.root}/env0", ego_fields, action_names)
         self.colour = RUN_COLOURS[colour_index % len(RUN_COLOURS)]
         self._styled: set[str] = set()
 
@@ -124,6 +131,7 @@ def open_training_recording(
     arenas: tuple[str, tuple[int, ...]] | None,
     road: tuple[str, float] | None = None,
     pictures: Collection[str] = CAR_PICTURES,
+    action_names: Sequence[str] = ACTION_NAMES,
 ) -> tuple[Recording | None, TrainingRecording | None]:
     """A training run's recording (to ``rrd`` with a file sink) and its view: coloured by
     algorithm (DQN, Double DQN and Dueling keep their colours in every recording that holds
@@ -132,7 +140,8 @@ def open_training_recording(
     until the end (overtake.viz.recording, on footers; bench/reliability/recording_memory.py).
     ``road``: an in-process run's road (its entity path and width, m), drawn above its car's
     view; ``pictures``: which of the camera and the LIDAR its car observes (the view shows
-    those, and the speed where the ego vector has it)."""
+    those, and the speed where the ego vector has it); ``action_names``: the behaviour
+    spec's."""
     layout = training_blueprint(
         run_name, road=road, pictures=pictures, show_speed="speed_mps" in ego_fields
     )
@@ -144,6 +153,7 @@ def open_training_recording(
         run_name,
         colour_index=list(ALGOS).index(algo),
         ego_fields=tuple(ego_fields),
+        action_names=action_names,
     )
     if arenas is not None:
         view.arenas(*arenas)

@@ -24,12 +24,22 @@ CAR_HALF_SIZE_M = (2.25, 0.9)
 class CarView:
     """Logs one car's view under ``base``; styles (names, colours) are logged once, static."""
 
-    def __init__(self, stream: Any, base: str, ego_fields: Sequence[str] = ()) -> None:
+    def __init__(
+        self,
+        stream: Any,
+        base: str,
+        ego_fields: Sequence[str] = (),
+        action_names: Sequence[str] = ACTION_NAMES,
+    ) -> None:
         """``ego_fields`` names the ego vector's fields in order: the speed is read from its
-        ``speed_mps`` where it has one."""
+        ``speed_mps`` where it has one. ``action_names``: the actions' names in index order, as
+        the behaviour spec says them (highway-env's in its scenes)."""
         import rerun as rr
 
+        if len(action_names) != len(ACTION_NAMES):
+            raise ValueError(f"expected {len(ACTION_NAMES)} action names, got {list(action_names)}")
         self.rr, self.stream, self.base = rr, stream, base
+        self.action_names = tuple(action_names)
         self.speed_field = (
             list(ego_fields).index("speed_mps") if "speed_mps" in ego_fields else None
         )
@@ -37,7 +47,7 @@ class CarView:
 
     def _style(self) -> None:
         rr, stream, base = self.rr, self.stream, self.base
-        for index, name in enumerate(ACTION_NAMES):
+        for index, name in enumerate(self.action_names):
             # The colours of the action scatter: a Q-value's line and its action's points match.
             stream.log(
                 f"{base}/q/{name}",
@@ -84,12 +94,13 @@ class CarView:
         ego = obs.get("ego")
         if ego is not None and self.speed_field is not None:
             stream.log(f"{base}/speed_kmh", rr.Scalars(float(ego[self.speed_field]) * 3.6))
-        if 0 <= action < len(ACTION_NAMES):
-            stream.log(f"{base}/action/{ACTION_NAMES[action]}", rr.Scalars(float(action)))
+        names = self.action_names
+        if 0 <= action < len(names):
+            stream.log(f"{base}/action/{names[action]}", rr.Scalars(float(action)))
         if q is not None:
-            for name, value in zip(ACTION_NAMES, q, strict=True):
+            for name, value in zip(names, q, strict=True):
                 stream.log(f"{base}/q/{name}", rr.Scalars(float(value)))
-            if 0 <= action < len(ACTION_NAMES):
+            if 0 <= action < len(names):
                 stream.log(f"{base}/q_chosen", rr.Scalars(float(q[action])))
         stream.log(f"{base}/reward/total", rr.Scalars(float(reward)))
         for name, value in terms.items():

@@ -28,9 +28,10 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from overtake.cli import CommandError, Output, check_viewer
+from overtake.cli.options import unset
 
 # Every process of the project records under this application id: processes that share a
 # recording id (``--recording-id``) then open as one recording in the viewer.
@@ -71,12 +72,12 @@ class RecordingConfig:
     sink: Literal["file", "grpc", "web", "off"] = "file"
     """file: an .rrd (--rrd, or the command's default); grpc: stream to a viewer at
     --viewer-url; web: serve Rerun's web viewer from this process; off: no recording"""
-    rrd: Path | None = None
-    """the .rrd to write with sink=file"""
+    rrd: Annotated[Path | None, unset("PATH")] = None
+    """the .rrd to write with sink=file; unset: the command's default"""
     viewer_url: str = DEFAULT_VIEWER_URL
     """a Rerun viewer's gRPC address, for sink=grpc (start one with `rerun`)"""
-    recording_id: str | None = None
-    """processes that share it open as one recording (default: one per process)"""
+    recording_id: Annotated[str | None, unset("ID")] = None
+    """processes that share it open as one recording; unset: one per process"""
     record_every: int = 1
     """decimation: log what the cars see every this many steps (episode and learning
     summaries are always logged)"""

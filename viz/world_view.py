@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import functools
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -256,12 +257,17 @@ class WorldRecording:
         lay_out: bool = True,
         with_training: bool = False,
         agent_series: bool = True,
+        action_names: Sequence[str] = ACTION_NAMES,
     ) -> None:
         """``with_training``: the layout also shows the trainers' plots (see
         :func:`world_blueprint`); for a recording shared with trainers. ``agent_series``:
         each agent's camera, speed, reward and action too (False: the road only, for a
-        recording that shows its car's view on its own, :mod:`.car_view`)."""
+        recording that shows its car's view on its own, :mod:`.car_view`). ``action_names``:
+        the actions' names in index order where the arenas' spec is known (highway-env's in
+        its scenes); a spectator's default is overtake's."""
         import rerun as rr
+
+        self.action_names = tuple(action_names)
 
         self.rr, self.stream, self.rays, self.lay_out = rr, stream, rays, lay_out
         self.agent_series = agent_series
@@ -299,7 +305,7 @@ class WorldRecording:
     def _style(self, base: str) -> None:
         """Series styles, logged once per agent (static): actions as coloured points."""
         rr, stream = self.rr, self.stream
-        for index, name in enumerate(ACTION_NAMES):
+        for index, name in enumerate(self.action_names):
             stream.log(
                 f"{base}/action/{name}",
                 rr.SeriesPoints(
@@ -413,8 +419,9 @@ class WorldRecording:
                 for name, value in zip(frame.reward_term_names, frame.reward_terms[i], strict=True):
                     stream.log(f"{base}/reward/{name}", rr.Scalars(float(value)))
             applied = int(frame.action_applied[i])
-            if 0 <= applied < len(ACTION_NAMES):
-                stream.log(f"{base}/action/{ACTION_NAMES[applied]}", rr.Scalars(float(applied)))
+            if 0 <= applied < len(self.action_names):
+                name = self.action_names[applied]
+                stream.log(f"{base}/action/{name}", rr.Scalars(float(applied)))
 
     def _lane_lines(self, root: str, frame: WorldFrame) -> None:
         """The road's edges as solid lines and the lines between lanes dashed, logged once

@@ -4,15 +4,19 @@
    episodes on each simulator through the same Gymnasium loop, episode ``i`` reset with seed
    ``--seed + i`` on both (the same numbers, not the same random streams: the two simulators
    draw their roads differently) and the random driver's actions drawn from seed ``i`` on both.
-   Reported per simulator and driver: the mean episode length (decisions), the share of
-   episodes that ended in a crash, the mean return and the controlled car's mean speed, each
-   with its standard deviation.
+   And **idm**: the scene's own IDM + MOBIL car as the controlled car (on highway-env its car
+   swapped for ``IDMVehicle.create_from(car)`` after each reset, its actions then unread; on
+   overtake the setting ``highway_scene.ego_driver=idm``, what ``overtake-eval --policy idm``
+   drives). Reported per simulator and driver: the mean episode length (decisions), the share
+   of episodes that ended in a crash, the mean return and the controlled car's mean speed,
+   each with its standard deviation.
 2. **Transfer** (``--transfer``): Stable-Baselines3's documented highway-fast DQN (its
    hyper-parameters, ``--train-steps`` steps; 20,000 as documented) trained once on highway-env
    and once on overtake's id, each evaluated greedily on both simulators over the same seeds.
 
 It writes table.md and table.json (with the command, the commit and the packages' versions)
-into ``--out``; ``bench/results/highway-env-equivalence`` keeps them::
+into ``--out``; ``bench/results/highway-env-equivalence`` keeps them (``--drivers`` picks
+rows; a quick look: ``--drivers idm --episodes 2 --out /tmp/equivalence``)::
 
     .venv/bin/python -m bench.fidelity.highway_env_equivalence --transfer \\
         --out bench/results/highway-env-equivalence
@@ -41,7 +45,11 @@ DRIVERS: dict[str, Callable[[np.random.Generator], int]] = {
     "idle": lambda rng: 1,
     "faster": lambda rng: 3,
     "random": lambda rng: int(rng.integers(0, 5)),
+    # The car drives itself (see idm_ego): the action sent is highway-env's IDLE, unread.
+    "idm": lambda rng: 1,
 }
+# The driver whose car is the scene's IDM + MOBIL car rather than its meta-actions' car.
+IDM_DRIVER = "idm"
 SIMULATORS = {"highway-env": "{scene}", "overtake": "overtake/{scene}"}
 SB3_RECIPE: dict[str, Any] = {
     "policy_kwargs": {"net_arch": [256, 256]},
@@ -65,25 +73,53 @@ class EquivalenceConfig:
     episodes: int = 60
     seed: int = 10_000
     """episode i is reset with seed + i on both simulators"""
+    drivers: tuple[str, ...] = tuple(DRIVERS)
+    """the fixed drivers' rows (idle, faster, random, idm)"""
     transfer: bool = False
     """also train SB3's documented DQN on each simulator and evaluate it on both"""
     train_steps: int = 20_000
     out: Path = Path("runs/highway-env-equivalence")
 
 
-def make(simulator: str, scene: str) -> gym.Env:
+def make(simulator: str, scene: str, idm: bool = False) -> gym.Env:
+    """``scene`` on ``simulator``; ``idm``: overtake's with its controlled car driven by the
+    scene's IDM + MOBIL (highway-env's is swapped after each reset: :func:`idm_ego`)."""
     if simulator == "highway-env":
         import highway_env  # noqa: F401  (registers highway-env's ids)
-    else:
-        import overtake.client  # noqa: F401  (registers overtake's)
-    return gym.make(SIMULATORS[simulator].format(scene=scene))
+
+        return gym.make(SIMULATORS[simulator].format(scene=scene))
+    import overtake.client  # noqa: F401  (registers overtake's)
+
+    overrides = {"highway_scene.ego_driver": "idm"} if idm else None
+    return gym.make(SIMULATORS[simulator].format(scene=scene), overrides=overrides)
 
 
-def drive(env: gym.Env, seeds: list[int], act: Callable[[np.ndarray, np.random.Generator], int]):
+def idm_ego(env: gym.Env) -> None:
+    """highway-env's own IDM ego: the controlled car replaced by ``IDMVehicle.create_from``
+    of it (its position, speed, target lane and speed; the class's IDM exponent; its timer
+    from its position), in the road's cars and as the controlled car, which the action, the
+    observation, the reward and the episode's end read. Its ``act`` ignores the action."""
+    from highway_env.vehicle.behavior import IDMVehicle
+
+    scene: Any = env.unwrapped
+    car = scene.vehicle
+    idm = IDMVehicle.create_from(car)
+    scene.road.vehicles[scene.road.vehicles.index(car)] = idm
+    scene.controlled_vehicles[0] = idm
+
+
+def drive(
+    env: gym.Env,
+    seeds: list[int],
+    act: Callable[[np.ndarray, np.random.Generator], int],
+    after_reset: Callable[[gym.Env], None] | None = None,
+):
     """Per episode: decisions, crashed, return, the car's mean speed (m/s)."""
     rows = []
     for seed in seeds:
         obs, _ = env.reset(seed=seed)
+        if after_reset is not None:
+            after_reset(env)
         rng = np.random.default_rng(seed)
         length, total, speeds, crashed = 0, 0.0, [], False
         while True:
@@ -112,15 +148,24 @@ def summary(rows) -> dict[str, Any]:
 
 
 def fixed_drivers(config: EquivalenceConfig, seeds: list[int]) -> dict[str, dict[str, Any]]:
+    unknown = [name for name in config.drivers if name not in DRIVERS]
+    if unknown:
+        raise SystemExit(f"--drivers: expected names among {', '.join(DRIVERS)}, got {unknown}")
     results: dict[str, dict[str, Any]] = {}
     for simulator in SIMULATORS:
         env = make(simulator, config.scene)
-        for name, driver in DRIVERS.items():
+        for name in config.drivers:
+            idm = name == IDM_DRIVER
+            driven_env = make(simulator, config.scene, idm=True) if idm else env
+            swap = idm_ego if idm and simulator == "highway-env" else None
             start = time.perf_counter()
+            driver = DRIVERS[name]
             results.setdefault(name, {})[simulator] = {
-                **summary(drive(env, seeds, lambda _obs, rng, d=driver: d(rng))),
+                **summary(drive(driven_env, seeds, lambda _obs, rng, d=driver: d(rng), swap)),
                 "seconds": time.perf_counter() - start,
             }
+            if driven_env is not env:
+                driven_env.close()
             print(f"{simulator:12s} {name:7s} {results[name][simulator]}", flush=True)
         env.close()
     return results

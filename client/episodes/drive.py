@@ -14,14 +14,20 @@ import sys
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 
 from overtake.cli import Command, CommandError, Output
+from overtake.cli.options import unset
 from overtake.client.commands import UsageError
 from overtake.client.episodes.records import PolicySource
-from overtake.client.episodes.runner import baseline_policy, metric_summary, metric_table
+from overtake.client.episodes.runner import (
+    baseline_policy,
+    metric_summary,
+    metric_table,
+    policy_settings,
+)
 from overtake.client.episodes.scenario import Scenario, Where
 from overtake.client.episodes.session import Driver, Episodes, Keeping, RealTime, drive_episodes
 from overtake.client.policies.shield import SHIELD_OVERRIDES
@@ -34,22 +40,24 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class DriveConfig:
     """Drive a baseline policy through episodes of a preset and report the metrics. The
-    simulator and where it runs are the scenario's and where's options (--preset: None takes
-    the ONNX model's own with --onnx, else min2018)."""
+    simulator and where it runs are the scenario's and where's options (--preset unset: the
+    ONNX model's own with --onnx, else min2018)."""
 
     scenario: Scenario = field(default_factory=Scenario)
     """the simulator: a preset, its traffic, episode length and overrides"""
     where: Where = field(default_factory=Where)
     """where the simulator runs: in this process, or on a server (--connect)"""
 
-    policy: Literal["rule", "random", "idle", "planner"] = "rule"
-    """which driver acts (unless --onnx is given)"""
-    onnx: Path | None = None
+    policy: Literal["rule", "random", "idle", "planner", "idm"] = "rule"
+    """which driver acts (unless --onnx is given): the rule-based driver, random, idle (never
+    acts), the privileged planner (in process) or idm (highway-env's IDM + MOBIL car at the
+    wheel; presets highway-fast and highway)"""
+    onnx: Annotated[Path | None, unset("PATH")] = None
     """drive a policy exported by overtake-export (ONNX Runtime, no PyTorch) instead of
     --policy"""
-    shield: bool | None = None
-    """with --onnx: the safety shield in front of the model (overtake.client.policies.shield); None:
-    where the model was trained with it"""
+    shield: Annotated[bool | None, unset("{True,False}")] = None
+    """with --onnx: the safety shield in front of the model (overtake.client.policies.shield);
+    unset: where the model was trained with it"""
     realtime: bool = False
     """advance the simulator on the wall clock, one decision period (0.4 s for min2018) per
     decision: an action not ready in time is late (the car keeps its lane and speed), and the
@@ -58,9 +66,9 @@ class DriveConfig:
     """episodes to drive, all at once (one arena each)"""
     seed: int = 0
     """episode i uses seed + i"""
-    json_out: Path | None = None
+    json_out: Annotated[Path | None, unset("PATH")] = None
     """also write the table as JSON here"""
-    episodes_out: Path | None = None
+    episodes_out: Annotated[Path | None, unset("PATH")] = None
     """keep every episode as a record in this folder (<policy>.jsonl), for overtake-replay"""
 
     def output_paths(self) -> tuple[Output, ...]:
@@ -87,7 +95,9 @@ def what_to_drive(config: DriveConfig) -> DriveSetup:
     if config.episodes < 1:
         raise UsageError(f"--episodes must be >= 1, got {config.episodes}")
     if config.onnx is None:
-        return DriveSetup(config.scenario.preset_or(None), {}, ())
+        preset = config.scenario.preset_or(None)
+        settings = policy_settings(config.policy, preset, config.scenario.overrides({}))
+        return DriveSetup(preset, settings, ())
     from overtake.client.policies.onnx_policy import read_metadata
 
     meta = read_metadata(config.onnx)

@@ -20,7 +20,6 @@ import numpy as np
 from overtake.client.episodes.records import EventCounts
 from overtake.client.episodes.runner import VectorStep
 from overtake.envs.faces import VectorFace
-from overtake.protocol.vocabulary import ACTION_NAMES
 from overtake.viz.car_view import CarView
 from overtake.viz.episode_view import CAR, EVENTS, ROAD_SERVER, episode_blueprint, timeline
 from overtake.viz.recording import (
@@ -96,7 +95,9 @@ class EpisodeRecording:
 
         self.every = max(1, every)
         self.rr, self.stream, self.labels, self.policy = rr, stream, list(labels), policy
-        self.car = CarView(stream, CAR, ego_fields)
+        # The actions as the preset names them (highway-env's names in its scenes).
+        self.action_names = envs.behaviour_spec.action_names
+        self.car = CarView(stream, CAR, ego_fields, self.action_names)
         self.world = envs.simulator.road
         self.road = (
             WorldRecording(stream, rays=False, lay_out=False, agent_series=False)
@@ -162,7 +163,8 @@ class EpisodeRecording:
                 greedy = int(np.argmax(np.where(allowed, q[i], -np.inf)))
                 self._event(
                     "INFO",
-                    f"the shield overrode {ACTION_NAMES[greedy]} with {ACTION_NAMES[action]} "
+                    f"the shield overrode {self.action_names[greedy]} with "
+                    f"{self.action_names[action]} "
                     f"at {at}",
                 )
             if ends:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -30,7 +30,15 @@ from overtake.client.policies.drivers import (
 from overtake.client.policies.shield import SHIELD_OVERRIDES
 from overtake.envs.faces import VectorFace
 from overtake.protocol.messages import BehaviourSpec
-from overtake.protocol.vocabulary import METRIC_FIELDS, WATCH_METRICS
+from overtake.protocol.vocabulary import (
+    EGO_DRIVER_IDM,
+    EGO_DRIVER_SETTING,
+    HIGHWAY_SCENE_PRESETS,
+    HIGHWAY_SCENE_SETTING,
+    KEEP,
+    METRIC_FIELDS,
+    WATCH_METRICS,
+)
 
 Policy = Callable[[dict[str, np.ndarray], dict[str, Any], np.ndarray], np.ndarray]
 """``act(obs, info, starting)`` -> actions, for :func:`run_episodes`."""
@@ -212,7 +220,24 @@ def drive_until(
 
 
 # The reference policies ``baseline_policy`` builds.
-BASELINE_POLICIES = ("rule", "random", "idle", "planner")
+BASELINE_POLICIES = ("rule", "random", "idle", "planner", "idm")
+
+
+def policy_settings(
+    policy: str | None, preset: str, overrides: Mapping[str, Any]
+) -> dict[str, Any]:
+    """The simulator settings ``policy`` drives under on ``preset`` (with ``overrides``), to
+    add to the scenario's: ``idm`` is the scene's own IDM + MOBIL car (highway-env's scenes
+    only: anywhere else a :class:`UsageError` in one line); the others need none."""
+    if policy != "idm":
+        return {}
+    if preset not in HIGHWAY_SCENE_PRESETS and overrides.get(HIGHWAY_SCENE_SETTING) is not True:
+        raise UsageError(
+            f"--policy idm is highway-env's IDM + MOBIL car, which drives the highway scenes "
+            f"only (presets {', '.join(HIGHWAY_SCENE_PRESETS)}), not preset {preset}: drive "
+            f"{preset} with --policy rule, random, idle or planner"
+        )
+    return {EGO_DRIVER_SETTING: EGO_DRIVER_IDM}
 
 
 def baseline_policy(
@@ -227,10 +252,16 @@ def baseline_policy(
     - ``idle``: never acts (action 0 throughout): the floor any policy should beat;
     - ``planner``: the simulator's privileged planner, which reads the true state of every
       car: an upper reference, not a policy anyone trains; it needs ``envs``, the in-process
-      vector environment being driven (a remote simulator keeps its state to itself).
+      vector environment being driven (a remote simulator keeps its state to itself);
+    - ``idm``: highway-env's scenes' own IDM + MOBIL car at the wheel, in the simulator (the
+      setting :func:`policy_settings` adds, in process or remote): what is sent is unread
+      (keep), and ``info["action_applied"]`` says the meta-action each decision stands for.
+      Its simulator is opened with that setting by the caller (the spec does not say it).
     """
     if policy == "idle":
         return lambda _obs, _info, _starting: np.zeros(num_envs, dtype=np.int64)
+    if policy == "idm":
+        return lambda _obs, _info, _starting: np.full(num_envs, KEEP, dtype=np.int64)
     if policy == "planner":
         road = envs.simulator.road if envs is not None else None
         if road is None:
@@ -292,9 +323,16 @@ def _rule_driver(spec: BehaviourSpec) -> Policy:
             half_width_m=lidar_map.reach.side_m,
         )
         return lambda obs, info, _starting: on_map.act(obs["lidar_map"], info["action_mask"])
+    if spec.preset in HIGHWAY_SCENE_PRESETS:
+        raise UsageError(
+            f"the rule-based driver reads the LIDAR and the ego vector, the occupancy grid or "
+            f"the LIDAR map, and preset {spec.preset} observes highway-env's Kinematics table: "
+            f"drive it with --policy idm (highway-env's IDM + MOBIL car), random or idle instead"
+        )
     raise UsageError(
         "the rule-based driver reads the LIDAR and the ego vector (lidar.enabled, "
         "ego_vector.enabled), the occupancy grid (grid.enabled) or the LIDAR map "
         "(lidar_map.enabled): this configuration has none of them; drive it with --policy "
-        "idle, random or planner (in process) instead"
+        "idle, random or planner (in process) instead, or idm on highway-env's scenes "
+        f"(presets {', '.join(HIGHWAY_SCENE_PRESETS)})"
     )

@@ -17,10 +17,11 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Annotated, Any
 
 import gymnasium as gym
 
+from overtake.cli.options import unset
 from overtake.client.commands import UsageError
 from overtake.client.wire.remote_config import RemoteConfig
 from overtake.client.wire.steps_channel import Transport
@@ -67,8 +68,8 @@ class Where:
     """through shared memory, how long to wait for a round spinning (yielding the core) before
     sleeping: a process that sleeps between rounds computes the next one slower on a virtual
     machine (RemoteConfig.spin_s); 0 always sleeps"""
-    server: str | None = None
-    """with --connect: open the arenas on this server (its --name); None: the least loaded"""
+    server: Annotated[str | None, unset("NAME")] = None
+    """with --connect: open the arenas on this server (its --name); unset: the least loaded"""
     connect_timeout_s: float = _REMOTE.connect_timeout_s
     """with --connect: how long to keep trying to reach the endpoint"""
     request_timeout_s: float = _REMOTE.request_timeout_s
@@ -81,9 +82,9 @@ class Where:
     on (0: never)"""
     lease_s: float = _REMOTE.lease_s
     """with --connect: if this process's host vanishes, servers free its arenas within this"""
-    trainer_name: str | None = None
-    """with --connect: a readable prefix for this process's id in server logs and status
-    (default: the usrpwd user, else "trainer")"""
+    trainer_name: Annotated[str | None, unset("NAME")] = None
+    """with --connect: a readable prefix for this process's id in server logs and status;
+    unset: the usrpwd user, else trainer"""
 
     @property
     def in_process(self) -> bool:
@@ -162,14 +163,14 @@ class Where:
 class Scenario:
     """Which simulator: a preset, its traffic, its episode length and other overrides."""
 
-    preset: str | None = None
-    """the simulator preset; None: the command's own default (a checkpoint's or model's
-    preset, else min2018)"""
-    traffic: Density | None = None
-    """traffic density (each preset's cars per density: docs/presets.md); None keeps the
+    preset: Annotated[str | None, unset("NAME")] = None
+    """the simulator preset (docs/presets.md); unset: a checkpoint's or model's own, else
+    min2018"""
+    traffic: Annotated[Density | None, unset("{light,medium,heavy}")] = None
+    """traffic density (each preset's cars per density: docs/presets.md); unset: the
     preset's"""
-    max_decisions: int | None = None
-    """episode length in decisions; None keeps the preset's"""
+    max_decisions: Annotated[int | None, unset("N")] = None
+    """episode length in decisions; unset: the preset's"""
     set: tuple[str, ...] = ()
     """more simulator overrides as dotted.name=value (the value read as JSON, else as a
     string)"""

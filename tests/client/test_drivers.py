@@ -366,10 +366,39 @@ def test_drive_command_prints_what_is_wrong_and_exits_non_zero():
     assert "Traceback" not in done.stderr and not done.stdout
 
 
-def test_the_rule_driver_s_refusal_names_the_references_that_drive_any_preset():
+def test_the_rule_driver_s_refusal_names_the_references_that_drive_the_preset():
     from overtake.client.episodes.runner import baseline_policy
 
     env = HighwayEnv(preset="highway-fast")  # the Kinematics table alone: no LIDAR, no grid
-    with pytest.raises(UsageError, match="--policy idle, random or planner"):
+    with pytest.raises(UsageError, match="--policy idm .*, random or idle instead$"):
         baseline_policy("rule", env.behaviour_spec, 0, 1)
     env.close()
+    # Not a highway scene, and nothing the rule-based driver reads either.
+    env = HighwayEnv(
+        preset="min2018",
+        overrides={"lidar.enabled": False, "ego_vector.enabled": False, "camera.enabled": True},
+    )
+    with pytest.raises(UsageError, match="--policy idle, random or planner .*or idm on"):
+        baseline_policy("rule", env.behaviour_spec, 0, 1)
+    env.close()
+
+
+def test_the_idm_driver_collides_less_than_random_on_highway_fast(capsys):
+    """--policy idm: highway-env's IDM + MOBIL car at the wheel, over the same seeded
+    episodes as random (which crashes in nearly every one of highway-fast's episodes)."""
+    scenario = Scenario(preset="highway-fast")
+    idm = main(DriveConfig(policy="idm", episodes=6, seed=10, scenario=scenario))
+    random = main(DriveConfig(policy="random", episodes=6, seed=10, scenario=scenario))
+    assert idm["collisions"]["mean"] < random["collisions"]["mean"]
+    assert idm["collisions"]["mean"] <= 1 / 6 and random["collisions"]["mean"] >= 0.5
+    assert idm["decisions"]["mean"] > random["decisions"]["mean"]
+    assert "policy=idm" in capsys.readouterr().out
+
+
+def test_the_idm_driver_is_refused_where_there_is_no_highway_scene():
+    from overtake.client.episodes.runner import policy_settings
+
+    with pytest.raises(UsageError, match=r"presets highway-fast, highway\), not preset min2018"):
+        main(DriveConfig(policy="idm", episodes=1, scenario=Scenario(preset="min2018")))
+    assert policy_settings("idm", "highway", {}) == {"highway_scene.ego_driver": "idm"}
+    assert policy_settings("rule", "highway", {}) == {}

@@ -340,3 +340,34 @@ def test_extra_arguments_reach_the_viewer(tmp_path):
     with pytest.raises(RenderError, match="the viewer exited with code .*--no-such"):
         render(config)
     assert not config.out.exists()
+
+
+def test_highway_scenes_name_their_actions_as_highway_env_does(tmp_path):
+    """The presets highway-fast and highway say highway-env's names of the five actions in
+    their behaviour spec (in overtake's order), and a training recording's car plots them so."""
+    from overtake.envs.highway_env_like import ACTION_LABELS, TO_OVERTAKE
+    from overtake.protocol.vocabulary import ACTION_NAMES, HIGHWAY_ENV_ACTION_NAMES
+    from overtake.server.env import HighwayEnv
+
+    names = {}
+    for preset in ("highway-fast", "highway", "min2018"):
+        env = HighwayEnv(preset=preset, overrides={"camera.enabled": False})
+        names[preset] = env.behaviour_spec.action_names
+        env.close()
+    assert names["highway-fast"] == names["highway"] == HIGHWAY_ENV_ACTION_NAMES
+    assert names["min2018"] == ACTION_NAMES
+    for highway_env_number, label in enumerate(ACTION_LABELS):  # the same action, both ways
+        assert HIGHWAY_ENV_ACTION_NAMES[TO_OVERTAKE[highway_env_number]] == label
+
+    path = tmp_path / "run.rrd"
+    recording = open_recording(APPLICATION_ID, RecordingConfig(rrd=path), path)
+    view = TrainingRecording(recording.stream, "run", action_names=names["highway-fast"])
+    view.car_view(0, {}, 4, np.arange(5.0), 0.5, {})
+    recording.close()
+    paths = {chunk.entity_path for chunk in rr.chunk.RrdReader(path).stream().to_chunks()}
+    car = "/trainer/run/env0"
+    assert {f"{car}/q/{name}" for name in HIGHWAY_ENV_ACTION_NAMES} <= paths
+    assert {f"{car}/action/{name}" for name in HIGHWAY_ENV_ACTION_NAMES} <= paths
+    assert not any(old in p for p in paths for old in ACTION_NAMES)
+    with pytest.raises(ValueError, match="expected 5 action names"):
+        TrainingRecording(recording.stream, "run", action_names=("IDLE", "FASTER"))

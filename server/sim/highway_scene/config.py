@@ -78,6 +78,15 @@ class HighwaySceneConfig:
     normalize_reward: bool = True
     # envs/highway_env.py: an episode also ends when the car leaves the road (off by default).
     offroad_terminal: bool = False
+    # Who drives the controlled cars: their meta-actions (highway-env's MDPVehicle under
+    # DiscreteMetaAction, the default), or the scene's own traffic model ("idm": each is
+    # highway-env's IDMVehicle.create_from(its car), IDM and MOBIL with the traffic's constants
+    # and its own lane-change timer; the actions sent are not read, and the action applied
+    # says the meta-action each decision stands for). What overtake-eval --policy idm sets.
+    ego_driver: Literal["meta_actions", "idm"] = "meta_actions"
+    # vehicle/behavior.py (IDMVehicle.DELTA): the IDM exponent of a car that draws none, as
+    # create_from's car does (only traffic calls randomize_behavior); read under ego_driver idm.
+    ego_idm_delta: float = 4.0
 
     def __post_init__(self) -> None:
         check_flag("highway_scene.enabled", self.enabled)
@@ -163,3 +172,17 @@ class HighwaySceneConfig:
         )
         check_flag("highway_scene.normalize_reward", self.normalize_reward)
         check_flag("highway_scene.offroad_terminal", self.offroad_terminal)
+        check(
+            self.ego_driver in ("meta_actions", "idm"),
+            "highway_scene.ego_driver",
+            self.ego_driver,
+            "meta_actions or idm",
+        )
+        check(
+            self.enabled or self.ego_driver == "meta_actions",
+            "highway_scene.ego_driver",
+            self.ego_driver,
+            "meta_actions where highway_scene.enabled is false (idm drives the highway scenes' "
+            "cars only: presets highway-fast and highway)",
+        )
+        check_range("highway_scene.ego_idm_delta", self.ego_idm_delta, 0.5, 20.0)

@@ -56,8 +56,12 @@ _NEIGHBOUR_MARGIN_M = 1.0
     P_MIN_GAIN,
     P_MAX_BRAKING,
     P_CHANGE_DELAY,
+    P_CHECK_ALL,
+    P_AGENTS_IDM,
     P_COUNT,
-) = range(20)
+) = range(22)
+# Flags ride in the parameters (1.0 on): CPython compiles a call of over 30 arguments with *args,
+# which numba cannot inline.
 
 # The simulator's actions (protocol vocabulary: keep, cruise up, cruise down, left, right) as
 # highway-env's meta-actions: IDLE, FASTER, SLOWER, LANE_LEFT, LANE_RIGHT.
@@ -308,9 +312,9 @@ def play_arena(
     a,
     x, y, speed, heading, lane, target_lane, target_speed, timer, delta, crashed,
     impact_x, impact_y, has_impact, active, agent_distance, speed_index,
-    actions, target_speeds, agents, lanes, frames, dt, check_all, p,
+    actions, target_speeds, agents, lanes, frames, dt, p,
     changes_started, steer, accel,
-    members, counts,
+    members, counts, driven,
 ):  # fmt: skip
     """One decision of arena ``a`` (:func:`play_decision`); ``members`` and ``counts`` are
     scratch for :func:`lane_members`."""
@@ -318,9 +322,12 @@ def play_arena(
     top = target_speeds.shape[0] - 1
     span = target_speeds[top] - target_speeds[0]
     diagonal = math.sqrt(p[P_LENGTH] ** 2 + p[P_WIDTH] ** 2)
+    check_all = p[P_CHECK_ALL] != 0.0
+    agents_idm = p[P_AGENTS_IDM] != 0.0
     for k in range(agents):
         changes_started[a, k] = False
-        if not active[a, k]:
+        driven[a, k] = A_KEEP
+        if not active[a, k] or agents_idm:
             continue
         action = actions[a, k]
         if action in (A_FASTER, A_SLOWER):
@@ -343,7 +350,7 @@ def play_arena(
         for i in range(cars):
             if not active[a, i]:
                 continue
-            if i < agents:
+            if i < agents and not agents_idm:
                 steer[a, i] = steering(a, i, target_lane[a, i], y, speed, heading, p)
                 accel[a, i] = p[P_KP_A] * (target_speed[a, i] - speed[a, i])
                 continue
@@ -354,10 +361,15 @@ def play_arena(
             d = delta[a, i]
             front, rear = neighbours(a, i, lane[a, i], x, members, counts)
             acc = idm(a, i, front, d, x, speed, heading, target_speed, p)
+            goal = target_lane[a, i]
             change_lane_policy(
                 a, i, lanes, front, rear, acc, x, speed, heading, target_speed, delta,
                 lane, target_lane, timer, active, members, counts, p,
             )  # fmt: skip
+            if i < agents and target_lane[a, i] != goal and target_lane[a, i] != lane[a, i]:
+                # An agent's car started a change: its meta-action (the decision's last one).
+                changes_started[a, i] = True
+                driven[a, i] = A_LEFT if target_lane[a, i] > lane[a, i] else A_RIGHT
             steer[a, i] = steering(a, i, target_lane[a, i], y, speed, heading, p)
             if lane[a, i] != target_lane[a, i]:
                 front, _ = neighbours(a, i, target_lane[a, i], x, members, counts)
@@ -367,7 +379,7 @@ def play_arena(
         for i in range(cars):
             if not active[a, i]:
                 continue
-            if i >= agents:
+            if i >= agents or agents_idm:
                 timer[a, i] += dt
             angle, acc = steer[a, i], accel[a, i]
             if crashed[a, i]:
@@ -414,6 +426,19 @@ def play_arena(
                     has_impact[a, i] = has_impact[a, j] = True
                 if meet:
                     crashed[a, i] = crashed[a, j] = True
+    if agents_idm:
+        for k in range(agents):
+            if not active[a, k] or changes_started[a, k]:
+                continue
+            # No change started: FASTER or SLOWER where the speed's nearest target speed
+            # (MDPVehicle.speed_to_index) moved over the decision, IDLE where it did not.
+            ratio = (speed[a, k] - target_speeds[0]) / span
+            index = int(min(max(np.round(ratio * top), 0.0), top))
+            if index > speed_index[a, k]:
+                driven[a, k] = A_FASTER
+            elif index < speed_index[a, k]:
+                driven[a, k] = A_SLOWER
+            speed_index[a, k] = index
 
 
 # Compiled without numba's reference counting (_nrt=False): every helper inlined here takes
@@ -424,15 +449,22 @@ def play_arena(
 def play_decision(
     x, y, speed, heading, lane, target_lane, target_speed, timer, delta, crashed,
     impact_x, impact_y, has_impact, active, agent_distance, speed_index,
-    actions, target_speeds, agents, lanes, frames, dt, check_all, p,
-    changes_started, steer, accel, members, counts, stepping,
+    actions, target_speeds, agents, lanes, frames, dt, p,
+    changes_started, steer, accel, members, counts, stepping, driven,
 ):  # fmt: skip
     """One decision of every arena where ``stepping`` (A,) (rows of the state arrays): the
     agents' meta-actions
     (``actions``, the simulator's action numbers), then ``frames`` frames of highway-env's
-    act, step and collision test. ``changes_started`` (A, N) is set where an agent's action
-    changed its target lane. Scratch: ``steer`` and ``accel`` (A, V) float64, ``members``
-    (A, lanes, V) and ``counts`` (A, lanes) int64."""
+    act, step and collision test, every pair of cars tested where ``p[P_CHECK_ALL]``, only
+    pairs with an agent's car otherwise. ``changes_started`` (A, N) is set where an agent's
+    action changed its target lane. Scratch: ``steer`` and ``accel`` (A, V) float64, ``members``
+    (A, lanes, V) and ``counts`` (A, lanes) int64.
+
+    ``p[P_AGENTS_IDM]``: the agents' cars drive themselves as traffic does (IDMVehicle: IDM, MOBIL
+    and its timer; ``actions`` are not read) and ``driven`` (A, N) says the meta-action each
+    one's decision stands for: the lane change it started (the last one), else FASTER or
+    SLOWER where the target speed nearest its speed (its ``speed_index``, kept so) rose or
+    fell, else IDLE. Without it ``driven`` is IDLE throughout."""
     arenas = x.shape[0]
     for a in range(arenas):
         if not stepping[a]:
@@ -440,9 +472,8 @@ def play_decision(
         play_arena(
             a, x, y, speed, heading, lane, target_lane, target_speed, timer, delta, crashed,
             impact_x, impact_y, has_impact, active, agent_distance, speed_index, actions,
-            target_speeds, agents, lanes, frames, dt, check_all, p, changes_started, steer,
-            accel,
-            members[a], counts[a],
+            target_speeds, agents, lanes, frames, dt, p, changes_started, steer, accel,
+            members[a], counts[a], driven,
         )  # fmt: skip
 
 

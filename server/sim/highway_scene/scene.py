@@ -15,7 +15,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from overtake.protocol.vocabulary import (
+    ACTION_COUNT,
     AGENT_KIND,
+    HIGHWAY_ENV_ACTION_NAMES,
     LANE_RIGHT,
 )
 
@@ -56,6 +58,8 @@ def kernel_parameters(config: SimConfig) -> np.ndarray:
     p[k.P_MIN_GAIN] = scene.mobil_min_accel_gain_mps2
     p[k.P_MAX_BRAKING] = scene.mobil_max_braking_imposed_mps2
     p[k.P_CHANGE_DELAY] = scene.lane_change_delay_s
+    p[k.P_CHECK_ALL] = float(scene.collisions == "all")
+    p[k.P_AGENTS_IDM] = float(scene.ego_driver == "idm")
     return p
 
 
@@ -119,8 +123,22 @@ class ScenePlacement:
                 fresh.speed_mps, fresh.desired_speed_mps, fresh.lane, fresh.target_lane,
                 fresh.active, fresh.kind, fresh.speed_index, fresh.timer_s, fresh.idm_delta,
             )  # fmt: skip
+        if scene.ego_driver == "idm":
+            self.drive_by_idm(fresh, np.arange(len(rngs)), np.arange(self.agents))
         self.tracker.start(fresh, np.ones((len(rngs), self.vehicles), dtype=bool))
         return fresh
+
+    def drive_by_idm(self, st: SimState, arenas: np.ndarray, slots: np.ndarray) -> None:
+        """The agents' cars ``slots`` of ``arenas`` as ``IDMVehicle.create_from`` makes them
+        (ego_driver idm): the class's IDM exponent, and the lane-change timer its constructor
+        starts from the car's position (highway-env's y grows from the left lane)."""
+        scene = self.scene
+        rows, columns = np.ix_(arenas, slots)
+        y_highway_env = (self.lanes - 1 - st.lane[rows, columns]) * self.lane_width
+        st.timer_s[rows, columns] = (
+            (st.x_m[rows, columns] + y_highway_env) * math.pi
+        ) % scene.lane_change_delay_s
+        st.idm_delta[rows, columns] = scene.ego_idm_delta
 
     def place_agents(
         self, st: SimState, arena: int, slots: np.ndarray, rng: np.random.Generator
@@ -146,6 +164,8 @@ class ScenePlacement:
             st.speed_index[arena, slot] = index
             st.desired_speed_mps[arena, slot] = scene.target_speeds_mps[index]
             st.active[arena, slot] = True
+            if scene.ego_driver == "idm":
+                self.drive_by_idm(st, np.array([arena]), np.array([slot]))
             self.tracker.start_agent(st, arena, int(slot))
 
 
@@ -154,6 +174,9 @@ class MetaActions:
     FASTER, cruise down SLOWER): which can be taken now (``get_available_actions``: IDLE
     always, a lane change where there is a lane beyond the target lane, FASTER and SLOWER
     where the car's speed index can move)."""
+
+    names = HIGHWAY_ENV_ACTION_NAMES  # the actions as highway-env names them
+    count = ACTION_COUNT
 
     def __init__(self, config: SimConfig, agents: int) -> None:
         self.lanes = config.road.lane_count
@@ -190,9 +213,10 @@ class SceneDecision:
         self.lane_width = config.road.lane_width_m
         self.parameters = kernel_parameters(config)
         self.target_speeds = np.asarray(self.scene.target_speeds_mps, dtype=np.float64)
-        self.check_all = self.scene.collisions == "all"
         self.tracker, self.episodes = sim.tracker, sim.episodes
         self.actions = MetaActions(config, sim.agents)
+        # The agents' cars drive themselves (ego_driver idm): the actions sent are not read.
+        self.agents_idm = self.scene.ego_driver == "idm"
         scene = self.scene
         self.weights = np.array(
             [scene.collision_reward, scene.right_lane_reward, scene.high_speed_reward]
@@ -220,18 +244,22 @@ class SceneDecision:
         applied = np.empty_like(actions)
         ek.applied_actions(self.actions.mask(st), actions, applied)
         started = np.zeros(actions.shape, dtype=bool)
+        driven = np.empty_like(actions)
         blocks = k.arena_blocks(arenas)
         if len(blocks) == 1:
-            self._play(st, actions, started, stepping, blocks[0])
+            self._play(st, actions, started, stepping, driven, blocks[0])
         else:
             # The compiled decision lets go of the GIL: blocks of arenas on as many threads.
             pool = k.thread_pool(len(blocks) - 1)
             others = [
-                pool.submit(self._play, st, actions, started, stepping, b) for b in blocks[1:]
+                pool.submit(self._play, st, actions, started, stepping, driven, b)
+                for b in blocks[1:]
             ]
-            self._play(st, actions, started, stepping, blocks[0])
+            self._play(st, actions, started, stepping, driven, blocks[0])
             for other in others:
                 other.result()
+        if self.agents_idm:
+            applied = driven  # the meta-action each car's own decision stands for
         where = slice(None) if rows is None else rows
         st.frame[where] += self.frames
         st.decisions[where] += 1
@@ -265,6 +293,7 @@ class SceneDecision:
         actions: np.ndarray,
         started: np.ndarray,
         stepping: np.ndarray,
+        driven: np.ndarray,
         rows: slice,
     ) -> None:
         """:func:`.kernels.play_decision` on the arenas ``rows`` (views: written in place)."""
@@ -275,9 +304,9 @@ class SceneDecision:
             st.idm_delta[rows], st.crashed[rows], st.impact_x_m[rows], st.impact_y_m[rows],
             st.has_impact[rows], st.active[rows], st.distance_m[rows], st.speed_index[rows],
             actions[rows], self.target_speeds, self.agents, self.lanes, self.frames, self.dt,
-            self.check_all, self.parameters, started[rows], np.empty((arenas, cars)),
+            self.parameters, started[rows], np.empty((arenas, cars)),
             np.empty((arenas, cars)), np.empty((arenas, self.lanes, cars), dtype=np.int64),
-            np.empty((arenas, self.lanes), dtype=np.int64), stepping[rows],
+            np.empty((arenas, self.lanes), dtype=np.int64), stepping[rows], driven[rows],
         )  # fmt: skip
 
     def reward(self, st: SimState) -> tuple[np.ndarray, dict[str, np.ndarray]]:

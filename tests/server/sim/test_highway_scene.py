@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import overtake.client  # noqa: F401  (registers the ids)
-from overtake.envs.highway_env_like import TO_OVERTAKE, overrides_from_config
+from overtake.envs.highway_env_like import ACTION_LABELS, TO_OVERTAKE, overrides_from_config
 from overtake.protocol.errors import BadConfig
 from overtake.server.sim import HighwaySim, make_config
 
@@ -42,11 +42,11 @@ def _copied(hw, preset: str, overrides=None) -> HighwaySim:
         st.target_lane[0, column] = lanes - 1 - v.target_lane_index[2]
         st.desired_speed_mps[0, column] = v.target_speed
         st.crashed[0, column] = v.crashed
-        if column:
+        if hasattr(v, "timer"):  # an IDMVehicle: traffic, or the controlled car as one
             st.timer_s[0, column] = v.timer
             st.idm_delta[0, column] = v.DELTA
-        else:
-            st.speed_index[0, 0] = v.speed_index
+        if column == 0:
+            st.speed_index[0, 0] = getattr(v, "speed_index", st.speed_index[0, 0])
     sim.state_written()
     return sim
 
@@ -86,6 +86,56 @@ def test_every_car_moves_as_in_highway_env(scene, preset, seed):
         if hw_terminated:
             break
     hw.close()
+
+
+@pytest.mark.parametrize(("scene", "preset", "seed"), [("highway-fast-v0", "highway-fast", 7),
+                                                      ("highway-v0", "highway", 8)])  # fmt: skip
+def test_the_idm_ego_moves_as_highway_env_s_idm_vehicle(scene, preset, seed):
+    """highway_scene.ego_driver=idm: the controlled car is highway-env's
+    IDMVehicle.create_from(its car), whatever actions are sent; the action applied is the lane
+    change it started, else FASTER / SLOWER / IDLE by the target speed nearest its speed."""
+    from highway_env.vehicle.behavior import IDMVehicle
+
+    hw = gym.make(scene).unwrapped
+    hw.reset(seed=seed)
+    car = hw.vehicle
+    idm = IDMVehicle.create_from(car)
+    hw.road.vehicles[hw.road.vehicles.index(car)] = idm
+    hw.controlled_vehicles[0] = idm
+    sim = _copied(hw, preset, {"highway_scene.ego_driver": "idm"})
+    assert sim.state.idm_delta[0, 0] == idm.DELTA == 4.0
+    lanes, speeds = sim.config.road.lane_count, np.array([20.0, 25.0, 30.0])
+    index = int(np.abs(speeds - idm.speed).argmin())
+    rng = np.random.default_rng(seed)
+    applied = []
+    for decision in range(40):
+        action = int(rng.integers(0, 5))  # unread by either car
+        target_before = idm.target_lane_index[2]
+        _, hw_reward, hw_terminated, _, _ = hw.step(action)
+        result = sim.step(np.array([[TO_OVERTAKE[action]]]))
+        _assert_same(hw, sim, f"after decision {decision}")
+        assert result.reward[0, 0] == pytest.approx(hw_reward, abs=1e-9)
+        assert bool(result.terminated[0, 0]) == hw_terminated
+        now = int(np.abs(speeds - idm.speed).argmin())
+        # highway-env's lane ids grow to the right: a smaller id is a change to the left.
+        if idm.target_lane_index[2] != target_before:
+            wanted = "LANE_LEFT" if idm.target_lane_index[2] < target_before else "LANE_RIGHT"
+        else:
+            wanted = "FASTER" if now > index else "SLOWER" if now < index else "IDLE"
+        index = now
+        applied.append(int(result.action_applied[0, 0]))
+        assert applied[-1] == TO_OVERTAKE[ACTION_LABELS.index(wanted)], f"decision {decision}"
+        if hw_terminated:
+            break
+    assert lanes > 1 and len(set(applied)) > 1  # the car did more than keep going
+    hw.close()
+
+
+def test_the_idm_ego_is_refused_outside_the_highway_scenes():
+    with pytest.raises(ValueError, match="highway_scene.ego_driver = 'idm' is not allowed"):
+        make_config("min2018", {"highway_scene.ego_driver": "idm"})
+    with pytest.raises(ValueError, match="expected one of"):
+        make_config("highway-fast", {"highway_scene.ego_driver": "mobil"})
 
 
 def test_the_ids_take_highway_env_s_config_and_refuse_an_unknown_key_by_name():
