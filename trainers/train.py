@@ -44,7 +44,7 @@ from .learner import execution_device
 from .lone_loop import LoneLoop
 from .members_run import MembersRun, check_members, member_configs
 from .train_config import TrainConfig
-from .training_run import TrainingRun
+from .training_run import TRAINING_STARTED, TrainingRun
 
 __all__ = [
     "COMMAND",
@@ -214,6 +214,11 @@ def option_in(argv: list[str], flag: str) -> str | None:
 
 
 def _say_stopping(name: str) -> None:
+    if not TRAINING_STARTED.is_set():
+        # Still building the environments and the learner (seconds of compiled kernels and
+        # a server's arenas): nothing to checkpoint yet, so the process ends now rather than
+        # after its start-up (an experiment stopped while its trainers start waited 10-20 s).
+        raise SystemExit(f"{name}: stopped before training began (nothing to resume yet)")
     log.warning(
         "%s: finishing the step under way, writing a checkpoint and stopping "
         "(send it again to stop at once); continue the run with --resume",

@@ -36,6 +36,10 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger("overtake.trainer")
 
+TRAINING_STARTED = threading.Event()
+"""Set once a run of this process has opened its books (its run record, logs, episodes):
+until then a stop has nothing to checkpoint (:func:`.train._say_stopping`)."""
+
 
 class TrainingRun:
     """One life of a training run (its start or one resume) in its run directory.
@@ -165,6 +169,7 @@ class TrainingRun:
     def open(self) -> None:
         """The life's run record, metrics log and recording; the episodes started (or put
         back). :meth:`close` closes what this opened, whatever happened between."""
+        TRAINING_STARTED.set()
         self._write_run_record()
         self.log = MetricsLog(self.run_dir / "metrics.jsonl")
         self.recording, self.bar = None, None

@@ -9,6 +9,7 @@ import contextlib
 import json
 import subprocess
 import sys
+import threading
 from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
@@ -614,3 +615,17 @@ def test_an_in_process_run_draws_its_first_cars_road_in_its_recording(tmp_path):
     assert len(boxes) == 6 and all(count > 10 for count in boxes), boxes
     texts = set().union(*(blueprint_texts(reader, store) for store in reader.blueprints()))
     assert IN_PROCESS_ROAD in texts and "run: road (env 0 at 0 m, left up)" in texts
+
+
+def test_a_stop_before_training_began_ends_at_once(monkeypatch):
+    """SIGTERM while the trainer still builds its environments and learner ends the process
+    at once (nothing to checkpoint yet); once a run has opened its books, the stop finishes
+    the step under way and checkpoints."""
+    from overtake.trainers import train as train_module
+
+    started = threading.Event()
+    monkeypatch.setattr(train_module, "TRAINING_STARTED", started)
+    with pytest.raises(SystemExit, match="SIGTERM: stopped before training began"):
+        train_module._say_stopping("SIGTERM")
+    started.set()
+    train_module._say_stopping("SIGTERM")  # says so and returns: the loop stops
