@@ -23,6 +23,7 @@ import torch
 from overtake.cli import Command, CommandError, Output
 from overtake.cli.options import unset
 from overtake.client.commands import UsageError
+from overtake.client.episodes.drive import say_stopping_episodes
 from overtake.client.episodes.records import PolicySource
 from overtake.client.episodes.runner import baseline_policy, metric_summary, policy_settings
 from overtake.client.episodes.scenario import Scenario, Where, parse_overrides
@@ -330,17 +331,11 @@ def main(config: EvalConfig, stop: threading.Event | None = None) -> dict[str, A
     return result
 
 
-def _say_stopping(name: str) -> None:
-    log.warning(
-        "%s: stopping after the decision under way; the table and --json-out hold the "
-        "episodes that ended (send it again to stop at once)",
-        name,
-    )
-
-
 # Ctrl-C and SIGTERM end the drive before the next decision: the episodes that ended are
 # reported and written, said as partial (a second signal ends it at once, in one line).
-COMMAND = Command("overtake-eval", EvalConfig, main, stopping="event", on_stop=_say_stopping)
+COMMAND = Command(
+    "overtake-eval", EvalConfig, main, stopping="event", on_stop=say_stopping_episodes
+)
 
 
 if __name__ == "__main__":

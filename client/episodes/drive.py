@@ -257,7 +257,8 @@ def _print_table(
     )
 
 
-def _say_stopping(name: str) -> None:
+def say_stopping_episodes(name: str) -> None:
+    """What overtake-drive and overtake-eval say at the first Ctrl-C or SIGTERM."""
     log.warning(
         "%s: stopping after the decision under way; the table and --json-out hold the "
         "episodes that ended (send it again to stop at once)",
@@ -267,7 +268,9 @@ def _say_stopping(name: str) -> None:
 
 # Ctrl-C and SIGTERM end the drive before the next decision: the episodes that ended are
 # reported and written, said as partial (a second signal ends it at once, in one line).
-COMMAND = Command("overtake-drive", DriveConfig, main, stopping="event", on_stop=_say_stopping)
+COMMAND = Command(
+    "overtake-drive", DriveConfig, main, stopping="event", on_stop=say_stopping_episodes
+)
 
 
 if __name__ == "__main__":
