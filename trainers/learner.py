@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import contextlib
 import copy
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, Literal, Protocol
 
 import numpy as np
@@ -48,57 +50,94 @@ _AUTOCAST_DTYPES = {"bf16": torch.bfloat16, "fp16": torch.float16}
 AnyShape = NetworkShape | GridNetworkShape | TwoStreamShape | MlpNetworkShape
 
 
-def network_shape(space: Any, inputs: Inputs, actions: int, stack: int) -> AnyShape:
-    """What the network for ``inputs`` is built for, read from the single observation
-    ``space``: Ho's grid network, Fayjie et al.'s two streams, or Min et al.'s network."""
-    if inputs == "grid":
-        return GridNetworkShape.from_space(space, actions, stack)
-    if inputs == "camera-map":
-        return TwoStreamShape.from_space(space, actions, stack)
-    if inputs == "kinematics":
-        return MlpNetworkShape.from_space(space, actions, stack)
-    return NetworkShape.from_space(space, actions, stack)
+@dataclass(frozen=True)
+class NetworkKind:
+    """One family of Q-networks, described once: what it reads, the ``DQNConfig.network``
+    names it answers to, how its shape is read from an observation space and how it is
+    built."""
+
+    reads: str
+    """what its inputs are, for messages"""
+    networks: tuple[str, ...]
+    shape_type: type
+    shape_of: Callable[[Any, int, int], Any]
+    """(single observation space, actions, stack) -> its shape"""
+    build: Callable[[Any, Inputs, DQNConfig, HeadSpec], nn.Module]
+    """(shape, inputs, config, head) -> the network"""
+    takes_init: bool = False
+    """whether it takes Ho's truncated-normal initialisation (DQNConfig.init)"""
 
 
-def build_network(shape: AnyShape, inputs: Inputs, config: DQNConfig, head: HeadSpec) -> nn.Module:
-    """The Q-network ``config.network`` names, for ``inputs``: Min et al.'s multi-modal network
-    on camera and / or LIDAR, one of Ho's on the occupancy grid, or Fayjie et al.'s two-stream
-    network on the camera and the LIDAR map."""
-    if config.init != "torch" and inputs != "grid":
-        raise ValueError(f"init {config.init} is Ho's, for his grid networks (inputs grid)")
-    if inputs == "kinematics":
-        if config.network != "mlp" or not isinstance(shape, MlpNetworkShape):
-            raise ValueError(
-                "inputs kinematics (highway-env's Kinematics table) need network mlp, got "
-                f"network={config.network!r}"
-            )
-        return MlpQNetwork(shape, head=head)
-    if inputs == "camera-map":
-        if config.network != "two-stream" or not isinstance(shape, TwoStreamShape):
-            raise ValueError(
-                "inputs camera-map (Fayjie et al.'s camera and LIDAR map) need network "
-                f"two-stream, got network={config.network!r}"
-            )
-        return TwoStreamQNetwork(shape, head=head)
-    if inputs == "grid":
-        if config.network not in ("baseline", "proposed") or not isinstance(
-            shape, GridNetworkShape
-        ):
-            raise ValueError(
-                "inputs grid (Ho's occupancy grid) need network baseline or proposed, got "
-                f"network={config.network!r}"
-            )
-        kind: GridNetworkKind = "baseline" if config.network == "baseline" else "proposed"
-        init = config.init_std if config.init == "truncated-normal" else None
-        return GridQNetwork(shape, kind, head=head, init_std=init)
-    if config.network != "multimodal" or not isinstance(shape, NetworkShape):
-        raise ValueError(
-            f"inputs {inputs} (Min et al.'s camera / LIDAR) need network multimodal, got "
-            f"network={config.network!r}"
-        )
+def _grid(shape: Any, _inputs: Inputs, config: DQNConfig, head: HeadSpec) -> nn.Module:
+    kind: GridNetworkKind = "baseline" if config.network == "baseline" else "proposed"
+    init = config.init_std if config.init == "truncated-normal" else None
+    return GridQNetwork(shape, kind, head=head, init_std=init)
+
+
+def _multimodal(shape: Any, inputs: Inputs, config: DQNConfig, head: HeadSpec) -> nn.Module:
     return QNetwork(
         shape, inputs, head=head, lstm_cells=config.lstm_cells, hidden=config.hidden_units
     )
+
+
+_MIN_ET_AL = NetworkKind(
+    "Min et al.'s camera / LIDAR",
+    ("multimodal",),
+    NetworkShape,
+    NetworkShape.from_space,
+    _multimodal,
+)
+NETWORK_KINDS: dict[str, NetworkKind] = {
+    "camera": _MIN_ET_AL,
+    "lidar": _MIN_ET_AL,
+    "both": _MIN_ET_AL,
+    "grid": NetworkKind(
+        "Ho's occupancy grid",
+        ("baseline", "proposed"),
+        GridNetworkShape,
+        GridNetworkShape.from_space,
+        _grid,
+        takes_init=True,
+    ),
+    "camera-map": NetworkKind(
+        "Fayjie et al.'s camera and LIDAR map",
+        ("two-stream",),
+        TwoStreamShape,
+        TwoStreamShape.from_space,
+        lambda shape, _inputs, _config, head: TwoStreamQNetwork(shape, head=head),
+    ),
+    "kinematics": NetworkKind(
+        "highway-env's Kinematics table",
+        ("mlp",),
+        MlpNetworkShape,
+        MlpNetworkShape.from_space,
+        lambda shape, _inputs, _config, head: MlpQNetwork(shape, head=head),
+    ),
+}
+"""Each input configuration's network family (:data:`.network.INPUTS`)."""
+
+
+def network_shape(space: Any, inputs: Inputs, actions: int, stack: int) -> AnyShape:
+    """What the network for ``inputs`` is built for, read from the single observation
+    ``space``: Ho's grid network, Fayjie et al.'s two streams, Min et al.'s network or the
+    Kinematics MLP (:data:`NETWORK_KINDS`)."""
+    return NETWORK_KINDS[inputs].shape_of(space, actions, stack)
+
+
+def build_network(shape: AnyShape, inputs: Inputs, config: DQNConfig, head: HeadSpec) -> nn.Module:
+    """The Q-network ``config.network`` names, for ``inputs`` (:data:`NETWORK_KINDS`): Min et
+    al.'s multi-modal network on camera and / or LIDAR, one of Ho's on the occupancy grid,
+    Fayjie et al.'s two-stream network on the camera and the LIDAR map, or the MLP on
+    highway-env's Kinematics table."""
+    kind = NETWORK_KINDS[inputs]
+    if config.init != "torch" and not kind.takes_init:
+        raise ValueError(f"init {config.init} is Ho's, for his grid networks (inputs grid)")
+    if config.network not in kind.networks or not isinstance(shape, kind.shape_type):
+        raise ValueError(
+            f"inputs {inputs} ({kind.reads}) need network {' or '.join(kind.networks)}, got "
+            f"network={config.network!r}"
+        )
+    return kind.build(shape, inputs, config, head)
 
 
 def build_optimizer(parameters: Any, config: DQNConfig) -> torch.optim.Optimizer:
