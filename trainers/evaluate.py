@@ -23,9 +23,13 @@ import torch
 from overtake.cli import Command, CommandError, Output
 from overtake.cli.options import unset
 from overtake.client.commands import UsageError
-from overtake.client.episodes.drive import say_stopping_episodes
 from overtake.client.episodes.records import PolicySource
-from overtake.client.episodes.runner import baseline_policy, metric_summary, policy_settings
+from overtake.client.episodes.runner import (
+    baseline_policy,
+    metric_summary,
+    policy_settings,
+    say_stopping_episodes,
+)
 from overtake.client.episodes.scenario import Scenario, Where, parse_overrides
 from overtake.client.episodes.session import Driver, Episodes, Keeping, drive_episodes
 from overtake.client.policies.shield import Shield, ShieldedActing

@@ -27,6 +27,7 @@ from overtake.client.episodes.runner import (
     metric_summary,
     metric_table,
     policy_settings,
+    say_stopping_episodes,
 )
 from overtake.client.episodes.scenario import Scenario, Where
 from overtake.client.episodes.session import Driver, Episodes, Keeping, RealTime, drive_episodes
@@ -254,15 +255,6 @@ def _print_table(
         f"{decisions} decisions in {elapsed:.1f} s ({decisions / max(elapsed, 1e-9):.0f} "
         "decisions/s)",
         file=sys.stderr,
-    )
-
-
-def say_stopping_episodes(name: str) -> None:
-    """What overtake-drive and overtake-eval say at the first Ctrl-C or SIGTERM."""
-    log.warning(
-        "%s: stopping after the decision under way; the table and --json-out hold the "
-        "episodes that ended (send it again to stop at once)",
-        name,
     )
 
 

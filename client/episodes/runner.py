@@ -9,6 +9,7 @@ record, close) is :mod:`.session`.
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -335,4 +336,13 @@ def _rule_driver(spec: BehaviourSpec) -> Policy:
         "(lidar_map.enabled): this configuration has none of them; drive it with --policy "
         "idle, random or planner (in process) instead, or idm on highway-env's scenes "
         f"(presets {', '.join(HIGHWAY_SCENE_PRESETS)})"
+    )
+
+
+def say_stopping_episodes(name: str) -> None:
+    """What overtake-drive and overtake-eval say at the first Ctrl-C or SIGTERM."""
+    logging.getLogger("overtake").warning(
+        "%s: stopping after the decision under way; the table and --json-out hold the "
+        "episodes that ended (send it again to stop at once)",
+        name,
     )
