@@ -26,6 +26,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
 import torch
 
 from overtake.client.commands import UsageError
@@ -160,17 +161,24 @@ class MembersRun:
 
     def _iteration(self) -> None:
         """One step of every member's environments: act for all, send all, absorb all, learn;
-        each member logs and checkpoints when due."""
-        # Members share total_steps and num_envs: they reach their budget together.
-        books = self.books
+        each member logs and checkpoints when due. A member already at its budget (resumed
+        from a later checkpoint than the others) waits: the network still takes its rows,
+        its choices are dropped and its generator is left alone."""
+        going = [not book.finished for book in self.books]
+        books = [book for book, on in zip(self.books, going, strict=True) if on]
         t0 = time.perf_counter()
-        epsilons = [book.dqn.epsilon(book.step) for book in books]
-        chosen = self.learner.act(
-            [book.stacker.observation() for book in books],
-            [book.mask for book in books],
+        epsilons = [book.dqn.epsilon(book.step) for book in self.books]
+        everyone = self.learner.act(
+            [book.stacker.observation() for book in self.books],
+            [book.mask for book in self.books],
             epsilons,
-            [book.rng for book in books],
+            [
+                book.rng if on else np.random.default_rng(0)
+                for book, on in zip(self.books, going, strict=True)
+            ],
         )
+        chosen = [c for c, on in zip(everyone, going, strict=True) if on]
+        epsilons = [e for e, on in zip(epsilons, going, strict=True) if on]
         for book, (_, q) in zip(books, chosen, strict=True):
             book.acted(q)
         t1 = time.perf_counter()

@@ -285,3 +285,17 @@ def test_members_train_on_a_server_as_in_process(tmp_path, start_server) -> None
         assert_same_weights(
             online_weights(remote / f"seed-{seed}"), online_weights(here / f"seed-{seed}")
         )
+
+
+def test_a_member_ahead_of_the_others_waits_for_them(tmp_path) -> None:
+    """A batch resumed where one member's checkpoint is further on (it trained alone for a
+    while): every member reaches its budget, and the one that got there first stops storing
+    and learning while the others go on."""
+    folder = tmp_path / "batch"
+    train(_highway_run(folder / "seed-1", seed=1, total_steps=120))
+    summary = train(_highway_run(folder, seeds=(0, 1), resume_if_found=True))
+    steps = [m["steps"] for m in summary["members"]]
+    assert steps == [240, 240]
+    assert summary["members"][1]["resumed_at_step"] == 120
+    for seed in (0, 1):
+        assert load_checkpoint(folder / f"seed-{seed}" / CHECKPOINT_NAME).step == 240
