@@ -61,6 +61,11 @@ class MemberPlace:
         self.precision: Precision = members.precision
 
     @property
+    def batch(self) -> int:
+        """The members this one trains beside, itself included (its run record says so)."""
+        return self.members.members
+
+    @property
     def updates(self) -> int:
         return int(self.members.updates[self.index])
 

@@ -41,7 +41,12 @@ def run_record(**facts: Any) -> dict[str, Any]:
 
 
 def life_record(
-    step: int, device: str, precision: str, restored: dict[str, bool] | None, warm: int
+    step: int,
+    device: str,
+    precision: str,
+    restored: dict[str, bool] | None,
+    warm: int,
+    members: int = 1,
 ) -> dict[str, Any]:
     """One life of a run (its start, or a resume from ``step``), for its provenance: the
     device and precision it learns in, and what of the checkpoint it resumed from it restored
@@ -49,9 +54,11 @@ def life_record(
     starts afresh; a replay not restored is refilled for ``warm`` steps before learning goes
     on; episodes under way not restored (arenas on a server, a foreign environment, a
     checkpoint from before exact resume) restart. A resume that restored all of them goes on
-    exactly as the run never stopped would have."""
+    exactly as the run never stopped would have. ``members``: the runs this life trained
+    beside as members of one learner (itself included; 1: a lone run)."""
     return {
         "from_step": step,
+        "members": members,
         "device": device,
         "precision": precision,
         "target_restored": None if restored is None else restored["target"],

@@ -237,7 +237,12 @@ class TrainingRun:
             replay_bytes=self.replay.nbytes,
             replay_naive_bytes=self.replay.naive_nbytes(),
             life=life_record(
-                self.step, str(self.learner.device), self.config.precision, self.restored, self.warm
+                self.step,
+                str(self.learner.device),
+                self.config.precision,
+                self.restored,
+                self.warm,
+                members=int(getattr(self.learner, "batch", 1)),
             ),
         )
         self._life_file("run", ".json").write_text(json.dumps(record, indent=2, default=str))

@@ -20,6 +20,7 @@ from overtake.client.commands import UsageError
 from overtake.client.episodes.scenario import Scenario, Where
 from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.dqn_config import ALGOS, DQNConfig
+from overtake.trainers.experiment.evidence import provenance_line, run_lives
 from overtake.trainers.grid_network import GridNetworkShape
 from overtake.trainers.learner import DQNLearner
 from overtake.trainers.member_learner import MembersLearner
@@ -223,6 +224,11 @@ def test_a_member_run_directory_is_a_lone_runs_and_its_run_matches_the_lone_run(
     checkpoint = load_checkpoint(member / CHECKPOINT_NAME)
     assert checkpoint.step == 240 and checkpoint.config["seed"] == 0
     checkpoint.make_learner()  # a lone learner takes a member's state
+    # Its provenance says it trained as a member (the experiments' "How each run was made").
+    lives = run_lives(member, 240)
+    assert [life["members"] for life in lives] == [2]
+    assert "one of 2 members of one learner" in provenance_line(lives)
+    assert run_lives(tmp_path / "lone", 240)[0]["members"] == 1
     assert load_checkpoint(tmp_path / "both" / "seed-1" / CHECKPOINT_NAME).config["seed"] == 1
 
     def lines(run_dir: Path, kind: str) -> list[dict]:

@@ -48,6 +48,8 @@ def run_lives(run_dir: Path, final_step: int) -> list[dict[str, Any]]:
                 "replay_restored": life.get("replay_restored"),
                 "refill_steps": life.get("refill_steps"),
                 "arenas_restored": life.get("arenas_restored"),
+                # None: a life recorded before members (issue 66), which says nothing of it.
+                "members": life.get("members"),
             }
         )
     for life, following in zip(lives, [*lives[1:], None], strict=True):
@@ -73,6 +75,8 @@ def provenance_line(lives: list[dict[str, Any]]) -> str:
             f"{life['from_step']:,}–{life['to_step']:,} on {life.get('device') or '?'} "
             f"({life.get('precision') or 'fp32'}), commit {short}"
         )
+        if (life.get("members") or 1) > 1:
+            text += f", one of {life['members']} members of one learner"
         if number:
             fresh = [
                 what
