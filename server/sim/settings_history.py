@@ -126,6 +126,9 @@ HISTORY: tuple[SettingChange, ...] = (
     # Issue 66: the action applied was the one chosen (a refused lane change keep); ho2018's
     # is now as his car drove it, and its skipped frames repeat that.
     SettingChange("ego.applied_as_driven", since=66, before=False),
+    # Issue 67: the ego was driven by its meta-actions (highway-env's IDM ego is an option).
+    SettingChange("highway_scene.ego_driver", since=67, before="meta_actions"),
+    SettingChange("highway_scene.ego_idm_delta", since=67),
 )
 SETTINGS_EPOCH = max(change.since for change in HISTORY)
 """The last issue that changed the simulator's settings."""
@@ -248,6 +251,27 @@ def config_differences(recorded: Any, now: Any, prefix: str = "") -> list[str]:
 
 
 SHOWN_DIFFERENCES = 8
+
+
+def snapshot_differences(then: Mapping[str, Any], now: Mapping[str, Any]) -> list[str]:
+    """Where the simulator a snapshot was taken of (``then``, its configuration) differs
+    from the one it is restored into (``now``), less the settings added since that change
+    nothing here: a setting :data:`HISTORY` says was added, absent from ``then``, that
+    decided nothing before (:data:`INERT`) or holds now what was in effect before. So a run
+    stopped by one version of the code resumes exactly on a later one that only added
+    settings; a later one that changed what the arenas do is refused."""
+    flat_now = flat(dict(now))
+    unchanged = {
+        change.name
+        for change in HISTORY
+        if change.before is INERT
+        or (change.before is not FROM_RECORD and flat_now.get(change.name) == change.before)
+    }
+    return [
+        text
+        for text in config_differences(dict(then), dict(now))
+        if not ("absent from the record" in text and text.split(":", 1)[0] in unchanged)
+    ]
 
 
 def _sensors_as_recorded(config: SimConfig, recorded: Mapping[str, Any]) -> SimConfig:

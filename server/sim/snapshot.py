@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from .settings_history import snapshot_differences
 from .state import SimState
 
 
@@ -65,11 +66,14 @@ class SimSnapshot:
     ) -> None:
         """Write the snapshot into a simulator's ``state``, ``rngs`` and ``needs_reset``
         (checked first: nothing is written unless all of it fits)."""
-        if config_json != self.config_json:
-            raise SnapshotMismatch(
-                "the snapshot is of another simulator configuration: "
-                + _first_difference(self.config_json, config_json)
-            )
+        differing = (
+            snapshot_differences(json.loads(self.config_json), json.loads(config_json))
+            if config_json != self.config_json
+            else []
+        )
+        if differing:
+            said = differing[0].replace("the record", "the snapshot").replace(" now", " here")
+            raise SnapshotMismatch(f"the snapshot is of another simulator configuration: {said}")
         if len(self.rng_states) != len(rngs):
             raise SnapshotMismatch(
                 f"the snapshot holds {len(self.rng_states)} arena(s), the simulator {len(rngs)}"
@@ -125,19 +129,3 @@ class SimSnapshot:
             )
         except (KeyError, TypeError, AttributeError, ValueError) as error:
             raise SnapshotMismatch(f"not a simulator snapshot ({error!r})") from None
-
-
-def _first_difference(saved_json: str, current_json: str) -> str:
-    """The first setting that differs between two configurations' JSON, in words."""
-    saved, current = json.loads(saved_json), json.loads(current_json)
-    for path, a, b in _walk(saved, current, ""):
-        return f"{path or 'the configuration'} is {a!r} in the snapshot, {b!r} here"
-    return "the configurations differ"
-
-
-def _walk(a: Any, b: Any, path: str):
-    if isinstance(a, dict) and isinstance(b, dict):
-        for key in sorted(set(a) | set(b)):
-            yield from _walk(a.get(key), b.get(key), f"{path}.{key}" if path else key)
-    elif a != b:
-        yield path, a, b

@@ -3,11 +3,15 @@ every preset, through episode ends and autoresets, in a fresh environment."""
 
 from __future__ import annotations
 
+import dataclasses
+import json
+
 import numpy as np
 import pytest
 
 from overtake.server.env import HighwayVectorEnv
-from overtake.server.sim import PRESETS
+from overtake.server.sim import PRESETS, HighwaySim
+from overtake.server.sim.presets import make_config
 from overtake.server.sim.snapshot import SnapshotMismatch
 
 # Short episodes, so that the steps after the snapshot cross ends and autoresets.
@@ -66,7 +70,9 @@ def test_a_snapshot_fits_only_its_own_configuration_and_size():
     env.reset(seed=1)
     snapshot = env.snapshot()
     heavy = HighwayVectorEnv(2, preset="min2018", overrides={"traffic.density": "heavy"})
-    with pytest.raises(SnapshotMismatch, match="traffic.density is 'light' in the snapshot"):
+    with pytest.raises(
+        SnapshotMismatch, match="traffic.density: 'light' in the snapshot, 'heavy' here"
+    ):
         heavy.restore(snapshot)
     three = HighwayVectorEnv(3, preset="min2018", overrides={"traffic.density": "light"})
     with pytest.raises(SnapshotMismatch, match=r"\(3, "):
@@ -75,3 +81,47 @@ def test_a_snapshot_fits_only_its_own_configuration_and_size():
         env.restore(snapshot * 2)
     for e in (env, heavy, three):
         e.close()
+
+
+def _without(config_json: str, dotted: str) -> str:
+    """The configuration as an older code's snapshot holds it: without the setting
+    ``dotted`` (added since)."""
+    config = json.loads(config_json)
+    *sections, name = dotted.split(".")
+    holder = config
+    for section in sections:
+        holder = holder[section]
+    del holder[name]
+    return json.dumps(config)
+
+
+def test_a_snapshot_of_older_code_restores_where_what_was_added_since_changes_nothing():
+    """A run stopped by one version of the code resumes exactly on a later one that only
+    added settings (their values now those in effect before, settings_history): the
+    snapshot restores and steps on as the simulator it was taken from. Where an added
+    setting changed what the arenas do (ho2018's applied_as_driven, on since issue 66) it is
+    refused, naming the setting."""
+    sim = HighwaySim(make_config("min2018", SHORT), num_arenas=2)
+    sim.reset(seeds=[3, 4])
+    snapshot = sim.snapshot()
+    older = dataclasses.replace(
+        snapshot, config_json=_without(snapshot.config_json, "highway_scene.ego_driver")
+    )
+    actions = np.ones((2, 1), dtype=np.int64)
+    expected = [sim.step(actions) for _ in range(3)]
+    again = HighwaySim(make_config("min2018", SHORT), num_arenas=2)
+    again.restore(older)
+    for want in expected:
+        got = again.step(actions)
+        np.testing.assert_array_equal(got.reward, want.reward)
+        np.testing.assert_array_equal(got.terminated, want.terminated)
+    for name, value in sim.state.__dict__.items():
+        np.testing.assert_array_equal(getattr(again.state, name), value, err_msg=name)
+    ho = HighwaySim(make_config("ho2018", SHORT), num_arenas=1)
+    ho.reset(seeds=[5])
+    taken = ho.snapshot()
+    before_66 = dataclasses.replace(
+        taken, config_json=_without(taken.config_json, "ego.applied_as_driven")
+    )
+    with pytest.raises(SnapshotMismatch, match="ego.applied_as_driven: absent from the snapshot"):
+        HighwaySim(make_config("ho2018", SHORT), num_arenas=1).restore(before_66)
