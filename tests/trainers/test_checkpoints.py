@@ -128,6 +128,7 @@ def test_each_life_of_a_run_says_what_it_restored_and_a_bare_network_resumes(tmp
     first = json.loads((run_dir / "run.json").read_text())["life"]
     assert first == {
         "from_step": 0,
+        "members": 1,  # a lone run (members of one learner say how many they were)
         "device": "cpu",
         "precision": "fp32",
         "target_restored": None,
