@@ -42,6 +42,8 @@ from bench.harness import ROOT, baseline_checkout, write_report
 
 TABLES = ("ho2018", "highway-fast", "min2018-notebook")
 ARMS = ("lone-baseline", "lone", "members")
+# Also known: "members-bf16", members with --precision bf16 (not in the default arms: bf16
+# is not the default until the learning curves are compared).
 
 
 @dataclass(frozen=True)
@@ -58,7 +60,8 @@ class LearnBenchConfig:
     """the revision whose lone processes are the baseline (issue 66's starting point)"""
     arms: tuple[str, ...] = ARMS
     """lone-baseline (the baseline revision, a process a run), lone (this code, a process a
-    run), members (this code, the runs of one network as members, split over --jobs)"""
+    run), members (this code, the runs of one network as members, split over --jobs),
+    members-bf16 (the same with --precision bf16)"""
     sb3: bool = True
     """also Stable-Baselines3's DQN on highway-fast (its recipe), on overtake's scene and on
     highway-env's, two seeds each (with the highway-fast table)"""
@@ -159,7 +162,9 @@ def run_processes(
 
 def train_commands(arm: str, runs: list[list[str]], jobs: int, out: Path) -> list[list[str]]:
     with_dirs = [[*run, "--run-dir", str(out / f"run-{i}")] for i, run in enumerate(runs)]
-    if arm == "members":
+    if arm == "members-bf16":
+        with_dirs = [[*run, "--precision", "bf16"] for run in with_dirs]
+    if arm.startswith("members"):
         return member_commands(with_dirs, jobs)
     return [[sys.executable, "-m", "overtake.trainers.train", *run] for run in with_dirs]
 
