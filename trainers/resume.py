@@ -24,9 +24,11 @@ tensors, not numpy arrays: :func:`storable` and :func:`loaded` convert).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -46,6 +48,68 @@ logger = logging.getLogger("overtake.trainer")
 
 # The counters of the training loop that say when things are next due, and how far it is.
 SCHEDULE = ("next_update", "next_sync", "next_checkpoint", "next_log", "iteration", "unstored")
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """When the loop's next update, target copy, checkpoint and log line are due, its
+    iterations, and the transitions played past the budget (:data:`SCHEDULE`)."""
+
+    next_update: int
+    next_sync: int
+    next_checkpoint: int
+    next_log: int
+    iteration: int
+    unstored: int
+
+
+@dataclass(frozen=True)
+class EpisodesUnderWay:
+    """The episodes a checkpoint caught under way: the arenas' own state (the face's
+    snapshot) and the trainer's of them."""
+
+    arenas: list[Any]
+    obs: dict[str, np.ndarray]
+    env_mask: np.ndarray
+    mask: np.ndarray
+    starting: np.ndarray
+    stacker: dict[str, Any]
+    safety: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class ResumeState:
+    """What a checkpoint holds for an exact resume beyond the learner, typed: the replay's
+    account of its files (None: not kept, or not usable), the episodes under way (None: not
+    kept), the schedule, and the last episode's metrics. The run's books apply it
+    (:class:`.training_run.TrainingRun`); nothing here writes into them."""
+
+    replay: dict[str, Any] | None
+    episodes: EpisodesUnderWay | None
+    schedule: Schedule
+    last_episode: dict[str, float]
+
+    @classmethod
+    def of(cls, stored: Mapping[str, Any]) -> ResumeState:
+        """From a checkpoint's ``resume`` (:func:`take`'s plain data)."""
+        plain = loaded(stored)
+        episodes = plain.get("episodes")
+        return cls(
+            replay=plain.get("replay"),
+            episodes=None
+            if episodes is None
+            else EpisodesUnderWay(
+                arenas=list(episodes["arenas"]),
+                obs={name: np.array(value) for name, value in episodes["obs"].items()},
+                env_mask=np.array(episodes["env_mask"]),
+                mask=np.array(episodes["mask"]),
+                starting=np.array(episodes["starting"]),
+                stacker=episodes["stacker"],
+                safety=episodes["safety"],
+            ),
+            schedule=Schedule(**{name: int(value) for name, value in plain["schedule"].items()}),
+            last_episode={k: float(v) for k, v in plain.get("last_episode", {}).items()},
+        )
 
 
 def storable(value: Any) -> Any:
@@ -77,8 +141,8 @@ def open_replay(
     directory: Path,
     shapes: FrameShapes,
     stacked: tuple[str, ...],
-    state: dict[str, Any] | None,
-) -> tuple[ReplayMemory, dict[str, Any] | None]:
+    state: ResumeState | None,
+) -> tuple[ReplayMemory, ResumeState | None]:
     """The run's replay memory: in memory only (``replay_on_disk`` off), the files of the life
     before in ``directory`` (a resume whose checkpoint accounts for them), or new files there;
     and the resume ``state``, without its replay part where those files could not be used."""
@@ -94,7 +158,7 @@ def open_replay(
     args = (dqn.replay_size, config.num_envs, shapes, dqn.stack, stacked)
     if not config.replay_on_disk:
         return ReplayMemory(*args, **options), state
-    saved = (state or {}).get("replay")
+    saved = state.replay if state is not None else None
     if saved is not None and directory.is_dir():
         # The files of the life before: their spare slots are theirs.
         spare = int(saved["layout"]["slots"]) - dqn.replay_size // config.num_envs
@@ -106,7 +170,7 @@ def open_replay(
         except ReplayMismatch as error:
             logger.warning("%s: the replay starts empty and refills", error)
     replay = ReplayMemory(*args, **options, directory=directory, spare=spare_slots(config))
-    return replay, None if state is None else {**state, "replay": None}
+    return replay, None if state is None else dataclasses.replace(state, replay=None)
 
 
 def spare_slots(config: TrainConfig) -> int:
@@ -175,43 +239,26 @@ def can_restore(run: TrainingRun) -> bool:
     return face is not None and face.restorable
 
 
-def restore_replay(run: TrainingRun, state: Mapping[str, Any] | None) -> bool:
+def restore_replay(replay: ReplayMemory, state: ResumeState | None) -> bool:
     """Put the replay back as the checkpoint left it, where its files and the checkpoint's
     account of them are both there; returns whether it did."""
-    replay_state = (state or {}).get("replay")
-    if replay_state is None or run.replay.directory is None:
+    if state is None or state.replay is None or replay.directory is None:
         return False
-    run.replay.load_state(loaded(replay_state))
+    replay.load_state(state.replay)
     return True
 
 
-def restore_counters(run: TrainingRun, state: Mapping[str, Any]) -> None:
-    """The schedule and the episode counters, as the checkpoint left them."""
-    for name, value in state["schedule"].items():
-        setattr(run, name, int(value))
-    run.last_episode = {k: float(v) for k, v in state.get("last_episode", {}).items()}
-
-
-def restore_episodes(run: TrainingRun, state: Mapping[str, Any] | None) -> bool:
-    """Put the episodes under way back, the environments' and the trainer's, where the
-    checkpoint holds them and the environment can take its snapshot; returns whether it did
-    (else the run starts new episodes)."""
-    episodes = (state or {}).get("episodes")
+def put_back_arenas(run: TrainingRun, state: ResumeState | None) -> EpisodesUnderWay | None:
+    """The arenas of the episodes under way put back into the run's environment, where the
+    checkpoint holds them and the environment takes its snapshot; returns the trainer's side
+    of those episodes for the books to apply, or None (new episodes start)."""
+    episodes = state.episodes if state is not None else None
     if episodes is None or not can_restore(run):
-        return False
-    episodes = loaded(episodes)
+        return None
     try:
-        run.env.face.restore(episodes["arenas"])  # type: ignore[union-attr]
+        run.env.face.restore(episodes.arenas)  # type: ignore[union-attr]
     except (errors.ProtocolError, ValueError) as error:
         # A server of another configuration, or one that lost the group: new episodes.
         logger.warning("the arenas' kept state was refused (%s): new episodes start", error)
-        if run.restored is not None:
-            run.restored["arenas"] = False
-        return False
-    run.obs = {name: np.array(value) for name, value in episodes["obs"].items()}
-    run.env_mask = np.array(episodes["env_mask"])
-    run.mask = np.array(episodes["mask"])
-    run.starting = np.array(episodes["starting"])
-    run.stacker.load_state(episodes["stacker"])
-    run.safety.load_state(episodes["safety"])
-    return True
+        return None
+    return episodes

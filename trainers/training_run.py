@@ -85,7 +85,11 @@ class TrainingRun:
         self.space = envs.single_observation_space
         self.space_description = describe_space(self.space)
         # What an exact resume restores beyond the learner (resume.py), where it can.
-        self.resume_state = resumed.resume if resumed is not None else None
+        self.resume_state = (
+            resuming.ResumeState.of(resumed.resume)
+            if resumed is not None and resumed.resume is not None
+            else None
+        )
         self._build_learner(learner)
         self.step, self.episodes, self.resumes = 0, 0, 0
         self.resumed_at_step: int | None = None
@@ -112,7 +116,8 @@ class TrainingRun:
         self.next_checkpoint = self.step + config.checkpoint_every
         self.next_log = self.step + config.log_every
         if self.resume_state is not None:
-            resuming.restore_counters(self, self.resume_state)
+            self._apply_schedule(self.resume_state.schedule)
+            self.last_episode = dict(self.resume_state.last_episode)
         # Updates wait for this many transitions (again after a resume without its replay).
         self.warm = max(
             self.dqn.batch_size,
@@ -150,11 +155,26 @@ class TrainingRun:
         # Where the episodes under way cannot be restored, new ones, not the ones of the first
         # life: different environment seeds.
         self.env_seed = self.config.seed + 1_000_003 * self.resumes
-        replay_restored = resuming.restore_replay(self, self.resume_state)
-        arenas = (self.resume_state or {}).get("episodes") is not None and resuming.can_restore(
-            self
-        )
+        replay_restored = resuming.restore_replay(self.replay, self.resume_state)
+        state = self.resume_state
+        arenas = state is not None and state.episodes is not None and resuming.can_restore(self)
         self.restored = {**restored, "replay": replay_restored, "arenas": arenas}
+
+    def _apply_schedule(self, schedule: resuming.Schedule) -> None:
+        """When things are next due, as a checkpoint left it."""
+        self.next_update, self.next_sync = schedule.next_update, schedule.next_sync
+        self.next_checkpoint, self.next_log = schedule.next_checkpoint, schedule.next_log
+        self.iteration, self.unstored = schedule.iteration, schedule.unstored
+
+    def _apply_episodes(self, episodes: resuming.EpisodesUnderWay) -> None:
+        """The trainer's side of the episodes a checkpoint caught under way (their arenas
+        already put back): observations, masks, autoresets due, frame stacks, safety marks."""
+        self.obs = {name: np.array(value) for name, value in episodes.obs.items()}
+        self.env_mask = np.array(episodes.env_mask)
+        self.mask = np.array(episodes.mask)
+        self.starting = np.array(episodes.starting)
+        self.stacker.load_state(episodes.stacker)
+        self.safety.load_state(episodes.safety)
 
     def _life_file(self, stem: str, suffix: str) -> Path:
         """``stem.suffix`` for a run's start, ``stem-resume-N.suffix`` for its N-th resume."""
@@ -252,8 +272,16 @@ class TrainingRun:
         resume that can, put the episodes under way back as the checkpoint left them."""
         everyone = self.everyone = np.arange(self.config.num_envs)
         restoring = self.restored is not None and self.restored["arenas"]
-        if not (restoring and resuming.restore_episodes(self, self.resume_state)):
-            if restoring:  # refused: restore_episodes noted it for the life record
+        episodes = resuming.put_back_arenas(self, self.resume_state) if restoring else None
+        if episodes is not None:
+            self._apply_episodes(episodes)
+            if self.restored is not None and not self.restored["replay"]:
+                # The episodes go on, into an empty replay: each ring starts from the frame now
+                # (its stacks repeat that frame until the ring holds the ones after it).
+                self.replay.start(everyone, self.obs, self.mask)
+        else:
+            if restoring and self.restored is not None:  # refused: the life record says so
+                self.restored["arenas"] = False
                 self._write_run_record()
             obs, info = self.envs.reset(seed=self.env_seed)
             # Own, writable copies: parts write their rows into them as their Steps come back.
@@ -263,10 +291,6 @@ class TrainingRun:
             self.mask = self.safety.mask(everyone, self.env_mask)
             self.replay.start(everyone, self.obs, self.mask)
             self.starting = np.zeros(self.config.num_envs, dtype=bool)
-        elif self.restored is not None and not self.restored["replay"]:
-            # The episodes go on, into an empty replay: each ring starts from the frame now
-            # (its stacks repeat that frame until the ring holds the ones after it).
-            self.replay.start(everyone, self.obs, self.mask)
         self.started = time.perf_counter()
         self.window = LogWindow(self.step, self.started)
         self.bar = progress_bar(self.config, self.step)
