@@ -16,6 +16,7 @@ import torch
 from overtake.cli import Command
 from overtake.client.commands import UsageError
 
+from .allocator import keep_freed_memory
 from .train import COMMAND as TRAIN
 from .train import _say_stopping, train_members
 from .train_config import TrainConfig
@@ -52,6 +53,7 @@ def main(config: MemberBatchConfig, stop: threading.Event | None = None) -> list
     configs = [member_config(text) for text in config.members]
     if not configs:
         raise UsageError("give the runs to train: --members, a JSON list of arguments each")
+    keep_freed_memory()
     threads = {c.torch_threads for c in configs}
     if len(threads) == 1 and (count := threads.pop()) is not None:
         torch.set_num_threads(count)

@@ -34,6 +34,7 @@ from overtake.cli import Command
 from overtake.client.commands import UsageError
 from overtake.client.wire.stopping import interrupt_waits
 
+from .allocator import keep_freed_memory
 from .checkpoint import (
     CHECKPOINT_NAME,
     Checkpoint,
@@ -74,6 +75,7 @@ def main(
         execution_device(config.device, config.precision)
     except ValueError as error:
         raise UsageError(str(error)) from None
+    keep_freed_memory()  # an update's tensors reuse their pages (allocator.py: 1.6x at 8 members)
     if config.torch_threads is not None:
         torch.set_num_threads(config.torch_threads)
     if config.seeds:
