@@ -43,7 +43,8 @@ from bench.harness import ROOT, baseline_checkout, write_report
 TABLES = ("ho2018", "highway-fast", "min2018-notebook")
 ARMS = ("lone-baseline", "lone", "members")
 # Also known: "members-bf16", members with --precision bf16 (not in the default arms: bf16
-# is not the default until the learning curves are compared).
+# is not the default until the learning curves are compared), and "members-baseline", members
+# at the baseline revision (one that has members: an A/B of a change to them).
 
 
 @dataclass(frozen=True)
@@ -61,7 +62,8 @@ class LearnBenchConfig:
     arms: tuple[str, ...] = ARMS
     """lone-baseline (the baseline revision, a process a run), lone (this code, a process a
     run), members (this code, the runs of one network as members, split over --jobs),
-    members-bf16 (the same with --precision bf16)"""
+    members-bf16 (the same with --precision bf16), members-baseline (members at the baseline
+    revision, which must have them)"""
     sb3: bool = True
     """also Stable-Baselines3's DQN on highway-fast (its recipe), on overtake's scene and on
     highway-env's, two seeds each (with the highway-fast table)"""
@@ -174,7 +176,7 @@ def measure_arm(
 ) -> dict[str, Any]:
     runs = run_args(table, config.steps, config.learning_starts)
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-    if arm == "lone-baseline":
+    if arm in ("lone-baseline", "members-baseline"):
         assert baseline_path is not None
         env["PYTHONPATH"] = f"{baseline_path}{os.pathsep}{env.get('PYTHONPATH', '')}"
     with tempfile.TemporaryDirectory(prefix=f"bench-learn-{arm}-") as tmp:
