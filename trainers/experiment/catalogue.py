@@ -196,9 +196,11 @@ EXPERIMENTS: dict[str, Experiment] = {
         ),
     ),
     "ho2018-table8": Experiment(
-        # Estimated from bench_learn (issue 66): 20,000,000 agent-steps at 2.5 ms each as
-        # members (5.1 as lone runs, 13-15 hours before members), about 7 hours on 2 cores,
-        # then the evaluations (28 minutes in issue 56's run). The runs under way measure it.
+        # Estimated from bench_learn (issue 66, with the allocator, e66fcdc): 2.3 ms an
+        # agent-step as members with 20% of steps before learning, about 2.7 ms with Ho's 5%
+        # (4.4 as lone runs, 13-15 hours before members): 20,000,000 agent-steps in about 7.4
+        # hours on 2 cores, then the evaluations (28 minutes in issue 56's run). The runs under
+        # way measure it.
         hours_on_two_cores=7.5,
         name="ho2018-table8",
         title="Ho (2018), Table 8: the baseline network and the proposed network at four "
