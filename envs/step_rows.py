@@ -1,51 +1,27 @@
 """What a round gives the faces, and what their ``info`` says of it.
 
-:class:`StepRows` is what every face reads of a round, one row per agent: the
-:class:`~overtake.protocol.messages.Steps` a server sends, or an in-process engine's own rows
-(:class:`overtake.server.rounds.RoundRows`, no message); :func:`joined` puts the rows of a
-vector environment's parts together. :class:`StepInfo` is the ``info`` the faces hand out,
+:class:`StepRows` is what every face reads of a round, one row per agent: the contract's
+:class:`~overtake.protocol.rows.Rows`, a :class:`~overtake.protocol.messages.Steps` a server
+sends or an in-process engine's own rows (no message); :func:`joined` (the contract's) puts the
+rows of a vector environment's parts together. :class:`StepInfo` is the ``info`` the faces hand out,
 built from the rows, its fields the vocabulary's :data:`~.vocabulary.INFO_KEYS`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
 from overtake.protocol.messages import BehaviourSpec
+from overtake.protocol.rows import Rows, joined
 from overtake.protocol.vocabulary import EPISODE_COUNTS, INFO_KEYS, WATCH_METRICS
 
-
-class StepRows(Protocol):
-    """What the faces read of a round, one row per agent: :class:`Steps` from a server, or an
-    in-process engine's own rows (:class:`overtake.server.rounds.RoundRows`, no message)."""
-
-    @property
-    def agents(self) -> np.ndarray: ...
-    @property
-    def observations(self) -> dict[str, np.ndarray]: ...
-    @property
-    def reward(self) -> np.ndarray: ...
-    @property
-    def terminated(self) -> np.ndarray: ...
-    @property
-    def truncated(self) -> np.ndarray: ...
-    @property
-    def action_applied(self) -> np.ndarray: ...
-    @property
-    def late(self) -> np.ndarray: ...
-    @property
-    def action_mask(self) -> np.ndarray: ...
-    @property
-    def reward_terms(self) -> np.ndarray: ...
-    @property
-    def metrics(self) -> np.ndarray: ...
-    @property
-    def ended(self) -> np.ndarray: ...
+# What the faces read of a round, one row per agent: :class:`Steps` from a server, or an
+# in-process engine's own rows (no message); both are the contract's rows.
+StepRows = Rows
 
 
 @dataclass(frozen=True)
@@ -164,30 +140,4 @@ class StepInfo:
 assert tuple(f.name for f in dataclasses.fields(StepInfo))[: len(INFO_KEYS)] == INFO_KEYS
 
 
-def joined(parts: Sequence[StepRows]) -> StepRows:
-    """One set of rows of several engines' rows, in the order given (a Steps' server, group and
-    round are the first part's: the rows are what a vector environment reads)."""
-    if len(parts) == 1:
-        return parts[0]
-    first = parts[0]
-
-    def rows(name: str) -> np.ndarray:
-        return np.concatenate([getattr(p, name) for p in parts])
-
-    # Both kinds of rows are frozen dataclasses (Steps, RoundRows): the first part's, taller.
-    return dataclasses.replace(
-        first,  # type: ignore[type-var]
-        agents=rows("agents"),
-        observations={
-            name: np.concatenate([p.observations[name] for p in parts])
-            for name in first.observations
-        },
-        reward=rows("reward"),
-        terminated=rows("terminated"),
-        truncated=rows("truncated"),
-        action_applied=rows("action_applied"),
-        late=rows("late"),
-        action_mask=rows("action_mask"),
-        reward_terms=rows("reward_terms"),
-        metrics=rows("metrics"),
-    )
+__all__ = ["StepInfo", "StepRows", "joined"]

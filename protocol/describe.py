@@ -46,7 +46,21 @@ class FieldNote:
 
 @cache
 def field_notes(cls: type) -> dict[str, FieldNote]:
-    """Each annotated field of ``cls`` (not inherited ones) with its notes, in source order."""
+    """Each annotated field of ``cls`` with its notes: its own in source order, then those it
+    inherits from the contract's dataclasses (a Steps' rows: :mod:`.rows`), nearest first."""
+    notes: dict[str, FieldNote] = {}
+    for owner in cls.__mro__:
+        if owner is cls or (
+            dataclasses.is_dataclass(owner) and owner.__module__.startswith(__package__ or "")
+        ):
+            for name, note in _own_field_notes(owner).items():
+                notes.setdefault(name, note)
+    return notes
+
+
+@cache
+def _own_field_notes(cls: type) -> dict[str, FieldNote]:
+    """Each annotated field ``cls`` itself declares, with its notes, in source order."""
     source = textwrap.dedent(inspect.getsource(cls))
     lines = source.splitlines()
     (node,) = ast.parse(source).body
@@ -129,7 +143,8 @@ def describe_class(cls: type, heading: str = "###") -> str:
     if cls.__doc__ and not cls.__doc__.startswith(f"{cls.__name__}("):
         out += [_plain(inspect.cleandoc(cls.__doc__)), ""]
     notes = field_notes(cls)
-    fields = [f for f in dataclasses.fields(cls) if f.name in notes]
+    declared = {f.name: f for f in dataclasses.fields(cls)}
+    fields = [declared[name] for name in notes if name in declared]
     if not fields:
         out += ["No fields.", ""]
         return "\n".join(out)

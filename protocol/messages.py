@@ -44,6 +44,7 @@ from .records import (
     check_names,
     check_range,
 )
+from .rows import Rows
 from .shm_messages import ShmArray, ShmOffer
 from .specs import BehaviourSpec, CarSpec, ObservationSpec, Reach, RoadSpec
 from .state_messages import GroupState, RestoreRequest, SnapshotRequest
@@ -215,8 +216,9 @@ class JoinRequest(Message):
 
 
 @dataclass(frozen=True, eq=False)
-class Steps(Message):
-    """What a group's step (or reset) produced for one trainer's agents.
+class Steps(Message, Rows):
+    """What a group's step (or reset) produced for one trainer's agents: their :class:`Rows`
+    (:mod:`.rows` names them), with the server, group and round they answer.
 
     ``agents`` are ids within the group (arena index in the group × agents per arena + slot).
     An agent with ``terminated`` or ``truncated`` (ML-Agents' interrupted) ended its episode
@@ -230,40 +232,10 @@ class Steps(Message):
     server: str  # the server that stepped
     group: int  # the group stepped
     round: int  # the round these rows answer; the next Actions answer it
-    agents: np.ndarray  # int32 (k,)
-    observations: dict[str, np.ndarray]  # name -> (k, ...)
-    reward: np.ndarray  # float64 (k,)
-    terminated: np.ndarray  # bool (k,)
-    truncated: np.ndarray  # bool (k,)
-    action_applied: np.ndarray  # int64 (k,), -1 where nothing was applied (reset)
-    late: np.ndarray  # bool (k,)
-    action_mask: np.ndarray  # int8 (k, ACTION_COUNT)
-    reward_terms: np.ndarray  # float64 (k, terms)
-    metrics: np.ndarray  # float64 (k, metric fields)
 
     def check(self) -> None:
         check_name("server", self.server)
-        k = self.agents.shape[0] if self.agents.ndim == 1 else -1
-        check_array("agents", self.agents, "int32", (None,))
-        for name, value in self.observations.items():
-            check_name("observation name", name)
-            if value.ndim < 1 or value.shape[0] != k:
-                raise DecodeError(
-                    f"observation {name!r} must have {k} rows (one per agent), "
-                    f"got shape {value.shape}"
-                )
-        check_array("reward", self.reward, "float64", (k,))
-        check_array("terminated", self.terminated, "bool", (k,))
-        check_array("truncated", self.truncated, "bool", (k,))
-        check_array("action_applied", self.action_applied, "int64", (k,))
-        check_array("late", self.late, "bool", (k,))
-        check_array("action_mask", self.action_mask, "int8", (k, ACTION_COUNT))
-        check_array("reward_terms", self.reward_terms, "float64", (k, None))
-        check_array("metrics", self.metrics, "float64", (k, None))
-
-    @property
-    def ended(self) -> np.ndarray:
-        return self.terminated | self.truncated
+        self.check_rows()
 
 
 @dataclass(frozen=True, eq=False)

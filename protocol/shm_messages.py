@@ -22,6 +22,7 @@ from .records import (
     check_name,
     check_range,
 )
+from .rows import OBSERVATION_PREFIX, ROW_ARRAY_NAMES
 
 # The segment's sizes the offer is checked against (the segment itself, its header's fields and
 # its mapping: overtake.ipc.shared_memory, which reads these from here).
@@ -34,19 +35,8 @@ ACTION_ARRAYS = (
     ("actions/retire", "int32"),
 )
 
-# The Steps fields a layout names, besides ``obs/<observation name>``.
-STEPS_ARRAYS = (
-    "agents",
-    "reward",
-    "terminated",
-    "truncated",
-    "action_applied",
-    "late",
-    "action_mask",
-    "reward_terms",
-    "metrics",
-)
-OBSERVATION_PREFIX = "obs/"
+# The Steps fields a layout names, besides ``obs/<observation name>``: a round's row arrays.
+STEPS_ARRAYS = ROW_ARRAY_NAMES
 ACTION_ARRAY_NAMES = tuple(name for name, _ in ACTION_ARRAYS)
 
 

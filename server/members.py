@@ -62,32 +62,11 @@ class Member:
 
     def steps(self, rows: RoundRows, server: str, group_id: int, round_: int) -> Steps:
         """This member's rows of a round, as the Steps sent to its trainer."""
-        if self.count == rows.agents.size:
-            flat = rows.agents
-
-            def mine(value: np.ndarray) -> np.ndarray:
-                return value
-        else:
-            flat = np.flatnonzero(self.slots).astype(np.int32)
-
-            def mine(value: np.ndarray) -> np.ndarray:
-                return value[flat]
-
+        every = self.count == rows.agents.size
+        values = rows.taken(None if every else np.flatnonzero(self.slots))
+        # The slot ids are the message's own (the round's are shared by every member).
+        values["agents"] = values["agents"].copy()
         # Built from the simulation's own arrays, whose dtypes and shapes the spec fixes: the
         # per-field checks that guard decoding are skipped on this hot path (a test decodes
         # these messages and so checks them).
-        return Steps.trusted(
-            server=server,
-            group=group_id,
-            round=round_,
-            agents=flat.copy(),
-            observations={name: mine(value) for name, value in rows.observations.items()},
-            reward=mine(rows.reward),
-            terminated=mine(rows.terminated),
-            truncated=mine(rows.truncated),
-            action_applied=mine(rows.action_applied),
-            late=mine(rows.late),
-            action_mask=mine(rows.action_mask),
-            reward_terms=mine(rows.reward_terms),
-            metrics=mine(rows.metrics),
-        )
+        return Steps.trusted(server=server, group=group_id, round=round_, **values)

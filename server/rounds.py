@@ -9,16 +9,16 @@ terms: what world frames show): :data:`SLOT_ARRAYS`, what a
 
 Who owns which slot is not here. A server's :class:`~.groups.Group` holds a :class:`Rounds`
 and the ledger of its trainers, and cuts each trainer's Steps from a round's
-:class:`RoundRows`; the in-process engine (:class:`~.local.LocalEngine`) owns every car and
-plays a :class:`Rounds` directly, and its faces read the :class:`RoundRows`: no trainer, no
-ticket, no message.
+:class:`RoundRows` (the contract's :class:`~overtake.protocol.rows.Rows`); the in-process engine
+(:class:`~.local.LocalEngine`) owns every car and plays a :class:`Rounds` directly, and its faces
+read the rows: no trainer, no ticket, no message.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
+
+from overtake.protocol.rows import Rows
 
 from .sim import HighwaySim, autoreset_round
 
@@ -26,26 +26,9 @@ from .sim import HighwaySim, autoreset_round
 SLOT_ARRAYS = ("ended", "retired", "last_reward", "last_applied", "last_terms")
 
 
-@dataclass(frozen=True, eq=False)
-class RoundRows:
-    """What a round gave agent slots, one row each: the fields a
-    :class:`~overtake.protocol.messages.Steps` carries of them (the faces read either), in the
-    simulator's dtypes."""
-
-    agents: np.ndarray  # (k,) int32: slot ids, arena * agents per arena + slot
-    observations: dict[str, np.ndarray]  # (k, ...) each
-    reward: np.ndarray  # (k,) float64
-    terminated: np.ndarray  # (k,) bool
-    truncated: np.ndarray  # (k,) bool
-    action_applied: np.ndarray  # (k,) int64, -1 at a reset
-    late: np.ndarray  # (k,) bool: no action came, keep was applied
-    action_mask: np.ndarray  # (k, actions) int8
-    reward_terms: np.ndarray  # (k, terms) float64
-    metrics: np.ndarray  # (k, fields) float64: each episode so far
-
-    @property
-    def ended(self) -> np.ndarray:
-        return self.terminated | self.truncated
+# What a round gave agent slots: the contract's rows (a Steps carries the same, for a trainer's
+# slots), in the simulator's dtypes.
+RoundRows = Rows
 
 
 class Rounds:

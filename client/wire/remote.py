@@ -321,21 +321,17 @@ class ArenaGroup:
         fresh = self.last
         assert fresh is not None
         self._pending_restart = fresh
-        truncated = Steps(
-            server=broken.server,
-            group=broken.group,
+        # The last rows again, one round on: nothing earned or applied, and the episodes cut.
+        truncated = dataclasses.replace(
+            broken,
             round=broken.round + 1,
-            agents=broken.agents,
-            observations=broken.observations,
             reward=np.zeros_like(broken.reward),
             terminated=np.zeros_like(broken.terminated),
             # Agents that had just ended were reported already; the rest are cut short.
             truncated=~broken.ended,
             action_applied=np.full_like(broken.action_applied, -1),
             late=np.zeros_like(broken.late),
-            action_mask=broken.action_mask,
             reward_terms=np.zeros_like(broken.reward_terms),
-            metrics=broken.metrics,
         )
         self.last = truncated
         return truncated

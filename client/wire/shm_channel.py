@@ -19,7 +19,7 @@ from overtake.ipc.shared_memory import (
 )
 from overtake.protocol import errors
 from overtake.protocol.messages import Actions, ShmOffer, Steps
-from overtake.protocol.shm_messages import OBSERVATION_PREFIX, STEPS_ARRAYS
+from overtake.protocol.rows import row_values
 
 log = logging.getLogger("overtake.client")
 
@@ -71,18 +71,7 @@ class ShmChannel:
             return None  # the server wrote on meanwhile (it does not in lock step)
         self._taken_round = round_
         self.rounds += 1
-        observations = {
-            name.removeprefix(OBSERVATION_PREFIX): value
-            for name, value in arrays.items()
-            if name.startswith(OBSERVATION_PREFIX)
-        }
-        return Steps(
-            server=self.server,
-            group=self.group,
-            round=round_,
-            observations=observations,
-            **{name: arrays[name] for name in STEPS_ARRAYS},
-        )
+        return Steps(server=self.server, group=self.group, round=round_, **row_values(arrays))
 
     def zenoh_pending(self) -> bool:
         """Whether the server sent this group something over Zenoh that is not taken yet."""

@@ -15,8 +15,6 @@ import logging
 import threading
 from collections.abc import Callable
 
-import numpy as np
-
 from overtake.ipc.doorbell import AVAILABLE as DOORBELL_AVAILABLE
 from overtake.ipc.shared_memory import (
     ACTIONS_BELL_OFFSET,
@@ -26,7 +24,6 @@ from overtake.ipc.shared_memory import (
     channel_plan,
 )
 from overtake.protocol.messages import Actions, Message, ShmArray, ShmOffer, Steps
-from overtake.protocol.shm_messages import OBSERVATION_PREFIX, STEPS_ARRAYS
 
 from . import ChannelTerms, StepsChannel
 
@@ -34,13 +31,6 @@ log = logging.getLogger(__name__)
 
 # The bell thread looks at its stop flag at least this often (a close also wakes it at once).
 BELL_SLICE_S = 0.5
-
-
-def steps_arrays(steps: Steps) -> dict[str, np.ndarray]:
-    """A Steps' arrays by the names a layout gives them."""
-    arrays = {name: getattr(steps, name) for name in STEPS_ARRAYS}
-    arrays.update({OBSERVATION_PREFIX + k: v for k, v in steps.observations.items()})
-    return arrays
 
 
 class ShmChannel:
@@ -82,7 +72,7 @@ class ShmChannel:
         """A channel for ``terms``' member, sized for its Steps as they are; OSError where
         no segment can be made."""
         current = terms.current
-        places, size = channel_plan(current.agents.size, steps_arrays(current))
+        places, size = channel_plan(current.agents.size, current.arrays())
         segment = Segment.create(size)
         try:
             return cls(
@@ -145,7 +135,7 @@ class ShmChannel:
         )
 
     def send_steps(self, steps: Steps) -> None:
-        if self.reads and self.segment.write_steps(steps.round, steps_arrays(steps)):
+        if self.reads and self.segment.write_steps(steps.round, steps.arrays()):
             self._steps_bell.ring()
             return
         self.send(steps)  # the trainer has not said it reads, or the round does not fit

@@ -48,6 +48,7 @@ from overtake.protocol.messages import (
     Steps,
     WorldFrame,
 )
+from overtake.protocol.rows import ROW_ARRAYS
 from overtake.protocol.shm_messages import ACTION_ARRAY_NAMES, STEPS_ARRAYS
 
 MAJOR, MINOR = PROTOCOL_VERSION
@@ -149,22 +150,25 @@ def behaviour_specs(draw):
 
 @st.composite
 def steps_messages(draw):
+    """Steps of k agents, every row array of the contract's schema (:data:`ROW_ARRAYS`) drawn
+    in its dtype, each "any length" axis of its own drawn length."""
     k = draw(st.integers(0, 4))
-    terms, metrics = draw(st.integers(0, 3)), draw(st.integers(0, 3))
+    rows = {
+        array.name: draw(
+            wire_array(
+                array.dtype,
+                (k, *(draw(st.integers(0, 3)) if n is None else n for n in array.row_shape)),
+            )
+        )
+        for array in ROW_ARRAYS
+    }
+    rows["agents"] = rows["agents"][:k]
     return Steps(
         server=draw(names),
         group=draw(ints),
         round=draw(ints),
-        agents=draw(wire_array("int32", (k,))),
         observations=draw(observation_dicts(k)),
-        reward=draw(wire_array("float64", (k,))),
-        terminated=draw(wire_array("bool", (k,))),
-        truncated=draw(wire_array("bool", (k,))),
-        action_applied=draw(wire_array("int64", (k,))),
-        late=draw(wire_array("bool", (k,))),
-        action_mask=draw(wire_array("int8", (k, ACTION_COUNT))),
-        reward_terms=draw(wire_array("float64", (k, terms))),
-        metrics=draw(wire_array("float64", (k, metrics))),
+        **rows,
     )
 
 
