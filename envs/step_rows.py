@@ -49,6 +49,9 @@ class StepInfo:
     """the server was lost in this step: the episodes under way were truncated"""
     ended: np.ndarray
     """(k,) bool: whose episode ended here (where :attr:`metrics` hold)"""
+    rows: StepRows = dataclasses.field(repr=False)
+    """the rows this info was read from (:meth:`agent` reads one of them as :meth:`agent_of`)"""
+    spec: BehaviourSpec = dataclasses.field(repr=False)
 
     @classmethod
     def of(cls, steps: StepRows, spec: BehaviourSpec, *, restarted: bool = False) -> StepInfo:
@@ -69,14 +72,17 @@ class StepInfo:
             late=steps.late,
             server_restarted=restarted,
             ended=steps.ended,
+            rows=steps,
+            spec=spec,
         )
 
     @staticmethod
     def agent_of(
         steps: StepRows, spec: BehaviourSpec, row: int, *, restarted: bool = False
     ) -> dict[str, Any]:
-        """``StepInfo.of(steps, spec, restarted=restarted).agent(row)``, read straight from the
-        row (a single environment's every step: the vector's dicts are not built)."""
+        """One agent's info, read straight from row ``row`` (a single environment's every step
+        builds no vector's dicts): scalars; ``metrics`` when its episode ended, ``late`` and
+        ``server_restarted`` only when true."""
         fields = spec.metric_fields
         metrics = steps.metrics[row]
         terms = steps.reward_terms[row]
@@ -121,20 +127,9 @@ class StepInfo:
 
     def agent(self, row: int) -> dict[str, Any]:
         """One agent's info (row ``row`` of the Steps): scalars; ``metrics`` when its episode
-        ended, ``late`` and ``server_restarted`` only when true."""
-        info: dict[str, Any] = {
-            "action_mask": self.action_mask[row],
-            "action_applied": int(self.action_applied[row]),
-            "reward_terms": {name: float(v[row]) for name, v in self.reward_terms.items()},
-            "episode_counts": {name: int(v[row]) for name, v in self.episode_counts.items()},
-        }
-        if self.ended[row]:
-            info["metrics"] = {name: float(v[row]) for name, v in self.metrics.items()}
-        if self.late[row]:
-            info["late"] = True
-        if self.server_restarted:
-            info["server_restarted"] = True
-        return info
+        ended, ``late`` and ``server_restarted`` only when true (:meth:`agent_of`, the one
+        place an agent's info is made)."""
+        return self.agent_of(self.rows, self.spec, row, restarted=self.server_restarted)
 
 
 assert tuple(f.name for f in dataclasses.fields(StepInfo))[: len(INFO_KEYS)] == INFO_KEYS

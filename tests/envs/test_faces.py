@@ -57,7 +57,9 @@ def test_every_face_says_the_same_info_keys_and_nothing_else():
 
 def test_step_info_fields_are_the_vocabulary():
     names = tuple(f.name for f in dataclasses.fields(StepInfo))
-    assert names[: len(INFO_KEYS)] == INFO_KEYS and names[len(INFO_KEYS) :] == ("ended",)
+    # Beyond the info's keys: where episodes ended, and the rows and spec an agent's is read from.
+    assert names[: len(INFO_KEYS)] == INFO_KEYS
+    assert names[len(INFO_KEYS) :] == ("ended", "rows", "spec")
 
 
 def test_an_in_process_vector_env_in_parts_is_the_env_in_one_part():
