@@ -16,7 +16,8 @@ working set); what it no longer gives back is the difference between that peak a
 live. Numbers are unchanged: this moves no arithmetic.
 
 A user who sets glibc's own variables (``MALLOC_MMAP_THRESHOLD_``, ``MALLOC_TRIM_THRESHOLD_``,
-or ``glibc.malloc.*`` in ``GLIBC_TUNABLES``) keeps them: the settings here are not applied over theirs.
+or ``glibc.malloc.*`` in ``GLIBC_TUNABLES``) keeps them: the settings here are not applied over
+theirs.
 """
 
 from __future__ import annotations
