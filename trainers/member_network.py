@@ -43,7 +43,13 @@ class MemberLinear(nn.Module):
         super().__init__()
         self.members = len(lones)
         self.in_features, self.out_features = lones[0].in_features, lones[0].out_features
-        self.weight = _stacked([lone.weight for lone in lones])  # (S, out, in)
+        # (S, out, in) as the lone layers' weights, laid out (S, in, out) in memory: the
+        # forward's product reads it as it lies, and its gradient comes out of the backward's
+        # product in that layout, taken as the gradient without the transposing copy that an
+        # (S, out, in) layout costs (15% of a highway-fast member update).
+        self.weight = nn.Parameter(
+            torch.stack([lone.weight.detach().t() for lone in lones]).transpose(1, 2)
+        )
         if any(lone.bias is None for lone in lones):
             raise ValueError("MemberLinear stacks layers with a bias")
         self.bias = _stacked([lone.bias for lone in lones if lone.bias is not None])  # (S, out)
@@ -248,7 +254,9 @@ def member_state(stacked: nn.Module, member: int) -> dict[str, torch.Tensor]:
     members share, as they are); copies, detached from the stacked network."""
     names = member_parameter_names(stacked)
     return {
-        name: (value[member] if name in names else value).detach().clone()
+        name: (value[member] if name in names else value)
+        .detach()
+        .clone(memory_format=torch.contiguous_format)
         for name, value in stacked.state_dict().items()
     }
 

@@ -43,6 +43,14 @@ def shared_setting(configs: Sequence[Any], name: str) -> Any:
     return values[0]
 
 
+def _as_laid_out(tensor: torch.Tensor) -> torch.Tensor:
+    """A dense tensor viewed in its memory's order (contiguous): a member's dense weights are
+    laid out transposed (:class:`.member_network.MemberLinear`), and so are their gradients and
+    moments; an elementwise kernel that wants contiguous tensors takes them so."""
+    order = sorted(range(tensor.dim()), key=lambda d: -tensor.stride(d))
+    return tensor.permute(order)
+
+
 class MemberOptimizer:
     """One optimiser step for S members' stacked ``params`` (each (S, ...)), member k with the
     settings of ``configs[k]`` (learning rate, epsilons, RMSProp's decay; the optimiser and
@@ -86,8 +94,11 @@ class MemberOptimizer:
         if not any(norm > 0.0 for norm in self.max_norm):
             return
         grads = [p.grad for p in self.params if p.grad is not None]
-        squares = torch.stack([g.reshape(self.members, -1).pow(2).sum(dim=1) for g in grads])
-        norms = squares.sum(dim=0).sqrt()
+        # As clip_grad_norm_ does for a lone network: each tensor's norm, then their norm.
+        each = torch.stack(
+            [torch.linalg.vector_norm(g, dim=tuple(range(1, g.dim()))) for g in grads]
+        )
+        norms = torch.linalg.vector_norm(each, dim=0)
         limit = torch.tensor(
             [n if n > 0.0 else math.inf for n in self.max_norm], device=norms.device
         )
@@ -115,10 +126,10 @@ class MemberOptimizer:
         for k in range(self.members):
             step = torch.tensor(float(self.steps[k]), dtype=torch.float32)
             torch._fused_adam_(  # type: ignore[attr-defined]
-                [self.params[i][k] for i in live],
-                [self.params[i].grad[k] for i in live],  # type: ignore[index]
-                [self.state["exp_avg"][i][k] for i in live],
-                [self.state["exp_avg_sq"][i][k] for i in live],
+                [_as_laid_out(self.params[i][k]) for i in live],
+                [_as_laid_out(self.params[i].grad[k]) for i in live],  # type: ignore[index]
+                [_as_laid_out(self.state["exp_avg"][i][k]) for i in live],
+                [_as_laid_out(self.state["exp_avg_sq"][i][k]) for i in live],
                 [],
                 [step] * len(live),
                 amsgrad=False,
