@@ -103,6 +103,8 @@ def test_the_schedule_scales_the_papers_settings_to_the_budget():
     [
         ({"experiment": "min2019-table9"}, r"unknown experiment 'min2019-table9': expected one "
          r"of min2018-table3"),
+        ({"experiment": "min2018-safe-both"}, r"experiment 'min2018-safe-both' is retired "
+         r"\(issue 56\).*: overtake-experiment min2018-table3 --rows dueling-both$"),
         ({"jobs": 0}, r"--jobs must be >= 1, got 0"),
         ({"total_steps": 0}, r"--total-steps must be >= 1, got 0"),
         ({"seeds": -1}, r"--seeds must be >= 1, got -1"),
@@ -756,7 +758,7 @@ def test_min2018_safe_trains_the_paper_row_and_the_options_each_alone_and_togeth
     assert labels["paper"] == "-"
 
 
-def test_min2018_notebook_trains_the_kept_dueling_row_as_the_authors_notebook_does(tmp_path):
+def test_min2018_notebook_trains_the_kept_dueling_row_with_three_notebook_choices(tmp_path):
     """One row: min2018-table3's dueling-both, two seeds, at its budget and schedule, with the
     notebook's Adam epsilon, squared error and update every step (and only those)."""
     plan = make_plan(ExperimentConfig(experiment="min2018-notebook", out=tmp_path))
