@@ -90,12 +90,13 @@ def test_the_schedule_scales_the_papers_settings_to_the_budget():
         replay_size=100_000,
         checkpoint_every=10_000,
     )
-    # At the paper's own budget: its settings, apart from the epsilon decay (a third).
-    paper = Schedule.for_budget(1_000_000)
+    # At the authors' notebook's budget (the paper states none): its settings, apart from the
+    # epsilon decay (a third).
+    notebook = Schedule.for_budget(1_000_000)
     defaults = DQNConfig()
-    assert paper.learning_starts == defaults.learning_starts
-    assert paper.target_update_steps == defaults.target_update_steps
-    assert paper.replay_size == defaults.replay_size
+    assert notebook.learning_starts == defaults.learning_starts
+    assert notebook.target_update_steps == defaults.target_update_steps
+    assert notebook.replay_size == defaults.replay_size
 
 
 @pytest.mark.parametrize(
