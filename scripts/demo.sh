@@ -26,7 +26,8 @@ echo "a simulator server on $endpoint; driving the rule-based and random drivers
   --json-out runs/demo/rule.json "$@"
 .venv/bin/overtake-drive --connect "$endpoint" --policy random --episodes 4 --seed 0 \
   --json-out runs/demo/random.json "$@"
-# A short taste of training (the paper's budget is a million steps; see bench/RESULTS.md).
+# A short taste of training (Min et al.'s notebook trains a million steps, their paper states
+# no budget; see bench/RESULTS.md).
 # One Rerun recording id for the three trainers: their .rrd files open as one recording.
 recording_id="overtake-demo-$(date +%Y%m%d-%H%M%S)"
 for algo in dqn ddqn dueling; do

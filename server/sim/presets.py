@@ -42,7 +42,8 @@ def min2018() -> SimConfig:
       ``random`` behaviour;
     - a 360-ray LIDAR, one ray per degree (§IV.A), and a front grey camera (§II.B);
     - the reward of Table I: the speed term linear from 40 to 80 km/h up to 1, collision -10
-      (and the episode ends), lane change -0.25, overtake +0.5.
+      (and the episode ends), lane change -0.25, overtake +0.5;
+    - a decision every 4 frames (§IV.B: "the number of skipped frames is 4").
 
     From the authors' code (../shared/notes/seed-repos.md):
     - the LIDAR's 80 m range; the camera at 80x80; spawning 30-90 m ahead of or 30-60 m
@@ -77,7 +78,7 @@ def min2018() -> SimConfig:
     - the side warnings' zone (2 m ahead of the front bumper to 4 m behind the rear, growing
       by 1 s of a closing car's speed) and the forward warning: a car ahead, no faster,
       within 2 s at the current speed (+2 m);
-    - a decision every 0.4 s (4 physics frames of 0.1 s); at most 1,000 decisions an episode
+    - physics frames of 0.1 s, so a decision every 0.4 s; at most 1,000 decisions an episode
       besides the 2,600 m;
     - an emergency brake (Ho 2018, §6.2): a decision braking at least 1 m/s^2 with a car ahead
       slower by 20 km/h or more.

@@ -129,6 +129,9 @@ HISTORY: tuple[SettingChange, ...] = (
     # Issue 67: the ego was driven by its meta-actions (highway-env's IDM ego is an option).
     SettingChange("highway_scene.ego_driver", since=67, before="meta_actions"),
     SettingChange("highway_scene.ego_idm_delta", since=67),
+    # Issue 68: highway-env's scene masked lane changes from the lane the car was changing
+    # into (highway-env, and its presets now, from the lane it is in).
+    SettingChange("highway_scene.action_mask_lane", since=68, before="target"),
 )
 SETTINGS_EPOCH = max(change.since for change in HISTORY)
 """The last issue that changed the simulator's settings."""

@@ -90,12 +90,13 @@ def test_the_schedule_scales_the_papers_settings_to_the_budget():
         replay_size=100_000,
         checkpoint_every=10_000,
     )
-    # At the paper's own budget: its settings, apart from the epsilon decay (a third).
-    paper = Schedule.for_budget(1_000_000)
+    # At the authors' notebook's budget (the paper states none): its settings, apart from the
+    # epsilon decay (a third).
+    notebook = Schedule.for_budget(1_000_000)
     defaults = DQNConfig()
-    assert paper.learning_starts == defaults.learning_starts
-    assert paper.target_update_steps == defaults.target_update_steps
-    assert paper.replay_size == defaults.replay_size
+    assert notebook.learning_starts == defaults.learning_starts
+    assert notebook.target_update_steps == defaults.target_update_steps
+    assert notebook.replay_size == defaults.replay_size
 
 
 @pytest.mark.parametrize(
@@ -103,6 +104,8 @@ def test_the_schedule_scales_the_papers_settings_to_the_budget():
     [
         ({"experiment": "min2019-table9"}, r"unknown experiment 'min2019-table9': expected one "
          r"of min2018-table3"),
+        ({"experiment": "min2018-safe-both"}, r"experiment 'min2018-safe-both' is retired "
+         r"\(issue 56\).*: overtake-experiment min2018-table3 --rows dueling-both$"),
         ({"jobs": 0}, r"--jobs must be >= 1, got 0"),
         ({"total_steps": 0}, r"--total-steps must be >= 1, got 0"),
         ({"seeds": -1}, r"--seeds must be >= 1, got -1"),
@@ -756,7 +759,7 @@ def test_min2018_safe_trains_the_paper_row_and_the_options_each_alone_and_togeth
     assert labels["paper"] == "-"
 
 
-def test_min2018_notebook_trains_the_kept_dueling_row_as_the_authors_notebook_does(tmp_path):
+def test_min2018_notebook_trains_the_kept_dueling_row_with_three_notebook_choices(tmp_path):
     """One row: min2018-table3's dueling-both, two seeds, at its budget and schedule, with the
     notebook's Adam epsilon, squared error and update every step (and only those)."""
     plan = make_plan(ExperimentConfig(experiment="min2018-notebook", out=tmp_path))

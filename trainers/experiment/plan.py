@@ -23,7 +23,7 @@ from ..checkpoint import plain_data
 from ..evaluate import EvalConfig
 from ..learner import execution_device
 from ..train_config import TrainConfig
-from .catalogue import EXPERIMENTS, Density, Experiment, Row, Schedule
+from .catalogue import EXPERIMENTS, RETIRED, Density, Experiment, Row, Schedule
 
 
 @dataclass(frozen=True)
@@ -190,6 +190,9 @@ def make_plan(config: ExperimentConfig) -> Plan:
     anything is trained."""
     experiment = EXPERIMENTS.get(config.experiment or "")
     if experiment is None:
+        retired = RETIRED.get(config.experiment or "")
+        if retired is not None:
+            raise UsageError(f"experiment {config.experiment!r} is {retired}")
         raise UsageError(
             f"unknown experiment {config.experiment!r}: expected one of {', '.join(EXPERIMENTS)}"
         )

@@ -21,8 +21,12 @@ def place_cars(
 ):  # fmt: skip
     """vehicle/kinematics.py's ``Vehicle.create_random``, car after car in ``order`` (column
     numbers), into row ``row`` of the state arrays: each car in a random lane, ahead of the
-    foremost so far by its spacing; the draws from ``rng`` in highway-env's order (a traffic
-    car's speed, the lane, the spacing's factor, then its IDM exponent)."""
+    foremost so far by its spacing. highway-env draws, for each car, the lane (its
+    ``np_random.choice`` of the road's one start and end node draws nothing), then a traffic
+    car's speed (the controlled car's is given), then the spacing's factor, then a traffic car's
+    IDM exponent (``IDMVehicle.randomize_behavior``, envs/highway_env.py's _create_vehicles).
+    Here a traffic car's speed is drawn before its lane: the same distributions, another road
+    for the same seed."""
     top = target_speeds.shape[0] - 1
     foremost = 0.0
     for n_placed in range(order.shape[0]):
@@ -58,16 +62,16 @@ def place_cars(
 
 
 @njit(cache=True, nogil=True)
-def available(target_lane, speed_index, lanes, top, mask):
+def available(from_lane, speed_index, lanes, top, mask):
     """DiscreteMetaAction's get_available_actions for each agent into ``mask`` (A, N, 5):
-    IDLE always, a lane change where there is a lane beyond the target lane, FASTER and
-    SLOWER where the speed index can move."""
+    IDLE always, a lane change where there is a lane beyond ``from_lane`` (highway-env's: the
+    lane the car is in), FASTER and SLOWER where the speed index can move."""
     arenas, agents = speed_index.shape
     for a in range(arenas):
         for k in range(agents):
             mask[a, k, A_KEEP] = 1
-            mask[a, k, A_LEFT] = target_lane[a, k] < lanes - 1
-            mask[a, k, A_RIGHT] = target_lane[a, k] > 0
+            mask[a, k, A_LEFT] = from_lane[a, k] < lanes - 1
+            mask[a, k, A_RIGHT] = from_lane[a, k] > 0
             mask[a, k, A_FASTER] = speed_index[a, k] < top
             mask[a, k, A_SLOWER] = speed_index[a, k] > 0
 
@@ -103,7 +107,8 @@ def rewards(
 @njit(cache=True, nogil=True)
 def applied_actions(mask, actions, applied):
     """What each agent's car does with its action (into ``applied``): the action where
-    ``mask`` allows it, IDLE otherwise (highway-env clips the lane or the speed index)."""
+    ``mask`` (what the car can do: :func:`available` from the lane it is changing into) allows
+    it, IDLE otherwise (highway-env clips the target lane or the speed index)."""
     arenas, agents = actions.shape
     for a in range(arenas):
         for k in range(agents):

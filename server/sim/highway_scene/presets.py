@@ -15,7 +15,9 @@ From highway-env (the file each value is in):
   (duration, in seconds at one decision a second);
 - the controlled car's spacing 1.5 / 2 (ego_spacing); traffic tested for collisions only
   against the controlled car in the fast scene (HighwayEnvFast._create_vehicles), every pair
-  in the other (``road/road.py``, Road.step).
+  in the other (``road/road.py``, Road.step);
+- the action mask's lane changes from the lane the car is in (``envs/common/action.py``,
+  DiscreteMetaAction.get_available_actions; ``highway_scene.action_mask_lane``).
 
 Chosen here: light and heavy traffic (this simulator's densities) are half and one and a half
 times highway-env's count, which is medium's; the car's initial speed in ``ego`` (90 km/h) is
@@ -66,6 +68,7 @@ def _highway(
             enabled=True,
             ego_spacing=spacing,
             collisions=collisions,  # type: ignore[arg-type]
+            action_mask_lane="current",
         ),
         episode=EpisodeConfig(
             max_decisions=decisions, frames_per_decision=hertz, physics_dt_s=1.0 / hertz

@@ -172,8 +172,9 @@ class ScenePlacement:
 class MetaActions:
     """``DiscreteMetaAction`` on the simulator's action numbers (keep is IDLE, cruise up
     FASTER, cruise down SLOWER): which can be taken now (``get_available_actions``: IDLE
-    always, a lane change where there is a lane beyond the target lane, FASTER and SLOWER
-    where the car's speed index can move)."""
+    always, a lane change where there is a lane beyond the lane the car is in, FASTER and
+    SLOWER where the car's speed index can move; ``highway_scene.action_mask_lane = "target"``
+    reads the lane it is changing into instead, as this scene did before issue 68)."""
 
     names = HIGHWAY_ENV_ACTION_NAMES  # the actions as highway-env names them
     count = ACTION_COUNT
@@ -182,6 +183,7 @@ class MetaActions:
         self.lanes = config.road.lane_count
         self.top = len(config.highway_scene.target_speeds_mps) - 1
         self.agents = agents
+        self.from_current_lane = config.highway_scene.action_mask_lane == "current"
 
     def check(self, actions: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         actions = np.asarray(actions)
@@ -193,8 +195,17 @@ class MetaActions:
         return actions.astype(np.int64)
 
     def mask(self, st: SimState) -> np.ndarray:
+        return self._available(st.lane if self.from_current_lane else st.target_lane, st)
+
+    def doable(self, st: SimState) -> np.ndarray:
+        """What each car can do now, as the mask marks it: a lane change where there is a lane
+        beyond the one it is changing into (``ControlledVehicle.act`` moves the target lane
+        and clips it at the road's edge), FASTER and SLOWER where its speed index can move."""
+        return self._available(st.target_lane, st)
+
+    def _available(self, from_lane: np.ndarray, st: SimState) -> np.ndarray:
         mask = np.zeros(st.speed_index.shape + (LANE_RIGHT + 1,), dtype=np.int8)
-        ek.available(st.target_lane, st.speed_index, self.lanes, self.top, mask)
+        ek.available(from_lane, st.speed_index, self.lanes, self.top, mask)
         return mask
 
 
@@ -239,10 +250,11 @@ class SceneDecision:
             every = np.zeros((arenas, n), dtype=np.int64)
             every[rows] = actions
             actions = every
-        # What the car does with each action: one the mask rules out does nothing (highway-env
-        # clips the lane or the speed index), as keep does.
+        # What the car does with each action: one it cannot take does nothing (highway-env
+        # clips the target lane or the speed index), as keep does. Read from the lane the car
+        # is changing into, whichever lane the action mask reads.
         applied = np.empty_like(actions)
-        ek.applied_actions(self.actions.mask(st), actions, applied)
+        ek.applied_actions(self.actions.doable(st), actions, applied)
         started = np.zeros(actions.shape, dtype=bool)
         driven = np.empty_like(actions)
         blocks = k.arena_blocks(arenas)

@@ -18,6 +18,8 @@ import overtake.client  # noqa: F401  (registers the ids)
 from overtake.envs.highway_env_like import ACTION_LABELS, TO_OVERTAKE, overrides_from_config
 from overtake.protocol.errors import BadConfig
 from overtake.server.sim import HighwaySim, make_config
+from overtake.server.sim.config import as_json
+from overtake.server.sim.settings_history import as_recorded
 
 highway_env = pytest.importorskip("highway_env", reason="highway-env is in the dev extra")
 
@@ -67,6 +69,12 @@ def _assert_same(hw, sim: HighwaySim, where: str) -> None:
         assert bool(st.crashed[0, column]) == v.crashed, f"car {column} crashed, {where}"
 
 
+def _available(sim: HighwaySim) -> list[int]:
+    """The action mask of ``sim``'s car as highway-env's action numbers, sorted."""
+    mask = sim.action_mask()[0, 0]
+    return sorted(hw_action for hw_action, ours in enumerate(TO_OVERTAKE) if mask[ours])
+
+
 @pytest.mark.parametrize(
     ("scene", "preset", "seed"),
     [("highway-fast-v0", "highway-fast", s) for s in (1, 2, 3, 4)] + [("highway-v0", "highway", 5)],
@@ -77,6 +85,7 @@ def test_every_car_moves_as_in_highway_env(scene, preset, seed):
     sim = _copied(hw, preset)
     rng = np.random.default_rng(seed)
     for decision in range(40):
+        assert _available(sim) == sorted(hw.action_type.get_available_actions()), decision
         action = int(rng.integers(0, 5))
         _, hw_reward, hw_terminated, _, _ = hw.step(action)
         result = sim.step(np.array([[TO_OVERTAKE[action]]]))
@@ -86,6 +95,52 @@ def test_every_car_moves_as_in_highway_env(scene, preset, seed):
         if hw_terminated:
             break
     hw.close()
+
+
+def test_the_action_mask_reads_the_lane_the_car_is_in_as_highway_env_does():
+    """Issue 68: at five decisions a second a decision often falls within a lane change; the
+    mask offers lane changes from the lane the car is in, as get_available_actions does
+    (``highway_scene.action_mask_lane = "target"``, the scene before, from the lane it is
+    changing into, differs there). What the car does, and the action applied, are the same
+    either way."""
+    config = {"policy_frequency": 5, "simulation_frequency": 15}
+    hw = gym.make("highway-fast-v0", config=config).unwrapped
+    hw.reset(seed=3)
+    overrides = overrides_from_config("highway-fast", config)
+    sims = {
+        lane: _copied(hw, "highway-fast", {**overrides, "highway_scene.action_mask_lane": lane})
+        for lane in ("current", "target")
+    }
+    rng = np.random.default_rng(3)
+    agreed = dict.fromkeys(sims, 0)
+    changing = 0
+    for decision in range(150):
+        st = sims["current"].state
+        changing += bool(st.lane[0, 0] != st.target_lane[0, 0])
+        theirs = sorted(hw.action_type.get_available_actions())
+        for lane, sim in sims.items():
+            agreed[lane] += _available(sim) == theirs
+        action = int(rng.integers(0, 5))
+        _, _, hw_terminated, _, _ = hw.step(action)
+        results = {lane: sim.step(np.array([[TO_OVERTAKE[action]]])) for lane, sim in sims.items()}
+        for lane, sim in sims.items():
+            _assert_same(hw, sim, f"{lane}, after decision {decision} (action {action})")
+        assert results["current"].action_applied == results["target"].action_applied
+        if hw_terminated:
+            break
+    decisions = decision + 1
+    assert changing > 10, "few decisions fell within a lane change: the test tests little"
+    assert agreed["current"] == decisions
+    assert agreed["target"] < decisions
+
+
+def test_the_highway_presets_mask_as_highway_env_and_records_of_before_replay_as_they_were():
+    for preset in ("highway-fast", "highway"):
+        assert make_config(preset).highway_scene.action_mask_lane == "current"
+    assert make_config("min2018").highway_scene.action_mask_lane == "target"
+    recorded = as_json(make_config("highway-fast"))
+    del recorded["highway_scene"]["action_mask_lane"]  # a record from before issue 68
+    assert as_recorded("highway-fast", {}, recorded).highway_scene.action_mask_lane == "target"
 
 
 # highway-v0's 50 cars and 40 s episodes take 12-24 s here: slow (run with -m slow); the
