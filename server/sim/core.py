@@ -11,7 +11,7 @@ is one decision (:mod:`.decision` holds its order):
 2. ``frames_per_decision`` physics frames run (:mod:`.physics`: car-following, emergency
    braking, traffic's MOBIL lane changes on the first frame, lateral moves, collisions);
 3. overtakes are counted (:mod:`.overtakes`) and traffic out of range is recycled around the
-   agents (:mod:`.spawning`);
+   agents, or leaves the road while new cars come on (:mod:`.spawning`);
 4. the reward's terms are computed from what happened (:mod:`.rewards`) and the episodes'
    metrics updated (:mod:`.episodes`).
 
@@ -133,7 +133,7 @@ class HighwaySim:
             self.reward_names = REWARD_TERMS
             self.keeps_warnings = False  # its reward reads none
         self.rngs = [np.random.default_rng() for _ in range(num_arenas)]
-        self.state = SimState.empty(num_arenas, n, self.vehicles)
+        self.state = SimState.empty(num_arenas, n, self.vehicles, self.spawner.spawner_count)
         self._needs_reset = np.ones(num_arenas, dtype=bool)
         self._config_json = json.dumps(dataclasses.asdict(config), sort_keys=True)
 

@@ -30,8 +30,9 @@ from .traffic.config import NEVER_MPS2, BehaviourConfig, TrafficConfig
 def min2018() -> SimConfig:
     """Min, Kim and Huh (2018), "Deep Q Learning Based High Level Driving Policy Determination".
 
-    The dataclass defaults are this preset, with its 2,600 m episodes. Where each number comes
-    from:
+    The dataclass defaults are this preset, with its 2,600 m episodes and its authors'
+    spawners (``traffic.entry = "spawners"``; the default is the treadmill). Where each
+    number comes from:
 
     From the paper:
     - 5 lanes (§IV.A); the five DAS-level actions (§II.C): keep (cruise control at the current
@@ -45,9 +46,26 @@ def min2018() -> SimConfig:
       (and the episode ends), lane change -0.25, overtake +0.5;
     - a decision every 4 frames (§IV.B: "the number of skipped frames is 4").
 
-    From the authors' code (../shared/notes/seed-repos.md):
-    - the LIDAR's 80 m range; the camera at 80x80; spawning 30-90 m ahead of or 30-60 m
-      behind the host; a car more than 100 m from the host leaves (``TargetManagement.cs``);
+    From the authors' code (../shared/notes/seed-repos.md; files under
+    ``Unity_SDK/Assets/VehicleSimulator/`` of their repository):
+    - the LIDAR's 80 m range; the camera at 80x80;
+    - their traffic's coming and going (``traffic.entry = "spawners"``, :mod:`.spawners`):
+      the road starts empty (``Scripts/VehicleAgent.cs``: a reset destroys every car); a car
+      more than 100 m from the host in a straight line leaves (``Scripts/TargetManagement.cs``,
+      ``range_`` 100 in ``Prefabs/Target_*.prefab``), and so do two cars that touch (its
+      ``OnTriggerEnter``); nothing is recycled. Eight spawners (``spawner_count``,
+      ``Scripts/Vehicle1_Manager.cs`` .. ``Vehicle8_Manager.cs``) each keep an equal share of
+      the count (the first ``count % 8`` one more); each redraws a wait of 2-7 whole seconds
+      every fixed step of 0.02 s (``spawner_wait_s``, ``Random.Range(2, 8)``; ``spawner_step_s``,
+      ``ProjectSettings/TimeManager.asset``) and tries once its clock passes it: a try every
+      2.12 s on average (derived); a try places a car 70% of the time ahead
+      (``spawner_ahead_share``, ``Random.Range(0, 1f) < 0.7f``), 30-89 m ahead or 30-59 m
+      behind in whole metres (``spawn_ahead_m``, ``spawn_behind_m``: ``Random.Range(30, 90)``,
+      ``Random.Range(-30, -60)``), in a lane drawn evenly, while the spawner holds fewer than
+      its share and no car's centre is within 10 m along the road (``spawner_clearance_m``)
+      and 10 across over their lanes 7 apart (``spawner_clearance_lanes``; ``Scene.unity``'s
+      margins, ``Scripts/TargetMovement.cs``'s lane centres); so the population varies, up to
+      the count;
     - the densities from their scene's slider of 0-32 cars: 20 for medium (its saved value),
       32 for heavy (its top);
     - their traffic's speeds (``TargetMovement.cs``): a car starts at 40-60 km/h and every 5 s
@@ -66,13 +84,15 @@ def min2018() -> SimConfig:
       collision.
 
     Chosen here (the paper and the code are silent, or their way is not ours):
-    - 10 traffic cars for light traffic; the cars held on the road at their density (theirs
-      spawn one every 2-8 s per spawner up to the slider's count);
+    - 10 traffic cars for light traffic;
+    - the spawners' arithmetic once a decision (0.4 s), after its frames (theirs every fixed
+      step of 0.02 s); the margin across as lane widths (10/7 of a lane: ours are 3.5 m);
+      agents' cars counted in the margin too (a shared road's); at a reset each spawner's
+      first try at a uniform point of one wait (theirs keep their clocks through a reset);
     - traffic's speed steps at random times, 5 s apart on average (theirs every 5 s from each
       car's start), on the desired speed of an IDM (theirs on the speed itself: a car slowed
       by the one ahead stays slow until it steps up; here it returns to its desired speed);
       MOBIL for overtaking a much slower car (threshold 1 m/s^2), braking at most 6 m/s^2;
-    - when the spawn windows are full a car may appear anywhere in the kept range;
     - cruise control's speed controller (time constant 0.5 s, 2 m/s^2 at most) and its IDM
       distance keeping (headway 1.2 s), emergency braking below 1.5 s to collision;
     - the side warnings' zone (2 m ahead of the front bumper to 4 m behind the rear, growing
@@ -83,7 +103,11 @@ def min2018() -> SimConfig:
     - an emergency brake (Ho 2018, §6.2): a decision braking at least 1 m/s^2 with a car ahead
       slower by 20 km/h or more.
     """
-    return SimConfig(preset="min2018", episode=EpisodeConfig(max_distance_m=2600.0))
+    return SimConfig(
+        preset="min2018",
+        traffic=TrafficConfig(entry="spawners"),
+        episode=EpisodeConfig(max_distance_m=2600.0),
+    )
 
 
 def ho2018() -> SimConfig:
@@ -334,7 +358,14 @@ def fayjie2018() -> SimConfig:
     - traffic: cars that keep a speed of their own, 40-70 km/h, follow (IDM), overtake (MOBIL)
       and keep behind the agent ("cooperative", §III.C: ``traffic.yield_to_agents``); 5 / 10 /
       20 of them for light / medium / heavy (the densities Min et al.'s preset had before
-      issue 32), spawned in Min et al.'s windows and kept 150 m ahead and 100 m behind;
+      issue 32), spawned in Min et al.'s windows and kept 150 m ahead and 100 m behind,
+      where IDM finds a comfortable gap; a car out of that range is recycled at once, on a
+      side drawn evenly (``traffic.entry = "comfortable"``, the treadmill), so the road holds
+      its count. Not Min et al.'s spawners (issue 68): those are their Unity scene's, while
+      the paper says only that the road has other cars and no code of theirs is known; the
+      density labels say how many cars are on the road, which the treadmill keeps true, and
+      ``fayjie2018-fig6`` was measured on it. ``--set traffic.entry=spawners`` takes Min et
+      al.'s;
     - a decision every 0.4 s (4 frames of 0.1 s) and episodes of at most 1,000 decisions.
     """
     return SimConfig(
@@ -346,6 +377,7 @@ def fayjie2018() -> SimConfig:
             random=dataclasses.replace(TrafficConfig().random, share=0.0),
             keep_ahead_m=150.0,
             yield_to_agents=True,
+            entry="comfortable",
         ),
         ego=EgoConfig(
             cruise_min_kmh=0.0,

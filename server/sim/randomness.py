@@ -23,6 +23,9 @@ U_BEHAVIOUR = U_OFFSET + SPAWN_CANDIDATES
 U_SPEED, U_CHANGE, U_NEW_SPEED = U_BEHAVIOUR + 1, U_BEHAVIOUR + 2, U_BEHAVIOUR + 3
 U_RANDOM_LANE = U_NEW_SPEED + 1
 UNIFORMS_PER_VEHICLE = U_RANDOM_LANE + 1
+# Min et al.'s spawners (traffic.entry = "spawners") try one spot at a time, from the row of
+# their first slot: a try's wait until the next takes the second candidate lane's column.
+U_SPAWNER_WAIT = U_LANE + 1
 
 
 def draw_uniforms(rngs: list[np.random.Generator], rows: np.ndarray, vehicles: int) -> np.ndarray:

@@ -132,20 +132,38 @@ HISTORY: tuple[SettingChange, ...] = (
     # Issue 68: highway-env's scene masked lane changes from the lane the car was changing
     # into (highway-env, and its presets now, from the lane it is in).
     SettingChange("highway_scene.action_mask_lane", since=68, before="target"),
+    # Issue 68: min2018's traffic came and went on a treadmill (entry "comfortable": a car out
+    # of range recycled at once, the road full from the start); now by its authors' spawners.
+    # Their settings decided nothing before (the treadmill reads none of them).
+    SettingChange("traffic.entry", since=68, before=FROM_RECORD, presets=("min2018",)),
+    *(
+        SettingChange(f"traffic.{name}", since=68)
+        for name in (
+            "spawner_count",
+            "spawner_step_s",
+            "spawner_wait_s",
+            "spawner_ahead_share",
+            "spawner_clearance_m",
+            "spawner_clearance_lanes",
+        )
+    ),
 )
 SETTINGS_EPOCH = max(change.since for change in HISTORY)
 """The last issue that changed the simulator's settings."""
 _ADDED = {c.name: c for c in HISTORY if c.before is not FROM_RECORD}
 
 # The presets as issue 32 left them, before the authors' traffic (issue 44), as overrides of
-# today's: Min et al.'s with blind lane changes, desired speeds redrawn in 40-65 km/h, random
-# lane changes every 20 s, 150 m kept ahead and episodes of 1,000 decisions; Ho's with IDM and
-# MOBIL traffic entering where IDM finds a comfortable gap, "road_max" and "lane_changer" at a
-# constant 100 km/h, the lane changer switching by MOBIL, a safety gap of 8 m and the side
-# check of Min et al.'s preset. With them the tables kept in bench/results before issue 44 can
-# be made again: tests/server/sim/test_golden.py holds them to the digests of then.
+# today's: Min et al.'s on the treadmill, with blind lane changes, desired speeds redrawn in
+# 40-65 km/h, random lane changes every 20 s, 150 m kept ahead and episodes of 1,000
+# decisions; Ho's with IDM and MOBIL traffic entering where IDM finds a comfortable gap,
+# "road_max" and "lane_changer" at a constant 100 km/h, the lane changer switching by MOBIL, a
+# safety gap of 8 m and the side check of Min et al.'s preset. With them the tables kept in
+# bench/results before issue 44 can be made again: tests/server/sim/test_golden.py holds them
+# to the digests of then.
 BEFORE_AUTHORS_TRAFFIC: dict[str, dict[str, PlainValue]] = {
     "min2018": {
+        # The treadmill, as then (issue 68 brings the authors' spawners).
+        "traffic.entry": "comfortable",
         "ego.lane_change_check": False,
         "traffic.random.speed_steps_per_s": 0.0,
         "traffic.random.speed_walk_kmh": None,

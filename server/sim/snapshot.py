@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from .settings_history import snapshot_differences
-from .state import SimState
+from .state import ADDED_FIELDS, SimState
 
 
 class SnapshotMismatch(ValueError):
@@ -78,9 +78,19 @@ class SimSnapshot:
             raise SnapshotMismatch(
                 f"the snapshot holds {len(self.rng_states)} arena(s), the simulator {len(rngs)}"
             )
+        # A field added to the state since the snapshot was taken: its simulator used none
+        # (its configuration, checked above, has none of what uses it), so it starts as a new
+        # state's.
+        added_since = {
+            field.name
+            for field in dataclasses.fields(state)
+            if field.name not in self.arrays and field.name in ADDED_FIELDS
+        }
         for field in dataclasses.fields(state):
             want = getattr(state, field.name)
             have = self.arrays.get(field.name)
+            if field.name in added_since:
+                continue
             if have is None:
                 raise SnapshotMismatch(f"the snapshot has no {field.name!r}")
             if have.shape != want.shape or have.dtype != want.dtype:
@@ -103,7 +113,10 @@ class SimSnapshot:
                     f"the snapshot's generator state is not one ({error})"
                 ) from None
         for field in dataclasses.fields(state):
-            getattr(state, field.name)[...] = self.arrays[field.name]
+            if field.name in added_since:
+                getattr(state, field.name)[...] = 0
+            else:
+                getattr(state, field.name)[...] = self.arrays[field.name]
         for rng, saved in zip(rngs, self.rng_states, strict=True):
             rng.bit_generator.state = dict(saved)
         needs_reset[...] = self.needs_reset

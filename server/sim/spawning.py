@@ -3,15 +3,20 @@
 - At reset the agents stand 30 m apart in distinct lanes (where there are enough) at the
   initial cruise speed, and traffic is spread over the kept window around them with a minimum
   spacing per lane; cars that would crowd an agent wait to spawn later.
-- Each decision traffic that fell out of every agent's range (``traffic.keep_ahead_m`` /
-  ``keep_behind_m``) is recycled, so episodes can run indefinitely: it comes back ahead of a
-  drawn agent, in the spawn window ``traffic.spawn_ahead_m`` (the authors' code's 30-90 m),
-  or behind it (``spawn_behind_m``, 30-60 m), the side drawn evenly (the numpy code before
-  issue 58 meant a car left behind to come back ahead and one left ahead behind, but in
-  effect drew every side; the kept tables ran so, and the compiled loop keeps it). A spot is
-  taken only if it keeps IDM-comfortable gaps to everyone in its lane; when the window has
-  none, the rest of the kept range on that side is tried, and a slot that still finds none
-  tries again the next decision: the road holds the density it is labelled with.
+- Under ``traffic.entry = "comfortable"`` (a treadmill) each decision traffic that fell out of
+  every agent's range (``traffic.keep_ahead_m`` / ``keep_behind_m``, along the road) is
+  recycled at once, so the road always holds its count: it is placed by a drawn agent on a
+  side drawn evenly, ahead or behind whichever side it left by, in the spawn window of that
+  side (``traffic.spawn_ahead_m``, 30-90 m, or ``spawn_behind_m``, 30-60 m). (The numpy code
+  before issue 58 meant a car left behind to come back ahead and one left ahead to come back
+  behind, but read that from a view it had just cleared, so it drew every side evenly; the
+  kept tables ran so, and the compiled loop keeps it.) A spot is taken only if it keeps
+  IDM-comfortable gaps to everyone in its lane; when the window has none, the rest of the
+  kept range on that side is tried, and a slot that still finds none tries again the next
+  decision: the road holds the density it is labelled with.
+- Under ``traffic.entry = "spawners"`` (Min et al.'s code) the road starts with the agents
+  alone; cars out of range or touching another leave it, and eight spawners bring new ones
+  on their own timing, up to the count (:mod:`.spawners`).
 - Under ``traffic.entry = "free_zone"`` (Ho's code) the road starts with the agents alone, a
   car out of range leaves it, and new cars enter by his rule instead (:mod:`.entry`).
 - An agent joining or restarting on a shared road is placed behind the agents still on it, at
@@ -32,6 +37,7 @@ from .entry import FreeZoneEntry
 from .overtakes import OvertakeTracker
 from .randomness import SPAWN_CANDIDATES, U_ANCHOR, U_BEHAVIOUR, U_LANE, U_OFFSET, U_SIDE, U_SPEED
 from .road import Road
+from .spawners import Spawners
 from .spawning_kernels import kept_in_range, respawn
 from .state import SimState
 from .traffic.car_following import idm_desired_gap
@@ -83,6 +89,13 @@ class Spawner:
             if traffic.entry == "free_zone"
             else None
         )
+        self.spawners = (
+            Spawners(traffic, kinds, road, agents, config.episode.decision_period_s, tracker)
+            if traffic.entry == "spawners"
+            else None
+        )
+        # The state's spawner clocks: one per spawner where they run, none otherwise.
+        self.spawner_count = 0 if self.spawners is None else self.spawners.count
 
     def reset_arenas(self, rngs: list[np.random.Generator]) -> SimState:
         """New episodes' states, one arena per generator, each drawn from its own."""
@@ -91,7 +104,7 @@ class Spawner:
     def reset_arena(self, rng: np.random.Generator) -> SimState:
         """A new episode's state of one arena, drawn from ``rng``."""
         traffic = self.traffic
-        fresh = SimState.empty(1, self.agents, self.vehicles)
+        fresh = SimState.empty(1, self.agents, self.vehicles, self.spawner_count)
         n, lanes = self.agents, self.road.lane_count
         # Agents: distinct lanes where possible, 30 m apart, at the initial cruise speed.
         agent_lanes = rng.permutation(np.resize(np.arange(lanes), max(n, lanes)))[:n]
@@ -104,10 +117,13 @@ class Spawner:
 
         # Traffic: spread over the kept window with a minimum spacing per lane: the k-th
         # smallest uniform of a lane is shifted by k spacings, so neighbours are at least that
-        # far apart. Cars that would crowd an agent are left to spawn later.
-        count = self.traffic_slots if self.entry is None else 0
-        # Empty slots (free_zone: all of them) move at a speed of their own until a car
-        # enters them: the car-following's arithmetic needs one.
+        # far apart. Cars that would crowd an agent are left to spawn later. Ho's free zones
+        # and Min et al.'s spawners start from an empty road (a reset destroys every car).
+        count = self.traffic_slots if self.entry is None and self.spawners is None else 0
+        if self.spawners is not None:
+            fresh.spawner_wait_s[0] = self.spawners.first_waits(rng)
+        # Empty slots (free_zone, spawners: all of them) move at a speed of their own until a
+        # car enters them: the car-following's arithmetic needs one.
         fresh.speed_mps[0, n:] = fresh.desired_speed_mps[0, n:] = self.initial_speed_mps
         if count:
             lo = fresh.x_m[0, :n].min() - traffic.keep_behind_m
@@ -180,13 +196,17 @@ class Spawner:
             self.tracker.start_agent(st, arena, int(slot))
 
     def recycle(self, st: SimState, uniforms: np.ndarray) -> None:
-        """Respawn traffic that is out of every agent's range, and fill empty slots (or, with
-        ``traffic.entry = "free_zone"``, take it off the road and let new cars enter): one
-        compiled loop (:func:`.spawning_kernels.respawn`)."""
+        """Respawn traffic that is out of every agent's range, and fill empty slots: one
+        compiled loop (:func:`.spawning_kernels.respawn`); or, with ``traffic.entry =
+        "free_zone"`` or ``"spawners"``, take it off the road and let new cars enter by that
+        rule."""
         cfg = self.traffic
         n = self.agents
         arenas, vehicles = st.x_m.shape
         if vehicles == n:
+            return
+        if self.spawners is not None:
+            self.spawners.step(st, uniforms)
             return
         if self.entry is not None:
             kept = np.empty((arenas, vehicles - n), dtype=bool)

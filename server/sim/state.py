@@ -15,6 +15,10 @@ import numpy as np
 
 # The actions each agent's recent past holds (Ho's action stack: the last four).
 ACTION_HISTORY = 4
+# Fields added since snapshots were first kept, and the issue that added each: a snapshot of
+# older code has none of them, and its simulator used none (:mod:`.snapshot` restores them
+# as :meth:`SimState.empty` makes them).
+ADDED_FIELDS = {"spawner_wait_s": 68}
 
 
 @dataclass
@@ -65,9 +69,12 @@ class SimState:
     impact_y_m: np.ndarray  # (A, V)
     has_impact: np.ndarray  # (A, V) bool
     speed_index: np.ndarray  # (A, N) int64
+    # Min et al.'s spawners (traffic.entry = "spawners"; (A, 0) otherwise): the seconds until
+    # each spawner's next try.
+    spawner_wait_s: np.ndarray  # (A, S) float64
 
     @classmethod
-    def empty(cls, arenas: int, agents: int, vehicles: int) -> SimState:
+    def empty(cls, arenas: int, agents: int, vehicles: int, spawners: int = 0) -> SimState:
         """All zeros: no vehicle on the road yet."""
         a, n, v = arenas, agents, vehicles
         return cls(
@@ -105,6 +112,7 @@ class SimState:
             impact_y_m=_f64(a, v),
             has_impact=_bool(a, v),
             speed_index=_i64(a, n),
+            spawner_wait_s=_f64(a, spawners),
         )
 
     @classmethod

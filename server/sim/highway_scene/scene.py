@@ -89,6 +89,8 @@ class ScenePlacement:
     so far by a spacing that grows with its speed and shrinks with the lanes
     (``(12 + speed) * exp(-5/40 * lanes)``, times 0.9-1.1 at random, over the density)."""
 
+    spawner_count = 0  # the state's spawner clocks (Min et al.'s spawners): none here
+
     def __init__(self, config: SimConfig, agents: int, vehicles: int, tracker) -> None:
         self.scene = config.highway_scene
         self.lanes = config.road.lane_count

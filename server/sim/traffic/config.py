@@ -97,7 +97,8 @@ class BehaviourConfig:
 
 @dataclass(frozen=True, slots=True)
 class TrafficConfig:
-    """Traffic around the agents: IDM car-following, MOBIL lane changes, a treadmill of cars."""
+    """Traffic around the agents: IDM car-following, MOBIL lane changes, and how cars come onto
+    the road and leave it (``entry``: a treadmill, Ho's free zones or Min et al.'s spawners)."""
 
     density: Density = "medium"
     # The traffic cars of each density, light / medium / heavy: Min et al. train and test in
@@ -159,8 +160,10 @@ class TrafficConfig:
     # New traffic appears in these windows (metres ahead of / behind an agent) ...
     spawn_ahead_m: tuple[float, float] = (30.0, 90.0)
     spawn_behind_m: tuple[float, float] = (30.0, 60.0)
-    # ... and is recycled once it is further than this from every agent (Min et al.'s code,
-    # TargetManagement.cs: a car more than 100 m from the host leaves).
+    # ... and is recycled (entry "comfortable") or leaves the road (the others) once it is
+    # further than this from every agent: along the road, or, under entry "spawners", in a
+    # straight line (Min et al.'s code, TargetManagement.cs: a car more than 100 m from the
+    # host, Euclidean, destroys itself).
     keep_ahead_m: float = 100.0
     keep_behind_m: float = 100.0
     vehicle_length_m: float = 4.5
@@ -190,9 +193,12 @@ class TrafficConfig:
     # slower one's speed at once. The speed cap (yield_to_agents) holds under both.
     following: Literal["idm", "speed_steps"] = "idm"
     safety_gap_m: float = 3.5
-    # How new traffic comes onto the road. "comfortable": a car out of range is recycled at
-    # once into the spawn windows above, where IDM finds it a comfortable gap, at its desired
-    # speed (an empty slot tries again every decision), and the road starts full. "free_zone"
+    # How new traffic comes onto the road. "comfortable" (a treadmill): a car out of range is
+    # recycled at once into the spawn windows above, on a side drawn evenly, where IDM finds
+    # it a comfortable gap, at its desired speed (an empty slot tries again every decision),
+    # and the road starts full; the road always holds its count. "spawners" (Min et al.'s
+    # code, below): the road starts empty and spawners bring cars on while cars leave it, so
+    # that the count is a most. "free_zone"
     # (Ho's code, gui.py): the road starts empty but for the agents; in each physics frame,
     # with probability entry_prob_per_frame and while a slot is free, one car enters at
     # entry_offset_m ahead of (first) or behind (second) an agent, centre to centre, the side
@@ -201,13 +207,33 @@ class TrafficConfig:
     # drawn from entry_speed_ahead_kmh / entry_speed_behind_kmh; it keeps a faster entry speed
     # as its desired speed (his cars only accelerate below their own speed). A car out of
     # range leaves the road, and its slot waits for an entry.
-    entry: Literal["comfortable", "free_zone"] = "comfortable"
+    entry: Literal["comfortable", "free_zone", "spawners"] = "comfortable"
     entry_prob_per_frame: float = 0.5
     entry_offset_m: tuple[float, float] = (80.0, 31.0)
     entry_zone_ahead_m: tuple[float, float] = (-10.0, 7.0)
     entry_zone_behind_m: tuple[float, float] = (-6.0, 8.0)
     entry_speed_ahead_kmh: tuple[float, float] = (30.0, 60.0)
     entry_speed_behind_kmh: tuple[float, float] = (30.0, 90.0)
+    # Min et al.'s spawners (entry "spawners"; their Unity scene, Vehicle1_Manager.cs ..
+    # Vehicle8_Manager.cs, TargetManagement.cs, VehicleAgent.cs). A reset empties the road.
+    # spawner_count spawners each own an equal share of the count (the first count % spawners
+    # of them one car more: their `sliderval % 8 > k`). Every fixed step of spawner_step_s a
+    # spawner draws a wait of whole seconds in [spawner_wait_s) (Unity's integer
+    # Random.Range, redrawn each step) and tries once its clock has passed it, then starts its
+    # clock again: the waits between tries follow from these (2.12 s on average, not 2-8 s).
+    # A try places a car spawner_ahead_share of the time ahead of the agent, else behind, in
+    # the spawn window of that side at whole metres (Unity's integer Random.Range: 30-89 m
+    # ahead, 30-59 m behind), in a lane drawn evenly, only while the spawner holds fewer cars
+    # than its share and no car's centre is within spawner_clearance_m along the road and
+    # spawner_clearance_lanes lane widths across (their margins of 10 over lanes 7 apart). A
+    # car further than keep_ahead_m / keep_behind_m from every agent in a straight line, and
+    # any two traffic cars that touch, leave the road (nothing is recycled).
+    spawner_count: int = 8
+    spawner_step_s: float = 0.02
+    spawner_wait_s: tuple[int, int] = (2, 8)
+    spawner_ahead_share: float = 0.7
+    spawner_clearance_m: float = 10.0
+    spawner_clearance_lanes: float = 10.0 / 7.0
 
     def __post_init__(self) -> None:
         check(self.density in DENSITIES, "traffic.density", self.density, f"one of {DENSITIES}")
@@ -257,11 +283,30 @@ class TrafficConfig:
         )
         check_range("traffic.safety_gap_m", self.safety_gap_m, 0.0, 100.0)
         check(
-            self.entry in ("comfortable", "free_zone"),
+            self.entry in ("comfortable", "free_zone", "spawners"),
             "traffic.entry",
             self.entry,
-            "comfortable or free_zone",
+            "comfortable, free_zone or spawners",
         )
+        check(
+            isinstance(self.spawner_count, int) and 1 <= self.spawner_count <= 64,
+            "traffic.spawner_count",
+            self.spawner_count,
+            "an integer from 1 to 64",
+        )
+        check_range("traffic.spawner_step_s", self.spawner_step_s, 0.001, 1.0)
+        low_s, high_s = self.spawner_wait_s
+        check(
+            len(self.spawner_wait_s) == 2
+            and all(isinstance(v, int) for v in self.spawner_wait_s)
+            and 0 <= low_s < high_s <= 60,
+            "traffic.spawner_wait_s",
+            self.spawner_wait_s,
+            "two integers (first, last + 1) of whole seconds with 0 <= first < last + 1 <= 60",
+        )
+        check_range("traffic.spawner_ahead_share", self.spawner_ahead_share, 0.0, 1.0)
+        check_range("traffic.spawner_clearance_m", self.spawner_clearance_m, 0.0, 1000.0)
+        check_range("traffic.spawner_clearance_lanes", self.spawner_clearance_lanes, 0.0, 100.0)
         check_range("traffic.entry_prob_per_frame", self.entry_prob_per_frame, 0.0, 1.0)
         check_interval("traffic.entry_speed_ahead_kmh", self.entry_speed_ahead_kmh)
         check_interval("traffic.entry_speed_behind_kmh", self.entry_speed_behind_kmh)

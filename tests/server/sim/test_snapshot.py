@@ -125,3 +125,54 @@ def test_a_snapshot_of_older_code_restores_where_what_was_added_since_changes_no
     )
     with pytest.raises(SnapshotMismatch, match="ego.applied_as_driven: absent from the snapshot"):
         HighwaySim(make_config("ho2018", SHORT), num_arenas=1).restore(before_66)
+
+
+SPAWNER_SETTINGS = (
+    "traffic.spawner_count",
+    "traffic.spawner_step_s",
+    "traffic.spawner_wait_s",
+    "traffic.spawner_ahead_share",
+    "traffic.spawner_clearance_m",
+    "traffic.spawner_clearance_lanes",
+)
+
+
+def test_a_snapshot_of_before_the_spawners_restores_where_none_runs_and_not_on_min2018s():
+    """Issue 68 added the spawners' settings and their clocks to the state: a snapshot of
+    older code has neither. On a treadmill (fayjie2018) or Ho's entry nothing of them runs,
+    and the snapshot restores and steps on as its simulator; min2018's traffic itself
+    changed (its treadmill is now its authors' spawners), and its snapshot is refused."""
+    for preset in ("fayjie2018", "ho2018"):
+        sim = HighwaySim(make_config(preset, SHORT), num_arenas=2)
+        sim.reset(seeds=[3, 4])
+        taken = sim.snapshot()
+        config_json = taken.config_json
+        for name in SPAWNER_SETTINGS:
+            config_json = _without(config_json, name)
+        arrays = {k: v for k, v in taken.arrays.items() if k != "spawner_wait_s"}
+        older = dataclasses.replace(taken, config_json=config_json, arrays=arrays)
+        actions = np.ones((2, 1), dtype=np.int64)
+        expected = [sim.step(actions) for _ in range(3)]
+        again = HighwaySim(make_config(preset, SHORT), num_arenas=2)
+        again.restore(older)
+        for want in expected:
+            np.testing.assert_array_equal(again.step(actions).reward, want.reward)
+        for name, value in sim.state.__dict__.items():
+            np.testing.assert_array_equal(getattr(again.state, name), value, err_msg=name)
+    treadmill = HighwaySim(
+        make_config("min2018", {**SHORT, "traffic.entry": "comfortable"}), num_arenas=1
+    )
+    treadmill.reset(seeds=[5])
+    taken = treadmill.snapshot()
+    config = json.loads(taken.config_json)
+    for name in SPAWNER_SETTINGS:
+        del config["traffic"][name.split(".")[1]]
+    older = dataclasses.replace(
+        taken,
+        config_json=json.dumps(config),
+        arrays={k: v for k, v in taken.arrays.items() if k != "spawner_wait_s"},
+    )
+    with pytest.raises(
+        SnapshotMismatch, match="traffic.entry: 'comfortable' in the snapshot, 'spawners' here"
+    ):
+        HighwaySim(make_config("min2018", SHORT), num_arenas=1).restore(older)
