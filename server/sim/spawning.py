@@ -5,9 +5,9 @@
   spacing per lane; cars that would crowd an agent wait to spawn later.
 - Under ``traffic.entry = "comfortable"`` (a treadmill) each decision traffic that fell out of
   every agent's range (``traffic.keep_ahead_m`` / ``keep_behind_m``, along the road) is
-  recycled at once, so the road always holds its count: it is placed by a drawn agent on a
-  side drawn evenly, ahead or behind whichever side it left by, in the spawn window of that
-  side (``traffic.spawn_ahead_m``, 30-90 m, or ``spawn_behind_m``, 30-60 m). (The numpy code
+  recycled at once, so the road holds its count where gaps allow: it is placed by a drawn
+  agent on a side drawn evenly, ahead or behind whichever side it left by, in the spawn window
+  of that side (``traffic.spawn_ahead_m``, 30-90 m, or ``spawn_behind_m``, 30-60 m). (The numpy code
   before issue 58 meant a car left behind to come back ahead and one left ahead to come back
   behind, but read that from a view it had just cleared, so it drew every side evenly; the
   kept tables ran so, and the compiled loop keeps it.) A spot is taken only if it keeps

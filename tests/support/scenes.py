@@ -78,6 +78,8 @@ def scripted_sim(
             desired_kmh=car.speed_kmh if car.desired_kmh is None else car.desired_kmh,
             kind=car.kind,
         )
+    # Min et al.'s spawners (min2018's traffic) bring no car of their own into the scene.
+    st.spawner_wait_s[:] = np.inf
     st.frame[:] = 0
     st.decisions[:] = 1  # not a respawn-retry decision (there are no empty slots anyway)
     st.agent_decisions[:] = 0

@@ -610,9 +610,11 @@ def test_an_in_process_run_draws_its_first_cars_road_in_its_recording(tmp_path):
         if chunk.entity_path == f"{IN_PROCESS_ROAD}/cars" and not chunk.is_static
     ]
     # A frame every 5th step of the vector env: 60 steps of 2 envs are 30 steps, 6 frames
-    # (and the same count of car views), each with the agent and the medium traffic's cars.
+    # (and the same count of car views), each with the agent and the medium traffic's cars,
+    # more of them as the authors' spawners fill the road from empty (issue 68).
     boxes = [len(row) for batch in cars for row in batch.column("Boxes2D:half_sizes").to_pylist()]
-    assert len(boxes) == 6 and all(count > 10 for count in boxes), boxes
+    assert len(boxes) == 6 and all(count >= 2 for count in boxes), boxes
+    assert max(boxes) > 10, boxes
     texts = set().union(*(blueprint_texts(reader, store) for store in reader.blueprints()))
     assert IN_PROCESS_ROAD in texts and "run: road (env 0 at 0 m, left up)" in texts
 

@@ -196,7 +196,7 @@ class TrafficConfig:
     # How new traffic comes onto the road. "comfortable" (a treadmill): a car out of range is
     # recycled at once into the spawn windows above, on a side drawn evenly, where IDM finds
     # it a comfortable gap, at its desired speed (an empty slot tries again every decision),
-    # and the road starts full; the road always holds its count. "spawners" (Min et al.'s
+    # and the road starts full; it holds its count where gaps allow. "spawners" (Min et al.'s
     # code, below): the road starts empty and spawners bring cars on while cars leave it, so
     # that the count is a most. "free_zone"
     # (Ho's code, gui.py): the road starts empty but for the agents; in each physics frame,

@@ -171,24 +171,17 @@ def test_the_metrics_report_the_varying_population():
     assert (sim.metrics()["traffic_cars"][:, 0] < 32).all()
 
 
-def _calm_scene(cars: list[Car]) -> HighwaySim:
-    """A scripted scene of ``cars`` whose spawners wait: nothing new comes on."""
-    sim = scripted_sim(cars)
-    sim.state.spawner_wait_s[:] = 1e9
-    return sim
-
-
 def test_cars_that_touch_leave_the_road_both_of_them():
     # Cars 1 and 2 abreast, 1 m apart across (car 2 in lane 2 but drawn towards lane 1: its
     # lateral position written by hand, which nothing moves outside a lane change): their
     # boxes overlap and both leave. Car 3, abreast a lane over, keeps its distance and stays.
-    sim = _calm_scene([Car(40.0, 1, 60.0), Car(40.0, 2, 60.0), Car(40.0, 3, 60.0)])
+    sim = scripted_sim([Car(40.0, 1, 60.0), Car(40.0, 2, 60.0), Car(40.0, 3, 60.0)])
     st = sim.state
     st.y_m[0, 2] = st.y_m[0, 1] + 1.0
     keep(sim)
     assert st.active[0].tolist() == [True, False, False, True]
     # Side by side in adjacent lanes is not touching.
-    sim = _calm_scene([Car(40.0, 1, 60.0), Car(40.0, 2, 60.0)])
+    sim = scripted_sim([Car(40.0, 1, 60.0), Car(40.0, 2, 60.0)])
     keep(sim)
     assert sim.state.active[0].all()
 
@@ -197,13 +190,13 @@ def test_a_car_leaves_beyond_100_m_in_a_straight_line_and_is_not_recycled():
     # Everyone at 60 km/h: nobody moves relative to the agent (lane 2). 99 m ahead two lanes
     # over is 99.2 m away in a straight line: kept; 99.9 m ahead two lanes over is 100.1 m:
     # gone (the treadmill, along the road, kept it). Behind as ahead.
-    sim = _calm_scene(
+    sim = scripted_sim(
         [Car(99.0, 4, 60.0), Car(99.9, 0, 60.0), Car(-99.5, 2, 60.0), Car(-100.5, 2, 60.0)]
     )
     keep(sim)
     st = sim.state
     assert st.active[0].tolist() == [True, True, False, True, False]
-    # Nothing comes back: the spawners wait, and the slots stay empty.
+    # Nothing comes back (a scripted scene's spawners wait): the slots stay empty.
     for _ in range(5):
         keep(sim)
     assert st.active[0].tolist() == [True, True, False, True, False]
@@ -239,6 +232,7 @@ def test_a_spawner_with_its_share_on_the_road_places_nothing():
     cars = [Car(35.0 + 12.0 * i, i % 5, 60.0) for i in range(8)]
     sim = scripted_sim(cars, overrides={"traffic.keep_ahead_m": 5000.0})
     st = sim.state
+    st.spawner_wait_s[:] = 0.0  # scripted scenes hold their spawners: these try at once
     own = st.own_speed_mps[0].copy()
     for _ in range(30):  # 12 s: every spawner tries about five times
         keep(sim)
