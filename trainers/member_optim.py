@@ -47,7 +47,8 @@ def _as_laid_out(tensor: torch.Tensor) -> torch.Tensor:
     """A dense tensor viewed in its memory's order (contiguous): a member's dense weights are
     laid out transposed (:class:`.member_network.MemberLinear`), and so are their gradients and
     moments; an elementwise kernel that wants contiguous tensors takes them so."""
-    order = sorted(range(tensor.dim()), key=lambda d: -tensor.stride(d))
+    strides = tensor.stride()
+    order = sorted(range(tensor.dim()), key=lambda d: strides[d], reverse=True)
     return tensor.permute(order)
 
 
@@ -125,7 +126,7 @@ class MemberOptimizer:
         live = [i for i, p in enumerate(self.params) if p.grad is not None]
         for k in range(self.members):
             step = torch.tensor(float(self.steps[k]), dtype=torch.float32)
-            torch._fused_adam_(  # type: ignore[attr-defined]
+            torch._fused_adam_(
                 [_as_laid_out(self.params[i][k]) for i in live],
                 [_as_laid_out(self.params[i].grad[k]) for i in live],  # type: ignore[index]
                 [_as_laid_out(self.state["exp_avg"][i][k]) for i in live],
