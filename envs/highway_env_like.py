@@ -275,4 +275,8 @@ class HighwayEnvLikeVector(gym.vector.VectorEnv):
         return tuple(road.picture(i, view) for i in range(self.num_envs))
 
     def close_extras(self, **kwargs: Any) -> None:
-        self.env.close()
+        # A refused configuration leaves no environment underneath to close (and Gymnasium's
+        # __del__ closes what __init__ left).
+        env = getattr(self, "env", None)
+        if env is not None:
+            env.close()
