@@ -16,6 +16,10 @@ own:
   running the task, the batch's trainer and the node's raylet killed (SIGKILL) and the node
   removed, as a machine that vanishes; Ray retries the task on another node, and its runs
   resume from their checkpoints;
+- ``stopped``: with ``--ray``, SIGTERM to the experiment (as Ctrl-C) once every training batch
+  has started and one has a checkpoint at ``--lose-at`` of the budget: every task stops its
+  process, none is left running, every run has its checkpoint; then the same command again,
+  to the table;
 - ``refused``: ``--out`` on storage the nodes may not write (a read-only mount that only the
   nodes see) and on storage they do not see (a mount only the experiment sees): each refused
   in one line, before anything trains.
@@ -23,7 +27,8 @@ own:
 Figures (printed, and with ``--json`` written as JSON): the time to the table of each
 scenario, the retries the experiment reported, whether each ``--ray`` table's trained rows
 equal the local table's (every figure of every row and run, their provenance aside), what the
-lost batch's runs resumed from and whether exactly, and each refusal's line and time.
+lost batch's runs resumed from and whether exactly, how the stop went (its time, the processes
+left, the runs' steps), and each refusal's line and time.
 
     .venv/bin/python -m bench.reliability.experiment_cluster [--json PATH]
         [--scenarios local ray lost-node refused] [--experiment-args="--total-steps 3000 ..."]
@@ -53,8 +58,8 @@ import tyro
 from bench.harness import write_report
 
 ROOT = Path(__file__).resolve().parents[2]
-Scenario = Literal["local", "ray", "lost-node", "refused"]
-SCENARIOS: tuple[Scenario, ...] = ("local", "ray", "lost-node", "refused")
+Scenario = Literal["local", "ray", "lost-node", "stopped", "refused"]
+SCENARIOS: tuple[Scenario, ...] = ("local", "ray", "lost-node", "stopped", "refused")
 # The issue's experiment: a few thousand steps, one evaluation episode, one density and one
 # reference policy, one PyTorch thread a task (a node's one CPU).
 SHORT_TABLE8 = (
@@ -300,6 +305,47 @@ def resumed_lives(table_json: Path, runs: list[str], step: int) -> dict[str, Any
     }
 
 
+def run_stopped(
+    config: ClusterBenchConfig, work: Path, address: str, budget: int
+) -> dict[str, Any]:
+    """SIGTERM to the experiment once its training is under way, then the same command again
+    to the table."""
+    from overtake.trainers.experiment.files import checkpoint_step
+
+    out = work / "stopped"
+    command = experiment_command(config, out, address)
+    experiment = Experiment.start(command, work / "stopped-output")
+    deadline = time.monotonic() + config.timeout_s
+    stopped: dict[str, Any] = {}
+    while experiment.process.poll() is None and time.monotonic() < deadline:
+        batches = batches_on_nodes(experiment.lines())
+        steps = [checkpoint_step(out / runs[0]) or 0 for _, runs in batches.values()]
+        if steps and max(steps) >= config.lose_at * budget:
+            began = time.monotonic()
+            experiment.process.send_signal(signal.SIGTERM)
+            experiment.process.wait(timeout=600)
+            pids = [int(p.read_text()) for p in out.rglob("*.pid")]
+            stopped = {
+                "stop_s": round(time.monotonic() - began, 1),
+                "exit_status": experiment.process.returncode,
+                "last_line": experiment.lines()[-1],
+                "pid_files_left": len(pids),
+                "processes_left": [pid for pid in pids if Path(f"/proc/{pid}").exists()],
+                "steps": {
+                    run: checkpoint_step(out / run) or 0
+                    for _, runs in batches.values()
+                    for run in runs
+                },
+            }
+            say(f"stopped: {stopped['last_line']} ({stopped['stop_s']:.0f} s)")
+            break
+        time.sleep(POLL_S)
+    again = Experiment.start(command, work / "stopped-again-output")
+    result = again.finish(deadline - time.monotonic())
+    say(f"stopped, then again: exit {result['exit_status']} after {result['seconds']:.0f} s")
+    return {**result, "out": str(out), "stopped": stopped}
+
+
 def run_refused(config: ClusterBenchConfig, work: Path, address: str) -> dict[str, Any]:
     """--out on storage the nodes may not write, then on storage they do not see."""
     results = {}
@@ -376,8 +422,10 @@ def main(config: ClusterBenchConfig) -> dict[str, Any]:
                     report["refused"] = run_refused(config, work, cluster.address)
                 if "ray" in config.scenarios:
                     report["ray"] = run_ray(config, work, cluster.address)
+                budget = budget_of(config.experiment_args)
+                if "stopped" in config.scenarios:
+                    report["stopped"] = run_stopped(config, work, cluster.address, budget)
                 if "lost-node" in config.scenarios:
-                    budget = budget_of(config.experiment_args)
                     report["lost-node"] = run_lost_node(config, work, cluster, budget)
         compare(report)
         print_figures(report)
@@ -395,7 +443,7 @@ def compare(report: dict[str, Any]) -> None:
     if local is None or local["exit_status"] != 0:
         return
     reference = trained_rows(Path(local["out"]) / "table.json")
-    for name in ("ray", "lost-node"):
+    for name in ("ray", "lost-node", "stopped"):
         result = report.get(name)
         if result is not None and result["exit_status"] == 0:
             rows = trained_rows(Path(result["out"]) / "table.json")
@@ -414,10 +462,17 @@ def print_figures(report: dict[str, Any]) -> None:
         print(f"  local processes: the table in {report['local']['seconds']:.0f} s")
     if "cluster_up_s" in report:
         print(f"  Ray cluster up in {report['cluster_up_s']:.0f} s")
-    for name in ("ray", "lost-node"):
+    for name in ("ray", "lost-node", "stopped"):
         result = report.get(name)
         if result is None:
             continue
+        stop = result.get("stopped")
+        if stop:
+            print(
+                f"  stopped by SIGTERM in {stop['stop_s']:.0f} s (exit {stop['exit_status']}, "
+                f"{len(stop['processes_left'])} processes left, runs at steps "
+                f"{sorted(set(stop['steps'].values()))}): {stop['last_line']}"
+            )
         equal = result.get("rows_equal_local")
         said = {True: "equal the local table's", False: "DIFFER", None: "not compared"}[equal]
         print(

@@ -45,7 +45,6 @@ from .processes import (
     TaskStarted,
     TrainingProgress,
     progress_of,
-    release,
     start_lives,
     start_process,
     stop_all,
@@ -164,25 +163,33 @@ def run_on_node(work: NodeWork, board: Any) -> NodeOutcome:
 
 
 def _wait_for(child: Child, work: NodeWork, board: Any) -> NodeOutcome:
+    """Wait for ``child`` to end, posting its runs' progress, stopping it when the experiment
+    asks (SIGTERM: a trainer writes its checkpoint), and however this ends, leaving no process
+    behind and its locks released."""
     next_progress = time.monotonic() + work.progress_every_s
-    while child.process.poll() is None:
-        wait_any([child], POLL_S)
-        if child.process.poll() is None and _stop_asked(board):
-            stop_all([child])  # released there
-            return NodeOutcome(child.process.returncode, stopped=True)
-        if time.monotonic() >= next_progress and child.task.runs:
-            progress = progress_of(child.task)
-            board.post.remote(progress)
-            next_progress = time.monotonic() + work.progress_every_s
-    release(child)
-    return NodeOutcome(child.process.returncode)
+    stopped = False
+    try:
+        while child.process.poll() is None:
+            wait_any([child], POLL_S)
+            if child.process.poll() is None and _stop_asked(board):
+                stopped = True
+                break
+            if time.monotonic() >= next_progress and child.task.runs:
+                board.post.remote(progress_of(child.task))
+                next_progress = time.monotonic() + work.progress_every_s
+    finally:
+        stop_all([child])  # a process still running is stopped first; released
+    return NodeOutcome(child.process.returncode, stopped=stopped)
 
 
 def _stop_asked(board: Any) -> bool:
-    """Whether the experiment asked its tasks to stop (or is gone: nobody awaits the task)."""
+    """Whether the experiment asked its tasks to stop, or is gone (its board with it: nobody
+    awaits the task). A board slow to answer (a loaded machine) asked nothing."""
     try:
         return bool(ray.get(board.stop_asked.remote(), timeout=BOARD_TIMEOUT_S))
-    except (ray.exceptions.RayActorError, ray.exceptions.GetTimeoutError):
+    except ray.exceptions.GetTimeoutError:
+        return False
+    except ray.exceptions.RayActorError:
         return True
 
 
@@ -215,7 +222,7 @@ class RayLauncher:
                 signal.signal(signal.SIGTERM, sigterm)
         try:
             here = ray.get_runtime_context().get_node_id()
-            self.board = _Board.options(
+            self.board: Any = _Board.options(
                 scheduling_strategy=NodeAffinitySchedulingStrategy(here, soft=False)
             ).remote()
             self.token = write_storage_token(out)
