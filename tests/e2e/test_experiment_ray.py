@@ -20,8 +20,6 @@ import pytest
 
 from tests.support.remote import child_env
 
-pytest.importorskip("ray", reason="Ray is not installed (the cluster extra)")
-
 ROOT = Path(__file__).resolve().parents[2]
 NAMESPACES = ["unshare", "--user", "--map-root-user", "--net", "--mount", "true"]
 # Four tables (each a few minutes on 2 cores), two refusals, a cluster's start: about half an
@@ -38,6 +36,8 @@ def namespaces_refused() -> str | None:
 
 @pytest.fixture(scope="module")
 def figures(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    # Here, not at collection: the default suite, which leaves these tests out, loads no Ray.
+    pytest.importorskip("ray", reason="Ray is not installed (the cluster extra)")
     refused = namespaces_refused()
     if refused is not None:
         pytest.skip(refused)
