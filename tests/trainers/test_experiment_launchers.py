@@ -60,6 +60,7 @@ def test_ray_alone_means_the_cluster_ray_finds_and_its_cpus_size_the_jobs(tmp_pa
         (["--device", "cuda:1", "--ray"], r"--device cuda:1: with --ray, Ray gives each "
          r"training task its GPU: give --device cuda"),
         (["--ray-retries", "-1", "--ray"], r"--ray-retries must be >= 0, got -1"),
+        (["--ray", "head"], r"--ray head: expected auto or the head's HOST:PORT"),
     ],
 )  # fmt: skip
 def test_bad_ray_options_are_refused_in_one_line(args, expected):

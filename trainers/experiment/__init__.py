@@ -38,9 +38,9 @@ directory; a task whose node is lost is retried on another and resumes its runs 
 The package, one idea a module: :mod:`.catalogue` (the experiments as data), :mod:`.plan`
 (resolved against a command line), :mod:`.files` and :mod:`.processes` (what the run reads,
 writes, locks and starts), :mod:`.run` (the scheduling), :mod:`.launcher` (what runs the
-tasks: this machine's processes, or :mod:`.ray_launcher`'s Ray tasks), :mod:`.statistics`, :mod:`.report`
-and :mod:`.curves` (the table and curves), :mod:`.evidence` (how each run was made, and what
-is kept in git), :mod:`.command` (``main`` and the command line).
+tasks: this machine's processes, or :mod:`.ray_launcher`'s Ray tasks), :mod:`.statistics`,
+:mod:`.report` and :mod:`.curves` (the table and curves), :mod:`.evidence` (how each run was
+made, and what is kept in git), :mod:`.command` (``main`` and the command line).
 """
 
 from .catalogue import (

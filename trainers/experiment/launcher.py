@@ -87,6 +87,9 @@ def ray_cluster(config: ExperimentConfig) -> RayCluster | None:
             "overtake-experiment on a node of the cluster (Ray Client addresses, ray://, are "
             "not supported: the command reads and writes the experiment directory itself)"
         )
+    host, _, port = address.rpartition(":")
+    if address != "auto" and not (host and port.isdigit()):
+        raise UsageError(f"--ray {address}: expected auto or the head's HOST:PORT")
     if config.device.startswith("cuda:"):
         raise UsageError(
             f"--device {config.device}: with --ray, Ray gives each training task its GPU: "

@@ -23,6 +23,7 @@ import dataclasses
 import logging
 import os
 import signal
+import socket
 import sys
 import time
 from dataclasses import dataclass
@@ -54,6 +55,8 @@ from .processes import (
 if TYPE_CHECKING:
     from .launcher import RayCluster
 
+# How long the head's address may take to accept a connection.
+HEAD_PROBE_TIMEOUT_S = 10.0
 # Every node's check of the experiment directory (a worker process started on each node).
 STORAGE_CHECK_TIMEOUT_S = 120.0
 # How long a stop waits for the tasks to stop their processes: a trainer's last checkpoint
@@ -205,6 +208,8 @@ class RayLauncher:
         self.cluster, self.out, self.progress_every_s = cluster, out, progress_every_s
         # ray.init sets its own SIGTERM handler (an exit): a SIGTERM must stop the experiment
         # as Ctrl-C does, through the command's own, which stops the tasks.
+        if cluster.address != "auto":
+            _check_listening(cluster.address)
         sigterm = signal.getsignal(signal.SIGTERM)
         try:
             ray.init(
@@ -277,8 +282,9 @@ class RayLauncher:
         largest = max((int(n["Resources"].get("CPU", 0)) for n in nodes), default=0)
         if task.cpus > largest:
             raise UsageError(
-                f"--torch-threads {task.cpus}: each task asks for as many CPUs, and the Ray "
-                f"cluster's largest node has {largest}: give --torch-threads {largest} or fewer"
+                f"each task asks for its PyTorch threads' CPUs, {task.cpus} here (--torch-threads, "
+                f"by default the cluster's CPUs over --jobs), and the Ray cluster's largest node "
+                f"has {largest}: give --torch-threads {largest} or fewer"
             )
         if task.gpus > max((n["Resources"].get("GPU", 0) for n in nodes), default=0):
             raise UsageError(
@@ -373,6 +379,20 @@ class RayLauncher:
 
     def close(self) -> None:
         ray.shutdown()
+
+
+def _check_listening(address: str) -> None:
+    """Refuse at once a head address nothing listens on: Ray would try it for minutes."""
+    host, _, port = address.rpartition(":")
+    try:
+        socket.create_connection(
+            (host.strip("[]"), int(port)), timeout=HEAD_PROBE_TIMEOUT_S
+        ).close()
+    except OSError as error:
+        raise UsageError(
+            f"--ray {address}: no Ray head listens there ({error.strerror or error}): start "
+            f"one with `ray start --head --port {port}` (docs/cluster.md)"
+        ) from None
 
 
 def _refusal(out: Path, problem: str, then: str) -> str:
