@@ -164,10 +164,13 @@ class Experiment:
             self.process.send_signal(signal.SIGINT)
             status = self.process.wait(timeout=120)
         lines = self.lines()
+        again = [line for line in lines if " again on node " in line]
         return {
             "exit_status": status,
             "seconds": round(time.monotonic() - self.started, 1),
-            "retries": [line.split("] ", 1)[-1] for line in lines if " again on node " in line],
+            # A line per run of each task started again (a batch's runs share its log).
+            "retries": [line.split("] ", 1)[-1] for line in again],
+            "tasks_retried": len({line.rsplit("(log ", 1)[-1] for line in again}),
             "last_line": lines[-1] if lines else "",
         }
 
@@ -261,7 +264,24 @@ def run_lost_node(
     say(f"lost-node: exit {result['exit_status']} after {result['seconds']:.0f} s")
     if lost and result["exit_status"] == 0:
         lost["resumed"] = resumed_lives(out / "table.json", lost["runs"], lost["checkpoint_step"])
+        lost["retry_waited_for_a_cpu"] = waited_for_a_cpu(experiment.lines(), lost["runs"])
     return {**result, "out": str(out), "lost": lost}
+
+
+def waited_for_a_cpu(lines: list[str], lost_runs: list[str]) -> bool:
+    """Whether the lost batch started again only once another task had ended: every node's
+    one CPU was taken when its node was lost, so that is when Ray could place it (a task that
+    gave its CPU back to Ray while it waited on a call would have let it in earlier)."""
+    stamp = re.compile(r"^\[(\d\d:\d\d:\d\d)\] ")
+    again = next(line for line in lines if " again on node " in line)
+    others_done = [
+        line
+        for line in lines
+        if re.search(r"train (\S+): done at step", line)
+        and not any(f"train {run}: " in line for run in lost_runs)
+    ]
+    first = stamp.match(again)
+    return bool(others_done) and first is not None and first.group(1) >= others_done[0][1:9]
 
 
 def lose_node(cluster: Any, node: Any, run_dir: Path) -> dict[str, Any]:
@@ -477,13 +497,14 @@ def print_figures(report: dict[str, Any]) -> None:
         said = {True: "equal the local table's", False: "DIFFER", None: "not compared"}[equal]
         print(
             f"  {name}: exit {result['exit_status']}, the table in {result['seconds']:.0f} s, "
-            f"{len(result['retries'])} retries, trained rows {said}"
+            f"{result['tasks_retried']} task(s) retried, trained rows {said}"
         )
         lost = result.get("lost")
         if lost:
             print(
                 f"    node {lost['node']} lost with its batch of {len(lost['runs'])} runs at "
-                f"checkpoint step {lost['checkpoint_step']:,}"
+                f"checkpoint step {lost['checkpoint_step']:,}; started again once a CPU was "
+                f"free: {lost.get('retry_waited_for_a_cpu')}"
             )
             for line in result["retries"]:
                 print(f"    {line}")

@@ -62,8 +62,8 @@ STORAGE_CHECK_TIMEOUT_S = 120.0
 # How long a stop waits for the tasks to stop their processes: a trainer's last checkpoint
 # (SIGKILL after STOP_TIMEOUT_S), then the task's own end.
 STOP_WAIT_S = STOP_TIMEOUT_S + 30.0
-# A board call from a task (a stop asked, its start posted): the board is on the
-# experiment's own node.
+# How long a task waits for the board's answer before it starts its process: the board is on
+# the experiment's own node.
 BOARD_TIMEOUT_S = 30.0
 
 
@@ -132,6 +132,44 @@ def check_storage(out: Path, token: str) -> str | None:
     return None if problem is None else f"node {this_node()} {problem}"
 
 
+class StopPoll:
+    """Whether the experiment asked its tasks to stop, asked of the board without ever
+    blocking in Ray: a task blocked in ``ray.get`` (or ``ray.wait``) hands its CPUs back to
+    Ray while it waits, and Ray may place another task on them, which then shares the cores
+    this task's process trains on for as long as both run. A reply is read from its future
+    once it has come."""
+
+    def __init__(self, board: Any) -> None:
+        self.board = board
+        self.reply: Any = None
+        self.stop = False
+
+    def asked(self) -> bool:
+        """The answer so far (a question sent, where none is under way)."""
+        if self.stop:
+            return True
+        if self.reply is None:
+            self.reply = self.board.stop_asked.remote().future()
+        elif self.reply.done():
+            try:
+                self.stop = bool(self.reply.result())
+            except ray.exceptions.RayActorError:
+                self.stop = True  # the board is gone with the experiment: nobody awaits this
+            except ray.exceptions.RayError:
+                pass  # asked again next time
+            self.reply = None
+        return self.stop
+
+    def answered(self, timeout_s: float) -> bool:
+        """A fresh answer, waited for up to ``timeout_s`` (none by then: not asked)."""
+        self.reply = None
+        self.asked()
+        deadline = time.monotonic() + timeout_s
+        while self.reply is not None and not self.reply.done() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        return self.asked()
+
+
 def run_on_node(work: NodeWork, board: Any) -> NodeOutcome:
     """A Ray task: ``work.task``'s process on this node, from its storage check to its end."""
     refused = check_storage(work.out, work.token)
@@ -139,33 +177,31 @@ def run_on_node(work: NodeWork, board: Any) -> NodeOutcome:
         return NodeOutcome(None, refused=refused)
     # The same module run by this node's own interpreter (a node's may live elsewhere).
     task = dataclasses.replace(work.task, command=(sys.executable, *work.task.command[1:]))
+    stop = StopPoll(board)
     locks = lock_all(task.lock_paths)
     while locks is None:
         # A process of the task's earlier attempt still stopping (or a node cut off, not dead,
         # still training): its runs go on from where it leaves them.
-        if _stop_asked(board):
+        if stop.asked():
             return NodeOutcome(None, stopped=True)
         time.sleep(POLL_S)
         locks = lock_all(task.lock_paths)
-    if task.runs and all(
+    finished = task.runs and all(
         (checkpoint_step(run.run_dir) or 0) >= run.train.total_steps for run in task.runs
-    ):
-        # Finished by that earlier attempt meanwhile.
+    )
+    if finished or stop.answered(BOARD_TIMEOUT_S):
+        # Finished by that earlier attempt meanwhile, or a stop asked before this began.
         for fd in locks:
             os.close(fd)
-        return NodeOutcome(0)
-    if _stop_asked(board):
-        for fd in locks:
-            os.close(fd)
-        return NodeOutcome(None, stopped=True)
+        return NodeOutcome(0) if finished else NodeOutcome(None, stopped=True)
     node = this_node()
     steps = start_lives(task, node)
-    ray.get(board.post.remote([NodeStarted(task.name, steps, node)]), timeout=BOARD_TIMEOUT_S)
+    board.post.remote([NodeStarted(task.name, steps, node)])
     child = start_process(task, locks, task.cpus)
-    return _wait_for(child, work, board)
+    return _wait_for(child, work, board, stop)
 
 
-def _wait_for(child: Child, work: NodeWork, board: Any) -> NodeOutcome:
+def _wait_for(child: Child, work: NodeWork, board: Any, stop: StopPoll) -> NodeOutcome:
     """Wait for ``child`` to end, posting its runs' progress, stopping it when the experiment
     asks (SIGTERM: a trainer writes its checkpoint), and however this ends, leaving no process
     behind and its locks released."""
@@ -174,7 +210,7 @@ def _wait_for(child: Child, work: NodeWork, board: Any) -> NodeOutcome:
     try:
         while child.process.poll() is None:
             wait_any([child], POLL_S)
-            if child.process.poll() is None and _stop_asked(board):
+            if child.process.poll() is None and stop.asked():
                 stopped = True
                 break
             if time.monotonic() >= next_progress and child.task.runs:
@@ -183,17 +219,6 @@ def _wait_for(child: Child, work: NodeWork, board: Any) -> NodeOutcome:
     finally:
         stop_all([child])  # a process still running is stopped first; released
     return NodeOutcome(child.process.returncode, stopped=stopped)
-
-
-def _stop_asked(board: Any) -> bool:
-    """Whether the experiment asked its tasks to stop, or is gone (its board with it: nobody
-    awaits the task). A board slow to answer (a loaded machine) asked nothing."""
-    try:
-        return bool(ray.get(board.stop_asked.remote(), timeout=BOARD_TIMEOUT_S))
-    except ray.exceptions.GetTimeoutError:
-        return False
-    except ray.exceptions.RayActorError:
-        return True
 
 
 _check_storage = ray.remote(check_storage)
@@ -327,7 +352,11 @@ class RayLauncher:
 
     def _posted(self) -> list[LaunchEvent]:
         events: list[LaunchEvent] = []
-        for item in ray.get(self.board.take.remote(), timeout=BOARD_TIMEOUT_S):
+        try:
+            posted = ray.get(self.board.take.remote(), timeout=BOARD_TIMEOUT_S)
+        except ray.exceptions.GetTimeoutError:
+            return events  # the board is slow to answer: what it holds comes next time
+        for item in posted:
             if isinstance(item, NodeStarted):
                 attempt = self.starts.get(item.task_name, 0)
                 self.starts[item.task_name] = attempt + 1
