@@ -1,5 +1,7 @@
 """The training and evaluation processes: started with a lock and a PID file, ended with the
-experiment, waited for without polling their pipes."""
+experiment, waited for without polling their pipes; what is done around one wherever it runs
+(its runs' new lives recorded, their progress read), and what a launcher (:mod:`.launcher`)
+says of its tasks (:data:`LaunchEvent`)."""
 
 from __future__ import annotations
 
