@@ -10,7 +10,9 @@
   Rerun or PyTorch;
 - importing overtake.protocol loads neither Zenoh nor Rerun (nor msgpack nor Gymnasium, which
   load on first use), importing overtake.viz no Rerun;
-- the Gymnasium ids are registered by ``import overtake.client`` and by nothing else.
+- the Gymnasium ids are registered by ``import overtake.client`` and by nothing else;
+- Ray is imported by overtake-experiment's Ray launcher only, and an experiment without
+  ``--ray`` loads none of it.
 """
 
 from __future__ import annotations
@@ -238,6 +240,26 @@ def test_environments_are_registered_by_the_client_and_by_nothing_else():
         "import gymnasium as gym\ngym.make('overtake.client:overtake/Highway-v0').close()"
     )
     assert made["ids"] == ids
+
+
+def test_only_the_ray_launcher_imports_ray_and_an_experiment_without_it_loads_none():
+    wrong = [
+        f"{path.relative_to(ROOT)}:{line} imports {name}"
+        for folder in FOLDERS
+        for path in _sources(folder)
+        for name, line in _imports(path)
+        if name.split(".")[0] == "ray" and path != ROOT / "trainers/experiment/ray_launcher.py"
+    ]
+    assert not wrong, "\n".join(wrong)
+    planned_and_launched = (
+        "from pathlib import Path\n"
+        "from overtake.trainers.experiment import COMMAND, make_plan\n"
+        "from overtake.trainers.experiment.launcher import open_launcher\n"
+        "plan = make_plan(COMMAND.parse(['ho2018-table8']))\n"
+        "with open_launcher(plan.cluster, plan.out, 1.0) as launcher:\n"
+        "    assert launcher.running() == 0\n"
+    )
+    assert "ray" not in _loaded_after(planned_and_launched)["modules"]
 
 
 def test_every_package_folder_is_listed_in_pyproject():

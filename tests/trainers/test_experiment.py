@@ -49,6 +49,7 @@ from overtake.trainers.experiment import (
 )
 from overtake.trainers.experiment.command import hours_estimate
 from overtake.trainers.experiment.files import LOCK_NAME, lock
+from overtake.trainers.experiment.launcher import LocalLauncher
 from overtake.trainers.learner import DQNConfig
 from overtake.trainers.train import COMMAND as TRAIN
 from overtake.trainers.train import TrainConfig
@@ -554,9 +555,9 @@ def test_work_another_invocation_did_meanwhile_is_not_done_again(tiny, capsys):
     experiment = ExperimentRun(config, make_plan(config))
     pending = [experiment.train_task((run,)) for run in experiment.plan.runs]
     pending += experiment.reference_tasks()
-    running: list[Any] = []
-    experiment._start_ready(pending, running)
-    assert running == [] and pending == []
+    launcher = LocalLauncher(progress_every_s=600)
+    experiment._start_ready(pending, launcher)
+    assert launcher.running() == 0 and pending == []
     said = capsys.readouterr().err
     assert said.count("by another invocation") == len(ROWS) + 2
 

@@ -31,11 +31,16 @@ The experiment directory (default ``runs/experiments/<name>``) holds:
   <density>.json``: the cached ``overtake-eval`` results, with their logs;
 - ``table.md``, ``table.json``, ``curves.png``, ``curves.rrd``.
 
+With ``--ray`` the same tasks are Ray tasks on a cluster whose nodes all see the experiment
+directory; a task whose node is lost is retried on another and resumes its runs exactly
+(docs/cluster.md).
+
 The package, one idea a module: :mod:`.catalogue` (the experiments as data), :mod:`.plan`
 (resolved against a command line), :mod:`.files` and :mod:`.processes` (what the run reads,
-writes, locks and starts), :mod:`.run` (the scheduling), :mod:`.statistics`, :mod:`.report`
-and :mod:`.curves` (the table and curves), :mod:`.evidence` (how each run was made, and what
-is kept in git), :mod:`.command` (``main`` and the command line).
+writes, locks and starts), :mod:`.run` (the scheduling), :mod:`.launcher` (what runs the
+tasks: this machine's processes, or :mod:`.ray_launcher`'s Ray tasks), :mod:`.statistics`,
+:mod:`.report` and :mod:`.curves` (the table and curves), :mod:`.evidence` (how each run was
+made, and what is kept in git), :mod:`.command` (``main`` and the command line).
 """
 
 from .catalogue import (

@@ -15,6 +15,7 @@ from ..train_config import TrainConfig
 from .catalogue import ALGO_NAMES, EXPERIMENTS, INPUT_NAMES, Experiment, ExperimentError
 from .evidence import keep_evidence
 from .files import LOCK_NAME, PLAN_NAME, lock, read_json, say, write_atomic
+from .launcher import open_launcher
 from .plan import ExperimentConfig, Plan, learned_settings, make_plan, training_identity
 from .report import Outputs
 from .run import ExperimentRun
@@ -117,9 +118,13 @@ def main(config: ExperimentConfig) -> dict[str, Any]:
     if experiment_lock is None:
         raise ExperimentError(f"another overtake-experiment is running in {plan.out}")
     try:
-        check_directory(plan)
-        experiment_run = ExperimentRun(config, plan)
-        experiment_run.run()
+        with open_launcher(plan.cluster, plan.out, config.progress_every_s) as launcher:
+            if plan.cluster is not None:
+                # --jobs and --torch-threads default from the cluster's CPUs.
+                plan = make_plan(config, cores=launcher.cores)
+            check_directory(plan)
+            experiment_run = ExperimentRun(config, plan)
+            experiment_run.run(launcher)
         if experiment_run.failed:
             raise ExperimentError(
                 "these parts failed (run the same command again to retry them): "
@@ -136,6 +141,7 @@ def main(config: ExperimentConfig) -> dict[str, Any]:
         "out": str(plan.out),
         "trained": experiment_run.trained,
         "evaluated": experiment_run.evaluated,
+        "retried": experiment_run.retried,
         "table_md": str(table),
         "table_json": str(plan.out / "table.json"),
         "curves_png": str(plan.out / "curves.png"),

@@ -7,6 +7,8 @@ import contextlib
 import fcntl
 import json
 import os
+import secrets
+import socket
 import sys
 import time
 from pathlib import Path
@@ -17,6 +19,9 @@ import numpy as np
 from ..checkpoint import CHECKPOINT_NAME, load_checkpoint
 
 LIVES_NAME = "experiment-lives.jsonl"
+# On a cluster: the token the experiment writes into its directory for every node to find
+# there (the same storage) before it trains anything.
+STORAGE_TOKEN_NAME = ".storage-token"
 PLAN_NAME = "experiment.json"
 LOCK_NAME = ".lock"
 
@@ -60,13 +65,34 @@ def lock(path: Path) -> int | None:
     return fd
 
 
-def note_life(run_dir: Path, from_step: int) -> None:
+def lock_all(paths: tuple[Path, ...]) -> tuple[int, ...] | None:
+    """Descriptors holding the locks of every path, or None (and none held) where another
+    process holds one of them."""
+    fds: list[int] = []
+    for path in paths:
+        fd = lock(path)
+        if fd is None:
+            for held in fds:
+                os.close(held)
+            return None
+        fds.append(fd)
+    return tuple(fds)
+
+
+def note_life(run_dir: Path, from_step: int, node: str | None = None) -> None:
     """Record, before a trainer starts in ``run_dir``, where its records will begin in
-    metrics.jsonl and from which step it trains (0: from scratch). The episodes an earlier
-    life logged after that step are redone by this one, and the curves drop them."""
+    metrics.jsonl and from which step it trains (0: from scratch), and on which cluster node
+    (``node``; None: the experiment's machine, and not recorded). The episodes an earlier life
+    logged after that step are redone by this one, and the curves drop them."""
     metrics = run_dir / "metrics.jsonl"
     offset = metrics.stat().st_size if metrics.exists() else 0
-    record = {"from_step": from_step, "metrics_offset_bytes": offset, "started_utc": utc_now()}
+    record: dict[str, Any] = {
+        "from_step": from_step,
+        "metrics_offset_bytes": offset,
+        "started_utc": utc_now(),
+    }
+    if node is not None:
+        record["node"] = node
     with open(run_dir / LIVES_NAME, "a", encoding="utf-8") as handle:
         handle.write(json.dumps(record) + "\n")
 
@@ -145,6 +171,51 @@ def _add_point(points: dict[int, tuple[float, float]], k: int, reward: float, st
     nearest multiple is the point before joins it)."""
     before = points.get(k, (0.0, 0.0))
     points[k] = (before[0] + reward, before[1] + steps)
+
+
+def write_storage_token(out: Path) -> str:
+    """A new random token, written into the experiment directory ``out`` for the cluster's
+    nodes to read back (:func:`storage_problem`)."""
+    token = secrets.token_hex(8)
+    write_atomic(out / STORAGE_TOKEN_NAME, token)
+    return token
+
+
+def storage_problem(out: Path, token: str) -> str | None:
+    """Why this machine cannot work in the experiment directory ``out``, in words, or None
+    where it can: it must see the ``token`` the experiment wrote there (the same storage, not
+    a directory of its own at the same path) and may write files beside it."""
+    try:
+        seen = (out / STORAGE_TOKEN_NAME).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        return f"does not see the experiment's files there (no {STORAGE_TOKEN_NAME})"
+    except OSError as error:
+        return f"cannot read it ({error.strerror or error})"
+    if seen != token:
+        return "sees another directory at that path (not the experiment's token)"
+    probe = out / f"{STORAGE_TOKEN_NAME}-{socket.gethostname()}-{os.getpid()}"
+    try:
+        write_atomic(probe, token)
+        probe.unlink()
+    except OSError as error:
+        return f"cannot write there ({error.strerror or error})"
+    return None
+
+
+def last_train_record(path: Path) -> dict[str, Any] | None:
+    """The last ``train`` record among the last 64 kB of a metrics.jsonl."""
+    try:
+        with open(path, "rb") as handle:
+            handle.seek(max(0, path.stat().st_size - 65_536))
+            lines = handle.read().splitlines()
+    except OSError:
+        return None
+    for line in reversed(lines):
+        with contextlib.suppress(ValueError):
+            record = json.loads(line)
+            if isinstance(record, dict) and record.get("kind") == "train":
+                return record
+    return None
 
 
 def utc_now() -> str:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import sys
 import typing
 from dataclasses import dataclass, field
@@ -15,6 +14,7 @@ from typing import Annotated, Any, Literal
 import tyro
 
 from overtake.cli import Output
+from overtake.cli.options import unset
 from overtake.client.commands import UsageError
 from overtake.client.episodes.scenario import Scenario, Where
 from overtake.viz.recording import RecordingConfig
@@ -24,6 +24,7 @@ from ..evaluate import EvalConfig
 from ..learner import execution_device
 from ..train_config import TrainConfig
 from .catalogue import EXPERIMENTS, RETIRED, Density, Experiment, Row, Schedule
+from .launcher import RayCluster, available_cores, ray_cluster
 
 
 @dataclass(frozen=True)
@@ -100,6 +101,14 @@ class ExperimentConfig:
     committed: bench/results/<experiment>)"""
     list_experiments: bool = False
     """print the experiments and their rows, and do nothing else"""
+    ray: Annotated[tuple[str, ...] | None, unset("[ADDRESS]")] = None
+    """run every training batch and evaluation as a Ray task on a cluster: its head's
+    HOST:PORT, or auto (also what --ray alone means: the cluster ray.init finds, else a local
+    one); --out must be storage every node sees (docs/cluster.md); needs the cluster extra;
+    unset: processes of this machine"""
+    ray_retries: int = 3
+    """with --ray: times a task whose node (or worker) is lost is started again on another,
+    each time resuming its runs from their last checkpoints"""
 
     def output_paths(self) -> tuple[Output, ...]:
         """What this command writes (checked before any run starts)."""
@@ -140,13 +149,8 @@ class Plan:
     eval_episodes: int
     schedule: Schedule
     total_steps: int
-
-
-def available_cores() -> int:
-    """The cores this process may run on (its CPU affinity where the platform tells it)."""
-    if hasattr(os, "sched_getaffinity"):
-        return len(os.sched_getaffinity(0))
-    return os.cpu_count() or 1
+    cluster: RayCluster | None = None
+    """where the tasks run: a Ray cluster (--ray), or None: processes of this machine"""
 
 
 def reference_policies() -> tuple[str, ...]:
@@ -185,9 +189,10 @@ def _at_least_one(name: str, value: int | None) -> None:
         raise UsageError(f"--{name.replace('_', '-')} must be >= 1, got {value}")
 
 
-def make_plan(config: ExperimentConfig) -> Plan:
+def make_plan(config: ExperimentConfig, cores: int | None = None) -> Plan:
     """The experiment ``config`` asks for, checked: every bad option is refused here, before
-    anything is trained."""
+    anything is trained. ``cores``: the CPUs the tasks run on (default: this process's; on a
+    cluster, the cluster's), which --jobs and --torch-threads default from."""
     experiment = EXPERIMENTS.get(config.experiment or "")
     if experiment is None:
         retired = RETIRED.get(config.experiment or "")
@@ -223,10 +228,13 @@ def make_plan(config: ExperimentConfig) -> Plan:
             f"unknown to overtake-eval --policy (it has {', '.join(known)}): pass "
             f"--references with some of those"
         )
-    try:
-        execution_device(config.device)
-    except ValueError as error:
-        raise UsageError(f"--device: {error}") from None
+    cluster = ray_cluster(config)
+    if cluster is None:
+        # On a cluster the nodes' devices count, checked when the tasks are placed.
+        try:
+            execution_device(config.device)
+        except ValueError as error:
+            raise UsageError(f"--device: {error}") from None
     total_steps = config.total_steps or experiment.total_steps
     scaled = Schedule.for_budget(total_steps)
     if not experiment.scale_schedule:
@@ -246,14 +254,18 @@ def make_plan(config: ExperimentConfig) -> Plan:
             for f in dataclasses.fields(Schedule)
         }
     )
-    jobs = config.jobs or available_cores()
+    cores = cores or available_cores()
+    jobs = config.jobs or cores
     out = config.out or Path("runs") / "experiments" / experiment.name
+    if cluster is not None:
+        # The nodes' working directories are theirs: every path a task is given is absolute.
+        out = out.absolute()
     rows = tuple(
         dataclasses.replace(row, seeds=config.seeds or row.seeds)
         for row in experiment.rows
         if not config.rows or row.label in config.rows
     )
-    threads = config.torch_threads or max(1, available_cores() // jobs)
+    threads = config.torch_threads or max(1, cores // jobs)
     runs = tuple(
         _run_plan(config, experiment, row, seed, out, total_steps, schedule, threads)
         for row in rows
@@ -272,6 +284,7 @@ def make_plan(config: ExperimentConfig) -> Plan:
         eval_episodes=config.eval_episodes or experiment.eval_episodes,
         schedule=schedule,
         total_steps=total_steps,
+        cluster=cluster,
     )
 
 

@@ -1,5 +1,7 @@
 """The training and evaluation processes: started with a lock and a PID file, ended with the
-experiment, waited for without polling their pipes."""
+experiment, waited for without polling their pipes; what is done around one wherever it runs
+(its runs' new lives recorded, their progress read), and what a launcher (:mod:`.launcher`)
+says of its tasks (:data:`LaunchEvent`)."""
 
 from __future__ import annotations
 
@@ -13,10 +15,12 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
-from .files import utc_now
-from .plan import RunPlan
+from .files import checkpoint_step, last_train_record, note_life, utc_now
+
+if TYPE_CHECKING:
+    from .plan import RunPlan
 
 # How often the scheduler wakes without a child ending (it prints the runs' progress every
 # --progress-every-s).
@@ -61,6 +65,10 @@ class Task:
     cache: Path | None = None
     key: dict[str, Any] = field(default_factory=dict)
     """an evaluation's settings, stored with its result: a cache entry counts only for these"""
+    cpus: int = 1
+    """the cores it uses (its PyTorch threads): what a cluster reserves for it"""
+    gpus: int = 0
+    """the GPUs it uses (a training batch with --device cuda): what a cluster reserves"""
 
     @property
     def json_out(self) -> Path:
@@ -69,6 +77,8 @@ class Task:
 
 
 def start_process(task: Task, fds: tuple[int, ...], threads: int) -> Child:
+    """Start ``task``'s command, its output appended to its log, holding the locks ``fds``
+    (the child inherits them) with ``threads`` PyTorch and OpenMP threads."""
     task.log_path.parent.mkdir(parents=True, exist_ok=True)
     log = open(task.log_path, "a", encoding="utf-8")  # noqa: SIM115 (open while it runs)
     log.write(f"--- {utc_now()} overtake-experiment starts: {' '.join(task.command)}\n")
@@ -129,3 +139,57 @@ def wait_any(children: list[Child], timeout_s: float) -> None:
         if any(child.process.poll() is not None for child in children):
             return
         time.sleep(0.1)
+
+
+@dataclass(frozen=True)
+class TaskStarted:
+    """A task's process started: a task's first start, or (``attempt`` 1 and on) its start
+    again elsewhere after the node it ran on was lost."""
+
+    task: Task
+    from_steps: tuple[int, ...]
+    """each of its training runs' step when it started (0: from scratch)"""
+    node: str | None
+    """where: None on this machine, else the cluster node (its id's start and address)"""
+    attempt: int = 0
+
+
+@dataclass(frozen=True)
+class TrainingProgress:
+    """A training run's last logged step, as the task training it read it."""
+
+    run: str
+    step: int
+    steps_per_s: float
+
+
+@dataclass(frozen=True)
+class TaskEnded:
+    """A task's process ended (``exit_status``), or the task ended without it: lost more times
+    than its retries allow, or stopped (``exit_status`` None, ``failure`` says why)."""
+
+    task: Task
+    exit_status: int | None
+    failure: str | None = None
+
+
+LaunchEvent = TaskStarted | TrainingProgress | TaskEnded
+
+
+def start_lives(task: Task, node: str | None = None) -> tuple[int, ...]:
+    """Before ``task``'s process starts: each of its training runs' step (its checkpoint's),
+    each recorded as a new life of the run (:func:`.files.note_life`)."""
+    steps = tuple(checkpoint_step(run.run_dir) or 0 for run in task.runs)
+    for run, step in zip(task.runs, steps, strict=True):
+        note_life(run.run_dir, step, node)
+    return steps
+
+
+def progress_of(task: Task) -> list[TrainingProgress]:
+    """The training progress of ``task``'s runs, from their metrics.jsonl."""
+    progress = []
+    for run in task.runs:
+        last = last_train_record(run.run_dir / "metrics.jsonl")
+        if last is not None:
+            progress.append(TrainingProgress(run.name, last["step"], last["steps_per_s"]))
+    return progress

@@ -3,11 +3,9 @@ what a process of an earlier invocation holds or has finished skipped."""
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import json
 import os
-import time
 import typing
 from pathlib import Path
 from typing import Any
@@ -17,7 +15,8 @@ from overtake.client.episodes.scenario import Scenario, Where
 from ..checkpoint import CHECKPOINT_NAME
 from ..evaluate import EvalConfig
 from .catalogue import Density
-from .files import LOCK_NAME, checkpoint_step, lock, note_life, read_json, say, write_atomic
+from .files import LOCK_NAME, checkpoint_step, lock_all, read_json, say, write_atomic
+from .launcher import Launcher, where_said
 from .plan import (
     ExperimentConfig,
     Plan,
@@ -27,7 +26,7 @@ from .plan import (
     member_batches,
     train_command,
 )
-from .processes import POLL_S, Child, Task, release, start_process, stop_all, wait_any
+from .processes import POLL_S, Task, TaskEnded, TaskStarted, TrainingProgress
 
 
 class ExperimentRun:
@@ -39,6 +38,8 @@ class ExperimentRun:
         self.trained: list[str] = []
         self.evaluated: list[str] = []
         self.failed: list[str] = []
+        self.retried: list[str] = []
+        """the tasks started again after their node was lost (a line each, on a cluster)"""
 
     # The tasks --------------------------------------------------------------------------------
 
@@ -112,6 +113,7 @@ class ExperimentRun:
             pid_file=cache.with_suffix(".pid"),
             cache=cache,
             key=full_key,
+            cpus=self.plan.torch_threads,
         )
 
     def train_task(self, runs: tuple[RunPlan, ...]) -> Task:
@@ -132,6 +134,8 @@ class ExperimentRun:
             log_path=first.run_dir / "train.log",
             pid_file=first.run_dir / "train.pid",
             runs=runs,
+            cpus=self.plan.torch_threads,
+            gpus=1 if self.config.device.startswith("cuda") else 0,
         )
 
     def cached(self, task: Task) -> dict[str, Any] | None:
@@ -144,7 +148,10 @@ class ExperimentRun:
 
     # Scheduling -----------------------------------------------------------------------------
 
-    def run(self) -> None:
+    def run(self, launcher: Launcher) -> None:
+        """Train and evaluate what is missing, the tasks run by ``launcher``; returns when
+        every task has ended (a failed one is in :attr:`failed`), or raises, every task
+        stopped (Ctrl-C, SIGTERM, a directory a cluster node cannot use)."""
         plan = self.plan
         steps = {run.name: checkpoint_step(run.run_dir) for run in plan.runs}
         training = [run for run in plan.runs if (steps[run.name] or 0) < plan.total_steps]
@@ -161,38 +168,36 @@ class ExperimentRun:
         say(
             f"{plan.experiment.name} in {plan.out}: {len(plan.runs)} training runs "
             f"({done_before} already at {plan.total_steps:,} steps), {len(pending)} "
-            f"processes to run, {plan.jobs} at a time, {plan.torch_threads} PyTorch "
-            "thread(s) each"
+            f"{'Ray tasks' if plan.cluster else 'processes'} to run, {plan.jobs} at a time, "
+            f"{plan.torch_threads} PyTorch thread(s) each"
             + (
                 f", training runs {plan.members or 'spread over --jobs'} to a process"
                 if training
                 else ""
             )
         )
-        running: list[Child] = []
-        next_progress = time.monotonic() + self.config.progress_every_s
         try:
-            while pending or running:
-                self._start_ready(pending, running)
-                if not running:
-                    # Every pending task is locked by a process of an earlier invocation.
-                    wait_any([], POLL_S)
-                    continue
-                wait_any(running, POLL_S)
-                for child in [c for c in running if c.process.poll() is not None]:
-                    running.remove(child)
-                    release(child)
-                    pending += self._finished(child)
-                if time.monotonic() >= next_progress:
-                    self._report_progress(running)
-                    next_progress = time.monotonic() + self.config.progress_every_s
+            while pending or launcher.running():
+                self._start_ready(pending, launcher)
+                # Where nothing runs, every pending task is locked by a process of an earlier
+                # invocation: this waits a while before trying again.
+                for event in launcher.wait(POLL_S):
+                    if isinstance(event, TaskStarted):
+                        self._started(event)
+                    elif isinstance(event, TrainingProgress):
+                        say(
+                            f"train {event.run}: step {event.step:,} of "
+                            f"{plan.total_steps:,}, {event.steps_per_s:.0f} steps/s"
+                        )
+                    else:
+                        pending += self._finished(event)
         finally:
-            stop_all(running)
+            launcher.stop_all()
 
-    def _start_ready(self, pending: list[Task], running: list[Child]) -> None:
+    def _start_ready(self, pending: list[Task], launcher: Launcher) -> None:
         """Start pending tasks, training first (the longest), while fewer than --jobs run."""
         for task in sorted(pending, key=lambda t: t.kind != "train"):
-            if len(running) >= self.plan.jobs:
+            if launcher.running() >= self.plan.jobs:
                 return
             fds = lock_all(task.lock_paths)
             if fds is None:
@@ -201,15 +206,23 @@ class ExperimentRun:
                 for fd in fds:
                     os.close(fd)
                 continue
-            for run in task.runs:
-                step = checkpoint_step(run.run_dir)
-                note_life(run.run_dir, step or 0)
-                where = f"from step {step:,}" if step else "from scratch"
-                say(f"train {run.name}: starts {where} (log {task.log_path})")
-            if not task.runs:
-                say(f"evaluate {task.name}")
             pending.remove(task)
-            running.append(start_process(task, fds, self.plan.torch_threads))
+            launcher.start(task, fds)
+
+    def _started(self, event: TaskStarted) -> None:
+        task, where = event.task, where_said(event.node)
+        if event.attempt:
+            retries = self.plan.cluster.retries if self.plan.cluster is not None else 0
+            line = f"retry {event.attempt} of {retries}"
+            self.retried.append(f"{task.kind} {task.name}: {line}{where}")
+            again = f" again{where} ({line}: the node or worker it ran on was lost)"
+        else:
+            again = where
+        for run, step in zip(task.runs, event.from_steps, strict=True):
+            start = f"from step {step:,}" if step else "from scratch"
+            say(f"train {run.name}: starts {start}{again} (log {task.log_path})")
+        if not task.runs:
+            say(f"evaluate {task.name}{again}")
 
     def _done_meanwhile(self, task: Task, pending: list[Task]) -> bool:
         """Whether a process of an earlier invocation in the same directory (one that held
@@ -233,10 +246,14 @@ class ExperimentRun:
         pending.remove(task)
         return True
 
-    def _finished(self, child: Child) -> list[Task]:
-        """Handle a child that ended; returns the tasks it makes ready (a finished run's
+    def _finished(self, ended: TaskEnded) -> list[Task]:
+        """Handle a task that ended; returns the tasks it makes ready (a finished run's
         evaluations)."""
-        task, code = child.task, child.process.returncode
+        task, code = ended.task, ended.exit_status
+        if ended.failure is not None:
+            self.failed.append(f"{task.kind} {task.name} ({ended.failure}, log {task.log_path})")
+            say(f"{task.kind} {task.name}: FAILED: {ended.failure}, see {task.log_path}")
+            return []
         if code != 0:
             self.failed.append(f"{task.kind} {task.name} (exit status {code}, log {task.log_path})")
             say(f"{task.kind} {task.name}: FAILED with exit status {code}, see {task.log_path}")
@@ -266,43 +283,3 @@ class ExperimentRun:
         speed = result["summary"]["avg_speed_kmh"]["mean"]
         say(f"evaluate {task.name}: done ({speed:.1f} km/h)")
         return []
-
-    def _report_progress(self, running: list[Child]) -> None:
-        for child in running:
-            for run in child.task.runs:
-                last = _last_train_record(run.run_dir / "metrics.jsonl")
-                if last is not None:
-                    say(
-                        f"train {run.name}: step {last['step']:,} of {self.plan.total_steps:,}, "
-                        f"{last['steps_per_s']:.0f} steps/s"
-                    )
-
-
-def lock_all(paths: tuple[Path, ...]) -> tuple[int, ...] | None:
-    """Descriptors holding the locks of every path, or None (and none held) where another
-    process holds one of them."""
-    fds: list[int] = []
-    for path in paths:
-        fd = lock(path)
-        if fd is None:
-            for held in fds:
-                os.close(held)
-            return None
-        fds.append(fd)
-    return tuple(fds)
-
-
-def _last_train_record(path: Path) -> dict[str, Any] | None:
-    """The last ``train`` record among the last 64 kB of a metrics.jsonl."""
-    try:
-        with open(path, "rb") as handle:
-            handle.seek(max(0, path.stat().st_size - 65_536))
-            lines = handle.read().splitlines()
-    except OSError:
-        return None
-    for line in reversed(lines):
-        with contextlib.suppress(ValueError):
-            record = json.loads(line)
-            if isinstance(record, dict) and record.get("kind") == "train":
-                return record
-    return None
