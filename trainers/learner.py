@@ -29,7 +29,9 @@ import numpy as np
 import torch
 from torch import nn
 
+from .deferred_dynamo import defer_dynamo_import
 from .dqn_config import ALGOS, AlgoSpec, DQNConfig
+from .fused_adam import FusedAdam
 from .grid_network import GridNetworkKind, GridNetworkShape, GridQNetwork
 from .heads import HeadSpec, legacy_state
 from .mlp_network import MlpNetworkShape, MlpQNetwork
@@ -142,7 +144,10 @@ def build_network(shape: AnyShape, inputs: Inputs, config: DQNConfig, head: Head
 
 def build_optimizer(parameters: Any, config: DQNConfig) -> torch.optim.Optimizer:
     """Adam (Min et al.'s code), PyTorch's RMSProp (Mnih et al.'s settings by default) or
-    TensorFlow's (Ho's code, :mod:`.tf_rmsprop`)."""
+    TensorFlow's (Ho's code, :mod:`.tf_rmsprop`). Adam and TensorFlow's RMSProp are built and
+    stepped without importing TorchDynamo (:mod:`.deferred_dynamo`); PyTorch's RMSProp imports
+    it on its first step."""
+    defer_dynamo_import()
     if config.optimizer == "tf-rmsprop":
         return TFRMSprop(
             parameters,
@@ -161,7 +166,7 @@ def build_optimizer(parameters: Any, config: DQNConfig) -> torch.optim.Optimizer
         )
     # The fused kernel (one pass over every parameter, on the CPU too) where torch has it for
     # the device: the single-tensor loop was a third of an update of an MLP (issue 66).
-    return torch.optim.Adam(parameters, lr=config.learning_rate, eps=config.adam_eps, fused=True)
+    return FusedAdam(parameters, lr=config.learning_rate, eps=config.adam_eps)
 
 
 def execution_device(device: str, precision: Precision = "fp32") -> torch.device:

@@ -1,0 +1,131 @@
+"""Optimisers without TorchDynamo (trainers/fused_adam.py, trainers/deferred_dynamo.py).
+
+FusedAdam steps as ``torch.optim.Adam(fused=True)`` does, bit for bit, and their state dicts
+are interchangeable; building and stepping the learners' optimisers, and a whole short
+training run with no recording, import neither TorchDynamo nor Rerun (what a process's start-up
+no longer pays); once TorchDynamo is imported, the optimisers' methods are PyTorch's
+dynamo-disabled versions again."""
+
+from __future__ import annotations
+
+import copy
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import torch
+from torch import nn
+
+from overtake.trainers.fused_adam import FusedAdam
+
+
+def _network(seed: int) -> nn.Module:
+    torch.manual_seed(seed)
+    return nn.Sequential(nn.Linear(6, 16), nn.ReLU(), nn.Linear(16, 3))
+
+
+def _steps(network: nn.Module, optimiser: torch.optim.Optimizer, count: int, seed: int) -> None:
+    generator = torch.Generator().manual_seed(seed)
+    for _ in range(count):
+        x = torch.randn(32, 6, generator=generator)
+        loss = network(x).pow(2).mean()
+        optimiser.zero_grad(set_to_none=True)
+        loss.backward()
+        optimiser.step()
+
+
+def test_fused_adam_steps_as_torchs_fused_adam_bit_for_bit() -> None:
+    for lr, eps in ((1e-3, 1e-8), (5e-4, 0.01)):
+        ours_net, torch_net = _network(3), _network(3)
+        ours = FusedAdam(ours_net.parameters(), lr=lr, eps=eps)
+        theirs = torch.optim.Adam(torch_net.parameters(), lr=lr, eps=eps, fused=True)
+        _steps(ours_net, ours, 7, seed=1)
+        _steps(torch_net, theirs, 7, seed=1)
+        for a, b in zip(ours_net.parameters(), torch_net.parameters(), strict=True):
+            assert torch.equal(a, b)
+        for a, b in zip(ours.state.values(), theirs.state.values(), strict=True):
+            assert a.keys() == b.keys() == {"step", "exp_avg", "exp_avg_sq"}
+            assert all(torch.equal(a[k], b[k]) and a[k].dtype == b[k].dtype for k in a)
+
+
+def test_fused_adams_state_dict_is_torchs_both_ways() -> None:
+    """A checkpoint of either loads into the other, which then goes on as the original."""
+    start_net = _network(5)
+    first = FusedAdam(start_net.parameters(), lr=1e-3)
+    _steps(start_net, first, 3, seed=2)
+    saved_net, saved_opt = start_net.state_dict(), first.state_dict()
+
+    ours_net, torch_net = _network(0), _network(0)
+    ours_net.load_state_dict(saved_net)
+    torch_net.load_state_dict(saved_net)
+    ours = FusedAdam(ours_net.parameters(), lr=1e-3)
+    theirs = torch.optim.Adam(torch_net.parameters(), lr=1e-3, fused=True)
+    # Copies, as a checkpoint read back gives: loading keeps the given tensors themselves.
+    ours.load_state_dict(copy.deepcopy(saved_opt))
+    theirs.load_state_dict(copy.deepcopy(saved_opt))
+    assert theirs.state_dict()["param_groups"] == saved_opt["param_groups"]
+    _steps(ours_net, ours, 4, seed=3)
+    _steps(torch_net, theirs, 4, seed=3)
+    for a, b in zip(ours_net.parameters(), torch_net.parameters(), strict=True):
+        assert torch.equal(a, b)
+    assert torch.equal(ours.state_dict()["state"][0]["step"], torch.tensor(7.0))
+
+
+# Run in a fresh interpreter: what a training process imports from its start.
+_PROBE = """
+import json, sys, torch
+from overtake.trainers.dqn_config import DQNConfig
+from overtake.trainers.learner import build_optimizer
+net = torch.nn.Linear(4, 2)
+for kind in ("adam", "tf-rmsprop"):
+    opt = build_optimizer(net.parameters(), DQNConfig(optimizer=kind))
+    net(torch.ones(3, 4)).sum().backward()
+    opt.step()
+    opt.zero_grad()
+    opt.load_state_dict(opt.state_dict())
+before = "torch._dynamo" in sys.modules
+import torch._dynamo
+opt = build_optimizer(net.parameters(), DQNConfig(optimizer="adam"))
+opt.zero_grad()
+cached = getattr(torch.optim.Optimizer.zero_grad.__wrapped__, "__dynamo_disable")
+print(json.dumps({"dynamo_before": before, "disabled_after": cached._torchdynamo_disable}))
+"""
+
+
+def test_optimisers_are_built_and_stepped_without_torchdynamo_until_it_is_imported() -> None:
+    result = subprocess.run(
+        [sys.executable, "-c", _PROBE], capture_output=True, text=True, timeout=120, check=True
+    )
+    assert json.loads(result.stdout.strip().splitlines()[-1]) == {
+        "dynamo_before": False,
+        "disabled_after": True,
+    }
+
+
+_RUN = """
+import json, runpy, sys
+sys.argv = ["overtake-train", "--preset", "ho2018", "--total-steps", "60", "--learning-starts",
+            "20", "--batch-size", "8", "--run-dir", sys.argv[1], "--sink", "off", "--no-progress"]
+try:
+    runpy.run_module("overtake.trainers.train", run_name="__main__")
+except SystemExit as exit:
+    assert not exit.code, exit.code
+print(json.dumps({name: name in sys.modules for name in ("torch._dynamo", "rerun")}))
+"""
+
+
+def test_a_training_run_without_a_recording_imports_neither_torchdynamo_nor_rerun(
+    tmp_path: Path,
+) -> None:
+    result = subprocess.run(
+        [sys.executable, "-c", _RUN, str(tmp_path / "run")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=True,
+    )
+    assert json.loads(result.stdout.strip().splitlines()[-1]) == {
+        "torch._dynamo": False,
+        "rerun": False,
+    }
