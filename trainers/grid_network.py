@@ -121,11 +121,18 @@ class GridQNetwork(nn.Module):
             self.fuse = nn.Sequential(nn.Linear(features + 4, 100), nn.ReLU())
             last = 100
         self.head = head.build(last, shape.actions)
+        # PyTorch's CPU max pooling is 6x faster on channels-last tensors (a 2x2 pool of a batch
+        # of (32, 16, 36, 3): 38 against 252 us), which makes a lone update of the proposed
+        # network about 20% faster; the baseline, which does not pool, is faster unchanged.
+        self.channels_last = kind == "proposed"
         if init_std is not None:
             truncated_normal_(self, init_std)
 
     def forward(self, grid: torch.Tensor, actions: torch.Tensor | None = None) -> torch.Tensor:
-        hidden = self.conv(grid.float())
+        x = grid.float()
+        hidden = self.conv(
+            x.contiguous(memory_format=torch.channels_last) if self.channels_last else x
+        )
         if self.uses_actions:
             assert actions is not None, "the proposed network reads the action stack"
             hidden = self.fuse(torch.cat([hidden, self.action_net(actions.float())], dim=1))

@@ -64,6 +64,10 @@ def _stream(channels: int, height: int, width: int) -> tuple[nn.Sequential, int]
     return nn.Sequential(*layers), 256
 
 
+def _channels_last(images: torch.Tensor) -> torch.Tensor:
+    return images.contiguous(memory_format=torch.channels_last)
+
+
 class TwoStreamQNetwork(nn.Module):
     """The head's output from stacked camera frames (B, S, H, W[, C]) and LIDAR maps
     (B, S, H, W), uint8."""
@@ -87,10 +91,12 @@ class TwoStreamQNetwork(nn.Module):
         if camera.dim() == 5:  # (B, S, H, W, C) -> (B, S * C, H, W)
             batch, stack, height, width, channels = camera.shape
             camera = camera.permute(0, 1, 4, 2, 3).reshape(batch, stack * channels, height, width)
+        # The convolutions and poolings in the channels-last layout, where PyTorch's CPU max
+        # pooling is several times faster: a lone update 250 -> 180 ms (issue 66).
         features = torch.cat(
             [
-                self.camera(camera.float() / 255.0),
-                self.lidar_map(lidar_map.float() / 255.0),
+                self.camera(_channels_last(camera.float() / 255.0)),
+                self.lidar_map(_channels_last(lidar_map.float() / 255.0)),
             ],
             dim=1,
         )
