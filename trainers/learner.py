@@ -155,6 +155,7 @@ def build_optimizer(parameters: Any, config: DQNConfig) -> torch.optim.Optimizer
             decay=config.rmsprop_alpha,
             epsilon=config.rmsprop_eps,
             centered=config.rmsprop_centered,
+            one_buffer=True,
         )
     if config.optimizer == "rmsprop":
         return torch.optim.RMSprop(

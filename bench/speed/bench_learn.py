@@ -18,7 +18,9 @@ Each run trains ``--steps`` environment steps, learning from ``--learning-starts
 updates are most of the work, as in the papers' runs. Each process's CPU time (user + system,
 from ``wait4``) and the arm's wall time are measured; agent-steps per CPU-second is the
 steps of every run over the CPU time of every process (start-up included: members pay it once
-per batch). Pause other work first: ratios on a busy machine mislead.
+per batch). With ``--startup`` (the default) each arm's processes also run for one step, and
+the steady state's figures subtract that start-up. Pause other work first: ratios on a busy
+machine mislead.
 
     .venv/bin/python -m bench.speed.bench_learn [--tables ho2018 highway-fast min2018-notebook]
         [--steps 2000] [--jobs 2] [--baseline a6f9247] [--json PATH]
@@ -69,6 +71,10 @@ class LearnBenchConfig:
     highway-env's, two seeds each (with the highway-fast table)"""
     sb3_steps: int = 1_000
     """steps of each SB3 run"""
+    startup: bool = True
+    """also run each arm's processes for one step (their start-up: Python, PyTorch, the
+    compiled simulator, the run's files), and give the steady state's figures, start-up
+    subtracted (what a paper's runs of millions of steps see)"""
     json: Path | None = None
 
 
@@ -104,7 +110,8 @@ def run_args(table: str, steps: int, learning_starts: int) -> list[list[str]]:
     if table == "min2018-notebook":
         notebook = ["--preset", "min2018", "--recipe", "notebook", "--num-envs", "4"]
         quarter = [*common]
-        quarter[1], quarter[3] = str(max(steps // 4, 200)), str(max(learning_starts // 4, 100))
+        quarter[1] = str(max(steps // 4, min(200, steps)))
+        quarter[3] = str(max(learning_starts // 4, min(100, learning_starts)))
         quarter[10] = quarter[1]
         return [[*notebook, "--seed", str(seed), *quarter] for seed in (0, 1)]
     raise SystemExit(f"unknown table {table!r}: expected some of {', '.join(TABLES)}")
@@ -184,7 +191,19 @@ def measure_arm(
         commands = train_commands(arm, runs, config.jobs, out)
         timing = run_processes(commands, config.jobs, env, out)
     steps = sum(int(run[run.index("--total-steps") + 1]) for run in runs)
-    return figures(len(runs), len(commands), steps, timing)
+    arm_figures = figures(len(runs), len(commands), steps, timing)
+    if config.startup:
+        # The same processes for one step each: what they spend before training.
+        with tempfile.TemporaryDirectory(prefix=f"bench-learn-{arm}-startup-") as tmp:
+            short = run_args(table, 1, 1)
+            startup = run_processes(
+                train_commands(arm, short, config.jobs, Path(tmp)), config.jobs, env, Path(tmp)
+            )
+        short_steps = sum(int(run[run.index("--total-steps") + 1]) for run in short)
+        steady_cpu = timing["cpu_s"] - startup["cpu_s"]
+        arm_figures["startup_cpu_s"] = startup["cpu_s"]
+        arm_figures["steady_steps_per_cpu_s"] = (steps - short_steps) / steady_cpu
+    return arm_figures
 
 
 def figures(runs: int, processes: int, steps: int, timing: dict[str, float]) -> dict[str, Any]:
@@ -197,6 +216,12 @@ def figures(runs: int, processes: int, steps: int, timing: dict[str, float]) -> 
         "steps_per_cpu_s": steps / timing["cpu_s"],
         "steps_per_wall_s": steps / timing["wall_s"],
     }
+
+
+def _ratio(arms: dict[str, Any], arm: str, key: str) -> float | None:
+    if key not in arms[arm] or key not in arms["lone-baseline"]:
+        return None
+    return arms[arm][key] / arms["lone-baseline"][key]
 
 
 SB3_SCRIPT = """
@@ -248,10 +273,17 @@ def main(config: LearnBenchConfig) -> dict[str, Any]:
             for arm in config.arms:
                 figures = measure_arm(arm, table, config, baseline_path)
                 results[table][arm] = figures
+                steady = (
+                    f"; start-up {figures['startup_cpu_s']:.1f} CPU-s, steady state "
+                    f"{figures['steady_steps_per_cpu_s']:.1f} per CPU-second"
+                    if "startup_cpu_s" in figures
+                    else ""
+                )
                 print(
                     f"{table:17s} {arm:14s} {figures['runs']:2d} runs in "
                     f"{figures['processes']:2d} processes: {figures['steps_per_cpu_s']:7.1f} "
-                    f"steps per CPU-second, {figures['steps_per_wall_s']:7.1f} per wall-second",
+                    f"steps per CPU-second, {figures['steps_per_wall_s']:7.1f} per wall-second"
+                    f"{steady}",
                     flush=True,
                 )
             if table == "highway-fast" and config.sb3:
@@ -270,8 +302,9 @@ def main(config: LearnBenchConfig) -> dict[str, Any]:
     ratios = {
         table: {
             f"{arm}/lone-baseline": {
-                "cpu": arms[arm]["steps_per_cpu_s"] / arms["lone-baseline"]["steps_per_cpu_s"],
-                "wall": arms[arm]["steps_per_wall_s"] / arms["lone-baseline"]["steps_per_wall_s"],
+                "cpu": _ratio(arms, arm, "steps_per_cpu_s"),
+                "wall": _ratio(arms, arm, "steps_per_wall_s"),
+                "steady_cpu": _ratio(arms, arm, "steady_steps_per_cpu_s"),
             }
             for arm in arms
             if arm != "lone-baseline" and "lone-baseline" in arms
@@ -280,8 +313,15 @@ def main(config: LearnBenchConfig) -> dict[str, Any]:
     }
     for table, table_ratios in ratios.items():
         for name, ratio in table_ratios.items():
-            print(f"{table:17s} {name:28s} {ratio['cpu']:.2f}x per CPU-second, "
-                  f"{ratio['wall']:.2f}x per wall-second")  # fmt: skip
+            steady = (
+                f", {ratio['steady_cpu']:.2f}x in the steady state"
+                if ratio["steady_cpu"] is not None
+                else ""
+            )
+            print(
+                f"{table:17s} {name:28s} {ratio['cpu']:.2f}x per CPU-second, "
+                f"{ratio['wall']:.2f}x per wall-second{steady}"
+            )
     report = {
         "config": {**config.__dict__, "json": None if config.json is None else str(config.json)},
         "root": str(ROOT),

@@ -89,3 +89,55 @@ def test_ho2018_trains_with_it_every_decision_as_his_code_does():
         TFRMSprop([torch.zeros(1, requires_grad=True)], lr=0.01, decay=1.0)
     with pytest.raises(ValueError, match="optimizer must be one of"):
         DQNConfig(optimizer="tf-adam")  # type: ignore[arg-type]
+
+
+def _network_steps(one_buffer: bool, centered: bool, state=None, steps: int = 5):
+    torch.manual_seed(0)
+    network = torch.nn.Sequential(
+        torch.nn.Conv2d(2, 4, 3, padding=1), torch.nn.ReLU(), torch.nn.Flatten(),
+        torch.nn.Linear(4 * 6 * 3, 5),
+    )  # fmt: skip
+    optimizer = TFRMSprop(network.parameters(), lr=1e-3, centered=centered, one_buffer=one_buffer)
+    if state is not None:
+        network.load_state_dict(state[0])
+        optimizer.load_state_dict(copy.deepcopy(state[1]))
+    generator = torch.Generator().manual_seed(1)
+    for _ in range(steps):
+        optimizer.zero_grad(set_to_none=True)
+        network(torch.randn(8, 2, 6, 3, generator=generator)).pow(2).mean().backward()
+        optimizer.step()
+    return network, optimizer
+
+
+@pytest.mark.parametrize("centered", [False, True])
+def test_one_buffer_steps_bit_for_bit_as_a_buffer_a_parameter(centered):
+    """The parameters moved into one buffer (build_optimizer's choice): the same weights and
+    slots after five steps, and its state dict loads into the other layout and back, each
+    going on as the other."""
+    flat_net, flat = _network_steps(True, centered)
+    each_net, each = _network_steps(False, centered)
+    for a, b in zip(flat_net.parameters(), each_net.parameters(), strict=True):
+        assert torch.equal(a, b)
+    for a, b in zip(flat.state.values(), each.state.values(), strict=True):
+        assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    # The gradients stayed the buffer's views: autograd added into them, nothing copied in.
+    buffers = flat._buffers[0]
+    assert all(p.grad is g for p, g in zip(flat_net.parameters(), buffers.grad_views, strict=True))
+    saved = (each_net.state_dict(), each.state_dict())
+    flat_after, _ = _network_steps(True, centered, state=saved, steps=3)
+    each_after, _ = _network_steps(
+        False, centered, state=(flat_net.state_dict(), flat.state_dict()), steps=3
+    )
+    for a, b in zip(flat_after.parameters(), each_after.parameters(), strict=True):
+        assert torch.equal(a, b)
+
+
+def test_one_buffer_starts_afresh_from_a_never_stepped_state_dict():
+    """A state dict of an optimiser that never stepped starts the slots afresh."""
+    net, optimizer = _network_steps(True, False)
+    fresh = TFRMSprop(torch.nn.Linear(2, 2).parameters(), lr=1e-3).state_dict()
+    fresh["param_groups"][0]["params"] = list(range(len(list(net.parameters()))))
+    optimizer.load_state_dict(fresh)
+    assert torch.equal(
+        optimizer._buffers[0].slots["ms"], torch.ones_like(optimizer._buffers[0].slots["ms"])
+    )
