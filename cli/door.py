@@ -52,6 +52,16 @@ class CommandError(Exception):
     The door prints it as ``<prog>: <message>``."""
 
 
+class UsageError(CommandError, ValueError):
+    """The user asked for something that cannot be done (an option out of range, options that
+    exclude each other, a file that is not what the option names); the message says what was
+    expected and what came.
+
+    Library functions and the commands' ``main(config)`` raise it rather than exit, because
+    they are called from Python too (tests, benchmarks, notebooks) and exiting there would end
+    the caller; only a command exits, through the door, which prints ``<prog>: <message>``."""
+
+
 @dataclass(frozen=True)
 class Output:
     """A file (or, with ``folder``, a folder) a command will write, or the Rerun viewer it

@@ -21,7 +21,7 @@ from typing import Any, get_args
 
 import torch
 
-from overtake.client.commands import UsageError
+from overtake.cli import UsageError
 
 from .grid_network import GridNetworkShape
 from .learner import AnyShape, DQNConfig, DQNLearner, LearnerState, Precision

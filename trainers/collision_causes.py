@@ -51,8 +51,7 @@ from typing import Any
 import numpy as np
 from tyro.conf import Positional
 
-from overtake.cli import Command, Output
-from overtake.client.commands import UsageError
+from overtake.cli import Command, Output, UsageError
 from overtake.client.episodes.recording import touching
 from overtake.client.episodes.records import (
     EpisodeRecord,

@@ -20,9 +20,8 @@ from typing import Annotated, Any, Literal
 import numpy as np
 import torch
 
-from overtake.cli import Command, CommandError, Output
+from overtake.cli import Command, CommandError, Output, UsageError
 from overtake.cli.options import unset
-from overtake.client.commands import UsageError
 from overtake.client.episodes.records import PolicySource
 from overtake.client.episodes.runner import (
     baseline_policy,

@@ -31,8 +31,7 @@ import torch
 import tyro
 from torch import nn
 
-from overtake.cli import Command, Output
-from overtake.client.commands import UsageError
+from overtake.cli import Command, Output, UsageError
 from overtake.client.episodes.scenario import Where
 from overtake.client.policies.frames import FrameStacker
 from overtake.client.policies.onnx_policy import METADATA_KEY, POLICY_FORMAT

@@ -13,8 +13,7 @@ from typing import Any
 
 import torch
 
-from overtake.cli import Command
-from overtake.client.commands import UsageError
+from overtake.cli import Command, UsageError
 
 from .allocator import keep_freed_memory
 from .train import COMMAND as TRAIN

@@ -15,7 +15,6 @@ run's: :meth:`MemberOptimizer.member_state_dict`, :meth:`MemberOptimizer.load_me
 from __future__ import annotations
 
 import math
-import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -44,7 +43,7 @@ def shared_setting(configs: Sequence[Any], name: str) -> Any:
     return values[0]
 
 
-def _inner_order(tensor: torch.Tensor) -> list[int]:
+def _memory_order(tensor: torch.Tensor) -> list[int]:
     """The member dimension, then the others in their memory's order (largest stride first):
     a member's dense weights are laid out transposed (:class:`.member_network.MemberLinear`)."""
     strides = tensor.stride()
@@ -52,22 +51,22 @@ def _inner_order(tensor: torch.Tensor) -> list[int]:
 
 
 def _views(flat: torch.Tensor, params: Sequence[torch.Tensor]) -> list[torch.Tensor]:
-    """Views of the (S, total) buffer ``flat``, one shaped and laid out as each parameter:
-    its columns one after another, each member's row of a parameter in its memory order."""
+    """Views of the buffer ``flat``, one shaped and laid out as each parameter, one block of
+    it after another (each block the parameter's S members, each member's in its memory
+    order): every view is dense, so a convolution's weight reshapes without a copy."""
     views, start = [], 0
     for p in params:
-        order = _inner_order(p)
-        size = p[0].numel()
-        region = flat[:, start : start + size].unflatten(1, [p.shape[d] for d in order[1:]])
-        views.append(region.permute([order.index(d) for d in range(p.dim())]))
+        order = _memory_order(p)
+        size = p.numel()
+        block = flat[start : start + size].view([p.shape[d] for d in order])
+        views.append(block.permute([order.index(d) for d in range(p.dim())]))
         start += size
     return views
 
 
-# PyTorch warns once where a gradient it adds into is not laid out as it would lay out a fresh
-# one (a parameter that is a view of a wider buffer, as here); the sum is right, and measured
-# faster than the fresh gradients it would make.
-warnings.filterwarnings("ignore", message="grad and param do not obey the gradient layout")
+def _member_rows(views: Sequence[torch.Tensor], member: int) -> list[torch.Tensor]:
+    """Member ``member``'s part of each view, viewed in its memory order (contiguous)."""
+    return [v[member].permute([d - 1 for d in _memory_order(v)[1:]]) for v in views]
 
 
 class MemberOptimizer:
@@ -75,13 +74,14 @@ class MemberOptimizer:
     settings of ``configs[k]`` (learning rate, epsilons, RMSProp's decay; the optimiser and
     whether RMSProp is centred must be the same for all).
 
-    The parameters are moved into one (S, total) buffer (each becomes a view of its columns,
-    in the layout it had), and so are their gradients and each moment: a step is then a few
-    operations on whole buffers, where one operation a parameter (and for Adam one kernel call
-    a member and parameter) spent more in calls than in arithmetic (a 5-member highway-fast
-    update: clipping and Adam 1.03 of 4.45 ms). The gradients stay in their buffer (zeroed,
-    not dropped, between updates), so every parameter steps every update, as a lone
-    network's do where every parameter has a gradient (all the networks here)."""
+    The parameters are moved into one buffer (each becomes a dense view of its block, in the
+    layout it had), and so are their gradients and each moment: RMSProp's step is then a few
+    operations on whole buffers (each member's settings as a buffer of the same layout),
+    clipping a few more, and Adam one fused call a member over lists of views made once, where
+    one operation a parameter (or a view built a step) spent more in calls than in arithmetic
+    (a 5-member highway-fast update: clipping and Adam 1.03 of 4.45 ms). The gradients stay in
+    their buffer (zeroed, not dropped, between updates), so every parameter steps every update,
+    as a lone network's do where every parameter has a gradient (all the networks here)."""
 
     def __init__(self, params: Sequence[nn.Parameter], configs: Sequence[DQNConfig]) -> None:
         self.params = list(params)
@@ -89,10 +89,10 @@ class MemberOptimizer:
         self.kind: str = shared_setting(configs, "optimizer")
         self.centered: bool = self.kind != "adam" and shared_setting(configs, "rmsprop_centered")
         first = self.params[0]
-        total = sum(p[0].numel() for p in self.params)
+        total = sum(p.numel() for p in self.params)
 
         def buffer(fill: float) -> torch.Tensor:
-            return torch.full((self.members, total), fill, dtype=first.dtype, device=first.device)
+            return torch.full((total,), fill, dtype=first.dtype, device=first.device)
 
         with torch.no_grad():
             self.flat = buffer(0.0)
@@ -103,24 +103,45 @@ class MemberOptimizer:
             self.grads = _views(self.flat_grad, self.params)
         for p, grad in zip(self.params, self.grads, strict=True):
             p.grad = grad
+        # Each parameter's block of the gradients as (S, its size), for clipping.
+        self._grad_blocks, start = [], 0
+        for p in self.params:
+            self._grad_blocks.append(
+                self.flat_grad[start : start + p.numel()].view(self.members, -1)
+            )
+            start += p.numel()
+        # Which member each element of the buffers belongs to.
+        member_of = torch.empty(total, dtype=torch.long, device=first.device)
+        for view in _views(member_of, self.params):
+            view.copy_(torch.arange(self.members).reshape(-1, *[1] * (view.dim() - 1)))
 
-        def column(values: Sequence[float]) -> torch.Tensor:
-            return torch.tensor(values, dtype=torch.float32, device=first.device).reshape(-1, 1)
+        def per_element(values: Sequence[float]) -> torch.Tensor:
+            return torch.tensor(values, dtype=first.dtype, device=first.device)[member_of]
 
         # As floats too: the fused kernel takes them as the lone optimiser does (not float32).
         self.lr_values = [c.learning_rate for c in configs]
         self.eps_values = [c.adam_eps if self.kind == "adam" else c.rmsprop_eps for c in configs]
-        self.lr = column(self.lr_values)
-        self.eps = column(self.eps_values)
-        self.alpha = column([c.rmsprop_alpha for c in configs])
+        self.lr = per_element(self.lr_values)
+        self.eps = per_element(self.eps_values)
+        self.alpha = per_element([c.rmsprop_alpha for c in configs])
         self.max_norm = [c.grad_clip_norm for c in configs]
         self.steps = torch.zeros(self.members, dtype=torch.float64)
         names = (*STATE_NAMES[self.kind], *([CENTERED_NAMES[self.kind]] if self.centered else []))
-        # Each moment as one (S, total) buffer, and as views shaped as the parameters.
+        # Each moment as one buffer, and as views shaped as the parameters.
         self.flat_state = {name: buffer(1.0 if name == "ms" else 0.0) for name in names}
         self.state: dict[str, list[torch.Tensor]] = {
             name: _views(flat, self.params) for name, flat in self.flat_state.items()
         }
+        # Adam's kernel's lists, one a member, made once: the views do not change.
+        self._adam_rows = [
+            (
+                _member_rows(self.params, k),
+                _member_rows(self.grads, k),
+                *(_member_rows(self.state[name], k) for name in STATE_NAMES["adam"]),
+            )
+            for k in range(self.members)
+            if self.kind == "adam"
+        ]
 
     def zero_grad(self) -> None:
         self.flat_grad.zero_()
@@ -140,14 +161,18 @@ class MemberOptimizer:
         self._gathered()
         if not any(norm > 0.0 for norm in self.max_norm):
             return
-        # clip_grad_norm_'s rule for a lone network (the norm of all its gradients together),
-        # a member's row at a time.
-        norms = torch.linalg.vector_norm(self.flat_grad, dim=1)
+        # clip_grad_norm_'s rule for a lone network (each gradient's norm, then their norm),
+        # on each parameter's block as (S, its size).
+        norms = torch.linalg.vector_norm(
+            torch.stack([torch.linalg.vector_norm(block, dim=1) for block in self._grad_blocks]),
+            dim=0,
+        )
         limit = torch.tensor(
             [n if n > 0.0 else math.inf for n in self.max_norm], device=norms.device
         )
-        coef = torch.clamp(limit / (norms + 1e-6), max=1.0)
-        self.flat_grad.mul_(coef.reshape(-1, 1))
+        coef = torch.clamp(limit / (norms + 1e-6), max=1.0).reshape(-1, 1)
+        for block in self._grad_blocks:
+            block.mul_(coef)
 
     @torch.no_grad()
     def step(self) -> None:
@@ -162,17 +187,17 @@ class MemberOptimizer:
 
     def _adam(self) -> None:
         """PyTorch's fused Adam kernel (the lone learner's: :func:`.learner.build_optimizer`),
-        once a member on its row of the buffers."""
+        once a member on its rows of every parameter."""
         beta1, beta2 = ADAM_BETAS
-        exp_avg, exp_avg_sq = self.flat_state["exp_avg"], self.flat_state["exp_avg_sq"]
-        for k in range(self.members):
+        for k, (params, grads, exp_avgs, exp_avg_sqs) in enumerate(self._adam_rows):
+            step = torch.tensor(float(self.steps[k]), dtype=torch.float32)
             torch._fused_adam_(
-                [self.flat[k]],
-                [self.flat_grad[k]],
-                [exp_avg[k]],
-                [exp_avg_sq[k]],
+                params,
+                grads,
+                exp_avgs,
+                exp_avg_sqs,
                 [],
-                [torch.tensor(float(self.steps[k]), dtype=torch.float32)],
+                [step] * len(params),
                 amsgrad=False,
                 lr=self.lr_values[k],
                 beta1=beta1,

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from overtake.client.commands import UsageError
+from overtake.cli import UsageError
 from overtake.protocol import ACTION_COUNT, errors
 
 from .checkpoint import Checkpoint

@@ -11,7 +11,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from overtake.client.commands import UsageError
+from overtake.cli import UsageError
 from overtake.client.policies.frames import FrameShapes, describe_space
 
 __all__ = ["describe_space", "frame_shapes"]

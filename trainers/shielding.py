@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from overtake.client.commands import UsageError
+from overtake.cli import UsageError
 from overtake.client.episodes.records import EventCounts
 from overtake.client.policies.shield import Shield, overridden
 from overtake.protocol.messages import BehaviourSpec

@@ -30,8 +30,7 @@ from typing import Any
 
 import torch
 
-from overtake.cli import Command
-from overtake.client.commands import UsageError
+from overtake.cli import Command, UsageError
 from overtake.client.wire.stopping import interrupt_waits
 
 from .allocator import keep_freed_memory

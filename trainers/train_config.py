@@ -13,9 +13,8 @@ from typing import Annotated, Any, Literal
 
 import torch
 
-from overtake.cli import Output
+from overtake.cli import Output, UsageError
 from overtake.cli.options import unset
-from overtake.client.commands import UsageError
 from overtake.client.episodes.scenario import DEFAULT_PRESET, Scenario, Where
 from overtake.protocol.vocabulary import WATCH_SETTING
 from overtake.viz.recording import RecordingConfig

@@ -86,6 +86,9 @@ class TwoStreamQNetwork(nn.Module):
             nn.Linear(camera_out + map_out, 256), nn.ReLU(), nn.Linear(256, 128), nn.ReLU()
         )
         self.head = head.build(128, shape.actions)
+        # Whether forward() hands the streams channels-last images (members' stacked streams
+        # lay out their own input: overtake.trainers.member_network.stacked_network).
+        self.channels_last = True
 
     def forward(self, camera: torch.Tensor, lidar_map: torch.Tensor) -> torch.Tensor:
         if camera.dim() == 5:  # (B, S, H, W, C) -> (B, S * C, H, W)
@@ -93,11 +96,8 @@ class TwoStreamQNetwork(nn.Module):
             camera = camera.permute(0, 1, 4, 2, 3).reshape(batch, stack * channels, height, width)
         # The convolutions and poolings in the channels-last layout, where PyTorch's CPU max
         # pooling is several times faster: a lone update 250 -> 180 ms (issue 66).
-        features = torch.cat(
-            [
-                self.camera(_channels_last(camera.float() / 255.0)),
-                self.lidar_map(_channels_last(lidar_map.float() / 255.0)),
-            ],
-            dim=1,
-        )
+        camera, lidar_map = camera.float() / 255.0, lidar_map.float() / 255.0
+        if self.channels_last:
+            camera, lidar_map = _channels_last(camera), _channels_last(lidar_map)
+        features = torch.cat([self.camera(camera), self.lidar_map(lidar_map)], dim=1)
         return self.head(self.fuse(features))

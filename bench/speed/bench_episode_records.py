@@ -18,7 +18,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from overtake.client.commands import UsageError
+from overtake.cli import UsageError
 from overtake.client.episodes.drive import DriveConfig
 from overtake.client.episodes.drive import main as drive
 from overtake.client.episodes.scenario import Scenario

@@ -27,7 +27,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from overtake.client.commands import UsageError
+from overtake.cli import UsageError
 from overtake.client.episodes.runner import VectorStep
 from overtake.client.policies.shield import SHIELD_OVERRIDES
 from overtake.protocol.vocabulary import (

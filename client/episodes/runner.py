@@ -18,7 +18,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from overtake.client.commands import UsageError
+from overtake.cli import UsageError
 from overtake.client.policies.drivers import (
     GridRuleDriver,
     GridRuleDriverConfig,

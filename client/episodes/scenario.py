@@ -21,8 +21,8 @@ from typing import Annotated, Any
 
 import gymnasium as gym
 
+from overtake.cli import UsageError
 from overtake.cli.options import unset
-from overtake.client.commands import UsageError
 from overtake.client.wire.remote_config import RemoteConfig
 from overtake.client.wire.steps_channel import Transport
 from overtake.envs import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments

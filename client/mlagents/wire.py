@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from overtake.client.commands import UsageError
+from overtake.cli import UsageError
 from overtake.client.mlagents.environment import mlagents_observation_spec, mlagents_observations
 from overtake.client.mlagents.wrappers import SUPPORTED_MLAGENTS_ENVS, MLAgentsMissing
 from overtake.protocol.messages import Scalar, Steps

@@ -19,7 +19,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from overtake.client.commands import UsageError
+from overtake.cli import UsageError
 from overtake.client.policies.frames import FrameShapes, FrameStacker, describe_space
 from overtake.client.policies.shield import Shield, ShieldedActing
 from overtake.protocol.messages import BehaviourSpec

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from overtake.client.commands import UsageError
+from overtake.cli import UsageError
 from overtake.protocol.messages import BehaviourSpec
 from overtake.protocol.vocabulary import ACTION_COUNT, CRUISE_UP, LANE_LEFT, LANE_RIGHT
 

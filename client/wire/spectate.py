@@ -14,8 +14,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from overtake.cli import Command, Output
-from overtake.client.commands import UsageError
+from overtake.cli import Command, Output, UsageError
 from overtake.client.wire.remote_config import RemoteConfig
 from overtake.client.wire.world_feed import Spectator
 from overtake.ipc.transport import DEFAULT_ENDPOINT, SecurityConfig

@@ -15,8 +15,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from overtake.cli import Output, check_outputs
-from overtake.client.commands import UsageError
+from overtake.cli import Output, UsageError, check_outputs
 from overtake.client.wire.spectate import SpectateConfig
 from overtake.client.wire.spectate import main as spectate_main
 from overtake.ipc.endpoints import check_endpoints

@@ -11,8 +11,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from overtake.cli import UsageError
 from overtake.client import HIGHWAY_ENV_ID, RandomDriver, RuleDriver, RuleDriverConfig
-from overtake.client.commands import UsageError
 from overtake.client.episodes.drive import COMMAND as drive_command
 from overtake.client.episodes.drive import DriveConfig, main
 from overtake.client.episodes.scenario import Scenario, parse_overrides

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from overtake.client.commands import UsageError
+from overtake.cli import UsageError
 from overtake.client.episodes.scenario import Scenario, Where
 from overtake.client.policies.shield import Shield, overridden
 from overtake.protocol.vocabulary import CRUISE_DOWN, CRUISE_UP, KEEP, LANE_LEFT, LANE_RIGHT

@@ -145,7 +145,7 @@ def test_training_on_the_preset_uses_table_i_and_its_checkpoint_evaluates(tmp_pa
 
 
 def test_the_fig6_experiment_keeps_table_i_and_sums_the_reward_per_3000_steps(tmp_path):
-    from overtake.client.commands import UsageError
+    from overtake.cli import UsageError
     from overtake.trainers.experiment import ExperimentConfig, make_plan, window_rewards
 
     plan = make_plan(ExperimentConfig(experiment="fayjie2018-fig6", out=tmp_path))

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import overtake.client  # noqa: F401  (registers the environments)
-from overtake.client.commands import UsageError
+from overtake.cli import UsageError
 from overtake.client.episodes.runner import baseline_policy, run_episodes
 from overtake.client.episodes.scenario import Scenario, Where
 from overtake.client.policies.drivers import GridRuleDriver

@@ -9,7 +9,7 @@ from dataclasses import replace
 
 import pytest
 
-from overtake.client.commands import UsageError
+from overtake.cli import UsageError
 from overtake.client.episodes.scenario import Scenario, parse_overrides
 from overtake.server.sim import make_config
 from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 
-from overtake.client.commands import UsageError
+from overtake.cli import UsageError
 from overtake.trainers.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
 from overtake.trainers.evaluate import COMMAND as evaluate_command
 from overtake.trainers.learner import ALGOS, DQNConfig, DQNLearner

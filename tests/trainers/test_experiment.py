@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 import tyro
 
-from overtake.client.commands import UsageError
+from overtake.cli import UsageError
 from overtake.client.episodes.scenario import Scenario, Where
 from overtake.ipc.transport import SecurityConfig
 from overtake.protocol.vocabulary import WATCH_SETTING

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from overtake.client.commands import UsageError
+from overtake.cli import UsageError
 from overtake.trainers.experiment import COMMAND, ExperimentRun, make_plan
 from overtake.trainers.experiment import launcher as launcher_module
 from overtake.trainers.experiment.files import (

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from overtake.client.commands import UsageError
+from overtake.cli import UsageError
 from overtake.client.episodes.drive import DriveConfig
 from overtake.client.episodes.drive import main as drive
 from overtake.client.episodes.runner import RealTime, run_episodes

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import torch
 
-from overtake.client.commands import UsageError
+from overtake.cli import UsageError
 from overtake.client.episodes.scenario import Scenario, Where
 from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.dqn_config import ALGOS, DQNConfig

@@ -8,8 +8,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from overtake.cli import Command
-from overtake.client.commands import UsageError
+from overtake.cli import Command, UsageError
 
 from ..train_config import TrainConfig
 from .catalogue import ALGO_NAMES, EXPERIMENTS, INPUT_NAMES, Experiment, ExperimentError

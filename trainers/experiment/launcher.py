@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
-from overtake.client.commands import UsageError
+from overtake.cli import UsageError
 
 from .processes import (
     Child,

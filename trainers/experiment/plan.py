@@ -13,9 +13,8 @@ from typing import Annotated, Any, Literal
 
 import tyro
 
-from overtake.cli import Output
+from overtake.cli import Output, UsageError
 from overtake.cli.options import unset
-from overtake.client.commands import UsageError
 from overtake.client.episodes.scenario import Scenario, Where
 from overtake.viz.recording import RecordingConfig
 

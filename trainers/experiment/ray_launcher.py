@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 import ray
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
-from overtake.client.commands import UsageError
+from overtake.cli import UsageError
 
 from .files import checkpoint_step, lock_all, say, storage_problem, write_storage_token
 from .processes import (
