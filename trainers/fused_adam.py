@@ -19,15 +19,34 @@ from typing import Any
 import torch
 
 from .deferred_dynamo import defer_dynamo_import
+from .flat_buffers import FlatGroup
 
 
 class FusedAdam(torch.optim.Adam):
     """``torch.optim.Adam(params, lr=lr, eps=eps, fused=True)``, the other settings
     PyTorch's defaults (betas 0.9 and 0.999, no weight decay, no AMSGrad)."""
 
-    def __init__(self, params: Iterable[torch.Tensor], lr: float, eps: float = 1e-8) -> None:
+    def __init__(
+        self, params: Iterable[torch.Tensor], lr: float, eps: float = 1e-8, one_buffer: bool = False
+    ) -> None:
+        """``one_buffer``: the parameters, their gradients and both moments each in one flat
+        buffer (:mod:`.flat_buffers`; the parameters become views of it, in place), so a step
+        is one kernel call over one tensor, every parameter's step count one shared tensor,
+        and :attr:`flat_grad` lets a caller clip every gradient at once. The same numbers as
+        a parameter at a time (tests/trainers/test_fused_adam.py)."""
         defer_dynamo_import()
         super().__init__(params, lr=lr, eps=eps, fused=True)
+        self._flat = (
+            FlatGroup(self.param_groups[0]["params"], {"exp_avg": 0.0, "exp_avg_sq": 0.0})
+            if one_buffer and len(self.param_groups) == 1
+            else None
+        )
+        self._step_count = torch.zeros((), dtype=torch.float32)
+
+    @property
+    def flat_grad(self) -> torch.Tensor | None:
+        """Every gradient in one buffer (``one_buffer``), else None."""
+        return None if self._flat is None else self._flat.grads
 
     def _direct(self) -> bool:
         """Whether this step can go straight to the kernel: every parameter on the CPU, no
@@ -46,7 +65,12 @@ class FusedAdam(torch.optim.Adam):
     @torch.no_grad()
     def step(self, closure: Callable[[], float] | None = None) -> Any:  # type: ignore[override]
         if closure is not None or not self._direct():
+            if self._flat is not None:
+                self._flat.gather_gradients()
             return super().step(closure)
+        if self._flat is not None:
+            self._step_flat(self.param_groups[0], self._flat)
+            return None
         for group in self.param_groups:
             params, grads, exp_avgs, exp_avg_sqs, steps = [], [], [], [], []
             for p in group["params"]:
@@ -84,3 +108,64 @@ class FusedAdam(torch.optim.Adam):
                 found_inf=None,
             )
         return None
+
+    def _step_flat(self, group: dict[str, Any], flat: FlatGroup) -> None:
+        flat.gather_gradients()
+        if flat.start_state(self.state):
+            # One step count for all, as every parameter's would be (each steps every time).
+            self._step_count = torch.zeros((), dtype=torch.float32, device=flat.params.device)
+            for p in flat.members:
+                self.state[p]["step"] = self._step_count
+        beta1, beta2 = group["betas"]
+        torch._foreach_add_([self._step_count], 1)
+        torch._fused_adam_(
+            [flat.params],
+            [flat.grads],
+            [flat.slots["exp_avg"]],
+            [flat.slots["exp_avg_sq"]],
+            [],
+            [self._step_count],
+            amsgrad=False,
+            lr=group["lr"],
+            beta1=beta1,
+            beta2=beta2,
+            weight_decay=group["weight_decay"],
+            eps=group["eps"],
+            maximize=False,
+            grad_scale=None,
+            found_inf=None,
+        )
+
+    def zero_grad(self, set_to_none: bool = True) -> None:
+        """As ``torch.optim``'s; with ``one_buffer`` the gradients are zeroed in place
+        whatever ``set_to_none`` says (they are views of the gradients' buffer)."""
+        if self._flat is None:
+            super().zero_grad(set_to_none)
+        else:
+            self._flat.zero_gradients()
+
+    def state_dict(self) -> dict[str, Any]:
+        """As ``torch.optim``'s; with ``one_buffer`` each parameter gets a step count of its
+        own, as torch's Adam keeps them (one shared tensor, read back by ``torch.load`` as
+        one, would be counted once a parameter by torch's Adam)."""
+        saved = super().state_dict()
+        if self._flat is not None:
+            # New dicts: torch's state_dict hands out the live per-parameter dicts themselves.
+            saved["state"] = {
+                index: {**entry, **({"step": entry["step"].clone()} if "step" in entry else {})}
+                for index, entry in saved["state"].items()
+            }
+        return saved
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        """As ``torch.optim``'s; with ``one_buffer`` the moments read go into the buffers and
+        the step counts into the one shared count."""
+        super().load_state_dict(state_dict)
+        flat = self._flat
+        if flat is None:
+            return
+        steps = [self.state[p]["step"] for p in flat.members if "step" in self.state.get(p, {})]
+        if flat.take_state(self.state):
+            self._step_count = torch.as_tensor(steps[0], dtype=torch.float32).clone()
+            for p in flat.members:
+                self.state[p]["step"] = self._step_count

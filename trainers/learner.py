@@ -167,7 +167,22 @@ def build_optimizer(parameters: Any, config: DQNConfig) -> torch.optim.Optimizer
         )
     # The fused kernel (one pass over every parameter, on the CPU too) where torch has it for
     # the device: the single-tensor loop was a third of an update of an MLP (issue 66).
-    return FusedAdam(parameters, lr=config.learning_rate, eps=config.adam_eps)
+    return FusedAdam(parameters, lr=config.learning_rate, eps=config.adam_eps, one_buffer=True)
+
+
+@torch.no_grad()
+def clip_gradients(optimizer: Any, network: nn.Module, max_norm: float) -> None:
+    """``nn.utils.clip_grad_norm_``'s rule (every gradient scaled down so that their norm is
+    at most ``max_norm``), on the optimiser's one gradient buffer where it keeps one
+    (:class:`.fused_adam.FusedAdam`'s ``one_buffer``): two operations instead of a few a
+    parameter; the same up to float rounding."""
+    flat = getattr(optimizer, "flat_grad", None)
+    if flat is None:
+        nn.utils.clip_grad_norm_(network.parameters(), max_norm)
+        return
+    optimizer._flat.gather_gradients()
+    norm = torch.linalg.vector_norm(flat)
+    flat.mul_(torch.clamp(max_norm / (norm + 1e-6), max=1.0))
 
 
 def execution_device(device: str, precision: Precision = "fp32") -> torch.device:
@@ -370,7 +385,7 @@ class DQNLearner:
         self.scaler.scale(loss).backward()
         if self.config.grad_clip_norm > 0.0:
             self.scaler.unscale_(self.optimizer)  # clip the true gradients, not scaled ones
-            nn.utils.clip_grad_norm_(self.online.parameters(), self.config.grad_clip_norm)
+            clip_gradients(self.optimizer, self.online, self.config.grad_clip_norm)
         self.scaler.step(self.optimizer)  # skips the step where fp16 gradients overflowed
         self.scaler.update()
         self.updates += 1

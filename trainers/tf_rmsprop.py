@@ -24,6 +24,13 @@ from typing import Any
 import torch
 
 from .deferred_dynamo import defer_dynamo_import
+from .flat_buffers import FlatGroup
+
+
+def _slots(centered: bool) -> dict[str, float]:
+    """TensorFlow's slots and where they start: the mean square at one (``ms``), the
+    moment (``mom``) and, centred, the mean gradient (``mg``) at zero."""
+    return {"ms": 1.0, "mom": 0.0, **({"mg": 0.0} if centered else {})}
 
 
 class TFRMSprop(torch.optim.Optimizer):
@@ -52,8 +59,8 @@ class TFRMSprop(torch.optim.Optimizer):
         defaults = dict(lr=lr, decay=decay, momentum=momentum, epsilon=epsilon, centered=centered)
         defer_dynamo_import()
         super().__init__(params, defaults)
-        self._buffers: list[_GroupBuffers | None] = [
-            _GroupBuffers(group["params"], centered) if one_buffer else None
+        self._buffers: list[FlatGroup | None] = [
+            FlatGroup(group["params"], _slots(centered)) if one_buffer else None
             for group in self.param_groups
         ]
 
@@ -128,74 +135,3 @@ class TFRMSprop(torch.optim.Optimizer):
         for buffers in self._buffers:
             if buffers is not None:
                 buffers.take_state(self.state)
-
-
-class _GroupBuffers:
-    """A parameter group's parameters, gradients and TensorFlow's slots (``ms``, ``mom``,
-    ``mg``) each in one flat buffer; the parameters, gradients and the state's slots views of
-    them, shaped as the parameters."""
-
-    def __init__(self, params: list[torch.Tensor], centered: bool) -> None:
-        self.members = list(params)
-        total = sum(p.numel() for p in self.members)
-        first = self.members[0]
-
-        def buffer(fill: float) -> torch.Tensor:
-            return torch.full((total,), fill, dtype=first.dtype, device=first.device)
-
-        self.params, self.grads = buffer(0.0), buffer(0.0)
-        self.slots = {
-            "ms": buffer(1.0),
-            "mom": buffer(0.0),
-            **({"mg": buffer(0.0)} if centered else {}),
-        }
-        with torch.no_grad():
-            for p, view in zip(self.members, self._views(self.params), strict=True):
-                view.copy_(p)
-                p.data = view
-        self.grad_views = self._views(self.grads)
-        self.zero_gradients()
-
-    def _views(self, flat: torch.Tensor) -> list[torch.Tensor]:
-        views, start = [], 0
-        for p in self.members:
-            views.append(flat[start : start + p.numel()].view(p.shape))
-            start += p.numel()
-        return views
-
-    def zero_gradients(self) -> None:
-        self.grads.zero_()
-        for p, grad in zip(self.members, self.grad_views, strict=True):
-            if p.grad is not grad:
-                p.grad = grad
-
-    @torch.no_grad()
-    def gather_gradients(self) -> None:
-        """Every gradient in the buffer: autograd adds into an existing gradient in place;
-        one set from outside (or dropped) is copied in (as zeros)."""
-        for p, grad in zip(self.members, self.grad_views, strict=True):
-            if p.grad is not grad:
-                grad.copy_(p.grad if p.grad is not None else torch.zeros_like(grad))
-                p.grad = grad
-
-    def start_state(self, state: dict[Any, dict[str, torch.Tensor]]) -> None:
-        """The state's slots as views of the buffers (from the first step, as the lazy
-        per-parameter state starts)."""
-        if all(state[p] for p in self.members):
-            return
-        for name, flat in self.slots.items():
-            for p, view in zip(self.members, self._views(flat), strict=True):
-                state[p][name] = view
-
-    @torch.no_grad()
-    def take_state(self, state: dict[Any, dict[str, torch.Tensor]]) -> None:
-        """Slots loaded into ``state`` copied into the buffers, the state then their views;
-        none loaded (an optimiser that never stepped): the buffers start afresh."""
-        if not any(state.get(p) for p in self.members):
-            for name, flat in self.slots.items():
-                flat.fill_(1.0 if name == "ms" else 0.0)
-            return
-        for name, flat in self.slots.items():
-            for p, view in zip(self.members, self._views(flat), strict=True):
-                view.copy_(state[p][name])
-                state[p][name] = view

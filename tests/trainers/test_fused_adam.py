@@ -87,8 +87,8 @@ for kind in ("adam", "tf-rmsprop"):
 before = "torch._dynamo" in sys.modules
 import torch._dynamo
 opt = build_optimizer(net.parameters(), DQNConfig(optimizer="adam"))
-opt.zero_grad()
-cached = getattr(torch.optim.Optimizer.zero_grad.__wrapped__, "__dynamo_disable")
+opt.state_dict()
+cached = getattr(torch.optim.Optimizer.state_dict.__wrapped__, "__dynamo_disable")
 print(json.dumps({"dynamo_before": before, "disabled_after": cached._torchdynamo_disable}))
 """
 
@@ -129,3 +129,51 @@ def test_a_training_run_without_a_recording_imports_neither_torchdynamo_nor_reru
         "torch._dynamo": False,
         "rerun": False,
     }
+
+
+def test_one_buffer_steps_as_a_parameter_at_a_time_and_its_state_dict_is_torchs():
+    """The parameters, gradients and moments in flat buffers (build_optimizer's choice): the
+    same weights and moments as FusedAdam a parameter at a time after several steps, its
+    gradients kept as the buffer's views, and its state dict loads into torch's Adam (and a
+    torch Adam's into it), each going on as the other."""
+    flat_net, each_net = _network(3), _network(3)
+    flat = FusedAdam(flat_net.parameters(), lr=1e-3, eps=1e-4, one_buffer=True)
+    each = FusedAdam(each_net.parameters(), lr=1e-3, eps=1e-4)
+    _steps(flat_net, flat, 6, seed=4)
+    _steps(each_net, each, 6, seed=4)
+    for a, b in zip(flat_net.parameters(), each_net.parameters(), strict=True):
+        assert torch.equal(a, b)
+    for a, b in zip(flat.state.values(), each.state.values(), strict=True):
+        assert all(torch.equal(a[k], b[k]) for k in ("step", "exp_avg", "exp_avg_sq"))
+    # The gradients stayed the buffer's views: autograd added into them, nothing copied in.
+    assert all(
+        p.grad is g for p, g in zip(flat_net.parameters(), flat._flat.grad_views, strict=True)
+    )
+    # Both ways through a checkpoint's state dict.
+    torch_net = _network(0)
+    torch_net.load_state_dict(flat_net.state_dict())
+    theirs = torch.optim.Adam(torch_net.parameters(), lr=1e-3, eps=1e-4, fused=True)
+    theirs.load_state_dict(copy.deepcopy(flat.state_dict()))
+    back_net = _network(0)
+    back_net.load_state_dict(each_net.state_dict())
+    back = FusedAdam(back_net.parameters(), lr=1e-3, eps=1e-4, one_buffer=True)
+    back.load_state_dict(copy.deepcopy(each.state_dict()))
+    _steps(torch_net, theirs, 3, seed=5)
+    _steps(back_net, back, 3, seed=5)
+    _steps(each_net, each, 3, seed=5)
+    for a, b, c in zip(
+        torch_net.parameters(), back_net.parameters(), each_net.parameters(), strict=True
+    ):
+        assert torch.equal(a, c) and torch.equal(b, c)
+    assert float(back.state_dict()["state"][0]["step"]) == 9.0
+
+
+def test_one_buffers_state_dict_leaves_its_own_step_count_alone():
+    """A state dict taken mid-run (a checkpoint) does not detach the optimiser's own count:
+    the next state dict says every step taken since."""
+    network = _network(1)
+    optimiser = FusedAdam(network.parameters(), lr=1e-3, one_buffer=True)
+    _steps(network, optimiser, 2, seed=6)
+    assert float(optimiser.state_dict()["state"][0]["step"]) == 2.0
+    _steps(network, optimiser, 3, seed=7)
+    assert {float(s["step"]) for s in optimiser.state_dict()["state"].values()} == {5.0}
