@@ -64,13 +64,18 @@ class FusedAdam(torch.optim.Adam):
 
     @torch.no_grad()
     def step(self, closure: Callable[[], float] | None = None) -> Any:  # type: ignore[override]
-        if closure is not None or not self._direct():
+        loss = None
+        if closure is not None:
+            with torch.enable_grad():
+                loss = closure()
+        if not self._direct():
             if self._flat is not None:
                 self._flat.gather_gradients()
-            return super().step(closure)
+            super().step()
+            return loss
         if self._flat is not None:
             self._step_flat(self.param_groups[0], self._flat)
-            return None
+            return loss
         for group in self.param_groups:
             params, grads, exp_avgs, exp_avg_sqs, steps = [], [], [], [], []
             for p in group["params"]:
@@ -107,7 +112,7 @@ class FusedAdam(torch.optim.Adam):
                 grad_scale=None,
                 found_inf=None,
             )
-        return None
+        return loss
 
     def _step_flat(self, group: dict[str, Any], flat: FlatGroup) -> None:
         flat.gather_gradients()
@@ -165,7 +170,9 @@ class FusedAdam(torch.optim.Adam):
         if flat is None:
             return
         steps = [self.state[p]["step"] for p in flat.members if "step" in self.state.get(p, {})]
-        if flat.take_state(self.state):
+        # The shared count is the direct step's (on the CPU); PyTorch's own step (elsewhere)
+        # counts each parameter's, so there each keeps the one it read.
+        if flat.take_state(self.state) and flat.params.device.type == "cpu":
             self._step_count = torch.as_tensor(steps[0], dtype=torch.float32).clone()
             for p in flat.members:
                 self.state[p]["step"] = self._step_count

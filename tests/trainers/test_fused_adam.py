@@ -177,3 +177,25 @@ def test_one_buffers_state_dict_leaves_its_own_step_count_alone():
     assert float(optimiser.state_dict()["state"][0]["step"]) == 2.0
     _steps(network, optimiser, 3, seed=7)
     assert {float(s["step"]) for s in optimiser.state_dict()["state"].values()} == {5.0}
+
+
+def test_a_closure_is_evaluated_and_the_step_is_the_same():
+    """step(closure) returns the closure's loss and steps as a step without one."""
+    with_net, without_net = _network(2), _network(2)
+    with_opt = FusedAdam(with_net.parameters(), lr=1e-3, one_buffer=True)
+    without_opt = FusedAdam(without_net.parameters(), lr=1e-3, one_buffer=True)
+    x = torch.randn(16, 6, generator=torch.Generator().manual_seed(8))
+
+    def closure() -> torch.Tensor:
+        with_opt.zero_grad()
+        loss = with_net(x).pow(2).mean()
+        loss.backward()
+        return loss
+
+    loss = with_opt.step(closure)
+    without_opt.zero_grad()
+    without_net(x).pow(2).mean().backward()
+    without_opt.step()
+    assert loss is not None and float(loss.detach()) > 0.0
+    for a, b in zip(with_net.parameters(), without_net.parameters(), strict=True):
+        assert torch.equal(a, b)
