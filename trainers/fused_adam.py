@@ -93,25 +93,7 @@ class FusedAdam(torch.optim.Adam):
                 steps.append(state["step"])
             if not params:
                 continue
-            beta1, beta2 = group["betas"]
-            torch._foreach_add_(steps, 1)
-            torch._fused_adam_(
-                params,
-                grads,
-                exp_avgs,
-                exp_avg_sqs,
-                [],
-                steps,
-                amsgrad=False,
-                lr=group["lr"],
-                beta1=beta1,
-                beta2=beta2,
-                weight_decay=group["weight_decay"],
-                eps=group["eps"],
-                maximize=False,
-                grad_scale=None,
-                found_inf=None,
-            )
+            _adam_kernel(group, params, grads, exp_avgs, exp_avg_sqs, steps)
         return loss
 
     def _step_flat(self, group: dict[str, Any], flat: FlatGroup) -> None:
@@ -121,24 +103,13 @@ class FusedAdam(torch.optim.Adam):
             self._step_count = torch.zeros((), dtype=torch.float32, device=flat.params.device)
             for p in flat.members:
                 self.state[p]["step"] = self._step_count
-        beta1, beta2 = group["betas"]
-        torch._foreach_add_([self._step_count], 1)
-        torch._fused_adam_(
+        _adam_kernel(
+            group,
             [flat.params],
             [flat.grads],
             [flat.slots["exp_avg"]],
             [flat.slots["exp_avg_sq"]],
-            [],
             [self._step_count],
-            amsgrad=False,
-            lr=group["lr"],
-            beta1=beta1,
-            beta2=beta2,
-            weight_decay=group["weight_decay"],
-            eps=group["eps"],
-            maximize=False,
-            grad_scale=None,
-            found_inf=None,
         )
 
     def zero_grad(self, set_to_none: bool = True) -> None:
@@ -176,3 +147,34 @@ class FusedAdam(torch.optim.Adam):
             self._step_count = torch.as_tensor(steps[0], dtype=torch.float32).clone()
             for p in flat.members:
                 self.state[p]["step"] = self._step_count
+
+
+def _adam_kernel(
+    group: dict[str, Any],
+    params: list[torch.Tensor],
+    grads: list[torch.Tensor],
+    exp_avgs: list[torch.Tensor],
+    exp_avg_sqs: list[torch.Tensor],
+    steps: list[torch.Tensor],
+) -> None:
+    """One Adam step as ``torch.optim.adam._fused_adam`` takes it: the step counts up by one,
+    then the fused kernel with the group's settings."""
+    beta1, beta2 = group["betas"]
+    torch._foreach_add_(steps, 1)
+    torch._fused_adam_(
+        params,
+        grads,
+        exp_avgs,
+        exp_avg_sqs,
+        [],
+        steps,
+        amsgrad=False,
+        lr=group["lr"],
+        beta1=beta1,
+        beta2=beta2,
+        weight_decay=group["weight_decay"],
+        eps=group["eps"],
+        maximize=False,
+        grad_scale=None,
+        found_inf=None,
+    )
