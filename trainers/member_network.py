@@ -240,7 +240,8 @@ def stacked_network(lones: Sequence[nn.Module]) -> nn.Module:
     if hasattr(stacked, "channels_last"):
         # A lone network's own channels-last copy of its input: its member convolution stacks
         # lay their grouped input out themselves (MemberConvStack).
-        stacked.channels_last = False
+        # setattr: mypy reads a Module's attributes as tensors or modules.
+        setattr(stacked, "channels_last", False)  # noqa: B010
     lone_names = {name for name, _ in lones[0].named_parameters()}
     member_names = {name for name, _ in stacked.named_parameters()}
     if lone_names != member_names:

@@ -85,7 +85,7 @@ class TFRMSprop(torch.optim.Optimizer):
                 params = [p for p in group["params"] if p.grad is not None]
                 if not params:
                     continue
-                grads = [p.grad for p in params]
+                grads = [p.grad for p in params if p.grad is not None]
                 for param in params:
                     state = self.state[param]
                     if not state:
