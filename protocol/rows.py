@@ -101,7 +101,7 @@ class Rows:
         values["observations"] = self.observations
         return values
 
-    def taken(self, index: np.ndarray | None) -> dict[str, Any]:
+    def taken(self, index: np.ndarray | slice | None) -> dict[str, Any]:
         """The fields of the rows ``index`` picks (None: every row, the arrays themselves), by
         name, as :class:`Rows` (or a :class:`~.messages.Steps`) takes them; the ``agents`` a
         copy, the others views or copies as numpy's indexing gives them."""

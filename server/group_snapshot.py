@@ -63,6 +63,34 @@ class GroupSnapshot:
         # Spectators are shown the restored road, observed afresh.
         rounds.last_observations = None
 
+    def arenas(self, first: int, count: int) -> GroupSnapshot:
+        """Arenas ``first`` .. ``first + count - 1`` alone: what the rounds of ``count`` arenas
+        of the same configuration would keep of them (the slot arrays are (A, N), arenas first,
+        as every simulator array is)."""
+        return GroupSnapshot(
+            sim=self.sim.arenas(first, count),
+            slots={name: value[first : first + count].copy() for name, value in self.slots.items()},
+        )
+
+    def with_arenas(self, first: int, part: GroupSnapshot) -> GroupSnapshot:
+        """This snapshot with arenas ``first`` .. taken from ``part`` (:meth:`arenas` of a
+        snapshot like this one, or a smaller engine's whole snapshot); checked first."""
+        sim = self.sim.with_arenas(first, part.sim)
+        count = len(part.sim.rng_states)
+        slots = {}
+        for name, value in self.slots.items():
+            have = part.slots.get(name)
+            if have is None or have.shape != (count, *value.shape[1:]) or have.dtype != value.dtype:
+                found = "nothing" if have is None else f"{have.dtype}{have.shape}"
+                raise SnapshotMismatch(
+                    f"the part's {name} is {found}, {count} arena(s) of this group need "
+                    f"{value.dtype}{(count, *value.shape[1:])}"
+                )
+            merged = value.copy()
+            merged[first : first + count] = have
+            slots[name] = merged
+        return GroupSnapshot(sim=sim, slots=slots)
+
     def to_bytes(self) -> bytes:
         """The snapshot as one ``.npz`` archive (arrays, and the generators' states and the
         configuration as JSON text): what a remote trainer keeps (GroupState) and hands back."""

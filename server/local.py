@@ -108,6 +108,20 @@ class LocalEngine:
     def restore(self, snapshot: Mapping[str, Any]) -> None:
         GroupSnapshot.from_plain(snapshot).restore_into(self.rounds)
 
+    def snapshot_arenas(self, first: int, count: int) -> dict[str, Any]:
+        """Arenas ``first`` .. ``first + count - 1`` alone, as an engine of ``count`` arenas of
+        this configuration would :meth:`snapshot` them (:class:`~overtake.envs.shares`: a
+        member's share of one engine keeps what it would keep alone)."""
+        if self._rows is not None:
+            raise RuntimeError("a snapshot between rounds only: receive the round sent for")
+        return GroupSnapshot.of(self.rounds).arenas(first, count).to_plain()
+
+    def restore_arenas(self, first: int, snapshot: Mapping[str, Any]) -> None:
+        """Arenas ``first`` .. back as ``snapshot`` (:meth:`snapshot_arenas`, or a smaller
+        engine's :meth:`snapshot`) found them; the others as they are (checked first)."""
+        whole = GroupSnapshot.of(self.rounds)
+        whole.with_arenas(first, GroupSnapshot.from_plain(snapshot)).restore_into(self.rounds)
+
     def close(self) -> None:
         """Nothing to release (the road lives in this process)."""
 

@@ -338,7 +338,8 @@ class DQNLearner:
     def q_values(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         """(N, actions) float32 Q-values of stacked observations (see
         :class:`.replay_memory.FrameStacker`)."""
-        self.online.eval()
+        if self.online.training:  # train()/eval() walk every module: only when it changes
+            self.online.eval()
         with self._autocast():
             q = self.head.q(self.online(*self._tensors(obs)))
         return q.float().cpu().numpy()
@@ -355,7 +356,8 @@ class DQNLearner:
         """One gradient step on a replay batch; returns the loss and the mean Q of the taken
         actions, and with prioritized replay (the batch's ``weight``) each sample's TD error's
         magnitude (``td_error``), its new priority."""
-        self.online.train()
+        if not self.online.training:
+            self.online.train()
         dev = self.device
         gamma: float | torch.Tensor = self.config.gamma
         if np.any(batch.steps != 1):  # n-step returns: gamma ** steps each

@@ -119,7 +119,8 @@ class MembersLearner:
     @torch.no_grad()
     def q_values(self, obs: Sequence[dict[str, np.ndarray]]) -> list[np.ndarray]:
         """Each member's (N, actions) Q-values of its stacked observations."""
-        self.online.eval()
+        if self.online.training:  # train()/eval() walk every module: only when it changes
+            self.online.eval()
         with self._autocast():
             q = self.head.q(self.online(*self._tensors(obs)))
         return np.split(q.float().cpu().numpy(), self.members)
@@ -184,7 +185,8 @@ class MembersLearner:
         self.updates[members] -= 1
 
     def _update(self, batches: Sequence[ReplayBatch]) -> list[dict[str, Any]]:
-        self.online.train()
+        if not self.online.training:
+            self.online.train()
         dev, size = self.device, self.batch_size
         for batch in batches:
             if len(batch.action) != size:

@@ -25,6 +25,7 @@ from __future__ import annotations
 import json
 import logging
 import threading
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +33,8 @@ import torch
 
 from overtake.cli import Command, UsageError
 from overtake.client.wire.stopping import interrupt_waits
+from overtake.envs.faces import VectorFace
+from overtake.envs.shares import share_face
 
 from .allocator import keep_freed_memory
 from .checkpoint import (
@@ -149,15 +152,7 @@ def train_members(
         return []
     envs: list[Any] = []
     try:
-        for config in configs:
-            envs.append(
-                config.where.open(
-                    config.preset,
-                    config.overrides(),
-                    config.num_envs,
-                    observations=config.observations,
-                )
-            )
+        envs.extend(open_members_envs(configs))
         members = MembersRun(
             configs,
             envs,
@@ -176,6 +171,46 @@ def train_members(
     finally:
         for env in envs:
             env.close()
+
+
+def open_members_envs(configs: Sequence[TrainConfig]) -> list[VectorFace]:
+    """Each member's environment. In process, members of one simulator configuration (preset,
+    overrides, sensors) get shares of one engine (:func:`~overtake.envs.shares.share_face`):
+    every member's arenas step in one simulator call a round, each exactly as in an engine of
+    its own (a checkpoint moves between the two). Elsewhere each member opens its own (with
+    --connect, the server puts every member's arenas in its group)."""
+    first = configs[0]
+    alike = all(
+        c.where.in_process
+        and c.preset == first.preset
+        and c.overrides() == first.overrides()
+        and c.observations == first.observations
+        for c in configs
+    )
+    if alike and len(configs) > 1:
+        whole = first.where.open(
+            first.preset,
+            first.overrides(),
+            sum(c.num_envs for c in configs),
+            observations=first.observations,
+        )
+        return list(share_face(whole, [c.num_envs for c in configs]))
+    opened: list[VectorFace] = []
+    try:
+        for config in configs:
+            opened.append(
+                config.where.open(
+                    config.preset,
+                    config.overrides(),
+                    config.num_envs,
+                    observations=config.observations,
+                )
+            )
+    except BaseException:
+        for env in opened:
+            env.close()
+        raise
+    return opened
 
 
 def prepare_run_dir(config: TrainConfig, run_dir: Path) -> Checkpoint | None:

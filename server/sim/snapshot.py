@@ -121,6 +121,62 @@ class SimSnapshot:
             rng.bit_generator.state = dict(saved)
         needs_reset[...] = self.needs_reset
 
+    def arenas(self, first: int, count: int) -> SimSnapshot:
+        """Arenas ``first`` .. ``first + count - 1`` alone: the snapshot a simulator of
+        ``count`` arenas of the same configuration would take of them (each arena's state and
+        generator are its own: no array mixes arenas)."""
+        self._check_range(first, count)
+        rows = slice(first, first + count)
+        return SimSnapshot(
+            config_json=self.config_json,
+            arrays={name: value[rows].copy() for name, value in self.arrays.items()},
+            rng_states=self.rng_states[rows],
+            needs_reset=self.needs_reset[rows].copy(),
+        )
+
+    def with_arenas(self, first: int, part: SimSnapshot) -> SimSnapshot:
+        """This snapshot with arenas ``first`` .. taken from ``part`` (a snapshot of fewer
+        arenas of the same configuration, as :meth:`arenas` gives one); checked first."""
+        count = len(part.rng_states)
+        self._check_range(first, count)
+        differing = (
+            snapshot_differences(json.loads(part.config_json), json.loads(self.config_json))
+            if part.config_json != self.config_json
+            else []
+        )
+        if differing:
+            said = differing[0].replace("the record", "the part").replace(" now", " here")
+            raise SnapshotMismatch(f"the part is of another simulator configuration: {said}")
+        arrays = {}
+        for name, value in self.arrays.items():
+            have = part.arrays.get(name)
+            if have is None and name in ADDED_FIELDS:
+                # Added to the state since the part was taken: its simulator used none (as
+                # put_back reads it), so its arenas hold a new state's zeros.
+                have = np.zeros((count, *value.shape[1:]), dtype=value.dtype)
+            if have is None or have.shape != (count, *value.shape[1:]) or have.dtype != value.dtype:
+                found = "nothing" if have is None else f"{have.dtype}{have.shape}"
+                raise SnapshotMismatch(
+                    f"the part's {name} is {found}, {count} arena(s) of this simulator need "
+                    f"{value.dtype}{(count, *value.shape[1:])}"
+                )
+            merged = value.copy()
+            merged[first : first + count] = have
+            arrays[name] = merged
+        rows = slice(first, first + count)
+        needs_reset = self.needs_reset.copy()
+        needs_reset[rows] = part.needs_reset
+        states = list(self.rng_states)
+        states[rows] = part.rng_states
+        return SimSnapshot(self.config_json, arrays, tuple(states), needs_reset)
+
+    def _check_range(self, first: int, count: int) -> None:
+        total = len(self.rng_states)
+        if count < 1 or first < 0 or first + count > total:
+            raise SnapshotMismatch(
+                f"arenas {first}..{first + count - 1} asked of a snapshot of arenas 0..{total - 1}"
+            )
+
     def to_plain(self) -> dict[str, Any]:
         """Plain data: arrays by name, the generators' states as JSON (their integers exceed
         64 bits), the configuration's JSON."""

@@ -305,3 +305,30 @@ def test_a_member_ahead_of_the_others_waits_for_them(tmp_path) -> None:
     assert summary["members"][1]["resumed_at_step"] == 120
     for seed in (0, 1):
         assert load_checkpoint(folder / f"seed-{seed}" / CHECKPOINT_NAME).step == 240
+
+
+def test_in_process_members_of_one_simulator_step_in_one_engine(tmp_path) -> None:
+    """Members of one simulator configuration get shares of one engine (one simulator call a
+    round for all); members whose simulators differ each open their own."""
+    from overtake.envs.shares import EngineShare
+    from overtake.trainers.train import open_members_envs
+
+    base = _highway_run(tmp_path)
+    alike = [dataclasses.replace(base, seed=s, run_dir=tmp_path / f"s{s}") for s in (0, 1, 2)]
+    envs = open_members_envs(alike)
+    try:
+        engines = [env.simulator.parts[0] for env in envs]
+        assert all(isinstance(e, EngineShare) for e in engines)
+        assert len({id(e.shared) for e in engines}) == 1  # type: ignore[attr-defined]
+        assert [e.first_arena for e in engines] == [0, 2, 4]  # type: ignore[attr-defined]
+    finally:
+        for env in envs:
+            env.close()
+    longer = dataclasses.replace(alike[1].scenario, set=("episode.max_decisions=30",))
+    other = dataclasses.replace(alike[1], scenario=longer)
+    envs = open_members_envs([alike[0], other])
+    try:
+        assert not any(isinstance(env.simulator.parts[0], EngineShare) for env in envs)
+    finally:
+        for env in envs:
+            env.close()
