@@ -314,6 +314,35 @@ def test_client_s_sub_packages_import_only_those_below_them():
     assert not wrong, "\n".join(wrong)
 
 
+# trainers/ by what its modules are (docs/development.md): the rooms each may import; the
+# commands at trainers/' top level may import every room, and overtake-experiment (a command
+# of commands: it evaluates and trains) the commands too.
+TRAINERS_COMMANDS = {p.stem for p in (ROOT / "trainers").glob("*.py")} - {"__init__"}
+TRAINERS_ALLOWED = {
+    "learning": set(),
+    "config": {"learning"},
+    "run": {"learning", "config"},
+    "experiment": {"learning", "run", "config"} | TRAINERS_COMMANDS,
+}
+
+
+def test_trainers_rooms_import_only_those_below_them():
+    found = {p.name for p in (ROOT / "trainers").iterdir() if (p / "__init__.py").exists()}
+    assert found == set(TRAINERS_ALLOWED), "a trainers/ room the layering does not know"
+    top = sorted(TRAINERS_COMMANDS)
+    assert len(top) <= 12, f"trainers/ has {len(top)} top-level modules: {top}"
+    wrong = []
+    for room, allowed in TRAINERS_ALLOWED.items():
+        for path in sorted((ROOT / "trainers" / room).glob("*.py")):
+            for name, line in _imports(path):
+                parts = name.split(".")
+                if parts[:2] != ["overtake", "trainers"] or len(parts) < 3:
+                    continue
+                if parts[2] not in allowed | {room}:
+                    wrong.append(f"trainers/{room}/{path.name}:{line} imports {name}")
+    assert not wrong, "\n".join(wrong)
+
+
 def _runtime_imports(path: Path, modules: set[str]) -> set[str]:
     """The project's modules ``path`` imports when it runs (local imports included, the
     ``if TYPE_CHECKING:`` ones not; a module's own packages, already loaded, not)."""

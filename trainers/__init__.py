@@ -6,9 +6,9 @@ overtake.client), never through overtake.server. Commands: ``overtake-train``,
 ``overtake-collision-causes``.
 """
 
-from .learner import ALGOS, DQNConfig, DQNLearner
-from .network import NetworkShape, QNetwork
-from .replay_memory import FrameStacker, ReplayMemory
+from .learning.learner import ALGOS, DQNConfig, DQNLearner
+from .learning.network import NetworkShape, QNetwork
+from .learning.replay_memory import FrameStacker, ReplayMemory
 
 __all__ = [
     "ALGOS",

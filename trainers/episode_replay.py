@@ -43,8 +43,8 @@ from overtake.protocol import errors
 from overtake.protocol.vocabulary import ACTION_NAMES
 from overtake.viz.recording import RecordingConfig
 
-from .checkpoint import load_checkpoint
 from .evaluate import GreedyPolicy
+from .run.checkpoint import load_checkpoint
 
 # Reference policies whose choices depend on nothing but what their arena shows: a replay
 # checks each of their decisions against the record (random draws for the whole batch).

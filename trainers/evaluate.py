@@ -36,11 +36,11 @@ from overtake.envs.faces import VectorFace
 from overtake.protocol.vocabulary import DENSITY_SETTING, WATCH_SETTING
 from overtake.viz.recording import RecordingConfig
 
-from .checkpoint import Checkpoint, load_checkpoint
-from .network import INPUT_SENSORS, observations_read
-from .observations import describe_space, frame_shapes
-from .presets import PRESET_TRAINING
-from .replay_memory import FrameStacker
+from .config.presets import PRESET_TRAINING
+from .learning.network import INPUT_SENSORS, observations_read
+from .learning.replay_memory import FrameStacker
+from .run.checkpoint import Checkpoint, load_checkpoint
+from .run.observations import describe_space, frame_shapes
 
 log = logging.getLogger(__name__)
 

@@ -41,9 +41,9 @@ from overtake.protocol.vocabulary import (
     HIGHWAY_SCENE_PRESETS,
 )
 
-from .checkpoint import Checkpoint, load_checkpoint
-from .network import INPUT_SENSORS, observations_read
-from .observations import frame_shapes
+from .learning.network import INPUT_SENSORS, observations_read
+from .run.checkpoint import Checkpoint, load_checkpoint
+from .run.observations import frame_shapes
 
 OUTPUT_NAME = "q_values"
 

@@ -15,10 +15,10 @@ import torch
 
 from overtake.cli import Command, UsageError
 
-from .allocator import keep_freed_memory
+from .config.train_config import TrainConfig
+from .run.allocator import keep_freed_memory
 from .train import COMMAND as TRAIN
 from .train import _say_stopping, train_members
-from .train_config import TrainConfig
 
 
 @dataclass(frozen=True)

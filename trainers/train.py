@@ -36,18 +36,18 @@ from overtake.client.wire.stopping import interrupt_waits
 from overtake.envs.faces import VectorFace
 from overtake.envs.shares import share_face
 
-from .allocator import keep_freed_memory
-from .checkpoint import (
+from .config.train_config import TrainConfig
+from .learning.learner import execution_device
+from .run.allocator import keep_freed_memory
+from .run.checkpoint import (
     CHECKPOINT_NAME,
     Checkpoint,
     CheckpointError,
     load_checkpoint,
 )
-from .learner import execution_device
-from .lone_loop import LoneLoop
-from .members_run import MembersRun, check_members, member_configs
-from .train_config import TrainConfig
-from .training_run import TRAINING_STARTED, TrainingRun
+from .run.lone_loop import LoneLoop
+from .run.members_run import MembersRun, check_members, member_configs
+from .run.training_run import TRAINING_STARTED, TrainingRun
 
 __all__ = [
     "COMMAND",

@@ -1,4 +1,4 @@
-"""Layouts of what trainers record (:mod:`overtake.trainers.visual` logs it): the curves of
+"""Layouts of what trainers record (:mod:`overtake.trainers.run.visual` logs it): the curves of
 one or several runs, a plot per quantity with every run a line in each, and each run's first car.
 
 Entity paths: ``training/episode/<metric>/<run>``, ``training/learning/<name>/<run>`` and

@@ -411,7 +411,7 @@ def last_json_object(text: str) -> dict[str, Any] | None:
 VOLUME_CHECK = """
 import json, sys
 from pathlib import Path
-from overtake.trainers.checkpoint import load_checkpoint
+from overtake.trainers.run.checkpoint import load_checkpoint
 out = {}
 for run in sorted(Path("/data/runs").iterdir()):
     files = sorted(p.name for p in run.iterdir())

@@ -394,7 +394,7 @@ def back_after(samples: list[Sample], names: set[str], t_heal: float) -> float |
 
 
 def run_case(config: FaultConfig, target: str, fault: str, index: int, rng: random.Random):
-    from overtake.trainers.checkpoint import CHECKPOINT_NAME, partial_path
+    from overtake.trainers.run.checkpoint import CHECKPOINT_NAME, partial_path
 
     case_dir = config.run_dir / f"{target}-{fault}-{index}"
     case_dir.mkdir(parents=True)

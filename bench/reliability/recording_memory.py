@@ -59,7 +59,7 @@ def writer(config: RecordingMemoryConfig) -> None:
     """One process: log as a trainer does for ``minutes``; one JSON sample per line."""
     from overtake.protocol import ACTION_NAMES
     from overtake.server.env import HighwayVectorEnv
-    from overtake.trainers.visual import TrainingRecording, training_blueprint
+    from overtake.trainers.run.visual import TrainingRecording, training_blueprint
     from overtake.viz.recording import RecordingConfig, close_recording, open_recording
 
     assert config.rrd is not None

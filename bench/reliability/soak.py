@@ -201,7 +201,7 @@ def summarise(samples: list[dict[str, Any]], config: SoakConfig) -> dict[str, An
 
 def checkpoint_step(path: Path) -> int | str:
     """The step of the checkpoint at ``path``, or why it does not load."""
-    from overtake.trainers.checkpoint import load_checkpoint
+    from overtake.trainers.run.checkpoint import load_checkpoint
 
     try:
         return load_checkpoint(path).step
@@ -224,7 +224,7 @@ def verify_rrd(path: Path, footer: bool) -> subprocess.CompletedProcess[str]:
 
 def check_outputs(run_dir: Path, trainers: int) -> dict[str, Any]:
     """Every checkpoint loads, every .rrd passes ``rerun rrd verify``."""
-    from overtake.trainers.checkpoint import CHECKPOINT_NAME
+    from overtake.trainers.run.checkpoint import CHECKPOINT_NAME
 
     out: dict[str, Any] = {"checkpoints": {}, "recordings": {}}
     for index in range(trainers):

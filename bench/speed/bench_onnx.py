@@ -28,10 +28,10 @@ import tyro
 
 from overtake.client.episodes.scenario import Where
 from overtake.client.policies.onnx_policy import OnnxPolicy
-from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.evaluate import GreedyPolicy
 from overtake.trainers.export import ExportConfig
 from overtake.trainers.export import main as export
+from overtake.trainers.run.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.train import COMMAND as train_command
 
 NETWORKS = {

@@ -64,9 +64,9 @@ def make_actor(env: Any, inputs: str, seed: int = 0) -> Any:
 
     from overtake.client.policies.frames import FrameStacker
     from overtake.protocol.vocabulary import ACTION_COUNT
-    from overtake.trainers.learner import ALGOS, DQNConfig, DQNLearner
-    from overtake.trainers.network import INPUT_SENSORS, NetworkShape
-    from overtake.trainers.observations import frame_shapes
+    from overtake.trainers.learning.learner import ALGOS, DQNConfig, DQNLearner
+    from overtake.trainers.learning.network import INPUT_SENSORS, NetworkShape
+    from overtake.trainers.run.observations import frame_shapes
 
     space = env.single_observation_space
     dqn = DQNConfig()

@@ -47,7 +47,7 @@ class RecordingBenchConfig:
 
 def main(config: RecordingBenchConfig) -> dict[str, Any]:
     from overtake.server.server_config import SERVER_RECORD_EVERY
-    from overtake.trainers.train_config import TRAINER_RECORD_EVERY
+    from overtake.trainers.config.train_config import TRAINER_RECORD_EVERY
     from overtake.viz.recording import RecordingConfig
 
     os.environ.setdefault("OMP_NUM_THREADS", str(config.torch_threads))

@@ -30,8 +30,8 @@ from typing import Any, Literal, get_args
 from bench.harness import free_port, start_server, stop_process, write_report
 from bench.speed.bench_sim import machine_description
 
-# overtake.trainers.learner.Precision, written here: importing it loads PyTorch before main()
-# has set its threads (main checks that the two agree).
+# overtake.trainers.learning.learner.Precision, written here: importing it loads PyTorch
+# before main() has set its threads (main checks that the two agree).
 Precision = Literal["fp32", "bf16", "fp16"]
 
 
@@ -77,7 +77,7 @@ def run_once(
     default: learning during the round trip), or 0 for lock-step; ``precision``:
     overtake-train's --precision."""
     from overtake.client.episodes.scenario import Where
-    from overtake.trainers.learner import DQNConfig
+    from overtake.trainers.learning.learner import DQNConfig
     from overtake.trainers.train import TrainConfig, main
 
     total = config.learning_starts + config.steps
@@ -141,7 +141,7 @@ def where_label(connect: str | None, overlap_parts: int, precision: str = "fp32"
 
 def main(config: TrainBenchConfig) -> dict[str, Any]:
     os.environ.setdefault("OMP_NUM_THREADS", str(config.torch_threads))
-    from overtake.trainers import learner
+    from overtake.trainers.learning import learner
 
     assert get_args(Precision) == get_args(learner.Precision), "Precision out of date"
     endpoint = f"tcp/127.0.0.1:{free_port()}"

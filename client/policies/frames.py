@@ -2,10 +2,11 @@
 
 The environment sends one frame per decision; a policy acting on stacked frames keeps the last
 ``stack`` of them per environment (:class:`FrameStacker`), and the replay of
-:mod:`overtake.trainers.replay_memory` rebuilds the same stacks when it samples. Both follow one
-rule at an episode's start: the slots before the first frame hold copies of that first frame (a
-LIDAR of zeros would read as a wall at 0 m). This lives in the client, without PyTorch, so that
-an exported policy (:mod:`overtake.client.policies.onnx_policy`) stacks exactly as its trainer did.
+:mod:`overtake.trainers.learning.replay_memory` rebuilds the same stacks when it samples.
+Both follow one rule at an episode's start: the slots before the first frame hold copies of
+that first frame (a LIDAR of zeros would read as a wall at 0 m). This lives in the client,
+without PyTorch, so that an exported policy (:mod:`overtake.client.policies.onnx_policy`)
+stacks exactly as its trainer did.
 """
 
 from __future__ import annotations

@@ -153,7 +153,7 @@ def ho2018() -> SimConfig:
       charts (§7.1, §7.2) start where a random driver is under repetition (slow, negative
       scores), not under Table 3's row (fast, positive): bench/RESULTS.md. His code skips
       frames only while training: evaluation decides every frame (``gui.py``), which
-      ``overtake-eval`` does for this preset (trainers/presets.py);
+      ``overtake-eval`` does for this preset (trainers/config/presets.py);
     - the view's cells of one box (1 m): 21 ahead of the car's front bumper, its own 7, and 8
       behind its rear (``config.py``: VISION_F 21, VISION_B 14 from the front), that is 24.5 m
       ahead of the car's centre to 11.5 m behind it (the thesis: 20 m ahead and 10 m behind);

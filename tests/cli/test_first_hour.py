@@ -262,11 +262,11 @@ def test_every_option_of_every_command_says_what_it_is():
     from overtake.server.router import RouterConfig
     from overtake.server.server_config import ServerConfig
     from overtake.trainers.collision_causes import CausesConfig
+    from overtake.trainers.config.train_config import TrainConfig
     from overtake.trainers.episode_replay import ReplayConfig
     from overtake.trainers.evaluate import EvalConfig
     from overtake.trainers.experiment.plan import ExperimentConfig
     from overtake.trainers.export import ExportConfig
-    from overtake.trainers.train_config import TrainConfig
     from overtake.viz.layout import LayoutConfig
     from overtake.viz.render import RenderConfig
 

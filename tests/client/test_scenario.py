@@ -21,10 +21,10 @@ from overtake.client.episodes.scenario import Scenario, Where
 from overtake.client.episodes.session import Driver, Episodes, Keeping, drive_episodes
 from overtake.client.mlagents.unity_bridge import BridgeConfig
 from overtake.protocol.vocabulary import DENSITIES
+from overtake.trainers.config.train_config import TrainConfig
 from overtake.trainers.episode_replay import ReplayConfig
 from overtake.trainers.evaluate import EvalConfig
 from overtake.trainers.experiment.plan import ExperimentConfig
-from overtake.trainers.train_config import TrainConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIO_FIELDS = {f.name for f in dataclasses.fields(Scenario)}

@@ -97,10 +97,10 @@ def test_presets_without_a_scan_or_the_cars_speed_are_refused_saying_why(preset,
 def test_training_behind_the_shield_counts_its_overrides_and_evaluation_keeps_it(tmp_path):
     import json
 
-    from overtake.trainers.checkpoint import CHECKPOINT_NAME
     from overtake.trainers.evaluate import EvalConfig
     from overtake.trainers.evaluate import main as evaluate
-    from overtake.trainers.learner import DQNConfig
+    from overtake.trainers.learning.learner import DQNConfig
+    from overtake.trainers.run.checkpoint import CHECKPOINT_NAME
     from overtake.trainers.train import TrainConfig
     from overtake.trainers.train import main as train
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from overtake.client.episodes.scenario import Scenario
-from overtake.trainers.network import INPUT_SENSORS, LATEST_SENSORS
+from overtake.trainers.learning.network import INPUT_SENSORS, LATEST_SENSORS
 from overtake.trainers.train import TrainConfig
 
 from tests.support.scenes import Car, scripted_sim

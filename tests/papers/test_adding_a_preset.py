@@ -14,13 +14,13 @@ from overtake.client.episodes.scenario import Scenario
 from overtake.server.env import HighwayVectorEnv
 from overtake.server.groups import Group
 from overtake.server.sim import PRESETS, make_config
-from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
-from overtake.trainers.dqn_config import DQNConfig
+from overtake.trainers.config.presets import PRESET_TRAINING, PresetTraining
+from overtake.trainers.config.train_config import TrainConfig
 from overtake.trainers.evaluate import EvalConfig
 from overtake.trainers.evaluate import main as evaluate
-from overtake.trainers.presets import PRESET_TRAINING, PresetTraining
+from overtake.trainers.learning.dqn_config import DQNConfig
+from overtake.trainers.run.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.train import main as train
-from overtake.trainers.train_config import TrainConfig
 
 NAME = "twolane2026"
 

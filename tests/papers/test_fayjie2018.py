@@ -103,7 +103,7 @@ def test_the_density_holds_its_cars(density, cars):
 def test_the_two_stream_network_has_three_convolutions_per_stream_and_four_dense_layers():
     import torch
 
-    from overtake.trainers.two_stream_network import TwoStreamQNetwork, TwoStreamShape
+    from overtake.trainers.learning.two_stream_network import TwoStreamQNetwork, TwoStreamShape
 
     network = TwoStreamQNetwork(TwoStreamShape((80, 80, 3), (80, 80), 5, 4))
     for stream in (network.camera, network.lidar_map):
@@ -120,9 +120,9 @@ def test_the_two_stream_network_has_three_convolutions_per_stream_and_four_dense
 
 
 def test_training_on_the_preset_uses_table_i_and_its_checkpoint_evaluates(tmp_path):
-    from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
     from overtake.trainers.evaluate import EvalConfig
     from overtake.trainers.evaluate import main as evaluate
+    from overtake.trainers.run.checkpoint import CHECKPOINT_NAME, load_checkpoint
     from overtake.trainers.train import COMMAND as train_command
 
     run_dir = tmp_path / "run"

@@ -434,7 +434,7 @@ class RoadCensus:
 def test_the_rule_driver_drives_as_fast_as_in_his_code_among_his_traffic(
     density, speed_kmh, tolerance_kmh, cars
 ):
-    from overtake.trainers.presets import PRESET_TRAINING
+    from overtake.trainers.config.presets import PRESET_TRAINING
 
     evaluation = dict(item.split("=") for item in PRESET_TRAINING["ho2018"].evaluation)
     assert evaluation == {"episode.frames_per_decision": "1", "episode.max_decisions": "4000"}

@@ -12,7 +12,6 @@ import pytest
 from overtake.cli import UsageError
 from overtake.client.episodes.scenario import Scenario, parse_overrides
 from overtake.server.sim import make_config
-from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.evaluate import EvalConfig
 from overtake.trainers.evaluate import main as evaluate
 from overtake.trainers.experiment import (
@@ -21,9 +20,10 @@ from overtake.trainers.experiment import (
     make_plan,
     training_identity,
 )
-from overtake.trainers.grid_network import GridQNetwork
-from overtake.trainers.learner import DQNConfig
-from overtake.trainers.tf_rmsprop import TFRMSprop
+from overtake.trainers.learning.grid_network import GridQNetwork
+from overtake.trainers.learning.learner import DQNConfig
+from overtake.trainers.learning.tf_rmsprop import TFRMSprop
+from overtake.trainers.run.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.train import COMMAND as train_command
 from overtake.trainers.train import TrainConfig, preset_in
 from overtake.trainers.train import main as train

@@ -13,10 +13,10 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from overtake.trainers.checkpoint import load_checkpoint
-from overtake.trainers.learner import DQNConfig
-from overtake.trainers.network import NetworkShape
-from overtake.trainers.replay_memory import ReplayBatch
+from overtake.trainers.learning.learner import DQNConfig
+from overtake.trainers.learning.network import NetworkShape
+from overtake.trainers.learning.replay_memory import ReplayBatch
+from overtake.trainers.run.checkpoint import load_checkpoint
 
 # --- small networks, observations and batches -----------------------------------------------
 

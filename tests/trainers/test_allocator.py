@@ -1,4 +1,4 @@
-"""The training process's allocator settings (trainers/allocator.py): a block of a few MiB
+"""The training process's allocator settings (trainers/run/allocator.py): a block of a few MiB
 freed and allocated again reuses its pages instead of faulting in fresh ones."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from overtake.trainers import allocator
+from overtake.trainers.run import allocator
 
 # Allocates six arrays of 4 MiB (written through, as an update's tensors are, all live at once
 # as in a backward pass), frees them, 50 times over, and prints the minor page faults that

@@ -15,9 +15,9 @@ import pytest
 import torch
 
 from overtake.cli import UsageError
-from overtake.trainers.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
 from overtake.trainers.evaluate import COMMAND as evaluate_command
-from overtake.trainers.learner import ALGOS, DQNConfig, DQNLearner
+from overtake.trainers.learning.learner import ALGOS, DQNConfig, DQNLearner
+from overtake.trainers.run.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
 from overtake.trainers.train import COMMAND as train_command
 from overtake.trainers.train import TrainConfig
 from overtake.trainers.train import main as train

@@ -15,8 +15,8 @@ import pytest
 import torch
 
 from overtake.client.episodes.scenario import Scenario, Where
-from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
-from overtake.trainers.learner import DQNConfig
+from overtake.trainers.learning.learner import DQNConfig
+from overtake.trainers.run.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.train import TrainConfig
 from overtake.trainers.train import main as train
 
@@ -111,7 +111,7 @@ def test_a_kill_between_checkpoints_loses_only_the_steps_since_the_last(
     transitions has 100): resumed, it trains from that checkpoint and ends where the run never
     stopped ends."""
     run_dir = tmp_path / "run"
-    from overtake.trainers import lone_loop
+    from overtake.trainers.run import lone_loop
 
     learn = lone_loop.LoneLoop.learn
 
@@ -159,7 +159,7 @@ def episodes(run_dir: Path) -> list[dict]:
 def test_the_replay_files_keep_a_checkpoints_window_through_the_writes_after_it(tmp_path):
     """The replay alone: written past a checkpoint (fewer writes than its spare slots), then
     put back to the checkpoint's account, it samples exactly what it sampled then."""
-    from overtake.trainers.replay_memory import FrameShapes, ReplayMemory
+    from overtake.trainers.learning.replay_memory import FrameShapes, ReplayMemory
 
     shapes = FrameShapes({"lidar": ((3,), np.dtype(np.float32))}, actions=5)
 

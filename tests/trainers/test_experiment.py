@@ -24,7 +24,6 @@ from overtake.cli import UsageError
 from overtake.client.episodes.scenario import Scenario, Where
 from overtake.ipc.transport import SecurityConfig
 from overtake.protocol.vocabulary import WATCH_SETTING
-from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.evaluate import EvalConfig
 from overtake.trainers.experiment import (
     COMMAND,
@@ -50,7 +49,8 @@ from overtake.trainers.experiment import (
 from overtake.trainers.experiment.command import hours_estimate
 from overtake.trainers.experiment.files import LOCK_NAME, lock
 from overtake.trainers.experiment.launcher import LocalLauncher
-from overtake.trainers.learner import DQNConfig
+from overtake.trainers.learning.learner import DQNConfig
+from overtake.trainers.run.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.train import COMMAND as TRAIN
 from overtake.trainers.train import TrainConfig
 from overtake.viz.recording import RecordingConfig
@@ -831,8 +831,8 @@ def test_where_the_simulator_is_does_not_change_what_a_run_learns():
     endpoint, credentials, transport, the channel's spin) and still continue its runs; a
     learned setting still makes another run."""
     from overtake.client.episodes.scenario import Where
+    from overtake.trainers.config.train_config import TrainConfig
     from overtake.trainers.experiment.plan import training_identity
-    from overtake.trainers.train_config import TrainConfig
 
     base = TrainConfig()
     elsewhere = dataclasses.replace(

@@ -19,11 +19,11 @@ from overtake.client.episodes.drive import main as drive
 from overtake.client.episodes.runner import RealTime, run_episodes
 from overtake.client.episodes.scenario import Scenario, Where
 from overtake.client.policies.onnx_policy import read_metadata
-from overtake.trainers.checkpoint import CHECKPOINT_NAME
 from overtake.trainers.evaluate import EvalConfig
 from overtake.trainers.evaluate import main as evaluate
 from overtake.trainers.export import ExportConfig
 from overtake.trainers.export import main as export
+from overtake.trainers.run.checkpoint import CHECKPOINT_NAME
 from overtake.trainers.train import COMMAND as train_command
 
 from tests.support.remote import child_env

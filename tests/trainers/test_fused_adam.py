@@ -1,4 +1,5 @@
-"""Optimisers without TorchDynamo (trainers/fused_adam.py, trainers/deferred_dynamo.py).
+"""Optimisers without TorchDynamo (trainers/learning/fused_adam.py,
+trainers/learning/deferred_dynamo.py).
 
 FusedAdam steps as ``torch.optim.Adam(fused=True)`` does, bit for bit, and their state dicts
 are interchangeable; building and stepping the learners' optimisers, and a whole short
@@ -17,7 +18,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from overtake.trainers.fused_adam import FusedAdam
+from overtake.trainers.learning.fused_adam import FusedAdam
 
 
 def _network(seed: int) -> nn.Module:
@@ -75,8 +76,8 @@ def test_fused_adams_state_dict_is_torchs_both_ways() -> None:
 # Run in a fresh interpreter: what a training process imports from its start.
 _PROBE = """
 import json, sys, torch
-from overtake.trainers.dqn_config import DQNConfig
-from overtake.trainers.learner import build_optimizer
+from overtake.trainers.learning.dqn_config import DQNConfig
+from overtake.trainers.learning.learner import build_optimizer
 net = torch.nn.Linear(4, 2)
 for kind in ("adam", "tf-rmsprop"):
     opt = build_optimizer(net.parameters(), DQNConfig(optimizer=kind))

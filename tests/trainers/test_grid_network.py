@@ -6,8 +6,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from overtake.trainers.grid_network import GridNetworkShape, GridQNetwork
-from overtake.trainers.heads import HeadSpec
+from overtake.trainers.learning.grid_network import GridNetworkShape, GridQNetwork
+from overtake.trainers.learning.heads import HeadSpec
 
 SHAPE = GridNetworkShape(grid_hw=(36, 3), action_history=4, actions=5, stack=4)
 
@@ -117,9 +117,9 @@ def test_his_initialisation_has_the_deviation_of_a_normal_cut_at_two():
 def test_the_learner_builds_his_initialisation_from_its_settings_and_refuses_it_elsewhere():
     from dataclasses import replace
 
-    from overtake.trainers.heads import PLAIN
-    from overtake.trainers.learner import build_network
-    from overtake.trainers.presets import PRESET_TRAINING
+    from overtake.trainers.config.presets import PRESET_TRAINING
+    from overtake.trainers.learning.heads import PLAIN
+    from overtake.trainers.learning.learner import build_network
 
     dqn = PRESET_TRAINING["ho2018"].dqn
     assert (dqn.init, dqn.init_std) == ("truncated-normal", 0.02)

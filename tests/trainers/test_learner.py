@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 import torch
 
-from overtake.trainers.checkpoint import CHECKPOINT_NAME
-from overtake.trainers.heads import HeadSpec, dueling_q
-from overtake.trainers.learner import ALGOS, DQNConfig, DQNLearner, execution_device
-from overtake.trainers.network import NetworkShape, QNetwork
-from overtake.trainers.objectives import masked, td_target
+from overtake.trainers.learning.heads import HeadSpec, dueling_q
+from overtake.trainers.learning.learner import ALGOS, DQNConfig, DQNLearner, execution_device
+from overtake.trainers.learning.network import NetworkShape, QNetwork
+from overtake.trainers.learning.objectives import masked, td_target
+from overtake.trainers.run.checkpoint import CHECKPOINT_NAME
 from overtake.trainers.train import TrainConfig
 from overtake.trainers.train import main as train
 

@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 import torch
 
-from overtake.trainers.grid_network import GridNetworkShape, GridQNetwork
-from overtake.trainers.heads import HeadSpec, QuantileHead, legacy_state
-from overtake.trainers.learner import ALGOS, DQNConfig, DQNLearner
-from overtake.trainers.network import NetworkShape, QNetwork
-from overtake.trainers.objectives import QuantileObjective, TDObjective, Transitions
-from overtake.trainers.replay_memory import ReplayBatch
-from overtake.trainers.two_stream_network import TwoStreamQNetwork, TwoStreamShape
+from overtake.trainers.learning.grid_network import GridNetworkShape, GridQNetwork
+from overtake.trainers.learning.heads import HeadSpec, QuantileHead, legacy_state
+from overtake.trainers.learning.learner import ALGOS, DQNConfig, DQNLearner
+from overtake.trainers.learning.network import NetworkShape, QNetwork
+from overtake.trainers.learning.objectives import QuantileObjective, TDObjective, Transitions
+from overtake.trainers.learning.replay_memory import ReplayBatch
+from overtake.trainers.learning.two_stream_network import TwoStreamQNetwork, TwoStreamShape
 
 
 def transitions(action, reward, terminated, mask, gamma=0.9) -> Transitions:

@@ -1,5 +1,6 @@
-"""Members: several runs trained in one process as members of one learner (trainers/members_run.py,
-member_learner.py, member_network.py, member_optim.py).
+"""Members: several runs trained in one process as members of one learner
+(trainers/run/members_run.py, trainers/learning/member_learner.py, member_network.py,
+member_optim.py).
 
 A member is a lone run: an update of member k equals a lone learner's update on the same batch
 (float rounding apart), for every network kind and optimiser; a member's run directory is a
@@ -18,19 +19,19 @@ import torch
 
 from overtake.cli import UsageError
 from overtake.client.episodes.scenario import Scenario, Where
-from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
-from overtake.trainers.dqn_config import ALGOS, DQNConfig
 from overtake.trainers.experiment.evidence import provenance_line, run_lives
-from overtake.trainers.grid_network import GridNetworkShape
-from overtake.trainers.learner import DQNLearner
-from overtake.trainers.member_learner import MembersLearner
-from overtake.trainers.member_network import member_state, stacked_network
-from overtake.trainers.mlp_network import MlpNetworkShape
-from overtake.trainers.network import NetworkShape
-from overtake.trainers.replay_memory import ReplayBatch
+from overtake.trainers.learning.dqn_config import ALGOS, DQNConfig
+from overtake.trainers.learning.grid_network import GridNetworkShape
+from overtake.trainers.learning.learner import DQNLearner
+from overtake.trainers.learning.member_learner import MembersLearner
+from overtake.trainers.learning.member_network import member_state, stacked_network
+from overtake.trainers.learning.mlp_network import MlpNetworkShape
+from overtake.trainers.learning.network import NetworkShape
+from overtake.trainers.learning.replay_memory import ReplayBatch
+from overtake.trainers.learning.two_stream_network import TwoStreamShape
+from overtake.trainers.run.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.train import TrainConfig, train_members
 from overtake.trainers.train import main as train
-from overtake.trainers.two_stream_network import TwoStreamShape
 
 from .test_exact_resume import StopAfter, assert_same_weights, online_weights
 

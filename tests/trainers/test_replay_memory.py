@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from overtake.trainers.replay_memory import FrameShapes, FrameStacker, ReplayMemory
+from overtake.trainers.learning.replay_memory import FrameShapes, FrameStacker, ReplayMemory
 
 torch.set_num_threads(1)
 

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import torch
 
-from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
-from overtake.trainers.replay_memory import FrameShapes, ReplayMemory
-from overtake.trainers.sum_tree import SumTree
+from overtake.trainers.learning.replay_memory import FrameShapes, ReplayMemory
+from overtake.trainers.learning.sum_tree import SumTree
+from overtake.trainers.run.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.train import TrainConfig
 from overtake.trainers.train import main as train
 
@@ -173,7 +173,7 @@ def test_a_checkpoint_carries_the_options_and_a_resume_restores_the_priorities(t
 
 
 def test_the_update_discounts_by_the_windows_steps_and_weighs_by_importance():
-    from overtake.trainers.learner import ALGOS, DQNConfig, DQNLearner
+    from overtake.trainers.learning.learner import ALGOS, DQNConfig, DQNLearner
 
     from tests.support.tiny_learning import random_obs, reward_three_for_action_two, small_shape
 

@@ -1,5 +1,5 @@
-"""TensorFlow's RMSProp (Ho's optimiser, trainers/tf_rmsprop.py) against its formulas worked
-out by hand, and against PyTorch's RMSProp, which it is not."""
+"""TensorFlow's RMSProp (Ho's optimiser, trainers/learning/tf_rmsprop.py) against its formulas
+worked out by hand, and against PyTorch's RMSProp, which it is not."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import torch
 
-from overtake.trainers.learner import DQNConfig, build_optimizer
-from overtake.trainers.presets import PRESET_TRAINING
-from overtake.trainers.tf_rmsprop import TFRMSprop
+from overtake.trainers.config.presets import PRESET_TRAINING
+from overtake.trainers.learning.learner import DQNConfig, build_optimizer
+from overtake.trainers.learning.tf_rmsprop import TFRMSprop
 
 GRADIENTS = np.array([[0.5, -2.0, 1e-3], [0.1, -1.5, 0.0], [-0.3, 4.0, 2e-3], [0.2, 0.2, 0.2]])
 

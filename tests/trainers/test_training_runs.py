@@ -20,10 +20,10 @@ import torch
 
 from overtake.cli import UsageError
 from overtake.client.episodes.scenario import Scenario, Where
-from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.evaluate import EvalConfig
 from overtake.trainers.evaluate import main as evaluate
-from overtake.trainers.learner import DQNConfig
+from overtake.trainers.learning.learner import DQNConfig
+from overtake.trainers.run.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from overtake.trainers.train import TrainConfig
 from overtake.trainers.train import main as train
 from overtake.viz.recording import RecordingConfig
@@ -373,7 +373,7 @@ def test_evaluation_does_not_import_the_training_command():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     loaded = set(json.loads(done.stdout))
-    assert "overtake.trainers.observations" in loaded
+    assert "overtake.trainers.run.observations" in loaded
     assert (
         "overtake.trainers.train" not in loaded and "overtake.client.episodes.drive" not in loaded
     )
@@ -588,7 +588,7 @@ def test_an_in_process_run_draws_its_first_cars_road_in_its_recording(tmp_path):
     itself (every car on it), and its layout shows the road beside the car's view."""
     import rerun as rr
 
-    from overtake.trainers.run_recording import IN_PROCESS_ROAD
+    from overtake.trainers.run.run_recording import IN_PROCESS_ROAD
 
     from tests.support.remote import blueprint_texts
 

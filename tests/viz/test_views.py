@@ -13,7 +13,7 @@ import pytest
 import rerun as rr
 
 from overtake.protocol.messages import WorldFrame
-from overtake.trainers.visual import TrainingRecording
+from overtake.trainers.run.visual import TrainingRecording
 from overtake.viz.layout import LayoutConfig, LayoutError, read_contents
 from overtake.viz.layout import main as join
 from overtake.viz.recording import APPLICATION_ID, RecordingConfig, open_recording

@@ -8,8 +8,8 @@ from typing import Literal
 
 from overtake.protocol.vocabulary import DENSITIES, METRIC_FIELDS, Density
 
-from ..dqn_config import Algo
-from ..network import Inputs
+from ..learning.dqn_config import Algo
+from ..learning.network import Inputs
 
 ALGO_NAMES = {"dqn": "DQN", "ddqn": "Double DQN", "dueling": "Dueling DQN", "qr": "QR-DQN"}
 INPUT_NAMES = {
@@ -71,7 +71,7 @@ class Row:
     n_step: int = 1
     """rewards per target (n-step returns)"""
     recipe: str | None = None
-    """the preset's named training other than its paper's (trainers/presets.py); None: the
+    """the preset's named training other than its paper's (trainers/config/presets.py); None: the
     paper's"""
 
     @property
@@ -311,7 +311,7 @@ EXPERIMENTS: dict[str, Experiment] = {
         note=(
             "Compare with min2018-table3's dueling-both row (the same budget, schedule, seeds "
             "and evaluation episodes): only the notebook's Adam epsilon, loss and update rate "
-            "differ (trainers/presets.py)."
+            "differ (trainers/config/presets.py)."
         ),
     ),
     "fayjie2018-fig6": Experiment(

@@ -10,7 +10,7 @@ from typing import Any
 
 from overtake.cli import Command, UsageError
 
-from ..train_config import TrainConfig
+from ..config.train_config import TrainConfig
 from .catalogue import ALGO_NAMES, EXPERIMENTS, INPUT_NAMES, Experiment, ExperimentError
 from .evidence import keep_evidence
 from .files import LOCK_NAME, PLAN_NAME, lock, read_json, say, write_atomic

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from ..checkpoint import CHECKPOINT_NAME, load_checkpoint
+from ..run.checkpoint import CHECKPOINT_NAME, load_checkpoint
 
 LIVES_NAME = "experiment-lives.jsonl"
 # On a cluster: the token the experiment writes into its directory for every node to find

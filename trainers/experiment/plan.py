@@ -18,10 +18,10 @@ from overtake.cli.options import unset
 from overtake.client.episodes.scenario import Scenario, Where
 from overtake.viz.recording import RecordingConfig
 
-from ..checkpoint import plain_data
+from ..config.train_config import TrainConfig
 from ..evaluate import EvalConfig
-from ..learner import execution_device
-from ..train_config import TrainConfig
+from ..learning.learner import execution_device
+from ..run.checkpoint import plain_data
 from .catalogue import EXPERIMENTS, RETIRED, Density, Experiment, Row, Schedule
 from .launcher import RayCluster, available_cores, ray_cluster
 

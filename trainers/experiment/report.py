@@ -11,8 +11,8 @@ from typing import Any
 from overtake.client.episodes.records import RecordError, read_header
 from overtake.protocol.vocabulary import WATCH_METRICS
 
-from ..checkpoint import plain_data
-from ..run_files import git_commit, package_versions
+from ..run.checkpoint import plain_data
+from ..run.run_files import git_commit, package_versions
 from .catalogue import (
     ALGO_NAMES,
     EXPERIMENTS,

@@ -12,8 +12,8 @@ from typing import Any
 
 from overtake.client.episodes.scenario import Scenario, Where
 
-from ..checkpoint import CHECKPOINT_NAME
 from ..evaluate import EvalConfig
+from ..run.checkpoint import CHECKPOINT_NAME
 from .catalogue import Density
 from .files import LOCK_NAME, checkpoint_step, lock_all, read_json, say, write_atomic
 from .launcher import Launcher, where_said

@@ -205,8 +205,8 @@ class _Shield:
 
 
 def test_the_replay_stores_what_the_car_did_and_pays_where_safety_stepped_in():
-    from overtake.trainers.learner import DQNConfig
-    from overtake.trainers.shielding import SafetyLayer
+    from overtake.trainers.learning.learner import DQNConfig
+    from overtake.trainers.run.shielding import SafetyLayer
 
     envs = np.arange(4)
     shield = _Shield([False, False, True, False])
@@ -239,8 +239,8 @@ def test_the_replay_stores_what_the_car_did_and_pays_where_safety_stepped_in():
 
 
 def test_a_late_action_replaced_by_keep_is_stored_as_keep_and_not_penalised():
-    from overtake.trainers.learner import DQNConfig
-    from overtake.trainers.shielding import SafetyLayer
+    from overtake.trainers.learning.learner import DQNConfig
+    from overtake.trainers.run.shielding import SafetyLayer
 
     layer = SafetyLayer(None, DQNConfig(store_applied=True, intervention_penalty=0.5), 2)
     info = {"action_applied": np.array([KEEP, KEEP]), "late": np.array([True, False])}
@@ -255,7 +255,7 @@ def test_the_logged_reward_is_what_the_driving_earned_not_the_penalised_reward(t
     because the penalty changes what is learned from, not what the driving earned."""
     import json
 
-    from overtake.trainers.learner import DQNConfig
+    from overtake.trainers.learning.learner import DQNConfig
     from overtake.trainers.train import TrainConfig
     from overtake.trainers.train import main as train
 
@@ -287,8 +287,8 @@ def test_the_logged_reward_is_what_the_driving_earned_not_the_penalised_reward(t
 
 
 def test_the_shield_s_watch_is_a_simulator_setting_of_the_run_and_its_row():
+    from overtake.trainers.config.train_config import TrainConfig
     from overtake.trainers.experiment import EXPERIMENTS
-    from overtake.trainers.train_config import TrainConfig
 
     assert TrainConfig(shield=True, shield_watch=True).overrides()["ego.lane_change_watch"]
     assert "ego.lane_change_watch" not in TrainConfig(shield=True).overrides()
@@ -300,10 +300,10 @@ def test_the_shield_s_watch_is_a_simulator_setting_of_the_run_and_its_row():
 def test_a_run_with_the_watch_trains_and_its_evaluation_keeps_the_watch(tmp_path):
     """--shield-watch trains (the applied actions stored, a penalty where safety stepped in)
     and its checkpoint's evaluation runs with the watch: the aborts are a column."""
-    from overtake.trainers.checkpoint import CHECKPOINT_NAME, load_checkpoint
     from overtake.trainers.evaluate import EvalConfig
     from overtake.trainers.evaluate import main as evaluate
-    from overtake.trainers.learner import DQNConfig
+    from overtake.trainers.learning.learner import DQNConfig
+    from overtake.trainers.run.checkpoint import CHECKPOINT_NAME, load_checkpoint
     from overtake.trainers.train import TrainConfig
     from overtake.trainers.train import main as train
 

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from .train_config import TrainConfig
+    from ..config.train_config import TrainConfig
 
 
 @dataclass

@@ -19,9 +19,9 @@ from overtake.client.episodes.scenario import DEFAULT_PRESET, Scenario, Where
 from overtake.protocol.vocabulary import WATCH_SETTING
 from overtake.viz.recording import RecordingConfig
 
-from .dqn_config import Algo, DQNConfig
-from .learner import Precision
-from .network import Inputs, observations_read
+from ..learning.dqn_config import Algo, DQNConfig
+from ..learning.learner import Precision
+from ..learning.network import Inputs, observations_read
 from .presets import PRESET_TRAINING
 
 # The ego vector of a camera-only network: the car's own speed, nothing of the other cars.

@@ -35,7 +35,7 @@ from overtake.viz.car_view import CarView
 from overtake.viz.recording import APPLICATION_ID, Recording, RecordingConfig, open_recording
 from overtake.viz.training_layout import CAR_PICTURES, training_blueprint
 
-from .learner import ALGOS
+from ..learning.learner import ALGOS
 
 __all__ = ["LEARNING_SERIES", "TrainingRecording", "training_blueprint"]
 

@@ -49,8 +49,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from .dqn_config import Algo, DQNConfig
-from .network import Inputs
+from ..learning.dqn_config import Algo, DQNConfig
+from ..learning.network import Inputs
 
 
 @dataclass(frozen=True)

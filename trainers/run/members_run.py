@@ -32,15 +32,15 @@ import torch
 from overtake.cli import UsageError
 from overtake.protocol import ACTION_COUNT, errors
 
+from ..learning.dqn_config import ALGOS
+from ..learning.learner import Precision, network_shape
+from ..learning.member_learner import MembersLearner
+from ..learning.member_optim import shared_setting
 from .checkpoint import Checkpoint
-from .dqn_config import ALGOS
-from .learner import Precision, network_shape
-from .member_learner import MembersLearner
-from .member_optim import shared_setting
 from .training_run import TrainingRun
 
 if TYPE_CHECKING:
-    from .train_config import TrainConfig
+    from ..config.train_config import TrainConfig
 
 logger = logging.getLogger("overtake.trainer")
 

@@ -18,20 +18,20 @@ import torch
 
 from overtake.protocol import ACTION_COUNT
 
+from ..learning.learner import ALGOS, DQNLearner, LearnerState, network_shape
+from ..learning.network import INPUT_SENSORS
+from ..learning.replay_memory import FrameStacker
 from . import resume as resuming
 from .checkpoint import CHECKPOINT_NAME, REPLAY_DIR_NAME, Checkpoint, plain_data
 from .env_parts import EnvParts
-from .learner import ALGOS, DQNLearner, LearnerState, network_shape
-from .network import INPUT_SENSORS
 from .observations import describe_space, frame_shapes
-from .replay_memory import FrameStacker
 from .run_files import MetricsLog, life_record, run_record
 from .run_log import LogWindow, progress_bar
 from .run_recording import RunRecording
 from .shielding import SafetyLayer, TrainingShield
 
 if TYPE_CHECKING:
-    from .train_config import TrainConfig
+    from ..config.train_config import TrainConfig
 
 
 logger = logging.getLogger("overtake.trainer")

@@ -11,7 +11,7 @@ from typing import Any
 
 from overtake.protocol import errors
 
-from .learner import DQNLearner
+from ..learning.learner import DQNLearner
 from .training_run import TrainingRun
 
 logger = logging.getLogger("overtake.trainer")

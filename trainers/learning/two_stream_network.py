@@ -87,7 +87,7 @@ class TwoStreamQNetwork(nn.Module):
         )
         self.head = head.build(128, shape.actions)
         # Whether forward() hands the streams channels-last images (members' stacked streams
-        # lay out their own input: overtake.trainers.member_network.stacked_network).
+        # lay out their own input: overtake.trainers.learning.member_network.stacked_network).
         self.channels_last = True
 
     def forward(self, camera: torch.Tensor, lidar_map: torch.Tensor) -> torch.Tensor:

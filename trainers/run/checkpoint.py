@@ -23,11 +23,11 @@ import torch
 
 from overtake.cli import UsageError
 
-from .grid_network import GridNetworkShape
-from .learner import AnyShape, DQNConfig, DQNLearner, LearnerState, Precision
-from .mlp_network import MlpNetworkShape
-from .network import Inputs, NetworkShape
-from .two_stream_network import TwoStreamShape
+from ..learning.grid_network import GridNetworkShape
+from ..learning.learner import AnyShape, DQNConfig, DQNLearner, LearnerState, Precision
+from ..learning.mlp_network import MlpNetworkShape
+from ..learning.network import Inputs, NetworkShape
+from ..learning.two_stream_network import TwoStreamShape
 
 CHECKPOINT_FORMAT = "overtake-dqn/1"
 CHECKPOINT_NAME = "checkpoint.pt"

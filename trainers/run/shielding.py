@@ -15,10 +15,10 @@ from overtake.client.policies.shield import Shield, overridden
 from overtake.protocol.messages import BehaviourSpec
 from overtake.protocol.vocabulary import WATCH_METRICS
 
-from .replay_memory import FrameStacker
+from ..learning.replay_memory import FrameStacker
 
 if TYPE_CHECKING:
-    from .learner import DQNConfig
+    from ..learning.learner import DQNConfig
 
 (LANE_CHANGE_ABORTS,) = WATCH_METRICS
 

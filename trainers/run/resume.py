@@ -37,11 +37,11 @@ import torch
 
 from overtake.protocol import errors
 
+from ..learning.replay_memory import FrameShapes, ReplayMemory, ReplayMismatch
 from .checkpoint import save_checkpoint
-from .replay_memory import FrameShapes, ReplayMemory, ReplayMismatch
 
 if TYPE_CHECKING:
-    from .train_config import TrainConfig
+    from ..config.train_config import TrainConfig
     from .training_run import TrainingRun
 
 logger = logging.getLogger("overtake.trainer")

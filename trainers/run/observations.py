@@ -17,7 +17,7 @@ from overtake.client.policies.frames import FrameShapes, describe_space
 __all__ = ["describe_space", "frame_shapes"]
 from overtake.protocol import ACTION_COUNT
 
-from .network import Inputs, observations_read
+from ..learning.network import Inputs, observations_read
 
 
 def frame_shapes(
