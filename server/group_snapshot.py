@@ -25,7 +25,7 @@ from overtake.protocol import errors
 from overtake.protocol.messages import GroupState, Steps
 
 from .rounds import SLOT_ARRAYS
-from .sim.snapshot import SimSnapshot, SnapshotMismatch
+from .sim.snapshot import SimSnapshot, SnapshotMismatch, spliced
 
 if TYPE_CHECKING:
     from .groups import Group
@@ -76,19 +76,7 @@ class GroupSnapshot:
         """This snapshot with arenas ``first`` .. taken from ``part`` (:meth:`arenas` of a
         snapshot like this one, or a smaller engine's whole snapshot); checked first."""
         sim = self.sim.with_arenas(first, part.sim)
-        count = len(part.sim.rng_states)
-        slots = {}
-        for name, value in self.slots.items():
-            have = part.slots.get(name)
-            if have is None or have.shape != (count, *value.shape[1:]) or have.dtype != value.dtype:
-                found = "nothing" if have is None else f"{have.dtype}{have.shape}"
-                raise SnapshotMismatch(
-                    f"the part's {name} is {found}, {count} arena(s) of this group need "
-                    f"{value.dtype}{(count, *value.shape[1:])}"
-                )
-            merged = value.copy()
-            merged[first : first + count] = have
-            slots[name] = merged
+        slots = spliced(self.slots, first, part.slots, len(part.sim.rng_states), "group")
         return GroupSnapshot(sim=sim, slots=slots)
 
     def to_bytes(self) -> bytes:

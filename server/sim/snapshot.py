@@ -30,6 +30,30 @@ class SnapshotMismatch(ValueError):
     other counts of arenas or agents, or a damaged snapshot); the message says what differs."""
 
 
+def spliced(
+    whole: Mapping[str, np.ndarray],
+    first: int,
+    part: Mapping[str, np.ndarray],
+    count: int,
+    holder: str,
+) -> dict[str, np.ndarray]:
+    """Copies of ``whole``'s arrays (arenas first) with arenas ``first`` .. ``first + count - 1``
+    from ``part``'s arrays of the same names; every one checked before anything is copied
+    (``holder``: what needs them, for the message)."""
+    for name, value in whole.items():
+        have, need = part.get(name), (count, *value.shape[1:])
+        if have is None or have.shape != need or have.dtype != value.dtype:
+            found = "nothing" if have is None else f"{have.dtype}{have.shape}"
+            raise SnapshotMismatch(
+                f"the part's {name} is {found}, {count} arena(s) of this {holder} need "
+                f"{value.dtype}{need}"
+            )
+    merged = {name: value.copy() for name, value in whole.items()}
+    for name, value in merged.items():
+        value[first : first + count] = part[name]
+    return merged
+
+
 @dataclass(frozen=True)
 class SimSnapshot:
     """One simulator's state: ``arrays`` (every :class:`SimState` field, by name),
@@ -147,22 +171,14 @@ class SimSnapshot:
         if differing:
             said = differing[0].replace("the record", "the part").replace(" now", " here")
             raise SnapshotMismatch(f"the part is of another simulator configuration: {said}")
-        arrays = {}
-        for name, value in self.arrays.items():
-            have = part.arrays.get(name)
-            if have is None and name in ADDED_FIELDS:
-                # Added to the state since the part was taken: its simulator used none (as
-                # put_back reads it), so its arenas hold a new state's zeros.
-                have = np.zeros((count, *value.shape[1:]), dtype=value.dtype)
-            if have is None or have.shape != (count, *value.shape[1:]) or have.dtype != value.dtype:
-                found = "nothing" if have is None else f"{have.dtype}{have.shape}"
-                raise SnapshotMismatch(
-                    f"the part's {name} is {found}, {count} arena(s) of this simulator need "
-                    f"{value.dtype}{(count, *value.shape[1:])}"
-                )
-            merged = value.copy()
-            merged[first : first + count] = have
-            arrays[name] = merged
+        added = {
+            # Added to the state since the part was taken: its simulator used none (as
+            # put_back reads it), so its arenas hold a new state's zeros.
+            name: np.zeros((count, *value.shape[1:]), dtype=value.dtype)
+            for name, value in self.arrays.items()
+            if name in ADDED_FIELDS and name not in part.arrays
+        }
+        arrays = spliced(self.arrays, first, {**part.arrays, **added}, count, "simulator")
         rows = slice(first, first + count)
         needs_reset = self.needs_reset.copy()
         needs_reset[rows] = part.needs_reset

@@ -45,6 +45,17 @@ def _assert_snapshots_equal(a: dict, b: dict) -> None:
         np.testing.assert_array_equal(value, b["slots"][name], err_msg=name)
 
 
+def _step_alike(shares, lone, rng: np.random.Generator, rounds: int) -> None:
+    """``rounds`` rounds of the same random actions: every share sends before any receives,
+    and each share's step is its lone engine's."""
+    for _ in range(rounds):
+        actions = [rng.integers(0, ACTION_COUNT, size=s.num_envs) for s in shares]
+        for share, act in zip(shares, actions, strict=True):
+            share.send(0, act)
+        for share, alone, act in zip(shares, lone, actions, strict=True):
+            _assert_same(share.recv(0), alone.step(act))
+
+
 def _faces(preset: str, arenas: tuple[int, ...]):
     whole = HighwayVectorEnv(num_envs=sum(arenas), preset=preset, overrides=SHORT)
     shares = share_face(whole, arenas)
@@ -64,12 +75,7 @@ def test_a_share_steps_as_an_engine_of_its_own(preset: str) -> None:
             (obs_share, _), (obs_alone, _) = share.reset(seed=seeds), alone.reset(seed=seeds)
             for name in obs_alone:
                 np.testing.assert_array_equal(obs_share[name], obs_alone[name], err_msg=name)
-        for _ in range(16):
-            actions = [rng.integers(0, ACTION_COUNT, size=s.num_envs) for s in shares]
-            for share, act in zip(shares, actions, strict=True):
-                share.send(0, act)
-            for share, alone, act in zip(shares, lone, actions, strict=True):
-                _assert_same(share.recv(0), alone.step(act))
+        _step_alike(shares, lone, rng, 16)
         for share, alone in zip(shares, lone, strict=True):
             _assert_snapshots_equal(share.snapshot()[0], alone.snapshot()[0])
     finally:
@@ -92,12 +98,7 @@ def test_snapshots_move_between_a_share_and_an_engine_of_its_own() -> None:
         # Share 1 takes lone engine 1's arenas; lone engine 0 takes share 0's.
         shares[1].restore(lone[1].snapshot())
         lone[0].restore(shares[0].snapshot())
-        for _ in range(10):
-            actions = [rng.integers(0, ACTION_COUNT, size=s.num_envs) for s in shares]
-            for share, act in zip(shares, actions, strict=True):
-                share.send(0, act)
-            for share, alone, act in zip(shares, lone, actions, strict=True):
-                _assert_same(share.recv(0), alone.step(act))
+        _step_alike(shares, lone, rng, 10)
     finally:
         for env in (*shares, *lone):
             env.close()
@@ -118,12 +119,7 @@ def test_a_share_that_sends_nothing_sits_the_round_out() -> None:
             shares[0].send(0, act)
             _assert_same(shares[0].recv(0), lone[0].step(act))
         _assert_snapshots_equal(shares[1].snapshot()[0], before)
-        for _ in range(3):
-            actions = [rng.integers(0, ACTION_COUNT, size=2) for _ in shares]
-            for share, act in zip(shares, actions, strict=True):
-                share.send(0, act)
-            for share, alone, act in zip(shares, lone, actions, strict=True):
-                _assert_same(share.recv(0), alone.step(act))
+        _step_alike(shares, lone, rng, 3)
     finally:
         for env in (*shares, *lone):
             env.close()
