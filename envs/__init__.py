@@ -2,8 +2,8 @@
 PettingZoo face (parallel_face), highway-env's interface (highway_env_like), the rows a face
 reads (step_rows) and the Gymnasium ids (registry).
 
-Written once over an engine that is the simulator in this process (overtake.server.local) or a
-remote group (overtake.client.wire.remote); imports of the project only the contract
+Written once over an engine that is the simulator in this process (overtake.server.engine.local) or
+a remote group (overtake.client.wire.remote); imports of the project only the contract
 (overtake.protocol). Importing this package loads Gymnasium; it registers nothing
 (``import overtake.client`` does).
 """

@@ -1,8 +1,8 @@
 """overtake's Gymnasium environments, written once over an engine.
 
 An :class:`Engine` is a group of arenas that answers actions with a round's rows
-(:class:`StepRows`): the simulator in this process (:mod:`overtake.server.local`, the rounds a
-server's groups play, read straight from the simulator's arrays) or arenas on a server
+(:class:`StepRows`): the simulator in this process (:mod:`overtake.server.engine.local`, the rounds
+a server's groups play, read straight from the simulator's arrays) or arenas on a server
 (:class:`overtake.client.wire.remote.ArenaGroup`, whose rows are the :class:`Steps` messages).
 A :class:`Simulator` is what an environment is opened on: its engines (one, or one per part of
 a vector environment), the behaviour spec, and what only some simulators have, each a typed

@@ -32,8 +32,8 @@ def register_environments() -> None:
     if HIGHWAY_ENV_ID not in gym.registry:
         gym.register(
             id=HIGHWAY_ENV_ID,
-            entry_point="overtake.server.env:HighwayEnv",
-            vector_entry_point="overtake.server.env:HighwayVectorEnv",
+            entry_point="overtake.server.engine.env:HighwayEnv",
+            vector_entry_point="overtake.server.engine.env:HighwayVectorEnv",
             # The environment truncates itself at its preset's episode length, which a user may
             # override; a TimeLimit fixed here could not follow it. env.spec reports it.
             max_episode_steps=None,

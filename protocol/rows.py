@@ -4,13 +4,13 @@ A round gives each agent a row: its observations and :data:`ROW_ARRAYS`. Three c
 and all three are :class:`Rows`: the :class:`~.messages.Steps` a server sends a trainer (a
 :class:`Rows` with the server, group and round it answers), the shared-memory layout a round is
 written in (:mod:`.shm_messages`: an array per name here, and ``obs/<observation>``), and the
-in-process engine's rows of a round (``overtake.server.rounds``: the :class:`Rows` themselves,
-no message). What takes or maps rows is here too: :meth:`Rows.taken` (some agents' rows),
-:func:`joined` (several engines' rows, one vector environment's), :meth:`Rows.arrays` and
+in-process engine's rows of a round (``overtake.server.engine.rounds``: the :class:`Rows`
+themselves, no message). What takes or maps rows is here too: :meth:`Rows.taken` (some agents'
+rows), :func:`joined` (several engines' rows, one vector environment's), :meth:`Rows.arrays` and
 :func:`row_values` (to and from a layout's named arrays), :meth:`Rows.check_rows`.
 
 A per-step field is added here (its :class:`RowArray` and its field on :class:`Rows`) and where
-the simulator makes it (``server/rounds.py``); the message, the layout and the faces' rows
+the simulator makes it (``server/engine/rounds.py``); the message, the layout and the faces' rows
 follow (a new wire field also takes its protocol minor version, ``since`` in its metadata).
 """
 

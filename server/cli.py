@@ -13,8 +13,8 @@ from overtake.ipc.transport import warn_if_unconnected, warn_if_unguarded
 from overtake.protocol import errors
 
 from .errors import StartError
-from .server_config import ServerConfig
-from .service import SimulatorServer
+from .service.server import SimulatorServer
+from .service.server_config import ServerConfig
 
 log = logging.getLogger("overtake.server")
 

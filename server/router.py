@@ -3,7 +3,7 @@
 It does what the compose file's router service (zenohd, from the official eclipse/zenoh image)
 does: it relays between simulator servers, trainers and spectators, and holds no overtake logic
 beyond, with --isolate-trainers, the access control that keeps trainers apart
-(``overtake.server.access``). It reads the same Zenoh JSON5 file
+(``overtake.server.service.access``). It reads the same Zenoh JSON5 file
 (``--config docker/zenoh-router.json5``); --listen, --connect and the credential and TLS
 options override what the file says. Multicast scouting
 and gossip are always off, as everywhere in overtake: every endpoint is explicit.
@@ -33,8 +33,8 @@ from overtake.ipc.transport import (
 )
 from overtake.protocol import errors
 
-from .access import isolation_rules, users_in
 from .errors import StartError
+from .service.access import isolation_rules, users_in
 
 log = logging.getLogger("overtake.router")
 
@@ -57,7 +57,7 @@ class RouterConfig:
     isolate_trainers: bool = False
     """Zenoh access control (needs usrpwd): each trainer user reaches only its own arenas'
     steps and actions, and no world frames; --server-users may serve, --spectator-users may
-    watch; every other user of the credentials is a trainer (overtake.server.access)"""
+    watch; every other user of the credentials is a trainer (overtake.server.service.access)"""
     server_users: tuple[str, ...] = ()
     """with --isolate-trainers: the users overtake-server runs as"""
     spectator_users: tuple[str, ...] = ()

@@ -224,7 +224,7 @@ def test_environments_are_registered_by_the_client_and_by_nothing_else():
     for statement in (
         "import overtake.server",
         "import overtake.server.sim",
-        "import overtake.server.env",
+        "import overtake.server.engine.env",
         "import overtake.protocol",
     ):
         assert _loaded_after(statement)["ids"] == [], f"{statement} registered environments"
@@ -340,6 +340,36 @@ def test_trainers_rooms_import_only_those_below_them():
                     continue
                 if parts[2] not in allowed | {room}:
                     wrong.append(f"trainers/{room}/{path.name}:{line} imports {name}")
+    assert not wrong, "\n".join(wrong)
+
+
+# server/ by audience (docs/development.md): an engine under a service, the commands at the
+# top. The rooms each may import when it runs (a type named for a checker only is not an
+# import that runs).
+SERVER_ALLOWED = {
+    "sim": set(),
+    "engine": {"sim"},
+    "channels": {"engine", "sim"},
+    "service": {"engine", "sim", "channels"},
+}
+
+
+def test_server_rooms_import_only_those_below_them():
+    found = {p.name for p in (ROOT / "server").iterdir() if (p / "__init__.py").exists()}
+    assert found == set(SERVER_ALLOWED), "a server/ room the layering does not know"
+    top = sorted(p.stem for p in (ROOT / "server").glob("*.py") if p.stem != "__init__")
+    assert len(top) <= 12, f"server/ has {len(top)} top-level modules: {top}"
+    modules = {_module_name(p) for p in _sources("server")}
+    modules |= {m.rsplit(".", 1)[0] for m in modules}
+    wrong = []
+    for room, allowed in SERVER_ALLOWED.items():
+        for path in sorted((ROOT / "server" / room).rglob("*.py")):
+            for name in sorted(_runtime_imports(path, modules)):
+                parts = name.split(".")
+                if parts[:2] != ["overtake", "server"] or len(parts) < 3:
+                    continue
+                if parts[2] not in allowed | {room}:
+                    wrong.append(f"{path.relative_to(ROOT)} imports {name}")
     assert not wrong, "\n".join(wrong)
 
 

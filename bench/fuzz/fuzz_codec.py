@@ -62,8 +62,8 @@ def seed_messages(preset: str) -> list[bytes]:
         StatusReply,
         StatusRequest,
     )
-    from overtake.server.groups import Group
-    from overtake.server.world import group_world_frame
+    from overtake.server.engine.world import group_world_frame
+    from overtake.server.service.groups import Group
 
     group = Group.open(7, "srv", [3, 4], preset, {}, 2, seed=1)
     group.claim("alice", 0, 2, fresh=True)

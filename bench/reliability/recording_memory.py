@@ -58,7 +58,7 @@ def rss_mib() -> float:
 def writer(config: RecordingMemoryConfig) -> None:
     """One process: log as a trainer does for ``minutes``; one JSON sample per line."""
     from overtake.protocol import ACTION_NAMES
-    from overtake.server.env import HighwayVectorEnv
+    from overtake.server.engine.env import HighwayVectorEnv
     from overtake.trainers.run.visual import TrainingRecording, training_blueprint
     from overtake.viz.recording import RecordingConfig, close_recording, open_recording
 

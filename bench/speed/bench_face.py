@@ -4,7 +4,7 @@ Each measurement drives the same random decisions twice, alternately, in one pro
 
 - **face**: through the Gymnasium face, ``gymnasium.make("overtake/Highway-v0", preset=...)``
   at one arena, ``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")`` at many:
-  the action check, the local engine's round (:class:`~overtake.server.rounds.Rounds`: the
+  the action check, the local engine's round (:class:`~overtake.server.engine.rounds.Rounds`: the
   actions into the round, the autoreset, the round's rows), and the observation and info the
   face hands out, with Gymnasium's own wrappers;
 - **bare**: the simulator alone doing the same round's work: :func:`autoreset_round` with the

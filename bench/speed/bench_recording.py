@@ -46,7 +46,7 @@ class RecordingBenchConfig:
 
 
 def main(config: RecordingBenchConfig) -> dict[str, Any]:
-    from overtake.server.server_config import SERVER_RECORD_EVERY
+    from overtake.server.service.server_config import SERVER_RECORD_EVERY
     from overtake.trainers.config.train_config import TRAINER_RECORD_EVERY
     from overtake.viz.recording import RecordingConfig
 

@@ -40,8 +40,8 @@ class SizeBenchConfig:
 
 def world_frames(arenas: int, rounds: int) -> list[Any]:
     """The frames a server publishes for ``arenas`` arenas over ``rounds`` rounds."""
-    from overtake.server.groups import Group
-    from overtake.server.world import group_world_frame
+    from overtake.server.engine.world import group_world_frame
+    from overtake.server.service.groups import Group
 
     group = Group.open(0, "bench", list(range(arenas)), "min2018", {}, 1, seed=0)
     sim = group.sim

@@ -2,8 +2,8 @@
 PettingZoo's Parallel API.
 
 The PettingZoo face (:mod:`overtake.envs.parallel_face`) over an arena group on a server,
-and so :class:`overtake.server.parallel_env.HighwayParallelEnv` bit for bit for the same preset,
-seed and actions: one arena of ``agents`` cars (``car_0``, ``car_1``, ...), every live car
+and so :class:`overtake.server.engine.parallel_env.HighwayParallelEnv` bit for bit for the same
+preset, seed and actions: one arena of ``agents`` cars (``car_0``, ``car_1``, ...), every live car
 acting in every step (one message each way). A car whose episode ended leaves the road until
 the next ``reset``: with the next step the client asks the server to retire it (protocol 1.3),
 so that the server does not restart it behind the others as it does on shared roads. A server

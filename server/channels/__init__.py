@@ -10,8 +10,8 @@ A channel other than Zenoh is offered (protocol 1.10): the trainer's open reques
 transports it can read, and the outbox makes the first of them this server has
 (:data:`OFFERED`, by transport name, each an :class:`OfferedChannel`); the reply carries the
 channel's :class:`~overtake.protocol.channel_offers.ChannelOffer`. The outbox
-(:mod:`overtake.server.outbox`) hands each channel a round's Steps and whatever else the member
-must hear (an error), and the service loop takes the Actions a trainer put in its offered
+(:mod:`overtake.server.service.outbox`) hands each channel a round's Steps and whatever else the
+member must hear (an error), and the service loop takes the Actions a trainer put in its offered
 channel (:meth:`OfferedChannel.rung`, :meth:`OfferedChannel.actions`) as it takes Actions from
 the inbox.
 """

@@ -1,6 +1,6 @@
 """Rounds over Zenoh: each trainer's Steps (and error replies) on its own key, with blocking
 congestion control so that no round is silently lost. A trainer anywhere on the network can
-use it; its Actions arrive on the server's actions key (:mod:`overtake.server.inbox`)."""
+use it; its Actions arrive on the server's actions key (:mod:`overtake.server.service.inbox`)."""
 
 from __future__ import annotations
 

@@ -76,10 +76,10 @@ def test_a_file_that_is_not_a_checkpoint_gets_one_line_and_no_unsafe_advice(tmp_
 
 def test_the_pettingzoo_faces_without_pettingzoo_name_the_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "pettingzoo", None)  # as if not installed
-    for name in ("overtake.envs.parallel_face", "overtake.server.parallel_env"):
+    for name in ("overtake.envs.parallel_face", "overtake.server.engine.parallel_env"):
         monkeypatch.delitem(sys.modules, name, raising=False)
     with pytest.raises(ModuleNotFoundError, match=r'pip install -e "\.\[pettingzoo\]"') as error:
-        importlib.import_module("overtake.server.parallel_env")
+        importlib.import_module("overtake.server.engine.parallel_env")
     assert error.value.name == "pettingzoo"
 
 
@@ -260,7 +260,7 @@ def test_every_option_of_every_command_says_what_it_is():
     from overtake.client.mlagents.unity_bridge import BridgeConfig
     from overtake.client.wire.status import StatusConfig
     from overtake.server.router import RouterConfig
-    from overtake.server.server_config import ServerConfig
+    from overtake.server.service.server_config import ServerConfig
     from overtake.trainers.collision_causes import CausesConfig
     from overtake.trainers.config.train_config import TrainConfig
     from overtake.trainers.episode_replay import ReplayConfig

@@ -25,7 +25,7 @@ from overtake.protocol.vocabulary import (
     LANE_RIGHT,
     METRIC_FIELDS,
 )
-from overtake.server.env import HighwayEnv
+from overtake.server.engine.env import HighwayEnv
 
 from tests.support.scenes import LANE_WIDTH, Car, scripted_sim
 

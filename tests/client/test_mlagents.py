@@ -16,7 +16,7 @@ import pytest
 
 from overtake.client.mlagents import environment as ours
 from overtake.client.mlagents.environment import RemoteEnvironment, UnsupportedRequest
-from overtake.server.env import HighwayVectorEnv
+from overtake.server.engine.env import HighwayVectorEnv
 
 from tests.support.remote import remote_config
 

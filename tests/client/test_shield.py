@@ -10,7 +10,7 @@ from overtake.cli import UsageError
 from overtake.client.episodes.scenario import Scenario, Where
 from overtake.client.policies.shield import Shield, overridden
 from overtake.protocol.vocabulary import CRUISE_DOWN, CRUISE_UP, KEEP, LANE_LEFT, LANE_RIGHT
-from overtake.server.env import HighwayEnv
+from overtake.server.engine.env import HighwayEnv
 
 from tests.support.scenes import Car, keep, scripted_sim
 

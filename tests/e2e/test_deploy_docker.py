@@ -99,7 +99,7 @@ def test_compose_commands_parse_with_the_commands_own_options(tmp_path: Path):
     import tyro
 
     from overtake.client.wire.status import StatusConfig
-    from overtake.server.service import ServerConfig
+    from overtake.server.service.server import ServerConfig
     from overtake.trainers.train import TrainConfig
 
     services = compose_config()["services"]

@@ -66,7 +66,7 @@ def test_listeners_anyone_may_use_are_found():
 
 
 def test_server_warns_when_anyone_who_reaches_it_may_use_it(tmp_path: Path, caplog):
-    from overtake.server.service import ServerConfig
+    from overtake.server.service.server import ServerConfig
 
     log = logging.getLogger("test.unguarded")
     credentials = tmp_path / "credentials.txt"

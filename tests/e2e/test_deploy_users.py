@@ -247,7 +247,7 @@ def test_isolation_settings_are_checked_with_the_user_named(tmp_path: Path):
         zenoh_config(RouterConfig(server_users=("simserver",)))
     # The example for zenohd in docker/ is what the router makes for its users.
     example = (ROOT / "docker" / "zenoh-router-isolated.json5").read_text()
-    from overtake.server.access import isolation_rules
+    from overtake.server.service.access import isolation_rules
 
     body = json.loads(re.sub(r"^\s*//.*$", "", example, flags=re.M))
     assert body["access_control"] == isolation_rules(["simserver"], ["watcher"], ["alice", "bob"])

@@ -33,7 +33,7 @@ from overtake.envs import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID
 from overtake.protocol import codec, errors, keys
 from overtake.protocol.errors import ConnectError, ServerLost
 from overtake.protocol.messages import WorldFrame
-from overtake.server.env import HighwayVectorEnv
+from overtake.server.engine.env import HighwayVectorEnv
 from overtake.server.sim import PRESETS
 
 from tests.support.remote import (
@@ -631,8 +631,8 @@ def test_a_server_of_protocol_1_4_is_refused_and_its_arenas_freed(start_server, 
 def test_a_group_that_fails_on_a_stepping_thread_closes_alone():
     """Two groups stepped at once on the server's threads; one's step raises: its trainer is
     told the group closed after an internal error, the other group and the server go on."""
-    from overtake.server.server_config import ServerConfig
-    from overtake.server.service import SimulatorServer
+    from overtake.server.service.server import SimulatorServer
+    from overtake.server.service.server_config import ServerConfig
 
     server = SimulatorServer(
         ServerConfig(name="e2e-fail", listen=(endpoint(free_port()),), step_threads=2)

@@ -41,7 +41,7 @@ from overtake.protocol.messages import (
 )
 from overtake.server.cli import main
 from overtake.server.errors import StartError
-from overtake.server.service import ServerConfig
+from overtake.server.service.server import ServerConfig
 
 from tests.support.remote import (
     RawClient,

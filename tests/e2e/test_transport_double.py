@@ -30,8 +30,8 @@ from overtake.protocol import errors
 from overtake.protocol.channel_offers import ChannelOffer
 from overtake.protocol.messages import Actions, Message, Steps
 from overtake.server.channels import ChannelTerms
-from overtake.server.server_config import ServerConfig
-from overtake.server.service import SimulatorServer
+from overtake.server.service.server import SimulatorServer
+from overtake.server.service.server_config import ServerConfig
 
 from tests.support.remote import endpoint, free_port, remote_config, wait_until
 

@@ -14,7 +14,7 @@ from gymnasium.utils.env_checker import check_env
 
 import overtake.client  # noqa: F401  (registers overtake/Highway-v0)
 from overtake.envs import HIGHWAY_ENV_ID
-from overtake.server.env import HighwayEnv
+from overtake.server.engine.env import HighwayEnv
 from overtake.server.sim import ConfigError, make_config
 
 FREE_ROAD = {"traffic.vehicle_count": 0}
@@ -340,7 +340,7 @@ def test_a_seeded_reset_forgets_the_history():
 def test_the_behaviour_spec_states_what_each_preset_sees_and_drives():
     """The road, the car and each observation's columns and reach, from the configuration
     (protocol 1.5): what the rule drivers and the recordings read instead of it."""
-    from overtake.server.env import HighwayVectorEnv
+    from overtake.server.engine.env import HighwayVectorEnv
 
     def spec(preset, **overrides):
         return HighwayVectorEnv(preset=preset, overrides=overrides).behaviour_spec

@@ -12,9 +12,9 @@ import pytest
 
 from overtake.envs.faces import Simulator, StepInfo, VectorFace
 from overtake.protocol.vocabulary import EPISODE_COUNTS, INFO_KEYS
-from overtake.server.env import HighwayEnv, HighwayVectorEnv
-from overtake.server.local import IN_PROCESS, LocalEngine, LocalRoad
-from overtake.server.parallel_env import HighwayParallelEnv
+from overtake.server.engine.env import HighwayEnv, HighwayVectorEnv
+from overtake.server.engine.local import IN_PROCESS, LocalEngine, LocalRoad
+from overtake.server.engine.parallel_env import HighwayParallelEnv
 from overtake.server.sim import make_config
 
 ROOT = Path(__file__).resolve().parents[2]

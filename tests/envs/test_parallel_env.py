@@ -11,8 +11,8 @@ from pettingzoo.test import parallel_api_test
 from overtake.client.envs.parallel_env import RemoteHighwayParallelEnv
 from overtake.client.wire.remote import ArenaGroup
 from overtake.protocol import errors
-from overtake.server.env import HighwayEnv
-from overtake.server.parallel_env import HighwayParallelEnv
+from overtake.server.engine.env import HighwayEnv
+from overtake.server.engine.parallel_env import HighwayParallelEnv
 
 from tests.support.remote import remote_config
 

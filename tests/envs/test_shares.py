@@ -9,7 +9,7 @@ import pytest
 
 from overtake.envs.shares import share_face
 from overtake.protocol.vocabulary import ACTION_COUNT, EPISODE_LENGTH_SETTING
-from overtake.server.env import HighwayVectorEnv
+from overtake.server.engine.env import HighwayVectorEnv
 
 # A short episode, so that the shares' arenas end and restart (next-step autoreset) in the test.
 SHORT = {EPISODE_LENGTH_SETTING: 7}

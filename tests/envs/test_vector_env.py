@@ -9,7 +9,7 @@ import pytest
 import overtake.client  # noqa: F401
 from overtake.envs import HIGHWAY_ENV_ID
 from overtake.protocol.vocabulary import EGO_FIELDS, METRIC_FIELDS
-from overtake.server.env import HighwayEnv, HighwayVectorEnv
+from overtake.server.engine.env import HighwayEnv, HighwayVectorEnv
 
 NUM = 4
 OVERRIDES = {"episode.max_decisions": 15, "traffic.density": "heavy"}

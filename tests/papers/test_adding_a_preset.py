@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from overtake.client.episodes.scenario import Scenario
-from overtake.server.env import HighwayVectorEnv
-from overtake.server.groups import Group
+from overtake.server.engine.env import HighwayVectorEnv
+from overtake.server.service.groups import Group
 from overtake.server.sim import PRESETS, make_config
 from overtake.trainers.config.presets import PRESET_TRAINING, PresetTraining
 from overtake.trainers.config.train_config import TrainConfig

@@ -1,6 +1,6 @@
 """A round's rows named once (protocol/rows.py): the schema, the Steps message, the
 shared-memory layout's names and the operations on rows all follow :data:`ROW_ARRAYS`, so a
-per-step field added there (and where the round makes it, server/rounds.py) reaches every
+per-step field added there (and where the round makes it, server/engine/rounds.py) reaches every
 carrier; a carrier that spelled the row on its own would miss it and fail here."""
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from overtake.protocol.rows import (
     row_values,
 )
 from overtake.protocol.shm_messages import STEPS_ARRAYS
-from overtake.server.rounds import RoundRows
+from overtake.server.engine.rounds import RoundRows
 
 
 def _rows(k: int, start: int = 0, **carrier) -> dict:

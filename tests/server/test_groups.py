@@ -7,9 +7,9 @@ import pytest
 
 from overtake.protocol import errors
 from overtake.protocol.messages import Actions
-from overtake.server.arenas import next_to_step
-from overtake.server.group_snapshot import keep_state, restore_state
-from overtake.server.groups import Group
+from overtake.server.service.arenas import next_to_step
+from overtake.server.service.group_state import keep_state, restore_state
+from overtake.server.service.groups import Group
 from overtake.server.sim import HighwaySim, make_config
 
 QUIET = {"traffic.vehicle_count": 0}

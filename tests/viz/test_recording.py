@@ -209,7 +209,7 @@ def test_server_recorder_drops_and_counts_what_it_cannot_keep_up_with(tmp_path, 
 
     recorder.view.log = slow_log
     offered = recorder_module.QUEUE_FRAMES + 20
-    with caplog.at_level(logging.WARNING, logger="overtake.server.recorder"):
+    with caplog.at_level(logging.WARNING, logger="overtake.server.service.recorder"):
         kept = [recorder.offer(small_frame(r)) for r in range(offered)]
     assert not recorder.has_room()
     # The thread holds one frame, the queue the next QUEUE_FRAMES; the rest are dropped.

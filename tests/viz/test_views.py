@@ -347,7 +347,7 @@ def test_highway_scenes_name_their_actions_as_highway_env_does(tmp_path):
     their behaviour spec (in overtake's order), and a training recording's car plots them so."""
     from overtake.envs.highway_env_like import ACTION_LABELS, TO_OVERTAKE
     from overtake.protocol.vocabulary import ACTION_NAMES, HIGHWAY_ENV_ACTION_NAMES
-    from overtake.server.env import HighwayEnv
+    from overtake.server.engine.env import HighwayEnv
 
     names = {}
     for preset in ("highway-fast", "highway", "min2018"):

@@ -11,8 +11,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from overtake.server.env import HighwayVectorEnv
-from overtake.server.groups import Group
+from overtake.server.engine.env import HighwayVectorEnv
+from overtake.server.service.groups import Group
 from overtake.server.sim import SimConfig, make_config
 from overtake.server.sim.config import apply_overrides
 from overtake.server.sim.sensors.base import Scene, SensorConfig, SensorFacts, SensorSpace

@@ -26,8 +26,8 @@ import numpy as np
 import pytest
 
 from overtake.protocol.messages import Actions
-from overtake.server.env import HighwayEnv, HighwayVectorEnv
-from overtake.server.groups import Group
+from overtake.server.engine.env import HighwayEnv, HighwayVectorEnv
+from overtake.server.service.groups import Group
 from overtake.server.sim import PRESETS
 from overtake.server.sim.sensors.kinematics import FEATURES as KINEMATICS_FEATURES
 from overtake.server.sim.settings_history import BEFORE_AUTHORS_TRAFFIC

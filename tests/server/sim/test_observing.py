@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from overtake.protocol import errors
-from overtake.server.env import HighwayVectorEnv
-from overtake.server.groups import Group
+from overtake.server.engine.env import HighwayVectorEnv
+from overtake.server.service.groups import Group
 from overtake.server.sim import PRESETS, ConfigError, HighwaySim, make_config
 
 QUIET = {"traffic.vehicle_count": 4, "episode.max_decisions": 20}

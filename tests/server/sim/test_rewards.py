@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from overtake.server.env import HighwayEnv
+from overtake.server.engine.env import HighwayEnv
 from overtake.server.sim.units import KMH
 
 from tests.support.scenes import Car, keep, scripted_sim

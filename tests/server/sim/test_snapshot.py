@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from overtake.server.env import HighwayVectorEnv
+from overtake.server.engine.env import HighwayVectorEnv
 from overtake.server.sim import PRESETS, HighwaySim
 from overtake.server.sim.presets import make_config
 from overtake.server.sim.snapshot import SnapshotMismatch

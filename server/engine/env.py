@@ -4,7 +4,7 @@
 with Gymnasium 1.x's default next-step autoreset: the step after an episode ends resets that
 arena (ignoring its action) and returns the first observation of the new episode with reward 0
 and terminated = truncated = False. Both are :mod:`overtake.envs.faces` over a
-:class:`~overtake.server.local.LocalEngine`, the server's own arena group, and so equal the
+:class:`~overtake.server.engine.local.LocalEngine`, the server's own arena group, and so equal the
 remote environments bit for bit.
 
 Info carries, every step: ``action_mask`` (int8, 1 = the action can be taken now),
@@ -25,8 +25,8 @@ import numpy as np
 from overtake.envs.faces import SingleFace, VectorFace
 from overtake.protocol.errors import BadConfig
 
+from ..sim import HighwaySim, SimConfig, settings_history
 from .local import LocalEngine, LocalRoad, local_simulator
-from .sim import HighwaySim, SimConfig, settings_history
 
 
 def in_process_config(

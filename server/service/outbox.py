@@ -19,11 +19,11 @@ from overtake.protocol import codec, keys
 from overtake.protocol.channel_offers import ChannelOffer
 from overtake.protocol.messages import ErrorReply, Message, Steps
 
-from .channels import ChannelTerms, OfferedChannel, StepsChannel
-from .channels.zenoh_channel import ZenohChannel, send_once
+from ..channels import ChannelTerms, OfferedChannel, StepsChannel
+from ..channels.zenoh_channel import ZenohChannel, send_once
+from ..engine.world import group_world_frame
 from .groups import Group
 from .server_config import ServerConfig
-from .world import group_world_frame
 
 log = logging.getLogger(__name__)
 
@@ -31,7 +31,7 @@ log = logging.getLogger(__name__)
 class Outbox:
     """The server's channels to its trainers, and its world publishers, on its Zenoh
     ``session``, as ``config`` says (its name, world rate and the channels it offers:
-    :meth:`~overtake.server.server_config.ServerConfig.offered_channels`).
+    :meth:`~overtake.server.service.server_config.ServerConfig.offered_channels`).
     ``on_ring(trainer, group)``: a trainer put its Actions in its offered channel (called on
     the channel's thread; it should only enqueue)."""
 

@@ -12,7 +12,7 @@ from typing import Any
 from overtake.protocol import errors
 from overtake.protocol.messages import Scalar
 
-from .sim import PRESETS, ConfigError, SimConfig, settings_history
+from ..sim import PRESETS, ConfigError, SimConfig, settings_history
 
 
 def resolve_config(

@@ -35,11 +35,11 @@ from overtake.protocol.messages import (
 )
 from overtake.protocol.vocabulary import DEFAULT_ACTION
 
+from ..engine.rounds import Rounds
+from ..engine.spec import behaviour_spec
+from ..sim import HighwaySim, SimConfig
 from .members import Member
 from .requested import resolve_config
-from .rounds import Rounds
-from .sim import HighwaySim, SimConfig
-from .spec import behaviour_spec
 
 # Group steps taken in this process, in order: what next_to_step compares.
 _GROUP_STEPS = itertools.count(1)

@@ -14,8 +14,8 @@ import json
 from overtake.protocol.messages import BehaviourSpec, CarSpec, ObservationSpec, Reach, RoadSpec
 from overtake.protocol.vocabulary import ACTION_COUNT
 
-from .sim import HighwaySim
-from .sim.sensors import SensorFacts
+from ..sim import HighwaySim
+from ..sim.sensors import SensorFacts
 
 
 def _reach(facts: SensorFacts) -> Reach | None:

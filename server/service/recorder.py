@@ -18,7 +18,7 @@ from overtake.protocol.messages import WorldFrame
 from overtake.viz.recording import APPLICATION_ID, Recording, RecordingConfig, open_recording
 from overtake.viz.world_view import WorldRecording
 
-log = logging.getLogger("overtake.server.recorder")
+log = logging.getLogger("overtake.server.service.recorder")
 
 # Frames waiting for the logging thread; beyond this they are dropped (about a second of a
 # 64-arena server at 16 rounds/s).

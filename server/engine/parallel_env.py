@@ -19,9 +19,9 @@ from typing import Any
 
 from overtake.envs.parallel_face import ParallelFace
 
+from ..sim import SimConfig
 from .env import _InProcess, in_process_config
 from .local import local_simulator
-from .sim import SimConfig
 
 
 class HighwayParallelEnv(_InProcess, ParallelFace):

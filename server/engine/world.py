@@ -11,10 +11,10 @@ import numpy as np
 from overtake.protocol.messages import WorldFrame
 from overtake.protocol.vocabulary import AGENT_KIND
 
-from .sim import HighwaySim
+from ..sim import HighwaySim
 
 if TYPE_CHECKING:
-    from .groups import Group
+    from ..service.groups import Group
     from .rounds import Rounds
 
 

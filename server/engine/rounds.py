@@ -20,7 +20,7 @@ import numpy as np
 
 from overtake.protocol.rows import Rows
 
-from .sim import HighwaySim, autoreset_round
+from ..sim import HighwaySim, autoreset_round
 
 # The per-slot arrays a round leaves for the next (Rounds' attributes of these names).
 SLOT_ARRAYS = ("ended", "retired", "last_reward", "last_applied", "last_terms")

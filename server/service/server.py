@@ -42,8 +42,9 @@ from overtake.protocol.messages import (
     StatusRequest,
 )
 
+from ..engine.world import group_world_frame
 from .arenas import ArenaRegistry, ready_to_step
-from .group_snapshot import keep_state, restore_state
+from .group_state import keep_state, restore_state
 from .groups import Group
 from .inbox import (
     MAX_EVENTS_PER_PASS,
@@ -58,7 +59,6 @@ from .inbox import (
 from .outbox import Outbox
 from .recorder import ServerRecorder
 from .server_config import ServerConfig
-from .world import group_world_frame
 
 log = logging.getLogger("overtake.server")
 # What a query may ask.
@@ -134,7 +134,7 @@ class SimulatorServer:
                 "give this one another --name"
             )
         s = self.session
-        # Zenoh's threads only enqueue (server/inbox.py); the loop does the rest.
+        # Zenoh's threads only enqueue (server/service/inbox.py); the loop does the rest.
         self._declared.append(
             s.declare_queryable(keys.server_request(self.name), self.inbox.on_query)
         )

@@ -12,7 +12,7 @@ import numpy as np
 from overtake.protocol import errors
 from overtake.protocol.messages import Actions, Steps
 
-from .rounds import RoundRows
+from ..engine.rounds import RoundRows
 
 
 @dataclass

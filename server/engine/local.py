@@ -1,10 +1,10 @@
 """The simulator in this process, as an engine of overtake's environment faces.
 
 An in-process environment plays the very rounds a server's arena groups play
-(:class:`~overtake.server.rounds.Rounds`: the autoreset, what each slot carries between rounds),
-so that what it returns is the server's bit for bit; but it owns every car, so nothing of the
-server's ledger is here (no trainer, ticket, message or deadline): its faces read the round's
-rows (:class:`~overtake.server.rounds.RoundRows`) straight from the simulator's arrays. What
+(:class:`~overtake.server.engine.rounds.Rounds`: the autoreset, what each slot carries between
+rounds), so that what it returns is the server's bit for bit; but it owns every car, so nothing of
+the server's ledger is here (no trainer, ticket, message or deadline): its faces read the round's
+rows (:class:`~overtake.server.engine.rounds.RoundRows`) straight from the simulator's arrays. What
 only an in-process simulator has, its :class:`~overtake.envs.faces.Road` (world frames,
 pictures, the privileged planner), is :class:`LocalRoad`.
 """
@@ -22,12 +22,12 @@ from overtake.protocol import errors
 from overtake.protocol.messages import BehaviourSpec, WorldFrame
 from overtake.protocol.vocabulary import DEFAULT_ACTION
 
+from ..sim import HighwaySim, SimConfig
+from ..sim.config import as_json
+from ..sim.planner import Planner
+from ..sim.render import render_top_down
 from .group_snapshot import GroupSnapshot
 from .rounds import RoundRows, Rounds
-from .sim import HighwaySim, SimConfig
-from .sim.config import as_json
-from .sim.planner import Planner
-from .sim.render import render_top_down
 from .spec import behaviour_spec
 from .world import rounds_world_frame
 

@@ -10,7 +10,7 @@ from overtake.cli import Output
 from overtake.ipc.transport import DEFAULT_ENDPOINT, SecurityConfig, TransportConfig
 from overtake.viz.recording import RecordingConfig
 
-from .channels import OFFERED, ChannelMaker
+from ..channels import OFFERED, ChannelMaker
 from .recorder import default_rrd
 
 # With its sink on, a server logs every arena one round in this many: logging every round
