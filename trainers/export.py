@@ -42,7 +42,7 @@ from overtake.protocol.vocabulary import (
 )
 
 from .checkpoint import Checkpoint, load_checkpoint
-from .network import INPUT_SENSORS, observations_read
+from .network import INPUT_SENSORS, ego_fields_read, observations_read
 from .observations import frame_shapes
 
 OUTPUT_NAME = "q_values"
@@ -182,6 +182,7 @@ def check_against_torch(
         dict(checkpoint.overrides),
         config.check_envs,
         observations=observations_read(checkpoint.inputs),
+        ego_fields=ego_fields_read(checkpoint.inputs),
     )
     try:
         space = envs.single_observation_space

@@ -94,6 +94,7 @@ def main(
                 config.num_envs,
                 parts=config.parts,
                 observations=config.observations,
+                ego_fields=config.ego_fields,
             )
         except BaseException:
             # A run that could not start (a bad override, no server) leaves no empty folder
@@ -156,6 +157,7 @@ def train_members(
                     config.overrides(),
                     config.num_envs,
                     observations=config.observations,
+                    ego_fields=config.ego_fields,
                 )
             )
         members = MembersRun(

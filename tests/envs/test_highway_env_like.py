@@ -73,17 +73,18 @@ def test_action_target_speeds_and_subsets():
     with pytest.raises(ValueError, match=r"\[0, 3\) \(0 SLOWER, 1 IDLE, 2 FASTER\), got 3"):
         env.step(3)
     env.close()
-    lateral = read_config("highway", {"action": {"longitudinal": False}})
+    lateral = read_config({"action": {"longitudinal": False}})
     assert lateral.actions == ("LANE_LEFT", "IDLE", "LANE_RIGHT")
     assert lateral.to_overtake.tolist() == [3, 0, 4]
     with pytest.raises(BadConfig, match="both false, expected at least one"):
-        read_config("highway", {"action": {"longitudinal": False, "lateral": False}})
+        read_config({"action": {"longitudinal": False, "lateral": False}})
     with pytest.raises(
         BadConfig, match=r"config\['action'\] is a dict .* got 'DiscreteMetaAction'"
     ):
-        read_config("highway", {"action": "DiscreteMetaAction"})
+        read_config({"action": "DiscreteMetaAction"})
+    # The simulator's translation refuses what the scene does not take.
     with pytest.raises(BadConfig, match="ContinuousAction"):
-        read_config("highway", {"action": {"type": "ContinuousAction"}})
+        gym.make("overtake/highway-v0", config={"action": {"type": "ContinuousAction"}})
 
 
 def test_the_viewer_s_keys_frame_the_picture_and_the_others_are_said_once(monkeypatch):
@@ -110,7 +111,7 @@ def test_the_viewer_s_keys_frame_the_picture_and_the_others_are_said_once(monkey
         warnings.simplefilter("error")  # said once in a process
         gym.make("overtake/highway-fast-v0", config={"show_trajectories": True}).close()
     with pytest.raises(BadConfig, match=r"config\['screen_width'\] = -3 .* a positive integer"):
-        read_config("highway-fast", {"screen_width": -3})
+        read_config({"screen_width": -3})
 
 
 def test_a_refused_value_names_the_key_given():
