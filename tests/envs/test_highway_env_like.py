@@ -4,6 +4,7 @@ highway-env 1.12.1's own default configurations taken, each refusal a ``BadConfi
 
 from __future__ import annotations
 
+import json
 import warnings
 
 import gymnasium as gym
@@ -14,6 +15,7 @@ import overtake.client  # noqa: F401  (registers the ids)
 from overtake.envs import highway_env_config
 from overtake.envs.highway_env_config import read_config
 from overtake.protocol.errors import BadConfig, ProtocolError
+from overtake.protocol.vocabulary import HIGHWAY_ENV_FACE_ACTION_KEYS, HIGHWAY_ENV_FACE_KEYS
 from overtake.server.sim import ConfigError
 from overtake.server.sim.highway_scene.config import HighwaySceneConfig
 
@@ -136,3 +138,20 @@ def test_preset_on_a_highway_env_id_and_a_dict_for_a_sim_config_are_refused_in_o
     assert "\n" not in str(refused.value)
     with pytest.raises(BadConfig, match="config= takes a SimConfig .* got a dict: highway-env's"):
         gym.make("overtake/Highway-v0", preset="highway-fast", config={"lanes_count": 3})
+
+
+def test_the_face_reads_the_keys_the_contract_leaves_to_it_and_sends_the_rest():
+    # The simulator's translation leaves these to the face, and the face reads them all.
+    assert set(highway_env_config.VIEW_KEYS) | set(highway_env_config.NO_EFFECT_KEYS) == set(
+        HIGHWAY_ENV_FACE_KEYS
+    )
+    assert HIGHWAY_ENV_FACE_ACTION_KEYS == ("longitudinal", "lateral")
+    # The whole configuration travels in highway-env's words, numpy's values as JSON's.
+    read = read_config({"lanes_count": np.int64(3), "action": {"target_speeds": np.arange(2)}})
+    assert read.translation.source == "highway-env"
+    assert json.loads(read.translation.config_json) == {
+        "lanes_count": 3,
+        "action": {"target_speeds": [0, 1]},
+    }
+    with pytest.raises(BadConfig, match="expected highway-env's plain values"):
+        read_config({"observation": {"features": {"x", "y"}}})
