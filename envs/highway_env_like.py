@@ -13,8 +13,8 @@ the action set, the picture's framing and the keys with no effect here
 settings beside its scene (asked for by name in the open request, in process as on a
 server); any other key is refused by name with the nearest known one suggested, and
 ``preset=`` is refused (the id names its scene). ``overrides=`` takes overtake's own settings
-beyond them (dotted names, over ``config``'s: the settings page lists them; highway-env's IDM
-car as the controlled car, for one). ``info`` holds overtake's entries (its action mask in
+beyond them (dotted names, over ``config``'s, as docs/presets.md lists them: highway-env's
+IDM car as the controlled car, for one). ``info`` holds overtake's entries (its action mask in
 highway-env's order) and highway-env's ``speed`` (read from the observation's first row,
 where it has vx and vy, scaled back by the ranges the observation's spec gives), ``crashed``
 and ``rewards``.

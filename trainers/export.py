@@ -105,6 +105,9 @@ def policy_metadata(checkpoint: Checkpoint, names: tuple[str, ...]) -> dict[str,
         # Trained behind the safety shield: drivers put it in front of the model too.
         "shield": bool(checkpoint.config.get("shield", False)),
         "input_names": list(names),
+        # The ego vector's fields it reads where not the preset's, which a driver asks the
+        # simulator for (OpenRequest.ego_fields); empty: the preset's.
+        "ego_fields": list(ego_fields_read(checkpoint.inputs)),
         "stacked": [n for n in names if n in stacked],
         "space": {name: checkpoint.space[name] for name in names},
         # The actions in index order as the preset names them (its behaviour spec's).

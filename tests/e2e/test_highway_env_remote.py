@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 
 import overtake.client  # noqa: F401  (registers the environments)
-from overtake.protocol.errors import BadConfig
+from overtake.client.wire.remote import ArenaGroup
+from overtake.protocol.errors import BadConfig, VersionMismatch
 
 HIGHWAY_FAST = "overtake/highway-fast-v0"
 # highway-env's keys as a script gives them: fewer features, other ranges, a longer episode.
@@ -118,7 +119,7 @@ def test_highway_env_config_works_on_a_server_exactly_as_in_process(start_server
 
 
 @pytest.mark.timeout(120)
-def test_a_refused_highway_env_key_is_said_alike_on_a_server(start_server):
+def test_a_refused_highway_env_key_is_said_alike_on_a_server(start_server, monkeypatch):
     server = start_server("e2e-highway-env-refusals")
     for config, expected in (
         ({"lanes_cuont": 4}, "unknown key 'lanes_cuont'; did you mean 'lanes_count'?"),
@@ -136,3 +137,16 @@ def test_a_refused_highway_env_key_is_said_alike_on_a_server(start_server):
         assert expected in str(in_process.value)
         assert str(in_process.value) in str(remote.value)
     assert server.status().arenas_used == 0  # nothing was opened
+
+    # A 1.10 server would ignore the translation and open the scene as its preset has it:
+    # refused, naming the versions, and its arenas freed.
+    original_open = ArenaGroup._open
+
+    def as_if_1_10(self, reseed=True):
+        original_open(self, reseed)
+        self.server_minor = 10
+
+    monkeypatch.setattr(ArenaGroup, "_open", as_if_1_10)
+    with pytest.raises(VersionMismatch, match=r"speaks protocol 1\.10; .* need 1\.11 .* upgrade"):
+        gym.make(HIGHWAY_FAST, config=CONFIGS[0], connect=server.endpoint)
+    assert server.status().arenas_used == 0
