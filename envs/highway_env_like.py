@@ -1,24 +1,26 @@
 """``overtake/highway-fast-v0`` and ``overtake/highway-v0``: the presets ``highway-fast`` and
 ``highway`` as highway-env's own ids present them, so that a highway-env script changes its id
-and nothing else; in process, or on a simulator server with ``connect=``.
+and nothing else; in process, or on a simulator server with ``connect=``, the same simulator
+either way.
 
 What a highway-env user's code reads is highway-env's: the observation is the Kinematics array
 alone (not a dict), the actions are ``DiscreteMetaAction``'s numbers (0 LANE_LEFT, 1 IDLE, 2
 LANE_RIGHT, 3 FASTER, 4 SLOWER; overtake's own order is keep, cruise up, cruise down, left,
 right, and the ids translate; ``config["action"]`` may narrow them to highway-env's
-longitudinal or lateral three), and ``config={...}`` takes highway-env's keys
-(:mod:`overtake.envs.highway_env_config`: overtake's settings, the action set, the picture's
-framing, or said once as having no effect here); any other key is refused by name with the
-nearest known one suggested, and ``preset=`` is refused (the id names its scene);
-``overrides=`` takes overtake's own settings beyond them (dotted names, over ``config``'s: e.g.
-``{"highway_scene.ego_driver": "idm"}``, highway-env's IDM car as the controlled car). ``info``
-holds overtake's entries (its action mask in highway-env's order) and highway-env's
-``speed`` (read from the observation's first row, where it has vx and vy), ``crashed`` and
-``rewards``.
+longitudinal or lateral three), and ``config={...}`` takes highway-env's keys: the face reads
+the action set, the picture's framing and the keys with no effect here
+(:mod:`overtake.envs.highway_env_config`), and the simulator translates the rest into its
+settings beside its scene (asked for by name in the open request, in process as on a
+server); any other key is refused by name with the nearest known one suggested, and
+``preset=`` is refused (the id names its scene). ``overrides=`` takes overtake's own settings
+beyond them (dotted names, over ``config``'s, as docs/presets.md lists them: highway-env's
+IDM car as the controlled car, for one). ``info`` holds overtake's entries (its action mask in
+highway-env's order) and highway-env's ``speed`` (read from the observation's first row,
+where it has vx and vy, scaled back by the ranges the observation's spec gives), ``crashed``
+and ``rewards``.
 
 The environment underneath is overtake's own, ``overtake/Highway-v0`` or, with ``connect``,
-``overtake/RemoteHighway-v0``, made through Gymnasium's registry. Over the wire a setting is a
-single value: the observation's ``features`` and ``features_range`` are taken in process only.
+``overtake/RemoteHighway-v0``, made through Gymnasium's registry.
 """
 
 from __future__ import annotations
@@ -31,19 +33,18 @@ import numpy as np
 from gymnasium import spaces
 
 from overtake.protocol.errors import BadConfig
+from overtake.protocol.specs import ObservationSpec
 
 from .faces import NEXT_STEP
 from .highway_env_config import (
     ACTION_LABELS,
     FROM_OVERTAKE,
-    PRESET_TIMES,
     TO_OVERTAKE,
     HighwayEnvConfig,
-    overrides_from_config,
     read_config,
     say_no_effect,
 )
-from .registry import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID
+from .registry import HIGHWAY_ENV_ID, HIGHWAY_ENV_LIKE_IDS, REMOTE_HIGHWAY_ENV_ID
 
 __all__ = [
     "ACTION_LABELS",
@@ -52,34 +53,36 @@ __all__ = [
     "HighwayEnvConfig",
     "HighwayEnvLike",
     "HighwayEnvLikeVector",
-    "overrides_from_config",
     "read_config",
 ]
 
+# The observation these ids give: highway-env's Kinematics table.
+KINEMATICS = "kinematics"
 
-def _speed(obs: np.ndarray, features: Sequence[str], ranges: Mapping[str, Any]) -> np.ndarray:
-    """The cars' speed (m/s) from their rows' vx and vy (normalised by ``ranges`` where the
-    observation is); NaN where the features have no vx or vy."""
-    if "vx" not in features or "vy" not in features:
+
+def _speed(obs: np.ndarray, spec: ObservationSpec) -> np.ndarray:
+    """The cars' speed (m/s) from their rows' vx and vy, scaled back where the observation's
+    spec says they are normalised; NaN where the observation has no vx or vy."""
+    if "vx" not in spec.columns or "vy" not in spec.columns:
         return np.full(obs.shape[:-2], np.nan)
     parts = []
     for name in ("vx", "vy"):
-        value = obs[..., 0, list(features).index(name)].astype(np.float64)
-        low, high = ranges.get(name, (-80.0, 80.0))
-        if ranges.get("normalize", True):
-            value = (value + 1.0) / 2.0 * (high - low) + low
+        value = obs[..., 0, spec.columns.index(name)].astype(np.float64)
+        scale = spec.scale(name)
+        if scale is not None:
+            value = (value + 1.0) / 2.0 * (scale.high - scale.low) + scale.low
         parts.append(value)
     return np.hypot(*parts)
 
 
 def _highway_env_info(
-    info: dict[str, Any], obs: np.ndarray, features, ranges, to_overtake: np.ndarray
+    info: dict[str, Any], obs: np.ndarray, spec: ObservationSpec, to_overtake: np.ndarray
 ) -> dict[str, Any]:
     """highway-env's info entries beside overtake's, and overtake's action mask in
     highway-env's action order."""
     info["action_mask"] = np.asarray(info["action_mask"])[..., to_overtake]
     terms = info.get("reward_terms", {})
-    speed = _speed(obs, features, ranges)
+    speed = _speed(obs, spec)
     info["speed"] = float(speed) if np.ndim(speed) == 0 else speed
     collision = np.asarray(terms.get("collision", 0.0)) > 0
     info["crashed"] = bool(collision) if np.ndim(collision) == 0 else collision
@@ -98,16 +101,16 @@ def _inner(
     preset: str | None,
     settings: Mapping[str, Any] | None,
     **kwargs: Any,
-) -> tuple[str, dict[str, Any], HighwayEnvConfig, Sequence[str], dict[str, Any]]:
+) -> tuple[str, dict[str, Any], HighwayEnvConfig]:
     """overtake's own environment for this configuration (its id, in process or remote, and
-    keyword arguments), the configuration read, and the observation's features and
-    normalisation (for the speed in info). ``settings``: overtake's own (dotted names, as
-    ``overrides=`` of overtake/Highway-v0) over what ``config`` maps to, for what highway-env
-    has no key for (``highway_scene.ego_driver``: its IDM car as the controlled car)."""
-    if scene not in PRESET_TIMES:
+    keyword arguments: the scene's preset, the configuration for the simulator to translate,
+    ``settings`` over it) and what the face reads of the configuration. ``settings``:
+    overtake's own (dotted names, as ``overrides=`` of overtake/Highway-v0) over what
+    ``config`` translates to, for what highway-env has no key for."""
+    if scene not in HIGHWAY_ENV_LIKE_IDS.values():
         raise BadConfig(
             f"scene = {scene!r} is not one of highway-env's scenes here: expected one of "
-            f"{', '.join(PRESET_TIMES)}"
+            f"{', '.join(HIGHWAY_ENV_LIKE_IDS.values())}"
         )
     if preset is not None:
         raise BadConfig(
@@ -115,28 +118,18 @@ def _inner(
             f"{scene}-v0 (the preset {scene}): choose the scene by its id, or overtake's "
             f"presets with gym.make('overtake/Highway-v0', preset={preset!r})"
         )
-    read = read_config(scene, config)
-    overrides = {**read.overrides, **(settings or {})}
-    features = overrides.get("kinematics.features", ["presence", "x", "y", "vx", "vy"])
-    ranges = {
-        "vx": overrides.get("kinematics.vx_range_mps", (-80.0, 80.0)),
-        "vy": overrides.get("kinematics.vy_range_mps", (-80.0, 80.0)),
-        "normalize": overrides.get("kinematics.normalize", True),
+    read = read_config(config)
+    made = {
+        "preset": scene,
+        "overrides": dict(settings or {}),
+        "translation": read.translation,
+        **kwargs,
     }
-    made = {"preset": scene, "overrides": overrides, **kwargs}
     if connect is not None:
         made["connect"] = connect
     env_id = HIGHWAY_ENV_ID if connect is None else REMOTE_HIGHWAY_ENV_ID
     say_no_effect(read.no_effect)
-    return env_id, made, read, features, ranges
-
-
-def _made(read: HighwayEnvConfig, make: Any, env_id: str, **made: Any) -> Any:
-    """overtake's environment, a refused setting said with the key the user gave."""
-    try:
-        return make(env_id, **made)
-    except BadConfig as error:
-        raise BadConfig(read.in_users_words(str(error))) from None
+    return env_id, made, read
 
 
 def _actions_text(labels: Sequence[str]) -> str:
@@ -157,23 +150,25 @@ class HighwayEnvLike(gym.Env):
         preset: str | None = None,
         overrides: Mapping[str, Any] | None = None,
     ) -> None:
-        env_id, made, self.highway_env_config, self._features, self._ranges = _inner(
+        env_id, made, self.highway_env_config = _inner(
             scene, config, connect, preset, overrides, render_mode=render_mode
         )
-        self.env: Any = _made(self.highway_env_config, gym.make, env_id, **made).unwrapped
+        inner: Any = gym.make(env_id, **made).unwrapped
+        self.env = inner
+        self._kinematics = inner.behaviour_spec.observation(KINEMATICS)
         self.render_mode = render_mode
         self._to_overtake = self.highway_env_config.to_overtake
-        self.observation_space = self.env.observation_space["kinematics"]
+        self.observation_space = inner.observation_space[KINEMATICS]
         self.action_space = spaces.Discrete(len(self._to_overtake))
         self.metadata = {**self.metadata, **self.env.metadata}
 
     def _info(self, info: dict[str, Any], table: np.ndarray) -> dict[str, Any]:
-        return _highway_env_info(info, table, self._features, self._ranges, self._to_overtake)
+        return _highway_env_info(info, table, self._kinematics, self._to_overtake)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
         obs, info = self.env.reset(seed=seed, options=options)
-        table = obs["kinematics"]
+        table = obs[KINEMATICS]
         return table, self._info(info, table)
 
     def step(self, action):
@@ -186,7 +181,7 @@ class HighwayEnvLike(gym.Env):
         obs, reward, terminated, truncated, info = self.env.step(
             int(self._to_overtake[int(action)])
         )
-        table = obs["kinematics"]
+        table = obs[KINEMATICS]
         return table, reward, terminated, truncated, self._info(info, table)
 
     def render(self) -> np.ndarray | None:  # type: ignore[override, unused-ignore]
@@ -218,21 +213,18 @@ class HighwayEnvLikeVector(gym.vector.VectorEnv):
         preset: str | None = None,
         overrides: Mapping[str, Any] | None = None,
     ) -> None:
-        env_id, made, self.highway_env_config, self._features, self._ranges = _inner(
+        env_id, made, self.highway_env_config = _inner(
             scene, config, connect, preset, overrides, render_mode=render_mode
         )
-        self.env: Any = _made(
-            self.highway_env_config,
-            gym.make_vec,
-            env_id,
-            num_envs=num_envs,
-            vectorization_mode="vector_entry_point",
-            **made,
+        inner: Any = gym.make_vec(
+            env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", **made
         )
+        self.env = inner
+        self._kinematics = inner.behaviour_spec.observation(KINEMATICS)
         self.num_envs, self.render_mode = num_envs, render_mode
         self._to_overtake = self.highway_env_config.to_overtake
         count = len(self._to_overtake)
-        self.single_observation_space = self.env.single_observation_space["kinematics"]
+        self.single_observation_space = inner.single_observation_space[KINEMATICS]
         self.single_action_space = spaces.Discrete(count)
         self.observation_space = gym.vector.utils.batch_space(
             self.single_observation_space, num_envs
@@ -240,11 +232,11 @@ class HighwayEnvLikeVector(gym.vector.VectorEnv):
         self.action_space = spaces.MultiDiscrete(np.full(num_envs, count))
 
     def _info(self, info: dict[str, Any], table: np.ndarray) -> dict[str, Any]:
-        return _highway_env_info(info, table, self._features, self._ranges, self._to_overtake)
+        return _highway_env_info(info, table, self._kinematics, self._to_overtake)
 
     def reset(self, *, seed: int | Sequence[int | None] | None = None, options=None):
         obs, info = self.env.reset(seed=seed, options=options)
-        table = obs["kinematics"]
+        table = obs[KINEMATICS]
         return table, self._info(info, table)
 
     def step(self, actions):
@@ -262,7 +254,7 @@ class HighwayEnvLikeVector(gym.vector.VectorEnv):
                 f"({_actions_text(self.highway_env_config.actions)}), got {actions!r}"
             )
         obs, reward, terminated, truncated, info = self.env.step(self._to_overtake[actions])
-        table = obs["kinematics"]
+        table = obs[KINEMATICS]
         return table, reward, terminated, truncated, self._info(info, table)
 
     def render(self):  # type: ignore[override, unused-ignore]

@@ -46,15 +46,16 @@ from .records import (
 )
 from .rows import Rows
 from .shm_messages import ShmArray, ShmOffer
-from .specs import BehaviourSpec, CarSpec, ObservationSpec, Reach, RoadSpec
+from .specs import BehaviourSpec, CarSpec, ColumnScale, ObservationSpec, Reach, RoadSpec
 from .state_messages import GroupState, RestoreRequest, SnapshotRequest
 from .version import (
     AS_RECORDED_SINCE_MINOR,
     PROTOCOL_HISTORY,
     PROTOCOL_VERSION,
+    REQUESTED_READING_SINCE_MINOR,
     TYPED_SPEC_SINCE_MINOR,
 )
-from .vocabulary import ACTION_COUNT, ACTION_NAMES
+from .vocabulary import ACTION_COUNT, ACTION_NAMES, TRANSLATIONS
 
 __all__ = [
     "ACTION_COUNT",
@@ -69,6 +70,7 @@ __all__ = [
     "NAME_PATTERN",
     "PROTOCOL_HISTORY",
     "PROTOCOL_VERSION",
+    "REQUESTED_READING_SINCE_MINOR",
     "TYPED_SPEC_SINCE_MINOR",
     "WIRE_DTYPES",
     "Ack",
@@ -77,6 +79,7 @@ __all__ = [
     "CarSpec",
     "ChannelOffer",
     "CloseRequest",
+    "ColumnScale",
     "ErrorReply",
     "GroupState",
     "GroupStatus",
@@ -97,6 +100,7 @@ __all__ = [
     "StatusReply",
     "StatusRequest",
     "Steps",
+    "Translation",
     "WorldFrame",
     "check_array",
     "check_name",
@@ -106,6 +110,24 @@ __all__ = [
 
 # Observations an open request may name (a simulation has a handful of sensors).
 MAX_OBSERVATIONS = 16
+# Ego vector fields an open request may name (vocabulary.EGO_FIELDS has eleven).
+MAX_EGO_FIELDS = 32
+
+
+@dataclass(frozen=True, eq=False)
+class Translation(Part):
+    """A configuration in another simulator's own words (highway-env's ``config`` dict on its
+    scenes), which the server translates into its settings beside its scene, as the
+    in-process simulator does; what it does not take is refused (bad_config) in its words."""
+
+    source: str  # whose words: one of vocabulary.TRANSLATIONS (highway-env)
+    config_json: str  # the configuration as that simulator takes it, as a JSON object
+
+    def check(self) -> None:
+        if self.source not in TRANSLATIONS:
+            raise DecodeError(
+                f"translation source must be one of {list(TRANSLATIONS)}, got {self.source!r}"
+            )
 
 
 @dataclass(frozen=True, eq=False)
@@ -181,12 +203,19 @@ class OpenRequest(Message):
     transports: tuple[str, ...] = field(default=(), metadata={"since": 10})
     # What the trainer reads (none: all); the others' sensors go off; one not on: bad_config.
     observations: tuple[str, ...] = field(default=(), metadata={"since": 10})
+    # The ego vector's fields the trainer reads, in order (vocabulary.EGO_FIELDS; none: the
+    # preset's); an unknown one, or an ego vector that is off: bad_config.
+    ego_fields: tuple[str, ...] = field(default=(), metadata={"since": 11})
+    # A configuration in another simulator's words, translated by the server into settings
+    # under ``overrides`` (None: none); ``preset`` names the scene it is written for.
+    translation: Translation | None = field(default=None, metadata={"since": 11})
 
     def check(self) -> None:
         check_name("trainer", self.trainer)
         check_name("preset", self.preset)
         check_transports(self.transports)
         check_names("observation", self.observations, MAX_OBSERVATIONS)
+        check_names("ego field", self.ego_fields, MAX_EGO_FIELDS)
         check_range("arenas", self.arenas, 1, MAX_ARENAS_PER_REQUEST)
         check_range("agents per arena", self.agents_per_arena, 1, MAX_AGENTS_PER_ARENA)
         check_range("claimed agents per arena", self.claim, 1, self.agents_per_arena)

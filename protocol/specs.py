@@ -4,6 +4,7 @@ BehaviorSpec with the facts a consumer needs to read the observations."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -75,6 +76,25 @@ class CarSpec(Part):
 
 
 @dataclass(frozen=True, eq=False)
+class ColumnScale(Part):
+    """A normalised column: the quantity it shows ran from ``low`` to ``high`` and is mapped to
+    [-1, 1] (``2 (v - low) / (high - low) - 1``, clipped there where the column's bounds say
+    so), so that a consumer reads the quantity back as ``low + (value + 1) / 2 (high - low)``
+    (highway-env's Kinematics features: x, y in m, vx, vy in m/s)."""
+
+    column: str  # the column's name, one of its observation's columns
+    low: float  # the quantity shown as -1
+    high: float  # the quantity shown as 1
+
+    def check(self) -> None:
+        if not (math.isfinite(self.low) and math.isfinite(self.high) and self.low < self.high):
+            raise DecodeError(
+                f"column {self.column!r} scale must be finite with low < high, got "
+                f"{self.low} and {self.high}"
+            )
+
+
+@dataclass(frozen=True, eq=False)
 class ObservationSpec(Part):
     """One observation of one agent: a Box of ``shape`` and ``dtype`` within [low, high], the
     names of its last axis' entries where they are named (``columns``: the ego vector's fields)
@@ -90,6 +110,8 @@ class ObservationSpec(Part):
     columns: tuple[str, ...] = field(default=(), metadata={"since": 5})
     # how far it sees; None: nothing of the road
     reach: Reach | None = field(default=None, metadata={"since": 5})
+    # the normalised columns and the range each maps to [-1, 1]; none: no column is normalised
+    scales: tuple[ColumnScale, ...] = field(default=(), metadata={"since": 11})
 
     def check(self) -> None:
         check_name("observation name", self.name)
@@ -112,6 +134,20 @@ class ObservationSpec(Part):
                 f"observation {self.name!r} names {len(self.columns)} columns for a last axis "
                 f"of {self.shape[-1]}"
             )
+        scaled = [scale.column for scale in self.scales]
+        unknown = [name for name in scaled if name not in self.columns]
+        if unknown or len(set(scaled)) != len(scaled):
+            raise DecodeError(
+                f"observation {self.name!r} scales distinct columns of its own "
+                f"{list(self.columns)}, got {scaled}"
+            )
+
+    def scale(self, column: str) -> ColumnScale | None:
+        """How ``column`` is normalised; None where it shows its quantity as it is."""
+        for scale in self.scales:
+            if scale.column == column:
+                return scale
+        return None
 
 
 @dataclass(frozen=True, eq=False)

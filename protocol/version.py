@@ -4,7 +4,7 @@ ignores, and an older peer's messages decode with those fields at their defaults
 
 from __future__ import annotations
 
-PROTOCOL_VERSION: tuple[int, int] = (1, 10)
+PROTOCOL_VERSION: tuple[int, int] = (1, 11)
 PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
     (
         "1.0",
@@ -92,6 +92,18 @@ PROTOCOL_HISTORY: tuple[tuple[str, str], ...] = (
         "off, or refuses one that is not on; a 1.9 server ignores the field and sends every "
         "observation.",
     ),
+    (
+        "1.11",
+        "A trainer asks for what it reads by typed fields, not by the server's setting names: "
+        "an OpenRequest may name the ego vector's fields it reads (ego_fields) and carry a "
+        "configuration in another simulator's words (translation: highway-env's config dict, "
+        "by the translation's name), which the server translates beside its scene exactly as "
+        "the in-process simulator does. An observation's spec says how its normalised columns "
+        "were scaled (scales: ColumnScale, the range each maps to [-1, 1]), so a consumer reads "
+        "the quantities back without a copy of the server's defaults. A 1.10 server ignores "
+        "the new fields (a client that sends them refuses it) and its specs decode without "
+        "scales.",
+    ),
 )
 # The minor version that builds a record's simulator again (OpenRequest.as_recorded).
 AS_RECORDED_SINCE_MINOR = 9
@@ -99,3 +111,6 @@ AS_RECORDED_SINCE_MINOR = 9
 GROUP_STATE_SINCE_MINOR = 8
 # The minor version whose spec carries the road, the car and the observations' facts.
 TYPED_SPEC_SINCE_MINOR = 5
+# The minor version that takes the ego fields and a translated configuration in an
+# OpenRequest, and sends the observations' scales in the spec.
+REQUESTED_READING_SINCE_MINOR = 11

@@ -95,6 +95,31 @@ EGO_DRIVER_IDM = "idm"
 HIGHWAY_SCENE_PRESETS: tuple[str, ...] = ("highway-fast", "highway")
 HIGHWAY_SCENE_SETTING = "highway_scene.enabled"
 EPISODE_LENGTH_SETTING = "episode.max_decisions"
+# The preset a simulator runs where nobody names one (Min et al. 2018, the paper overtake began
+# with): every environment's, command's and configuration's default, on both sides of the wire.
+DEFAULT_PRESET = "min2018"
+# Configurations written in another simulator's words, which the simulator translates into its
+# own settings where a trainer asks for it by name (OpenRequest.translation, protocol 1.11):
+# highway-env's ``config`` dict, on its scenes (HIGHWAY_SCENE_PRESETS).
+HIGHWAY_ENV_TRANSLATION = "highway-env"
+TRANSLATIONS: tuple[str, ...] = (HIGHWAY_ENV_TRANSLATION,)
+# highway-env's keys that its face reads itself (overtake.envs.highway_env_like), not the
+# simulator: the viewer's framing of render()'s picture and the keys that change nothing here
+# (top level), and the action subset (config["action"]'s). The server's translation takes
+# them as known and leaves them alone, so a typo is matched against every key highway-env has.
+HIGHWAY_ENV_FACE_KEYS: tuple[str, ...] = (
+    "screen_width",
+    "screen_height",
+    "scaling",
+    "centering_position",
+    "show_trajectories",
+    "render_agent",
+    "offscreen_rendering",
+    "manual_control",
+    "real_time_rendering",
+    "neighbour_vehicles_connected_lanes",
+)
+HIGHWAY_ENV_FACE_ACTION_KEYS: tuple[str, ...] = ("longitudinal", "lateral")
 
 # Traffic driver types: Ho's three (2018, Table 5), and Min et al.'s cars that act at random
 # (2018, §IV.A). A vehicle's ``kind`` in world frames indexes this tuple, and a kind equal to

@@ -12,13 +12,16 @@
   load on first use), importing overtake.viz no Rerun;
 - the Gymnasium ids are registered by ``import overtake.client`` and by nothing else;
 - Ray is imported by overtake-experiment's Ray launcher only, and an experiment without
-  ``--ray`` loads none of it.
+  ``--ray`` loads none of it;
+- envs names no simulator setting, and trainers switch no sensor and set no ego field by its
+  setting's name: they ask by the open request's typed fields.
 """
 
 from __future__ import annotations
 
 import ast
 import json
+import re
 import subprocess
 import sys
 import tomllib
@@ -285,6 +288,45 @@ def test_clients_and_trainers_read_the_behaviour_spec_not_the_servers_configurat
                 if "sim_config[" in line or "sim_config.get(" in line:
                     reads.append(f"{path.relative_to(ROOT)}:{number}: {line.strip()}")
     assert not reads, "read the behaviour spec instead:\n" + "\n".join(reads)
+
+
+def _strings(folder: str) -> list[tuple[Path, int, str]]:
+    """Every string literal of a folder's sources (docstrings included), with its line."""
+    found = []
+    for path in _sources(folder):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str):
+                found.append((path, node.lineno, node.value))
+    return found
+
+
+def test_faces_and_trainers_ask_for_what_they_read_by_request_not_by_setting_names():
+    """envs/ names no simulator setting (a highway-env config is translated beside its scene,
+    asked for by name in the open request; the speed's scales come in the spec), and
+    trainers/ switch no sensor and set no ego field by their setting names: they ask for
+    observations and ego fields by the request's typed fields (protocol 1.10, 1.11)."""
+    from overtake.server.sim.config import SimConfig, field_names
+
+    config = SimConfig()
+    sections = {name.split(".")[0] for name in field_names(config)}
+    dotted = re.compile(r"\b(" + "|".join(sorted(sections)) + r")\.[a-z_]+")
+    named = [
+        f"{path.relative_to(ROOT)}:{line}: {match.group(0)}"
+        for path, line, text in _strings("envs")
+        for match in dotted.finditer(text)
+    ]
+    assert not named, "envs/ names the simulator's settings:\n" + "\n".join(named)
+    asked = {f"{name}.enabled" for name in config.sensor_sections()} | {"ego_vector.fields"}
+    named = [
+        f"{path.relative_to(ROOT)}:{line}: {setting}"
+        for path, line, text in _strings("trainers")
+        for setting in sorted(asked)
+        if setting in text
+    ]
+    assert not named, (
+        "trainers/ ask for observations and ego fields by the open request's fields, not "
+        "by setting names:\n" + "\n".join(named)
+    )
 
 
 # client/ by audience (docs/development.md): the sub-packages each may import, besides the

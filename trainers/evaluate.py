@@ -37,7 +37,7 @@ from overtake.protocol.vocabulary import DENSITY_SETTING, WATCH_SETTING
 from overtake.viz.recording import RecordingConfig
 
 from .config.presets import PRESET_TRAINING
-from .learning.network import INPUT_SENSORS, observations_read
+from .learning.network import INPUT_SENSORS, ego_fields_read, observations_read
 from .learning.replay_memory import FrameStacker
 from .run.checkpoint import Checkpoint, load_checkpoint
 from .run.observations import describe_space, frame_shapes
@@ -233,6 +233,14 @@ class Evaluated:
             return ()
         return observations_read(checkpoint.inputs)
 
+    @property
+    def ego_fields(self) -> tuple[str, ...]:
+        """The ego vector's fields the network reads, on its own preset (none: the preset's)."""
+        checkpoint = self.checkpoint
+        if checkpoint is None or checkpoint.preset != self.preset:
+            return ()
+        return ego_fields_read(checkpoint.inputs)
+
 
 def evaluated(config: EvalConfig) -> Evaluated:
     """The checkpoint (or none) and the simulator ``config`` asks to evaluate on: the
@@ -254,8 +262,6 @@ def evaluated(config: EvalConfig) -> Evaluated:
     if config.paper_evaluation:
         base.update(parse_overrides(paper_evaluation(preset)))
     overrides = config.scenario.overrides(base)
-    if config.policy == "rule":
-        overrides.pop("lidar.enabled", None)  # the rule-based driver reads the LIDAR
     overrides.update(policy_settings(config.policy, preset, overrides))
     return Evaluated(checkpoint, preset, overrides)
 
@@ -301,6 +307,7 @@ def main(config: EvalConfig, stop: threading.Event | None = None) -> dict[str, A
         functools.partial(evaluation_driver, config, what),
         Keeping(config.episodes_out is not None, recording=recording, rrd=config.record),
         observations=what.observations,
+        ego_fields=what.ego_fields,
         stop=stop,
     )
     if not driven.rows:

@@ -41,7 +41,7 @@ from overtake.protocol.vocabulary import (
     HIGHWAY_SCENE_PRESETS,
 )
 
-from .learning.network import INPUT_SENSORS, observations_read
+from .learning.network import INPUT_SENSORS, ego_fields_read, observations_read
 from .run.checkpoint import Checkpoint, load_checkpoint
 from .run.observations import frame_shapes
 
@@ -105,6 +105,9 @@ def policy_metadata(checkpoint: Checkpoint, names: tuple[str, ...]) -> dict[str,
         # Trained behind the safety shield: drivers put it in front of the model too.
         "shield": bool(checkpoint.config.get("shield", False)),
         "input_names": list(names),
+        # The ego vector's fields it reads where not the preset's, which a driver asks the
+        # simulator for (OpenRequest.ego_fields); empty: the preset's.
+        "ego_fields": list(ego_fields_read(checkpoint.inputs)),
         "stacked": [n for n in names if n in stacked],
         "space": {name: checkpoint.space[name] for name in names},
         # The actions in index order as the preset names them (its behaviour spec's).
@@ -182,6 +185,7 @@ def check_against_torch(
         dict(checkpoint.overrides),
         config.check_envs,
         observations=observations_read(checkpoint.inputs),
+        ego_fields=ego_fields_read(checkpoint.inputs),
     )
     try:
         space = envs.single_observation_space

@@ -97,6 +97,7 @@ def main(
                 config.num_envs,
                 parts=config.parts,
                 observations=config.observations,
+                ego_fields=config.ego_fields,
             )
         except BaseException:
             # A run that could not start (a bad override, no server) leaves no empty folder
@@ -175,9 +176,10 @@ def train_members(
 
 def open_members_envs(configs: Sequence[TrainConfig]) -> list[VectorFace]:
     """Each member's environment. In process, members of one simulator configuration (preset,
-    overrides, sensors) get shares of one engine (:func:`~overtake.envs.shares.share_face`):
-    every member's arenas step in one simulator call a round, each exactly as in an engine of
-    its own (a checkpoint moves between the two). Elsewhere each member opens its own (with
+    overrides, sensors, ego fields) get shares of one engine
+    (:func:`~overtake.envs.shares.share_face`): every member's arenas step in one simulator call a
+    round, each exactly as in an engine of its own (a checkpoint moves between the two). Elsewhere
+    each member opens its own (with
     --connect, the server puts every member's arenas in its group)."""
     first = configs[0]
     alike = all(
@@ -185,6 +187,7 @@ def open_members_envs(configs: Sequence[TrainConfig]) -> list[VectorFace]:
         and c.preset == first.preset
         and c.overrides() == first.overrides()
         and c.observations == first.observations
+        and c.ego_fields == first.ego_fields
         for c in configs
     )
     if alike and len(configs) > 1:
@@ -193,6 +196,7 @@ def open_members_envs(configs: Sequence[TrainConfig]) -> list[VectorFace]:
             first.overrides(),
             sum(c.num_envs for c in configs),
             observations=first.observations,
+            ego_fields=first.ego_fields,
         )
         return list(share_face(whole, [c.num_envs for c in configs]))
     opened: list[VectorFace] = []
@@ -204,6 +208,7 @@ def open_members_envs(configs: Sequence[TrainConfig]) -> list[VectorFace]:
                     config.overrides(),
                     config.num_envs,
                     observations=config.observations,
+                    ego_fields=config.ego_fields,
                 )
             )
     except BaseException:

@@ -23,6 +23,7 @@ from overtake.client.wire.remote_config import RemoteConfig
 from overtake.envs.parallel_face import RETIRE_SINCE_MINOR, ParallelFace
 from overtake.ipc.transport import Endpoints
 from overtake.protocol.messages import Scalar
+from overtake.protocol.vocabulary import DEFAULT_PRESET
 
 
 class RemoteHighwayParallelEnv(_OnNetwork, ParallelFace):
@@ -37,7 +38,7 @@ class RemoteHighwayParallelEnv(_OnNetwork, ParallelFace):
         self,
         agents: int = 2,
         connect: Endpoints | None = None,
-        preset: str = "min2018",
+        preset: str = DEFAULT_PRESET,
         overrides: Mapping[str, Scalar] | None = None,
         remote: RemoteConfig | None = None,
         render_mode: str | None = None,

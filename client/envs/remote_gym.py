@@ -31,10 +31,13 @@ from overtake.protocol import errors
 from overtake.protocol.codec import version_text
 from overtake.protocol.messages import (
     AS_RECORDED_SINCE_MINOR,
+    REQUESTED_READING_SINCE_MINOR,
     TYPED_SPEC_SINCE_MINOR,
     OpenRequest,
     Scalar,
+    Translation,
 )
+from overtake.protocol.vocabulary import DEFAULT_PRESET
 
 __all__ = [
     "TYPED_SPEC_NEED",
@@ -84,6 +87,8 @@ def remote_simulator(
     needs: tuple[tuple[int, str], ...] = (),
     as_recorded: Mapping[str, Any] | None = None,
     observations: Sequence[str] = (),
+    ego_fields: Sequence[str] = (),
+    translation: Translation | None = None,
 ) -> Simulator:
     """``arenas`` arenas of ``preset`` opened on a server reached through ``connect`` (or
     ``remote``, a RemoteConfig), as ``parts`` groups of consecutive arenas (the first ones one
@@ -91,7 +96,11 @@ def remote_simulator(
     speak beyond :data:`TYPED_SPEC_NEED`; the oldest unmet one refuses it. ``as_recorded``:
     the configuration an episode record was made on, which the server builds again (or
     refuses, naming what differs). ``observations``: only these sensors on (none named: the
-    configuration's; a 1.9 server ignores the request and sends every one)."""
+    configuration's; a 1.9 server ignores the request and sends every one). ``ego_fields``:
+    the ego vector's fields, in order (none named: the configuration's). ``translation``: a
+    configuration in another simulator's words (highway-env's config), which the server
+    translates under ``overrides``; a server older than 1.11, which would ignore these two, is
+    refused."""
     if not 1 <= parts <= arenas:
         raise ValueError(f"parts must be between 1 and the {arenas} arena(s), got {parts}")
     if remote is None:
@@ -117,6 +126,8 @@ def remote_simulator(
                         seed=None,
                         as_recorded=json.dumps(as_recorded) if as_recorded is not None else "",
                         observations=tuple(observations),
+                        ego_fields=tuple(ego_fields),
+                        translation=translation,
                     ),
                 )
             )
@@ -124,6 +135,15 @@ def remote_simulator(
         if as_recorded is not None:
             # A 1.8 server ignores as_recorded: it would replay on today's simulator.
             needs = (*needs, (AS_RECORDED_SINCE_MINOR, "an episode record's simulator built again"))
+        if ego_fields or translation is not None:
+            # A 1.10 server ignores both: it would open another simulator than the one asked for.
+            needs = (
+                *needs,
+                (
+                    REQUESTED_READING_SINCE_MINOR,
+                    "the ego fields and a translated configuration asked for by the request",
+                ),
+            )
         for need, why in sorted((TYPED_SPEC_NEED, *needs)):
             if first.server_minor < need:
                 raise errors.VersionMismatch(
@@ -198,12 +218,14 @@ class RemoteHighwayEnv(_OnNetwork, SingleFace):
     def __init__(
         self,
         connect: Endpoints | None = None,
-        preset: str = "min2018",
+        preset: str = DEFAULT_PRESET,
         overrides: Mapping[str, Scalar] | None = None,
         remote: RemoteConfig | None = None,
         render_mode: str | None = None,
         as_recorded: Mapping[str, Any] | None = None,
         observations: Sequence[str] = (),
+        ego_fields: Sequence[str] = (),
+        translation: Translation | None = None,
     ) -> None:
         self._open_on_network(
             render_mode,
@@ -215,6 +237,8 @@ class RemoteHighwayEnv(_OnNetwork, SingleFace):
                 arenas=1,
                 as_recorded=as_recorded,
                 observations=observations,
+                ego_fields=ego_fields,
+                translation=translation,
             ),
         )
 
@@ -231,13 +255,15 @@ class RemoteHighwayVectorEnv(_OnNetwork, VectorFace):
         self,
         num_envs: int = 1,
         connect: Endpoints | None = None,
-        preset: str = "min2018",
+        preset: str = DEFAULT_PRESET,
         overrides: Mapping[str, Scalar] | None = None,
         remote: RemoteConfig | None = None,
         render_mode: str | None = None,
         parts: int = 1,
         as_recorded: Mapping[str, Any] | None = None,
         observations: Sequence[str] = (),
+        ego_fields: Sequence[str] = (),
+        translation: Translation | None = None,
     ) -> None:
         self._open_on_network(
             render_mode,
@@ -250,6 +276,8 @@ class RemoteHighwayVectorEnv(_OnNetwork, VectorFace):
                 parts=parts,
                 as_recorded=as_recorded,
                 observations=observations,
+                ego_fields=ego_fields,
+                translation=translation,
             ),
             num_envs,
         )

@@ -81,11 +81,13 @@ class DriveConfig:
 
 @dataclass(frozen=True)
 class DriveSetup:
-    """What a drive runs: the preset, the overrides a model brings, the sensors it reads."""
+    """What a drive runs: the preset, the overrides a model brings, the sensors and the ego
+    vector's fields it reads."""
 
     preset: str
     base: dict[str, Any]  # overrides beneath the scenario's
     observations: tuple[str, ...]  # the sensors to render (none named: every one)
+    ego_fields: tuple[str, ...] = ()  # the ego vector's fields (none named: the preset's)
 
 
 def what_to_drive(config: DriveConfig) -> DriveSetup:
@@ -108,8 +110,11 @@ def what_to_drive(config: DriveConfig) -> DriveSetup:
         # second half is the simulator's, and drives with the model.
         base[WATCH_SETTING] = True
     preset = config.scenario.preset_or(meta["preset"])
-    reads = tuple(meta.get("input_names", ())) if preset == meta["preset"] else ()
-    return DriveSetup(preset, base, reads)
+    own = preset == meta["preset"]
+    reads = tuple(meta.get("input_names", ())) if own else ()
+    # A model exported before issue 70 names no ego fields (its run set them by an override).
+    ego_fields = tuple(meta.get("ego_fields", ())) if own else ()
+    return DriveSetup(preset, base, reads, ego_fields)
 
 
 def driver(config: DriveConfig, preset: str, envs: VectorFace) -> Driver:
@@ -148,6 +153,7 @@ def main(config: DriveConfig, stop: threading.Event | None = None) -> dict[str, 
         Keeping(records=config.episodes_out is not None),
         realtime=config.realtime,
         observations=what.observations,
+        ego_fields=what.ego_fields,
         stop=stop,
     )
     if not driven.rows:

@@ -28,9 +28,12 @@ from overtake.client.wire.steps_channel import Transport
 from overtake.envs import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
 from overtake.envs.faces import VectorFace
 from overtake.ipc.transport import SecurityConfig
-from overtake.protocol.vocabulary import DENSITY_SETTING, EPISODE_LENGTH_SETTING, Density
-
-DEFAULT_PRESET = "min2018"
+from overtake.protocol.vocabulary import (
+    DEFAULT_PRESET,
+    DENSITY_SETTING,
+    EPISODE_LENGTH_SETTING,
+    Density,
+)
 
 
 def parse_overrides(items: tuple[str, ...]) -> dict[str, object]:
@@ -121,6 +124,7 @@ class Where:
         parts: int = 1,
         as_recorded: Mapping[str, Any] | None = None,
         observations: Sequence[str] = (),
+        ego_fields: Sequence[str] = (),
     ) -> VectorFace:
         """``num_envs`` arenas of ``preset`` with ``overrides`` as one vector environment:
         in this process, or on the server, there in ``parts`` groups (see
@@ -128,7 +132,8 @@ class Where:
         made on; the simulator (here or the server's) builds that one again from its own
         settings' history, or refuses with BadConfig, naming what differs. ``observations``:
         only these sensors on (a trainer's network reads no others; none named: the
-        configuration's)."""
+        configuration's). ``ego_fields``: the ego vector's fields the trainer reads, in order
+        (none named: the configuration's)."""
         recorded = None if as_recorded is None else dict(as_recorded)
         register_environments()
         if self.in_process:
@@ -140,6 +145,7 @@ class Where:
                 overrides=dict(overrides),
                 as_recorded=recorded,
                 observations=tuple(observations),
+                ego_fields=tuple(ego_fields),
             )
         else:
             remote = self.remote()
@@ -153,6 +159,7 @@ class Where:
                 parts=parts,
                 as_recorded=recorded,
                 observations=tuple(observations),
+                ego_fields=tuple(ego_fields),
             )
         # Gymnasium builds the registered entry point itself, no wrapper around it.
         assert isinstance(envs, VectorFace)
@@ -191,4 +198,4 @@ class Scenario:
         return overrides
 
 
-__all__ = ["DEFAULT_PRESET", "Scenario", "Where", "parse_overrides"]
+__all__ = ["Scenario", "Where", "parse_overrides"]

@@ -143,16 +143,20 @@ def drive_episodes(
     open_envs: Callable[[], VectorFace] | None = None,
     observations: Sequence[str] = (),
     stop: threading.Event | None = None,
+    ego_fields: Sequence[str] = (),
 ) -> Driven:
     """Drive ``episodes`` of ``preset`` with ``overrides``, ``where`` says (or in what
     ``open_envs`` opens instead: a replay's simulator), by the driver ``driver_for`` chooses
     for the environment.
     ``realtime``: on the wall clock, one decision period per decision (:class:`RealTime`).
-    ``observations``: only the sensors the driver reads (none named: the configuration's).
+    ``observations``: only the sensors the driver reads (none named: the configuration's);
+    ``ego_fields``: the ego vector's fields it reads, in order (none named: the preset's).
     ``stop``: once set, the drive ends before the next decision, with the episodes that ended
     (:attr:`Driven.partial`)."""
     if open_envs is None:
-        envs = where.open(preset, overrides, episodes.count, observations=observations)
+        envs = where.open(
+            preset, overrides, episodes.count, observations=observations, ego_fields=ego_fields
+        )
     else:
         envs = open_envs()
     recording = None

@@ -58,7 +58,7 @@ from overtake.protocol.messages import (
     Scalar,
     Steps,
 )
-from overtake.protocol.vocabulary import ACTION_COUNT, DEFAULT_ACTION
+from overtake.protocol.vocabulary import ACTION_COUNT, DEFAULT_ACTION, DEFAULT_PRESET
 
 __all__ = [
     "ActionSpec",
@@ -100,7 +100,7 @@ class RemoteEnvironment:
         self,
         connect: Endpoints | None = None,
         *,
-        preset: str = "min2018",
+        preset: str = DEFAULT_PRESET,
         overrides: Mapping[str, Scalar] | None = None,
         arenas: int = 1,
         agents_per_arena: int = 1,

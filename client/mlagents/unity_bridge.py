@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 
 from overtake.cli import Command
-from overtake.client.episodes.scenario import DEFAULT_PRESET, Scenario, Where
+from overtake.client.episodes.scenario import Scenario, Where
 from overtake.client.mlagents.environment import RemoteEnvironment
 from overtake.client.mlagents.wire import (
     COMMAND_QUIT,
@@ -75,6 +75,7 @@ from overtake.client.mlagents.wire import (
 from overtake.client.mlagents.wrappers import SUPPORTED_MLAGENTS_ENVS
 from overtake.protocol import ProtocolError
 from overtake.protocol.messages import Scalar
+from overtake.protocol.vocabulary import DEFAULT_PRESET
 
 __all__ = [
     "COMPRESSION_NONE",

@@ -24,9 +24,12 @@ import numpy as np
 
 from overtake.envs.faces import SingleFace, VectorFace
 from overtake.protocol.errors import BadConfig
+from overtake.protocol.messages import Translation
+from overtake.protocol.vocabulary import DEFAULT_PRESET
 
 from ..sim import HighwaySim, SimConfig, settings_history
 from .local import LocalEngine, LocalRoad, local_simulator
+from .requested import translated
 
 
 def in_process_config(
@@ -35,10 +38,14 @@ def in_process_config(
     config: SimConfig | None,
     as_recorded: Mapping[str, Any] | None = None,
     observations: Sequence[str] = (),
+    ego_fields: Sequence[str] = (),
+    translation: Translation | None = None,
 ) -> SimConfig:
-    """``config``, or the preset with its overrides (not both), or with ``as_recorded`` (a
-    record's configuration) the simulator that record was made on; with only the sensors of
-    ``observations`` on where it names some
+    """``config``, or the preset with its overrides (not both) over ``translation``'s
+    settings (a configuration in another simulator's words, translated as a server
+    translates it), or with ``as_recorded`` (a record's configuration) the simulator that
+    record was made on; its ego vector holding ``ego_fields`` and only the sensors of
+    ``observations`` on where they name some
     (:func:`~.sim.settings_history.requested_config`)."""
     if config is not None and not isinstance(config, SimConfig):
         hint = (
@@ -52,10 +59,17 @@ def in_process_config(
             f"{type(config).__name__}{hint}"
         )
     if config is None:
-        return settings_history.requested_config(preset, overrides or {}, as_recorded, observations)
-    if overrides or as_recorded:
+        return settings_history.requested_config(
+            preset,
+            overrides or {},
+            as_recorded,
+            observations,
+            ego_fields,
+            translated(preset, translation),
+        )
+    if overrides or as_recorded or translation is not None:
         raise ValueError("pass either a config or a preset with overrides, not both")
-    return config.observing(tuple(observations))
+    return config.reading_ego_fields(tuple(ego_fields)).observing(tuple(observations))
 
 
 class _InProcess:
@@ -82,14 +96,18 @@ class HighwayEnv(_InProcess, SingleFace):
 
     def __init__(
         self,
-        preset: str = "min2018",
+        preset: str = DEFAULT_PRESET,
         overrides: Mapping[str, Any] | None = None,
         config: SimConfig | None = None,
         render_mode: str | None = None,
         as_recorded: Mapping[str, Any] | None = None,
         observations: Sequence[str] = (),
+        ego_fields: Sequence[str] = (),
+        translation: Translation | None = None,
     ) -> None:
-        self.config = in_process_config(preset, overrides, config, as_recorded, observations)
+        self.config = in_process_config(
+            preset, overrides, config, as_recorded, observations, ego_fields, translation
+        )
         super().__init__(local_simulator(self.config, arenas=1), render_mode)
 
     def planner_action(self) -> int:
@@ -104,14 +122,18 @@ class HighwayVectorEnv(_InProcess, VectorFace):
     def __init__(
         self,
         num_envs: int = 1,
-        preset: str = "min2018",
+        preset: str = DEFAULT_PRESET,
         overrides: Mapping[str, Any] | None = None,
         config: SimConfig | None = None,
         render_mode: str | None = None,
         as_recorded: Mapping[str, Any] | None = None,
         observations: Sequence[str] = (),
+        ego_fields: Sequence[str] = (),
+        translation: Translation | None = None,
     ) -> None:
-        self.config = in_process_config(preset, overrides, config, as_recorded, observations)
+        self.config = in_process_config(
+            preset, overrides, config, as_recorded, observations, ego_fields, translation
+        )
         super().__init__(local_simulator(self.config, arenas=num_envs), num_envs, render_mode)
 
     def planner_actions(self) -> np.ndarray:

@@ -18,6 +18,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from overtake.envs.parallel_face import ParallelFace
+from overtake.protocol.vocabulary import DEFAULT_PRESET
 
 from ..sim import SimConfig
 from .env import _InProcess, in_process_config
@@ -30,7 +31,7 @@ class HighwayParallelEnv(_InProcess, ParallelFace):
     def __init__(
         self,
         agents: int = 2,
-        preset: str = "min2018",
+        preset: str = DEFAULT_PRESET,
         overrides: Mapping[str, Any] | None = None,
         config: SimConfig | None = None,
         render_mode: str | None = None,

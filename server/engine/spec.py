@@ -2,7 +2,8 @@
 
 Built here once, from the simulation, for the server's groups (sent with every Opened) and the
 in-process environments alike, so that both describe an arena the same way: the spaces, the
-road, the car, and each observation's named columns and reach (protocol 1.5). The full
+road, the car, and each observation's named columns and reach (protocol 1.5) and how its
+normalised columns were scaled (protocol 1.11). The full
 configuration travels with it as a record (``config_json``); nothing reads it as an interface.
 """
 
@@ -11,7 +12,14 @@ from __future__ import annotations
 import dataclasses
 import json
 
-from overtake.protocol.messages import BehaviourSpec, CarSpec, ObservationSpec, Reach, RoadSpec
+from overtake.protocol.messages import (
+    BehaviourSpec,
+    CarSpec,
+    ColumnScale,
+    ObservationSpec,
+    Reach,
+    RoadSpec,
+)
 from overtake.protocol.vocabulary import ACTION_COUNT
 
 from ..sim import HighwaySim
@@ -40,6 +48,10 @@ def behaviour_spec(sim: HighwaySim) -> BehaviourSpec:
             high=box.high,
             columns=facts[name].columns,
             reach=_reach(facts[name]),
+            scales=tuple(
+                ColumnScale(column=column, low=low, high=high)
+                for column, low, high in facts[name].scales
+            ),
         )
         for name, box in sorted(sim.observation_spaces().items())
     )

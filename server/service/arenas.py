@@ -71,6 +71,8 @@ class ArenaRegistry:
             request.seed,
             request.as_recorded,
             request.observations,
+            request.ego_fields,
+            request.translation,
         )
         for index in range(request.arenas):
             group.claim(request.trainer, index, request.claim, fresh=True)

@@ -32,14 +32,15 @@ from overtake.protocol.messages import (
     GroupStatus,
     Scalar,
     Steps,
+    Translation,
 )
 from overtake.protocol.vocabulary import DEFAULT_ACTION
 
+from ..engine.requested import resolve_config
 from ..engine.rounds import Rounds
 from ..engine.spec import behaviour_spec
 from ..sim import HighwaySim, SimConfig
 from .members import Member
-from .requested import resolve_config
 
 # Group steps taken in this process, in order: what next_to_step compares.
 _GROUP_STEPS = itertools.count(1)
@@ -96,8 +97,12 @@ class Group:
         seed: int | None,
         as_recorded: str = "",
         observations: tuple[str, ...] = (),
+        ego_fields: tuple[str, ...] = (),
+        translation: Translation | None = None,
     ) -> Group:
-        config = resolve_config(preset, overrides, as_recorded, observations)
+        config = resolve_config(
+            preset, overrides, as_recorded, observations, ego_fields, translation
+        )
         return cls.of_config(group_id, server, arena_ids, config, agents_per_arena, seed)
 
     @classmethod

@@ -21,11 +21,10 @@ structure-of-arrays state:
 from .autoreset import autoreset_round
 from .config import ConfigError, SimConfig, apply_overrides
 from .core import HighwaySim, StepResult
-from .presets import DEFAULT_PRESET, PRESETS, make_config
+from .presets import PRESETS, make_config
 from .sensors.base import SensorSpace
 
 __all__ = [
-    "DEFAULT_PRESET",
     "PRESETS",
     "ConfigError",
     "HighwaySim",

@@ -18,11 +18,14 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import json
+import re
 import types
 import typing
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal, get_args, get_origin, get_type_hints
+
+from overtake.protocol.vocabulary import DEFAULT_PRESET
 
 from .assist import EgoConfig
 from .episodes import EpisodeConfig
@@ -40,7 +43,15 @@ from .sensors.lidar_map import LidarMapConfig
 from .traffic.config import TrafficConfig
 from .validation import ConfigError, check
 
-__all__ = ["ConfigError", "PlainValue", "SimConfig", "apply_overrides", "as_json", "field_names"]
+__all__ = [
+    "ConfigError",
+    "PlainValue",
+    "SimConfig",
+    "Translated",
+    "apply_overrides",
+    "as_json",
+    "field_names",
+]
 
 
 @dataclass(frozen=True, slots=True)
@@ -51,7 +62,7 @@ class SimConfig:
     sensors; the observation holds the enabled ones in this order.
     """
 
-    preset: str = "min2018"
+    preset: str = DEFAULT_PRESET
     road: RoadConfig = field(default_factory=RoadConfig)
     traffic: TrafficConfig = field(default_factory=TrafficConfig)
     ego: EgoConfig = field(default_factory=EgoConfig)
@@ -106,10 +117,52 @@ class SimConfig:
         }
         return dataclasses.replace(self, **off)  # type: ignore[arg-type]
 
+    def reading_ego_fields(self, ego_fields: tuple[str, ...]) -> SimConfig:
+        """This configuration with the ego vector holding ``ego_fields``, in that order (a
+        trainer's request, protocol 1.11: the camera-only network of Min et al.'s ablation
+        reads the car's speed alone); none named: as it is. A :class:`ConfigError` where the
+        ego vector is off or a name is not one of its fields."""
+        if not ego_fields:
+            return self
+        if not self.ego_vector.enabled:
+            raise ConfigError(
+                f"ego fields {list(ego_fields)} were asked for, and preset {self.preset} with "
+                "these settings observes no ego vector (ego_vector.enabled is false)"
+            )
+        return dataclasses.replace(
+            self, ego_vector=dataclasses.replace(self.ego_vector, fields=tuple(ego_fields))
+        )
+
 
 # --- overrides -------------------------------------------------------------------------------
 
 PlainValue = bool | int | float | str | None | list | tuple
+
+
+@dataclass(frozen=True)
+class Translated:
+    """A configuration written in another simulator's words (highway-env's ``config`` dict),
+    translated into this simulator's settings (:mod:`.translations`): the overrides it
+    stands for, and for each the words the user gave it in, so that a refused value is said
+    as the user wrote it."""
+
+    overrides: Mapping[str, PlainValue]
+    given_as: Mapping[str, str] = field(default_factory=dict)
+
+    def in_users_words(self, message: str) -> str:
+        """A refusal naming this simulator's setting, said with the key the user gave (the
+        setting after it, in brackets)."""
+        for setting in sorted(self.given_as, key=len, reverse=True):
+            if message.startswith(setting + " "):
+                return f"{self.given_as[setting]}{message[len(setting) :]} (overtake's {setting})"
+            message = re.sub(
+                rf"(?<![\w.]){re.escape(setting)}(?![\w.])",
+                f"{self.given_as[setting]} ({setting})",
+                message,
+            )
+        return message
+
+
 # The preset's name says where the overrides started from; it is not itself a setting.
 NOT_OVERRIDABLE = frozenset({"preset"})
 

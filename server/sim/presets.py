@@ -12,6 +12,8 @@ import dataclasses
 import functools
 from collections.abc import Callable, Mapping
 
+from overtake.protocol.vocabulary import DEFAULT_PRESET
+
 from .assist import EgoConfig
 from .config import ConfigError, PlainValue, SimConfig, apply_overrides
 from .episodes import EpisodeConfig
@@ -408,7 +410,6 @@ PRESETS: dict[str, Callable[[], SimConfig]] = {
     "highway-fast": highway_fast,
     "highway": highway,
 }
-DEFAULT_PRESET = "min2018"
 
 
 def make_config(

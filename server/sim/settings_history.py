@@ -20,7 +20,7 @@ from typing import Any
 
 from overtake.protocol.vocabulary import BEHAVIOUR_NAMES
 
-from .config import ConfigError, PlainValue, SimConfig, as_json
+from .config import ConfigError, PlainValue, SimConfig, Translated, as_json
 from .presets import make_config
 
 
@@ -308,6 +308,29 @@ def _sensors_as_recorded(config: SimConfig, recorded: Mapping[str, Any]) -> SimC
     return config.observing(tuple(on))
 
 
+# The ego vector's fields as an override names them (a trainer asks for them by a request's
+# field since protocol 1.11; a record of before names them here, if at all).
+EGO_FIELDS_SETTING = "ego_vector.fields"
+
+
+def _ego_fields_as_recorded(
+    config: SimConfig, overrides: Mapping[str, PlainValue], recorded: Mapping[str, Any]
+) -> SimConfig:
+    """``config`` with the record's ego fields where no override names them: a trainer asks
+    for the ego fields it reads (protocol 1.11, :meth:`SimConfig.reading_ego_fields`), so a
+    record's may differ from its preset's that no override names."""
+    section = recorded.get("ego_vector")
+    fields = section.get("fields") if isinstance(section, dict) else None
+    if (
+        not config.ego_vector.enabled
+        or EGO_FIELDS_SETTING in overrides
+        or not isinstance(fields, list)
+        or tuple(fields) == config.ego_vector.fields
+    ):
+        return config
+    return config.reading_ego_fields(tuple(fields))
+
+
 def _recorded_on(section: Any) -> bool:
     # A section the record lacks (a sensor added since) is as the preset has it.
     return not isinstance(section, dict) or section.get("enabled", True) is not False
@@ -324,7 +347,10 @@ def as_recorded(
     now = make_config(preset, overrides)
     undo = undo_overrides(recorded, as_json(now))
     config = _sensors_as_recorded(
-        make_config(preset, {**overrides, **undo}) if undo else now, recorded
+        _ego_fields_as_recorded(
+            make_config(preset, {**overrides, **undo}) if undo else now, overrides, recorded
+        ),
+        recorded,
     )
     differences = sorted(
         unexplained_differences(recorded, as_json(config)),
@@ -345,14 +371,32 @@ def requested_config(
     overrides: Mapping[str, PlainValue],
     recorded: Mapping[str, Any] | None = None,
     observations: Sequence[str] = (),
+    ego_fields: Sequence[str] = (),
+    translated: Translated | None = None,
 ) -> SimConfig:
     """The simulator a trainer asks for, in process or of a server: ``preset`` with
-    ``overrides``, or with ``recorded`` (an episode record's configuration) the one that
-    record was made on (:func:`as_recorded`); with only the sensors of ``observations`` on
-    where it names some (:meth:`SimConfig.observing`). :class:`ConfigError` where it cannot
-    be built."""
-    if recorded is None:
-        config = make_config(preset, overrides)
-    else:
-        config = as_recorded(preset, overrides, recorded)
-    return config.observing(tuple(observations))
+    ``translated``'s settings (a configuration in another simulator's words,
+    :mod:`.translations`) and ``overrides`` over them, or with ``recorded`` (an episode
+    record's configuration) the one that record was made on (:func:`as_recorded`); its ego
+    vector holding ``ego_fields`` where it names some
+    (:meth:`SimConfig.reading_ego_fields`), with only the sensors of ``observations`` on where
+    it names some (:meth:`SimConfig.observing`). :class:`ConfigError` where it cannot be
+    built, said in the words ``translated`` was given in."""
+    try:
+        if translated is not None:
+            overrides = {**translated.overrides, **overrides}
+        named = overrides.get(EGO_FIELDS_SETTING)
+        if ego_fields and isinstance(named, (list, tuple)) and tuple(named) != tuple(ego_fields):
+            raise ConfigError(
+                f"{EGO_FIELDS_SETTING} = {list(named)} is set, and the trainer asks for the ego "
+                f"fields {list(ego_fields)}: one or the other"
+            )
+        if recorded is None:
+            config = make_config(preset, overrides)
+        else:
+            config = as_recorded(preset, overrides, recorded)
+        return config.reading_ego_fields(tuple(ego_fields)).observing(tuple(observations))
+    except ConfigError as error:
+        if translated is None:
+            raise
+        raise ConfigError(translated.in_users_words(str(error))) from None

@@ -4,6 +4,7 @@ highway-env 1.12.1's own default configurations taken, each refusal a ``BadConfi
 
 from __future__ import annotations
 
+import json
 import warnings
 
 import gymnasium as gym
@@ -14,6 +15,7 @@ import overtake.client  # noqa: F401  (registers the ids)
 from overtake.envs import highway_env_config
 from overtake.envs.highway_env_config import read_config
 from overtake.protocol.errors import BadConfig, ProtocolError
+from overtake.protocol.vocabulary import HIGHWAY_ENV_FACE_ACTION_KEYS, HIGHWAY_ENV_FACE_KEYS
 from overtake.server.sim import ConfigError
 from overtake.server.sim.highway_scene.config import HighwaySceneConfig
 
@@ -73,17 +75,18 @@ def test_action_target_speeds_and_subsets():
     with pytest.raises(ValueError, match=r"\[0, 3\) \(0 SLOWER, 1 IDLE, 2 FASTER\), got 3"):
         env.step(3)
     env.close()
-    lateral = read_config("highway", {"action": {"longitudinal": False}})
+    lateral = read_config({"action": {"longitudinal": False}})
     assert lateral.actions == ("LANE_LEFT", "IDLE", "LANE_RIGHT")
     assert lateral.to_overtake.tolist() == [3, 0, 4]
     with pytest.raises(BadConfig, match="both false, expected at least one"):
-        read_config("highway", {"action": {"longitudinal": False, "lateral": False}})
+        read_config({"action": {"longitudinal": False, "lateral": False}})
     with pytest.raises(
         BadConfig, match=r"config\['action'\] is a dict .* got 'DiscreteMetaAction'"
     ):
-        read_config("highway", {"action": "DiscreteMetaAction"})
+        read_config({"action": "DiscreteMetaAction"})
+    # The simulator's translation refuses what the scene does not take.
     with pytest.raises(BadConfig, match="ContinuousAction"):
-        read_config("highway", {"action": {"type": "ContinuousAction"}})
+        gym.make("overtake/highway-v0", config={"action": {"type": "ContinuousAction"}})
 
 
 def test_the_viewer_s_keys_frame_the_picture_and_the_others_are_said_once(monkeypatch):
@@ -110,7 +113,7 @@ def test_the_viewer_s_keys_frame_the_picture_and_the_others_are_said_once(monkey
         warnings.simplefilter("error")  # said once in a process
         gym.make("overtake/highway-fast-v0", config={"show_trajectories": True}).close()
     with pytest.raises(BadConfig, match=r"config\['screen_width'\] = -3 .* a positive integer"):
-        read_config("highway-fast", {"screen_width": -3})
+        read_config({"screen_width": -3})
 
 
 def test_a_refused_value_names_the_key_given():
@@ -135,3 +138,20 @@ def test_preset_on_a_highway_env_id_and_a_dict_for_a_sim_config_are_refused_in_o
     assert "\n" not in str(refused.value)
     with pytest.raises(BadConfig, match="config= takes a SimConfig .* got a dict: highway-env's"):
         gym.make("overtake/Highway-v0", preset="highway-fast", config={"lanes_count": 3})
+
+
+def test_the_face_reads_the_keys_the_contract_leaves_to_it_and_sends_the_rest():
+    # The simulator's translation leaves these to the face, and the face reads them all.
+    assert set(highway_env_config.VIEW_KEYS) | set(highway_env_config.NO_EFFECT_KEYS) == set(
+        HIGHWAY_ENV_FACE_KEYS
+    )
+    assert HIGHWAY_ENV_FACE_ACTION_KEYS == ("longitudinal", "lateral")
+    # The whole configuration travels in highway-env's words, numpy's values as JSON's.
+    read = read_config({"lanes_count": np.int64(3), "action": {"target_speeds": np.arange(2)}})
+    assert read.translation.source == "highway-env"
+    assert json.loads(read.translation.config_json) == {
+        "lanes_count": 3,
+        "action": {"target_speeds": [0, 1]},
+    }
+    with pytest.raises(BadConfig, match="expected highway-env's plain values"):
+        read_config({"observation": {"features": {"x", "y"}}})

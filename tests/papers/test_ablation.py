@@ -19,10 +19,15 @@ CROWDED = (Car(dx=12.0, lane=2, speed_kmh=40.0), Car(dx=0.0, lane=3, speed_kmh=6
 AWAY = (Car(dx=-90.0, lane=2, speed_kmh=40.0), Car(dx=-95.0, lane=3, speed_kmh=60.0))
 
 
+def asked(inputs: str) -> dict:
+    """What a trainer of ``inputs`` asks of the simulator: its overrides and ego fields."""
+    config = TrainConfig(inputs=inputs, scenario=Scenario(preset="min2018"))
+    return {"overrides": config.overrides(), "ego_fields": config.ego_fields}
+
+
 def observed(inputs: str, cars: tuple[Car, ...]) -> dict[str, np.ndarray]:
     """What a network of ``inputs`` reads, with the traffic ``cars``."""
-    overrides = TrainConfig(inputs=inputs, scenario=Scenario(preset="min2018")).overrides()
-    obs = scripted_sim(cars, ego_lane=2, overrides=overrides).observe()
+    obs = scripted_sim(cars, ego_lane=2, **asked(inputs)).observe()
     return {k: obs[k][0, 0] for k in (*INPUT_SENSORS[inputs], *LATEST_SENSORS[inputs])}
 
 
@@ -41,8 +46,7 @@ OTHER_CARS = (
 def test_other_cars_reach_a_row_only_through_its_own_sensors(inputs):
     crowded, away = observed(inputs, CROWDED), observed(inputs, AWAY)
     sensors = INPUT_SENSORS[inputs]
-    overrides = TrainConfig(inputs=inputs, scenario=Scenario(preset="min2018")).overrides()
-    fields = scripted_sim((), overrides=overrides).config.ego_vector.fields
+    fields = scripted_sim((), **asked(inputs)).config.ego_vector.fields
     # The row's own sensors see the cars move ...
     assert all(not np.array_equal(crowded[k], away[k]) for k in sensors)
     # ... and of whatever else it reads, only the ego vector's scalars of other cars change,
@@ -72,11 +76,13 @@ def test_the_warnings_ride_with_the_lidar():
 
 
 def scene(inputs: str, cars: tuple[Car, ...], **extra):
-    overrides = {
-        **TrainConfig(inputs=inputs, scenario=Scenario(preset="min2018")).overrides(),
-        **extra,
-    }
-    return scripted_sim(cars, ego_lane=2, overrides=overrides)
+    trainer = asked(inputs)
+    return scripted_sim(
+        cars,
+        ego_lane=2,
+        overrides={**trainer["overrides"], **extra},
+        ego_fields=trainer["ego_fields"],
+    )
 
 
 @pytest.mark.parametrize("inputs", ["camera", "lidar", "both"])

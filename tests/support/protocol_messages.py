@@ -5,6 +5,7 @@ helpers that take a frame apart and put it back together to tamper with it.
 
 from __future__ import annotations
 
+import json
 from dataclasses import fields
 
 import msgpack
@@ -27,6 +28,7 @@ from overtake.protocol.messages import (
     BehaviourSpec,
     CarSpec,
     CloseRequest,
+    ColumnScale,
     ErrorReply,
     GroupState,
     GroupStatus,
@@ -46,10 +48,12 @@ from overtake.protocol.messages import (
     StatusReply,
     StatusRequest,
     Steps,
+    Translation,
     WorldFrame,
 )
 from overtake.protocol.rows import ROW_ARRAYS
 from overtake.protocol.shm_messages import ACTION_ARRAY_NAMES, STEPS_ARRAYS
+from overtake.protocol.vocabulary import TRANSLATIONS
 
 MAJOR, MINOR = PROTOCOL_VERSION
 
@@ -113,16 +117,30 @@ def observation_specs(draw):
         hnp.array_shapes(min_dims=1, max_dims=messages.MAX_ARRAY_DIMS - 1, min_side=1, max_side=2)
     )
     metres = st.floats(min_value=0.0, max_value=1e5)
+    columns = tuple(
+        draw(
+            st.one_of(
+                st.just([]),
+                st.lists(texts, min_size=shape[-1], max_size=shape[-1], unique=True),
+            )
+        )
+    )
+    # Some of the named columns scaled, each from a range of its own.
+    scaled = draw(st.lists(st.sampled_from(columns), unique=True)) if columns else []
+    low = st.floats(min_value=-1e6, max_value=1e6)
+    scales = []
+    for column in scaled:
+        start = draw(low)
+        scales.append(ColumnScale(column, start, start + draw(st.floats(1e-3, 1e6))))
     return ObservationSpec(
         name=draw(names),
         shape=shape,
         dtype=dtype,
         low=draw(wire_array(dtype, shape)),
         high=draw(wire_array(dtype, shape)),
-        columns=tuple(
-            draw(st.one_of(st.just([]), st.lists(texts, min_size=shape[-1], max_size=shape[-1])))
-        ),
+        columns=columns,
         reach=draw(st.one_of(st.none(), st.builds(Reach, metres, metres, metres, metres))),
+        scales=tuple(scales),
     )
 
 
@@ -215,6 +233,15 @@ def open_requests(draw):
         claim=draw(st.integers(1, agents)),
         seed=draw(st.none() | seeds),
         shm=draw(st.booleans()),
+        ego_fields=tuple(draw(st.lists(names, max_size=4, unique=True))),
+        translation=draw(
+            st.none()
+            | st.builds(
+                Translation,
+                source=st.sampled_from(TRANSLATIONS),
+                config_json=st.dictionaries(names, ints, max_size=3).map(json.dumps),
+            )
+        ),
     )
 
 

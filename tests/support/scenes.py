@@ -56,12 +56,15 @@ def scripted_sim(
     overrides: dict[str, Any] | None = None,
     calm: bool = True,
     preset: str = "min2018",
+    ego_fields: tuple[str, ...] = (),
 ) -> HighwaySim:
-    """One arena, one agent at x = 0 in ``ego_lane``, and exactly ``cars`` as traffic."""
+    """One arena, one agent at x = 0 in ``ego_lane``, and exactly ``cars`` as traffic;
+    ``ego_fields``: the ego vector's, as a trainer asks for them (none: the preset's)."""
     all_overrides: dict[str, Any] = dict(CALM_TRAFFIC) if calm else {}
     all_overrides["traffic.vehicle_count"] = len(cars)
     all_overrides.update(overrides or {})
-    sim = HighwaySim(make_config(preset, overrides=all_overrides), num_arenas=1)
+    config = make_config(preset, overrides=all_overrides).reading_ego_fields(ego_fields)
+    sim = HighwaySim(config, num_arenas=1)
     sim.reset(seeds=[0])
     st = sim.state
     cruise = ego_speed_kmh if cruise_kmh is None else cruise_kmh

@@ -22,7 +22,7 @@ from overtake.client.episodes.records import (
 )
 from overtake.client.episodes.scenario import Scenario, Where
 from overtake.protocol import errors
-from overtake.server.service.requested import resolve_config
+from overtake.server.engine.requested import resolve_config
 from overtake.server.sim import SimConfig, make_config
 from overtake.server.sim.config import as_json
 from overtake.server.sim.presets import PRESETS

@@ -15,17 +15,14 @@ import torch
 
 from overtake.cli import Output, UsageError
 from overtake.cli.options import unset
-from overtake.client.episodes.scenario import DEFAULT_PRESET, Scenario, Where
-from overtake.protocol.vocabulary import WATCH_SETTING
+from overtake.client.episodes.scenario import Scenario, Where
+from overtake.protocol.vocabulary import DEFAULT_PRESET, WATCH_SETTING
 from overtake.viz.recording import RecordingConfig
 
 from ..learning.dqn_config import Algo, DQNConfig
 from ..learning.learner import Precision
-from ..learning.network import Inputs, observations_read
+from ..learning.network import Inputs, ego_fields_read, observations_read
 from .presets import PRESET_TRAINING
-
-# The ego vector of a camera-only network: the car's own speed, nothing of the other cars.
-CAMERA_ONLY_EGO_FIELDS = ("speed_mps",)
 
 # Environment 0's view is logged every this many steps of the vector environment: about 6 MB
 # of .rrd per 10,000 steps with the camera, and no loss in steps per second measurable above
@@ -174,16 +171,19 @@ class TrainConfig:
         issue 60 switched the others off with ``<sensor>.enabled`` overrides instead."""
         return observations_read(self.inputs)
 
+    @property
+    def ego_fields(self) -> tuple[str, ...]:
+        """The ego vector's fields the network reads, which the trainer asks the simulator for
+        (OpenRequest.ego_fields; none: the preset's); a run before issue 70 set them with an
+        override instead."""
+        return ego_fields_read(self.inputs)
+
     def overrides(self, base: Mapping[str, Any] | None = None) -> dict[str, Any]:
-        """Simulator overrides: the user's, the traffic, and for the camera alone an ego
-        vector of the car's own speed only: the warnings and the car ahead's distance and
-        speed ride with the LIDAR in the authors' code (its vector's elements 360-365), so a
-        camera-only network sees other cars only through its camera (Min et al.'s ablation)."""
+        """Simulator overrides: the user's, the traffic, and the lane-change watch where the
+        shield watches lane changes through."""
         overrides = self.scenario.overrides(base)
         if self.shield_watch:
             overrides.setdefault(WATCH_SETTING, True)
-        if self.inputs == "camera":
-            overrides.setdefault("ego_vector.fields", list(CAMERA_ONLY_EGO_FIELDS))
         return overrides
 
     def output_paths(self) -> tuple[Output, ...]:

@@ -7,7 +7,7 @@
 - the ego vector of the latest decision is concatenated too, whatever fields the environment
   gives: Min et al.'s six (three warnings, the car ahead's distance and speed, the car's
   speed), which the authors' code feeds beside the LIDAR, for the LIDAR and multi-modal
-  networks; the car's speed alone for the camera-only one (``TrainConfig.overrides``), so that
+  networks; the car's speed alone for the camera-only one (:func:`ego_fields_read`), so that
   each variant sees other cars only through its own sensors;
 - the concatenation goes through a 512-unit layer with ReLU, then the head a
   :class:`~.heads.HeadSpec` names (plain Q-values, Min et al.'s dueling streams of Eq. 9, or
@@ -53,10 +53,23 @@ LATEST_SENSORS: dict[str, tuple[str, ...]] = {
 INPUTS: tuple[str, ...] = tuple(INPUT_SENSORS)
 
 
+# ... and the ego vector's fields it reads where not the preset's: the camera-only network
+# sees the car's own speed alone, since the warnings and the car ahead's distance and speed
+# ride with the LIDAR in the authors' code (its vector's elements 360-365), so that it sees
+# other cars only through its camera (Min et al.'s ablation).
+EGO_FIELDS_READ: dict[str, tuple[str, ...]] = {"camera": ("speed_mps",)}
+
+
 def observations_read(inputs: str) -> tuple[str, ...]:
     """Every observation a network of ``inputs`` reads: what a trainer asks the simulator
     for (OpenRequest.observations), so that no sensor it ignores is rendered."""
     return (*LATEST_SENSORS[inputs], *INPUT_SENSORS[inputs])
+
+
+def ego_fields_read(inputs: str) -> tuple[str, ...]:
+    """The ego vector's fields a network of ``inputs`` reads, which a trainer asks the
+    simulator for (OpenRequest.ego_fields); none: the preset's."""
+    return EGO_FIELDS_READ.get(inputs, ())
 
 
 @dataclass(frozen=True)

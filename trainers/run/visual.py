@@ -59,8 +59,8 @@ class TrainingRecording:
         ego_fields: Sequence[str] = (),
         action_names: Sequence[str] = ACTION_NAMES,
     ) -> None:
-        """``ego_fields`` names the ego vector's fields in order (the preset's
-        ``ego_vector.fields``): the car's speed is read from its ``speed_mps``, when it has
+        """``ego_fields`` names the ego vector's fields in order (its observation's columns in
+        the behaviour spec): the car's speed is read from its ``speed_mps``, when it has
         one (:class:`~overtake.viz.car_view.CarView`); ``action_names``: the behaviour spec's
         (highway-env's names in its scenes)."""
         import rerun as rr

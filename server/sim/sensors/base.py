@@ -50,13 +50,15 @@ class SensorFacts:
     """What a reader of a sensor's observation needs beyond its box: the names of the last
     axis' entries where they are named (``columns``), and how far it sees, in metres from the
     car's centre along the road, across it and along its rays (0 where that does not apply).
-    The behaviour spec carries them (protocol 1.5)."""
+    The behaviour spec carries them (protocol 1.5), and the normalised columns' ranges
+    (``scales``: a column's name, the quantity shown as -1 and as 1; protocol 1.11)."""
 
     columns: tuple[str, ...] = ()
     ahead_m: float = 0.0
     behind_m: float = 0.0
     side_m: float = 0.0
     range_m: float = 0.0
+    scales: tuple[tuple[str, float, float], ...] = ()
 
     @property
     def sees(self) -> bool:

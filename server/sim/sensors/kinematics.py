@@ -140,12 +140,17 @@ class Kinematics:
         return SensorSpace(shape, np.dtype(np.float32), low, high)
 
     def facts(self) -> SensorFacts:
-        """Its features by name; it sees 200 m around, two car lengths behind at most unless
-        it sees behind."""
+        """Its features by name and the ranges of those normalised; it sees 200 m around, two
+        car lengths behind at most unless it sees behind."""
         behind = PERCEPTION_M if self.config.see_behind else 2 * self.length
+        scales = tuple(
+            (FEATURES[code], float(self.low[code]), float(self.high[code]))
+            for code in self.codes
+            if self.scaled[code]
+        )
         return SensorFacts(
             columns=tuple(self.config.features), ahead_m=PERCEPTION_M, behind_m=behind,
-            side_m=PERCEPTION_M, range_m=PERCEPTION_M,
+            side_m=PERCEPTION_M, range_m=PERCEPTION_M, scales=scales,
         )  # fmt: skip
 
     def observe(self, scene: Scene) -> np.ndarray:

@@ -15,10 +15,11 @@ import numpy as np
 import pytest
 
 import overtake.client  # noqa: F401  (registers the ids)
-from overtake.envs.highway_env_like import ACTION_LABELS, TO_OVERTAKE, overrides_from_config
+from overtake.envs.highway_env_like import ACTION_LABELS, TO_OVERTAKE
 from overtake.protocol.errors import BadConfig
 from overtake.server.sim import HighwaySim, make_config
 from overtake.server.sim.config import as_json
+from overtake.server.sim.highway_scene.highway_env_config import overrides_from_config
 from overtake.server.sim.settings_history import as_recorded
 
 highway_env = pytest.importorskip("highway_env", reason="highway-env is in the dev extra")

@@ -80,3 +80,32 @@ def test_a_record_made_with_sensors_off_replays_with_them_off():
         settings_history.as_recorded(
             "min2018", {"camera.enabled": False}, as_json(make_config("min2018"))
         )
+
+
+def test_the_ego_fields_a_trainer_reads_are_asked_for_by_the_request():
+    """Protocol 1.11 (``OpenRequest.ego_fields``): the camera-only network's ego vector of the
+    car's speed alone, asked for by a typed field in process and of a server's group; an
+    unknown field, an ego vector that is off, or an override that says otherwise is refused
+    by name; a record made with them replays with them."""
+    from overtake.server.sim import settings_history
+    from overtake.server.sim.config import as_json
+
+    envs = HighwayVectorEnv(2, "min2018", QUIET, ego_fields=("speed_mps",))
+    try:
+        assert envs.single_observation_space["ego"].shape == (1,)
+        assert envs.behaviour_spec.observation("ego").columns == ("speed_mps",)
+    finally:
+        envs.close()
+    group = Group.open(0, "srv", [0], "min2018", dict(QUIET), 1, seed=1, ego_fields=("lane_index",))
+    assert group.spec.observation("ego").columns == ("lane_index",)
+    with pytest.raises(errors.BadConfig, match=r"ego_vector.fields .* distinct names from"):
+        Group.open(0, "srv", [0], "min2018", {}, 1, seed=1, ego_fields=("speed",))
+    with pytest.raises(errors.BadConfig, match="observes no ego vector"):
+        Group.open(0, "srv", [0], "highway-fast", {}, 1, seed=1, ego_fields=("speed_mps",))
+    with pytest.raises(ConfigError, match="one or the other"):
+        settings_history.requested_config(
+            "min2018", {"ego_vector.fields": ["lane_index"]}, ego_fields=("speed_mps",)
+        )
+    speed_only = make_config("min2018").reading_ego_fields(("speed_mps",))
+    again = settings_history.as_recorded("min2018", {}, as_json(speed_only))
+    assert again == speed_only
