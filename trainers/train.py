@@ -177,10 +177,10 @@ def train_members(
 def open_members_envs(configs: Sequence[TrainConfig]) -> list[VectorFace]:
     """Each member's environment. In process, members of one simulator configuration (preset,
     overrides, sensors, ego fields) get shares of one engine
-    (:func:`~overtake.envs.shares.share_face`): every member's arenas step in one simulator call a
-    round, each exactly as in an engine of its own (a checkpoint moves between the two). Elsewhere
-    each member opens its own (with
-    --connect, the server puts every member's arenas in its group)."""
+    (:func:`~overtake.envs.shares.share_face`): every member's arenas step in one simulator
+    call a round, each exactly as in an engine of its own (a checkpoint moves between the
+    two). Elsewhere each member opens its own (with --connect, the server puts every member's
+    arenas in its group)."""
     first = configs[0]
     alike = all(
         c.where.in_process
