@@ -781,7 +781,7 @@ def test_a_flood_queues_at_most_its_bound():
     # inbox alone (no session): a flood cannot be timed against the loop reliably.
     from types import SimpleNamespace
 
-    from overtake.server import inbox as server_inbox
+    from overtake.server.service import inbox as server_inbox
 
     inbox = server_inbox.Inbox("s")
     replies: list[bytes] = []

@@ -193,7 +193,7 @@ def small_frame(round_: int, arena: int = 0) -> WorldFrame:
 def test_server_recorder_drops_and_counts_what_it_cannot_keep_up_with(tmp_path, caplog):
     import threading
 
-    from overtake.server import recorder as recorder_module
+    from overtake.server.service import recorder as recorder_module
 
     recorder = recorder_module.ServerRecorder(
         RecordingConfig(sink="file", rrd=tmp_path / "s.rrd"), "s"
@@ -224,7 +224,7 @@ def test_server_recorder_drops_and_counts_what_it_cannot_keep_up_with(tmp_path, 
 
 
 def test_server_recording_lays_out_each_arena_as_it_appears(tmp_path, monkeypatch):
-    from overtake.server import recorder as recorder_module
+    from overtake.server.service import recorder as recorder_module
     from overtake.viz import world_view
 
     monkeypatch.setattr(world_view, "BLUEPRINT_ARENAS", 2)
