@@ -368,23 +368,6 @@ TRAINERS_ALLOWED = {
 }
 
 
-def test_trainers_rooms_import_only_those_below_them():
-    found = {p.name for p in (ROOT / "trainers").iterdir() if (p / "__init__.py").exists()}
-    assert found == set(TRAINERS_ALLOWED), "a trainers/ room the layering does not know"
-    top = sorted(TRAINERS_COMMANDS)
-    assert len(top) <= 12, f"trainers/ has {len(top)} top-level modules: {top}"
-    wrong = []
-    for room, allowed in TRAINERS_ALLOWED.items():
-        for path in sorted((ROOT / "trainers" / room).glob("*.py")):
-            for name, line in _imports(path):
-                parts = name.split(".")
-                if parts[:2] != ["overtake", "trainers"] or len(parts) < 3:
-                    continue
-                if parts[2] not in allowed | {room}:
-                    wrong.append(f"trainers/{room}/{path.name}:{line} imports {name}")
-    assert not wrong, "\n".join(wrong)
-
-
 # server/ by audience (docs/development.md): an engine under a service, the commands at the
 # top. The rooms each may import when it runs (a type named for a checker only is not an
 # import that runs).
@@ -396,21 +379,25 @@ SERVER_ALLOWED = {
 }
 
 
-def test_server_rooms_import_only_those_below_them():
-    found = {p.name for p in (ROOT / "server").iterdir() if (p / "__init__.py").exists()}
-    assert found == set(SERVER_ALLOWED), "a server/ room the layering does not know"
-    top = sorted(p.stem for p in (ROOT / "server").glob("*.py") if p.stem != "__init__")
-    assert len(top) <= 12, f"server/ has {len(top)} top-level modules: {top}"
-    modules = {_module_name(p) for p in _sources("server")}
+@pytest.mark.parametrize(
+    ("package", "rooms"), [("trainers", TRAINERS_ALLOWED), ("server", SERVER_ALLOWED)]
+)
+def test_a_package_s_rooms_import_only_those_below_them(package: str, rooms: dict) -> None:
+    """Each room of ``package`` imports, when it runs, only the rooms (and modules) it may;
+    the package keeps at most 12 modules at its top level."""
+    folder = ROOT / package
+    found = {p.name for p in folder.iterdir() if (p / "__init__.py").exists()}
+    assert found == set(rooms), f"a {package}/ room the layering does not know"
+    top = sorted(p.stem for p in folder.glob("*.py") if p.stem != "__init__")
+    assert len(top) <= 12, f"{package}/ has {len(top)} top-level modules: {top}"
+    modules = {_module_name(p) for p in _sources(package)}
     modules |= {m.rsplit(".", 1)[0] for m in modules}
     wrong = []
-    for room, allowed in SERVER_ALLOWED.items():
-        for path in sorted((ROOT / "server" / room).rglob("*.py")):
+    for room, allowed in rooms.items():
+        for path in sorted((folder / room).rglob("*.py")):
             for name in sorted(_runtime_imports(path, modules)):
                 parts = name.split(".")
-                if parts[:2] != ["overtake", "server"] or len(parts) < 3:
-                    continue
-                if parts[2] not in allowed | {room}:
+                if parts[:2] == ["overtake", package] and parts[2] not in allowed | {room}:
                     wrong.append(f"{path.relative_to(ROOT)} imports {name}")
     assert not wrong, "\n".join(wrong)
 
