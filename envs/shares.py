@@ -52,10 +52,10 @@ class SharedEngine:
     sent asks for it, with every share that sent, and hands each its rows."""
 
     def __init__(self, engine: Engine, arenas: Sequence[int]) -> None:
-        total = sum(arenas)
-        agents = len(engine.agents)
         if not arenas or min(arenas) < 1:
             raise ValueError(f"each share needs at least one arena, got {list(arenas)}")
+        total = sum(arenas)
+        agents = len(engine.agents)
         if agents % total:
             raise ValueError(f"the engine's {agents} agents do not fill {total} arenas evenly")
         self.engine = engine

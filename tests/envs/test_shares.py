@@ -145,6 +145,8 @@ def test_misuse_of_a_share_is_refused() -> None:
         whole = HighwayVectorEnv(num_envs=3, preset="highway-fast")
         with pytest.raises(ValueError, match="do not fill"):
             share_face(whole, (1, 1))
+        with pytest.raises(ValueError, match="at least one arena"):
+            share_face(whole, ())
         whole.close()
     finally:
         for env in (*shares, *lone):
