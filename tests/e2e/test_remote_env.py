@@ -44,6 +44,7 @@ from tests.support.remote import (
     trainer_args,
     wait_until,
 )
+from tests.support.same import assert_same
 
 SHORT = {"episode.max_decisions": 60}
 EMPTY_ROAD = {"episode.max_decisions": 20, "traffic.vehicle_count": 0}
@@ -68,26 +69,6 @@ def test_ml_agents_layout_puts_image_channels_first():
     assert np.array_equal(mlagents_observations(rgb)[1, 2], rgb[1, :, :, 2] / np.float32(255))
     assert np.array_equal(mlagents_observations(rgb), as_mlagents(rgb))
     assert np.array_equal(mlagents_observations(grey), as_mlagents(grey))
-
-
-def assert_same(a, b, where: str = "value") -> None:
-    """Equal in value, type and (for arrays) dtype and shape: bit for bit."""
-    if isinstance(a, dict) or isinstance(b, dict):
-        assert isinstance(a, dict) and isinstance(b, dict), f"{where}: {type(a)} vs {type(b)}"
-        assert a.keys() == b.keys(), f"{where}: keys {sorted(a)} vs {sorted(b)}"
-        for key in a:
-            assert_same(a[key], b[key], f"{where}[{key!r}]")
-    elif isinstance(a, tuple) or isinstance(b, tuple):
-        assert isinstance(a, tuple) and isinstance(b, tuple) and len(a) == len(b), where
-        for i, (x, y) in enumerate(zip(a, b)):
-            assert_same(x, y, f"{where}[{i}]")
-    elif isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
-        a, b = np.asarray(a), np.asarray(b)
-        assert a.dtype == b.dtype, f"{where}: dtype {a.dtype} vs {b.dtype}"
-        assert a.shape == b.shape, f"{where}: shape {a.shape} vs {b.shape}"
-        assert np.array_equal(a, b), f"{where}: arrays differ"
-    else:
-        assert type(a) is type(b) and a == b, f"{where}: {a!r} vs {b!r}"
 
 
 # --- 1. bit for bit equal to the in-process environments ------------------------------------
