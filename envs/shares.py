@@ -10,9 +10,10 @@ a share resumes on an engine of its own and the other way round.
 
 A round is played once, when the first share that sent actions asks for it (every share sends
 before any receives, as a vector environment's parts do): every share that sent is in it. A
-share that sent nothing sits the round out: its arenas are kept before and put back after, so
-they stay as they were, as an engine of their own that is not stepped stays (a member already
-at its budget waits so). Each arena has its own random stream and no simulator array mixes
+share that sent nothing sits the round out: its arenas are kept when it begins to and put back
+when it next acts, keeps or is shown (stepped meanwhile with nobody's actions, their rows
+dropped), so they are as they were, as an engine of their own that is not stepped stays (a
+member already at its budget waits so, perhaps for many rounds). Each arena has its own random stream and no simulator array mixes
 arenas, so a share's arenas step exactly as they would alone (``tests/envs/test_shares.py``).
 """
 
@@ -67,13 +68,16 @@ class SharedEngine:
         )
         self._sent: dict[int, _Sent] = {}  # the next round's actions, by share
         self._played: dict[int, Rows] = {}  # a round's rows its senders have not taken yet
+        # The arenas of shares sitting rounds out, as they were when they began to: put back
+        # when the share next acts, not after every round it sits out (a member at its budget
+        # may wait for many rounds).
+        self._kept: dict[int, dict[str, Any]] = {}
         self._open = len(self.shares)
 
     def send(self, share: EngineShare, sent: _Sent) -> None:
-        if share.index in self._played:
+        if not self.between_rounds(share):
             raise RuntimeError("actions sent twice for one round; receive its rows first")
-        if share.index in self._sent:
-            raise RuntimeError("actions sent twice for one round; receive its rows first")
+        self.wake(share)
         self._sent[share.index] = sent
 
     def receive(self, share: EngineShare) -> Rows:
@@ -85,17 +89,18 @@ class SharedEngine:
 
     def _play(self) -> None:
         sent, self._sent = self._sent, {}
-        sitting = [s for s in self.shares if s.index not in sent and not s.closed]
-        kept: list[tuple[EngineShare, dict[str, Any]]] = []
-        keeper = self.engine if isinstance(self.engine, ArenaRestorable) else None
+        sitting = [s for s in self.shares if s.index not in sent and s.index not in self._kept]
+        sitting = [s for s in sitting if not s.closed]
         if sitting:
-            if keeper is None:
+            keeper = self.engine
+            if not isinstance(keeper, ArenaRestorable):
                 self._sent = sent
                 raise RuntimeError(
                     f"shares {[s.index for s in sitting]} sent no actions for this round, and "
                     "this engine cannot keep their arenas as they are: every share must send"
                 )
-            kept = [(s, keeper.snapshot_arenas(s.first_arena, s.arenas)) for s in sitting]
+            for s in sitting:
+                self._kept[s.index] = keeper.snapshot_arenas(s.first_arena, s.arenas)
         order = sorted(sent)
         retire = np.concatenate([sent[k].retire for k in order])
         self.engine.trainer_step = max(self.shares[k].trainer_step for k in order)
@@ -105,18 +110,29 @@ class SharedEngine:
             retire.tolist(),
         )
         rows = self.engine.receive()
-        for share, snapshot in kept:
-            assert keeper is not None
-            keeper.restore_arenas(share.first_arena, snapshot)
         for k in order:
             self._played[k] = self.shares[k].own_rows(rows)
 
     def between_rounds(self, share: EngineShare) -> bool:
         return share.index not in self._sent and share.index not in self._played
 
+    def wake(self, share: EngineShare) -> None:
+        """Put back the arenas ``share`` had when it began to sit rounds out (they were
+        stepped meanwhile, with nobody's actions), before it acts, keeps or is shown again."""
+        snapshot = self._kept.pop(share.index, None)
+        if snapshot is not None:
+            engine = self.engine
+            assert isinstance(engine, ArenaRestorable)
+            engine.restore_arenas(share.first_arena, snapshot)
+
+    def forget_kept(self, share: EngineShare) -> None:
+        """``share``'s arenas are about to be written whole (a restore): nothing to put back."""
+        self._kept.pop(share.index, None)
+
     def close(self, share: EngineShare) -> None:
         self._sent.pop(share.index, None)
         self._played.pop(share.index, None)
+        self._kept.pop(share.index, None)
         self._open -= 1
         if self._open == 0:
             self.engine.close()
@@ -177,6 +193,7 @@ class EngineShare:
         bad = [a for a in arenas if not 0 <= a < self.arenas]
         if bad:
             raise ValueError(f"this share has arenas 0..{self.arenas - 1}, got {bad}")
+        self.shared.wake(self)
         rows = self.shared.engine.reset(tuple(self.first_arena + a for a in arenas), seeds)
         return self.own_rows(rows)
 
@@ -204,6 +221,7 @@ class EngineShare:
             raise RuntimeError("a snapshot between rounds only: receive the round sent for")
         engine = self.shared.engine
         assert isinstance(engine, ArenaRestorable)
+        self.shared.wake(self)
         return engine.snapshot_arenas(self.first_arena, self.arenas)
 
     def restore(self, snapshot: Mapping[str, Any]) -> None:
@@ -213,6 +231,7 @@ class EngineShare:
             raise TypeError("this engine cannot put back some of its arenas alone")
         engine = self.shared.engine
         assert isinstance(engine, ArenaRestorable)
+        self.shared.forget_kept(self)
         engine.restore_arenas(self.first_arena, snapshot)
 
     def close(self) -> None:
@@ -237,12 +256,14 @@ class RoadShare:
 
     def planner_actions(self) -> np.ndarray:
         share = self._share
+        share.shared.wake(share)
         first = share.first_arena * share.shared.agents_per_arena
         return self._road.planner_actions()[first : first + share.agents.size]
 
     def _arena(self, arena: int) -> int:
         if not 0 <= arena < self._share.arenas:
             raise ValueError(f"this share has arenas 0..{self._share.arenas - 1}, got {arena}")
+        self._share.shared.wake(self._share)  # shown as it stands, not as stepped meanwhile
         return arena
 
 
