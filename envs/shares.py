@@ -13,8 +13,9 @@ before any receives, as a vector environment's parts do): every share that sent 
 share that sent nothing sits the round out: its arenas are kept when it begins to and put back
 when it next acts, keeps or is shown (stepped meanwhile with nobody's actions, their rows
 dropped), so they are as they were, as an engine of their own that is not stepped stays (a
-member already at its budget waits so, perhaps for many rounds). Each arena has its own random stream and no simulator array mixes
-arenas, so a share's arenas step exactly as they would alone (``tests/envs/test_shares.py``).
+member already at its budget waits so, perhaps for many rounds). Each arena has its own random
+stream and no simulator array mixes arenas, so a share's arenas step exactly as they would alone
+(``tests/envs/test_shares.py``).
 """
 
 from __future__ import annotations

@@ -32,8 +32,8 @@ class FusedAdam(torch.optim.Adam):
         """``one_buffer``: the parameters, their gradients and both moments each in one flat
         buffer (:mod:`.flat_buffers`; the parameters become views of it, in place), so a step
         is one kernel call over one tensor, every parameter's step count one shared tensor,
-        and :attr:`flat_grad` lets a caller clip every gradient at once. The same numbers as
-        a parameter at a time (tests/trainers/test_fused_adam.py)."""
+        and :meth:`gathered_gradients` lets a caller clip every gradient at once. The same numbers
+        as a parameter at a time (tests/trainers/test_fused_adam.py)."""
         defer_dynamo_import()
         super().__init__(params, lr=lr, eps=eps, fused=True)
         self._flat = (
@@ -43,10 +43,13 @@ class FusedAdam(torch.optim.Adam):
         )
         self._step_count = torch.zeros((), dtype=torch.float32)
 
-    @property
-    def flat_grad(self) -> torch.Tensor | None:
-        """Every gradient in one buffer (``one_buffer``), else None."""
-        return None if self._flat is None else self._flat.grads
+    def gathered_gradients(self) -> torch.Tensor | None:
+        """Every gradient in one buffer, any set from outside copied in (``one_buffer``), else
+        None: what a caller clips at once."""
+        if self._flat is None:
+            return None
+        self._flat.gather_gradients()
+        return self._flat.grads
 
     def _direct(self) -> bool:
         """Whether this step can go straight to the kernel: every parameter on the CPU, no

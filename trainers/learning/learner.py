@@ -176,11 +176,11 @@ def clip_gradients(optimizer: Any, network: nn.Module, max_norm: float) -> None:
     at most ``max_norm``), on the optimiser's one gradient buffer where it keeps one
     (:class:`.fused_adam.FusedAdam`'s ``one_buffer``): two operations instead of a few a
     parameter; the same up to float rounding."""
-    flat = getattr(optimizer, "flat_grad", None)
+    gathered = getattr(optimizer, "gathered_gradients", None)
+    flat = gathered() if gathered is not None else None
     if flat is None:
         nn.utils.clip_grad_norm_(network.parameters(), max_norm)
         return
-    optimizer._flat.gather_gradients()
     norm = torch.linalg.vector_norm(flat)
     flat.mul_(torch.clamp(max_norm / (norm + 1e-6), max=1.0))
 
