@@ -164,8 +164,8 @@ COMMANDS = tuple(
 )
 
 
-def test_help_into_a_closed_pipe_ends_quietly():
-    """``--help | head -1`` for every command: the first line, and nothing on stderr (no
+def _help_into_a_closed_pipe(commands: tuple[str, ...]) -> None:
+    """``--help | head -1`` for each of ``commands``: the first line, and nothing on stderr (no
     BrokenPipeError). The pipelines, one a command, run at once (each starts an interpreter)."""
     running = {
         command: subprocess.Popen(
@@ -174,12 +174,24 @@ def test_help_into_a_closed_pipe_ends_quietly():
             stderr=subprocess.PIPE,
             text=True,
         )
-        for command in COMMANDS
+        for command in commands
     }
     for command, process in running.items():
         out, err = process.communicate(timeout=120)
         assert out.startswith("usage:"), (command, out, err)
         assert err == "", (command, err)
+
+
+def test_help_into_a_closed_pipe_ends_quietly():
+    """Two commands through the one door: one that loads PyTorch, one that does not (every
+    command: the slow test below)."""
+    assert {"overtake-server", "overtake-eval"} <= set(COMMANDS)
+    _help_into_a_closed_pipe(("overtake-server", "overtake-eval"))
+
+
+@pytest.mark.slow  # an interpreter a command, half of them loading PyTorch: 10 s of both cores
+def test_every_commands_help_into_a_closed_pipe_ends_quietly():
+    _help_into_a_closed_pipe(COMMANDS)
 
 
 def test_an_output_that_cannot_be_written_is_refused_before_any_episode(tmp_path, monkeypatch):

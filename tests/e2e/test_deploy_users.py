@@ -45,19 +45,6 @@ def test_usrpwd_router_admits_only_listed_users(tmp_path: Path, background):
     port = free_port()
     router_ep = f"tcp/{LOOPBACK}:{port}"
     start_router(background, "router", [router_ep], "--credentials-file", str(credentials))
-    # A server with the wrong password keeps trying in the background (it may have started
-    # before its router), and says why it is still alone after 10 s: checked at the end.
-    wrong_password = tmp_path / "wrong.pw"
-    wrong_password.write_text("not-the-password\n")
-    lonely = start_server(
-        background,
-        "sim-lonely",
-        router_ep,
-        "--user",
-        "simserver",
-        "--password-file",
-        str(wrong_password),
-    )
     # The server's password from a file, the trainer's from the environment: neither appears on
     # a command line. The server listens nowhere (docs/remote-hosts.md's recipe): nobody gets to it
     # without passing the router's check.
@@ -102,6 +89,28 @@ def test_usrpwd_router_admits_only_listed_users(tmp_path: Path, background):
     # No credentials at all.
     with pytest.raises(errors.ConnectError, match="requires usrpwd credentials"):
         Connection(RemoteConfig(connect=(router_ep,), connect_timeout_s=1.0))
+
+
+@pytest.mark.slow  # the server says so only after its 10 s of trying (ipc.transport)
+@pytest.mark.timeout(120)
+def test_a_server_with_the_wrong_password_keeps_trying_and_says_why(tmp_path: Path, background):
+    """A server with the wrong password keeps trying in the background (it may have started
+    before its router), and says why it is still alone after 10 s."""
+    credentials = tmp_path / "credentials.txt"
+    credentials.write_text("simserver:server-secret\n")
+    router_ep = f"tcp/{LOOPBACK}:{free_port()}"
+    start_router(background, "router", [router_ep], "--credentials-file", str(credentials))
+    wrong_password = tmp_path / "wrong.pw"
+    wrong_password.write_text("not-the-password\n")
+    lonely = start_server(
+        background,
+        "sim-lonely",
+        router_ep,
+        "--user",
+        "simserver",
+        "--password-file",
+        str(wrong_password),
+    )
     lonely.wait_log("not connected to", timeout_s=30)
     assert "wrong password for user 'simserver'" in lonely.log_text()
 

@@ -536,7 +536,7 @@ def test_the_curves_are_a_png_and_a_rerun_recording_of_every_row(tiny):
 
 def test_a_directory_refuses_a_run_with_other_training_settings(tiny):
     config = dataclasses.replace(tiny["config"], total_steps=BUDGET * 2)
-    with pytest.raises(UsageError, match=r"total_steps 400 then, 800 now"):
+    with pytest.raises(UsageError, match=rf"total_steps {BUDGET} then, {BUDGET * 2} now"):
         main(config)
 
 

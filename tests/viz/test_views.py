@@ -303,6 +303,7 @@ def test_layout_names_the_file_whose_arena_shape_it_cannot_read(tmp_path):
 
 
 @needs_viewer
+@pytest.mark.slow  # Rerun's viewer once a tab (11 s); one draw: the test above
 @pytest.mark.timeout(240)
 def test_a_tab_pattern_draws_every_tab_it_names_each_to_its_own_file(tmp_path):
     """``overtake-render --tabs "*"`` wrote ``render-.png`` once (the pattern's own empty
