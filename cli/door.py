@@ -16,13 +16,16 @@ and what a user sees at the edges the same in every command.
 - **A closed pipe ends it quietly** (``overtake-train --help | head -1``): no traceback, status
   141 as a Unix tool killed by SIGPIPE.
 - **The library's INFO lines** go to stderr, unless the caller configured logging itself.
+- **Freed memory kept for reuse** (:mod:`.allocator`): every command's rounds and updates
+  allocate the same blocks again and again, and reuse their pages instead of faulting in
+  fresh ones (unless the user set glibc's own variables).
 - **SIGINT and SIGTERM** stop it as the command chose (:data:`Stopping`): as Python does, as
   an interrupt ended in one line, or as a stop ``main`` finishes (a second signal ends it).
 
 Library functions and the commands' ``main(config)`` raise typed exceptions, because they are
 called from Python too (tests, notebooks) and exiting there would end the caller; only the door
 exits. It sits below every package that has a command (server, client, trainers, viz) and
-imports only the protocol's errors.
+imports only the protocol's errors (and :mod:`.allocator`, which imports nothing of ours).
 """
 
 from __future__ import annotations
@@ -40,6 +43,8 @@ from pathlib import Path
 from typing import Any, Generic, Literal, TypeVar, cast
 
 from overtake.protocol import ProtocolError
+
+from .allocator import keep_freed_memory
 
 ConfigT = TypeVar("ConfigT")
 ResultT = TypeVar("ResultT")
@@ -184,6 +189,7 @@ class Command(Generic[ConfigT, ResultT]):
     def run(self, argv: list[str] | None = None) -> None:
         """The command: ``main(parse(argv))`` through the door, ending the process with the
         report's status."""
+        keep_freed_memory()
         stop = threading.Event()
         previous = self._handle_signals(stop)
         try:

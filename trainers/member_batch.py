@@ -14,9 +14,9 @@ from typing import Any
 import torch
 
 from overtake.cli import Command, UsageError
+from overtake.cli.allocator import keep_freed_memory
 
 from .config.train_config import TrainConfig
-from .run.allocator import keep_freed_memory
 from .train import COMMAND as TRAIN
 from .train import _say_stopping, train_members
 

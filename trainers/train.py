@@ -32,13 +32,13 @@ from typing import Any
 import torch
 
 from overtake.cli import Command, UsageError
+from overtake.cli.allocator import keep_freed_memory
 from overtake.client.wire.stopping import interrupt_waits
 from overtake.envs.faces import VectorFace
 from overtake.envs.shares import share_face
 
 from .config.train_config import TrainConfig
 from .learning.learner import execution_device
-from .run.allocator import keep_freed_memory
 from .run.checkpoint import (
     CHECKPOINT_NAME,
     Checkpoint,

@@ -793,9 +793,16 @@ def main(config: BenchConfig) -> dict[str, Any]:
     allocator = {
         name: value for name, value in sorted(os.environ.items()) if name.startswith("MALLOC_")
     }
+    # The in-process side as a trainer's process has it: every overtake command keeps freed
+    # memory (overtake.cli.allocator, at the door: the server too), unless the user set
+    # glibc's variables, which then hold in every process here.
+    from overtake.cli.allocator import keep_freed_memory  # after pin_threads: it imports numpy
+
+    kept = keep_freed_memory()
     print(
         "glibc malloc settings (inherited by the server and echo): "
         + (", ".join(f"{k}={v}" for k, v in allocator.items()) or "defaults")
+        + ("; freed memory kept, as every overtake command keeps it" if kept else "")
     )
     if config.quick:
         print(f"quick mode: timed counts divided by {QUICK_DIVISOR}; figures are noisier")

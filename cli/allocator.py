@@ -1,13 +1,18 @@
-"""The C allocator's settings for a training process: freed memory kept for the next update.
+"""The C allocator's settings for an overtake process: freed memory kept for the next round.
 
-An update allocates and frees the same few tensors of a few MiB every time (a convolution's
-output, its gradient, a layout copy). glibc's ``malloc`` serves a block of 128 KiB or more
-(its starting threshold) with a fresh ``mmap`` and gives it back with ``munmap`` when it is
-freed, and trims the top of its heap once 128 KiB lie free there, so every update touches new
-pages, and the kernel zeroes each on its first touch: measured here (ho2018's proposed network,
-eight members, one thread), 430,000 page faults in 400 updates, and an update 1.6x slower than
-with the memory kept (bench/RESULTS.md, "The allocator"). glibc raises its threshold by itself
-after the first such free, but only to that block's size, and larger blocks come later.
+Every command applies them at its door (:class:`~.door.Command`), and ``overtake-train``'s
+``main`` does too when called as a function. A training update allocates and frees the same
+few tensors of a few MiB every time (a convolution's output, its gradient, a layout copy), and
+a simulator's round the same numpy temporaries (a sensor's rays, a camera's frame). glibc's
+``malloc`` serves a block of 128 KiB or more (its starting threshold) with a fresh ``mmap``
+and gives it back with ``munmap`` when it is freed, and trims the top of its heap once 128 KiB
+lie free there, so every update touches new pages, and the kernel zeroes each on its first
+touch: measured here (ho2018's proposed network, eight members, one thread), 430,000 page
+faults in 400 updates, and an update 1.6x slower than with the memory kept
+(bench/RESULTS.md, "The allocator"); a server's simulation of 64 arenas 20-25% slower than the
+same rounds in a process whose allocator had settled (bench/RESULTS.md, "Remote stepping").
+glibc raises its threshold by itself after the first such free, but only to that block's
+size, and larger blocks come later.
 
 :func:`keep_freed_memory` sets the threshold to glibc's largest (32 MiB: bigger blocks, such as
 a replay memory, are still mapped on their own) and the trim threshold out of reach, so freed

@@ -1,5 +1,5 @@
-"""The training process's allocator settings (trainers/run/allocator.py): a block of a few MiB
-freed and allocated again reuses its pages instead of faulting in fresh ones."""
+"""Every command's allocator settings (cli/allocator.py, applied at the door): a block of a few
+MiB freed and allocated again reuses its pages instead of faulting in fresh ones."""
 
 from __future__ import annotations
 
@@ -10,15 +10,16 @@ import sys
 
 import pytest
 
-from overtake.trainers.run import allocator
+from overtake.cli import allocator
 
 # Allocates six arrays of 4 MiB (written through, as an update's tensors are, all live at once
 # as in a backward pass), frees them, 50 times over, and prints the minor page faults that
 # cost, after applying the settings or not.
 _FAULTS = """
 import importlib.util, json, resource, sys
+from dataclasses import dataclass
 import numpy as np
-# The module alone, from its file: the package would import torch, which is slow to start.
+# The module alone, from its file, as a process that imports nothing else of ours.
 spec = importlib.util.spec_from_file_location("allocator", sys.argv[2])
 allocator = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(allocator)
@@ -28,12 +29,21 @@ def once():
     for block in blocks:
         block.fill(1.0)
     del blocks
-once()
-before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-for _ in range(50):
+def measure(_config=None):
     once()
-after = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-print(json.dumps({"applied": applied, "faults": after - before}))
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    for _ in range(50):
+        once()
+    after = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    return {"applied": applied, "faults": after - before}
+if sys.argv[1] == "door":  # the same as a command's main, run through the door
+    from overtake.cli import Command
+    @dataclass(frozen=True)
+    class NoOptions:
+        pass
+    Command("overtake-probe", NoOptions, measure, report=lambda c, r: print(json.dumps(r))).run([])
+else:
+    print(json.dumps(measure()))
 """
 
 
@@ -61,6 +71,13 @@ def test_freed_blocks_are_reused_instead_of_faulted_in_again() -> None:
     # in again; kept, the blocks are reused.
     assert default["faults"] > 50_000, default
     assert kept["faults"] < default["faults"] / 20, (kept, default)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc")
+def test_every_command_keeps_freed_memory_through_its_door() -> None:
+    default = _faults("default")
+    through_the_door = _faults("door")
+    assert through_the_door["faults"] < default["faults"] / 20, (through_the_door, default)
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc")
