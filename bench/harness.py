@@ -7,6 +7,8 @@ overtake for an A/B, and the JSON report every ``--json`` writes.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import datetime
 import json
 import os
 import shutil
@@ -216,6 +218,20 @@ def baseline_checkout(revision: str) -> Iterator[Path]:
     finally:
         subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=ROOT, check=False)
         shutil.rmtree(where, ignore_errors=True)
+
+
+def report_head(config: Any, machine: dict[str, Any], threads: Any) -> dict[str, Any]:
+    """What every benchmark's JSON report starts with: when (UTC), its configuration (a
+    dataclass whose ``json`` is the report's own path), the machine and the thread pools."""
+    return {
+        "timestamp_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "config": {
+            **dataclasses.asdict(config),
+            "json": None if config.json is None else str(config.json),
+        },
+        "machine": machine,
+        "threads": threads,
+    }
 
 
 def write_report(path: Path | None, report: dict[str, Any]) -> None:

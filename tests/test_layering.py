@@ -103,15 +103,7 @@ def test_each_folder_is_its_overtake_package_and_nothing_else_is():
         "    'bare': [n for n in names if importlib.util.find_spec(n) is not None],\n"
         "}))\n"
     )
-    out = subprocess.run(
-        [sys.executable, "-c", probe],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=True,
-        cwd="/",
-    ).stdout
-    found = json.loads(out.strip().splitlines()[-1])
+    found = _probe(probe, Path("/"))
     for name, folder in FOLDERS.items():
         assert _sources(folder), f"no Python files under {folder}/"
         assert Path(found["files"][name]).resolve() == (ROOT / folder / "__init__.py").resolve()
@@ -176,13 +168,18 @@ def _loaded_after(statement: str) -> dict:
         "print(json.dumps({'modules': sorted({m.split('.')[0] for m in sys.modules}), "
         "'ids': ids}))\n"
     )
+    return _probe(probe, ROOT)
+
+
+def _probe(code: str, cwd: Path) -> dict:
+    """What ``code``, run in a fresh interpreter in ``cwd``, printed as JSON on its last line."""
     out = subprocess.run(
-        [sys.executable, "-c", probe],
+        [sys.executable, "-c", code],
         capture_output=True,
         text=True,
         timeout=120,
         check=True,
-        cwd=ROOT,
+        cwd=cwd,
     ).stdout
     return json.loads(out.strip().splitlines()[-1])
 

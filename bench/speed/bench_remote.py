@@ -58,7 +58,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import datetime
 import os
 import queue
 import resource
@@ -80,11 +79,12 @@ from bench.harness import (
     latency_summary,
     make_env,
     process_usage,
+    report_head,
     start_server,
     stop_process,
     write_report,
 )
-from bench.speed.bench_sim import machine_description, pin_threads
+from bench.speed.bench_sim import machine_description, machine_line, pin_threads
 
 ENV_ID = "overtake/Highway-v0"
 PRESET = "min2018"
@@ -776,16 +776,31 @@ def print_report(results: list[dict[str, Any]]) -> None:
     )
 
 
+def _bar(
+    arenas: int, figure: str, sense: str, bar: float, value: float, **more: float
+) -> dict[str, Any]:
+    """One bar of the report: ``figure`` at ``arenas`` must be ``sense`` (<= or >=) ``bar``."""
+    passed = value <= bar if sense == "<=" else value >= bar
+    return {
+        "arenas": arenas,
+        "figure": figure,
+        "bar": f"{sense} {bar}",
+        "value": value,
+        "passed": passed,
+        **more,
+    }
+
+
+def _verdict(bar: dict[str, Any]) -> str:
+    return "PASS" if bar["passed"] else "FAIL"
+
+
 def main(config: BenchConfig) -> dict[str, Any]:
     """Run every measurement, print the report and return it as a JSON-able dict."""
     threads = pin_threads(config.blas_threads)
     machine = machine_description()
     print("overtake remote stepping benchmark")
-    print(
-        f"machine: {machine['cpu_count']} CPUs ({machine['cpu_model']}), "
-        f"{machine['platform']}, Python {machine['python']}, numpy {machine['numpy']}, "
-        f"gymnasium {machine['gymnasium']}"
-    )
+    print(machine_line(machine))
     print(
         f"overtake {machine['overtake']} (source {machine['overtake_source']}), preset "
         f"{PRESET}; numpy BLAS/OpenMP threads: {threads}"
@@ -847,36 +862,19 @@ def main(config: BenchConfig) -> dict[str, Any]:
     bars = []
     for arenas, bar in OVERHEAD_BARS.items():
         value = by_arenas[arenas]["overhead_over_ping_pong"]
-        bars.append(
-            {
-                "arenas": arenas,
-                "figure": "overhead_over_ping_pong",
-                "bar": f"<= {bar}",
-                "value": value,
-                "passed": value <= bar,
-            }
-        )
         bound = by_arenas[arenas]["bound_over_ping_pong"]
-        bars[-1]["bound"] = bound
+        bars.append(_bar(arenas, "overhead_over_ping_pong", "<=", bar, value, bound=bound))
         print(
             f"bar: {arenas} arena(s), remote overhead per step <= {bar:g}x the ping-pong p50: "
-            f"{value:.2f}x -> {'PASS' if value <= bar else 'FAIL'} (a server doing nothing "
-            f"but the simulation: {bound:.2f}x)"
+            f"{value:.2f}x -> {_verdict(bars[-1])} (a server doing nothing but the "
+            f"simulation: {bound:.2f}x)"
         )
     for arenas, bar in THROUGHPUT_BARS.items():
         value = by_arenas[arenas]["throughput_ratio"]
-        bars.append(
-            {
-                "arenas": arenas,
-                "figure": "throughput_ratio",
-                "bar": f">= {bar}",
-                "value": value,
-                "passed": value >= bar,
-            }
-        )
+        bars.append(_bar(arenas, "throughput_ratio", ">=", bar, value))
         print(
             f"bar: {arenas} arenas, remote throughput >= {bar:g}x in-process: {value:.2f}x "
-            f"-> {'PASS' if value >= bar else 'FAIL'}"
+            f"-> {_verdict(bars[-1])}"
         )
     for r in results:
         local_faults = r["in_process"]["minor_faults_per_step"]
@@ -902,13 +900,7 @@ def main(config: BenchConfig) -> dict[str, Any]:
     )
 
     report = {
-        "timestamp_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        "config": {
-            **dataclasses.asdict(config),
-            "json": None if config.json is None else str(config.json),
-        },
-        "machine": machine,
-        "threads": threads,
+        **report_head(config, machine, threads),
         "malloc_environment": allocator,
         "preset": PRESET,
         "env_ids": {"in_process": ENV_ID, "remote": REMOTE_ENV_ID},

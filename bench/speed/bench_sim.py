@@ -40,7 +40,6 @@ as information; the benchmark exits 0 whether they pass or not, and non-zero onl
 from __future__ import annotations
 
 import dataclasses
-import datetime
 import os
 import platform
 import subprocess
@@ -54,7 +53,7 @@ from typing import TYPE_CHECKING, Any
 
 import tyro
 
-from bench.harness import write_report
+from bench.harness import report_head, write_report
 from bench.rates import Rates
 
 if TYPE_CHECKING:
@@ -311,6 +310,15 @@ def _source_revision() -> str:
     return f"{commit} + uncommitted changes" if changed else commit
 
 
+def machine_line(machine: dict[str, Any]) -> str:
+    """The report's first line about ``machine`` (:func:`machine_description`)."""
+    return (
+        f"machine: {machine['cpu_count']} CPUs ({machine['cpu_model']}), "
+        f"{machine['platform']}, Python {machine['python']}, numpy {machine['numpy']}, "
+        f"gymnasium {machine['gymnasium']}"
+    )
+
+
 def machine_description() -> dict[str, Any]:
     import gymnasium
     import numpy as np
@@ -402,11 +410,7 @@ def main(config: BenchConfig) -> dict[str, Any]:
 
     machine = machine_description()
     print("overtake simulation benchmark")
-    print(
-        f"machine: {machine['cpu_count']} CPUs ({machine['cpu_model']}), "
-        f"{machine['platform']}, Python {machine['python']}, numpy {machine['numpy']}, "
-        f"gymnasium {machine['gymnasium']}"
-    )
+    print(machine_line(machine))
     print(f"numpy BLAS/OpenMP threads: {threads}")
     print("CPU time: time.process_time() of the whole process (all threads)")
     if config.quick:
@@ -503,13 +507,7 @@ def main(config: BenchConfig) -> dict[str, Any]:
         peers = peers_main(PeersConfig(steps=config.timed(config.peer_steps)))
 
     report = {
-        "timestamp_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        "config": {
-            **dataclasses.asdict(config),
-            "json": None if config.json is None else str(config.json),
-        },
-        "machine": machine,
-        "threads": threads,
+        **report_head(config, machine, threads),
         "overtake": {"env_id": ENV_ID, "scenes": scenes},
         "highway_env_own_scenes": {preset: row.as_dict() for preset, row in matched.items()},
         "ratios_own_scene": {f"{p} {a}": v for (p, a), v in matched_ratios.items()},

@@ -20,17 +20,7 @@ from overtake.client.wire.remote import Connection, RemoteConfig
 from overtake.ipc.transport import SecurityConfig
 from overtake.protocol import errors
 
-from tests.support.deploy import (
-    LOOPBACK,
-    PY,
-    ROOT,
-    check_trained,
-    run,
-    start_router,
-    start_server,
-    train_argv,
-    wait_for_server,
-)
+from tests.support import deploy
 from tests.support.remote import free_port
 
 # Credentials in the developer's environment must not leak into these tests.
@@ -43,7 +33,13 @@ def certificates(tmp_path_factory: pytest.TempPathFactory) -> Path:
     by the script the documentation tells users to run."""
     where = tmp_path_factory.mktemp("certs")
     done = subprocess.run(
-        ["bash", str(ROOT / "scripts" / "make-certs.sh"), str(where), "localhost", LOOPBACK],
+        [
+            "bash",
+            str(deploy.ROOT / "scripts" / "make-certs.sh"),
+            str(where),
+            "localhost",
+            deploy.LOOPBACK,
+        ],
         capture_output=True,
         text=True,
         timeout=60,
@@ -56,20 +52,22 @@ def certificates(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_tls_router_with_server_and_trainer(tmp_path: Path, background, certificates: Path):
     ca = str(certificates / "ca.pem")
     port = free_port()
-    start_router(
+    deploy.start_router(
         background,
         "router",
-        [f"tls/{LOOPBACK}:{port}"],
+        [f"tls/{deploy.LOOPBACK}:{port}"],
         "--tls-certificate",
         str(certificates / "router.pem"),
         "--tls-private-key",
         str(certificates / "router.key"),
     )
-    server = start_server(background, "sim-tls", f"tls/{LOOPBACK}:{port}", "--tls-root-ca", ca)
-    wait_for_server(
+    server = deploy.start_server(
+        background, "sim-tls", f"tls/{deploy.LOOPBACK}:{port}", "--tls-root-ca", ca
+    )
+    deploy.wait_for_server(
         "sim-tls",
         RemoteConfig(
-            connect=(f"tls/{LOOPBACK}:{port}",),
+            connect=(f"tls/{deploy.LOOPBACK}:{port}",),
             connect_timeout_s=10.0,
             security=SecurityConfig(tls_root_ca=Path(ca)),
         ),
@@ -78,33 +76,35 @@ def test_tls_router_with_server_and_trainer(tmp_path: Path, background, certific
 
     # By name this time: the certificate names both localhost and 127.0.0.1.
     run_dir = tmp_path / "runs" / "dqn"
-    done = run(train_argv("dqn", f"tls/localhost:{port}", run_dir, "--tls-root-ca", ca))
-    check_trained(done, run_dir)
+    done = deploy.run(
+        deploy.train_argv("dqn", f"tls/localhost:{port}", run_dir, "--tls-root-ca", ca)
+    )
+    deploy.check_trained(done, run_dir)
 
     # The compose file's health check: exit 0 only when this very server answers.
     status = [
-        PY,
+        deploy.PY,
         "-m",
         "overtake.client.wire.status",
         "--connect",
-        f"tls/{LOOPBACK}:{port}",
+        f"tls/{deploy.LOOPBACK}:{port}",
         "--tls-root-ca",
         ca,
         "--timeout-s",
         "3",
         "--server",
     ]
-    healthy = run([*status, "sim-tls"], timeout_s=60)
+    healthy = deploy.run([*status, "sim-tls"], timeout_s=60)
     assert healthy.returncode == 0 and "sim-tls: " in healthy.stdout, healthy
-    assert run([*status, "sim-elsewhere"], timeout_s=60).returncode == 1
+    assert deploy.run([*status, "sim-elsewhere"], timeout_s=60).returncode == 1
     # A client that does not trust the router's CA is refused, and told why.
-    refused = run(
+    refused = deploy.run(
         [
-            PY,
+            deploy.PY,
             "-m",
             "overtake.client.wire.status",
             "--connect",
-            f"tls/{LOOPBACK}:{port}",
+            f"tls/{deploy.LOOPBACK}:{port}",
             "--timeout-s",
             "1",
         ],
@@ -114,14 +114,14 @@ def test_tls_router_with_server_and_trainer(tmp_path: Path, background, certific
     assert "is not trusted" in refused.stderr and "--tls-root-ca" in refused.stderr, refused.stderr
     # Plain TCP to a TLS listener.
     with pytest.raises(errors.ConnectError, match="is a TLS listener"):
-        Connection(RemoteConfig(connect=(f"tcp/{LOOPBACK}:{port}",), connect_timeout_s=1.0))
+        Connection(RemoteConfig(connect=(f"tcp/{deploy.LOOPBACK}:{port}",), connect_timeout_s=1.0))
 
 
 @pytest.mark.timeout(120)
 def test_mutual_tls_admits_only_clients_with_a_certificate(background, certificates: Path):
     ca, port = certificates / "ca.pem", free_port()
-    endpoint = f"tls/{LOOPBACK}:{port}"
-    start_router(
+    endpoint = f"tls/{deploy.LOOPBACK}:{port}"
+    deploy.start_router(
         background,
         "router-mtls",
         [endpoint],
@@ -227,8 +227,10 @@ def test_strangers_are_refused_and_told_why(tmp_path: Path, background, certific
     # expired one; a router whose own certificate has expired.
     credentials = tmp_path / "credentials.txt"
     credentials.write_text("trainer:trainer-secret\n")
-    usrpwd_ep = f"tcp/{LOOPBACK}:{free_port()}"
-    start_router(background, "router-usrpwd", [usrpwd_ep], "--credentials-file", str(credentials))
+    usrpwd_ep = f"tcp/{deploy.LOOPBACK}:{free_port()}"
+    deploy.start_router(
+        background, "router-usrpwd", [usrpwd_ep], "--credentials-file", str(credentials)
+    )
     with pytest.raises(errors.ConnectError, match="or a user its credentials file does not list"):
         Connection(
             RemoteConfig(
@@ -241,14 +243,14 @@ def test_strangers_are_refused_and_told_why(tmp_path: Path, background, certific
     ca = certificates / "ca.pem"
     other = tmp_path / "other-ca"
     made = subprocess.run(
-        ["bash", str(ROOT / "scripts" / "make-certs.sh"), str(other)],
+        ["bash", str(deploy.ROOT / "scripts" / "make-certs.sh"), str(other)],
         capture_output=True,
         text=True,
         timeout=60,
     )
     assert made.returncode == 0, made.stderr
-    mtls_ep = f"tls/{LOOPBACK}:{free_port()}"
-    start_router(
+    mtls_ep = f"tls/{deploy.LOOPBACK}:{free_port()}"
+    deploy.start_router(
         background,
         "router-mtls",
         [mtls_ep],
@@ -296,10 +298,10 @@ def test_strangers_are_refused_and_told_why(tmp_path: Path, background, certific
         "serverAuth,clientAuth",
         "20200101000000Z",
         "20210101000000Z",
-        san=f"IP:{LOOPBACK},DNS:localhost",
+        san=f"IP:{deploy.LOOPBACK},DNS:localhost",
     )
-    stale_ep = f"tls/{LOOPBACK}:{free_port()}"
-    start_router(
+    stale_ep = f"tls/{deploy.LOOPBACK}:{free_port()}"
+    deploy.start_router(
         background,
         "router-expired",
         [stale_ep],

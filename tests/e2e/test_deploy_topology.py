@@ -22,19 +22,7 @@ import pytest
 
 from overtake.client.wire.remote import RemoteConfig
 
-from tests.support.deploy import (
-    COMMAND_TIMEOUT_S,
-    LOOPBACK,
-    PY,
-    ROOT,
-    check_trained,
-    env_with,
-    run,
-    start_router,
-    start_server,
-    train_argv,
-    wait_for_server,
-)
+from tests.support import deploy
 from tests.support.remote import free_port, stop_process, wait_until
 
 # Credentials in the developer's environment must not leak into these tests.
@@ -50,10 +38,10 @@ pytestmark = pytest.mark.usefixtures("no_inherited_credentials")
 @pytest.mark.slow
 @pytest.mark.timeout(400)
 def test_router_server_and_three_trainers_then_eval(tmp_path: Path, background):
-    router_ep = f"tcp/{LOOPBACK}:{free_port()}"
-    start_router(background, "router", [router_ep])
-    server = start_server(background, "sim-topology", router_ep)
-    wait_for_server(
+    router_ep = f"tcp/{deploy.LOOPBACK}:{free_port()}"
+    deploy.start_router(background, "router", [router_ep])
+    server = deploy.start_server(background, "sim-topology", router_ep)
+    deploy.wait_for_server(
         "sim-topology", RemoteConfig(connect=(router_ep,), connect_timeout_s=10.0), server
     )
 
@@ -64,9 +52,9 @@ def test_router_server_and_three_trainers_then_eval(tmp_path: Path, background):
         out = open(tmp_path / f"{algo}.out", "w+")  # noqa: SIM115
         err = open(tmp_path / f"{algo}.err", "w+")  # noqa: SIM115
         proc = subprocess.Popen(
-            train_argv(algo, router_ep, run_dir),
-            cwd=ROOT,
-            env=env_with(),
+            deploy.train_argv(algo, router_ep, run_dir),
+            cwd=deploy.ROOT,
+            env=deploy.env_with(),
             stdout=out,
             stderr=err,
             text=True,
@@ -75,11 +63,11 @@ def test_router_server_and_three_trainers_then_eval(tmp_path: Path, background):
     summaries = []
     try:
         for proc, run_dir, out, err in trainers.values():
-            code = proc.wait(timeout=COMMAND_TIMEOUT_S)
+            code = proc.wait(timeout=deploy.COMMAND_TIMEOUT_S)
             out.seek(0)
             err.seek(0)
             summaries.append(
-                check_trained(
+                deploy.check_trained(
                     subprocess.CompletedProcess(proc.args, code, out.read(), err.read()), run_dir
                 )
             )
@@ -107,9 +95,9 @@ def test_router_server_and_three_trainers_then_eval(tmp_path: Path, background):
         assert sum(int(r) for r in rounds) == summary["env_steps_called"] > 0
 
     report = tmp_path / "eval.json"
-    done = run(
+    done = deploy.run(
         [
-            PY,
+            deploy.PY,
             "-m",
             "overtake.trainers.evaluate",
             "--checkpoint",
@@ -177,21 +165,21 @@ def test_trainer_in_another_network_namespace_reaches_the_router(
 ):
     namespace, host_ip, _ns_ip = remote_host
     port = free_port()
-    loopback_ep, veth_ep = f"tcp/{LOOPBACK}:{port}", f"tcp/{host_ip}:{port}"
+    loopback_ep, veth_ep = f"tcp/{deploy.LOOPBACK}:{port}", f"tcp/{host_ip}:{port}"
     # The router listens on loopback (for the server) and on the link the other host sees.
-    start_router(background, "router", [loopback_ep, veth_ep])
-    server = start_server(background, "sim-netns", loopback_ep)
-    wait_for_server(
+    deploy.start_router(background, "router", [loopback_ep, veth_ep])
+    server = deploy.start_server(background, "sim-netns", loopback_ep)
+    deploy.wait_for_server(
         "sim-netns", RemoteConfig(connect=(loopback_ep,), connect_timeout_s=10.0), server
     )
     # Nothing on loopback inside the namespace: only the veth link leads to the router.
-    blocked = run(
+    blocked = deploy.run(
         [
             "ip",
             "netns",
             "exec",
             namespace,
-            PY,
+            deploy.PY,
             "-m",
             "overtake.client.wire.status",
             "--connect",
@@ -206,8 +194,10 @@ def test_trainer_in_another_network_namespace_reaches_the_router(
     )
 
     run_dir = tmp_path / "runs" / "netns"
-    done = run(["ip", "netns", "exec", namespace, *train_argv("ddqn", veth_ep, run_dir)])
-    summary = check_trained(done, run_dir)
+    done = deploy.run(
+        ["ip", "netns", "exec", namespace, *deploy.train_argv("ddqn", veth_ep, run_dir)]
+    )
+    summary = deploy.check_trained(done, run_dir)
     assert summary["steps"] >= 200
     record = json.loads((run_dir / "run.json").read_text())
     assert record["config"]["where"]["connect"] == [veth_ep]

@@ -19,18 +19,7 @@ from overtake.ipc.transport import PASSWORD_ENV, USER_ENV, SecurityConfig, Trans
 from overtake.protocol import errors
 from overtake.server.router import RouterConfig, zenoh_config
 
-from tests.support.deploy import (
-    LOOPBACK,
-    PY,
-    ROOT,
-    check_trained,
-    env_with,
-    run,
-    start_router,
-    start_server,
-    train_argv,
-    wait_for_server,
-)
+from tests.support import deploy
 from tests.support.remote import free_port, wait_until
 
 # Credentials in the developer's environment must not leak into these tests.
@@ -43,12 +32,12 @@ def test_usrpwd_router_admits_only_listed_users(tmp_path: Path, background):
     server_password = tmp_path / "server.pw"
     server_password.write_text("server-secret\n")
     port = free_port()
-    router_ep = f"tcp/{LOOPBACK}:{port}"
-    start_router(background, "router", [router_ep], "--credentials-file", str(credentials))
+    router_ep = f"tcp/{deploy.LOOPBACK}:{port}"
+    deploy.start_router(background, "router", [router_ep], "--credentials-file", str(credentials))
     # The server's password from a file, the trainer's from the environment: neither appears on
     # a command line. The server listens nowhere (docs/remote-hosts.md's recipe): nobody gets to it
     # without passing the router's check.
-    server = start_server(
+    server = deploy.start_server(
         background,
         "sim-auth",
         router_ep,
@@ -58,7 +47,7 @@ def test_usrpwd_router_admits_only_listed_users(tmp_path: Path, background):
         str(server_password),
         listen=False,
     )
-    wait_for_server(
+    deploy.wait_for_server(
         "sim-auth",
         RemoteConfig(
             connect=(router_ep,),
@@ -70,18 +59,26 @@ def test_usrpwd_router_admits_only_listed_users(tmp_path: Path, background):
     assert f"(peer connecting to {router_ep})" in server.log_text()
 
     run_dir = tmp_path / "runs" / "ddqn"
-    done = run(
-        train_argv("ddqn", router_ep, run_dir, "--user", "trainer"),
-        env_with(**{PASSWORD_ENV: "trainer-secret"}),
+    done = deploy.run(
+        deploy.train_argv("ddqn", router_ep, run_dir, "--user", "trainer"),
+        deploy.env_with(**{PASSWORD_ENV: "trainer-secret"}),
     )
-    check_trained(done, run_dir)
+    deploy.check_trained(done, run_dir)
     record = (run_dir / "run.json").read_text()
     assert '"user": "trainer"' in record and "trainer-secret" not in record
 
     # A wrong password: refused, and the message names it as the likely cause.
-    refused = run(
-        [PY, "-m", "overtake.client.wire.status", "--connect", router_ep, "--timeout-s", "1"],
-        env_with(**{USER_ENV: "trainer", PASSWORD_ENV: "not-the-password"}),
+    refused = deploy.run(
+        [
+            deploy.PY,
+            "-m",
+            "overtake.client.wire.status",
+            "--connect",
+            router_ep,
+            "--timeout-s",
+            "1",
+        ],
+        deploy.env_with(**{USER_ENV: "trainer", PASSWORD_ENV: "not-the-password"}),
         timeout_s=60,
     )
     assert refused.returncode != 0
@@ -98,11 +95,11 @@ def test_a_server_with_the_wrong_password_keeps_trying_and_says_why(tmp_path: Pa
     before its router), and says why it is still alone after 10 s."""
     credentials = tmp_path / "credentials.txt"
     credentials.write_text("simserver:server-secret\n")
-    router_ep = f"tcp/{LOOPBACK}:{free_port()}"
-    start_router(background, "router", [router_ep], "--credentials-file", str(credentials))
+    router_ep = f"tcp/{deploy.LOOPBACK}:{free_port()}"
+    deploy.start_router(background, "router", [router_ep], "--credentials-file", str(credentials))
     wrong_password = tmp_path / "wrong.pw"
     wrong_password.write_text("not-the-password\n")
-    lonely = start_server(
+    lonely = deploy.start_server(
         background,
         "sim-lonely",
         router_ep,
@@ -198,15 +195,15 @@ def test_isolated_trainers_reach_only_their_own_arenas(tmp_path: Path, backgroun
     credentials_args = ("--credentials-file", str(credentials))
     roles = ("--isolate-trainers", "--server-users", "simserver", "--spectator-users", "watcher")
     for isolate in (True, False):
-        endpoint = f"tcp/{LOOPBACK}:{free_port()}"
-        router = start_router(
+        endpoint = f"tcp/{deploy.LOOPBACK}:{free_port()}"
+        router = deploy.start_router(
             background,
             f"router-isolate-{isolate}",
             [endpoint],
             *credentials_args,
             *(roles if isolate else ()),
         )
-        server = start_server(
+        server = deploy.start_server(
             background,
             f"server-{isolate}",
             endpoint,
@@ -214,7 +211,7 @@ def test_isolated_trainers_reach_only_their_own_arenas(tmp_path: Path, backgroun
             str(passwords["simserver"]),
             listen=False,
         )
-        wait_for_server("sim-iso", remote("simserver"), server)
+        deploy.wait_for_server("sim-iso", remote("simserver"), server)
         seen, world_frames = seen_by_bob()
         assert world_frames > 0  # the spectator user watches the world either way
         if isolate:
@@ -255,7 +252,7 @@ def test_isolation_settings_are_checked_with_the_user_named(tmp_path: Path):
     with pytest.raises(errors.ConnectError, match="need --isolate-trainers"):
         zenoh_config(RouterConfig(server_users=("simserver",)))
     # The example for zenohd in docker/ is what the router makes for its users.
-    example = (ROOT / "docker" / "zenoh-router-isolated.json5").read_text()
+    example = (deploy.ROOT / "docker" / "zenoh-router-isolated.json5").read_text()
     from overtake.server.service.access import isolation_rules
 
     body = json.loads(re.sub(r"^\s*//.*$", "", example, flags=re.M))
