@@ -202,7 +202,9 @@ EXPERIMENTS: dict[str, Experiment] = {
         # per CPU-second as members with 20% of steps before learning, about 460 with Ho's 5%
         # (13-15 hours as lone processes before members): 20,000,000 agent-steps in about 6
         # hours on 2 cores, then the evaluations (28 minutes in issue 56's run). The kept
-        # table's runs trained on older code (9cd2650) and measure that code, not this.
+        # table's runs trained on older code (9cd2650) and measure that code, not this: its
+        # eight proposed members (--jobs 3) made about 580 agent-steps a wall-second together
+        # on a quiet machine (each member's p90, 2026-11-29), about 10 hours for 20,000,000.
         hours_on_two_cores=6.5,
         name="ho2018-table8",
         title="Ho (2018), Table 8: the baseline network and the proposed network at four "
