@@ -39,7 +39,12 @@ def run_example(script: str, *args: str, tmp_dir: Path | None = None) -> str:
 
 
 @pytest.mark.timeout(300)
-@pytest.mark.parametrize("where", ["in-process", "remote"])
+@pytest.mark.parametrize(
+    # The remote path of the examples is the CleanRL example's (below); SB3's on a server
+    # (8 s) runs with -m slow.
+    "where",
+    ["in-process", pytest.param("remote", marks=pytest.mark.slow)],
+)
 def test_stable_baselines3_dqn_trains_and_evaluates(where, start_server, tmp_path):
     pytest.importorskip("stable_baselines3", reason="stable-baselines3 is not installed")
     connect = [] if where == "in-process" else ["--connect", start_server("sb3").endpoint]

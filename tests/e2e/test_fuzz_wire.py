@@ -9,6 +9,7 @@ import pytest
 from bench.fuzz.fuzz_wire import TARGETS, FuzzConfig, main
 
 
+@pytest.mark.slow  # 12 s of floods; the codec's own mutations are checked in the default suite
 @pytest.mark.timeout(120)
 def test_hostile_frames_on_every_key_harm_nobody(tmp_path):
     config = FuzzConfig(

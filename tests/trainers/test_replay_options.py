@@ -131,6 +131,7 @@ def run_config(tmp_path, **changes) -> TrainConfig:
     )
 
 
+@pytest.mark.slow  # 2,400 steps of learning (8.5 s); the options' resume is checked below
 def test_the_learner_with_n_step_returns_and_prioritized_replay_beats_random(tmp_path):
     config = run_config(tmp_path, n_step=3, prioritized=True)
     summary = train(config, envs=PickTheFreeLane(4, seed=0))
