@@ -98,8 +98,8 @@ def test_ml_agents_isinstance_checks_take_ours():
 
 
 @pytest.mark.timeout(60)
-def test_unity_to_gym_wrapper_drives_the_remote_environment_as_in_process(start_server):
-    server = start_server("mla-gym")
+def test_unity_to_gym_wrapper_drives_the_remote_environment_as_in_process(shared_server):
+    server = shared_server
     remote = RemoteEnvironment(
         seed=5, overrides=SHORT, config=remote_config(server.endpoint, server.name)
     )
@@ -149,8 +149,8 @@ def test_unity_to_gym_wrapper_drives_the_remote_environment_as_in_process(start_
 
 
 @pytest.mark.timeout(60)
-def test_unity_parallel_env_drives_two_cars_on_a_shared_road(start_server):
-    server = start_server("mla-parallel")
+def test_unity_parallel_env_drives_two_cars_on_a_shared_road(shared_server):
+    server = shared_server
     remote = RemoteEnvironment(
         arenas=1,
         agents_per_arena=2,
@@ -192,8 +192,8 @@ def test_unity_parallel_env_drives_two_cars_on_a_shared_road(start_server):
 
 
 @pytest.mark.timeout(60)
-def test_unity_aec_env_takes_turns_over_the_cars(start_server):
-    server = start_server("mla-aec")
+def test_unity_aec_env_takes_turns_over_the_cars(shared_server):
+    server = shared_server
     remote = RemoteEnvironment(
         arenas=2,
         agents_per_arena=1,
@@ -234,8 +234,8 @@ def test_a_side_channel_is_refused_with_what_is_supported():
 
 
 @pytest.mark.timeout(60)
-def test_continuous_actions_from_ml_agents_are_refused_by_name(start_server):
-    server = start_server("mla-continuous")
+def test_continuous_actions_from_ml_agents_are_refused_by_name(shared_server):
+    server = shared_server
     env = RemoteEnvironment(config=remote_config(server.endpoint, server.name))
     try:
         action = base_env.ActionTuple(continuous=np.zeros((1, 2), dtype=np.float32))

@@ -3,4 +3,4 @@ deployment tests' (tests/e2e/test_deploy_*.py): commands run in the background, 
 environment without inherited credentials."""
 
 from tests.support.deploy import background, no_inherited_credentials  # noqa: F401
-from tests.support.remote import start_server, start_trainer  # noqa: F401
+from tests.support.remote import shared_server, start_server, start_trainer  # noqa: F401

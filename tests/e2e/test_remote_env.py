@@ -76,8 +76,8 @@ def test_ml_agents_layout_puts_image_channels_first():
 
 @pytest.mark.timeout(90)
 @pytest.mark.parametrize("preset", sorted(PRESETS))
-def test_remote_env_is_bit_identical_to_in_process_env(start_server, preset):
-    server = start_server(f"e2e-bits-{preset}")
+def test_remote_env_is_bit_identical_to_in_process_env(shared_server, preset):
+    server = shared_server
     remote = gym.make(
         REMOTE_HIGHWAY_ENV_ID,
         remote=remote_config(server.endpoint, server.name),
@@ -112,8 +112,8 @@ def test_remote_env_is_bit_identical_to_in_process_env(start_server, preset):
 
 @pytest.mark.timeout(90)
 @pytest.mark.parametrize("preset", sorted(PRESETS))
-def test_remote_vector_env_is_bit_identical_to_in_process_vector_env(start_server, preset):
-    server = start_server(f"e2e-vbits-{preset}")
+def test_remote_vector_env_is_bit_identical_to_in_process_vector_env(shared_server, preset):
+    server = shared_server
     n = 4
     remote = gym.make_vec(
         REMOTE_HIGHWAY_ENV_ID,

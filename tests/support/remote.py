@@ -532,6 +532,17 @@ def start_server(tmp_path):
         server.stop()
 
 
+@pytest.fixture(scope="module")
+def shared_server(tmp_path_factory, request):
+    """One server (default options) for a module's tests that use it only as an endpoint,
+    each opening and closing its own arenas: a server's start costs 1.5-2 CPU-seconds."""
+    name = "shared-" + request.module.__name__.rsplit(".", 1)[-1].removeprefix("test_")
+    server = ServerProcess(tmp_path_factory.mktemp("shared-server-logs"), name)
+    server.start()
+    yield server
+    server.stop()
+
+
 @pytest.fixture
 def start_trainer(tmp_path):
     """``start_trainer(args, label)``: a started trainer_script.py, stopped at teardown."""

@@ -81,8 +81,8 @@ def test_each_algorithm_trains_in_process_and_its_checkpoint_evaluates(tmp_path,
 
 
 @pytest.mark.parametrize("algo", ["dqn", "ddqn", "dueling", "qr"])
-def test_each_algorithm_trains_against_a_real_server(tmp_path, start_server, algo):
-    server = start_server(f"train-{algo}")
+def test_each_algorithm_trains_against_a_real_server(tmp_path, shared_server, algo):
+    server = shared_server
     summary = train(
         TrainConfig(
             algo=algo,
@@ -316,8 +316,8 @@ def test_an_episode_cut_by_its_time_limit_is_stored_as_terminal_only_without_boo
 
 
 @pytest.mark.parametrize("overlap, parts", [("off", 1), ("on", 1), ("on", 2)])
-def test_a_remote_run_stores_exactly_its_budget(tmp_path, start_server, overlap, parts):
-    server = start_server(f"budget-{overlap}-{parts}")
+def test_a_remote_run_stores_exactly_its_budget(tmp_path, shared_server, overlap, parts):
+    server = shared_server
     run_dir = tmp_path / "run"
     summary = train(
         TrainConfig(
