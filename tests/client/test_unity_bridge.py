@@ -290,8 +290,8 @@ def in_process_first_observations(arenas: int, seed: int) -> dict[str, np.ndarra
 
 
 @needs_ml_side
-def test_unity_environment_steps_resets_and_sets_parameters_through_the_bridge(pair, start_server):
-    server = start_server("unity-bridge")
+def test_unity_environment_steps_resets_and_sets_parameters_through_the_bridge(pair, shared_server):
+    server = shared_server
     pair.start_ml("steps", 40)
     pair.start_bridge(server.endpoint, "--arenas", "2", "--set", *SHORT)
     result = pair.ml_result()
@@ -324,8 +324,8 @@ def test_unity_environment_steps_resets_and_sets_parameters_through_the_bridge(p
 
 
 @needs_ml_side
-def test_ml_agents_gym_wrapper_drives_overtake_through_the_bridge(pair, start_server):
-    server = start_server("unity-bridge-gym")
+def test_ml_agents_gym_wrapper_drives_overtake_through_the_bridge(pair, shared_server):
+    server = shared_server
     pair.start_ml("gym", 30)
     pair.start_bridge(server.endpoint, "--set", *SHORT, "--behavior-name", "Highway")
     result = pair.ml_result()
@@ -342,8 +342,8 @@ def test_ml_agents_gym_wrapper_drives_overtake_through_the_bridge(pair, start_se
 # and a dead trainer ending the bridge stay in the default run.
 @pytest.mark.slow
 @needs_ml_side
-def test_a_bridge_that_dies_is_a_timeout_on_ml_agents_side(pair, start_server):
-    server = start_server("unity-bridge-dies")
+def test_a_bridge_that_dies_is_a_timeout_on_ml_agents_side(pair, shared_server):
+    server = shared_server
     ml = pair.start_ml("hang")
     bridge = pair.start_bridge(server.endpoint)
     assert ml.stdout is not None
@@ -360,8 +360,8 @@ def test_a_bridge_that_dies_is_a_timeout_on_ml_agents_side(pair, start_server):
 
 
 @needs_ml_side
-def test_a_trainer_that_dies_ends_the_bridge_with_a_clear_error(pair, start_server):
-    server = start_server("unity-bridge-trainer-dies")
+def test_a_trainer_that_dies_ends_the_bridge_with_a_clear_error(pair, shared_server):
+    server = shared_server
     ml = pair.start_ml("hang")
     pair.start_bridge(server.endpoint)
     assert ml.stdout is not None
@@ -374,8 +374,8 @@ def test_a_trainer_that_dies_ends_the_bridge_with_a_clear_error(pair, start_serv
 
 
 @needs_ml_side
-def test_a_terminated_bridge_tells_ml_agents_at_once(pair, start_server):
-    server = start_server("unity-bridge-sigterm")
+def test_a_terminated_bridge_tells_ml_agents_at_once(pair, shared_server):
+    server = shared_server
     ml = pair.start_ml("hang")
     bridge = pair.start_bridge(server.endpoint)
     assert ml.stdout is not None and ml.stdin is not None
@@ -392,8 +392,8 @@ def test_a_terminated_bridge_tells_ml_agents_at_once(pair, start_server):
 
 
 @needs_ml_side
-def test_another_communication_version_is_refused_on_both_sides(pair, start_server):
-    server = start_server("unity-bridge-version")
+def test_another_communication_version_is_refused_on_both_sides(pair, shared_server):
+    server = shared_server
     pair.start_ml("version")
     pair.start_bridge(server.endpoint)
     result = pair.ml_result()
@@ -405,8 +405,8 @@ def test_another_communication_version_is_refused_on_both_sides(pair, start_serv
 
 
 @needs_ml_side
-def test_an_override_the_server_refuses_stops_both_sides_saying_which(pair, start_server):
-    server = start_server("unity-bridge-bad-override")
+def test_an_override_the_server_refuses_stops_both_sides_saying_which(pair, shared_server):
+    server = shared_server
     pair.start_ml("steps", 2)
     pair.start_bridge(server.endpoint, "--set", "traffic.no_such_setting=1")
     result = pair.ml_result()
@@ -417,8 +417,8 @@ def test_an_override_the_server_refuses_stops_both_sides_saying_which(pair, star
     assert code == 1 and "traffic.no_such_setting" in log, log
 
 
-def test_no_ml_agents_process_listening_is_a_clear_error(tmp_path, start_server):
-    server = start_server("unity-bridge-alone")
+def test_no_ml_agents_process_listening_is_a_clear_error(tmp_path, shared_server):
+    server = shared_server
     port = free_port()
     started = time.monotonic()
     proc = subprocess.run(
