@@ -44,8 +44,10 @@ CPU time and minor page faults per step of this process (``time.process_time``,
 ``getrusage``) and of the server (``/proc/<pid>/stat``; CPU in 10 ms ticks). Page faults
 matter here: a fresh page costs about a microsecond on this kind of virtual machine, and
 whether numpy's large temporaries come back as fresh pages each step depends on the state of
-glibc's allocator in each process. It ends with the CPU time the rest of the machine used
-meanwhile (``/proc/stat``), a warning sign for figures taken on a shared machine.
+glibc's allocator in each process: so this process keeps freed memory as every overtake command
+does (``overtake.cli.allocator``, the server through its door), unless glibc's own variables
+are set, which every process here then inherits. It ends with the CPU time the rest of the
+machine used meanwhile (``/proc/stat``), a warning sign for figures taken on a shared machine.
 
 The bars: remote overhead per step (remote p50 - in-process p50) at most 2.0x the ping-pong
 p50 (callback shape) for 1 arena; remote throughput at least 0.70x in-process for 64 arenas.
