@@ -90,8 +90,12 @@ class SharedEngine:
 
     def _play(self) -> None:
         sent, self._sent = self._sent, {}
-        sitting = [s for s in self.shares if s.index not in sent and s.index not in self._kept]
-        sitting = [s for s in sitting if not s.closed]
+        # The shares that begin to sit out now (those already sitting out stay kept).
+        sitting = [
+            s
+            for s in self.shares
+            if s.index not in sent and s.index not in self._kept and not s.closed
+        ]
         if sitting:
             keeper = self.engine
             if not isinstance(keeper, ArenaRestorable):
