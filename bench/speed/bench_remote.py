@@ -813,7 +813,8 @@ def main(config: BenchConfig) -> dict[str, Any]:
     # The in-process side as a trainer's process has it: every overtake command keeps freed
     # memory (overtake.cli.allocator, at the door: the server too), unless the user set
     # glibc's variables, which then hold in every process here.
-    from overtake.cli.allocator import keep_freed_memory  # after pin_threads: it imports numpy
+    # Imported after pin_threads: the overtake.cli package loads numpy.
+    from overtake.cli.allocator import keep_freed_memory
 
     kept = keep_freed_memory()
     print(
