@@ -29,13 +29,13 @@ def main(config: ServerConfig) -> None:
         server = SimulatorServer(config)
     except zenoh.ZError as error:
         raise StartError(
-            f"could not open the Zenoh session ({config.transport().describe()}): "
+            f"could not open the Zenoh session ({config.session_config().describe()}): "
             f"{error}. Is the port in use, or the router unreachable?"
         ) from None
     except (RuntimeError, errors.ProtocolError) as error:
         raise StartError(str(error)) from None
-    warn_if_unconnected(server.session, config.transport(), log)
-    warn_if_unguarded(config.transport(), log)
+    warn_if_unconnected(server.session, config.session_config(), log)
+    warn_if_unguarded(config.session_config(), log)
 
     def on_signal(signum: int, _frame: Any) -> None:
         log.info("received %s, shutting down", signal.Signals(signum).name)

@@ -96,7 +96,7 @@ def honest_main(endpoint: str, report: str, transport: str = "auto") -> None:
 
     from overtake.client.wire.remote import RemoteConfig
 
-    remote = RemoteConfig(connect=(endpoint,), steps_transport=transport)  # type: ignore[arg-type]
+    remote = RemoteConfig(connect=(endpoint,), transport=transport)  # type: ignore[arg-type]
     env = make_env(REMOTE_ENV_ID, 1, remote=remote)
     env.reset(seed=0)
     rng = np.random.default_rng(0)
@@ -141,7 +141,7 @@ class Stranger:
 
         self.zenoh, self.keys = zenoh, keys
         self.connection = Connection(
-            RemoteConfig(connect=(endpoint,), steps_transport=transport)  # type: ignore[arg-type]
+            RemoteConfig(connect=(endpoint,), transport=transport)  # type: ignore[arg-type]
         )
         [self.server] = [s.server for s in self.connection.discover()]
         self.session = self.connection.session

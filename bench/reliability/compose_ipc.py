@@ -166,7 +166,7 @@ def stepper_main(config: StepperConfig) -> dict[str, Any]:
                 make_env(ENV_ID, arenas, preset=PRESET), arenas, config.seed, vector
             )
             for transport in ("shm", "zenoh") if config.shared else ("zenoh",):
-                settings = RemoteConfig(connect=(config.endpoint,), steps_transport=transport)
+                settings = RemoteConfig(connect=(config.endpoint,), transport=transport)
                 env = make_env(REMOTE_ENV_ID, arenas, preset=PRESET, remote=settings)
                 drivers[transport] = Driver(env, arenas, config.seed, vector)
             auto_picks = transport_auto_picks(arenas, config.endpoint)

@@ -8,8 +8,8 @@ What is measured, in one run on 127.0.0.1 (free ports), for 1, 8 and 64 arenas (
   min2018, as in ``bench/speed/bench_sim.py``;
 * remote: an ``overtake.server`` subprocess (``--listen tcp/127.0.0.1:<port> --name bench``) and
   ``overtake/RemoteHighway-v0`` made the same two ways, with ``RemoteConfig(connect=(ep,))``:
-  "remote" with its rounds through the shared-memory channel (``steps_transport="shm"``, what a
-  trainer on the server's host gets), and the same over Zenoh alone (``steps_transport="zenoh"``,
+  "remote" with its rounds through the shared-memory channel (``transport="shm"``, what a
+  trainer on the server's host gets), and the same over Zenoh alone (``transport="zenoh"``,
   what a trainer on another host pays, less the network), both in the same rounds; the report
   names the one the default (``auto``) picks for each N;
 * the floor: a bare Zenoh ping-pong between this process and a child process (this script in
@@ -538,7 +538,7 @@ def measure_arenas(
     local = remote = remote_zenoh = None
 
     def remote_driver(transport: str) -> Driver:
-        settings = RemoteConfig(connect=(endpoint,), steps_transport=transport)
+        settings = RemoteConfig(connect=(endpoint,), transport=transport)
         env = make_env(REMOTE_ENV_ID, arenas, preset=PRESET, remote=settings)
         return Driver(env, arenas, config.seed, vector)
 

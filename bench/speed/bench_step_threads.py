@@ -65,7 +65,7 @@ def _remote(endpoint: str, config: StepThreadsConfig) -> Any:
         num_envs=config.arenas,
         vectorization_mode="vector_entry_point",
         preset=PRESET,
-        remote=RemoteConfig(connect=(endpoint,), steps_transport=config.transport),
+        remote=RemoteConfig(connect=(endpoint,), transport=config.transport),
         parts=config.parts,
     )
 

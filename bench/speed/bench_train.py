@@ -77,6 +77,7 @@ def run_once(
     default: learning during the round trip), or 0 for lock-step; ``precision``:
     overtake-train's --precision."""
     from overtake.client.episodes.scenario import Where
+    from overtake.client.wire.remote_config import RemoteConfig
     from overtake.trainers.learning.learner import DQNConfig
     from overtake.trainers.train import TrainConfig, main
 
@@ -91,7 +92,10 @@ def run_once(
             total_steps=total,
             seed=0,
             run_dir=run_dir,
-            where=Where(connect=() if connect is None else (connect,), spin_s=config.spin_s),
+            where=Where(
+                connect=() if connect is None else (connect,),
+                link=RemoteConfig(spin_s=config.spin_s),
+            ),
             overlap="on" if overlap_parts > 0 else "off",
             overlap_parts=max(overlap_parts, 1),
             progress=False,

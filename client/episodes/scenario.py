@@ -14,6 +14,7 @@ arenas, rounds or transport): they take ``--connect`` and the security options a
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -24,10 +25,8 @@ import gymnasium as gym
 from overtake.cli import UsageError
 from overtake.cli.options import unset
 from overtake.client.wire.remote_config import RemoteConfig
-from overtake.client.wire.steps_channel import Transport
 from overtake.envs import HIGHWAY_ENV_ID, REMOTE_HIGHWAY_ENV_ID, register_environments
 from overtake.envs.faces import VectorFace
-from overtake.ipc.transport import SecurityConfig
 from overtake.protocol.vocabulary import (
     DEFAULT_PRESET,
     DENSITY_SETTING,
@@ -51,10 +50,6 @@ def parse_overrides(items: tuple[str, ...]) -> dict[str, object]:
     return overrides
 
 
-# RemoteConfig's defaults, which Where's remote settings keep (one source).
-_REMOTE = RemoteConfig()
-
-
 @dataclass(frozen=True, kw_only=True)
 class Where:
     """Where the simulator is: in this process, or on a server reached over Zenoh."""
@@ -62,32 +57,10 @@ class Where:
     connect: tuple[str, ...] = ()
     """simulator servers' (or a router's) Zenoh endpoints, e.g. tcp/127.0.0.1:7447 (one or
     more: the first reachable is used); none runs the simulator in this process"""
-    security: SecurityConfig = field(default_factory=SecurityConfig)
-    """usrpwd credentials and TLS certificates for --connect"""
-    transport: Transport = "auto"
-    """how a server's Steps reach this process (--connect): auto (shared memory where the
-    server is on this host, Zenoh otherwise), shm (shared memory or an error), zenoh"""
-    spin_s: float = 0.002
-    """through shared memory, how long to wait for a round spinning (yielding the core) before
-    sleeping: a process that sleeps between rounds computes the next one slower on a virtual
-    machine (RemoteConfig.spin_s); 0 always sleeps"""
-    server: Annotated[str | None, unset("NAME")] = None
-    """with --connect: open the arenas on this server (its --name); unset: the least loaded"""
-    connect_timeout_s: float = _REMOTE.connect_timeout_s
-    """with --connect: how long to keep trying to reach the endpoint"""
-    request_timeout_s: float = _REMOTE.request_timeout_s
-    """with --connect: how long an open, reset, close or status request may take"""
-    step_timeout_s: float = _REMOTE.step_timeout_s
-    """with --connect: how long to wait for a step's observations (longer than the server's
-    step deadline)"""
-    reconnect_timeout_s: float = _REMOTE.reconnect_timeout_s
-    """with --connect: after losing the server, how long to wait for one to reopen the arenas
-    on (0: never)"""
-    lease_s: float = _REMOTE.lease_s
-    """with --connect: if this process's host vanishes, servers free its arenas within this"""
-    trainer_name: Annotated[str | None, unset("NAME")] = None
-    """with --connect: a readable prefix for this process's id in server logs and status;
-    unset: the usrpwd user, else trainer"""
+    link: RemoteConfig = field(default_factory=RemoteConfig)
+    """with --connect: which server, how its rounds travel, the timeouts and the
+    credentials"""
+    # RemoteConfig's own connect is not a flag: remote() puts this configuration's in it.
 
     @property
     def in_process(self) -> bool:
@@ -95,23 +68,11 @@ class Where:
         return not self.connect
 
     def remote(self) -> RemoteConfig:
-        """How this process reaches the server --connect names: every setting of
-        :class:`RemoteConfig`, from this configuration's fields."""
+        """How this process reaches the server --connect names: :attr:`link` on these
+        endpoints."""
         if self.in_process:
             raise UsageError("no --connect: the simulator runs in this process")
-        return RemoteConfig(
-            connect=self.connect,
-            server=self.server,
-            connect_timeout_s=self.connect_timeout_s,
-            request_timeout_s=self.request_timeout_s,
-            step_timeout_s=self.step_timeout_s,
-            reconnect_timeout_s=self.reconnect_timeout_s,
-            lease_s=self.lease_s,
-            security=self.security,
-            trainer_name=self.trainer_name,
-            steps_transport=self.transport,
-            spin_s=self.spin_s,
-        )
+        return dataclasses.replace(self.link, connect=self.connect)
 
     def describe(self) -> str:
         return "in-process" if self.in_process else f"on {', '.join(self.connect)}"

@@ -60,7 +60,7 @@ class Connection:
         self.config = config
         self.trainer = _trainer_id(config.trainer_name or config.security.user_name())
         try:
-            self.session = open_session(config.transport())
+            self.session = open_session(config.session_config())
         except zenoh.ZError as error:
             raise errors.ConnectError(unreachable_message(config, error)) from None
         self._inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
@@ -385,9 +385,9 @@ class Connection:
     def open_channel(self, server: str, group: int, offer: ChannelOffer | None) -> str:
         """Open ``group``'s channel from what ``server`` offered in its reply
         (:func:`~overtake.client.wire.steps_channel.open_channel`, by
-        :attr:`RemoteConfig.steps_transport`); the transport's name."""
+        :attr:`RemoteConfig.transport`); the transport's name."""
         channel = open_channel(
-            server, group, offer, self.config.steps_transport, lambda: self._over_zenoh(server)
+            server, group, offer, self.config.transport, lambda: self._over_zenoh(server)
         )
         self.attach(server, group, channel)
         return channel.name

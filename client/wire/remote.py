@@ -102,7 +102,7 @@ class ArenaGroup:
             if not reseed:
                 # After a restart the first episodes must not replay: fresh seeds.
                 request = dataclasses.replace(request, seed=None)
-            transports = requested_transports(conn.config.steps_transport)
+            transports = requested_transports(conn.config.transport)
             # The 1.6 field too: a 1.9 server reads only that.
             request = dataclasses.replace(request, transports=transports, shm="shm" in transports)
             last_error: errors.ProtocolError | None = None

@@ -35,7 +35,7 @@ class Spectator:
         if arena is not None and server is None:
             raise ValueError("watching one arena needs its server's name")
         try:
-            self.session = open_session(config.transport())
+            self.session = open_session(config.session_config())
         except zenoh.ZError as error:
             raise errors.ConnectError(unreachable_message(config, error)) from None
         key = keys.world_all() if server is None else keys.world(server, arena)

@@ -94,7 +94,7 @@ class SimulatorServer:
         self.inbox = Inbox(config.name)
         self._stopping = threading.Event()
         self._own_session = session is None
-        self.session = session if session is not None else open_session(config.transport())
+        self.session = session if session is not None else open_session(config.session_config())
         self.arenas = ArenaRegistry(self.name, config.max_arenas, config.max_arenas_per_trainer)
         self._alive_trainers: set[str] = set()
         self.outbox = Outbox(self.session, config, self.inbox.on_ring)
@@ -158,7 +158,7 @@ class SimulatorServer:
         log.info(
             "server %s serving (%s), up to %d arenas, step deadline %.1f s",
             self.name,
-            self.config.transport().describe(),
+            self.config.session_config().describe(),
             self.config.max_arenas,
             self.config.step_deadline_s,
         )

@@ -78,7 +78,7 @@ class ServerConfig:
         """The channels besides Zenoh this server offers trainers that ask, by transport."""
         return {t: make for t, make in OFFERED.items() if t != "shm" or self.shared_memory}
 
-    def transport(self) -> TransportConfig:
+    def session_config(self) -> TransportConfig:
         return TransportConfig(
             mode="peer",
             listen=self.listen,

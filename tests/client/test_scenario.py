@@ -174,34 +174,47 @@ def test_drive_takes_its_scenario_from_the_command_line_flags(tmp_path):
     assert [row["decisions"] for row in result["episodes"]] == [5.0, 5.0]
 
 
-def test_where_carries_every_remote_setting_into_the_connection():
+def test_where_carries_every_remote_setting_into_the_connection(tmp_path):
     """Every setting of RemoteConfig is a flag of every command that takes --connect (its
-    Where), and reaches the connection unchanged: nothing is dropped on the way."""
-    from overtake.client.episodes.scenario import Where
-    from overtake.client.wire.remote_config import RemoteConfig
+    Where holds one) with the same name, and reaches the connection unchanged: nothing is
+    dropped on the way, nothing is copied by hand."""
+    import tyro
 
-    where_fields = {f.name for f in dataclasses.fields(Where)}
-    # Where names the transport of a round "transport" (RemoteConfig: steps_transport).
-    renamed = {"steps_transport": "transport"}
-    remote_fields = {f.name for f in dataclasses.fields(RemoteConfig)}
-    missing = {renamed.get(name, name) for name in remote_fields} - where_fields
-    assert not missing, f"RemoteConfig settings no command can set: {sorted(missing)}"
-    asked = Where(
-        connect=("tcp/10.0.0.7:7447",),
+    from overtake.client.wire.remote_config import RemoteConfig
+    from overtake.ipc.transport import SecurityConfig
+    from overtake.trainers.experiment.plan import command_args
+
+    asked = RemoteConfig(
+        connect=("tcp/10.0.0.7:7447", "tcp/10.0.0.8:7447"),
         server="sim-2",
         connect_timeout_s=1.5,
         request_timeout_s=2.5,
         step_timeout_s=3.5,
         reconnect_timeout_s=4.5,
         lease_s=5.5,
+        security=SecurityConfig(user="alice", tls_root_ca=tmp_path / "ca.pem", tls_mtls=True),
         trainer_name="alice",
         transport="zenoh",
         spin_s=0.0,
     )
-    remote = asked.remote()
-    assert remote.connect == ("tcp/10.0.0.7:7447",)
-    for name in remote_fields - {"connect"}:
-        assert getattr(remote, name) == getattr(asked, renamed.get(name, name)), name
+    default = RemoteConfig()
+    # Every setting is asked for here, so a new one this test does not carry fails it.
+    unasked = [
+        f.name
+        for f in dataclasses.fields(RemoteConfig)
+        if getattr(asked, f.name) == getattr(default, f.name)
+    ]
+    assert not unasked, f"give these a value other than the default: {unasked}"
+    args = command_args(Where(connect=asked.connect, link=asked), Where())
+    assert "--transport" in args and "--spin-s" in args
+    parsed = tyro.cli(Where, args=args, config=(tyro.conf.OmitArgPrefixes,))
+    assert parsed.remote() == asked
+    # --connect is the command's own: none runs in process, and the RemoteConfig's is no flag.
+    assert Where().in_process and not parsed.in_process
+    with pytest.raises(SystemExit):
+        tyro.cli(Where, args=["--link.connect", "tcp/x:1"], config=(tyro.conf.OmitArgPrefixes,))
+    with pytest.raises(UsageError, match="no --connect"):
+        Where().remote()
     # The defaults are RemoteConfig's own.
-    default = Where(connect=("tcp/10.0.0.7:7447",)).remote()
-    assert dataclasses.replace(default, connect=RemoteConfig().connect) == RemoteConfig()
+    on_default = Where(connect=asked.connect).remote()
+    assert dataclasses.replace(on_default, connect=default.connect) == default

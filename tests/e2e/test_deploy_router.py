@@ -78,19 +78,19 @@ def test_server_warns_when_anyone_who_reaches_it_may_use_it(tmp_path: Path, capl
         return [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
 
     caplog.set_level(logging.INFO, logger=log.name)
-    (warning,) = warnings(ServerConfig(listen=("tcp/0.0.0.0:7447",)).transport())
+    (warning,) = warnings(ServerConfig(listen=("tcp/0.0.0.0:7447",)).session_config())
     assert "tcp/0.0.0.0:7447" in warning and "anyone who reaches" in warning
     assert "--credentials-file" in warning and "--tls-mtls" in warning
     assert (
         warnings(
             ServerConfig(
                 listen=("tcp/0.0.0.0:7447",), security=SecurityConfig(credentials_file=credentials)
-            ).transport()
+            ).session_config()
         )
         == []
     )
-    assert warnings(ServerConfig().transport()) == []  # loopback, the default
-    assert warnings(ServerConfig(listen=()).transport()) == []
+    assert warnings(ServerConfig().session_config()) == []  # loopback, the default
+    assert warnings(ServerConfig(listen=()).session_config()) == []
 
 
 def test_router_says_whom_it_admits_and_warns_when_anyone_may(tmp_path: Path, caplog):

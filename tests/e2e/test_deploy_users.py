@@ -145,7 +145,7 @@ def test_isolated_trainers_reach_only_their_own_arenas(tmp_path: Path, backgroun
             request_timeout_s=5.0,
             step_timeout_s=20.0,
             security=security(user),
-            steps_transport="zenoh",
+            transport="zenoh",
         )
 
     def seen_by_bob() -> tuple[set[str], int]:

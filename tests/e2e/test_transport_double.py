@@ -167,7 +167,7 @@ def drive(server: SimulatorServer, transport: str, rounds: int) -> tuple[list, o
         REMOTE_HIGHWAY_ENV_ID,
         num_envs=2,
         vectorization_mode="vector_entry_point",
-        remote=remote_config(server.config.listen[0], "double", steps_transport=transport),
+        remote=remote_config(server.config.listen[0], "double", transport=transport),
         preset="min2018",
         overrides={"episode.max_decisions": 30},
     )

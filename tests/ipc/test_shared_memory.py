@@ -338,7 +338,7 @@ def test_remote_equals_in_process_on_each_transport(start_server, transport):
         REMOTE_HIGHWAY_ENV_ID,
         num_envs=n,
         vectorization_mode="vector_entry_point",
-        remote=remote_config(server.endpoint, server.name, steps_transport=transport),
+        remote=remote_config(server.endpoint, server.name, transport=transport),
         preset="min2018",
         overrides=SHORT,
     )
@@ -407,7 +407,7 @@ def test_no_round_crosses_zenoh_and_forged_frames_on_the_trainers_key_change_not
     server = start_server("shm-silent")
     remote = gym.make(
         REMOTE_HIGHWAY_ENV_ID,
-        remote=remote_config(server.endpoint, server.name, steps_transport="shm"),
+        remote=remote_config(server.endpoint, server.name, transport="shm"),
         overrides=SHORT,
     )
     local = gym.make(HIGHWAY_ENV_ID, overrides=SHORT)
@@ -461,7 +461,7 @@ def test_an_error_about_a_segment_round_reaches_the_trainer_asleep_on_the_bell(s
     server = start_server("shm-error")
     remote = gym.make(
         REMOTE_HIGHWAY_ENV_ID,
-        remote=remote_config(server.endpoint, server.name, steps_transport="shm"),
+        remote=remote_config(server.endpoint, server.name, transport="shm"),
         overrides=SHORT,
     )
     try:
@@ -495,7 +495,7 @@ def test_a_trainer_that_cannot_reach_the_segment_falls_back_or_says_why(
     with pytest.raises(errors.ConnectError, match="is the server on this host"):
         gym.make(
             REMOTE_HIGHWAY_ENV_ID,
-            remote=remote_config(server.endpoint, server.name, steps_transport="shm"),
+            remote=remote_config(server.endpoint, server.name, transport="shm"),
         )
     # The refused group was closed, not left open.
     wait_until(lambda: server.status().arenas_used == 0, 5.0, "the refused group to close")
@@ -513,7 +513,7 @@ def test_a_server_without_shared_memory_offers_none(start_server):
     with pytest.raises(errors.ConnectError, match="offered no shared memory"):
         gym.make(
             REMOTE_HIGHWAY_ENV_ID,
-            remote=remote_config(server.endpoint, server.name, steps_transport="shm"),
+            remote=remote_config(server.endpoint, server.name, transport="shm"),
         )
 
 

@@ -22,6 +22,7 @@ import tyro
 
 from overtake.cli import UsageError
 from overtake.client.episodes.scenario import Scenario, Where
+from overtake.client.wire.remote_config import RemoteConfig
 from overtake.ipc.transport import SecurityConfig
 from overtake.protocol.vocabulary import WATCH_SETTING
 from overtake.trainers.evaluate import EvalConfig
@@ -168,7 +169,9 @@ def test_each_runs_command_line_parses_back_to_its_training_configuration(tmp_pa
         record_training=True,
         where=Where(
             connect=("tcp/127.0.0.1:7447",),
-            security=SecurityConfig(user="trainer", tls_root_ca=tmp_path / "ca.pem"),
+            link=RemoteConfig(
+                security=SecurityConfig(user="trainer", tls_root_ca=tmp_path / "ca.pem")
+            ),
         ),
     )
     plan = make_plan(config)
@@ -830,14 +833,18 @@ def test_where_the_simulator_is_does_not_change_what_a_run_learns():
     """A restarted experiment may reach its simulator another way (every field of Where:
     endpoint, credentials, transport, the channel's spin) and still continue its runs; a
     learned setting still makes another run."""
-    from overtake.client.episodes.scenario import Where
     from overtake.trainers.config.train_config import TrainConfig
     from overtake.trainers.experiment.plan import training_identity
 
     base = TrainConfig()
-    elsewhere = dataclasses.replace(
-        base, where=Where(connect=("tcp/127.0.0.1:7447",), transport="zenoh", spin_s=0.0)
-    )
-    assert {f.name for f in dataclasses.fields(Where)} >= {"connect", "transport", "spin_s"}
+    link = RemoteConfig(transport="zenoh", spin_s=0.0, server="sim-2", lease_s=9.0)
+    elsewhere = dataclasses.replace(base, where=Where(connect=("tcp/127.0.0.1:7447",), link=link))
     assert training_identity(elsewhere) == training_identity(base)
+    # A record written before the configuration held a Where keeps these settings at the top.
+    from overtake.trainers.experiment.plan import learned_settings
+    from overtake.trainers.run.checkpoint import plain_data
+
+    before_where = {name: v for name, v in plain_data(base).items() if name != "where"}
+    before_where |= {"connect": ["tcp/h:1"], "transport": "zenoh", "server": "sim-2", "lease_s": 9}
+    assert learned_settings(before_where) == training_identity(base)
     assert training_identity(dataclasses.replace(base, num_envs=2)) != training_identity(base)

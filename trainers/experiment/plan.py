@@ -16,6 +16,7 @@ import tyro
 from overtake.cli import Output, UsageError
 from overtake.cli.options import unset
 from overtake.client.episodes.scenario import Scenario, Where
+from overtake.client.wire.remote_config import RemoteConfig
 from overtake.viz.recording import RecordingConfig
 
 from ..config.train_config import TrainConfig
@@ -346,9 +347,11 @@ def _run_plan(
 
 # Settings of a run that do not change what it learns: a restarted experiment may change them
 # (a run trained on a GPU may be finished on the CPU: the same algorithm, its numbers rounded
-# differently). Where the simulator is (every field of Where) is one of them.
+# differently). Where the simulator is (every field of Where and of the RemoteConfig it holds,
+# which records written before the configuration held a Where keep at the top) is one of them.
 _UNLEARNED = (
     *(f.name for f in dataclasses.fields(Where)),
+    *(f.name for f in dataclasses.fields(RemoteConfig)),
     "where",
     "device",
     "torch_threads",
