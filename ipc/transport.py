@@ -21,16 +21,18 @@ import os
 import socket
 import ssl
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Literal, TypeVar
 
 import zenoh
 
 from overtake.protocol.errors import ConnectError
 
 from .endpoints import check_endpoints, host_port, protocol_of
+
+T = TypeVar("T")
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
@@ -251,6 +253,18 @@ def open_session(config: TransportConfig) -> zenoh.Session:
 # (TCP, then the TLS handshake with the same certificates) tells those apart.
 
 PROBE_TIMEOUT_S = 2.0
+
+
+def on_zenoh_thread(callback: Callable[[T], object]) -> zenoh.handlers.Callback[T]:
+    """``callback`` as a subscriber's handler that Zenoh calls on its own receiving thread.
+
+    zenoh-python's default runs a plain callable on a Python thread of its own, one a
+    subscriber, which is not a daemon and lives until the subscriber is undeclared: a process
+    that never closes its session (a script that drops its environment without ``close()``)
+    then waits for those threads at exit, forever. Called on Zenoh's thread the callback must
+    be short (ours only put on a queue or set flags); it also saves a thread hand-over a
+    message. (``indirect`` is marked unstable in zenoh-python 1.x.)"""
+    return zenoh.handlers.Callback(callback, indirect=False)
 
 
 def _tls_context(security: SecurityConfig) -> ssl.SSLContext:

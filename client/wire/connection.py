@@ -23,7 +23,7 @@ from overtake.client.wire.remote_config import RemoteConfig, likely_causes, unre
 from overtake.client.wire.steps_channel import StepsChannel, open_channel
 from overtake.client.wire.stopping import INTERRUPT_AFTER_S, stop_event
 from overtake.client.wire.zenoh_channel import ZenohChannel
-from overtake.ipc.transport import open_session
+from overtake.ipc.transport import on_zenoh_thread, open_session
 from overtake.protocol import codec, errors, keys
 from overtake.protocol.channel_offers import ChannelOffer
 from overtake.protocol.messages import (
@@ -83,10 +83,12 @@ class Connection:
         self._token = self.session.liveliness().declare_token(keys.trainer_alive(self.trainer))
         self._subscriber = self.session.declare_subscriber(
             keys.trainer_steps_all(self.trainer),
-            lambda sample: self._inbox.put((str(sample.key_expr), sample.payload.to_bytes())),
+            on_zenoh_thread(
+                lambda sample: self._inbox.put((str(sample.key_expr), sample.payload.to_bytes()))
+            ),
         )
         self._alive_sub = self.session.liveliness().declare_subscriber(
-            keys.ALL_SERVERS_ALIVE, self._on_server_alive, history=True
+            keys.ALL_SERVERS_ALIVE, on_zenoh_thread(self._on_server_alive), history=True
         )
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._drop_logged_t, self._drops_unlogged = -math.inf, 0

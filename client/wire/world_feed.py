@@ -15,7 +15,7 @@ from collections import deque
 import zenoh
 
 from overtake.client.wire.remote_config import RemoteConfig, unreachable_message
-from overtake.ipc.transport import open_session
+from overtake.ipc.transport import on_zenoh_thread, open_session
 from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import WorldFrame
 
@@ -44,7 +44,7 @@ class Spectator:
         self._changed = threading.Condition()
         self.frames_received = 0
         self.frames_refused = 0
-        self._subscriber = self.session.declare_subscriber(key, self._on_sample)
+        self._subscriber = self.session.declare_subscriber(key, on_zenoh_thread(self._on_sample))
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         try:

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import gc
 import re
+import signal
+import subprocess
 import sys
 import threading
 import time
@@ -37,10 +39,13 @@ from overtake.server.engine.env import HighwayVectorEnv
 from overtake.server.sim import PRESETS
 
 from tests.support.remote import (
+    ROOT,
     RawClient,
+    child_env,
     endpoint,
     free_port,
     remote_config,
+    stop_process,
     trainer_args,
     wait_until,
 )
@@ -402,6 +407,50 @@ def test_step_raises_server_lost_when_the_server_is_killed(start_server):
         assert "lost" in message or "went away" in message
     finally:
         env.close()
+
+
+# A user's script that drops its environments without close(), its server alive or gone.
+FORGETFUL_SCRIPT = """
+import sys
+import gymnasium as gym
+import overtake.client  # noqa: F401
+from overtake.client.wire.remote_config import RemoteConfig
+from overtake.client.wire.world_feed import Spectator
+
+remote = RemoteConfig(connect=(sys.argv[1],), server=sys.argv[2])
+env = gym.make_vec(
+    "overtake/RemoteHighway-v0", num_envs=2, vectorization_mode="vector_entry_point",
+    preset="min2018", overrides={"episode.max_decisions": 20}, remote=remote,
+)
+env.reset(seed=0)
+env.step([0, 0])
+feed = Spectator(remote)
+print("stepped", flush=True)
+"""
+
+
+def test_a_script_that_never_closes_its_environment_still_exits(shared_server, tmp_path):
+    """zenoh-python runs a subscriber's Python callback on a thread of its own that is not a
+    daemon: a process that never closed its session waited for them at exit, forever. Ours run
+    on Zenoh's thread (overtake.ipc.transport.on_zenoh_thread), so the script ends."""
+    script = tmp_path / "forgetful.py"
+    script.write_text(FORGETFUL_SCRIPT)
+    proc = subprocess.Popen(
+        [sys.executable, str(script), shared_server.endpoint, shared_server.name],
+        env=child_env(),
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        out, err = proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        stop_process(proc, sig=signal.SIGKILL)
+        pytest.fail("a script that never closed its remote environment did not exit in 60 s")
+    assert proc.returncode == 0, err
+    assert out.strip() == "stepped"
+    assert shared_server.status().server == shared_server.name  # still serving the others
 
 
 @pytest.mark.timeout(60)
