@@ -83,9 +83,7 @@ class Connection:
         self._token = self.session.liveliness().declare_token(keys.trainer_alive(self.trainer))
         self._subscriber = self.session.declare_subscriber(
             keys.trainer_steps_all(self.trainer),
-            on_zenoh_thread(
-                lambda sample: self._inbox.put((str(sample.key_expr), sample.payload.to_bytes()))
-            ),
+            on_zenoh_thread(self._on_steps),
         )
         self._alive_sub = self.session.liveliness().declare_subscriber(
             keys.ALL_SERVERS_ALIVE, on_zenoh_thread(self._on_server_alive), history=True
@@ -95,6 +93,9 @@ class Connection:
         self.dropped = 0
         """messages dropped in all (unreadable, not for us, or forged in our name)"""
         self.closed = False
+
+    def _on_steps(self, sample: zenoh.Sample) -> None:
+        self._inbox.put((str(sample.key_expr), sample.payload.to_bytes()))
 
     def _on_server_alive(self, sample: zenoh.Sample) -> None:
         try:
