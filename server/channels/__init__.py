@@ -59,6 +59,11 @@ class OfferedChannel(StepsChannel, Protocol):
         """The trainer's Actions put here, checked as a decoded frame is
         (:class:`~overtake.protocol.errors.DecodeError` where malformed)."""
 
+    def hear_rings(self, on: bool) -> None:
+        """Whether the trainer's putting Actions here calls ``on_ring`` (on the channel's
+        thread): on while the service loop sleeps on its inbox; off while it runs, when it
+        looks at :meth:`rung` itself."""
+
 
 @dataclass(frozen=True)
 class ChannelTerms:

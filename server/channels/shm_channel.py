@@ -62,6 +62,7 @@ class ShmChannel:
         self._actions_bell = segment.bell(ACTIONS_BELL_OFFSET)
         self._closed = threading.Event()
         self._on_ring = on_ring
+        self._hearing = threading.Event()  # hear_rings
         self._thread = threading.Thread(
             target=self._listen, name=f"overtake-bell-{group}", daemon=True
         )
@@ -100,14 +101,25 @@ class ShmChannel:
         )
 
     def _listen(self) -> None:
+        """Turn the trainer's rings into ``on_ring`` calls while the service loop sleeps; while
+        it runs, stay off the bell (a ring then wakes nobody: the loop looks at :meth:`rung`)."""
         bell = self._actions_bell
-        seen = bell.value
+        told = None  # the ring last turned into an event
         while not self._closed.is_set():
-            value = bell.wait(seen, BELL_SLICE_S)
-            if value != seen and not self._closed.is_set():
-                seen = value
-                if value != self.handled:  # the loop did not take them while it spun
-                    self._on_ring(self.trainer, self.group)
+            if not self._hearing.wait(BELL_SLICE_S):
+                continue
+            value = bell.value
+            if value != self.handled and value != told and not self._closed.is_set():
+                told = value  # rung since the loop took the Actions: it must hear of it
+                self._on_ring(self.trainer, self.group)
+                continue
+            bell.wait(value, BELL_SLICE_S)
+
+    def hear_rings(self, on: bool) -> None:
+        if on:
+            self._hearing.set()
+        else:
+            self._hearing.clear()
 
     def rung(self) -> bool:
         """Whether the trainer rang since the loop last took its Actions."""
@@ -151,6 +163,7 @@ class ShmChannel:
         if self._closed.is_set():
             return
         self._closed.set()
+        self._hearing.set()  # the thread may wait for the loop to sleep: it looks now
         self._actions_bell.wake()
         self._thread.join()
         self.segment.unlink()

@@ -10,8 +10,9 @@ or the server closes."""
 
 from __future__ import annotations
 
+import contextlib
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 
 import zenoh
 
@@ -93,6 +94,21 @@ class Outbox:
     def rung(self) -> list[OfferedChannel]:
         """The offered channels whose trainer put Actions since the loop took them."""
         return [channel for channel in self._offered.values() if channel.rung()]
+
+    @contextlib.contextmanager
+    def asleep(self) -> Iterator[None]:
+        """While the service loop sleeps on its inbox: the offered channels hear their
+        trainers' rings and enqueue them (``on_ring``). Awake, the loop looks at :meth:`rung`
+        itself, and a ring wakes no thread: a woken thread would take the GIL from the loop's
+        round, and its trainer's ring would pay the wake-up (bench/RESULTS.md, issue 70)."""
+        channels = tuple(self._offered.values())
+        for channel in channels:
+            channel.hear_rings(True)
+        try:
+            yield
+        finally:
+            for channel in channels:
+                channel.hear_rings(False)
 
     @property
     def has_offered(self) -> bool:

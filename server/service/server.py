@@ -186,7 +186,9 @@ class SimulatorServer:
                     continue
                 if self._spin():
                     continue
-                self._handle(self.inbox.take(self._next_timeout()) or WAKE)
+                with self.outbox.asleep():
+                    arrived = self.inbox.take(self._next_timeout())
+                self._handle(arrived or WAKE)
         finally:
             self.close()
 

@@ -91,6 +91,9 @@ class ServerEnd:
     def rung(self) -> bool:
         return bool(self.box.actions)
 
+    def hear_rings(self, on: bool) -> None:
+        """Nothing to switch: the trainer's end calls on_ring at every post, asleep or not."""
+
     def actions(self) -> Actions:
         return self.box.actions.popleft()
 

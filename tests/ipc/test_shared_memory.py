@@ -229,6 +229,96 @@ def test_a_round_whose_write_is_not_finished_is_waited_for_not_an_error():
         writer.close()
 
 
+class _Recorded:
+    """A member's Zenoh channel that keeps what it is given (the server's fallback)."""
+
+    def __init__(self) -> None:
+        self.sent: list[object] = []
+
+    def send_steps(self, steps: Steps) -> None:
+        self.sent.append(steps)
+
+    def send(self, message: object) -> None:
+        self.sent.append(message)
+
+    def close(self) -> None:
+        pass
+
+
+@pytest.mark.skipif(not DOORBELL_AVAILABLE, reason="no futex doorbell on this machine")
+def test_the_server_hears_a_ring_on_its_thread_only_while_its_loop_sleeps():
+    """A ring's thread on the server side is off the bell while the service loop runs (the
+    loop looks at rung() itself: a woken thread would take the GIL from the round, 20-25% of
+    a 64-arena round here), and turns a ring into on_ring while the loop sleeps, once."""
+    from overtake.client.wire.shm_channel import attach
+    from overtake.protocol.messages import Actions
+    from overtake.protocol.rows import row_values
+    from overtake.server.channels import ChannelTerms
+    from overtake.server.channels.shm_channel import ShmChannel as ServerShmChannel
+
+    arrays = {
+        "agents": np.arange(2, dtype=np.int32),
+        "reward": np.zeros(2),
+        "terminated": np.zeros(2, dtype=bool),
+        "truncated": np.zeros(2, dtype=bool),
+        "action_applied": np.zeros(2, dtype=np.int64),
+        "late": np.zeros(2, dtype=bool),
+        "action_mask": np.ones((2, 5), dtype=np.int8),
+        "reward_terms": np.zeros((2, 0)),
+        "metrics": np.zeros((2, 0)),
+        "obs/lidar": np.zeros((2, 4), dtype=np.float32),
+    }
+    rings: list[tuple[str, int]] = []
+    terms = ChannelTerms(
+        trainer="t",
+        ticket=b"ticket",
+        current=Steps(server="s", group=1, round=0, **row_values(arrays)),
+        fallback=_Recorded(),
+        on_ring=lambda trainer, group: rings.append((trainer, group)),
+    )
+    server = ServerShmChannel.create(terms)
+    trainer = attach("s", 1, server.offer(), required=True)
+    assert trainer is not None
+
+    def ring(round_: int) -> None:
+        trainer.send_actions(
+            Actions(
+                trainer="t",
+                ticket=b"ticket",
+                group=1,
+                round=round_,
+                agents=np.arange(2, dtype=np.int32),
+                actions=np.array([1, 2]),
+            )
+        )
+
+    def heard(count: int, timeout_s: float) -> bool:
+        try:
+            wait_until(lambda: len(rings) >= count, timeout_s, f"{count} ring(s) heard")
+        except AssertionError:
+            return False
+        return True
+
+    try:
+        ring(0)  # the loop runs: nobody is woken, the loop finds it with rung()
+        assert server.rung()
+        assert not heard(1, 0.3)
+        server.hear_rings(True)  # the loop goes to sleep with a ring not taken: heard at once
+        assert heard(1, 5.0) and rings == [("t", 1)]
+        assert server.actions().actions.tolist() == [1, 2] and not server.rung()
+        ring(1)  # asleep: a new ring is heard, once
+        assert heard(2, 5.0)
+        assert not heard(3, 0.3)
+        server.actions()
+        server.hear_rings(False)
+        ring(2)
+        assert server.rung() and not heard(3, 0.3)
+    finally:
+        server.close()
+        trainer.close(unlink=False)
+    assert len(rings) == 2
+
+
 def test_the_doorbell_wakes_another_process_and_times_out_without_a_ring():
     import multiprocessing
     import time
