@@ -187,15 +187,9 @@ def _ring_back(name: str, nonce: bytes, size: int, rounds: int) -> None:
     segment.close()
 
 
-@pytest.mark.skipif(not DOORBELL_AVAILABLE, reason="no futex doorbell on this machine")
-def test_a_round_whose_write_is_not_finished_is_waited_for_not_an_error():
-    """The server writes a round's number before the generation that closes the write: a
-    trainer looking in between (it spins on the segment) sees its round and an odd generation.
-    That is "not yet", not a broken segment (the fault matrix's no-fault case once ended a
-    trainer with 'holds no finished write')."""
-    from overtake.client.wire.shm_channel import ShmChannel
-
-    arrays = {
+def _two_cars_round() -> dict[str, np.ndarray]:
+    """A round's arrays for two cars, as a segment's layout names them (rewards of 1)."""
+    return {
         "agents": np.arange(2, dtype=np.int32),
         "reward": np.ones(2),
         "terminated": np.zeros(2, dtype=bool),
@@ -207,6 +201,17 @@ def test_a_round_whose_write_is_not_finished_is_waited_for_not_an_error():
         "metrics": np.zeros((2, 0)),
         "obs/lidar": np.zeros((2, 4), dtype=np.float32),
     }
+
+
+@pytest.mark.skipif(not DOORBELL_AVAILABLE, reason="no futex doorbell on this machine")
+def test_a_round_whose_write_is_not_finished_is_waited_for_not_an_error():
+    """The server writes a round's number before the generation that closes the write: a
+    trainer looking in between (it spins on the segment) sees its round and an odd generation.
+    That is "not yet", not a broken segment (the fault matrix's no-fault case once ended a
+    trainer with 'holds no finished write')."""
+    from overtake.client.wire.shm_channel import ShmChannel
+
+    arrays = _two_cars_round()
     assert set(STEPS_ARRAYS) < set(arrays)
     places, size = channel_plan(2, arrays)
     writer = Segment.create(size)
@@ -256,18 +261,7 @@ def test_the_server_hears_a_ring_on_its_thread_only_while_its_loop_sleeps():
     from overtake.server.channels import ChannelTerms
     from overtake.server.channels.shm_channel import ShmChannel as ServerShmChannel
 
-    arrays = {
-        "agents": np.arange(2, dtype=np.int32),
-        "reward": np.zeros(2),
-        "terminated": np.zeros(2, dtype=bool),
-        "truncated": np.zeros(2, dtype=bool),
-        "action_applied": np.zeros(2, dtype=np.int64),
-        "late": np.zeros(2, dtype=bool),
-        "action_mask": np.ones((2, 5), dtype=np.int8),
-        "reward_terms": np.zeros((2, 0)),
-        "metrics": np.zeros((2, 0)),
-        "obs/lidar": np.zeros((2, 4), dtype=np.float32),
-    }
+    arrays = _two_cars_round()
     rings: list[tuple[str, int]] = []
     terms = ChannelTerms(
         trainer="t",
