@@ -45,6 +45,7 @@ from tests.support.remote import (
     endpoint,
     free_port,
     remote_config,
+    remote_vector_env,
     stop_process,
     trainer_args,
     wait_until,
@@ -120,14 +121,7 @@ def test_remote_env_is_bit_identical_to_in_process_env(shared_server, preset):
 def test_remote_vector_env_is_bit_identical_to_in_process_vector_env(shared_server, preset):
     server = shared_server
     n = 4
-    remote = gym.make_vec(
-        REMOTE_HIGHWAY_ENV_ID,
-        num_envs=n,
-        vectorization_mode="vector_entry_point",
-        remote=remote_config(server.endpoint, server.name),
-        preset=preset,
-        overrides=SHORT,
-    )
+    remote = remote_vector_env(server, n, preset=preset, overrides=SHORT)
     local = gym.make_vec(
         HIGHWAY_ENV_ID,
         num_envs=n,
@@ -182,15 +176,7 @@ def test_vector_env_in_parts_is_the_same_env_stepped_part_by_part(start_server, 
     the server steps one group at a time or ready groups at once on two threads."""
     server = start_server("e2e-parts", extra=("--step-threads", str(step_threads)))
     n = 5  # parts of 3 and 2 environments
-    make = lambda parts: gym.make_vec(  # noqa: E731
-        REMOTE_HIGHWAY_ENV_ID,
-        num_envs=n,
-        vectorization_mode="vector_entry_point",
-        remote=remote_config(server.endpoint, server.name),
-        overrides=SHORT,
-        parts=parts,
-    )
-    whole, split = make(1), make(2)
+    whole, split = (remote_vector_env(server, n, overrides=SHORT, parts=p) for p in (1, 2))
     try:
         assert split.unwrapped.part_slices == (slice(0, 3), slice(3, 5))
         assert sorted(len(g.arenas) for g in server.status().groups) == [2, 3, 5]
@@ -245,13 +231,7 @@ def test_vector_env_in_parts_is_the_same_env_stepped_part_by_part(start_server, 
         # The two parts' actions go out back to back: their groups were stepped together.
         assert passes is not None and int(passes.group(1)) > 0, server.log_text()[-2000:]
     with pytest.raises(ValueError, match="parts must be between 1 and the 2 arena"):
-        gym.make_vec(
-            REMOTE_HIGHWAY_ENV_ID,
-            num_envs=2,
-            vectorization_mode="vector_entry_point",
-            remote=remote_config(server.endpoint, server.name),
-            parts=3,
-        )
+        remote_vector_env(server, 2, parts=3)
 
 
 # --- 2. RemoteEnvironment: ML-Agents' low-level API -----------------------------------------
@@ -648,12 +628,7 @@ def test_a_server_of_protocol_1_4_is_refused_and_its_arenas_freed(start_server, 
     monkeypatch.setattr(ArenaGroup, "_open", as_if_1_4)
     refusal = r"speaks protocol 1\.4; .* need 1\.5 .* upgrade"
     with pytest.raises(errors.VersionMismatch, match=refusal):
-        gym.make_vec(
-            REMOTE_HIGHWAY_ENV_ID,
-            num_envs=2,
-            vectorization_mode="vector_entry_point",
-            remote=remote_config(server.endpoint, server.name),
-        )
+        remote_vector_env(server, 2)
     assert server.status().arenas_used == 0
 
 
@@ -723,14 +698,7 @@ def test_a_remote_vector_env_kept_and_restored_steps_on_exactly(start_server):
     server = start_server("e2e-keep")
 
     def remote_env(preset: str = "min2018"):
-        return gym.make_vec(
-            REMOTE_HIGHWAY_ENV_ID,
-            num_envs=3,
-            vectorization_mode="vector_entry_point",
-            remote=remote_config(server.endpoint, server.name),
-            preset=preset,
-            overrides=SHORT,
-        )
+        return remote_vector_env(server, 3, preset=preset, overrides=SHORT)
 
     rng = np.random.default_rng(8)
     before, after = rng.integers(0, 5, (25, 3)), rng.integers(0, 5, (80, 3))

@@ -111,6 +111,24 @@ def remote_config(
     return RemoteConfig(connect=connect, server=server, **settings)
 
 
+def remote_vector_env(server: Any, num_envs: int, **env_kwargs: Any) -> Any:
+    """``num_envs`` arenas on ``server`` (a :class:`ServerProcess`) as one remote vector
+    environment, with :func:`remote_config`'s test timeouts; ``env_kwargs``: the environment's
+    own (``preset``, ``overrides``, ``parts``)."""
+    import gymnasium as gym
+
+    import overtake.client  # noqa: F401  (registers the environments)
+    from overtake.envs import REMOTE_HIGHWAY_ENV_ID
+
+    return gym.make_vec(
+        REMOTE_HIGHWAY_ENV_ID,
+        num_envs=num_envs,
+        vectorization_mode="vector_entry_point",
+        remote=remote_config(server.endpoint, server.name),
+        **env_kwargs,
+    )
+
+
 # --- servers ---------------------------------------------------------------------------------
 
 
