@@ -22,7 +22,7 @@ from typing import Any
 import zenoh
 
 from overtake.ipc.shared_memory import sweep_orphans
-from overtake.ipc.transport import open_session
+from overtake.ipc.transport import on_zenoh_thread, open_session
 from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import (
     PROTOCOL_VERSION,
@@ -134,16 +134,22 @@ class SimulatorServer:
                 "give this one another --name"
             )
         s = self.session
-        # Zenoh's threads only enqueue (server/service/inbox.py); the loop does the rest.
+        # Zenoh's threads only enqueue (server/service/inbox.py), on Zenoh's own receiving
+        # thread (on_zenoh_thread: no Python thread a declaration to wake and hand the GIL to);
+        # the loop does the rest.
         self._declared.append(
-            s.declare_queryable(keys.server_request(self.name), self.inbox.on_query)
+            s.declare_queryable(
+                keys.server_request(self.name), on_zenoh_thread(self.inbox.on_query)
+            )
         )
         self._declared.append(
-            s.declare_subscriber(keys.server_actions_all(self.name), self.inbox.on_actions)
+            s.declare_subscriber(
+                keys.server_actions_all(self.name), on_zenoh_thread(self.inbox.on_actions)
+            )
         )
         self._declared.append(
             s.liveliness().declare_subscriber(
-                keys.ALL_TRAINERS_ALIVE, self.inbox.on_presence, history=True
+                keys.ALL_TRAINERS_ALIVE, on_zenoh_thread(self.inbox.on_presence), history=True
             )
         )
         self._token = s.liveliness().declare_token(keys.server_alive(self.name))
