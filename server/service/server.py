@@ -134,24 +134,18 @@ class SimulatorServer:
                 "give this one another --name"
             )
         s = self.session
-        # Zenoh's threads only enqueue (server/service/inbox.py), on Zenoh's own receiving
-        # thread (on_zenoh_thread: no Python thread a declaration to wake and hand the GIL to);
-        # the loop does the rest.
-        self._declared.append(
-            s.declare_queryable(
-                keys.server_request(self.name), on_zenoh_thread(self.inbox.on_query)
-            )
-        )
-        self._declared.append(
+        # Zenoh's threads only enqueue (server/service/inbox.py), on Zenoh's own receiving thread
+        # (no Python thread a declaration to wake and hand the GIL to); the loop does the rest.
+        inbox = self.inbox
+        self._declared += [
+            s.declare_queryable(keys.server_request(self.name), on_zenoh_thread(inbox.on_query)),
             s.declare_subscriber(
-                keys.server_actions_all(self.name), on_zenoh_thread(self.inbox.on_actions)
-            )
-        )
-        self._declared.append(
+                keys.server_actions_all(self.name), on_zenoh_thread(inbox.on_actions)
+            ),
             s.liveliness().declare_subscriber(
-                keys.ALL_TRAINERS_ALIVE, on_zenoh_thread(self.inbox.on_presence), history=True
-            )
-        )
+                keys.ALL_TRAINERS_ALIVE, on_zenoh_thread(inbox.on_presence), history=True
+            ),
+        ]
         self._token = s.liveliness().declare_token(keys.server_alive(self.name))
 
     # --- main loop ------------------------------------------------------------------------------
