@@ -1,7 +1,9 @@
 """Rounds through shared memory (protocol 1.7, :mod:`overtake.ipc.shared_memory`): for a
 trainer on this host that holds its group alone, the server writes each round's Steps into a
 segment and rings the Steps bell; the trainer writes its Actions there and rings the Actions
-bell, which a thread of this channel sleeps on and turns into an inbox event for the loop.
+bell. The service loop, while it runs, looks at the bell itself (:meth:`ShmChannel.rung`); while
+it sleeps on its inbox, a thread of this channel sleeps on the bell and turns a ring into an
+inbox event (:meth:`ShmChannel.hear_rings`).
 No round crosses Zenoh; what is not a round (an error) does, counted in the segment's header
 and rung, so that the trainer looks for it.
 
@@ -29,7 +31,8 @@ from . import ChannelTerms, StepsChannel
 
 log = logging.getLogger(__name__)
 
-# The bell thread looks at its stop flag at least this often (a close also wakes it at once).
+# The bell thread looks at its stop flag at least this often (a close also wakes it at once),
+# whether it waits for the loop to sleep or for a ring.
 BELL_SLICE_S = 0.5
 
 

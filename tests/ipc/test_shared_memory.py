@@ -253,8 +253,9 @@ class _Recorded:
 @pytest.mark.skipif(not DOORBELL_AVAILABLE, reason="no futex doorbell on this machine")
 def test_the_server_hears_a_ring_on_its_thread_only_while_its_loop_sleeps():
     """A ring's thread on the server side is off the bell while the service loop runs (the
-    loop looks at rung() itself: a woken thread would take the GIL from the round, 20-25% of
-    a 64-arena round here), and turns a ring into on_ring while the loop sleeps, once."""
+    loop looks at rung() itself: a woken thread took the GIL from the round, which made a
+    64-arena round 13-29% slower here), and turns a ring into on_ring while the loop sleeps,
+    once."""
     from overtake.client.wire.shm_channel import attach
     from overtake.protocol.messages import Actions
     from overtake.protocol.rows import row_values

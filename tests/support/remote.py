@@ -21,10 +21,12 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any, TypeVar
 
+import gymnasium as gym
 import pytest
 import zenoh
 
 from overtake.client.wire.remote import Connection, RemoteConfig
+from overtake.envs import REMOTE_HIGHWAY_ENV_ID
 from overtake.ipc.transport import TransportConfig
 from overtake.protocol import codec, errors, keys
 from overtake.protocol.messages import Message, StatusReply, StatusRequest
@@ -111,15 +113,12 @@ def remote_config(
     return RemoteConfig(connect=connect, server=server, **settings)
 
 
-def remote_vector_env(server: Any, num_envs: int, **env_kwargs: Any) -> Any:
-    """``num_envs`` arenas on ``server`` (a :class:`ServerProcess`) as one remote vector
-    environment, with :func:`remote_config`'s test timeouts; ``env_kwargs``: the environment's
-    own (``preset``, ``overrides``, ``parts``)."""
-    import gymnasium as gym
-
-    import overtake.client  # noqa: F401  (registers the environments)
-    from overtake.envs import REMOTE_HIGHWAY_ENV_ID
-
+def remote_vector_env(
+    server: ServerProcess, num_envs: int, **env_kwargs: Any
+) -> gym.vector.VectorEnv:
+    """``num_envs`` arenas on ``server`` as one remote vector environment, with
+    :func:`remote_config`'s test timeouts; ``env_kwargs``: the environment's own (``preset``,
+    ``overrides``, ``parts``)."""
     return gym.make_vec(
         REMOTE_HIGHWAY_ENV_ID,
         num_envs=num_envs,
